@@ -1,0 +1,204 @@
+"""A station's Zenoh session. Everything a station publishes to a neighbour goes through
+the link emulator of that hop and direction at this station's egress (one shared queue
+per direction); everything it receives is decoded and validated before the station sees
+it. Control (link profiles) and observation (link statistics, liveliness) keys bypass
+the emulator: they belong to the testbed, not to the system under test."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from common import keys
+from common.errors import AbyssError, BadMessage, BusError, ConfigError
+from common.messages import LinkControl, LinkStats, Message, Received, decode, encode
+from linkemu.profile import LinkProfile, profile as named_profile
+from linkemu.runner import LinkRunner
+
+log = logging.getLogger(__name__)
+LINKSTATS_PERIOD_S = 1.0
+
+
+def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
+                 mode: str = "peer") -> zenoh.Config:
+    """Explicit endpoints, multicast scouting off: stations find each other only where told."""
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    return config
+
+
+def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise BusError(f"{what}: cannot open the Zenoh session ({exc}); check that the listen "
+                       "endpoints are free and of the form tcp/HOST:PORT") from None
+
+
+class Inbox:
+    """Messages received on one key, newest last; bounded."""
+
+    def __init__(self, maxlen: int) -> None:
+        self._items: deque[Received] = deque(maxlen=maxlen)
+        self._lock = threading.Lock()
+
+    def put(self, item: Received) -> None:
+        with self._lock:
+            self._items.append(item)
+
+    def latest(self) -> Received | None:
+        with self._lock:
+            return self._items[-1] if self._items else None
+
+    def drain(self) -> list[Received]:
+        with self._lock:
+            items = list(self._items)
+            self._items.clear()
+            return items
+
+
+class Bus:
+    """Publish and subscribe for one station of one system."""
+
+    def __init__(self, system: str, station: str, profiles: dict[str, LinkProfile], *,
+                 listen: Sequence[str] = (), connect: Sequence[str] = (), seed: int = 0,
+                 link_mode: str = "emulated") -> None:
+        self.system = keys.check_system_id(system)
+        self.station = keys.check_station(station)
+        self.stop = threading.Event()
+        self.sent: Counter[str] = Counter()
+        self.received: Counter[str] = Counter()
+        self.rejected: Counter[str] = Counter()
+        self._reasons_logged: set[tuple[str, str]] = set()
+        self._seq: Counter[str] = Counter()
+        self._closing: list[Any] = []
+        self.session = open_session(zenoh_config(listen, connect), f"station {station}")
+        self._publishers = {
+            s.key(system): self.session.declare_publisher(
+                s.key(system),
+                congestion_control=zenoh.CongestionControl.BLOCK
+                if s.reliability == "reliable" else zenoh.CongestionControl.DROP,
+            )
+            for s in keys.KEYS if s.station == station
+        }
+        self.links: dict[str, LinkRunner] = {}
+        for hop, neighbour in keys.hops_of(station).items():
+            rng = np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
+            self.links[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
+                                         self._put, rng, passthrough=link_mode == "netem")
+            self._closing.append(self.session.declare_subscriber(
+                keys.link_key(system, hop), lambda s, h=hop: self._on_link_control(h, s)))
+            self._closing.append(self.session.declare_queryable(
+                keys.link_key(system, hop), lambda q, h=hop: self._on_link_query(h, q)))
+        self._token = self.session.liveliness().declare_token(keys.alive_key(system, station))
+        self._stats_thread = threading.Thread(target=self._publish_linkstats, daemon=True)
+        self._stats_thread.start()
+
+    # -- data plane ----------------------------------------------------------------------
+    def publish(self, topic: str, message: Message) -> bool:
+        """Send on `abyss/<system>/<this station>/<topic>` over its hop; False if the link
+        dropped it (queue full, congestion control DROP)."""
+        spec = keys.spec(self.station, topic)
+        if message.TYPE != spec.message:
+            raise ConfigError(topic, f"carries {spec.message}, not {message.TYPE}")
+        key = spec.key(self.system)
+        payload = encode(message, self._seq[key], time.time())
+        self._seq[key] += 1
+        self.sent[key] += 1
+        return self.links[spec.hop].send(payload, spec.reliability == "reliable", tag=key)
+
+    def subscribe(self, station: str, topic: str, maxlen: int = 64) -> Inbox:
+        """Receive what neighbour `station` publishes on `topic`."""
+        spec = keys.spec(station, topic)
+        if spec.to != self.station:
+            raise ConfigError(f"{station}/{topic}", f"is sent to {spec.to}, not to {self.station}")
+        inbox = Inbox(maxlen)
+        key = spec.key(self.system)
+        self._closing.append(self.session.declare_subscriber(
+            key, lambda sample: self._on_sample(key, spec.message, sample, inbox)))
+        return inbox
+
+    def _put(self, key: str, payload: bytes) -> None:
+        self._publishers[key].put(payload)
+
+    def _on_sample(self, key: str, expected: str, sample: zenoh.Sample, inbox: Inbox) -> None:
+        try:
+            received = decode(key, sample.payload.to_bytes(), expected)
+        except BadMessage as exc:
+            self.reject(key, exc.reason)
+            return
+        self.received[key] += 1
+        inbox.put(received)
+
+    def reject(self, key: str, reason: str) -> None:
+        """Count a malformed input, and log its reason the first time it is seen."""
+        self.rejected[key] += 1
+        if (key, reason) not in self._reasons_logged:
+            self._reasons_logged.add((key, reason))
+            log.warning("dropped a message on %s: %s", key, reason)
+
+    # -- control and observation ---------------------------------------------------------
+    def observe(self, key: str, message: Message) -> None:
+        """Publish on an observation key, outside the emulated links."""
+        self.session.put(key, encode(message, self._seq[key], time.time()))
+        self._seq[key] += 1
+
+    def _on_link_control(self, hop: str, sample: zenoh.Sample) -> None:
+        key = keys.link_key(self.system, hop)
+        try:
+            control = decode(key, sample.payload.to_bytes(), "LinkControl").message
+            assert isinstance(control, LinkControl)
+            runner = self.links[hop]
+            base = named_profile(control.profile) if control.profile else runner.profile
+            runner.reconfigure(base.with_fields(control.overrides))
+        except AbyssError as exc:
+            self.reject(key, str(exc))
+            return
+        self.received[key] += 1
+        log.info("link %s now %s %s", runner.name, runner.profile.name, runner.profile.fields())
+
+    def link_stats(self, hop: str) -> LinkStats:
+        runner = self.links[hop]
+        return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,
+                         fields=runner.profile.fields(), stats=runner.snapshot())
+
+    def _on_link_query(self, hop: str, query: zenoh.Query) -> None:
+        query.reply(keys.link_key(self.system, hop), encode(self.link_stats(hop), 0, time.time()))
+
+    def _publish_linkstats(self) -> None:
+        while not self.stop.wait(LINKSTATS_PERIOD_S):
+            for hop in self.links:
+                self.observe(keys.linkstats_key(self.system, self.station, hop), self.link_stats(hop))
+
+    # -- life ----------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """What this station did, for summary.json."""
+        links = {}
+        for hop in self.links:
+            stats = self.link_stats(hop)
+            links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
+        return {"sent": dict(self.sent), "received": dict(self.received),
+                "rejected": dict(self.rejected), "links": links}
+
+    def close(self, drain_s: float = 0.5) -> None:
+        self.stop.set()
+        for runner in self.links.values():
+            runner.close(drain_s)
+        self._stats_thread.join(timeout=2.0)
+        self._token.undeclare()
+        for entity in self._closing:
+            entity.undeclare()
+        for publisher in self._publishers.values():
+            publisher.undeclare()
+        self.session.close()

@@ -1,0 +1,198 @@
+"""Typed configuration: frozen dataclasses loaded from TOML (or the JSON that `abyss up`
+hands its stations), overridable from the command line with `--set section.field=value`.
+Every error names the file, the field and what is allowed."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from common import keys
+from common.errors import ConfigError
+from linkemu.profile import LinkProfile, load_profiles, profile
+
+@dataclass(frozen=True)
+class LinksConfig:
+    """Profile name per hop, from linkemu/profiles.toml."""
+
+    rov: str = "ideal"
+    tether: str = "tether"
+    satellite: str = "satellite"
+
+    def __post_init__(self) -> None:
+        available = load_profiles()
+        for hop in keys.HOPS:
+            name = getattr(self, hop)
+            if name not in available:
+                raise ConfigError(f"links.{hop}", f"unknown profile {name!r}; allowed: "
+                                                  f"{', '.join(sorted(available))}")
+
+    def profiles(self) -> dict[str, LinkProfile]:
+        return {hop: profile(getattr(self, hop)) for hop in keys.HOPS}
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    physics_step_s: float = 0.002  # [s]
+    control_period_s: float = 0.05  # [s] rate of nav output and command intake
+    command_timeout_s: float = 0.5  # [s] older commands make the low level hold still
+    realtime_factor: float = 1.0
+    start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -5.0)
+
+    def __post_init__(self) -> None:
+        _positive("simulation.physics_step_s", self.physics_step_s)
+        _positive("simulation.realtime_factor", self.realtime_factor)
+        steps = self.control_period_s / self.physics_step_s
+        if steps < 1 or not math.isclose(steps, round(steps), rel_tol=0, abs_tol=1e-9):
+            raise ConfigError("simulation.control_period_s",
+                              f"{self.control_period_s} s is not a whole multiple of "
+                              f"physics_step_s = {self.physics_step_s} s")
+
+
+@dataclass(frozen=True)
+class OnboardConfig:
+    control_period_s: float = 0.05  # [s]
+    telemetry_period_s: float = 0.1  # [s]
+    kp_position: float = 0.6  # [1/s]
+    ki_position: float = 0.05  # [1/s^2]
+    kp_heading: float = 1.0  # [1/s]
+    ki_heading: float = 0.05  # [1/s^2]
+    max_speed_mps: float = 0.5  # [m/s]
+    max_yaw_rate_radps: float = 0.5  # [rad/s]
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _positive(f"onboard.{f.name}", getattr(self, f.name), allow_zero=f.name.startswith("ki"))
+
+
+@dataclass(frozen=True)
+class VesselConfig:
+    telemetry_period_s: float = 0.5  # [s] telemetry relayed to shore, downsampled
+
+    def __post_init__(self) -> None:
+        _positive("vessel.telemetry_period_s", self.telemetry_period_s)
+
+
+@dataclass(frozen=True)
+class MissionConfig:
+    # rows of x, y, z [m, world] and yaw [rad]
+    waypoints: tuple[tuple[float, float, float, float], ...] = (
+        (2.0, 0.0, -5.0, 0.0), (2.0, 2.0, -5.0, 1.5708), (0.0, 2.0, -5.0, 3.1416))
+    position_tolerance_m: float = 0.15
+    heading_tolerance_rad: float = 0.1
+    resend_period_s: float = 2.0  # [s] shore resends the mission until telemetry shows it
+
+    def __post_init__(self) -> None:
+        if not 1 <= len(self.waypoints) <= 1000:
+            raise ConfigError("mission.waypoints", "needs 1 to 1000 rows of [x, y, z, yaw]")
+        _positive("mission.position_tolerance_m", self.position_tolerance_m)
+        _positive("mission.heading_tolerance_rad", self.heading_tolerance_rad)
+
+
+@dataclass(frozen=True)
+class Config:
+    system: str = "default"
+    seed: int = 0
+    links: LinksConfig = field(default_factory=LinksConfig)
+    simulation: SimulationConfig = field(default_factory=SimulationConfig)
+    onboard: OnboardConfig = field(default_factory=OnboardConfig)
+    vessel: VesselConfig = field(default_factory=VesselConfig)
+    mission: MissionConfig = field(default_factory=MissionConfig)
+
+    def __post_init__(self) -> None:
+        keys.check_system_id(self.system)
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2)
+
+
+def _positive(name: str, value: float, allow_zero: bool = False) -> None:
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        raise ConfigError(name, f"{value} must be a positive number")
+
+
+def _coerce(name: str, kind: Any, value: Any) -> Any:
+    """Check `value` against the type hint `kind`, converting CLI strings."""
+    origin = typing.get_origin(kind)
+    if dataclasses.is_dataclass(kind):
+        return _build(kind, value, name)
+    if origin is tuple:
+        args = typing.get_args(kind)
+        if isinstance(value, str):
+            value = json.loads(value)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(name, f"expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(f"{name}[{i}]", args[0], v) for i, v in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(name, f"expected {len(args)} values, got {len(value)}")
+        return tuple(_coerce(f"{name}[{i}]", a, v) for i, (a, v) in enumerate(zip(args, value, strict=True)))
+    if kind is float:
+        try:
+            number = float(value) if not isinstance(value, bool) else math.nan
+        except (TypeError, ValueError):
+            number = math.nan
+        if not math.isfinite(number):
+            raise ConfigError(name, f"expected a finite number, got {value!r}")
+        return number
+    if kind is int:
+        if isinstance(value, str) and value.strip().lstrip("-").isdigit():
+            value = int(value)
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(name, f"expected a whole number, got {value!r}")
+        return value
+    if kind is str:
+        if not isinstance(value, str):
+            raise ConfigError(name, f"expected a string, got {value!r}")
+        return value
+    raise ConfigError(name, f"unsupported type {kind}")
+
+
+def _build(cls: Any, table: Any, prefix: str = "") -> Any:
+    if not isinstance(table, dict):
+        raise ConfigError(prefix or "config", f"expected a table, got {table!r}")
+    hints = typing.get_type_hints(cls)
+    allowed = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(table) - allowed
+    if unknown:
+        raise ConfigError(f"{prefix}{'.' if prefix else ''}{sorted(unknown)[0]}",
+                          f"unknown field; allowed: {', '.join(sorted(allowed))}")
+    values = {n: _coerce(f"{prefix}{'.' if prefix else ''}{n}", hints[n], v) for n, v in table.items()}
+    return cls(**values)
+
+
+def load(path: Path | None = None, overrides: typing.Sequence[str] = (),
+         base: dict[str, Any] | None = None) -> Config:
+    """Defaults, then the file (TOML or JSON), then `section.field=value` overrides."""
+    table: dict[str, Any] = dict(base or {})
+    source = str(path) if path else "--set"
+    if path is not None:
+        try:
+            text = path.read_text()
+            table = json.loads(text) if path.suffix == ".json" else tomllib.loads(text)
+        except (OSError, ValueError) as exc:
+            raise ConfigError("config", f"cannot read: {exc}", source) from None
+    for item in overrides:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ConfigError("--set", f"{item!r} is not section.field=value")
+        *sections, leaf = name.split(".")
+        node = table
+        for section in sections:
+            node = node.setdefault(section, {})
+            if not isinstance(node, dict):
+                raise ConfigError(name, "is not a section")
+        node[leaf] = value
+    try:
+        return typing.cast(Config, _build(Config, table))
+    except ConfigError as exc:
+        raise ConfigError(exc.field, exc.reason, source) from None
+    except json.JSONDecodeError as exc:
+        raise ConfigError("config", f"bad list value: {exc}", source) from None
+

@@ -1,0 +1,144 @@
+"""Key expressions and the table of every key the system uses.
+
+`abyss/<system>/<station>/<topic>`: `<station>` is the publisher. `key()` is the only
+function that formats a key; everything else asks it. `KEYS` is the one table of data
+keys: publisher, topic, message type, rate, reliability and the hop it crosses. The
+README's key table and `abyss keys` are both generated from it.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+from common.errors import ConfigError
+
+PREFIX = "abyss"
+STATIONS: tuple[str, ...] = ("simulation", "onboard", "vessel", "onshore")
+# hop name -> the two stations it joins, in the order of the chain.
+HOPS: dict[str, tuple[str, str]] = {
+    "rov": ("simulation", "onboard"),
+    "tether": ("onboard", "vessel"),
+    "satellite": ("vessel", "onshore"),
+}
+_SYSTEM_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+Reliability = Literal["reliable", "best-effort"]
+
+
+def check_system_id(system: str) -> str:
+    if not _SYSTEM_ID.match(system):
+        raise ConfigError("system", f"{system!r} is not 1-64 characters of [A-Za-z0-9_-]")
+    return system
+
+
+def check_station(station: str) -> str:
+    if station not in STATIONS:
+        raise ConfigError("station", f"unknown station {station!r}; allowed: {', '.join(STATIONS)}")
+    return station
+
+
+def check_hop(hop: str) -> str:
+    if hop not in HOPS:
+        raise ConfigError("hop", f"unknown hop {hop!r}; allowed: {', '.join(HOPS)}")
+    return hop
+
+
+def key(system: str, *parts: str) -> str:
+    """The key `abyss/<system>/<part>/...`; the only place keys are formatted."""
+    return "/".join((PREFIX, system, *parts))
+
+
+def hops_of(station: str) -> dict[str, str]:
+    """Hops adjacent to `station`, each mapped to the neighbour at its other end."""
+    return {hop: (b if a == station else a) for hop, (a, b) in HOPS.items() if station in (a, b)}
+
+
+def hop_between(a: str, b: str) -> str:
+    for hop, ends in HOPS.items():
+        if set(ends) == {a, b}:
+            return hop
+    raise ConfigError("hop", f"{a} and {b} are not neighbours; hops: {HOPS}")
+
+
+@dataclass(frozen=True)
+class KeySpec:
+    """One data key: who publishes it, what it carries, how often, over which hop."""
+
+    station: str
+    topic: str
+    message: str  # a message type name from common.messages
+    rate_hz: float  # nominal rate; 0 for event-driven keys
+    reliability: Reliability  # reliable: congestion control BLOCK; best-effort: DROP
+    to: str  # the neighbour that subscribes
+
+    @property
+    def hop(self) -> str:
+        return hop_between(self.station, self.to)
+
+    def key(self, system: str) -> str:
+        return key(system, self.station, self.topic)
+
+
+KEYS: tuple[KeySpec, ...] = (
+    KeySpec("simulation", "nav", "NavState", 20.0, "best-effort", "onboard"),
+    KeySpec("onboard", "cmd/vehicle_velocity", "VelocityRef", 20.0, "best-effort", "simulation"),
+    KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel"),
+    KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard"),
+    KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore"),
+    KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel"),
+)
+
+
+def spec(station: str, topic: str) -> KeySpec:
+    for s in KEYS:
+        if s.station == station and s.topic == topic:
+            return s
+    raise ConfigError("key", f"no key {station}/{topic} in common.keys.KEYS")
+
+
+# Control and observation keys: not carried over an emulated hop.
+def link_key(system: str, hop: str) -> str:
+    """Profile of a hop: queryable (current profile and stats), settable (LinkControl)."""
+    return key(system, "link", check_hop(hop))
+
+
+def linkstats_key(system: str, station: str, hop: str) -> str:
+    return key(system, station, "linkstats", hop)
+
+
+def alive_key(system: str, station: str) -> str:
+    """Liveliness token of a running station."""
+    return key(system, station, "alive")
+
+
+def mission_key(system: str) -> str:
+    """Mission status as the operator sees it, published on shore."""
+    return key(system, "onshore", "mission")
+
+
+CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
+    # (key pattern, message, rate, note)
+    ("abyss/<system>/link/<hop>", "LinkControl", "event", "put: change a hop's profile; get: profiles and stats"),
+    ("abyss/<system>/<station>/linkstats/<hop>", "LinkStats", "1 Hz", "what each emulator measured"),
+    ("abyss/<system>/<station>/alive", "liveliness", "-", "token held while the station runs"),
+    ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
+)
+
+
+def keys_table() -> str:
+    """The Markdown table of every key; `abyss keys` prints it, the README holds it."""
+    rows = [
+        "| key | message | rate | reliability | hop |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    for s in KEYS:
+        rate = f"{s.rate_hz:g} Hz" if s.rate_hz else "event"
+        rows.append(
+            f"| `abyss/<system>/{s.station}/{s.topic}` | {s.message} | {rate} | {s.reliability} "
+            f"| {s.hop} ({s.station} -> {s.to}) |"
+        )
+    for pattern, message, rate, note in CONTROL_KEYS:
+        rows.append(f"| `{pattern}` | {message} | {rate} | reliable | none: {note} |")
+    return "\n".join(rows)

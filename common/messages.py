@@ -1,0 +1,266 @@
+"""Message types and their msgpack codec, with validation on both sides.
+
+A message on the wire is a msgpack map: `type` (name), `version` (schema version),
+`seq` (per-key sequence number), `stamp_s` (sender's wall clock [s]) and `body` (the
+fields). numpy arrays travel as `{dtype, shape, data}` with raw little-endian bytes.
+`decode()` checks the type, the version, every field's type, dtype, shape, range and
+finiteness, and raises `BadMessage` with the reason; nothing malformed gets further.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import msgpack
+import numpy as np
+
+from common.errors import BadMessage
+
+MESSAGES: dict[str, type[Message]] = {}
+
+
+def array(dtype: str, shape: tuple[int | None, ...], lo: float = -math.inf,
+          hi: float = math.inf, max_rows: int = 100_000) -> Any:
+    """A numpy array field: fixed dtype, shape (None: any length up to max_rows), range."""
+    return field(metadata={"dtype": np.dtype(dtype), "shape": shape, "lo": lo, "hi": hi,
+                           "max_rows": max_rows})
+
+
+def scalar(lo: float = -math.inf, hi: float = math.inf, choices: tuple[str, ...] = ()) -> Any:
+    return field(metadata={"lo": lo, "hi": hi, "choices": choices})
+
+
+def _check_number(name: str, value: Any, kind: type, lo: float, hi: float) -> Any:
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or isinstance(value, bool):
+        raise ValueError(f"{name}: expected {kind.__name__}, got {type(value).__name__}")
+    if kind is float and not math.isfinite(value):
+        raise ValueError(f"{name}: not finite ({value})")
+    if not lo <= value <= hi:
+        raise ValueError(f"{name}: {value} outside [{lo}, {hi}]")
+    return value
+
+
+def _check_array(name: str, value: Any, meta: dict[str, Any]) -> np.ndarray:
+    if not isinstance(value, np.ndarray):
+        value = np.asarray(value, dtype=meta["dtype"])
+    if value.dtype != meta["dtype"]:
+        raise ValueError(f"{name}: dtype {value.dtype}, expected {meta['dtype']}")
+    shape = meta["shape"]
+    if value.ndim != len(shape) or any(
+        want is not None and got != want for got, want in zip(value.shape, shape, strict=True)
+    ):
+        raise ValueError(f"{name}: shape {value.shape}, expected {shape} (None: any)")
+    if value.ndim and value.shape[0] > meta["max_rows"]:
+        raise ValueError(f"{name}: {value.shape[0]} rows, at most {meta['max_rows']}")
+    if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+        raise ValueError(f"{name}: contains NaN or infinity")
+    if value.size and (value.min() < meta["lo"] or value.max() > meta["hi"]):
+        raise ValueError(f"{name}: values outside [{meta['lo']}, {meta['hi']}]")
+    value = np.array(value, copy=True)
+    value.flags.writeable = False
+    return value
+
+
+def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
+    if kind is np.ndarray:
+        return _check_array(name, value, meta)
+    if kind in (float, int):
+        return _check_number(name, value, kind, meta.get("lo", -math.inf), meta.get("hi", math.inf))
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{name}: expected bool, got {type(value).__name__}")
+        return value
+    if kind is str:
+        if not isinstance(value, str) or len(value) > 4096:
+            raise ValueError(f"{name}: expected a string of at most 4096 characters")
+        if meta.get("choices") and value not in meta["choices"]:
+            raise ValueError(f"{name}: {value!r} not one of {meta['choices']}")
+        return value
+    if typing.get_origin(kind) is dict:
+        value_kind = typing.get_args(kind)[1]
+        if not isinstance(value, dict) or len(value) > 256:
+            raise ValueError(f"{name}: expected a map of at most 256 entries")
+        return {
+            _check_field(f"{name} key", str, k, {}): _check_field(f"{name}[{k}]", value_kind, v, {})
+            for k, v in value.items()
+        }
+    raise TypeError(f"{name}: unsupported field type {kind}")
+
+
+@dataclass(frozen=True)
+class Message:
+    """Base of every message: a frozen dataclass validated on construction."""
+
+    TYPE: ClassVar[str] = ""
+    VERSION: ClassVar[int] = 1
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.TYPE = cls.__name__
+        MESSAGES[cls.TYPE] = cls
+
+    def __post_init__(self) -> None:
+        hints = typing.get_type_hints(type(self))
+        for f in dataclasses.fields(self):
+            checked = _check_field(f.name, hints[f.name], getattr(self, f.name), f.metadata)
+            object.__setattr__(self, f.name, checked)
+
+
+@dataclass(frozen=True)
+class NavState(Message):
+    """Vehicle navigation state, simulation -> onboard."""
+
+    position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0, 1.0)
+    velocity_mps_body: np.ndarray = array("f8", (3,), -100.0, 100.0)
+    angular_velocity_radps_body: np.ndarray = array("f8", (3,), -100.0, 100.0)
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        norm = float(np.linalg.norm(self.orientation_wxyz_world))
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"orientation_wxyz_world: not a unit quaternion (norm {norm:.4f})")
+
+
+@dataclass(frozen=True)
+class VelocityRef(Message):
+    """Vehicle velocity reference in the body frame, onboard -> simulation."""
+
+    linear_mps_body: np.ndarray = array("f8", (3,), -10.0, 10.0)
+    yaw_rate_radps: float = scalar(-5.0, 5.0)
+
+
+MODES = ("idle", "moving", "reached", "hold")
+
+
+@dataclass(frozen=True)
+class Telemetry(Message):
+    """What the operator needs of the vehicle, onboard -> vessel -> onshore."""
+
+    position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
+    mode: str = scalar(choices=MODES)
+    waypoint_index: int = scalar(0, 1000)
+    waypoints_total: int = scalar(0, 1000)
+    position_error_m: float = scalar(0.0)
+    heading_error_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
+    sim_time_s: float = scalar(0.0)
+
+
+@dataclass(frozen=True)
+class Waypoints(Message):
+    """A list of waypoints, rows of x, y, z [m, world] and yaw [rad]; onshore -> vessel -> onboard."""
+
+    command_id: int = scalar(0, 2**53)
+    waypoints: np.ndarray = array("f8", (None, 4), -1e5, 1e5, max_rows=1000)
+
+
+@dataclass(frozen=True)
+class LinkControl(Message):
+    """A change of a hop's profile: a named profile, then field overrides ('20mbit', '5%')."""
+
+    profile: str = ""
+    overrides: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LinkStats(Message):
+    """What one emulated link direction measured."""
+
+    hop: str = ""
+    direction: str = ""  # "<sender>-><receiver>"
+    profile: str = ""
+    fields: dict[str, str] = field(default_factory=dict)  # the profile as written
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MissionStatus(Message):
+    mode: str = scalar(choices=MODES)
+    waypoint_index: int = scalar(0, 1000)
+    waypoints_total: int = scalar(0, 1000)
+    position_error_m: float = scalar(0.0)
+    done: bool = False
+
+
+def _pack(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        little = value.astype(value.dtype.newbyteorder("<"), copy=False)
+        return {"dtype": value.dtype.str, "shape": list(value.shape), "data": little.tobytes()}
+    return value
+
+
+def encode(message: Message, seq: int, stamp_s: float) -> bytes:
+    body = {f.name: _pack(getattr(message, f.name)) for f in dataclasses.fields(message)}
+    return msgpack.packb(
+        {"type": message.TYPE, "version": message.VERSION, "seq": seq, "stamp_s": stamp_s,
+         "body": body},
+        use_bin_type=True,
+    )
+
+
+@dataclass(frozen=True)
+class Received:
+    """A decoded message with its envelope."""
+
+    key: str
+    message: Message
+    seq: int
+    stamp_s: float
+
+
+def _unpack_array(name: str, raw: Any, meta: dict[str, Any]) -> np.ndarray:
+    if not isinstance(raw, dict) or set(raw) != {"dtype", "shape", "data"}:
+        raise ValueError(f"{name}: expected an array map with dtype, shape and data")
+    dtype = np.dtype(meta["dtype"]).newbyteorder("<")
+    if raw["dtype"] != dtype.str:
+        raise ValueError(f"{name}: dtype {raw['dtype']!r}, expected {dtype.str!r}")
+    shape = raw["shape"]
+    if not isinstance(shape, list) or not all(isinstance(n, int) and n >= 0 for n in shape):
+        raise ValueError(f"{name}: bad shape {shape!r}")
+    if not isinstance(raw["data"], bytes) or len(raw["data"]) != dtype.itemsize * math.prod(shape):
+        raise ValueError(f"{name}: {len(raw['data'])} data bytes do not fill shape {shape}")
+    return np.frombuffer(raw["data"], dtype=dtype).reshape(shape).astype(meta["dtype"])
+
+
+def decode(key: str, data: bytes, expected: str | None = None) -> Received:
+    """Decode and validate; raises BadMessage(key, reason) on anything malformed."""
+    try:
+        envelope = msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types on bad bytes
+        raise BadMessage(key, f"not msgpack: {exc}") from None
+    if not isinstance(envelope, dict) or set(envelope) != {"type", "version", "seq", "stamp_s", "body"}:
+        raise BadMessage(key, "not a message envelope (type, version, seq, stamp_s, body)")
+    name = envelope["type"]
+    cls = MESSAGES.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise BadMessage(key, f"unknown message type {name!r}")
+    if expected is not None and name != expected:
+        raise BadMessage(key, f"message type {name}, expected {expected}")
+    if envelope["version"] != cls.VERSION:
+        raise BadMessage(key, f"{name} schema version {envelope['version']!r}, expected {cls.VERSION}")
+    seq, stamp_s, body = envelope["seq"], envelope["stamp_s"], envelope["body"]
+    if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
+        raise BadMessage(key, f"bad sequence number {seq!r}")
+    if not isinstance(stamp_s, float) or not math.isfinite(stamp_s):
+        raise BadMessage(key, f"bad stamp {stamp_s!r}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if not isinstance(body, dict) or set(body) != set(fields):
+        raise BadMessage(key, f"{name} fields {sorted(body) if isinstance(body, dict) else body!r}, "
+                              f"expected {sorted(fields)}")
+    try:
+        values = {
+            n: _unpack_array(n, v, dict(fields[n].metadata)) if "dtype" in fields[n].metadata else v
+            for n, v in body.items()
+        }
+        message = cls(**values)
+    except (ValueError, TypeError) as exc:
+        raise BadMessage(key, f"{name}: {exc}") from None
+    return Received(key, message, seq, stamp_s)

@@ -1,0 +1,87 @@
+"""The netem backend: a profile rendered as `tc qdisc ... netem ...` for an interface,
+applied, changed and removed.
+
+netem differs from the in-process emulator in ways it cannot be told out of:
+- netem's `limit` counts every packet it holds, delayed ones included, so the rendered
+  limit is the profile's queue plus the packets in flight over the delay (rate x delay);
+- with jitter, netem reorders packets whose spacing is below the jitter unless `rate` is
+  set; when it is (always, below, unless the rate is unlimited), netem keeps order but
+  adds each packet's jitter to its queueing time rather than after serialisation;
+- netem has no transport model: TCP retransmission and congestion control are the
+  kernel's own, which is the real thing;
+- `correlation` in netem mixes the previous value in and shrinks the variance; the
+  in-process emulator keeps the variance.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+
+from common.errors import LinkError
+from linkemu.profile import LinkProfile
+from linkemu.units import format_fraction, format_rate, format_time
+
+
+def netem_args(profile: LinkProfile) -> list[str]:
+    """The netem options for `profile` (after `netem`)."""
+    args: list[str] = []
+    if profile.delay_s or profile.jitter_s:
+        args += ["delay", format_time(profile.delay_s)]
+        if profile.jitter_s:
+            args += [format_time(profile.jitter_s)]
+            if profile.correlation:
+                args += [format_fraction(profile.correlation)]
+            args += ["distribution", profile.distribution]
+    if profile.loss_model == "gilbert-elliott":
+        args += ["loss", "gemodel", format_fraction(profile.ge_p), format_fraction(profile.ge_r),
+                 format_fraction(profile.ge_loss_bad), format_fraction(profile.ge_loss_good)]
+    elif profile.loss:
+        args += ["loss", "random", format_fraction(profile.loss)]
+    if profile.corrupt:
+        args += ["corrupt", format_fraction(profile.corrupt)]
+    if profile.duplicate:
+        args += ["duplicate", format_fraction(profile.duplicate)]
+    if profile.reorder:
+        args += ["reorder", format_fraction(profile.reorder)]
+    if not math.isinf(profile.rate_bps):
+        args += ["rate", format_rate(profile.rate_bps)]
+    args += ["limit", str(netem_limit(profile))]
+    return args
+
+
+def netem_limit(profile: LinkProfile) -> int:
+    """netem's limit counts delayed packets too: the queue plus what is in flight."""
+    if math.isinf(profile.rate_bps):
+        return profile.queue_limit_packets
+    worst_delay_s = profile.delay_s + 4.0 * profile.jitter_s
+    in_flight = math.ceil(profile.rate_bps * worst_delay_s / (8.0 * profile.mtu_bytes))
+    return profile.queue_limit_packets + in_flight
+
+
+def tc_command(dev: str, profile: LinkProfile | None, netns: str | None = None) -> list[str]:
+    """`tc qdisc replace dev DEV root netem ...`, or `tc qdisc del dev DEV root` for None."""
+    prefix = ["ip", "netns", "exec", netns] if netns else []
+    if profile is None:
+        return [*prefix, "tc", "qdisc", "del", "dev", dev, "root"]
+    return [*prefix, "tc", "qdisc", "replace", "dev", dev, "root", "netem", *netem_args(profile)]
+
+
+def run_tc(command: list[str]) -> None:
+    """Run a tc command; translate the kernel's refusals into errors that say the fix."""
+    if shutil.which("tc") is None:
+        raise LinkError("tc not found: install iproute2 (apt-get install iproute2)")
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    if done.returncode == 0:
+        return
+    message = (done.stderr or done.stdout).strip()
+    if "qdisc kind is unknown" in message:
+        raise LinkError(f"the kernel has no sch_netem module ({message}); load it with "
+                        "`modprobe sch_netem` (Debian/Ubuntu: linux-modules-extra-$(uname -r))")
+    if "Operation not permitted" in message:
+        raise LinkError(f"changing a qdisc needs CAP_NET_ADMIN ({message}); run as root or give "
+                        "the container cap_add: [NET_ADMIN]")
+    if "Cannot find device" in message:
+        raise LinkError(f"no such interface: {message}")
+    raise LinkError(f"{' '.join(command)} failed: {message}")

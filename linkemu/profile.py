@@ -1,0 +1,177 @@
+"""Link profiles: what a hop does to traffic, named in `profiles.toml`.
+
+Delay and jitter are read as netem reads `delay 100ms 10ms distribution normal`:
+`delay` is the mean one-way delay and `jitter` the standard deviation of the chosen
+distribution (for `uniform`, the half-width). The paper's "100 ms mean delay with 10 ms
+variance" is therefore `delay = "100ms"`, `jitter = "10ms"`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from common.errors import ConfigError, UnknownProfile
+from linkemu.units import (
+    format_fraction,
+    format_rate,
+    format_time,
+    parse_fraction,
+    parse_rate_bps,
+    parse_size_bytes,
+    parse_time_s,
+)
+
+PROFILES_FILE = Path(__file__).with_name("profiles.toml")
+DISTRIBUTIONS = ("normal", "uniform", "pareto", "paretonormal")
+LOSS_MODELS = ("bernoulli", "gilbert-elliott")
+TRANSPORTS = ("tcp", "udp")
+
+
+def _choice(allowed: tuple[str, ...]) -> Callable[[str, Any], str]:
+    def parse(field: str, value: Any) -> str:
+        if value not in allowed:
+            raise ConfigError(field, f"{value!r} not one of {', '.join(allowed)}")
+        return str(value)
+    return parse
+
+
+def _integer(lo: int, hi: int) -> Callable[[str, Any], int]:
+    def parse(field: str, value: Any) -> int:
+        try:
+            number = int(str(value), 0) if not isinstance(value, bool) else None
+        except ValueError:
+            number = None
+        if number is None or not lo <= number <= hi:
+            raise ConfigError(field, f"{value!r} is not a whole number in [{lo}, {hi}]")
+        return number
+    return parse
+
+
+def _boolean(field: str, value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    if str(value).lower() in ("true", "on", "yes", "1"):
+        return True
+    if str(value).lower() in ("false", "off", "no", "0"):
+        return False
+    raise ConfigError(field, f"{value!r} is not true or false")
+
+
+def _str(value: Any) -> str:
+    return str(value).lower() if isinstance(value, bool) else str(value)
+
+
+# profile field as written (TOML, CLI) -> (dataclass attribute, parser, formatter)
+FIELDS: dict[str, tuple[str, Callable[[str, Any], Any], Callable[[Any], str]]] = {
+    "rate": ("rate_bps", parse_rate_bps, format_rate),
+    "delay": ("delay_s", parse_time_s, format_time),
+    "jitter": ("jitter_s", parse_time_s, format_time),
+    "distribution": ("distribution", _choice(DISTRIBUTIONS), _str),
+    "correlation": ("correlation", parse_fraction, format_fraction),
+    "loss_model": ("loss_model", _choice(LOSS_MODELS), _str),
+    "loss": ("loss", parse_fraction, format_fraction),
+    "ge_p": ("ge_p", parse_fraction, format_fraction),
+    "ge_r": ("ge_r", parse_fraction, format_fraction),
+    "ge_loss_bad": ("ge_loss_bad", parse_fraction, format_fraction),
+    "ge_loss_good": ("ge_loss_good", parse_fraction, format_fraction),
+    "corrupt": ("corrupt", parse_fraction, format_fraction),
+    "deliver_corrupt": ("deliver_corrupt", _boolean, _str),
+    "duplicate": ("duplicate", parse_fraction, format_fraction),
+    "reorder": ("reorder", parse_fraction, format_fraction),
+    "mtu": ("mtu_bytes", parse_size_bytes, lambda v: f"{v}B"),
+    "queue_limit": ("queue_limit_packets", _integer(1, 1_000_000), _str),
+    "transport": ("transport", _choice(TRANSPORTS), _str),
+    "seed": ("seed", _integer(0, 2**63 - 1), _str),
+}
+
+
+@dataclass(frozen=True)
+class LinkProfile:
+    """One direction of a hop. Units in names; see the module docstring for jitter."""
+
+    name: str = "ideal"
+    rate_bps: float = math.inf
+    delay_s: float = 0.0
+    jitter_s: float = 0.0
+    distribution: str = "normal"
+    correlation: float = 0.0  # delay correlation with the previous packet [0, 1)
+    loss_model: str = "bernoulli"
+    loss: float = 0.0  # Bernoulli loss probability per packet
+    ge_p: float = 0.0  # Gilbert-Elliott: P(good -> bad) per packet
+    ge_r: float = 1.0  # P(bad -> good)
+    ge_loss_bad: float = 1.0  # loss probability in the bad state (netem's 1-h)
+    ge_loss_good: float = 0.0  # loss probability in the good state (netem's 1-k)
+    corrupt: float = 0.0  # probability that a packet has one bit flipped
+    deliver_corrupt: bool = False  # hand corrupt bytes to the receiver (tests its decoder)
+    duplicate: float = 0.0
+    reorder: float = 0.0  # probability that a packet skips the delay and overtakes
+    mtu_bytes: int = 1500
+    queue_limit_packets: int = 1000
+    transport: str = "tcp"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.mtu_bytes < 128 or self.mtu_bytes > 65535:
+            raise ConfigError("mtu", f"{self.mtu_bytes}B outside [128B, 65535B]")
+        if self.correlation >= 1.0:
+            raise ConfigError("correlation", "must be below 100%")
+        for attr in ("delay_s", "jitter_s"):
+            if not 0.0 <= getattr(self, attr) <= 60.0:
+                raise ConfigError(attr, f"{getattr(self, attr)} s outside [0 s, 60 s]")
+
+    @property
+    def is_ideal(self) -> bool:
+        """Nothing to emulate: the link can be a pass-through."""
+        return (math.isinf(self.rate_bps) and self.delay_s == 0.0 and self.jitter_s == 0.0
+                and self.mean_loss == 0.0 and self.corrupt == 0.0 and self.duplicate == 0.0)
+
+    @property
+    def mean_loss(self) -> float:
+        """Long-run packet loss probability."""
+        if self.loss_model == "bernoulli":
+            return self.loss
+        if self.ge_p + self.ge_r == 0.0:
+            return self.ge_loss_good
+        bad = self.ge_p / (self.ge_p + self.ge_r)
+        return bad * self.ge_loss_bad + (1.0 - bad) * self.ge_loss_good
+
+    def with_fields(self, fields: Mapping[str, Any], source: str = "") -> LinkProfile:
+        """A copy with fields as written in TOML or on the command line (`rate='20mbit'`)."""
+        changes: dict[str, Any] = {}
+        for name, value in fields.items():
+            if name not in FIELDS:
+                raise ConfigError(name, f"unknown profile field; allowed: {', '.join(FIELDS)}", source)
+            attr, parse, _ = FIELDS[name]
+            try:
+                changes[attr] = parse(name, value)
+            except ConfigError as exc:
+                raise ConfigError(name, exc.reason, source) from None
+        return dataclasses.replace(self, **changes)
+
+    def fields(self) -> dict[str, str]:
+        """Every field as written, units included; `with_fields(fields())` is the identity."""
+        return {name: fmt(getattr(self, attr)) for name, (attr, _, fmt) in FIELDS.items()}
+
+
+def load_profiles(path: Path = PROFILES_FILE) -> dict[str, LinkProfile]:
+    try:
+        table = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError("profiles", f"cannot read: {exc}", str(path)) from None
+    return {
+        name: LinkProfile(name=name).with_fields(fields, source=f"{path} [{name}]")
+        for name, fields in table.items()
+    }
+
+
+def profile(name: str, overrides: Mapping[str, Any] | None = None) -> LinkProfile:
+    profiles = load_profiles()
+    if name not in profiles:
+        raise UnknownProfile(name, sorted(profiles))
+    return profiles[name].with_fields(overrides or {})

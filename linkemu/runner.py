@@ -1,0 +1,117 @@
+"""The link core on the wall clock: a thread per link direction that hands each message
+to `deliver` at the time the emulated link delivers it."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from linkemu.link import Delivery, Link, Offer
+from linkemu.profile import LinkProfile
+
+log = logging.getLogger(__name__)
+
+
+class LinkRunner:
+    """Thread-safe wrapper of a `Link`. The ideal profile is a pass-through on the caller's
+    thread, still counted; `passthrough=True` (the netem backend) forces that."""
+
+    def __init__(self, name: str, profile: LinkProfile, deliver: Callable[[Any, bytes], None],
+                 rng: np.random.Generator, passthrough: bool = False) -> None:
+        self.name = name
+        self.deliver = deliver
+        self.passthrough = passthrough
+        self.link = Link(profile, rng)
+        self.late_s: list[float] = []  # actual - scheduled delivery time, last 4096
+        self._cond = threading.Condition()
+        self._closed = False
+        self._thread = threading.Thread(target=self._loop, name=f"link-{name}", daemon=True)
+        self._thread.start()
+
+    @property
+    def profile(self) -> LinkProfile:
+        return self.link.profile
+
+    def _direct(self) -> bool:
+        return self.passthrough or self.link.profile.is_ideal
+
+    def send(self, payload: bytes, block: bool, tag: Any = None) -> bool:
+        """Offer a message; False if the link dropped it (queue full with DROP).
+        With `block`, wait for room in the queue as Zenoh's BLOCK does."""
+        with self._cond:
+            if self._direct() and self.link.in_flight() == 0:
+                counters = self.link.counters
+                counters["messages_offered"] += 1
+                counters["messages_delivered"] += 1
+                counters["bytes_offered"] += len(payload)
+                counters["bytes_delivered"] += len(payload)
+                direct = True
+            else:
+                direct = False
+                while True:
+                    if self._closed:
+                        return False
+                    result = self.link.offer(time.monotonic(), payload, block, tag)
+                    if result is not Offer.FULL:
+                        break
+                    self._cond.wait(0.05)
+                self._cond.notify_all()
+        if direct:
+            self.deliver(tag, payload)
+            return True
+        return result is Offer.ACCEPTED
+
+    def reconfigure(self, profile: LinkProfile) -> None:
+        with self._cond:
+            self.link.reconfigure(profile)
+            self._cond.notify_all()
+
+    def snapshot(self) -> dict[str, float]:
+        with self._cond:
+            stats = self.link.snapshot()
+            if self.late_s:
+                p50, p99 = np.percentile(self.late_s, [50, 99])
+                stats.update(late_p50_us=float(p50) * 1e6, late_p99_us=float(p99) * 1e6)
+            return stats
+
+    def close(self, drain_s: float = 0.0) -> None:
+        """Stop; with `drain_s`, first wait that long for messages still in flight. Whatever
+        is still in flight then is counted as `undelivered_at_close`."""
+        deadline = time.monotonic() + drain_s
+        with self._cond:
+            while self.link.in_flight() and time.monotonic() < deadline:
+                self._cond.wait(0.05)
+            self.link.counters["undelivered_at_close"] = self.link.in_flight()
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(timeout=2.0)
+
+    def _loop(self) -> None:
+        while True:
+            with self._cond:
+                if self._closed:
+                    return
+                now_s = time.monotonic()
+                ready: list[Delivery] = self.link.advance(now_s)
+                for d in ready:
+                    self._record_lateness(now_s - d.delivered_s)
+                if ready:
+                    self._cond.notify_all()  # room in the queue for blocked senders
+                next_s = self.link.next_event_s()
+                if not ready:
+                    self._cond.wait(None if next_s is None else max(0.0, next_s - now_s))
+            for d in ready:
+                try:
+                    self.deliver(d.tag, d.payload)
+                except Exception:  # a failing subscriber must not stop the link
+                    log.exception("link %s: delivery failed", self.name)
+
+    def _record_lateness(self, late_s: float) -> None:
+        if len(self.late_s) >= 4096:
+            del self.late_s[:1024]
+        self.late_s.append(late_s)

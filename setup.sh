@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Set up abyss on a fresh Debian/Ubuntu machine with Python 3.11:
+# system libraries for offscreen rendering (Mesa EGL/OSMesa) and Open3D (libusb),
+# then a virtual environment in .venv with the package and its test tools.
+set -euo pipefail
+cd "$(dirname "$0")"
+
+APT_PACKAGES="libegl1 libegl-mesa0 libosmesa6 libgl1 libusb-1.0-0 libgomp1 iproute2"
+missing=""
+for p in $APT_PACKAGES; do
+  dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  if [ "$(id -u)" = 0 ]; then
+    echo "setup: installing system libraries:$missing"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >/dev/null
+  else
+    echo "setup: missing system libraries; run as root:" >&2
+    echo "  sudo apt-get install -y$missing" >&2
+    exit 1
+  fi
+fi
+
+PYTHON="${PYTHON:-python3.11}"
+command -v "$PYTHON" >/dev/null || PYTHON=python3
+"$PYTHON" -c 'import sys; assert sys.version_info[:2] >= (3, 11), sys.version' \
+  || { echo "setup: abyss needs Python 3.11 or newer ($PYTHON is older)" >&2; exit 1; }
+[ -x .venv/bin/python ] || "$PYTHON" -m venv .venv
+stamp=.venv/.abyss-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "setup: installing Python packages into .venv (first time: a few minutes)"
+  .venv/bin/python -m pip install -q --upgrade pip
+  .venv/bin/python -m pip install -q -e '.[test]'
+  touch "$stamp"
+fi

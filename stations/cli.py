@@ -1,0 +1,228 @@
+"""`abyss`: the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from common import keys
+from common.bus import open_session, zenoh_config
+from common.config import Config, load
+from common.errors import AbyssError, BadMessage, ConfigError
+from common.messages import LinkControl, LinkStats, decode, encode
+from linkemu.netem import run_tc, tc_command
+from linkemu.profile import FIELDS, load_profiles, profile
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, help="TOML configuration file")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                   help="override one configuration field")
+    p.add_argument("--system", help="system id: keys are abyss/<system>/...")
+    p.add_argument("--profile", action="append", default=[], metavar="HOP=NAME",
+                   help=f"link profile of a hop ({', '.join(keys.HOPS)})")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--link", choices=("emulated", "netem"), default="emulated",
+                   help="netem: in-process links become pass-throughs (tc/netem shapes them)")
+
+
+def _config(args: argparse.Namespace) -> Config:
+    overrides = list(args.set)
+    if args.system:
+        overrides.append(f"system={args.system}")
+    if args.seed is not None:
+        overrides.append(f"seed={args.seed}")
+    for item in args.profile:
+        hop, sep, name = item.partition("=")
+        if not sep:
+            raise ConfigError("--profile", f"{item!r} is not HOP=NAME")
+        overrides.append(f"links.{keys.check_hop(hop)}={name}")
+    return load(args.config, overrides)
+
+
+def _profile_args(p: argparse.ArgumentParser) -> None:
+    for name in FIELDS:
+        p.add_argument(f"--{name.replace('_', '-')}", dest=f"field_{name}", metavar="VALUE")
+
+
+def _profile_fields(args: argparse.Namespace) -> dict[str, str]:
+    return {n: getattr(args, f"field_{n}") for n in FIELDS if getattr(args, f"field_{n}") is not None}
+
+
+def _client(args: argparse.Namespace) -> zenoh.Session:
+    return open_session(zenoh_config(connect=[args.connect], mode="client"), "abyss")
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    from stations.supervisor import run_up
+    return run_up(_config(args), args.out, args.duration, args.keep_running, args.port, args.link)
+
+
+def cmd_station(args: argparse.Namespace) -> int:
+    from stations.runtime import configure_logging, run_station
+    configure_logging(args.verbose)
+    return run_station(args.name, _config(args), args.listen, args.connect, args.status_file, args.link)
+
+
+def cmd_keys(_args: argparse.Namespace) -> int:
+    print(keys.keys_table())
+    return 0
+
+
+def query_links(session: zenoh.Session, system: str, hop: str | None) -> list[LinkStats]:
+    selector = keys.link_key(system, hop) if hop else keys.key(system, "link", "*")
+    found = []
+    for reply in session.get(selector, consolidation=zenoh.ConsolidationMode.NONE, timeout=3.0):
+        if reply.ok is None:
+            continue
+        try:
+            message = decode(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), "LinkStats").message
+        except BadMessage as exc:
+            print(f"abyss: ignoring a bad reply: {exc}", file=sys.stderr)
+            continue
+        assert isinstance(message, LinkStats)
+        found.append(message)
+    return sorted(found, key=lambda s: (list(keys.HOPS).index(s.hop), s.direction))
+
+
+def cmd_link_show(args: argparse.Namespace) -> int:
+    session = _client(args)
+    try:
+        found = query_links(session, args.system, args.hop)
+    finally:
+        session.close()
+    if not found:
+        print(f"abyss: no station of system {args.system} answered at {args.connect}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps([{"hop": s.hop, "direction": s.direction, "profile": s.profile,
+                           "fields": s.fields, "stats": s.stats} for s in found], indent=2))
+        return 0
+    for s in found:
+        f, st = s.fields, s.stats
+        print(f"{s.hop} {s.direction}: profile {s.profile}: rate {f['rate']} delay {f['delay']} "
+              f"jitter {f['jitter']} loss {f['loss']} corrupt {f['corrupt']} transport {f['transport']}")
+        print(f"    delivered {st['messages_delivered']:.0f}/{st['messages_offered']:.0f} messages, "
+              f"{st['bytes_delivered']:.0f} B; queue drops {st['queue_drops']:.0f}, losses "
+              f"{st['losses']:.0f}, retransmissions {st['retransmissions']:.0f}; delay p50/p95/p99 "
+              f"{st.get('delay_p50_ms', 0):.1f}/{st.get('delay_p95_ms', 0):.1f}/"
+              f"{st.get('delay_p99_ms', 0):.1f} ms")
+    return 0
+
+
+def cmd_link_set(args: argparse.Namespace) -> int:
+    fields = _profile_fields(args)
+    base = profile(args.profile_name) if args.profile_name else None
+    (base or profile("ideal")).with_fields(fields)  # fail here, not in the stations
+    if base is None and not fields:
+        raise ConfigError("link set", "give --profile NAME and/or fields such as --loss 10%")
+    session = _client(args)
+    try:
+        session.put(keys.link_key(args.system, args.hop),
+                    encode(LinkControl(args.profile_name or "", fields), 0, time.time()))
+        time.sleep(0.3)
+        found = query_links(session, args.system, args.hop)
+    finally:
+        session.close()
+    for s in found:
+        print(f"{s.hop} {s.direction}: profile {s.profile} {s.fields}")
+    if not found:
+        print(f"abyss: sent, but no station of system {args.system} answered", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_link_netem(args: argparse.Namespace) -> int:
+    p = profile(args.profile_name or _default_profile(args.hop), _profile_fields(args))
+    command = tc_command(args.dev, None if args.clear else p, args.netns)
+    if args.print or not (args.apply or args.clear):
+        print(" ".join(command))
+        return 0
+    run_tc(command)
+    print(("cleared: " if args.clear else "applied: ") + " ".join(command))
+    return 0
+
+
+def _default_profile(hop: str) -> str:
+    return str(getattr(Config().links, keys.check_hop(hop)))
+
+
+def cmd_link_profiles(_args: argparse.Namespace) -> int:
+    for name, p in load_profiles().items():
+        print(f"{name:<16} " + " ".join(f"{k}={v}" for k, v in p.fields().items()
+                                        if v != getattr(load_profiles()["ideal"], "fields")()[k]))
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    root = argparse.ArgumentParser(prog="abyss", description=__doc__)
+    sub = root.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("up", help="run all four stations on this machine")
+    _config_args(p)
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
+    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
+    p.add_argument("--port", type=int, help=f"public Zenoh port (default {7447} if free; 0: any)")
+    p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser("station", help="run one station, e.g. on its own host")
+    p.add_argument("name", choices=keys.STATIONS)
+    _config_args(p)
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--status-file", type=Path, help="write counters here on exit")
+    p.add_argument("-v", "--verbose", action="store_true")
+    p.set_defaults(func=cmd_station)
+
+    p = sub.add_parser("keys", help="print the table of every key")
+    p.set_defaults(func=cmd_keys)
+
+    link = sub.add_parser("link", help="show and change the links").add_subparsers(dest="link", required=True)
+    for name, func, text in (("show", cmd_link_show, "profiles and live statistics"),
+                             ("set", cmd_link_set, "change a hop's profile at run time")):
+        p = link.add_parser(name, help=text)
+        p.add_argument("hop", nargs="?" if name == "show" else None, choices=keys.HOPS)
+        p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+        p.add_argument("--system", default="default")
+        if name == "show":
+            p.add_argument("--json", action="store_true")
+        else:
+            p.add_argument("--profile", dest="profile_name", metavar="NAME")
+            _profile_args(p)
+        p.set_defaults(func=func)
+    p = link.add_parser("netem", help="render or apply a profile with tc/netem")
+    p.add_argument("hop", choices=keys.HOPS)
+    p.add_argument("--dev", required=True, metavar="IFACE")
+    p.add_argument("--netns", help="network namespace of the interface")
+    p.add_argument("--profile", dest="profile_name", metavar="NAME")
+    _profile_args(p)
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--print", action="store_true", help="print the tc command (default)")
+    mode.add_argument("--apply", action="store_true")
+    mode.add_argument("--clear", action="store_true")
+    p.set_defaults(func=cmd_link_netem)
+    p = link.add_parser("profiles", help="list the named profiles")
+    p.set_defaults(func=cmd_link_profiles)
+    return root
+
+
+def main(argv: list[str] | None = None) -> int:
+    args: Any = parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except AbyssError as exc:
+        print(f"abyss: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,276 @@
+"""`abyss up`: the four stations as four OS processes on this machine."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from common import keys
+from common.bus import open_session, zenoh_config
+from common.config import Config
+from common.errors import AbyssError, BadMessage
+from common.messages import MissionStatus, decode
+from stations.runtime import free_port
+
+DEFAULT_PORT = 7447
+STARTUP_TIMEOUT_S = 60.0
+STOP_TIMEOUT_S = 15.0
+
+
+@dataclass
+class Station:
+    name: str
+    process: subprocess.Popen[bytes]
+    log_path: Path
+    status_path: Path
+    restarts: int = 0
+    died: int | None = None  # exit code if it ended before it was asked to stop
+
+
+def port_free(port: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+def exit_text(code: int | None) -> str:
+    if code is not None and code < 0:
+        return f"{code} ({signal.Signals(-code).name})"
+    return str(code)
+
+
+class Up:
+    """Start, watch and stop one whole system; write its summary."""
+
+    def __init__(self, config: Config, out_dir: Path, port: int | None = None,
+                 link_mode: str = "emulated", echo: Any = print) -> None:
+        self.config = config
+        self.out_dir = out_dir
+        self.echo = echo
+        self.link_mode = link_mode
+        if port is None:
+            port = DEFAULT_PORT if port_free(DEFAULT_PORT) else free_port()
+        elif port == 0:
+            port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{port}"
+        self.alive: set[str] = set()
+        self.alive_seen: set[str] = set()
+        self.mission: MissionStatus | None = None
+        self.stations: dict[str, Station] = {}
+        self.interrupted = threading.Event()
+        self._lock = threading.Lock()
+
+    # -- zenoh observers -----------------------------------------------------------------
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        name = str(sample.key_expr).split("/")[2]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(name)
+                self.alive_seen.add(name)
+            else:
+                self.alive.discard(name)
+
+    def _on_mission(self, sample: zenoh.Sample) -> None:
+        try:
+            message = decode(str(sample.key_expr), sample.payload.to_bytes(), "MissionStatus").message
+        except BadMessage:
+            return
+        assert isinstance(message, MissionStatus)
+        self.mission = message
+
+    # -- processes -----------------------------------------------------------------------
+    def _start(self, name: str, config_path: Path) -> Station:
+        log_path = self.out_dir / f"{name}.log"
+        status_path = self.out_dir / f"{name}.json"
+        command = [sys.executable, "-m", "stations.cli", "station", name, "--config", str(config_path),
+                   "--listen", f"tcp/127.0.0.1:{free_port()}", "--connect", self.endpoint,
+                   "--status-file", str(status_path), "--link", self.link_mode]
+        with log_path.open("wb") as log:
+            process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
+                                       stdin=subprocess.DEVNULL, start_new_session=True)
+        return Station(name, process, log_path, status_path)
+
+    def _check_deaths(self) -> list[Station]:
+        dead = []
+        for station in self.stations.values():
+            code = station.process.poll()
+            if code is not None and station.died is None:
+                station.died = code
+                dead.append(station)
+        return dead
+
+    def _report_death(self, station: Station) -> None:
+        tail = station.log_path.read_text(errors="replace").splitlines()[-15:]
+        self.echo(f"abyss: station {station.name} died with exit code {exit_text(station.died)}; "
+                  f"log {station.log_path}:")
+        for line in tail:
+            self.echo(f"    {line}")
+
+    def _stop_all(self) -> None:
+        for station in self.stations.values():
+            if station.process.poll() is None:
+                station.process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + STOP_TIMEOUT_S
+        for station in self.stations.values():
+            try:
+                station.process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                self.echo(f"abyss: {station.name} did not stop in {STOP_TIMEOUT_S:g} s; killing it")
+                station.process.kill()
+                station.process.wait()
+
+    # -- the run -------------------------------------------------------------------------
+    def run(self, duration_s: float | None, keep_running: bool) -> int:
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        config_path = self.out_dir / "config.json"
+        config_path.write_text(self.config.to_json())
+        system = self.config.system
+        session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
+        observers = [
+            session.liveliness().declare_subscriber(keys.key(system, "*", "alive"), self._on_alive,
+                                                    history=True),
+            session.declare_subscriber(keys.mission_key(system), self._on_mission),
+        ]
+        previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
+                    for s in (signal.SIGINT, signal.SIGTERM)}
+        t0 = time.monotonic()
+        failure, startup_s = "", 0.0
+        try:
+            self.echo(f"abyss: system {system}; Zenoh endpoint {self.endpoint} "
+                      f"(connect your own client here); run directory {self.out_dir}")
+            for name in keys.STATIONS:
+                self.stations[name] = self._start(name, config_path)
+            failure = self._wait_until_up(t0)
+            startup_s = time.monotonic() - t0
+            if not failure:
+                self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
+                failure = self._watch(duration_s, keep_running)
+        finally:
+            self._stop_all()
+            for observer in observers:
+                observer.undeclare()
+            session.close()
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+        summary = self._summary(time.monotonic() - t0, startup_s, failure)
+        (self.out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        self.echo(render_summary(summary))
+        return 0 if summary["verdict"] == "ok" else 1
+
+    def _wait_until_up(self, t0: float) -> str:
+        shown: set[str] = set()
+        while time.monotonic() - t0 < STARTUP_TIMEOUT_S:
+            with self._lock:
+                alive = set(self.alive)
+            for name in sorted(alive - shown):
+                self.echo(f"abyss:   {name} up ({time.monotonic() - t0:.1f} s)")
+            shown |= alive
+            if alive >= set(keys.STATIONS):
+                return ""
+            for station in self._check_deaths():
+                self._report_death(station)
+                return f"{station.name} died during start-up"
+            if self.interrupted.wait(0.05):
+                return "interrupted during start-up"
+        missing = sorted(set(keys.STATIONS) - shown)
+        return f"not up after {STARTUP_TIMEOUT_S:g} s: {', '.join(missing)}"
+
+    def _watch(self, duration_s: float | None, keep_running: bool) -> str:
+        t0 = time.monotonic()
+        last_report = t0
+        while True:
+            for station in self._check_deaths():
+                self._report_death(station)
+                return f"{station.name} died"
+            mission = self.mission
+            if mission is not None and mission.done and not keep_running:
+                self.echo("abyss: mission complete")
+                return ""
+            elapsed = time.monotonic() - t0
+            if duration_s is not None and elapsed >= duration_s:
+                return ""
+            if time.monotonic() - last_report >= 5.0:
+                last_report = time.monotonic()
+                state = (f"{mission.mode}, waypoint {mission.waypoint_index}/{mission.waypoints_total}, "
+                         f"error {mission.position_error_m:.2f} m") if mission else "no telemetry on shore yet"
+                self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
+            if self.interrupted.wait(0.1):
+                self.echo("abyss: interrupted; stopping the stations")
+                return ""
+
+    def _summary(self, wall_s: float, startup_s: float, failure: str) -> dict[str, Any]:
+        stations: dict[str, Any] = {}
+        links: dict[str, dict[str, Any]] = {hop: {} for hop in keys.HOPS}
+        for name, station in self.stations.items():
+            try:
+                status = json.loads(station.status_path.read_text())
+            except (OSError, ValueError):
+                status = {}
+            for hop, stats in status.pop("links", {}).items():
+                links[hop][stats["direction"]] = stats
+            code = station.died if station.died is not None else station.process.returncode
+            stations[name] = {"exit_code": code, "restarts": station.restarts,
+                              "alive_seen": name in self.alive_seen, "log": str(station.log_path),
+                              **{k: status.get(k, {}) for k in ("sent", "received", "rejected")}}
+        if not failure and any(s["exit_code"] != 0 for s in stations.values()):
+            failure = "a station exited with an error"
+        return {
+            "system": self.config.system,
+            "endpoint": self.endpoint,
+            "verdict": "ok" if not failure else "failed",
+            "failure": failure,
+            "startup_s": round(startup_s, 3),
+            "wall_s": round(wall_s, 3),
+            "stations": stations,
+            "links": links,
+            "mission": dataclasses.asdict(self.mission) if self.mission else None,
+            "scene": {},
+        }
+
+
+def render_summary(summary: dict[str, Any]) -> str:
+    lines = [f"abyss: {summary['system']}: {summary['verdict']}"
+             + (f" ({summary['failure']})" if summary["failure"] else "")
+             + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"]
+    lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9}")
+    for name, s in summary["stations"].items():
+        lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
+                     f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}")
+    lines.append(f"  {'link':<28} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}")
+    for hop, directions in summary["links"].items():
+        for direction, st in directions.items():
+            lines.append(
+                f"  {hop + ' ' + direction:<28} "
+                f"{int(st['messages_delivered']):>6}/{int(st['messages_offered']):<6} "
+                f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
+                f"{int(st['losses']):>5} {int(st['retransmissions']):>5}")
+    m = summary["mission"]
+    lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
+                                  f"error {m['position_error_m']:.2f} m" if m else "no status reached shore"))
+    return "\n".join(lines)
+
+
+def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
+           port: int | None, link_mode: str, run_id: Sequence[str] = ()) -> int:
+    run_dir = out or Path("runs") / (run_id[0] if run_id else
+                                     f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}")
+    try:
+        return Up(config, run_dir, port, link_mode).run(duration_s, keep_running)
+    except AbyssError as exc:
+        print(f"abyss: {exc}", file=sys.stderr)
+        return 2

@@ -20,7 +20,8 @@ import zenoh
 from common import keys
 from common.errors import AbyssError, BadMessage, BusError, ConfigError
 from common.messages import LinkControl, LinkStats, Message, Received, decode, encode
-from linkemu.profile import LinkProfile, profile as named_profile
+from linkemu.profile import LinkProfile
+from linkemu.profile import profile as named_profile
 from linkemu.runner import LinkRunner
 
 log = logging.getLogger(__name__)
@@ -110,7 +111,7 @@ class Bus:
         """Send on `abyss/<system>/<this station>/<topic>` over its hop; False if the link
         dropped it (queue full, congestion control DROP)."""
         spec = keys.spec(self.station, topic)
-        if message.TYPE != spec.message:
+        if spec.message != message.TYPE:
             raise ConfigError(topic, f"carries {spec.message}, not {message.TYPE}")
         key = spec.key(self.system)
         payload = encode(message, self._seq[key], time.time())

@@ -17,6 +17,7 @@ from common import keys
 from common.errors import ConfigError
 from linkemu.profile import LinkProfile, load_profiles, profile
 
+
 @dataclass(frozen=True)
 class LinksConfig:
     """Profile name per hop, from linkemu/profiles.toml."""

@@ -120,7 +120,8 @@ def mission_key(system: str) -> str:
 
 CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     # (key pattern, message, rate, note)
-    ("abyss/<system>/link/<hop>", "LinkControl", "event", "put: change a hop's profile; get: profiles and stats"),
+    ("abyss/<system>/link/<hop>", "LinkControl", "event",
+     "put: change a hop's profile; get: profiles and stats"),
     ("abyss/<system>/<station>/linkstats/<hop>", "LinkStats", "1 Hz", "what each emulator measured"),
     ("abyss/<system>/<station>/alive", "liveliness", "-", "token held while the station runs"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),

@@ -158,7 +158,7 @@ def _default_profile(hop: str) -> str:
 def cmd_link_profiles(_args: argparse.Namespace) -> int:
     for name, p in load_profiles().items():
         print(f"{name:<16} " + " ".join(f"{k}={v}" for k, v in p.fields().items()
-                                        if v != getattr(load_profiles()["ideal"], "fields")()[k]))
+                                        if v != load_profiles()["ideal"].fields()[k]))
     return 0
 
 

@@ -58,10 +58,10 @@ class Up:
     """Start, watch and stop one whole system; write its summary."""
 
     def __init__(self, config: Config, out_dir: Path, port: int | None = None,
-                 link_mode: str = "emulated", echo: Any = print) -> None:
+                 link_mode: str = "emulated", echo: Any = None) -> None:
         self.config = config
         self.out_dir = out_dir
-        self.echo = echo
+        self.echo = echo or (lambda text: print(text, flush=True))
         self.link_mode = link_mode
         if port is None:
             port = DEFAULT_PORT if port_free(DEFAULT_PORT) else free_port()
@@ -178,7 +178,8 @@ class Up:
             with self._lock:
                 alive = set(self.alive)
             for name in sorted(alive - shown):
-                self.echo(f"abyss:   {name} up ({time.monotonic() - t0:.1f} s)")
+                pid = self.stations[name].process.pid
+                self.echo(f"abyss:   {name} up (pid {pid}, {time.monotonic() - t0:.1f} s)")
             shown |= alive
             if alive >= set(keys.STATIONS):
                 return ""
@@ -206,8 +207,10 @@ class Up:
                 return ""
             if time.monotonic() - last_report >= 5.0:
                 last_report = time.monotonic()
-                state = (f"{mission.mode}, waypoint {mission.waypoint_index}/{mission.waypoints_total}, "
-                         f"error {mission.position_error_m:.2f} m") if mission else "no telemetry on shore yet"
+                state = "no telemetry on shore yet"
+                if mission:
+                    state = (f"{mission.mode}, waypoint {mission.waypoint_index}/"
+                             f"{mission.waypoints_total}, error {mission.position_error_m:.2f} m")
                 self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")

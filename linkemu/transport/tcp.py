@@ -25,7 +25,7 @@ class Tcp:
     when three packets sent after it are acknowledged (fast retransmit: the window halves,
     once per window of data) or when its retransmission timer fires (the window falls to
     one packet and the timer backs off). The receiver delivers in order and acknowledges
-    every packet; acknowledgements take the profile's mean delay back. A corrupt packet
+    every packet; acknowledgements take the profile's delay and jitter back, in order. A corrupt packet
     fails the receiver's checksum, is not acknowledged, and is retransmitted as if lost.
     """
 
@@ -46,6 +46,10 @@ class Tcp:
         self.highest_sent = -1
         self.rcv_next = 0
         self.rcv_buffer: dict[int, Packet] = {}
+        self.rtt_sum_s, self.rtt_samples = 0.0, 0  # for the mean round trip
+        self.first_rto_sum_s, self.first_timeouts = 0.0, 0  # RTO when a timeout starts a backoff
+        self._backing_off = False
+        self._last_ack_s = 0.0
 
     def has_room(self, now_s: float, packets: int) -> bool:
         queued = len(self.unsent) + len(self.unacked)
@@ -57,7 +61,9 @@ class Tcp:
 
     def gauges(self) -> dict[str, float]:
         return {"cwnd_packets": self.cwnd, "srtt_ms": (self.srtt_s or 0.0) * 1e3,
-                "rto_ms": self.rto_s * 1e3}
+                "rto_ms": self.rto_s * 1e3,
+                "rtt_mean_ms": self.rtt_sum_s / max(1, self.rtt_samples) * 1e3,
+                "first_rto_mean_ms": self.first_rto_sum_s / max(1, self.first_timeouts) * 1e3}
 
     # -- sender --------------------------------------------------------------------------
     def _pump(self, t_s: float) -> None:
@@ -106,9 +112,10 @@ class Tcp:
                     break
                 if earlier.seq < seq:
                     self.dupacks[earlier.seq] += 1
-                    if self.dupacks[earlier.seq] >= DUPACK_THRESHOLD:
-                        if earlier.seq > self.recovery_seq:
-                            self._cut_window(0.0)
+                    # Reno: one fast retransmit per window; a second loss in the same
+                    # window waits for its retransmission timer
+                    if self.dupacks[earlier.seq] == DUPACK_THRESHOLD and earlier.seq > self.recovery_seq:
+                        self._cut_window(0.0)
                         self._take_for_lost(earlier)
             del self.in_flight[seq]
         del self.sent_s[seq], self.dupacks[seq]
@@ -121,6 +128,10 @@ class Tcp:
         if packet is None or packet.transmission != transmission:
             return
         self.link.counters["timeouts"] += 1
+        if not self._backing_off:
+            self.first_rto_sum_s += self.rto_s
+            self.first_timeouts += 1
+            self._backing_off = True
         self._cut_window(1.0)
         self.rto_s = min(self.rto_s * 2.0, MAX_RTO_S)
         for lost in list(self.in_flight.values()):
@@ -128,6 +139,9 @@ class Tcp:
         self._pump(t_s)
 
     def _rtt_sample(self, rtt_s: float) -> None:
+        self.rtt_sum_s += rtt_s
+        self.rtt_samples += 1
+        self._backing_off = False
         if self.srtt_s is None:
             self.srtt_s, self.rttvar_s = rtt_s, rtt_s / 2.0
         else:
@@ -147,5 +161,8 @@ class Tcp:
             if part.index == self.link._messages[part.message].packets - 1:
                 self.link.finish_message(part.message)
             self.rcv_next += 1
-        ack_s = t_s + self.link.profile.delay_s
+        # the acknowledgement crosses the reverse path: same mean delay and jitter, in order
+        p = self.link.profile
+        ack_s = t_s + max(0.0, p.delay_s + p.jitter_s * float(self.link.rng.standard_normal()))
+        ack_s = self._last_ack_s = max(ack_s, self._last_ack_s)
         self.link.schedule(ack_s, lambda t: self._ack(t, packet.seq, packet.transmission))

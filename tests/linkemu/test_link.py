@@ -1,0 +1,206 @@
+"""The link core against its profile: seeded runs of thousands of packets, each statistic
+within its confidence bound, driven with made-up times (no Zenoh, no clock)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from drive import drive, ids, numbered
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from common.errors import LinkError
+from linkemu.link import HEADER_BYTES, Link, Offer
+from linkemu.profile import LinkProfile, profile
+
+
+def link(**fields: str) -> Link:
+    return Link(LinkProfile(name="test").with_fields(fields))
+
+
+@pytest.mark.parametrize(("distribution", "transport"), [
+    ("normal", "udp"), ("normal", "tcp"), ("uniform", "udp"), ("uniform", "tcp"),
+    ("pareto", "udp"), ("paretonormal", "udp")])  # heavy tails under TCP: head-of-line blocking
+def test_delay_mean_and_spread_match_the_profile(distribution: str, transport: str) -> None:
+    n, delay_ms, jitter_ms = 4000, 100.0, 10.0
+    out = drive(link(delay="100ms", jitter="10ms", distribution=distribution, transport=transport),
+                numbered(n, gap_s=0.1))  # spaced far beyond the jitter: order never binds
+    delays_ms = np.array([(d.delivered_s - d.offered_s) * 1e3 for d in out])
+    assert len(out) == n and ids(out) == list(range(n))
+    heavy_tailed = distribution.startswith("pareto")  # sample moments converge slowly
+    assert abs(delays_ms.mean() - delay_ms) < (0.2 * jitter_ms if heavy_tailed else 4 * jitter_ms / math.sqrt(n))
+    if distribution == "uniform":  # netem's uniform: half-width = jitter
+        assert delays_ms.min() >= delay_ms - jitter_ms and delays_ms.max() <= delay_ms + jitter_ms
+        assert abs(delays_ms.std() - jitter_ms / math.sqrt(3)) < 0.05 * jitter_ms
+    elif distribution == "normal":
+        assert abs(delays_ms.std() - jitter_ms) < 4 * jitter_ms / math.sqrt(2 * n)
+    else:  # heavy right tail: a sample std converges slowly, so a looser bound
+        assert abs(delays_ms.std() - jitter_ms) < 0.2 * jitter_ms
+        assert np.median(delays_ms) < delay_ms  # skewed right
+
+
+def test_jitter_keeps_order_and_correlation_keeps_variance() -> None:
+    n = 4000
+    out = drive(link(delay="100ms", jitter="30ms", correlation="80%", transport="udp"),
+                numbered(n, gap_s=0.001))
+    assert ids(out) == list(range(n))  # jitter far above the spacing, yet no reordering
+    delays = np.array([d.delivered_s - d.offered_s for d in out])
+    lag1 = np.corrcoef(delays[:-1], delays[1:])[0, 1]
+    assert lag1 > 0.7
+
+
+def test_reorder_lets_packets_overtake() -> None:
+    out = drive(link(delay="50ms", reorder="25%", transport="udp"), numbered(2000, gap_s=0.001))
+    order = ids(out)
+    assert sorted(order) == list(range(2000)) and order != list(range(2000))
+
+
+@pytest.mark.parametrize("rate", ["1mbit", "20mbit"])
+def test_serialisation_rate(rate: str) -> None:
+    size = 1000
+    lnk = link(rate=rate, transport="udp", queue_limit="100000")
+    out = drive(lnk, numbered(5000, size))  # all offered at once: the link is the bottleneck
+    wire_bits = 5000 * (size + HEADER_BYTES["udp"]) * 8
+    achieved_bps = wire_bits / out[-1].delivered_s
+    assert achieved_bps == pytest.approx(lnk.profile.rate_bps, rel=1e-3)
+
+
+def test_tail_drop_with_drop_and_wait_with_block() -> None:
+    lnk = link(rate="1mbit", queue_limit="10", transport="udp")
+    results = [lnk.offer(0.0, bytes(1000)) for _ in range(15)]
+    assert results.count(Offer.ACCEPTED) == 10 and results.count(Offer.DROPPED) == 5
+    assert lnk.counters["messages_dropped"] == 5
+    assert lnk.offer(0.0, bytes(1000), block=True) is Offer.FULL
+    assert lnk.offer(0.1, bytes(1000), block=True) is Offer.ACCEPTED  # room again later
+
+
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_message_larger_than_the_queue_is_dropped_not_stuck(transport: str) -> None:
+    lnk = link(queue_limit="4", transport=transport)
+    assert lnk.offer(0.0, bytes(10_000), block=True) is Offer.DROPPED
+
+
+def test_bernoulli_loss_rate() -> None:
+    n, p = 20000, 0.05
+    lnk = link(loss="5%", transport="udp")
+    out = drive(lnk, numbered(n, gap_s=0.001))
+    assert abs(lnk.counters["losses"] / n - p) < 4 * math.sqrt(p * (1 - p) / n)
+    assert len(out) + lnk.counters["messages_lost"] == n
+
+
+def test_gilbert_elliott_bursts() -> None:
+    n, p, r = 40000, 0.02, 0.25
+    lnk = link(loss_model="gilbert-elliott", ge_p="2%", ge_r="25%", transport="udp")
+    out = drive(lnk, numbered(n, gap_s=0.001))
+    lost = np.ones(n, bool)
+    lost[ids(out)] = False
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, lost.astype(int), 0])))[::2]
+    assert abs(lost.mean() - p / (p + r)) < 0.015  # stationary loss: p / (p + r)
+    assert abs(runs.mean() - 1 / r) < 0.4  # mean burst: 1 / r packets
+    assert lost.mean() == pytest.approx(lnk.profile.mean_loss, abs=0.015)
+
+
+def test_corruption_is_caught_by_the_checksum() -> None:
+    n, c = 20000, 0.01
+    lnk = link(corrupt="1%", transport="udp")
+    out = drive(lnk, numbered(n, gap_s=0.001))
+    assert abs(lnk.counters["packets_corrupted"] / n - c) < 4 * math.sqrt(c * (1 - c) / n)
+    assert len(out) == n - lnk.counters["packets_corrupted"]  # corrupt datagrams are dropped
+    sent = [p for _, p in numbered(n)]
+    assert all(d.payload == sent[i] for d, i in zip(out, ids(out), strict=True))
+
+
+def test_deliver_corrupt_hands_over_exactly_one_flipped_bit() -> None:
+    n = 2000
+    lnk = link(corrupt="5%", deliver_corrupt="true", transport="udp")
+    sent = dict(numbered(n, size=200, gap_s=0.001))
+    out = drive(lnk, list(sent.items()))
+    assert len(out) == n
+    bad = [d for d in out if d.corrupt]
+    assert len(bad) == lnk.counters["corrupt_delivered"] > 0
+    originals = list(sent.values())
+    for d in bad:  # the one message it can be: every other differs in its number or its zeros
+        flips = [int(np.unpackbits(np.frombuffer(bytes(a ^ b for a, b in zip(o, d.payload, strict=True)),
+                                                 np.uint8)).sum()) for o in originals]
+        assert min(flips) == 1
+
+
+def test_udp_duplicates_reach_the_receiver() -> None:
+    n = 10000
+    lnk = link(duplicate="5%", transport="udp")
+    out = drive(lnk, numbered(n, gap_s=0.001))
+    assert abs((len(out) - n) / n - 0.05) < 4 * math.sqrt(0.05 * 0.95 / n)
+
+
+def test_tcp_delivers_everything_in_order_through_loss_and_corruption() -> None:
+    lnk = Link(profile("satellite"))
+    payloads = numbered(600, size=3000)  # three packets each
+    out = drive(lnk, payloads)
+    assert ids(out) == list(range(600))
+    assert [d.payload for d in out] == [p for _, p in payloads]
+    assert lnk.counters["losses"] > 0 and lnk.counters["packets_corrupted"] > 0
+    assert lnk.counters["retransmissions"] >= lnk.counters["losses"]
+
+
+def padhye_bps(mss_bytes: int, rtt_s: float, p: float, t0_s: float, b: int = 1) -> float:
+    """Padhye, Firoiu, Towsley, Kurose (1998), eq. (30) without the window limit."""
+    return mss_bytes * 8 / (rtt_s * math.sqrt(2 * b * p / 3)
+                            + t0_s * min(1.0, 3 * math.sqrt(3 * b * p / 8)) * p * (1 + 32 * p * p))
+
+
+@pytest.mark.parametrize(("loss", "bound"), [("1%", (0.75, 1.25)), ("5%", (1.0, 1.6))])
+def test_tcp_goodput_against_the_padhye_model(loss: str, bound: tuple[float, float]) -> None:
+    """Satellite rate, delay and jitter. PFTK assumes that after a loss the rest of its round
+    is lost too, so at high independent loss it overestimates timeouts and underestimates
+    goodput: at 1 % the model is within 25 % of PFTK, at the satellite's 5 % it is 1.0-1.6x."""
+    mss = 1460
+    lnk = Link(profile("satellite", {"loss": loss, "corrupt": "0%"}))
+    out = drive(lnk, numbered(5000, mss))
+    goodput_bps = len(out) * mss * 8 / out[-1].delivered_s
+    gauges = lnk.transport.gauges()
+    predicted = padhye_bps(mss, gauges["rtt_mean_ms"] / 1e3, lnk.profile.loss, gauges["first_rto_mean_ms"] / 1e3)
+    assert bound[0] < goodput_bps / predicted < bound[1]
+
+
+def test_loss_throttles_tcp() -> None:
+    clean = Link(profile("tether"))
+    lossy = Link(profile("tether", {"loss": "2%"}))
+    rates = [len(out) * 1460 * 8 / out[-1].delivered_s
+             for out in (drive(lnk, numbered(5000, 1460)) for lnk in (clean, lossy))]
+    assert rates[1] < 0.5 * rates[0]
+
+
+def test_reconfigure_in_flight_loses_nothing() -> None:
+    lnk = link(rate="1mbit", delay="200ms", transport="tcp")
+    for i in range(50):
+        assert lnk.offer(i * 0.001, i.to_bytes(4, "big") + bytes(996)) is Offer.ACCEPTED
+    lnk.reconfigure(lnk.profile.with_fields({"rate": "20mbit", "delay": "10ms"}))
+    out = drive(lnk, [(0.06 + i * 0.001, i.to_bytes(4, "big") + bytes(996)) for i in range(50, 100)])
+    assert ids(out) == list(range(100))
+    with pytest.raises(LinkError, match="transport"):
+        lnk.reconfigure(lnk.profile.with_fields({"transport": "udp"}))
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    sizes=st.lists(st.integers(1, 5000), min_size=1, max_size=40),
+    rate_kbit=st.integers(1000, 50_000),
+    delay_ms=st.integers(0, 300),
+    jitter_ms=st.integers(0, 100),
+    transport=st.sampled_from(["udp", "tcp"]),
+    distribution=st.sampled_from(["normal", "uniform", "pareto", "paretonormal"]),
+    seed=st.integers(0, 2**32),
+)
+def test_nothing_lost_or_added_without_impairments(sizes: list[int], rate_kbit: int, delay_ms: int,
+                                                    jitter_ms: int, transport: str, distribution: str,
+                                                    seed: int) -> None:
+    lnk = link(rate=f"{rate_kbit}kbit", delay=f"{delay_ms}ms", jitter=f"{jitter_ms}ms",
+               transport=transport, distribution=distribution, seed=str(seed), queue_limit="100000")
+    rng = np.random.default_rng(seed)
+    payloads = [(i * 0.002, rng.bytes(n)) for i, n in enumerate(sizes)]
+    out = drive(lnk, payloads)
+    assert [d.payload for d in out] == [p for _, p in payloads]
+    assert all(d.delivered_s >= d.offered_s + delay_ms / 1e3 - 4 * jitter_ms / 1e3 - 1e-9 for d in out)
+    assert lnk.in_flight() == 0

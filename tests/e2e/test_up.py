@@ -1,0 +1,106 @@
+"""Whole systems as real processes over real Zenoh on loopback."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from conftest import Up, abyss
+
+from common import keys
+from common.bus import open_session, zenoh_config
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
+
+
+def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
+    up = Up(tmp_path / "run", "--duration", "10", "--system", "e2e-up")
+    assert up.wait(90) == 0, up.output()
+    summary = up.summary()
+    assert summary["verdict"] == "ok"
+    for name, station in summary["stations"].items():
+        assert station["exit_code"] == 0 and station["alive_seen"], name
+    for spec in keys.KEYS:  # every key, so every hop in both directions, carried traffic
+        key = spec.key("e2e-up")
+        assert summary["stations"][spec.station]["sent"].get(key, 0) > 0, key
+        assert summary["stations"][spec.to]["received"].get(key, 0) > 0, key
+    for hop, (a, b) in keys.HOPS.items():
+        for direction in (f"{a}->{b}", f"{b}->{a}"):
+            assert summary["links"][hop][direction]["messages_delivered"] > 0, (hop, direction)
+    tether = summary["links"]["tether"]["onboard->vessel"]
+    assert 90 < tether["delay_p50_ms"] < 130  # the tether profile's 100 ms +/- 10 ms
+    assert summary["mission"]["waypoints_total"] == 3
+    assert "all 4 stations up" in up.output()
+
+
+def test_a_killed_station_is_reported_and_up_fails(tmp_path: Path) -> None:
+    up = Up(tmp_path / "run", "--duration", "60", "--system", "e2e-kill")
+    pid = int(up.wait_for(r"onboard up \(pid (\d+)").group(1))
+    up.wait_for("all 4 stations up")
+    os.kill(pid, signal.SIGKILL)
+    assert up.wait(60) != 0
+    assert "station onboard died with exit code -9 (SIGKILL)" in up.output()
+    summary = up.summary()
+    assert summary["verdict"] == "failed" and summary["stations"]["onboard"]["exit_code"] == -9
+    assert all(s["exit_code"] == 0 for n, s in summary["stations"].items() if n != "onboard")
+
+
+def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:
+    ups = {name: Up(tmp_path / name, "--duration", "12", "--system", name) for name in ("alpha", "beta")}
+    for up in ups.values():
+        up.wait_for("all 4 stations up")
+    seen: dict[str, set[str]] = {}
+    for name, up in ups.items():
+        session = open_session(zenoh_config(connect=[up.endpoint], mode="client"), "test")
+        keys_seen: set[str] = set()
+        lock = threading.Lock()
+
+        def on_sample(sample: zenoh.Sample, ks: set[str] = keys_seen, lk: threading.Lock = lock) -> None:
+            with lk:
+                ks.add(str(sample.key_expr))
+
+        subscriber = session.declare_subscriber("abyss/**", on_sample)
+        time.sleep(3)
+        subscriber.undeclare()
+        session.close()
+        seen[name] = keys_seen
+    for name, up in ups.items():
+        assert up.wait(60) == 0, up.output()
+        assert seen[name], f"nothing seen on {name}"
+        assert all(k.startswith(f"abyss/{name}/") for k in seen[name]), seen[name]
+        received = up.summary()["stations"]["onboard"]["received"]
+        assert set(received) <= {keys.spec("simulation", "nav").key(name), keys.spec("vessel", "goal/waypoints").key(name)}
+
+
+def test_runtime_link_change_and_bad_bytes(tmp_path: Path) -> None:
+    system = "e2e-live"
+    up = Up(tmp_path / "run", "--keep-running", "--duration", "40", "--system", system)
+    up.wait_for("all 4 stations up")
+    endpoint = up.endpoint
+    done = abyss("link", "set", "satellite", "--loss", "30%", "--connect", endpoint, "--system", system)
+    assert done.returncode == 0, done.stderr
+    shown = abyss("link", "show", "satellite", "--json", "--connect", endpoint, "--system", system)
+    links = json.loads(shown.stdout)
+    assert {s["direction"] for s in links} == {"vessel->onshore", "onshore->vessel"}
+    assert all(s["fields"]["loss"] == "30%" for s in links)
+    bad = abyss("link", "set", "satellite", "--loss", "300%", "--connect", endpoint, "--system", system)
+    assert bad.returncode == 2 and "loss" in bad.stderr
+
+    session = open_session(zenoh_config(connect=[endpoint], mode="client"), "test")
+    nav_key = keys.spec("simulation", "nav").key(system)
+    for garbage in (b"", b"\xc1\xc1", b"\x80", json.dumps({"type": "NavState"}).encode()):
+        session.put(nav_key, garbage)
+    time.sleep(1.0)
+    session.close()
+    assert up.stop() == 0, up.output()
+    summary = up.summary()
+    onboard = summary["stations"]["onboard"]
+    assert onboard["exit_code"] == 0 and onboard["rejected"][nav_key] == 4
+    assert summary["links"]["satellite"]["vessel->onshore"]["profile"] == "satellite"
+    assert "dropped a message on" in (tmp_path / "run" / "onboard.log").read_text()

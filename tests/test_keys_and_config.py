@@ -1,0 +1,74 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from common import keys
+from common.config import load
+from common.errors import ConfigError
+from linkemu.profile import load_profiles, profile
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_readme_keys_table_is_the_generated_one() -> None:
+    readme = (ROOT / "README.md").read_text()
+    assert keys.keys_table() in readme
+
+
+def test_abyss_keys_prints_the_table() -> None:
+    out = subprocess.run([sys.executable, "-m", "stations.cli", "keys"], capture_output=True, text=True,
+                         check=True, cwd=ROOT).stdout
+    assert out.strip() == keys.keys_table()
+
+
+def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
+    from common.messages import MESSAGES
+    for spec in keys.KEYS:
+        assert spec.hop in keys.HOPS and spec.message in MESSAGES
+    assert keys.key("s1", "onboard", "telemetry") == "abyss/s1/onboard/telemetry"
+
+
+@pytest.mark.parametrize(("override", "field"), [
+    ("simulation.control_period_s=0.003", "simulation.control_period_s"),
+    ("links.tether=nope", "links.tether"),
+    ("onboard.kp=1", "onboard.kp"),
+    ("seed=abc", "seed"),
+    ("system=bad id!", "system"),
+    ("mission.waypoints=[[1,2]]", "mission.waypoints[0]"),
+])
+def test_bad_config_names_the_field(override: str, field: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load(overrides=[override])
+    assert info.value.field == field
+
+
+def test_config_file_error_names_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text("[vessel]\ntelemetry_period_s = -1\n")
+    with pytest.raises(ConfigError, match=str(path)):
+        load(path)
+
+
+def test_profiles_parse_with_units_and_refuse_bad_values() -> None:
+    profiles = load_profiles()
+    assert {"ideal", "tether", "satellite", "satellite-storm", "tether-degraded", "outage"} <= set(profiles)
+    sat = profiles["satellite"]
+    assert (sat.rate_bps, sat.delay_s, sat.jitter_s, sat.loss, sat.corrupt) == (1e6, 0.15, 0.075, 0.05, 0.001)
+    assert profiles["tether"].with_fields(profiles["tether"].fields()) == profiles["tether"]
+    for fields, match in [({"rate": "20mbits"}, "not a rate"), ({"loss": "120%"}, r"\[0%, 100%\]"),
+                          ({"delay": 5}, "no unit"), ({"transport": "sctp"}, "tcp, udp"),
+                          ({"warp": "1"}, "unknown profile field")]:
+        with pytest.raises(ConfigError, match=match):
+            profile("tether", fields)
+    with pytest.raises(ConfigError, match="available: ideal"):
+        profile("nope")
+
+
+def test_cli_refuses_a_bad_profile_before_starting() -> None:
+    done = subprocess.run([sys.executable, "-m", "stations.cli", "up", "--profile", "tether=nope"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert done.returncode == 2 and "links.tether" in done.stderr and "satellite" in done.stderr

@@ -75,7 +75,8 @@ def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:
         assert seen[name], f"nothing seen on {name}"
         assert all(k.startswith(f"abyss/{name}/") for k in seen[name]), seen[name]
         received = up.summary()["stations"]["onboard"]["received"]
-        assert set(received) <= {keys.spec("simulation", "nav").key(name), keys.spec("vessel", "goal/waypoints").key(name)}
+        own = {keys.spec("simulation", "nav").key(name), keys.spec("vessel", "goal/waypoints").key(name)}
+        assert set(received) <= own
 
 
 def test_runtime_link_change_and_bad_bytes(tmp_path: Path) -> None:

@@ -30,7 +30,8 @@ def test_delay_mean_and_spread_match_the_profile(distribution: str, transport: s
     delays_ms = np.array([(d.delivered_s - d.offered_s) * 1e3 for d in out])
     assert len(out) == n and ids(out) == list(range(n))
     heavy_tailed = distribution.startswith("pareto")  # sample moments converge slowly
-    assert abs(delays_ms.mean() - delay_ms) < (0.2 * jitter_ms if heavy_tailed else 4 * jitter_ms / math.sqrt(n))
+    bound_ms = 0.2 * jitter_ms if heavy_tailed else 4 * jitter_ms / math.sqrt(n)
+    assert abs(delays_ms.mean() - delay_ms) < bound_ms
     if distribution == "uniform":  # netem's uniform: half-width = jitter
         assert delays_ms.min() >= delay_ms - jitter_ms and delays_ms.max() <= delay_ms + jitter_ms
         assert abs(delays_ms.std() - jitter_ms / math.sqrt(3)) < 0.05 * jitter_ms
@@ -160,7 +161,8 @@ def test_tcp_goodput_against_the_padhye_model(loss: str, bound: tuple[float, flo
     out = drive(lnk, numbered(5000, mss))
     goodput_bps = len(out) * mss * 8 / out[-1].delivered_s
     gauges = lnk.transport.gauges()
-    predicted = padhye_bps(mss, gauges["rtt_mean_ms"] / 1e3, lnk.profile.loss, gauges["first_rto_mean_ms"] / 1e3)
+    predicted = padhye_bps(mss, gauges["rtt_mean_ms"] / 1e3, lnk.profile.loss,
+                           gauges["first_rto_mean_ms"] / 1e3)
     assert bound[0] < goodput_bps / predicted < bound[1]
 
 

@@ -10,6 +10,7 @@ finiteness, and raises `BadMessage` with the reason; nothing malformed gets furt
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import typing
 from dataclasses import dataclass, field
@@ -93,6 +94,16 @@ def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
     raise TypeError(f"{name}: unsupported field type {kind}")
 
 
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+@functools.cache
+def _fields(cls: type) -> tuple[dataclasses.Field[Any], ...]:
+    return dataclasses.fields(cls)
+
+
 @dataclass(frozen=True)
 class Message:
     """Base of every message: a frozen dataclass validated on construction."""
@@ -106,8 +117,8 @@ class Message:
         MESSAGES[cls.TYPE] = cls
 
     def __post_init__(self) -> None:
-        hints = typing.get_type_hints(type(self))
-        for f in dataclasses.fields(self):
+        hints = _hints(type(self))
+        for f in _fields(type(self)):
             checked = _check_field(f.name, hints[f.name], getattr(self, f.name), f.metadata)
             object.__setattr__(self, f.name, checked)
 
@@ -198,7 +209,7 @@ def _pack(value: Any) -> Any:
 
 
 def encode(message: Message, seq: int, stamp_s: float) -> bytes:
-    body = {f.name: _pack(getattr(message, f.name)) for f in dataclasses.fields(message)}
+    body = {f.name: _pack(getattr(message, f.name)) for f in _fields(type(message))}
     return msgpack.packb(
         {"type": message.TYPE, "version": message.VERSION, "seq": seq, "stamp_s": stamp_s,
          "body": body},
@@ -251,7 +262,7 @@ def decode(key: str, data: bytes, expected: str | None = None) -> Received:
         raise BadMessage(key, f"bad sequence number {seq!r}")
     if not isinstance(stamp_s, float) or not math.isfinite(stamp_s):
         raise BadMessage(key, f"bad stamp {stamp_s!r}")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.name: f for f in _fields(cls)}
     if not isinstance(body, dict) or set(body) != set(fields):
         raise BadMessage(key, f"{name} fields {sorted(body) if isinstance(body, dict) else body!r}, "
                               f"expected {sorted(fields)}")

@@ -156,9 +156,10 @@ def _default_profile(hop: str) -> str:
 
 
 def cmd_link_profiles(_args: argparse.Namespace) -> int:
-    for name, p in load_profiles().items():
-        print(f"{name:<16} " + " ".join(f"{k}={v}" for k, v in p.fields().items()
-                                        if v != load_profiles()["ideal"].fields()[k]))
+    profiles = load_profiles()
+    ideal = profiles["ideal"].fields()
+    for name, p in profiles.items():
+        print(f"{name:<16} " + " ".join(f"{k}={v}" for k, v in p.fields().items() if v != ideal[k]))
     return 0
 
 

@@ -53,7 +53,6 @@ class _Message:
     parts: dict[int, bytes] = field(default_factory=dict)
     copies: list[int] = field(default_factory=list)  # arrivals of each part
     deliveries: int = 0
-    pending: int = 0  # packet copies still travelling (udp)
     corrupt: bool = False
 
 
@@ -126,11 +125,9 @@ class Link:
         self._messages[mid] = _Message(len(payload), now_s, n, tag, copies=[0] * n)
         size = self.payload_per_packet
         packets = [
-            Packet(seq=next(self._next_seq), message=mid, index=i, data=payload[i * size:(i + 1) * size],
-                   crc=zlib.crc32(payload[i * size:(i + 1) * size]),
-                   size_bytes=len(payload[i * size:(i + 1) * size]) + HEADER_BYTES[self.profile.transport],
-                   t_s=now_s)
-            for i in range(n)
+            Packet(seq=next(self._next_seq), message=mid, index=i, data=part, crc=zlib.crc32(part),
+                   size_bytes=len(part) + HEADER_BYTES[self.profile.transport], t_s=now_s, last=i == n - 1)
+            for i, part in enumerate(payload[i * size:(i + 1) * size] for i in range(n))
         ]
         self.transport.send(now_s, packets)
         return Offer.ACCEPTED
@@ -140,6 +137,12 @@ class Link:
         self._run_events(now_s)
         ready, self._ready = self._ready, []
         return ready
+
+    def pass_through(self, nbytes: int) -> None:
+        """Count a message that bypassed the emulation (ideal profile, netem backend)."""
+        for name, value in (("messages_offered", 1), ("messages_delivered", 1),
+                            ("bytes_offered", nbytes), ("bytes_delivered", nbytes)):
+            self.counters[name] += value
 
     def next_event_s(self) -> float | None:
         if self._ready:

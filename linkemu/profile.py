@@ -9,8 +9,10 @@ variance" is therefore `delay = "100ms"`, `jitter = "10ms"`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import tomllib
+import types
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -159,15 +161,17 @@ class LinkProfile:
         return {name: fmt(getattr(self, attr)) for name, (attr, _, fmt) in FIELDS.items()}
 
 
-def load_profiles(path: Path = PROFILES_FILE) -> dict[str, LinkProfile]:
+@functools.cache
+def load_profiles(path: Path = PROFILES_FILE) -> Mapping[str, LinkProfile]:
+    """The named profiles, read once per process (read-only)."""
     try:
         table = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError("profiles", f"cannot read: {exc}", str(path)) from None
-    return {
+    return types.MappingProxyType({
         name: LinkProfile(name=name).with_fields(fields, source=f"{path} [{name}]")
         for name, fields in table.items()
-    }
+    })
 
 
 def profile(name: str, overrides: Mapping[str, Any] | None = None) -> LinkProfile:

@@ -10,7 +10,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -269,9 +268,8 @@ def render_summary(summary: dict[str, Any]) -> str:
 
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
-           port: int | None, link_mode: str, run_id: Sequence[str] = ()) -> int:
-    run_dir = out or Path("runs") / (run_id[0] if run_id else
-                                     f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}")
+           port: int | None, link_mode: str) -> int:
+    run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         return Up(config, run_dir, port, link_mode).run(duration_s, keep_running)
     except AbyssError as exc:

@@ -19,6 +19,7 @@ class Packet:
     crc: int  # checksum of `data` taken at the sender
     size_bytes: int  # on the wire, headers included
     t_s: float  # when it reaches the current stage [s]
+    last: bool  # the last part of its message
     corrupt: bool = False
     transmission: int = 0  # 0 for the first, 1.. for retransmissions
     acked: bool = False

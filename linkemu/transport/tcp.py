@@ -95,9 +95,10 @@ class Tcp:
         self.link.counters["retransmissions"] += 1
         heapq.heappush(self.retransmit, packet.seq)
 
-    def _cut_window(self, to_packets: float) -> None:
+    def _cut_window(self, timeout: bool) -> None:
+        """Halve the window (fast retransmit) or fall to one packet (timeout)."""
         self.ssthresh = max(len(self.in_flight) / 2.0, 2.0)
-        self.cwnd = to_packets if to_packets else self.ssthresh
+        self.cwnd = 1.0 if timeout else self.ssthresh
         self.recovery_seq = self.highest_sent
 
     def _ack(self, t_s: float, seq: int, transmission: int) -> None:
@@ -115,7 +116,7 @@ class Tcp:
                     # Reno: one fast retransmit per window; a second loss in the same
                     # window waits for its retransmission timer
                     if self.dupacks[earlier.seq] == DUPACK_THRESHOLD and earlier.seq > self.recovery_seq:
-                        self._cut_window(0.0)
+                        self._cut_window(timeout=False)
                         self._take_for_lost(earlier)
             del self.in_flight[seq]
         del self.sent_s[seq], self.dupacks[seq]
@@ -132,7 +133,7 @@ class Tcp:
             self.first_rto_sum_s += self.rto_s
             self.first_timeouts += 1
             self._backing_off = True
-        self._cut_window(1.0)
+        self._cut_window(timeout=True)
         self.rto_s = min(self.rto_s * 2.0, MAX_RTO_S)
         for lost in list(self.in_flight.values()):
             self._take_for_lost(lost)
@@ -158,7 +159,7 @@ class Tcp:
         while self.rcv_next in self.rcv_buffer:
             part = self.rcv_buffer.pop(self.rcv_next)
             self.link.receive_part(t_s, part)
-            if part.index == self.link._messages[part.message].packets - 1:
+            if part.last:
                 self.link.finish_message(part.message)
             self.rcv_next += 1
         # the acknowledgement crosses the reverse path: same mean delay and jitter, in order

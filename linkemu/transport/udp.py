@@ -15,27 +15,27 @@ class Udp:
     def __init__(self, link: Link) -> None:
         self.link = link
         self.serialiser: Serialise = link.pipeline.stage(Serialise)
+        self.travelling: dict[int, int] = {}  # message id -> packet copies still on the wire
 
     def has_room(self, now_s: float, packets: int) -> bool:
         return self.serialiser.backlog(now_s) + packets <= self.link.profile.queue_limit_packets
 
     def send(self, now_s: float, packets: list[Packet]) -> None:
-        message = self.link._messages[packets[0].message]
-        for packet in packets:
-            for copy in self.link.transmit(now_s, packet):
-                message.pending += 1
-                self.link.schedule(copy.t_s, lambda t, c=copy: self._arrive(t, c))
-        if message.pending == 0:
-            self.link.finish_message(packets[0].message)
+        mid = packets[0].message
+        copies = [copy for packet in packets for copy in self.link.transmit(now_s, packet)]
+        if not copies:
+            self.link.finish_message(mid)
+            return
+        self.travelling[mid] = len(copies)
+        for copy in copies:
+            self.link.schedule(copy.t_s, lambda t, c=copy: self._arrive(t, c))
 
     def _arrive(self, t_s: float, packet: Packet) -> None:
-        message = self.link._messages.get(packet.message)
-        if message is None:
-            return
         if self.link.checksum_ok(packet):
             self.link.receive_part(t_s, packet)
-        message.pending -= 1
-        if message.pending == 0:
+        self.travelling[packet.message] -= 1
+        if self.travelling[packet.message] == 0:
+            del self.travelling[packet.message]
             self.link.finish_message(packet.message)
 
     def gauges(self) -> dict[str, float]:

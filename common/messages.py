@@ -158,6 +158,7 @@ class Telemetry(Message):
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
     mode: str = scalar(choices=MODES)
+    command_id: int = scalar(-1, 2**53)  # the waypoint list being flown; -1: none yet
     waypoint_index: int = scalar(0, 1000)
     waypoints_total: int = scalar(0, 1000)
     position_error_m: float = scalar(0.0)

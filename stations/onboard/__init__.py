@@ -35,7 +35,8 @@ def run(config: Config, bus: Bus) -> None:
         if tick % every == 0:
             bus.publish("telemetry", Telemetry(
                 position_m_world=state.position_m_world, yaw_rad=yaw, mode=out.mode,
-                waypoint_index=out.waypoint_index, waypoints_total=out.waypoints_total,
+                command_id=controller.command_id, waypoint_index=out.waypoint_index,
+                waypoints_total=out.waypoints_total,
                 position_error_m=float(np.linalg.norm(out.position_error_m_world)),
                 heading_error_rad=out.heading_error_rad, sim_time_s=state.sim_time_s))
         tick += 1

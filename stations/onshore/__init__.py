@@ -30,7 +30,7 @@ def run(config: Config, bus: Bus) -> None:
         if latest is not None:
             t = latest.message
             assert isinstance(t, Telemetry)
-            taken = taken or t.waypoints_total == len(mission.waypoints)
+            taken = taken or t.command_id == command.command_id
             status = MissionStatus(mode=t.mode, waypoint_index=t.waypoint_index,
                                    waypoints_total=len(mission.waypoints),
                                    position_error_m=t.position_error_m,

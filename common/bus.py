@@ -20,6 +20,7 @@ import zenoh
 from common import keys
 from common.errors import AbyssError, BadMessage, BusError, ConfigError
 from common.messages import LinkControl, LinkStats, Message, Received, decode, encode
+from common.samples import Samples
 from linkemu.profile import LinkProfile
 from linkemu.profile import profile as named_profile
 from linkemu.runner import LinkRunner
@@ -81,6 +82,7 @@ class Bus:
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
+        self.latency_s: dict[str, Samples] = {}  # per received key: sender stamp to receipt
         self._reasons_logged: set[tuple[str, str]] = set()
         self._seq: Counter[str] = Counter()
         self._closing: list[Any] = []
@@ -140,6 +142,7 @@ class Bus:
             self.reject(key, exc.reason)
             return
         self.received[key] += 1
+        self.latency_s.setdefault(key, Samples()).add(time.time() - received.stamp_s)
         inbox.put(received)
 
     def reject(self, key: str, reason: str) -> None:
@@ -189,8 +192,9 @@ class Bus:
         for hop in self.links:
             stats = self.link_stats(hop)
             links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
+        latency = {key: samples.percentiles("latency", 1e3, "ms") for key, samples in self.latency_s.items()}
         return {"sent": dict(self.sent), "received": dict(self.received),
-                "rejected": dict(self.rejected), "links": links}
+                "rejected": dict(self.rejected), "latency_ms": latency, "links": links}
 
     def close(self, drain_s: float = 0.5) -> None:
         self.stop.set()

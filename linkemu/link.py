@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import LinkError
+from common.samples import Samples
 from linkemu.profile import LinkProfile
 from linkemu.stages import STAGES, Packet, Stage
 
@@ -101,8 +102,7 @@ class Link:
         self._next_message = itertools.count()
         self._next_seq = itertools.count()
         self._ready: list[Delivery] = []
-        self.delays_s: list[float] = []
-        self._delay_slot = 0
+        self.delays_s = Samples(DELAY_SAMPLES)  # offer to delivery, of delivered messages
         self.transport = TRANSPORTS[profile.transport](self)
 
     # -- for callers -------------------------------------------------------------------
@@ -163,10 +163,7 @@ class Link:
 
     def snapshot(self) -> dict[str, float]:
         stats: dict[str, float] = {k: float(v) for k, v in self.counters.items()}
-        if self.delays_s:
-            p50, p95, p99 = np.percentile(self.delays_s, [50, 95, 99])
-            stats.update(delay_p50_ms=float(p50) * 1e3, delay_p95_ms=float(p95) * 1e3,
-                         delay_p99_ms=float(p99) * 1e3)
+        stats.update(self.delays_s.percentiles("delay", 1e3, "ms"))
         stats["in_flight"] = float(self.in_flight())
         stats.update(self.transport.gauges())
         return stats
@@ -224,12 +221,7 @@ class Link:
     def _deliver(self, t_s: float, message: _Message, payload: bytes) -> None:
         self.counters["messages_delivered"] += 1
         self.counters["bytes_delivered"] += len(payload)
-        delay_s = t_s - message.offered_s
-        if len(self.delays_s) < DELAY_SAMPLES:
-            self.delays_s.append(delay_s)
-        else:
-            self.delays_s[self._delay_slot] = delay_s
-            self._delay_slot = (self._delay_slot + 1) % DELAY_SAMPLES
+        self.delays_s.add(t_s - message.offered_s)
         self._ready.append(Delivery(payload, message.offered_s, t_s, message.corrupt, message.tag))
 
     def _run_events(self, now_s: float) -> None:

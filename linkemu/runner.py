@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from common.samples import Samples
 from linkemu.link import Delivery, Link, Offer
 from linkemu.profile import LinkProfile
 
@@ -27,7 +28,7 @@ class LinkRunner:
         self.deliver = deliver
         self.passthrough = passthrough
         self.link = Link(profile, rng)
-        self.late_s: list[float] = []  # actual - scheduled delivery time, last 4096
+        self.late_s = Samples()  # actual - scheduled delivery time
         self._cond = threading.Condition()
         self._closed = False
         self._thread = threading.Thread(target=self._loop, name=f"link-{name}", daemon=True)
@@ -69,11 +70,7 @@ class LinkRunner:
 
     def snapshot(self) -> dict[str, float]:
         with self._cond:
-            stats = self.link.snapshot()
-            if self.late_s:
-                p50, p99 = np.percentile(self.late_s, [50, 99])
-                stats.update(late_p50_us=float(p50) * 1e6, late_p99_us=float(p99) * 1e6)
-            return stats
+            return {**self.link.snapshot(), **self.late_s.percentiles("late", 1e6, "us", (50, 99))}
 
     def close(self, drain_s: float = 0.0) -> None:
         """Stop; with `drain_s`, first wait that long for messages still in flight. Whatever
@@ -95,7 +92,7 @@ class LinkRunner:
                 now_s = time.monotonic()
                 ready: list[Delivery] = self.link.advance(now_s)
                 for d in ready:
-                    self._record_lateness(now_s - d.delivered_s)
+                    self.late_s.add(now_s - d.delivered_s)
                 if ready:
                     self._cond.notify_all()  # room in the queue for blocked senders
                 next_s = self.link.next_event_s()
@@ -106,8 +103,3 @@ class LinkRunner:
                     self.deliver(d.tag, d.payload)
                 except Exception:  # a failing subscriber must not stop the link
                     log.exception("link %s: delivery failed", self.name)
-
-    def _record_lateness(self, late_s: float) -> None:
-        if len(self.late_s) >= 4096:
-            del self.late_s[:1024]
-        self.late_s.append(late_s)

@@ -228,7 +228,8 @@ class Up:
             code = station.died if station.died is not None else station.process.returncode
             stations[name] = {"exit_code": code, "restarts": station.restarts,
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
-                              **{k: status.get(k, {}) for k in ("sent", "received", "rejected")}}
+                              **{k: status.get(k, {})
+                                 for k in ("sent", "received", "rejected", "latency_ms")}}
         if not failure and any(s["exit_code"] != 0 for s in stations.values()):
             failure = "a station exited with an error"
         return {

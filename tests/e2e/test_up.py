@@ -35,6 +35,8 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
             assert summary["links"][hop][direction]["messages_delivered"] > 0, (hop, direction)
     tether = summary["links"]["tether"]["onboard->vessel"]
     assert 90 < tether["delay_p50_ms"] < 130  # the tether profile's 100 ms +/- 10 ms
+    telemetry = keys.spec("onboard", "telemetry").key("e2e-up")  # the same, seen by the receiver
+    assert 90 < summary["stations"]["vessel"]["latency_ms"][telemetry]["latency_p50_ms"] < 140
     mission = summary["mission"]  # the mission went down, was flown, and shore saw progress
     assert mission["waypoints_total"] == 3 and mission["mode"] in ("moving", "reached")
     assert mission["waypoint_index"] >= 1

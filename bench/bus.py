@@ -1,9 +1,12 @@
 """Bus figures: common/bus.py against raw zenoh-python in the same run, and `abyss up`
 start-up time. Run: .venv/bin/python bench/bus.py. Prints figures; asserts nothing.
 
-Both sides run two Zenoh peer sessions in one process over loopback TCP; the bus side
-publishes NavState through the `rov` hop's emulator (ideal profile: the pass-through) and
-decodes and validates on receipt; the raw side puts and receives the same bytes."""
+Each case opens two Zenoh peer sessions in this process over loopback TCP. The bus side
+publishes through the hop's emulator with the `ideal` profile (the counted pass-through)
+and decodes and validates every message on receipt; the raw side puts the same encoded
+bytes (plus an 8-byte send time) and only counts them. Cases: a flood of small messages
+(capacity in messages/s), a flood of 32 KB messages (capacity in bit/s), and small
+messages paced at 500/s (latency without queueing)."""
 
 from __future__ import annotations
 
@@ -12,78 +15,109 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
+from common import keys
 from common.bus import Bus, open_session, zenoh_config
-from common.messages import NavState, Received, encode
+from common.messages import Message, NavState, Waypoints, encode
+from common.samples import Samples
 from linkemu.profile import profile
 from stations.runtime import free_port
 
-N = 20000
 SYSTEM = "bench"
 
 
-def nav() -> NavState:
-    return NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0)
+@dataclass(frozen=True)
+class Case:
+    name: str
+    publisher: str
+    topic: str
+    message: Message
+    count: int
+    rate_hz: float | None  # None: as fast as possible
 
 
-def measure(publish: Callable[[], object], received: list[tuple[float, float]]) -> tuple[float, float, float]:
-    """Publish N messages as fast as possible; messages/s and one-way latency p50, p99 [us]."""
-    for _ in range(200):  # warm up
+@dataclass(frozen=True)
+class Result:
+    messages_per_s: float
+    bits_per_s: float
+    latency_p50_us: float
+    latency_p99_us: float
+
+
+CASES = (
+    Case("flood, NavState", "simulation", "nav",
+         NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0), 20000, None),
+    Case("flood, Waypoints 32 KB", "vessel", "goal/waypoints",
+         Waypoints(1, np.zeros((1000, 4))), 2000, None),
+    Case("paced 500/s, NavState", "simulation", "nav",
+         NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0), 3000, 500.0),
+)
+
+
+def drive(case: Case, publish: Callable[[], object], received: Callable[[], int],
+          latency: Samples) -> Result:
+    for _ in range(100):  # warm up
         publish()
     time.sleep(0.5)
-    received.clear()
+    start = received()
+    latency.__init__()  # type: ignore[misc]
     t0 = time.perf_counter()
-    for _ in range(N):
+    for i in range(case.count):
+        if case.rate_hz:
+            time.sleep(max(0.0, t0 + i / case.rate_hz - time.perf_counter()))
         publish()
-    deadline = time.time() + 10
-    while len(received) < N * 0.99 and time.time() < deadline:
-        time.sleep(0.01)
+    deadline = time.perf_counter() + 20
+    while received() - start < case.count * 0.99 and time.perf_counter() < deadline:
+        time.sleep(0.005)
     elapsed = time.perf_counter() - t0
-    latency_us = np.array([now - stamp for now, stamp in received]) * 1e6
-    return len(received) / elapsed, float(np.percentile(latency_us, 50)), float(np.percentile(latency_us, 99))
+    n = received() - start
+    size = len(encode(case.message, 0, 0.0))
+    lat = latency.percentiles("latency", 1e6, "us", (50, 99))
+    return Result(n / elapsed, n * size * 8 / elapsed, lat["latency_p50_us"], lat["latency_p99_us"])
 
 
-def bench_bus() -> tuple[float, float, float]:
+def bench_bus(case: Case) -> Result:
     port = free_port()
-    ideal = {hop: profile("ideal") for hop in ("rov", "tether", "satellite")}
-    sim = Bus(SYSTEM, "simulation", ideal, listen=[f"tcp/127.0.0.1:{port}"])
-    onboard = Bus(SYSTEM, "onboard", ideal, connect=[f"tcp/127.0.0.1:{port}"])
-    received: list[tuple[float, float]] = []
-    inbox = onboard.subscribe("simulation", "nav", maxlen=8)
-    original_put = inbox.put
-
-    def put(item: Received) -> None:
-        received.append((time.time(), item.stamp_s))
-        original_put(item)
-
-    inbox.put = put  # type: ignore[method-assign]
+    spec = keys.spec(case.publisher, case.topic)
+    ideal = {hop: profile("ideal") for hop in keys.HOPS}
+    sender = Bus(SYSTEM, case.publisher, ideal, listen=[f"tcp/127.0.0.1:{port}"])
+    receiver = Bus(SYSTEM, spec.to, ideal, connect=[f"tcp/127.0.0.1:{port}"])
+    receiver.subscribe(case.publisher, case.topic, maxlen=8)
+    key = spec.key(SYSTEM)
+    receiver.latency_s[key] = latency = Samples()
     time.sleep(1.0)
-    message = nav()
-    result = measure(lambda: sim.publish("nav", message), received)
-    sim.close()
-    onboard.close()
+    result = drive(case, lambda: sender.publish(case.topic, case.message), lambda: receiver.received[key],
+                   latency)
+    sender.close()
+    receiver.close()
     return result
 
 
-def bench_raw() -> tuple[float, float, float]:
+def bench_raw(case: Case) -> Result:
     port = free_port()
     a = open_session(zenoh_config(listen=[f"tcp/127.0.0.1:{port}"]), "raw a")
     b = open_session(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]), "raw b")
-    received: list[tuple[float, float]] = []
+    count = [0]
+    latency = Samples()
 
     def on_sample(sample: zenoh.Sample) -> None:
         data = sample.payload.to_bytes()
-        received.append((time.time(), float(np.frombuffer(data[-8:], "<f8")[0])))
+        latency.add(time.time() - float(np.frombuffer(data[-8:], "<f8")[0]))
+        count[0] += 1
 
+    reliable = keys.spec(case.publisher, case.topic).reliability == "reliable"
     sub = b.declare_subscriber("abyss/bench/raw", on_sample)
-    pub = a.declare_publisher("abyss/bench/raw")
+    pub = a.declare_publisher("abyss/bench/raw", congestion_control=zenoh.CongestionControl.BLOCK
+                              if reliable else zenoh.CongestionControl.DROP)
     time.sleep(1.0)
-    body = encode(nav(), 0, 0.0)  # the same bytes the bus sends, the send time appended
-    result = measure(lambda: pub.put(body + np.float64(time.time()).tobytes()), received)
+    body = encode(case.message, 0, 0.0)
+    result = drive(case, lambda: pub.put(body + np.float64(time.time()).tobytes()), lambda: count[0],
+                   latency)
     sub.undeclare()
     pub.undeclare()
     a.close()
@@ -103,12 +137,19 @@ def bench_startup(runs: int = 3) -> list[float]:
     return times
 
 
+def show(label: str, r: Result) -> None:
+    print(f"  {label:<5} {r.messages_per_s:9.0f} msg/s {r.bits_per_s / 1e6:9.1f} Mbit/s   "
+          f"latency p50 {r.latency_p50_us:9.0f} us  p99 {r.latency_p99_us:9.0f} us")
+
+
 if __name__ == "__main__":
-    raw = bench_raw()
-    bus = bench_bus()
-    print(f"raw zenoh-python: {raw[0]:8.0f} msg/s, latency p50 {raw[1]:6.0f} us, p99 {raw[2]:7.0f} us")
-    print(f"common/bus.py   : {bus[0]:8.0f} msg/s, latency p50 {bus[1]:6.0f} us, p99 {bus[2]:7.0f} us")
-    print(f"bus / raw       : throughput {bus[0] / raw[0]:.2f}x, latency p50 {bus[1] / raw[1]:.2f}x, "
-          f"p99 {bus[2] / raw[2]:.2f}x")
+    for case in CASES:
+        raw, bus = bench_raw(case), bench_bus(case)
+        print(case.name)
+        show("raw", raw)
+        show("bus", bus)
+        print(f"  bus/raw: throughput {bus.messages_per_s / raw.messages_per_s:.2f}x, latency p50 "
+              f"{bus.latency_p50_us / raw.latency_p50_us:.2f}x, "
+              f"p99 {bus.latency_p99_us / raw.latency_p99_us:.2f}x")
     startup = bench_startup()
-    print(f"abyss up start-up to all four alive: {', '.join(f'{t:.2f}' for t in startup)} s")
+    print(f"abyss up, command to all four stations alive: {', '.join(f'{t:.2f}' for t in startup)} s")

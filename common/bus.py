@@ -54,14 +54,24 @@ class Inbox:
     def __init__(self, maxlen: int) -> None:
         self._items: deque[Received] = deque(maxlen=maxlen)
         self._lock = threading.Lock()
+        self._latest_received_s = -float("inf")  # this station's monotonic clock
 
     def put(self, item: Received) -> None:
         with self._lock:
             self._items.append(item)
+            self._latest_received_s = time.monotonic()
 
     def latest(self) -> Received | None:
         with self._lock:
             return self._items[-1] if self._items else None
+
+    def fresh(self, max_age_s: float) -> Received | None:
+        """The latest message if it arrived less than `max_age_s` ago by this station's
+        clock (a sender's clock on another host may be off)."""
+        with self._lock:
+            if not self._items or time.monotonic() - self._latest_received_s > max_age_s:
+                return None
+            return self._items[-1]
 
     def drain(self) -> list[Received]:
         with self._lock:
@@ -85,6 +95,7 @@ class Bus:
         self.latency_s: dict[str, Samples] = {}  # per received key: sender stamp to receipt
         self._reasons_logged: set[tuple[str, str]] = set()
         self._seq: Counter[str] = Counter()
+        self._publish_lock = threading.Lock()
         self._closing: list[Any] = []
         self.session = open_session(zenoh_config(listen, connect), f"station {station}")
         self._publishers = {
@@ -116,9 +127,10 @@ class Bus:
         if spec.message != message.TYPE:
             raise ConfigError(topic, f"carries {spec.message}, not {message.TYPE}")
         key = spec.key(self.system)
-        payload = encode(message, self._seq[key], time.time())
-        self._seq[key] += 1
-        self.sent[key] += 1
+        with self._publish_lock:  # stations publish from more than one thread
+            payload = encode(message, self._seq[key], time.time())
+            self._seq[key] += 1
+            self.sent[key] += 1
         return self.links[spec.hop].send(payload, spec.reliability == "reliable", tag=key)
 
     def subscribe(self, station: str, topic: str, maxlen: int = 64) -> Inbox:
@@ -126,10 +138,13 @@ class Bus:
         spec = keys.spec(station, topic)
         if spec.to != self.station:
             raise ConfigError(f"{station}/{topic}", f"is sent to {spec.to}, not to {self.station}")
+        return self.subscribe_key(spec.key(self.system), spec.message, maxlen)
+
+    def subscribe_key(self, key: str, message: str, maxlen: int = 64) -> Inbox:
+        """Receive `message`s on any key, a control key included; validated and counted."""
         inbox = Inbox(maxlen)
-        key = spec.key(self.system)
         self._closing.append(self.session.declare_subscriber(
-            key, lambda sample: self._on_sample(key, spec.message, sample, inbox)))
+            key, lambda sample: self._on_sample(key, message, sample, inbox)))
         return inbox
 
     def _put(self, key: str, payload: bytes) -> None:
@@ -155,8 +170,10 @@ class Bus:
     # -- control and observation ---------------------------------------------------------
     def observe(self, key: str, message: Message) -> None:
         """Publish on an observation key, outside the emulated links."""
-        self.session.put(key, encode(message, self._seq[key], time.time()))
-        self._seq[key] += 1
+        with self._publish_lock:
+            payload = encode(message, self._seq[key], time.time())
+            self._seq[key] += 1
+        self.session.put(key, payload)
 
     def _on_link_control(self, hop: str, sample: zenoh.Sample) -> None:
         key = keys.link_key(self.system, hop)

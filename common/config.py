@@ -38,17 +38,54 @@ class LinksConfig:
         return {hop: profile(getattr(self, hop)) for hop in keys.HOPS}
 
 
+LOW_LEVELS = ("kinematic", "dynamic")
+
+
 @dataclass(frozen=True)
 class SimulationConfig:
+    low_level: str = "dynamic"  # kinematic | dynamic
     physics_step_s: float = 0.002  # [s]
     control_period_s: float = 0.05  # [s] rate of nav output and command intake
     command_timeout_s: float = 0.5  # [s] older commands make the low level hold still
     realtime_factor: float = 1.0
-    start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -5.0)
+    start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -7.0)
+    start_yaw_rad: float = 0.0
+    # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
+    vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 4000.0)
+    vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 1000.0)
+    vehicle_kd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    arm_kp: float = 400.0  # [N m/(rad/s)]
+    arm_ki: float = 200.0
+    gripper_kp: float = 1000.0  # [N/(m/s)]
+    current_mps_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    current_variation_mps: float = 0.0  # amplitude of a slow sinusoid in a seeded direction
+    current_period_s: float = 120.0
+    usbl_sigma_m: float = 0.05
+    depth_sigma_m: float = 0.01
+    dvl_sigma_mps: float = 0.005
+    imu_sigma_rad: float = 0.002
+    camera_rate_hz: float = 1.0  # 0: no cameras
+    camera_width_px: int = 640
+    camera_height_px: int = 480
+    jpeg_quality: int = 90
 
     def __post_init__(self) -> None:
+        if self.low_level not in LOW_LEVELS:
+            raise ConfigError("simulation.low_level",
+                              f"{self.low_level!r} not one of {', '.join(LOW_LEVELS)}")
         _positive("simulation.physics_step_s", self.physics_step_s)
         _positive("simulation.realtime_factor", self.realtime_factor)
+        _positive("simulation.current_period_s", self.current_period_s)
+        for name in ("arm_kp", "arm_ki", "gripper_kp", "current_variation_mps", "usbl_sigma_m",
+                     "depth_sigma_m", "dvl_sigma_mps", "imu_sigma_rad", "camera_rate_hz"):
+            _positive(f"simulation.{name}", getattr(self, name), allow_zero=True)
+        for name in ("vehicle_kp", "vehicle_ki", "vehicle_kd"):
+            for value in getattr(self, name):
+                _positive(f"simulation.{name}", value, allow_zero=True)
+        if not (16 <= self.camera_width_px <= 4096 and 16 <= self.camera_height_px <= 4096):
+            raise ConfigError("simulation.camera_width_px", "camera size must lie in [16, 4096] px")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ConfigError("simulation.jpeg_quality", f"{self.jpeg_quality} outside [1, 100]")
         steps = self.control_period_s / self.physics_step_s
         if steps < 1 or not math.isclose(steps, round(steps), rel_tol=0, abs_tol=1e-9):
             raise ConfigError("simulation.control_period_s",
@@ -84,7 +121,7 @@ class VesselConfig:
 class MissionConfig:
     # rows of x, y, z [m, world] and yaw [rad]
     waypoints: tuple[tuple[float, float, float, float], ...] = (
-        (2.0, 0.0, -5.0, 0.0), (2.0, 2.0, -5.0, 1.5708), (0.0, 2.0, -5.0, 3.1416))
+        (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.3, 0.0, -7.9, 0.0))
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
     resend_period_s: float = 2.0  # [s] shore resends the mission until telemetry shows it

@@ -83,7 +83,12 @@ class KeySpec:
 
 KEYS: tuple[KeySpec, ...] = (
     KeySpec("simulation", "nav", "NavState", 20.0, "best-effort", "onboard"),
+    KeySpec("simulation", "joints", "JointState", 20.0, "best-effort", "onboard"),
+    KeySpec("simulation", "camera/cam_left", "Image", 1.0, "best-effort", "onboard"),
+    KeySpec("simulation", "camera/cam_right", "Image", 1.0, "best-effort", "onboard"),
+    KeySpec("simulation", "camera/cam_depth", "Image", 1.0, "best-effort", "onboard"),
     KeySpec("onboard", "cmd/vehicle_velocity", "VelocityRef", 20.0, "best-effort", "simulation"),
+    KeySpec("onboard", "cmd/arm_velocity", "ArmVelocityRef", 20.0, "best-effort", "simulation"),
     KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel"),
     KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard"),
     KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore"),
@@ -113,6 +118,19 @@ def alive_key(system: str, station: str) -> str:
     return key(system, station, "alive")
 
 
+def truth_key(system: str) -> str:
+    """The vehicle's true state, for scoring only: no station may steer by it."""
+    return key(system, "simulation", "truth")
+
+
+def simulation_control_key(system: str) -> str:
+    return key(system, "simulation", "control")
+
+
+def simulation_status_key(system: str) -> str:
+    return key(system, "simulation", "status")
+
+
 def mission_key(system: str) -> str:
     """Mission status as the operator sees it, published on shore."""
     return key(system, "onshore", "mission")
@@ -124,6 +142,10 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
      "put: change a hop's profile; get: profiles and stats"),
     ("abyss/<system>/<station>/linkstats/<hop>", "LinkStats", "1 Hz", "what each emulator measured"),
     ("abyss/<system>/<station>/alive", "liveliness", "-", "token held while the station runs"),
+    ("abyss/<system>/simulation/truth", "NavState", "20 Hz", "true vehicle state, for scoring only"),
+    ("abyss/<system>/simulation/control", "SimulationControl", "event",
+     "faults: thruster, camera, noise, clear"),
+    ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
 )
 

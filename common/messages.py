@@ -73,6 +73,10 @@ def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
         return _check_array(name, value, meta)
     if kind in (float, int):
         return _check_number(name, value, kind, meta.get("lo", -math.inf), meta.get("hi", math.inf))
+    if kind is bytes:
+        if not isinstance(value, bytes) or len(value) > meta.get("max_bytes", 16 * 2**20):
+            raise ValueError(f"{name}: expected at most {meta.get('max_bytes', 16 * 2**20)} bytes")
+        return value
     if kind is bool:
         if not isinstance(value, bool):
             raise ValueError(f"{name}: expected bool, got {type(value).__name__}")
@@ -148,6 +152,72 @@ class VelocityRef(Message):
     yaw_rate_radps: float = scalar(-5.0, 5.0)
 
 
+@dataclass(frozen=True)
+class ArmVelocityRef(Message):
+    """Arm joint velocity references (model order: common.models.ARM_JOINTS) and the
+    gripper's opening speed; onboard -> simulation."""
+
+    joint_velocities_radps: np.ndarray = array("f8", (6,), -5.0, 5.0)
+    gripper_velocity_mps: float = scalar(-0.5, 0.5)
+
+
+@dataclass(frozen=True)
+class JointState(Message):
+    """Arm joint positions and velocities (model order) and the gripper opening;
+    simulation -> onboard."""
+
+    positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)
+    velocities_radps: np.ndarray = array("f8", (6,), -100.0, 100.0)
+    gripper_opening_m: float = scalar(0.0, 1.0)
+    sim_time_s: float = scalar(0.0)
+
+
+IMAGE_ENCODINGS = ("jpeg", "png16")
+
+
+@dataclass(frozen=True)
+class Image(Message):
+    """A camera frame: RGB as JPEG, depth as 16-bit PNG in millimetres. Intrinsics of the
+    pinhole model [px]; extrinsics: the camera's pose in the vehicle frame, x, y, z [m] and
+    quaternion w, x, y, z, camera axes as OpenCV's (x right, y down, z forward)."""
+
+    camera: str = scalar()
+    encoding: str = scalar(choices=IMAGE_ENCODINGS)
+    width_px: int = scalar(1, 8192)
+    height_px: int = scalar(1, 8192)
+    fx_px: float = scalar(1e-3, 1e6)
+    fy_px: float = scalar(1e-3, 1e6)
+    cx_px: float = scalar(0.0, 8192.0)
+    cy_px: float = scalar(0.0, 8192.0)
+    pose_camera_in_vehicle: np.ndarray = array("f8", (7,), -100.0, 100.0)
+    data: bytes = field(metadata={"max_bytes": 32 * 2**20})
+    sim_time_s: float = scalar(0.0)
+
+
+FAULTS = ("thruster", "camera", "noise", "clear")
+
+
+@dataclass(frozen=True)
+class SimulationControl(Message):
+    """A fault injected into the simulation (scenario runner, tests):
+    thruster NAME VALUE: that thruster's efficiency (0: failed, 0.5: weakened, 1: healthy);
+    camera NAME VALUE: 0 blacks the camera out, 1 restores it; noise SENSOR VALUE: that
+    navigation sensor's noise scale (usbl, depth, dvl, imu; 1 is nominal); clear: undo all."""
+
+    fault: str = scalar(choices=FAULTS)
+    target: str = scalar()
+    value: float = scalar(0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class SimulationStatus(Message):
+    """The simulation's clock against the wall clock, and the active faults."""
+
+    sim_time_s: float = scalar(0.0)
+    realtime_factor: float = scalar(0.0, 1e6)
+    faults: dict[str, float] = field(default_factory=dict)
+
+
 MODES = ("idle", "moving", "reached", "hold")
 
 
@@ -163,6 +233,7 @@ class Telemetry(Message):
     waypoints_total: int = scalar(0, 1000)
     position_error_m: float = scalar(0.0)
     heading_error_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
+    arm_positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)  # model order
     sim_time_s: float = scalar(0.0)
 
 

@@ -92,4 +92,4 @@ def test_invalid_values_are_refused_at_construction() -> None:
     with pytest.raises(ValueError, match="unit quaternion"):
         NavState(np.zeros(3), np.array([1.0, 1.0, 0, 0]), np.zeros(3), np.zeros(3), 0.0)
     with pytest.raises(ValueError, match="mode"):
-        Telemetry(np.zeros(3), 0.0, "flying", -1, 0, 0, 0.0, 0.0, 0.0)
+        Telemetry(np.zeros(3), 0.0, "flying", -1, 0, 0, 0.0, 0.0, np.zeros(6), 0.0)

@@ -4,12 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.bus import Bus
+from common.bus import Bus, Inbox
 from common.config import Config
 from common.geometry import yaw_of
-from common.messages import NavState, Telemetry, VelocityRef, Waypoints
+from common.messages import JointState, NavState, Telemetry, VelocityRef, Waypoints
 from common.rate import Rate
 from stations.onboard.vehicle_control import VehicleController
+
+
+def arm_positions(joints: Inbox) -> np.ndarray:
+    latest = joints.latest()
+    return latest.message.positions_rad if latest and isinstance(latest.message, JointState) else np.zeros(6)
 
 
 def run(config: Config, bus: Bus) -> None:
@@ -17,6 +22,7 @@ def run(config: Config, bus: Bus) -> None:
     controller = VehicleController(cfg, config.mission)
     nav = bus.subscribe("simulation", "nav", maxlen=4)
     goals = bus.subscribe("vessel", "goal/waypoints")
+    joints = bus.subscribe("simulation", "joints", maxlen=4)
     rate = Rate(cfg.control_period_s, bus.stop)
     every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
     tick = 0
@@ -38,5 +44,6 @@ def run(config: Config, bus: Bus) -> None:
                 command_id=controller.command_id, waypoint_index=out.waypoint_index,
                 waypoints_total=out.waypoints_total,
                 position_error_m=float(np.linalg.norm(out.position_error_m_world)),
-                heading_error_rad=out.heading_error_rad, sim_time_s=state.sim_time_s))
+                heading_error_rad=out.heading_error_rad, arm_positions_rad=arm_positions(joints),
+                sim_time_s=state.sim_time_s))
         tick += 1

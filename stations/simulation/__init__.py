@@ -1,26 +1,92 @@
-"""The simulation station: the vehicle in MuJoCo, paced to real time."""
+"""The simulation station: the vehicle, its arm, the panel and the seabed in MuJoCo, paced to
+real time (or `simulation.realtime_factor` of it), with cameras rendered in their own thread."""
 
 from __future__ import annotations
 
+import threading
 import time
 
+import numpy as np
+
+from common import keys
 from common.bus import Bus
 from common.config import Config
-from common.messages import VelocityRef
+from common.messages import ArmVelocityRef, SimulationControl, SimulationStatus, VelocityRef
 from common.rate import Rate
-from stations.simulation.world import World
+
+STATUS_PERIOD_S = 1.0
 
 
 def run(config: Config, bus: Bus) -> None:
     sim = config.simulation
-    world = World(sim)
-    commands = bus.subscribe("onboard", "cmd/vehicle_velocity")
+    if sim.camera_rate_hz > 0:
+        from stations.simulation.rendering import choose_gl_backend
+
+        choose_gl_backend()  # before MuJoCo is imported
+    from stations.simulation.world import World, references
+
+    world = World(sim, np.random.default_rng(config.seed))
+    vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", maxlen=4)
+    arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
+    control_key = keys.simulation_control_key(bus.system)
+    controls = bus.subscribe_key(control_key, "SimulationControl")
+    lock = threading.Lock()
+    blackout: set[str] = set()
+    camera_thread = None
+    if sim.camera_rate_hz > 0:
+        camera_thread = threading.Thread(target=_camera_loop, args=(config, bus, world, lock, blackout),
+                                         name="cameras", daemon=True)
+        camera_thread.start()
     rate = Rate(sim.control_period_s / sim.realtime_factor, bus.stop)
+    wall0, sim0 = time.monotonic(), world.data.time
     while True:
-        latest = commands.latest()
-        fresh = latest is not None and time.time() - latest.stamp_s < sim.command_timeout_s
-        command = latest.message if fresh and latest else None
-        world.step(command if isinstance(command, VelocityRef) else None, sim.control_period_s)
-        bus.publish("nav", world.nav_state())
+        for control in controls.drain():
+            assert isinstance(control.message, SimulationControl)
+            try:
+                with lock:
+                    world.apply_fault(control.message, blackout)
+            except ValueError as exc:
+                bus.reject(control_key, str(exc))
+        v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
+        refs = references(v.message if v and isinstance(v.message, VelocityRef) else None,
+                          a.message if a and isinstance(a.message, ArmVelocityRef) else None)
+        with lock:
+            world.step(refs, sim.control_period_s)
+            truth, joints = world.truth(), world.joints()
+        bus.publish("nav", world.nav())
+        bus.publish("joints", joints)
+        bus.observe(keys.truth_key(bus.system), truth)
+        wall = time.monotonic()
+        if wall - wall0 >= STATUS_PERIOD_S:
+            bus.observe(keys.simulation_status_key(bus.system), SimulationStatus(
+                sim_time_s=truth.sim_time_s, realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
+                faults=dict(world.faults)))
+            wall0, sim0 = wall, truth.sim_time_s
         if not rate.sleep():
-            return
+            break
+    if camera_thread is not None:
+        camera_thread.join(timeout=5.0)
+
+
+def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:
+    """Render every camera at the camera rate from a copy of the physics state."""
+    import mujoco
+
+    from common.models import CAMERAS
+    from stations.simulation.encoding import encode_image
+    from stations.simulation.rendering import Cameras
+
+    sim = config.simulation
+    model = world.model  # type: ignore[attr-defined]
+    snapshot = mujoco.MjData(model)
+    cameras = Cameras(model, sim.camera_width_px, sim.camera_height_px)
+    cameras.blackout = blackout
+    rate = Rate(1.0 / (sim.camera_rate_hz * sim.realtime_factor), bus.stop)
+    try:
+        while rate.sleep():
+            with lock:
+                mujoco.mj_copyData(snapshot, model, world.data)  # type: ignore[attr-defined]
+            for camera in CAMERAS:
+                bus.publish(f"camera/{camera}", encode_image(cameras, snapshot, camera, sim.jpeg_quality))
+    finally:
+        cameras.close()

@@ -1,56 +1,109 @@
-"""The MuJoCo world and the kinematic low-level vehicle controller: a pure core that
-takes a velocity reference and time and returns the navigation state."""
+"""The simulated world: MuJoCo physics, marine forces, thrusters, the low-level controller,
+navigation sensors and faults. A pure core: references and time in, states out."""
 
 from __future__ import annotations
-
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from common.config import SimulationConfig
-from common.geometry import yaw_of
-from common.messages import NavState, VelocityRef
+from common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
+from common.models import ARM_JOINTS, CAMERAS, GRIPPER_JOINTS, THRUSTERS, WORLD_FILE
+from stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
+from stations.simulation.marine import Buoyancy, Current
+from stations.simulation.navigation import SENSORS, Navigation, NoiseSigmas
 
-MODEL_FILE = Path(__file__).resolve().parents[2] / "common" / "models" / "world.xml"
+
+def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> References:
+    """The low level's inputs; a missing (or stale) command holds that part still."""
+    hold = References.hold()
+    return References(
+        np.r_[vehicle.linear_mps_body, vehicle.yaw_rate_radps] if vehicle else hold.vehicle_body,
+        np.array(arm.joint_velocities_radps) if arm else hold.arm_radps,
+        arm.gripper_velocity_mps if arm else 0.0,
+    )
 
 
 class World:
-    """Steps the physics; the kinematic low level applies the reference velocity directly
-    (roll and pitch are held: the vehicle is not actuated in them)."""
-
-    def __init__(self, config: SimulationConfig) -> None:
+    def __init__(self, config: SimulationConfig, rng: np.random.Generator) -> None:
         self.config = config
-        self.model = mujoco.MjModel.from_xml_path(str(MODEL_FILE))
+        self.model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
-        self._qpos = self.model.joint("vehicle").qposadr[0]
-        self._qvel = self.model.joint("vehicle").dofadr[0]
-        self.data.qpos[self._qpos:self._qpos + 3] = config.start_position_m_world
+        gains = PidGains(config.vehicle_kp, config.vehicle_ki, config.vehicle_kd, config.arm_kp,
+                         config.arm_ki, config.gripper_kp)
+        self.controller = LOW_LEVELS[config.low_level](self.model, gains)
+        self.plant = self.controller.plant
+        self.buoyancy = Buoyancy(self.model)
+        self.current = Current(config.current_mps_world, config.current_variation_mps,
+                               config.current_period_s, rng)
+        self.navigation = Navigation(NoiseSigmas(config.usbl_sigma_m, config.depth_sigma_m,
+                                                 config.dvl_sigma_mps, config.imu_sigma_rad), rng)
+        self.faults: dict[str, float] = {}
+        self._robot_dofs = np.r_[np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs,
+                                 self.plant.gripper_dofs]
+        p = self.plant.qpos
+        self.data.qpos[p:p + 3] = config.start_position_m_world
+        self.data.qpos[p + 3:p + 7] = [np.cos(config.start_yaw_rad / 2), 0.0, 0.0,
+                                       np.sin(config.start_yaw_rad / 2)]
         mujoco.mj_forward(self.model, self.data)
 
-    def step(self, command: VelocityRef | None, period_s: float) -> None:
-        """Advance by `period_s` [s] under `command` (None: hold still)."""
-        yaw = yaw_of(self.data.qpos[self._qpos + 3:self._qpos + 7])
-        c, s = np.cos(yaw), np.sin(yaw)
-        level_yaw = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        linear_world = level_yaw @ command.linear_mps_body if command else np.zeros(3)
-        yaw_rate = command.yaw_rate_radps if command else 0.0
-        for _ in range(round(period_s / self.model.opt.timestep)):
-            self.data.qvel[self._qvel:self._qvel + 3] = linear_world
-            self.data.qvel[self._qvel + 3:self._qvel + 6] = (0.0, 0.0, yaw_rate)
-            mujoco.mj_step(self.model, self.data)
+    def step(self, refs: References, period_s: float) -> None:
+        """Advance by `period_s` [s] (a whole number of physics steps)."""
+        dt = self.model.opt.timestep
+        for _ in range(round(period_s / dt)):
+            self.controller.apply(self.data, refs, dt)
+            if self.controller.dynamics:
+                self.current.apply(self.model, self.data.time)
+                self.buoyancy.apply(self.data)
+                mujoco.mj_step(self.model, self.data)
+            else:  # kinematic: positions follow the velocities exactly; nothing else moves
+                others = np.setdiff1d(np.arange(self.model.nv), self._robot_dofs)
+                self.data.qvel[others] = 0.0
+                mujoco.mj_integratePos(self.model, self.data.qpos, self.data.qvel, dt)
+                self.data.time += dt
+                mujoco.mj_forward(self.model, self.data)
 
-    def nav_state(self) -> NavState:
-        quat = self.data.qpos[self._qpos + 3:self._qpos + 7].copy()
-        quat /= np.linalg.norm(quat)
-        rotation = np.empty(9)
-        mujoco.mju_quat2Mat(rotation, quat)
-        linear_world = self.data.qvel[self._qvel:self._qvel + 3]
-        return NavState(
-            position_m_world=self.data.qpos[self._qpos:self._qpos + 3].copy(),
-            orientation_wxyz_world=quat,
-            velocity_mps_body=rotation.reshape(3, 3).T @ linear_world,
-            angular_velocity_radps_body=self.data.qvel[self._qvel + 3:self._qvel + 6].copy(),
-            sim_time_s=float(self.data.time),
-        )
+    # -- outputs -------------------------------------------------------------------------
+    def truth(self) -> NavState:
+        p = self.plant.qpos
+        quat = self.data.qpos[p + 3:p + 7] / np.linalg.norm(self.data.qpos[p + 3:p + 7])
+        velocity = self.plant.vehicle_velocity_body(self.data)
+        return NavState(self.data.qpos[p:p + 3].copy(), quat, velocity[:3], velocity[3:],
+                        float(self.data.time))
+
+    def nav(self) -> NavState:
+        return self.navigation.measure(self.truth())
+
+    def joints(self) -> JointState:
+        d, p = self.data, self.plant
+        return JointState(
+            positions_rad=np.array([d.qpos[self.model.joint(n).qposadr[0]] for n in ARM_JOINTS]),
+            velocities_radps=d.qvel[p.arm_dofs].copy(),
+            gripper_opening_m=float(np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]]
+                                                for n in GRIPPER_JOINTS), 0.0, 1.0)),
+            sim_time_s=float(d.time))
+
+    # -- faults --------------------------------------------------------------------------
+    def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:
+        """Raises ValueError with the allowed targets for an unknown one."""
+        if fault.fault == "clear":
+            self.faults.clear()
+            cameras.clear()
+            self.navigation.scale = dict.fromkeys(SENSORS, 1.0)
+            if self.controller.dynamics:
+                self.controller.thrusters.efficiency[:] = 1.0
+            return
+        allowed = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": SENSORS}[fault.fault]
+        if fault.target not in allowed:
+            raise ValueError(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
+        if fault.fault == "thruster":
+            if fault.value > 1.0:
+                raise ValueError("thruster efficiency must lie in [0, 1]")
+            if self.controller.dynamics:
+                self.controller.thrusters.efficiency[THRUSTERS.index(fault.target)] = fault.value
+        elif fault.fault == "camera":
+            (cameras.add if fault.value == 0.0 else cameras.discard)(fault.target)
+        else:
+            self.navigation.scale[fault.target] = fault.value
+        self.faults[f"{fault.fault}/{fault.target}"] = fault.value

@@ -8,8 +8,11 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -17,7 +20,10 @@ ROOT = Path(__file__).resolve().parents[2]
 class Up:
     """`abyss up` as a user runs it, its output read line by line."""
 
+    started: ClassVar[list[Up]] = []
+
     def __init__(self, out: Path, *args: str) -> None:
+        Up.started.append(self)
         self.out = out
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.process = subprocess.Popen(
@@ -64,6 +70,17 @@ class Up:
 
     def output(self) -> str:
         return "\n".join(self.lines)
+
+
+@pytest.fixture(autouse=True)
+def no_leftover_systems() -> Iterator[None]:
+    """A failed test still stops what it started, so nothing leaks into the next test."""
+    yield
+    while Up.started:
+        up = Up.started.pop()
+        if up.process.poll() is None:
+            up.process.kill()
+        up.wait(30)
 
 
 def abyss(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:

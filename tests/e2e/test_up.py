@@ -26,10 +26,15 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
     assert summary["verdict"] == "ok"
     for name, station in summary["stations"].items():
         assert station["exit_code"] == 0 and station["alive_seen"], name
-    for spec in keys.KEYS:  # every key, so every hop in both directions, carried traffic
+    # every key carries traffic, so every hop in both directions does, except those whose
+    # producer or consumer is still to come: arm commands (onboard arm control) and camera
+    # frames (onboard fusion)
+    for spec in keys.KEYS:
         key = spec.key("e2e-up")
-        assert summary["stations"][spec.station]["sent"].get(key, 0) > 0, key
-        assert summary["stations"][spec.to]["received"].get(key, 0) > 0, key
+        if spec.topic != "cmd/arm_velocity":
+            assert summary["stations"][spec.station]["sent"].get(key, 0) > 0, key
+        if not spec.topic.startswith(("camera/", "cmd/arm_velocity")):
+            assert summary["stations"][spec.to]["received"].get(key, 0) > 0, key
     for hop, (a, b) in keys.HOPS.items():
         for direction in (f"{a}->{b}", f"{b}->{a}"):
             assert summary["links"][hop][direction]["messages_delivered"] > 0, (hop, direction)
@@ -79,7 +84,7 @@ def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:
         assert seen[name], f"nothing seen on {name}"
         assert all(k.startswith(f"abyss/{name}/") for k in seen[name]), seen[name]
         received = up.summary()["stations"]["onboard"]["received"]
-        own = {keys.spec("simulation", "nav").key(name), keys.spec("vessel", "goal/waypoints").key(name)}
+        own = {s.key(name) for s in keys.KEYS if s.to == "onboard"}
         assert set(received) <= own
 
 

@@ -1,0 +1,114 @@
+"""The two interchangeable low-level controllers, with the same inputs: a body velocity
+reference for the vehicle (surge, sway, heave [m/s], yaw rate [rad/s]) and joint velocity
+references for the arm [rad/s] and gripper [m/s].
+
+kinematic: applies the references as the velocities, instantly (validates the high level);
+dynamic: PID on the velocity error, through the thruster allocation and the joint motors."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from common.models import ARM_JOINTS, GRIPPER_JOINTS
+from stations.simulation.thrusters import Thrusters
+
+
+@dataclass(frozen=True)
+class References:
+    vehicle_body: np.ndarray  # (4,) surge, sway, heave [m/s], yaw rate [rad/s]
+    arm_radps: np.ndarray  # (6,)
+    gripper_mps: float
+
+    @staticmethod
+    def hold() -> References:
+        return References(np.zeros(4), np.zeros(6), 0.0)
+
+
+class Plant:
+    """Index bookkeeping shared by both controllers."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        joint = model.joint("vehicle")
+        self.qpos, self.qvel = joint.qposadr[0], joint.dofadr[0]
+        self.arm_dofs = np.array([model.joint(n).dofadr[0] for n in ARM_JOINTS])
+        self.gripper_dofs = np.array([model.joint(n).dofadr[0] for n in GRIPPER_JOINTS])
+        self.arm_motors = np.array([model.actuator(n).id for n in ARM_JOINTS])
+        self.gripper_motors = np.array([model.actuator(n).id for n in GRIPPER_JOINTS])
+
+    def rotation(self, data: mujoco.MjData) -> np.ndarray:
+        rotation = np.empty(9)
+        mujoco.mju_quat2Mat(rotation, data.qpos[self.qpos + 3:self.qpos + 7])
+        return rotation.reshape(3, 3)
+
+    def vehicle_velocity_body(self, data: mujoco.MjData) -> np.ndarray:
+        """(surge, sway, heave, roll rate, pitch rate, yaw rate) in the body frame."""
+        linear = self.rotation(data).T @ data.qvel[self.qvel:self.qvel + 3]  # freejoint: world
+        return np.r_[linear, data.qvel[self.qvel + 3:self.qvel + 6]]  # angular: body frame
+
+
+class Kinematic:
+    dynamics = False  # the world integrates positions from these velocities, no forces
+
+    def __init__(self, model: mujoco.MjModel, gains: object = None) -> None:
+        self.plant = Plant(model)
+
+    def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
+        p = self.plant
+        r = p.rotation(data)
+        # level the vehicle: no roll or pitch rate, yaw rate about the world's vertical
+        data.qvel[p.qvel:p.qvel + 3] = r @ ref.vehicle_body[:3]
+        data.qvel[p.qvel + 3:p.qvel + 6] = r.T @ np.array([0.0, 0.0, ref.vehicle_body[3]])
+        data.qvel[p.arm_dofs] = ref.arm_radps
+        data.qvel[p.gripper_dofs] = ref.gripper_mps
+        data.ctrl[:] = 0.0
+
+
+@dataclass(frozen=True)
+class PidGains:
+    vehicle_kp: tuple[float, float, float, float]  # surge, sway, heave [N/(m/s)], yaw [N m/(rad/s)]
+    vehicle_ki: tuple[float, float, float, float]
+    vehicle_kd: tuple[float, float, float, float]
+    arm_kp: float  # [N m/(rad/s)]
+    arm_ki: float
+    gripper_kp: float  # [N/(m/s)]
+
+
+class Dynamic:
+    dynamics = True
+
+    def __init__(self, model: mujoco.MjModel, gains: PidGains) -> None:
+        self.plant = Plant(model)
+        self.thrusters = Thrusters(model)
+        self.gains = gains
+        self._vehicle_integral = np.zeros(4)
+        self._vehicle_error = np.zeros(4)
+        self._arm_integral = np.zeros(6)
+        self._arm_limit = model.actuator_ctrlrange[self.plant.arm_motors, 1]
+
+    def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
+        p, g = self.plant, self.gains
+        velocity = p.vehicle_velocity_body(data)[[0, 1, 2, 5]]
+        error = ref.vehicle_body - velocity
+        derivative = (error - self._vehicle_error) / dt_s
+        self._vehicle_error = error
+        wrench4 = np.array(g.vehicle_kp) * error + np.array(g.vehicle_kd) * derivative
+        candidate = self._vehicle_integral + error * dt_s
+        wrench4 = wrench4 + np.array(g.vehicle_ki) * candidate
+        wrench = np.zeros(6)
+        wrench[[0, 1, 2, 5]] = wrench4
+        thrust = self.thrusters.allocate(wrench)
+        if np.allclose(self.thrusters.allocation[[0, 1, 2, 5]] @ thrust, wrench4, rtol=1e-6, atol=1e-6):
+            self._vehicle_integral = candidate  # anti-windup: integrate only when not saturated
+        self.thrusters.apply(data, thrust)
+        arm_error = ref.arm_radps - data.qvel[p.arm_dofs]
+        torque = g.arm_kp * arm_error + g.arm_ki * (self._arm_integral + arm_error * dt_s)
+        if np.all(np.abs(torque) < self._arm_limit):
+            self._arm_integral += arm_error * dt_s
+        data.ctrl[p.arm_motors] = np.clip(torque, -self._arm_limit, self._arm_limit)
+        data.ctrl[p.gripper_motors] = g.gripper_kp * (ref.gripper_mps - data.qvel[p.gripper_dofs])
+
+
+LOW_LEVELS = {"kinematic": Kinematic, "dynamic": Dynamic}

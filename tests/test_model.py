@@ -1,0 +1,61 @@
+"""The shared model: MuJoCo and Pinocchio read the same MJCF and agree on the arm."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from common.models import ARM_JOINTS, END_EFFECTOR_SITE, WORLD_FILE
+
+
+@pytest.fixture(scope="module")
+def models() -> tuple[mujoco.MjModel, pin.Model]:
+    return mujoco.MjModel.from_xml_path(str(WORLD_FILE)), pin.buildModelFromMJCF(str(WORLD_FILE))
+
+
+def test_forward_kinematics_and_jacobians_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
+    mj, pm = models
+    md, pd = mujoco.MjData(mj), pm.createData()
+    rng = np.random.default_rng(7)
+    fid = pm.getFrameId(END_EFFECTOR_SITE)
+    arm_dofs_mj = [mj.joint(n).dofadr[0] for n in ARM_JOINTS]
+    arm_dofs_pin = [pm.joints[pm.getJointId(n)].idx_v for n in ARM_JOINTS]
+    for _ in range(50):
+        position = rng.uniform(-5, 5, 3)
+        quat_wxyz = rng.normal(size=4)
+        quat_wxyz /= np.linalg.norm(quat_wxyz)
+        arm = [rng.uniform(*mj.joint(n).range) for n in ARM_JOINTS]
+        md.qpos[:] = mj.qpos0
+        md.qpos[0:3], md.qpos[3:7] = position, quat_wxyz
+        for name, value in zip(ARM_JOINTS, arm, strict=True):
+            md.qpos[mj.joint(name).qposadr[0]] = value
+        mujoco.mj_kinematics(mj, md)
+        mujoco.mj_comPos(mj, md)
+        q = pin.neutral(pm)
+        q[0:3], q[3:7] = position, np.r_[quat_wxyz[1:], quat_wxyz[0]]  # Pinocchio: x, y, z, w
+        for name, value in zip(ARM_JOINTS, arm, strict=True):
+            q[pm.joints[pm.getJointId(name)].idx_q] = value
+        pin.forwardKinematics(pm, pd, q)
+        pin.updateFramePlacements(pm, pd)
+        pin.computeJointJacobians(pm, pd, q)
+        site = mj.site(END_EFFECTOR_SITE).id
+        np.testing.assert_allclose(pd.oMf[fid].translation, md.site_xpos[site], atol=1e-9)
+        np.testing.assert_allclose(pd.oMf[fid].rotation, md.site_xmat[site].reshape(3, 3), atol=1e-9)
+        jacp, jacr = np.zeros((3, mj.nv)), np.zeros((3, mj.nv))
+        mujoco.mj_jacSite(mj, md, jacp, jacr, site)
+        jac = pin.getFrameJacobian(pm, pd, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+        np.testing.assert_allclose(jac[:3, arm_dofs_pin], jacp[:, arm_dofs_mj], atol=1e-9)
+        np.testing.assert_allclose(jac[3:, arm_dofs_pin], jacr[:, arm_dofs_mj], atol=1e-9)
+        for name in ("arm_link2", "arm_link4", "arm_link6"):
+            np.testing.assert_allclose(pd.oMf[pm.getFrameId(name)].translation, md.xpos[mj.body(name).id],
+                                       atol=1e-9)
+
+
+def test_joint_limits_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
+    mj, pm = models
+    for name in ARM_JOINTS:
+        idx = pm.joints[pm.getJointId(name)].idx_q
+        np.testing.assert_allclose([pm.lowerPositionLimit[idx], pm.upperPositionLimit[idx]],
+                                   mj.joint(name).range, atol=1e-12)

@@ -30,6 +30,8 @@ def _config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--profile", action="append", default=[], metavar="HOP=NAME",
                    help=f"link profile of a hop ({', '.join(keys.HOPS)})")
     p.add_argument("--seed", type=int)
+    p.add_argument("--realtime-factor", type=float, metavar="X",
+                   help="simulated seconds per wall-clock second (default 1)")
     p.add_argument("--link", choices=("emulated", "netem"), default="emulated",
                    help="netem: in-process links become pass-throughs (tc/netem shapes them)")
 
@@ -40,6 +42,8 @@ def _config(args: argparse.Namespace) -> Config:
         overrides.append(f"system={args.system}")
     if args.seed is not None:
         overrides.append(f"seed={args.seed}")
+    if args.realtime_factor is not None:
+        overrides.append(f"simulation.realtime_factor={args.realtime_factor}")
     for item in args.profile:
         hop, sep, name = item.partition("=")
         if not sep:

@@ -20,7 +20,7 @@ from common import keys
 from common.bus import open_session, zenoh_config
 from common.config import Config
 from common.errors import AbyssError, BadMessage
-from common.messages import MissionStatus, decode
+from common.messages import MissionStatus, SimulationStatus, decode
 from stations.runtime import free_port
 
 DEFAULT_PORT = 7447
@@ -70,6 +70,7 @@ class Up:
         self.alive: set[str] = set()
         self.alive_seen: set[str] = set()
         self.mission: MissionStatus | None = None
+        self.simulation: SimulationStatus | None = None
         self.stations: dict[str, Station] = {}
         self.interrupted = threading.Event()
         self._lock = threading.Lock()
@@ -84,13 +85,16 @@ class Up:
             else:
                 self.alive.discard(name)
 
-    def _on_mission(self, sample: zenoh.Sample) -> None:
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        """Mission status from shore, simulation status from the simulation."""
         try:
-            message = decode(str(sample.key_expr), sample.payload.to_bytes(), "MissionStatus").message
+            message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
         except BadMessage:
             return
-        assert isinstance(message, MissionStatus)
-        self.mission = message
+        if isinstance(message, MissionStatus):
+            self.mission = message
+        elif isinstance(message, SimulationStatus):
+            self.simulation = message
 
     # -- processes -----------------------------------------------------------------------
     def _start(self, name: str, config_path: Path) -> Station:
@@ -143,7 +147,8 @@ class Up:
         observers = [
             session.liveliness().declare_subscriber(keys.key(system, "*", "alive"), self._on_alive,
                                                     history=True),
-            session.declare_subscriber(keys.mission_key(system), self._on_mission),
+            session.declare_subscriber(keys.mission_key(system), self._on_status),
+            session.declare_subscriber(keys.simulation_status_key(system), self._on_status),
         ]
         previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
                     for s in (signal.SIGINT, signal.SIGTERM)}
@@ -242,6 +247,7 @@ class Up:
             "stations": stations,
             "links": links,
             "mission": dataclasses.asdict(self.mission) if self.mission else None,
+            "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": {},
         }
 
@@ -265,6 +271,10 @@ def render_summary(summary: dict[str, Any]) -> str:
     m = summary["mission"]
     lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
                                   f"error {m['position_error_m']:.2f} m" if m else "no status reached shore"))
+    sim = summary["simulation"]
+    if sim:
+        lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
+                     f"{sim['realtime_factor']:.2f}" + (f", faults {sim['faults']}" if sim["faults"] else ""))
     return "\n".join(lines)
 
 

@@ -167,6 +167,35 @@ def cmd_link_profiles(_args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_terrain_build(args: argparse.Namespace) -> int:
+    from common.models import MODELS_DIR, WORLD_FILE
+    from stations.simulation import terrain
+
+    cloud = terrain.read_cloud(args.cloud)
+    print(f"abyss: {len(cloud)} points from {args.cloud}; Poisson reconstruction ...", flush=True)
+    built = terrain.reconstruct(cloud, depth=args.depth)
+    print(f"abyss: surface of {built.vertices} vertices, {built.triangles} triangles; heights "
+          f"{built.heights_m.min():.2f} to {built.heights_m.max():.2f} m on a "
+          f"{terrain.GRID}x{terrain.GRID} grid")
+    if args.out is None:
+        terrain.install(built.heights_m, MODELS_DIR, WORLD_FILE)
+        print(f"abyss: wrote {MODELS_DIR / 'terrain.bin'} and the terrain of {WORLD_FILE}")
+    else:
+        args.out.mkdir(parents=True, exist_ok=True)
+        terrain.write_hfield(built.heights_m, args.out / "terrain.bin")
+        asset, geom = terrain.hfield_xml(built.heights_m, "terrain.bin")
+        print(f"abyss: wrote {args.out / 'terrain.bin'}; in an MJCF beside it:\n  {asset}\n  {geom}")
+    return 0
+
+
+def cmd_terrain_cloud(args: argparse.Namespace) -> int:
+    from stations.simulation import terrain
+
+    terrain.write_cloud(terrain.fractal_cloud(args.seed, args.points), args.out)
+    print(f"abyss: wrote {args.points} points of a fractal seabed (seed {args.seed}) to {args.out}")
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="abyss", description=__doc__)
     sub = root.add_subparsers(dest="command", required=True)
@@ -217,6 +246,23 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_link_netem)
     p = link.add_parser("profiles", help="list the named profiles")
     p.set_defaults(func=cmd_link_profiles)
+
+    from common.models import SEABED_CLOUD_FILE
+
+    terrain = sub.add_parser("terrain", help="seabed terrain from a point cloud").add_subparsers(
+        dest="terrain", required=True)
+    p = terrain.add_parser("build", help="reconstruct a surface (Open3D) and make it the world's terrain")
+    p.add_argument("cloud", nargs="?", type=Path, default=SEABED_CLOUD_FILE,
+                   help="point cloud (.ply, .pcd, .xyz); default: the shipped fractal seabed")
+    p.add_argument("--out", type=Path, help="write here instead of into the world model")
+    p.add_argument("--depth", type=int, default=8, choices=range(5, 12), metavar="5..11",
+                   help="Poisson octree depth")
+    p.set_defaults(func=cmd_terrain_build)
+    p = terrain.add_parser("cloud", help="write a seeded fractal seabed point cloud")
+    p.add_argument("out", type=Path)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--points", type=int, default=20000)
+    p.set_defaults(func=cmd_terrain_cloud)
     return root
 
 

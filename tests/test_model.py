@@ -1,4 +1,5 @@
-"""The shared model: MuJoCo and Pinocchio read the same MJCF and agree on the arm."""
+"""The shared model: MuJoCo (world.xml, which includes robot.xml) and Pinocchio (robot.xml)
+agree on the arm."""
 
 from __future__ import annotations
 
@@ -7,12 +8,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from common.models import ARM_JOINTS, END_EFFECTOR_SITE, WORLD_FILE
+from common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
 
 
 @pytest.fixture(scope="module")
 def models() -> tuple[mujoco.MjModel, pin.Model]:
-    return mujoco.MjModel.from_xml_path(str(WORLD_FILE)), pin.buildModelFromMJCF(str(WORLD_FILE))
+    return mujoco.MjModel.from_xml_path(str(WORLD_FILE)), pin.buildModelFromMJCF(str(ROBOT_FILE))
 
 
 def test_forward_kinematics_and_jacobians_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:

@@ -1,8 +1,12 @@
-"""The one world description, `world.xml`, and the names both MuJoCo and Pinocchio use."""
+"""The world description: `robot.xml` (the vehicle and its arm, read by MuJoCo and Pinocchio)
+included by `world.xml` (the panel and the seabed too, read by MuJoCo), and the names both use."""
 
 from pathlib import Path
 
-WORLD_FILE = Path(__file__).with_name("world.xml")
+MODELS_DIR = Path(__file__).parent
+WORLD_FILE = MODELS_DIR / "world.xml"
+ROBOT_FILE = MODELS_DIR / "robot.xml"
+SEABED_CLOUD_FILE = MODELS_DIR / "seabed_cloud.ply"
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch", "tool_roll")
 GRIPPER_JOINTS = ("finger_left", "finger_right")
 THRUSTERS = ("thr_fl", "thr_fr", "thr_rl", "thr_rr", "thr_vl", "thr_vr")

@@ -45,6 +45,7 @@ LOW_LEVELS = ("kinematic", "dynamic")
 class SimulationConfig:
     low_level: str = "dynamic"  # kinematic | dynamic
     physics_step_s: float = 0.002  # [s]
+    low_level_period_s: float = 0.01  # [s] the low-level controllers' (and buoyancy's) update
     control_period_s: float = 0.05  # [s] rate of nav output and command intake
     command_timeout_s: float = 0.5  # [s] older commands make the low level hold still
     realtime_factor: float = 1.0
@@ -76,7 +77,9 @@ class SimulationConfig:
         _positive("simulation.physics_step_s", self.physics_step_s)
         _positive("simulation.realtime_factor", self.realtime_factor)
         _positive("simulation.current_period_s", self.current_period_s)
-        for name in ("arm_kp", "arm_ki", "gripper_kp", "current_variation_mps", "usbl_sigma_m",
+        _positive("simulation.arm_kp", self.arm_kp)
+        _positive("simulation.gripper_kp", self.gripper_kp)
+        for name in ("arm_ki", "current_variation_mps", "usbl_sigma_m",
                      "depth_sigma_m", "dvl_sigma_mps", "imu_sigma_rad", "camera_rate_hz"):
             _positive(f"simulation.{name}", getattr(self, name), allow_zero=True)
         for name in ("vehicle_kp", "vehicle_ki", "vehicle_kd"):
@@ -86,11 +89,14 @@ class SimulationConfig:
             raise ConfigError("simulation.camera_width_px", "camera size must lie in [16, 4096] px")
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError("simulation.jpeg_quality", f"{self.jpeg_quality} outside [1, 100]")
-        steps = self.control_period_s / self.physics_step_s
-        if steps < 1 or not math.isclose(steps, round(steps), rel_tol=0, abs_tol=1e-9):
-            raise ConfigError("simulation.control_period_s",
-                              f"{self.control_period_s} s is not a whole multiple of "
-                              f"physics_step_s = {self.physics_step_s} s")
+        for name, period, base, base_name in (
+                ("low_level_period_s", self.low_level_period_s, self.physics_step_s, "physics_step_s"),
+                ("control_period_s", self.control_period_s, self.physics_step_s, "physics_step_s"),
+                ("control_period_s", self.control_period_s, self.low_level_period_s, "low_level_period_s")):
+            ratio = period / base
+            if ratio < 1 - 1e-9 or not math.isclose(ratio, round(ratio), rel_tol=0, abs_tol=1e-9):
+                raise ConfigError(f"simulation.{name}",
+                                  f"{period} s is not a whole multiple of {base_name} = {base} s")
 
 
 @dataclass(frozen=True)

@@ -215,6 +215,7 @@ class SimulationStatus(Message):
 
     sim_time_s: float = scalar(0.0)
     realtime_factor: float = scalar(0.0, 1e6)
+    deadlines_met: float = scalar(0.0, 1.0)  # share of control periods that kept their deadline
     faults: dict[str, float] = field(default_factory=dict)
 
 

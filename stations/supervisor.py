@@ -274,7 +274,8 @@ def render_summary(summary: dict[str, Any]) -> str:
     sim = summary["simulation"]
     if sim:
         lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
-                     f"{sim['realtime_factor']:.2f}" + (f", faults {sim['faults']}" if sim["faults"] else ""))
+                     f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
+                     + (f", faults {sim['faults']}" if sim["faults"] else ""))
     return "\n".join(lines)
 
 

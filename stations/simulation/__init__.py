@@ -60,7 +60,7 @@ def run(config: Config, bus: Bus) -> None:
         if wall - wall0 >= STATUS_PERIOD_S:
             bus.observe(keys.simulation_status_key(bus.system), SimulationStatus(
                 sim_time_s=truth.sim_time_s, realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
-                faults=dict(world.faults)))
+                deadlines_met=rate.deadlines_met, faults=dict(world.faults)))
             wall0, sim0 = wall, truth.sim_time_s
         if not rate.sleep():
             break

@@ -71,7 +71,7 @@ class PidGains:
     vehicle_kp: tuple[float, float, float, float]  # surge, sway, heave [N/(m/s)], yaw [N m/(rad/s)]
     vehicle_ki: tuple[float, float, float, float]
     vehicle_kd: tuple[float, float, float, float]
-    arm_kp: float  # [N m/(rad/s)]
+    arm_kp: float  # [N m/(rad/s)], > 0
     arm_ki: float
     gripper_kp: float  # [N/(m/s)]
 
@@ -86,7 +86,11 @@ class Dynamic:
         self._vehicle_integral = np.zeros(4)
         self._vehicle_error = np.zeros(4)
         self._arm_integral = np.zeros(6)
-        self._arm_limit = model.actuator_ctrlrange[self.plant.arm_motors, 1]
+        self._arm_force_limit = model.actuator_forcerange[self.plant.arm_motors, 1]
+        servos = ((self.plant.arm_motors, gains.arm_kp), (self.plant.gripper_motors, gains.gripper_kp))
+        for motors, kv in servos:
+            model.actuator_gainprm[motors, 0] = kv  # velocity servo: kv * ctrl - kv * qdot
+            model.actuator_biasprm[motors, 2] = -kv
 
     def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
         p, g = self.plant, self.gains
@@ -103,12 +107,14 @@ class Dynamic:
         if np.allclose(self.thrusters.allocation[[0, 1, 2, 5]] @ thrust, wrench4, rtol=1e-6, atol=1e-6):
             self._vehicle_integral = candidate  # anti-windup: integrate only when not saturated
         self.thrusters.apply(data, thrust)
+        # arm: the proportional part is MuJoCo's implicit velocity servo (kv = arm_kp); the
+        # integral part shifts its set point, so torque = kp e + ki integral(e)
         arm_error = ref.arm_radps - data.qvel[p.arm_dofs]
-        torque = g.arm_kp * arm_error + g.arm_ki * (self._arm_integral + arm_error * dt_s)
-        if np.all(np.abs(torque) < self._arm_limit):
-            self._arm_integral += arm_error * dt_s
-        data.ctrl[p.arm_motors] = np.clip(torque, -self._arm_limit, self._arm_limit)
-        data.ctrl[p.gripper_motors] = g.gripper_kp * (ref.gripper_mps - data.qvel[p.gripper_dofs])
+        candidate = self._arm_integral + arm_error * dt_s
+        if np.all(np.abs(g.arm_kp * arm_error + g.arm_ki * candidate) < self._arm_force_limit):
+            self._arm_integral = candidate  # anti-windup
+        data.ctrl[p.arm_motors] = ref.arm_radps + g.arm_ki / g.arm_kp * self._arm_integral
+        data.ctrl[p.gripper_motors] = ref.gripper_mps
 
 
 LOW_LEVELS = {"kinematic": Kinematic, "dynamic": Dynamic}

@@ -49,11 +49,13 @@ class Buoyancy:
 
     def apply(self, data: mujoco.MjData) -> None:
         """Set xfrc_applied of the wet bodies (world frame, about each body's centre of mass)."""
-        for i, b in enumerate(self.bodies):
-            force = np.array([0.0, 0.0, self.force_n(i)])
-            centre_world = data.xpos[b] + data.xmat[b].reshape(3, 3) @ self.centre_m_body[i]
-            data.xfrc_applied[b, :3] = force
-            data.xfrc_applied[b, 3:] = np.cross(centre_world - data.xipos[b], force)
+        b = self.bodies
+        centre_world = data.xpos[b] + np.einsum("bij,bj->bi", data.xmat[b].reshape(-1, 3, 3),
+                                                self.centre_m_body)
+        force = np.zeros((len(b), 3))
+        force[:, 2] = self.rho_kgpm3 * self.g_mps2 * self.volume_m3
+        data.xfrc_applied[b, :3] = force
+        data.xfrc_applied[b, 3:] = np.cross(centre_world - data.xipos[b], force)
 
 
 class Current:

@@ -40,8 +40,9 @@ class World:
         self.navigation = Navigation(NoiseSigmas(config.usbl_sigma_m, config.depth_sigma_m,
                                                  config.dvl_sigma_mps, config.imu_sigma_rad), rng)
         self.faults: dict[str, float] = {}
-        self._robot_dofs = np.r_[np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs,
-                                 self.plant.gripper_dofs]
+        robot_dofs = np.r_[np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs,
+                           self.plant.gripper_dofs]
+        self._passive_dofs = np.setdiff1d(np.arange(self.model.nv), robot_dofs)
         p = self.plant.qpos
         self.data.qpos[p:p + 3] = config.start_position_m_world
         self.data.qpos[p + 3:p + 7] = [np.cos(config.start_yaw_rad / 2), 0.0, 0.0,
@@ -51,18 +52,21 @@ class World:
     def step(self, refs: References, period_s: float) -> None:
         """Advance by `period_s` [s] (a whole number of physics steps)."""
         dt = self.model.opt.timestep
-        for _ in range(round(period_s / dt)):
-            self.controller.apply(self.data, refs, dt)
+        every = round(self.config.low_level_period_s / dt)
+        for i in range(round(period_s / dt)):
+            if i % every == 0:  # the low level runs at its own rate; its outputs hold between
+                self.controller.apply(self.data, refs, dt * every)
+                if self.controller.dynamics:
+                    self.current.apply(self.model, self.data.time)
+                    self.buoyancy.apply(self.data)
             if self.controller.dynamics:
-                self.current.apply(self.model, self.data.time)
-                self.buoyancy.apply(self.data)
                 mujoco.mj_step(self.model, self.data)
             else:  # kinematic: positions follow the velocities exactly; nothing else moves
-                others = np.setdiff1d(np.arange(self.model.nv), self._robot_dofs)
-                self.data.qvel[others] = 0.0
+                self.data.qvel[self._passive_dofs] = 0.0
                 mujoco.mj_integratePos(self.model, self.data.qpos, self.data.qvel, dt)
                 self.data.time += dt
-                mujoco.mj_forward(self.model, self.data)
+        if not self.controller.dynamics:
+            mujoco.mj_forward(self.model, self.data)
 
     # -- outputs -------------------------------------------------------------------------
     def truth(self) -> NavState:

@@ -1,0 +1,101 @@
+"""Simulation figures: physics step time and real-time factor (headless, no cameras),
+stereo + depth rendering time at 640x480 and the camera rate it allows, and the station loop
+with cameras at several rates, as the share of control deadlines met.
+Run: .venv/bin/python bench/simulation.py. Prints figures; asserts nothing."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import zenoh
+
+from stations.simulation.rendering import choose_gl_backend
+
+choose_gl_backend()
+
+from common import keys  # noqa: E402
+from common.bus import open_session, zenoh_config  # noqa: E402
+from common.config import SimulationConfig  # noqa: E402
+from common.messages import SimulationStatus, decode  # noqa: E402
+from common.models import CAMERAS  # noqa: E402
+from stations.runtime import free_port  # noqa: E402
+from stations.simulation.encoding import encode_image  # noqa: E402
+from stations.simulation.lowlevel import References  # noqa: E402
+from stations.simulation.rendering import Cameras  # noqa: E402
+from stations.simulation.world import World  # noqa: E402
+
+
+def physics(low_level: str, seconds: float = 20.0) -> None:
+    config = SimulationConfig(low_level=low_level)
+    world = World(config, np.random.default_rng(0))
+    refs = References(np.array([0.3, 0.1, 0.0, 0.1]), np.full(6, 0.05), 0.0)
+    periods = round(seconds / config.control_period_s)
+    t0 = time.perf_counter()
+    for _ in range(periods):
+        world.step(refs, config.control_period_s)
+    wall = time.perf_counter() - t0
+    steps = periods * round(config.control_period_s / config.physics_step_s)
+    print(f"physics, {low_level:<9}: {wall / steps * 1e6:7.1f} us per {config.physics_step_s * 1e3:g} ms "
+          f"step, real-time factor {seconds / wall:6.1f} (headless, no cameras)")
+
+
+def rendering(frames: int = 20) -> float:
+    world = World(SimulationConfig(), np.random.default_rng(0))
+    cameras = Cameras(world.model, 640, 480)
+    encode_image(cameras, world.data, "cam_left", 90)  # warm up
+    per_camera = {}
+    for camera in CAMERAS:
+        t0 = time.perf_counter()
+        for _ in range(frames):
+            encode_image(cameras, world.data, camera, 90)
+        per_camera[camera] = (time.perf_counter() - t0) / frames
+    cameras.close()
+    total = sum(per_camera.values())
+    print("rendering 640x480 + encoding: " + ", ".join(f"{c} {t * 1e3:.0f} ms" for c, t in per_camera.items())
+          + f"; a stereo + depth set {total * 1e3:.0f} ms: at most {1 / total:.1f} sets/s on one core")
+    return total
+
+
+def station_loop(camera_rate_hz: float, seconds: float = 15.0) -> None:
+    port = free_port()
+    system = f"bench-sim-{int(camera_rate_hz * 10)}"
+    station = subprocess.Popen(
+        [sys.executable, "-m", "stations.cli", "station", "simulation", "--system", system,
+         "--listen", f"tcp/127.0.0.1:{port}", "--set", f"simulation.camera_rate_hz={camera_rate_hz}"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    session = open_session(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]), "bench")  # peer: retries
+    latest: list[SimulationStatus] = []
+    lock = threading.Lock()
+
+    def on_status(sample: zenoh.Sample) -> None:
+        message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
+        if isinstance(message, SimulationStatus):
+            with lock:
+                latest.append(message)
+
+    sub = session.declare_subscriber(keys.simulation_status_key(system), on_status)
+    time.sleep(seconds)
+    sub.undeclare()
+    session.close()
+    station.terminate()
+    station.wait(timeout=30)
+    with lock:
+        if not latest:
+            print(f"station loop, cameras {camera_rate_hz:g} Hz: no status received")
+            return
+        s = latest[-1]
+        rtf = np.mean([m.realtime_factor for m in latest[2:]] or [s.realtime_factor])
+    print(f"station loop, cameras at {camera_rate_hz:g} Hz: real-time factor {rtf:.3f}, "
+          f"control deadlines met {s.deadlines_met:.1%} over {s.sim_time_s:.0f} s")
+
+
+if __name__ == "__main__":
+    physics("dynamic")
+    physics("kinematic")
+    rendering()
+    for rate in (0.0, 1.0, 2.0, 5.0):
+        station_loop(rate)

@@ -15,7 +15,16 @@ from common import keys
 from common.bus import open_session, zenoh_config
 from common.config import Config, load
 from common.errors import AbyssError, BadMessage, ConfigError
-from common.messages import LinkControl, LinkStats, decode, encode
+from common.messages import (
+    FAULTS,
+    LinkControl,
+    LinkStats,
+    SimulationControl,
+    SimulationStatus,
+    decode,
+    encode,
+)
+from common.models import CAMERAS, NAV_SENSORS, SEABED_CLOUD_FILE, THRUSTERS
 from linkemu.netem import run_tc, tc_command
 from linkemu.profile import FIELDS, load_profiles, profile
 
@@ -167,6 +176,41 @@ def cmd_link_profiles(_args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fault(args: argparse.Namespace) -> int:
+    targets = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS, "clear": ("",)}[args.fault]
+    if args.target not in targets:
+        raise ConfigError("fault target", f"{args.target!r} not one of {', '.join(targets)}")
+    try:
+        control = SimulationControl(args.fault, args.target, args.value)
+    except ValueError as exc:
+        raise ConfigError("fault value", str(exc)) from None
+    session = _client(args)
+    seen: list[SimulationStatus] = []
+
+    def on_status(sample: zenoh.Sample) -> None:
+        try:
+            message = decode(str(sample.key_expr), sample.payload.to_bytes(), "SimulationStatus").message
+        except BadMessage:
+            return
+        assert isinstance(message, SimulationStatus)
+        seen.append(message)
+
+    try:
+        subscriber = session.declare_subscriber(keys.simulation_status_key(args.system), on_status)
+        session.put(keys.simulation_control_key(args.system), encode(control, 0, time.time()))
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline and len(seen) < 2:  # the first may predate the fault
+            time.sleep(0.05)
+        subscriber.undeclare()
+    finally:
+        session.close()
+    if not seen:
+        print(f"abyss: sent, but no simulation of system {args.system} reported", file=sys.stderr)
+        return 1
+    print(f"faults now: {seen[-1].faults or 'none'}")
+    return 0
+
+
 def cmd_terrain_build(args: argparse.Namespace) -> int:
     from common.models import MODELS_DIR, WORLD_FILE
     from stations.simulation import terrain
@@ -247,7 +291,17 @@ def parser() -> argparse.ArgumentParser:
     p = link.add_parser("profiles", help="list the named profiles")
     p.set_defaults(func=cmd_link_profiles)
 
-    from common.models import SEABED_CLOUD_FILE
+    p = sub.add_parser("fault", help="inject a fault into a running simulation")
+    p.add_argument("fault", choices=FAULTS)
+    p.add_argument("target", nargs="?", default="",
+                   help=f"thruster ({', '.join(THRUSTERS)}), camera ({', '.join(CAMERAS)}) or "
+                        f"navigation sensor ({', '.join(NAV_SENSORS)})")
+    p.add_argument("value", nargs="?", type=float, default=0.0,
+                   help="thruster efficiency, camera on (1) / off (0), or noise scale")
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.set_defaults(func=cmd_fault)
+
 
     terrain = sub.add_parser("terrain", help="seabed terrain from a point cloud").add_subparsers(
         dest="terrain", required=True)

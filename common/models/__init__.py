@@ -11,4 +11,5 @@ ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pi
 GRIPPER_JOINTS = ("finger_left", "finger_right")
 THRUSTERS = ("thr_fl", "thr_fr", "thr_rl", "thr_rr", "thr_vl", "thr_vr")
 CAMERAS = ("cam_left", "cam_right", "cam_depth")
+NAV_SENSORS = ("usbl", "depth", "dvl", "imu")  # navigation sensors, as faults name them
 END_EFFECTOR_SITE = "ee"

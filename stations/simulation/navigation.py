@@ -9,8 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.messages import NavState
-
-SENSORS = ("usbl", "depth", "dvl", "imu")
+from common.models import NAV_SENSORS
 
 
 @dataclass(frozen=True)
@@ -39,7 +38,7 @@ class Navigation:
     def __init__(self, sigmas: NoiseSigmas, rng: np.random.Generator) -> None:
         self.sigmas = sigmas
         self.rng = rng
-        self.scale = dict.fromkeys(SENSORS, 1.0)  # faults raise these
+        self.scale = dict.fromkeys(NAV_SENSORS, 1.0)  # faults raise these
 
     def measure(self, truth: NavState) -> NavState:
         s, k, n = self.sigmas, self.scale, self.rng.normal

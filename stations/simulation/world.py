@@ -8,10 +8,10 @@ import numpy as np
 
 from common.config import SimulationConfig
 from common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
-from common.models import ARM_JOINTS, CAMERAS, GRIPPER_JOINTS, THRUSTERS, WORLD_FILE
+from common.models import ARM_JOINTS, CAMERAS, GRIPPER_JOINTS, NAV_SENSORS, THRUSTERS, WORLD_FILE
 from stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from stations.simulation.marine import Buoyancy, Current
-from stations.simulation.navigation import SENSORS, Navigation, NoiseSigmas
+from stations.simulation.navigation import Navigation, NoiseSigmas
 
 
 def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> References:
@@ -94,11 +94,11 @@ class World:
         if fault.fault == "clear":
             self.faults.clear()
             cameras.clear()
-            self.navigation.scale = dict.fromkeys(SENSORS, 1.0)
+            self.navigation.scale = dict.fromkeys(NAV_SENSORS, 1.0)
             if self.controller.dynamics:
                 self.controller.thrusters.efficiency[:] = 1.0
             return
-        allowed = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": SENSORS}[fault.fault]
+        allowed = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS}[fault.fault]
         if fault.target not in allowed:
             raise ValueError(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
         if fault.fault == "thruster":

@@ -15,7 +15,7 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
-from conftest import ROOT
+from conftest import ROOT, abyss
 
 from common import keys
 from common.bus import open_session, zenoh_config
@@ -83,9 +83,11 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
                     {"yaw_rate_radps": 1e6}):  # absurd magnitude
             session.put(command_key, msgpack.packb({**envelope, "body": {**envelope["body"], **bad}}))
         control_key = keys.simulation_control_key(SYSTEM)
-        session.put(control_key, encode(SimulationControl("thruster", "thr_vl", 0.5), 0, time.time()))
+        injected = abyss("fault", "thruster", "thr_vl", "0.5", "--connect", f"tcp/127.0.0.1:{port}",
+                         "--system", SYSTEM)
+        assert injected.returncode == 0 and "thruster/thr_vl" in injected.stdout, injected.stderr
         session.put(control_key, encode(SimulationControl("thruster", "thr_nope", 0.5), 1, time.time()))
-        time.sleep(2.5)
+        time.sleep(1.5)
         with observed.lock:
             status = observed.status[-1]
             images = {name: list(frames) for name, frames in observed.images.items()}

@@ -189,6 +189,11 @@ class Bus:
         self.received[key] += 1
         log.info("link %s now %s %s", runner.name, runner.profile.name, runner.profile.fields())
 
+    def link_down(self, hop: str) -> bool:
+        """Whether this station's emulator of `hop` is set to lose everything (an outage)."""
+        runner = self.links.get(hop)
+        return runner is not None and not runner.passthrough and runner.profile.loss >= 1.0
+
     def link_stats(self, hop: str) -> LinkStats:
         runner = self.links[hop]
         return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,

@@ -13,8 +13,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from common import keys
 from common.errors import ConfigError
+from common.geometry import quat_wxyz_of, rotation_of_rpy
 from linkemu.profile import LinkProfile, load_profiles, profile
 
 
@@ -103,24 +106,56 @@ class SimulationConfig:
 class OnboardConfig:
     control_period_s: float = 0.05  # [s]
     telemetry_period_s: float = 0.1  # [s]
+    # vehicle: PI on position (world) and heading
     kp_position: float = 0.6  # [1/s]
     ki_position: float = 0.05  # [1/s^2]
     kp_heading: float = 1.0  # [1/s]
     ki_heading: float = 0.05  # [1/s^2]
     max_speed_mps: float = 0.5  # [m/s]
     max_yaw_rate_radps: float = 0.5  # [rad/s]
+    # navigation: DVL velocity integrated, pulled to the USBL/depth fix with this time constant
+    nav_time_constant_s: float = 5.0  # [s]; 0: use the fix as it comes
+    # arm: task-priority inverse kinematics
+    kp_ee_position: float = 1.0  # [1/s]
+    kp_ee_orientation: float = 1.0  # [1/s]
+    max_ee_speed_mps: float = 0.1  # [m/s]
+    max_ee_rate_radps: float = 0.3  # [rad/s]
+    max_joint_speed_radps: float = 0.5  # [rad/s]
+    damping: float = 0.05  # largest damping of the pseudo-inverse, reached at a singularity
+    singular_value_threshold: float = 0.05  # damping starts below this singular value
+    joint_limit_margin_rad: float = 0.05  # kept from each mechanical stop [rad]
+    clearance_m: float = 0.05  # kept between the arm and the obstacles [m]
+    kp_constraint: float = 2.0  # [1/s] how fast a joint limit or an obstacle may be approached
+    whole_body: bool = False  # the vehicle's surge, sway, heave and yaw join the arm's joints
+    # failsafe: hold station and hold the arm still when the vessel is silent this long
+    goal_timeout_s: float = 2.0  # [s]
+    hold_on_shore_loss: bool = True  # also when the vessel reports shore silent
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            _positive(f"onboard.{f.name}", getattr(self, f.name), allow_zero=f.name.startswith("ki"))
+            value = getattr(self, f.name)
+            if not isinstance(value, bool):
+                _positive(f"onboard.{f.name}", value,
+                          allow_zero=f.name.startswith("ki") or f.name == "nav_time_constant_s")
+        if self.kp_constraint * self.control_period_s >= 1.0:
+            raise ConfigError("onboard.kp_constraint",
+                              f"kp_constraint * control_period_s must stay below 1 (got "
+                              f"{self.kp_constraint * self.control_period_s:.2f}), or a limit can be "
+                              f"crossed within one period")
 
 
 @dataclass(frozen=True)
 class VesselConfig:
     telemetry_period_s: float = 0.5  # [s] telemetry relayed to shore, downsampled
+    heartbeat_period_s: float = 0.5  # [s] to onboard
+    shore_timeout_s: float = 5.0  # [s] shore silent this long: the satellite link is reported lost
 
     def __post_init__(self) -> None:
-        _positive("vessel.telemetry_period_s", self.telemetry_period_s)
+        for f in dataclasses.fields(self):
+            _positive(f"vessel.{f.name}", getattr(self, f.name))
+
+
+Box = tuple[float, float, float, float, float, float]
 
 
 @dataclass(frozen=True)
@@ -130,13 +165,38 @@ class MissionConfig:
         (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.3, 0.0, -7.9, 0.0))
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
-    resend_period_s: float = 2.0  # [s] shore resends the mission until telemetry shows it
+    # the end-effector's goal once the last waypoint is reached: x, y, z [m, world], roll, pitch,
+    # yaw [rad] (rotations about the world's x, y, z, in that order); empty: no arm goal. The
+    # default grips the handle of the middle valve (fingers across the handle bar).
+    arm_target: tuple[float, ...] = (4.86, 0.0, -8.35, 1.5707963267948966, 0.0, 0.0)
+    arm_position_tolerance_m: float = 0.005
+    arm_orientation_tolerance_rad: float = 0.02
+    arm_settle_s: float = 2.0  # [s] within both tolerances this long: the goal is reached
+    # boxes the arm keeps clear of: centre x, y, z and half sizes [m, world]
+    obstacles: tuple[Box, ...] = (
+        (5.0, 0.0, -8.6, 0.05, 0.8, 0.6),  # the panel's plate
+        (5.0, 0.0, -20.0, 50.0, 50.0, 10.0),  # the seabed around the panel, a floor at z = -10 m
+    )
+    resend_period_s: float = 2.0  # [s] shore resends a command until telemetry shows it
 
     def __post_init__(self) -> None:
         if not 1 <= len(self.waypoints) <= 1000:
             raise ConfigError("mission.waypoints", "needs 1 to 1000 rows of [x, y, z, yaw]")
-        _positive("mission.position_tolerance_m", self.position_tolerance_m)
-        _positive("mission.heading_tolerance_rad", self.heading_tolerance_rad)
+        if len(self.arm_target) not in (0, 6):
+            raise ConfigError("mission.arm_target", "needs [x, y, z, roll, pitch, yaw], or [] for none")
+        for name in ("position_tolerance_m", "heading_tolerance_rad", "arm_position_tolerance_m",
+                     "arm_orientation_tolerance_rad", "arm_settle_s", "resend_period_s"):
+            _positive(f"mission.{name}", getattr(self, name))
+        for i, box in enumerate(self.obstacles):
+            for size in box[3:]:
+                _positive(f"mission.obstacles[{i}] half size", size)
+
+    def arm_goal(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The end-effector goal as position [m, world] and quaternion (w, x, y, z), or None."""
+        if not self.arm_target:
+            return None
+        x, y, z, roll, pitch, yaw = self.arm_target
+        return np.array([x, y, z]), quat_wxyz_of(rotation_of_rpy(roll, pitch, yaw))
 
 
 @dataclass(frozen=True)
@@ -190,6 +250,12 @@ def _coerce(name: str, kind: Any, value: Any) -> Any:
             value = int(value)
         if not isinstance(value, int) or isinstance(value, bool):
             raise ConfigError(name, f"expected a whole number, got {value!r}")
+        return value
+    if kind is bool:
+        if isinstance(value, str) and value.lower() in ("true", "false"):
+            value = value.lower() == "true"
+        if not isinstance(value, bool):
+            raise ConfigError(name, f"expected true or false, got {value!r}")
         return value
     if kind is str:
         if not isinstance(value, str):

@@ -91,8 +91,12 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("onboard", "cmd/arm_velocity", "ArmVelocityRef", 20.0, "best-effort", "simulation"),
     KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel"),
     KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard"),
+    KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard"),
+    KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard"),
     KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore"),
     KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel"),
+    KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel"),
+    KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel"),
 )
 
 
@@ -131,6 +135,12 @@ def simulation_status_key(system: str) -> str:
     return key(system, "simulation", "status")
 
 
+def operator_key(system: str, topic: str) -> str:
+    """Commands of an operator's tool (`abyss teleop`) to the onshore station, on shore's own
+    network; the onshore station sends them down the satellite as op/<topic>."""
+    return key(system, "onshore", "operator", topic)
+
+
 def mission_key(system: str) -> str:
     """Mission status as the operator sees it, published on shore."""
     return key(system, "onshore", "mission")
@@ -146,6 +156,8 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ("abyss/<system>/simulation/control", "SimulationControl", "event",
      "faults: thruster, camera, noise, clear"),
     ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
+    ("abyss/<system>/onshore/operator/<waypoints|arm>", "Waypoints, ArmGoal", "event",
+     "operator tools to the onshore station, which sends them down"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
 )
 

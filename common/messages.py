@@ -139,9 +139,13 @@ class NavState(Message):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        norm = float(np.linalg.norm(self.orientation_wxyz_world))
-        if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"orientation_wxyz_world: not a unit quaternion (norm {norm:.4f})")
+        _check_unit_quaternion(self.orientation_wxyz_world)
+
+
+def _check_unit_quaternion(quat_wxyz: np.ndarray) -> None:
+    norm = float(np.linalg.norm(quat_wxyz))
+    if abs(norm - 1.0) > 1e-3:
+        raise ValueError(f"orientation_wxyz_world: not a unit quaternion (norm {norm:.4f})")
 
 
 @dataclass(frozen=True)
@@ -224,7 +228,10 @@ MODES = ("idle", "moving", "reached", "hold")
 
 @dataclass(frozen=True)
 class Telemetry(Message):
-    """What the operator needs of the vehicle, onboard -> vessel -> onshore."""
+    """The onboard controllers' state, onboard -> vessel -> onshore. Errors are goal minus
+    estimate: position in the world frame [m], heading [rad], the end-effector's position [m,
+    world] and orientation (angle of the rotation from the estimate to the goal) [rad]. `mode`
+    is the vehicle's, `arm_mode` the arm's; `failsafe` names why both hold ('' when they don't)."""
 
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
@@ -232,10 +239,43 @@ class Telemetry(Message):
     command_id: int = scalar(-1, 2**53)  # the waypoint list being flown; -1: none yet
     waypoint_index: int = scalar(0, 1000)
     waypoints_total: int = scalar(0, 1000)
-    position_error_m: float = scalar(0.0)
+    position_error_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     heading_error_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
+    arm_mode: str = scalar(choices=MODES)
+    arm_command_id: int = scalar(-1, 2**53)  # the end-effector goal being reached; -1: none
+    ee_position_error_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    ee_orientation_error_rad: float = scalar(0.0, math.pi + 1e-6)
     arm_positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)  # model order
+    failsafe: str = scalar()  # why the vehicle and arm hold; empty when they do not
+    failsafe_events: int = scalar(0, 2**31)
     sim_time_s: float = scalar(0.0)
+
+    @property
+    def position_error_m(self) -> float:
+        return float(np.linalg.norm(self.position_error_m_world))
+
+
+@dataclass(frozen=True)
+class ArmGoal(Message):
+    """An end-effector pose goal: position [m] and orientation (w, x, y, z) in the world frame;
+    onshore -> vessel -> onboard."""
+
+    command_id: int = scalar(0, 2**53)
+    position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0 - 1e-6, 1.0 + 1e-6)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_unit_quaternion(self.orientation_wxyz_world)
+
+
+@dataclass(frozen=True)
+class Heartbeat(Message):
+    """The vessel's heartbeat to onboard: goals keep flowing, and whether shore is heard
+    (the satellite link is up). Onboard holds station when it stops or shore is lost."""
+
+    shore_silence_s: float = scalar(0.0)  # since shore was last heard [s]
+    shore_heard: bool = True
 
 
 @dataclass(frozen=True)
@@ -267,10 +307,18 @@ class LinkStats(Message):
 
 @dataclass(frozen=True)
 class MissionStatus(Message):
+    """The mission as the operator sees it from the telemetry that reached shore."""
+
     mode: str = scalar(choices=MODES)
     waypoint_index: int = scalar(0, 1000)
     waypoints_total: int = scalar(0, 1000)
     position_error_m: float = scalar(0.0)
+    heading_error_rad: float = scalar(0.0, math.pi + 1e-6)
+    arm_mode: str = scalar(choices=MODES)
+    ee_position_error_m: float = scalar(0.0)
+    ee_orientation_error_rad: float = scalar(0.0, math.pi + 1e-6)
+    failsafe: str = scalar()  # why the vehicle and arm hold; empty when they do not
+    failsafe_events: int = scalar(0, 2**31)
     done: bool = False
 
 

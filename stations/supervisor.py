@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import signal
 import socket
 import subprocess
@@ -14,13 +15,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from common import keys
 from common.bus import open_session, zenoh_config
 from common.config import Config
 from common.errors import AbyssError, BadMessage
-from common.messages import MissionStatus, SimulationStatus, decode
+from common.messages import MissionStatus, SimulationStatus, Telemetry, decode
+from stations.record import ControlRecorder
 from stations.runtime import free_port
 
 DEFAULT_PORT = 7447
@@ -71,6 +74,7 @@ class Up:
         self.alive_seen: set[str] = set()
         self.mission: MissionStatus | None = None
         self.simulation: SimulationStatus | None = None
+        self.record: ControlRecorder | None = None
         self.stations: dict[str, Station] = {}
         self.interrupted = threading.Event()
         self._lock = threading.Lock()
@@ -86,7 +90,8 @@ class Up:
                 self.alive.discard(name)
 
     def _on_status(self, sample: zenoh.Sample) -> None:
-        """Mission status from shore, simulation status from the simulation."""
+        """Mission status from shore, simulation status from the simulation, the controllers'
+        telemetry from onboard."""
         try:
             message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
         except BadMessage:
@@ -95,6 +100,8 @@ class Up:
             self.mission = message
         elif isinstance(message, SimulationStatus):
             self.simulation = message
+        elif isinstance(message, Telemetry) and self.record is not None:
+            self.record.add(message)
 
     # -- processes -----------------------------------------------------------------------
     def _start(self, name: str, config_path: Path) -> Station:
@@ -144,11 +151,13 @@ class Up:
         config_path.write_text(self.config.to_json())
         system = self.config.system
         session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
+        self.record = ControlRecorder(self.out_dir)
         observers = [
             session.liveliness().declare_subscriber(keys.key(system, "*", "alive"), self._on_alive,
                                                     history=True),
             session.declare_subscriber(keys.mission_key(system), self._on_status),
             session.declare_subscriber(keys.simulation_status_key(system), self._on_status),
+            session.declare_subscriber(keys.spec("onboard", "telemetry").key(system), self._on_status),
         ]
         previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
                     for s in (signal.SIGINT, signal.SIGTERM)}
@@ -169,6 +178,7 @@ class Up:
             for observer in observers:
                 observer.undeclare()
             session.close()
+            self.record.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
         summary = self._summary(time.monotonic() - t0, startup_s, failure)
@@ -214,7 +224,9 @@ class Up:
                 state = "no telemetry on shore yet"
                 if mission:
                     state = (f"{mission.mode}, waypoint {mission.waypoint_index}/"
-                             f"{mission.waypoints_total}, error {mission.position_error_m:.2f} m")
+                             f"{mission.waypoints_total}, error {mission.position_error_m:.2f} m; arm "
+                             f"{mission.arm_mode}, error {mission.ee_position_error_m * 1e3:.0f} mm"
+                             + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else ""))
                 self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")
@@ -247,9 +259,22 @@ class Up:
             "stations": stations,
             "links": links,
             "mission": dataclasses.asdict(self.mission) if self.mission else None,
+            "control": control_summary(self.record.last if self.record else None),
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": {},
         }
+
+
+def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
+    """The controllers' final state and errors, from the last telemetry onboard sent."""
+    if t is None:
+        return None
+    return {"sim_time_s": t.sim_time_s, "mode": t.mode, "arm_mode": t.arm_mode,
+            "position_error_m": t.position_error_m,
+            "heading_error_deg": abs(math.degrees(t.heading_error_rad)),
+            "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
+            "ee_orientation_error_deg": math.degrees(t.ee_orientation_error_rad),
+            "failsafe": t.failsafe, "failsafe_events": t.failsafe_events}
 
 
 def render_summary(summary: dict[str, Any]) -> str:
@@ -270,7 +295,13 @@ def render_summary(summary: dict[str, Any]) -> str:
                 f"{int(st['losses']):>5} {int(st['retransmissions']):>5}")
     m = summary["mission"]
     lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
-                                  f"error {m['position_error_m']:.2f} m" if m else "no status reached shore"))
+                                  f"done: {m['done']}" if m else "no status reached shore"))
+    c = summary["control"]
+    if c:
+        lines.append(f"  final errors (onboard): vehicle {c['position_error_m'] * 1e3:.1f} mm, heading "
+                     f"{c['heading_error_deg']:.2f} deg; end-effector "
+                     f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
+                     f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}")
     sim = summary["simulation"]
     if sim:
         lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "

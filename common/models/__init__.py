@@ -8,6 +8,8 @@ WORLD_FILE = MODELS_DIR / "world.xml"
 ROBOT_FILE = MODELS_DIR / "robot.xml"
 SEABED_CLOUD_FILE = MODELS_DIR / "seabed_cloud.ply"
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch", "tool_roll")
+# the arm folded under the bow, clear of the hull and the seabed, end-effector level [rad]
+ARM_STOWED_RAD = (0.0, 1.3, -2.4, 0.0, 1.1, 0.0)
 GRIPPER_JOINTS = ("finger_left", "finger_right")
 THRUSTERS = ("thr_fl", "thr_fr", "thr_rl", "thr_rr", "thr_vl", "thr_vr")
 CAMERAS = ("cam_left", "cam_right", "cam_depth")

@@ -16,7 +16,7 @@ from common.geometry import wrap_rad
 class ControlOutput:
     linear_mps_body: np.ndarray
     yaw_rate_radps: float
-    mode: str  # idle | moving | reached
+    mode: str  # idle | moving | reached | hold
     waypoint_index: int  # waypoints reached so far
     waypoints_total: int
     position_error_m_world: np.ndarray
@@ -34,27 +34,51 @@ class VehicleController:
         self.index = 0
         self._integral_m_s = np.zeros(3)
         self._integral_rad_s = 0.0
+        self._hold: np.ndarray | None = None  # x, y, z, yaw held while the failsafe is on
 
     def set_waypoints(self, command_id: int, waypoints: np.ndarray) -> bool:
         """Take a new list unless it is the one already being flown; True if taken."""
         if command_id == self.command_id:
             return False
         self.command_id, self.waypoints, self.index = command_id, np.array(waypoints), 0
-        self._integral_m_s[:], self._integral_rad_s = 0.0, 0.0
+        self._reset_integrals()
         return True
 
-    def step(self, position_m_world: np.ndarray, yaw_rad: float, dt_s: float) -> ControlOutput:
-        g = self.gains
+    def step(self, position_m_world: np.ndarray, yaw_rad: float, dt_s: float,
+             hold: bool = False) -> ControlOutput:
+        """One control period; with `hold`, the pose where holding began is held instead."""
         total = len(self.waypoints)
+        if hold:
+            if self._hold is None:
+                self._hold = np.r_[position_m_world, yaw_rad]
+                self._reset_integrals()
+            linear, r, error, heading_error = self._track(self._hold, position_m_world, yaw_rad, dt_s)
+            return ControlOutput(linear, r, "hold", min(self.index, total), total, error, heading_error)
+        if self._hold is not None:
+            self._hold = None
+            self._reset_integrals()
         if total == 0:
             return ControlOutput(np.zeros(3), 0.0, "idle", 0, 0, np.zeros(3), 0.0)
         target = self.waypoints[min(self.index, total - 1)]
         error = target[:3] - position_m_world
-        heading_error = wrap_rad(target[3] - yaw_rad)
         if (self.index < total and np.linalg.norm(error) < self.mission.position_tolerance_m
-                and abs(heading_error) < self.mission.heading_tolerance_rad):
+                and abs(wrap_rad(target[3] - yaw_rad)) < self.mission.heading_tolerance_rad):
             self.index += 1
-            self._integral_m_s[:], self._integral_rad_s = 0.0, 0.0
+            self._reset_integrals()
+            target = self.waypoints[min(self.index, total - 1)]
+        linear, r, error, heading_error = self._track(target, position_m_world, yaw_rad, dt_s)
+        mode = "reached" if self.index >= total else "moving"
+        return ControlOutput(linear, r, mode, self.index, total, error, heading_error)
+
+    def _reset_integrals(self) -> None:
+        self._integral_m_s[:], self._integral_rad_s = 0.0, 0.0
+
+    def _track(self, target: np.ndarray, position_m_world: np.ndarray, yaw_rad: float,
+               dt_s: float) -> tuple[np.ndarray, float, np.ndarray, float]:
+        """PI towards `target` (x, y, z, yaw): body velocity, yaw rate, errors."""
+        g = self.gains
+        error = target[:3] - position_m_world
+        heading_error = wrap_rad(target[3] - yaw_rad)
         # anti-windup: the integral terms alone never ask for more than the limits
         if g.ki_position > 0:
             self._integral_m_s = np.clip(self._integral_m_s + error * dt_s,
@@ -71,5 +95,4 @@ class VehicleController:
         r = float(np.clip(r, -g.max_yaw_rate_radps, g.max_yaw_rate_radps))
         c, s = math.cos(yaw_rad), math.sin(yaw_rad)
         u_body = np.array([c * u_world[0] + s * u_world[1], -s * u_world[0] + c * u_world[1], u_world[2]])
-        mode = "reached" if self.index >= total else "moving"
-        return ControlOutput(u_body, r, mode, self.index, total, error, heading_error)
+        return u_body, r, error, heading_error

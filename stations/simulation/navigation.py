@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.geometry import quat_multiply, small_rotation_wxyz
 from common.messages import NavState
 from common.models import NAV_SENSORS
 
@@ -18,20 +19,6 @@ class NoiseSigmas:
     depth_m: float = 0.01  # [m]
     dvl_mps: float = 0.005  # [m/s]
     imu_rad: float = 0.002  # attitude [rad]; rates get a tenth of it per second
-
-
-def small_rotation_wxyz(rotvec: np.ndarray) -> np.ndarray:
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    return np.r_[np.cos(angle / 2), np.sin(angle / 2) * rotvec / angle]
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
 
 
 class Navigation:

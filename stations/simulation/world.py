@@ -8,7 +8,15 @@ import numpy as np
 
 from common.config import SimulationConfig
 from common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
-from common.models import ARM_JOINTS, CAMERAS, GRIPPER_JOINTS, NAV_SENSORS, THRUSTERS, WORLD_FILE
+from common.models import (
+    ARM_JOINTS,
+    ARM_STOWED_RAD,
+    CAMERAS,
+    GRIPPER_JOINTS,
+    NAV_SENSORS,
+    THRUSTERS,
+    WORLD_FILE,
+)
 from stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from stations.simulation.marine import Buoyancy, Current
 from stations.simulation.navigation import Navigation, NoiseSigmas
@@ -47,6 +55,8 @@ class World:
         self.data.qpos[p:p + 3] = config.start_position_m_world
         self.data.qpos[p + 3:p + 7] = [np.cos(config.start_yaw_rad / 2), 0.0, 0.0,
                                        np.sin(config.start_yaw_rad / 2)]
+        for name, angle_rad in zip(ARM_JOINTS, ARM_STOWED_RAD, strict=True):
+            self.data.qpos[self.model.joint(name).qposadr[0]] = angle_rad
         mujoco.mj_forward(self.model, self.data)
 
     def step(self, refs: References, period_s: float) -> None:

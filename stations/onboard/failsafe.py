@@ -1,0 +1,35 @@
+"""The onboard failsafe: the vehicle holds station and the arm holds still while the vessel
+is silent (its heartbeat stops: tether down, vessel dead) or, optionally, while the vessel
+reports shore silent (satellite down); both resume when the link returns."""
+
+from __future__ import annotations
+
+from common.messages import Heartbeat
+
+
+class Failsafe:
+    def __init__(self, goal_timeout_s: float, hold_on_shore_loss: bool) -> None:
+        self.goal_timeout_s = goal_timeout_s
+        self.hold_on_shore_loss = hold_on_shore_loss
+        self.heard_s: float | None = None  # never heard: nothing to hold yet
+        self.shore_heard = True
+        self.reason = ""
+        self.events = 0
+
+    def heard(self, now_s: float, heartbeat: Heartbeat) -> None:
+        self.heard_s = now_s
+        self.shore_heard = heartbeat.shore_heard
+
+    def check(self, now_s: float, tether_down: bool) -> str:
+        """Why the vehicle must hold now ('' when it need not); counts each entry."""
+        reason = ""
+        if tether_down:
+            reason = "tether link reported down"
+        elif self.heard_s is not None and now_s - self.heard_s > self.goal_timeout_s:
+            reason = f"no heartbeat from the vessel for {now_s - self.heard_s:.1f} s"
+        elif self.hold_on_shore_loss and not self.shore_heard:
+            reason = "the vessel reports shore silent (satellite link lost)"
+        if reason and not self.reason:
+            self.events += 1
+        self.reason = reason
+        return reason

@@ -211,6 +211,13 @@ def cmd_fault(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_plot(args: argparse.Namespace) -> int:
+    from stations.plot import plot_run
+    for line in plot_run(args.run_dir):
+        print(line)
+    return 0
+
+
 def cmd_terrain_build(args: argparse.Namespace) -> int:
     from common.models import MODELS_DIR, WORLD_FILE
     from stations.simulation import terrain
@@ -290,6 +297,10 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_link_netem)
     p = link.add_parser("profiles", help="list the named profiles")
     p.set_defaults(func=cmd_link_profiles)
+
+    p = sub.add_parser("plot", help="the paper's four figures of controller errors from a run")
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    p.set_defaults(func=cmd_plot)
 
     p = sub.add_parser("fault", help="inject a fault into a running simulation")
     p.add_argument("fault", choices=FAULTS)

@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from common.errors import BadMessage
-from common.messages import NavState, Telemetry, VelocityRef, Waypoints, decode, encode
+from common.messages import ArmGoal, NavState, Telemetry, VelocityRef, Waypoints, decode, encode
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 
@@ -92,4 +92,7 @@ def test_invalid_values_are_refused_at_construction() -> None:
     with pytest.raises(ValueError, match="unit quaternion"):
         NavState(np.zeros(3), np.array([1.0, 1.0, 0, 0]), np.zeros(3), np.zeros(3), 0.0)
     with pytest.raises(ValueError, match="mode"):
-        Telemetry(np.zeros(3), 0.0, "flying", -1, 0, 0, 0.0, 0.0, np.zeros(6), 0.0)
+        Telemetry(np.zeros(3), 0.0, "flying", -1, 0, 0, np.zeros(3), 0.0, "idle", -1, np.zeros(3), 0.0,
+                  np.zeros(6), "", 0, 0.0)
+    with pytest.raises(ValueError, match="unit quaternion"):
+        ArmGoal(1, np.zeros(3), np.array([0.5, 0.0, 0.0, 0.0]))

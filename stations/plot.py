@@ -1,0 +1,86 @@
+"""`abyss plot RUN_DIR`: the four figures of the original paper from a run's control record:
+the vehicle's position error (x, y, z) and heading error over its waypoints, and the
+end-effector's position error (x, y, z) and orientation error for its constant target."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from common.errors import ConfigError
+from stations.record import CONTROL_FILE, read_control
+
+AXES = ("x", "y", "z")
+FIGURES = ("vehicle_position_error", "vehicle_heading_error", "ee_position_error", "ee_orientation_error")
+
+
+def _figure(time_s: np.ndarray, series: dict[str, np.ndarray], ylabel: str, title: str,
+            path: Path, marks_s: np.ndarray, holds: np.ndarray) -> None:
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
+    for label, values in series.items():
+        ax.plot(time_s, values, label=label, linewidth=1.4)
+    for t in marks_s:
+        ax.axvline(t, color="0.6", linestyle=":", linewidth=1)
+    if holds.any():  # failsafe periods, shaded
+        ax.fill_between(time_s, 0, 1, where=holds, transform=ax.get_xaxis_transform(), color="tab:red",
+                        alpha=0.12, label="failsafe: holding")
+    ax.axhline(0.0, color="0.3", linewidth=0.8)
+    ax.set_xlabel("simulated time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_run(run_dir: Path) -> list[str]:
+    """Write the four PNG files into `run_dir`; return the lines to print."""
+    if not (run_dir / CONTROL_FILE).is_file():
+        raise ConfigError("RUN_DIR", f"{run_dir} has no {CONTROL_FILE}; give a run directory of `abyss up`")
+    c = read_control(run_dir)
+    t = c["sim_time_s"]
+    if len(t) < 2:
+        raise ConfigError("RUN_DIR", f"{run_dir / CONTROL_FILE} holds fewer than two rows")
+    holds = c["failsafe"] != ""
+    reached_s = t[1:][np.diff(c["waypoint_index"]) > 0]  # when each waypoint was reached
+    vehicle = c["mode"] != "idle"
+    _figure(t[vehicle], {f"e_{a}": c[f"error_{a}_m"][vehicle] for a in AXES}, "position error [m]",
+            "Vehicle position error, waypoints (dotted: each reached)", run_dir / f"{FIGURES[0]}.png",
+            reached_s, holds[vehicle])
+    _figure(t[vehicle], {"e_psi": np.degrees(c["heading_error_rad"][vehicle])}, "heading error [deg]",
+            "Vehicle heading error", run_dir / f"{FIGURES[1]}.png", reached_s, holds[vehicle])
+    arm = np.isin(c["arm_mode"], ("moving", "reached"))
+    arm_t = t[arm] if arm.any() else t[:0]
+    _figure(arm_t, {f"e_{a}": c[f"ee_error_{a}_m"][arm] * 1e3 for a in AXES}, "position error [mm]",
+            "End-effector position error, constant target", run_dir / f"{FIGURES[2]}.png",
+            np.array([]), holds[arm])
+    _figure(arm_t, {"angle": np.degrees(c["ee_orientation_error_rad"][arm])}, "orientation error [deg]",
+            "End-effector orientation error, constant target", run_dir / f"{FIGURES[3]}.png",
+            np.array([]), holds[arm])
+    last = -1
+    vehicle_mm = [c[f"error_{a}_m"][last] * 1e3 for a in AXES]
+    lines = [f"wrote {', '.join(name + '.png' for name in FIGURES)} in {run_dir}",
+             f"final errors at t = {t[last]:.1f} s: vehicle {_mm(vehicle_mm)}, heading "
+             f"{math.degrees(c['heading_error_rad'][last]):+.2f} deg"]
+    if arm.any():
+        ee_mm = [c[f"ee_error_{a}_m"][arm][last] * 1e3 for a in AXES]
+        lines.append(f"final errors, end-effector: {_mm(ee_mm)}, orientation "
+                     f"{math.degrees(c['ee_orientation_error_rad'][arm][last]):.2f} deg")
+    else:
+        lines.append("the arm never moved towards a goal in this run")
+    lines.append(f"failsafe: {int(c['failsafe_events'][last])} events, "
+                 f"{holds.mean():.0%} of the record holding")
+    return lines
+
+
+def _mm(values_mm: list[float]) -> str:
+    parts = ", ".join(f"{a} {v:+.2f}" for a, v in zip(AXES, values_mm, strict=True))
+    return f"{math.hypot(*values_mm):.2f} mm ({parts} mm)"

@@ -1,0 +1,109 @@
+"""The onboard controllers in the whole system: waypoints flown with either low level, the
+failsafe on a tether outage and the resume, `abyss plot` on the run."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+from conftest import Up, abyss
+
+from common import keys
+from common.bus import open_session, zenoh_config
+from common.config import MissionConfig
+from common.geometry import wrap_rad, yaw_of
+from common.messages import NavState, decode
+from stations.plot import FIGURES
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(180)]
+LAST_WAYPOINT = MissionConfig().waypoints[-1]
+
+
+class Truth:
+    """The vehicle's true state, as a scorer sees it on the truth key."""
+
+    def __init__(self, endpoint: str, system: str) -> None:
+        self.states: list[NavState] = []
+        self._lock = threading.Lock()
+        self.session = open_session(zenoh_config(connect=[endpoint], mode="client"), "test scorer")
+        self.subscriber = self.session.declare_subscriber(keys.truth_key(system), self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
+        assert isinstance(message, NavState)
+        with self._lock:
+            self.states.append(message)
+
+    def since(self, seconds: float) -> list[NavState]:
+        with self._lock:
+            latest = self.states[-1].sim_time_s
+            return [s for s in self.states if s.sim_time_s >= latest - seconds]
+
+    def close(self) -> None:
+        self.subscriber.undeclare()
+        self.session.close()
+
+
+@pytest.mark.parametrize(("low_level", "tolerance_m", "tolerance_deg", "profile"), [
+    ("kinematic", 0.02, 1.0, "ideal"),
+    ("dynamic", 0.05, 2.0, "tether"),
+])
+def test_three_waypoints_are_reached(tmp_path: Path, low_level: str, tolerance_m: float, tolerance_deg: float,
+                                     profile: str) -> None:
+    """Within 90 s (measured: ~20 s kinematic, ~30 s dynamic); the true pose is scored too."""
+    system = f"e2e-wp-{low_level}"
+    up = Up(tmp_path / "run", "--system", system, "--duration", "90", "--profile", f"tether={profile}",
+            "--set", f"simulation.low_level={low_level}",
+            "--set", f"mission.position_tolerance_m={tolerance_m}",
+            "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg)}",
+            "--set", "mission.arm_target=[]")
+    truth = Truth(up.endpoint, system)
+    try:
+        assert up.wait(120) == 0, up.output()
+        final = truth.since(0.0)[-1]
+    finally:
+        truth.close()
+    summary = up.summary()
+    assert summary["mission"]["done"], up.output()
+    assert summary["wall_s"] < 90
+    control = summary["control"]
+    assert control["position_error_m"] < tolerance_m and control["heading_error_deg"] < tolerance_deg
+    true_error_m = np.linalg.norm(np.array(LAST_WAYPOINT[:3]) - final.position_m_world)
+    true_heading_deg = abs(math.degrees(wrap_rad(LAST_WAYPOINT[3] - yaw_of(final.orientation_wxyz_world))))
+    assert true_error_m < tolerance_m and true_heading_deg < tolerance_deg
+
+
+def test_failsafe_holds_station_through_a_tether_outage_and_resumes(tmp_path: Path) -> None:
+    system = "e2e-failsafe"
+    up = Up(tmp_path / "run", "--system", system, "--duration", "120",
+            "--set", "simulation.low_level=kinematic")
+    truth = Truth(up.endpoint, system)
+    link = ("--connect", up.endpoint, "--system", system)
+    try:
+        up.wait_for("all 4 stations up")
+        time.sleep(4.0)  # the mission is under way
+        moved_m = np.ptp([s.position_m_world[0] for s in truth.since(1.0)])
+        assert moved_m > 0.1, "the vehicle should be flying its first leg"
+        assert abyss("link", "set", "tether", "--profile", "outage", *link).returncode == 0
+        time.sleep(4.0)
+        held = truth.since(2.0)
+        drift_m = max(np.linalg.norm(s.position_m_world - held[0].position_m_world) for s in held)
+        assert drift_m < 0.02, f"the vehicle should hold station, drifted {drift_m:.3f} m"
+        assert abyss("link", "set", "tether", "--profile", "tether", *link).returncode == 0
+        assert up.wait(100) == 0, up.output()
+    finally:
+        truth.close()
+    summary = up.summary()
+    assert summary["mission"]["done"] and summary["control"]["failsafe_events"] >= 1
+    assert "FAILSAFE" in up.output() or summary["mission"]["failsafe_events"] >= 1
+    plotted = abyss("plot", str(tmp_path / "run"))
+    assert plotted.returncode == 0, plotted.stderr
+    for name in FIGURES:
+        png = tmp_path / "run" / f"{name}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000, name
+    assert "final errors" in plotted.stdout and "failsafe" in plotted.stdout

@@ -245,6 +245,8 @@ class Telemetry(Message):
     arm_command_id: int = scalar(-1, 2**53)  # the end-effector goal being reached; -1: none
     ee_position_error_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     ee_orientation_error_rad: float = scalar(0.0, math.pi + 1e-6)
+    ee_position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)  # where onboard sees the tool
+    ee_orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0 - 1e-6, 1.0 + 1e-6)
     arm_positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)  # model order
     failsafe: str = scalar()  # why the vehicle and arm hold; empty when they do not
     failsafe_events: int = scalar(0, 2**31)

@@ -211,6 +211,13 @@ def cmd_fault(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_teleop(args: argparse.Namespace) -> int:
+    from stations.teleop import run_teleop
+    if not 0 < args.step_m <= 1.0 or not 0 < args.step_deg <= 45.0:
+        raise ConfigError("teleop", "--step-m must lie in (0, 1] m and --step-deg in (0, 45] deg")
+    return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick)
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from stations.plot import plot_run
     for line in plot_run(args.run_dir):
@@ -297,6 +304,15 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_link_netem)
     p = link.add_parser("profiles", help="list the named profiles")
     p.set_defaults(func=cmd_link_profiles)
+
+    p = sub.add_parser("teleop", help="drive the vehicle or the end-effector from a joystick or the keyboard")
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.add_argument("--step-m", type=float, default=0.1, help="goal step per key [m] (joystick: m/s)")
+    p.add_argument("--step-deg", type=float, default=5.0, help="goal step per key [deg] (joystick: deg/s)")
+    p.add_argument("--joystick", type=Path, metavar="DEVICE",
+                   help="Linux joystick device (default /dev/input/js0 when present; else the keyboard)")
+    p.set_defaults(func=cmd_teleop)
 
     p = sub.add_parser("plot", help="the paper's four figures of controller errors from a run")
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR")

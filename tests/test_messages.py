@@ -93,6 +93,6 @@ def test_invalid_values_are_refused_at_construction() -> None:
         NavState(np.zeros(3), np.array([1.0, 1.0, 0, 0]), np.zeros(3), np.zeros(3), 0.0)
     with pytest.raises(ValueError, match="mode"):
         Telemetry(np.zeros(3), 0.0, "flying", -1, 0, 0, np.zeros(3), 0.0, "idle", -1, np.zeros(3), 0.0,
-                  np.zeros(6), "", 0, 0.0)
+                  np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(6), "", 0, 0.0)
     with pytest.raises(ValueError, match="unit quaternion"):
         ArmGoal(1, np.zeros(3), np.array([0.5, 0.0, 0.0, 0.0]))

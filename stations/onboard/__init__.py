@@ -12,7 +12,7 @@ import numpy as np
 
 from common.bus import Bus
 from common.config import Config
-from common.geometry import yaw_of
+from common.geometry import quat_wxyz_of, yaw_of
 from common.messages import (
     ArmGoal,
     ArmVelocityRef,
@@ -85,6 +85,7 @@ def run(config: Config, bus: Bus) -> None:
             gripper_mps = float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
         bus.publish("cmd/arm_velocity", ArmVelocityRef(arm_out.joint_velocities_radps, gripper_mps))
         if tick % every == 0:
+            ee_pose = arm.kinematics.pose(arm.kinematics.ee)
             bus.publish("telemetry", Telemetry(
                 position_m_world=position_m_world, yaw_rad=yaw, mode=out.mode, command_id=vehicle.command_id,
                 waypoint_index=out.waypoint_index, waypoints_total=out.waypoints_total,
@@ -92,6 +93,8 @@ def run(config: Config, bus: Bus) -> None:
                 arm_mode=arm_out.mode, arm_command_id=arm.command_id,
                 ee_position_error_m_world=arm_out.position_error_m_world,
                 ee_orientation_error_rad=arm_out.orientation_error_rad,
+                ee_position_m_world=ee_pose.translation,
+                ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
                 failsafe_events=failsafe.events, sim_time_s=sim_time_s))
         tick += 1

@@ -79,19 +79,20 @@ class VehicleController:
         g = self.gains
         error = target[:3] - position_m_world
         heading_error = wrap_rad(target[3] - yaw_rad)
-        # anti-windup: the integral terms alone never ask for more than the limits
-        if g.ki_position > 0:
-            self._integral_m_s = np.clip(self._integral_m_s + error * dt_s,
-                                         -g.max_speed_mps / g.ki_position, g.max_speed_mps / g.ki_position)
-        if g.ki_heading > 0:
-            self._integral_rad_s = float(np.clip(self._integral_rad_s + heading_error * dt_s,
-                                                 -g.max_yaw_rate_radps / g.ki_heading,
-                                                 g.max_yaw_rate_radps / g.ki_heading))
+        # anti-windup by conditional integration: the integral grows only while the command is
+        # not saturated (or while the error would shrink it), so a long leg flown at full speed
+        # winds nothing up to overshoot with
         u_world = g.kp_position * error + g.ki_position * self._integral_m_s
+        if float(np.linalg.norm(u_world)) < g.max_speed_mps or float(error @ self._integral_m_s) < 0:
+            self._integral_m_s = self._integral_m_s + error * dt_s
+            u_world = g.kp_position * error + g.ki_position * self._integral_m_s
         speed = float(np.linalg.norm(u_world))
         if speed > g.max_speed_mps:
             u_world *= g.max_speed_mps / speed
         r = g.kp_heading * heading_error + g.ki_heading * self._integral_rad_s
+        if abs(r) < g.max_yaw_rate_radps or heading_error * self._integral_rad_s < 0:
+            self._integral_rad_s += heading_error * dt_s
+            r = g.kp_heading * heading_error + g.ki_heading * self._integral_rad_s
         r = float(np.clip(r, -g.max_yaw_rate_radps, g.max_yaw_rate_radps))
         c, s = math.cos(yaw_rad), math.sin(yaw_rad)
         u_body = np.array([c * u_world[0] + s * u_world[1], -s * u_world[0] + c * u_world[1], u_world[2]])

@@ -55,12 +55,13 @@ class Truth:
 ])
 def test_three_waypoints_are_reached(tmp_path: Path, low_level: str, tolerance_m: float, tolerance_deg: float,
                                      profile: str) -> None:
-    """Within 90 s (measured: ~20 s kinematic, ~30 s dynamic); the true pose is scored too."""
+    """Within 90 s (measured: ~20 s kinematic, ~30 s dynamic). The controller accepts a waypoint
+    at half the bound; the true pose, scored on the truth key, must be within the bound."""
     system = f"e2e-wp-{low_level}"
     up = Up(tmp_path / "run", "--system", system, "--duration", "90", "--profile", f"tether={profile}",
             "--set", f"simulation.low_level={low_level}",
-            "--set", f"mission.position_tolerance_m={tolerance_m}",
-            "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg)}",
+            "--set", f"mission.position_tolerance_m={tolerance_m / 2}",
+            "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg / 2)}",
             "--set", "mission.arm_target=[]")
     truth = Truth(up.endpoint, system)
     try:

@@ -37,7 +37,7 @@ class Task:
     velocity: np.ndarray  # (m,)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # identity: the solver asks which ones are active
 class Constraint:
     """h(x) >= minimum, enforced as the velocity damper hdot >= -k (h - minimum)."""
 

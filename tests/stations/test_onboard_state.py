@@ -1,0 +1,44 @@
+"""The onboard failsafe's decisions and the navigation filter, without a network."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common.messages import Heartbeat, NavState
+from stations.onboard.failsafe import Failsafe
+from stations.onboard.navigation import NavFilter
+
+
+def test_failsafe_enters_on_each_cause_counts_entries_and_resumes() -> None:
+    failsafe = Failsafe(goal_timeout_s=2.0, hold_on_shore_loss=True)
+    assert failsafe.check(100.0, tether_down=False) == ""  # never heard: nothing to hold yet
+    failsafe.heard(100.0, Heartbeat(0.0, True))
+    assert failsafe.check(101.0, tether_down=False) == ""
+    assert "no heartbeat" in failsafe.check(102.5, tether_down=False)
+    assert "no heartbeat" in failsafe.check(103.0, tether_down=False) and failsafe.events == 1
+    failsafe.heard(103.1, Heartbeat(0.0, True))
+    assert failsafe.check(103.2, tether_down=False) == ""
+    assert "tether" in failsafe.check(103.3, tether_down=True) and failsafe.events == 2
+    failsafe.heard(103.4, Heartbeat(6.0, False))
+    assert "shore silent" in failsafe.check(103.5, tether_down=False) and failsafe.events == 2
+    relaxed = Failsafe(goal_timeout_s=2.0, hold_on_shore_loss=False)
+    relaxed.heard(0.0, Heartbeat(6.0, False))
+    assert relaxed.check(0.1, tether_down=False) == ""
+
+
+def test_nav_filter_cuts_the_fix_noise_and_follows_motion() -> None:
+    rng = np.random.default_rng(0)
+    nav_filter, raw, filtered = NavFilter(5.0), [], []
+    for i in range(2000):  # 100 s at 20 Hz, moving at 0.2 m/s forward
+        t_s = i * 0.05
+        truth = np.array([0.2 * t_s, 0.0, -7.0])
+        fix = truth + rng.normal(0, [0.05, 0.05, 0.01])
+        state = NavState(fix, np.array([1.0, 0, 0, 0]), np.array([0.2, 0, 0]) + rng.normal(0, 0.005, 3),
+                         np.zeros(3), t_s)
+        position, orientation = nav_filter.update(state)
+        if t_s > 20:  # past the filter's settling
+            raw.append(np.linalg.norm(fix - truth))
+            filtered.append(np.linalg.norm(position - truth))
+    assert np.median(filtered) < 0.25 * np.median(raw)
+    assert np.median(filtered) < 0.01
+    assert abs(np.linalg.norm(orientation) - 1.0) < 1e-9

@@ -18,6 +18,7 @@ import numpy as np
 from common import keys
 from common.errors import ConfigError
 from common.geometry import quat_wxyz_of, rotation_of_rpy
+from common.messages import CLOUD_SOURCES
 from linkemu.profile import LinkProfile, load_profiles, profile
 
 
@@ -130,13 +131,31 @@ class OnboardConfig:
     # failsafe: hold station and hold the arm still when the vessel is silent this long
     goal_timeout_s: float = 2.0  # [s]
     hold_on_shore_loss: bool = True  # also when the vessel reports shore silent
+    # perception: a coloured cloud per camera frame from each source, in the world frame
+    cloud_sources: tuple[str, ...] = ("depth", "stereo")
+    cloud_voxel_m: float = 0.02  # [m] voxel downsampling before the tether
+    cloud_max_range_m: float = 8.0  # [m] farther points are dropped (the water's murk)
+    cloud_scale_m: float = 0.002  # [m] quantisation on the wire
+    stereo_disparities: int = 64  # searched by the stereo matcher (a multiple of 16) [px]
+    self_filter_radius_m: float = 0.15  # [m] points this close to the arm are the arm's
+    image_rate_hz: float = 1.0  # the left camera's frames sent on to the vessel
+    image_jpeg_quality: int = 70
 
     def __post_init__(self) -> None:
+        for name in self.cloud_sources:
+            if name not in CLOUD_SOURCES:
+                raise ConfigError("onboard.cloud_sources", f"{name!r} not one of {', '.join(CLOUD_SOURCES)}")
+        if self.stereo_disparities % 16 or not 16 <= self.stereo_disparities <= 256:
+            raise ConfigError("onboard.stereo_disparities",
+                              f"{self.stereo_disparities}: a multiple of 16 in [16, 256]")
+        if not 1 <= self.image_jpeg_quality <= 100:
+            raise ConfigError("onboard.image_jpeg_quality", f"{self.image_jpeg_quality} outside [1, 100]")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if not isinstance(value, bool):
+            if not isinstance(value, (bool, tuple)):
                 _positive(f"onboard.{f.name}", value,
-                          allow_zero=f.name.startswith("ki") or f.name == "nav_time_constant_s")
+                          allow_zero=f.name.startswith("ki") or f.name in ("nav_time_constant_s",
+                                                                             "image_rate_hz"))
         if self.kp_constraint * self.control_period_s >= 1.0:
             raise ConfigError("onboard.kp_constraint",
                               f"kp_constraint * control_period_s must stay below 1 (got "
@@ -149,10 +168,30 @@ class VesselConfig:
     telemetry_period_s: float = 0.5  # [s] telemetry relayed to shore, downsampled
     heartbeat_period_s: float = 0.5  # [s] to onboard
     shore_timeout_s: float = 5.0  # [s] shore silent this long: the satellite link is reported lost
+    # the scene model and its stream to shore
+    octree_resolution_m: float = 0.1  # [m] edge of the finest voxel
+    octree_max_range_m: float = 8.0  # [m] rays are cut here
+    scene_share: float = 0.5  # of the satellite's measured capacity, at most, for scene updates
+    scene_update_bytes: int = 16_000  # one update at most: telemetry waits behind no more than this
+    satellite_capacity_bps: float = 1e6  # [bit/s] the first guess, before one is measured
+    recognition_period_s: float = 2.0  # [s]
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             _positive(f"vessel.{f.name}", getattr(self, f.name))
+        if self.scene_share > 1.0:
+            raise ConfigError("vessel.scene_share", f"{self.scene_share} must lie in (0, 1]")
+        if self.octree_resolution_m < 0.01:
+            raise ConfigError("vessel.octree_resolution_m", f"{self.octree_resolution_m} m: at least 0.01 m")
+
+
+@dataclass(frozen=True)
+class OnshoreConfig:
+    record_dir: str = ""  # where the run's scene and recording go; `abyss up` sets its run directory
+    scene_request_period_s: float = 2.0  # [s] a missing snapshot is asked for again this often
+
+    def __post_init__(self) -> None:
+        _positive("onshore.scene_request_period_s", self.scene_request_period_s)
 
 
 Box = tuple[float, float, float, float, float, float]
@@ -207,6 +246,7 @@ class Config:
     simulation: SimulationConfig = field(default_factory=SimulationConfig)
     onboard: OnboardConfig = field(default_factory=OnboardConfig)
     vessel: VesselConfig = field(default_factory=VesselConfig)
+    onshore: OnshoreConfig = field(default_factory=OnshoreConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
 
     def __post_init__(self) -> None:

@@ -11,8 +11,25 @@ DEPTH_SCALE_M = 0.001  # one PNG count [m]
 
 
 def decode_image(image: Image) -> np.ndarray:
-    """RGB uint8 (H, W, 3), or depth [m] float32 (H, W)."""
+    """RGB uint8 (H, W, 3), or depth [m] float32 (H, W); ValueError if the bytes do not decode
+    to an image of the size the message states."""
     buffer = np.frombuffer(image.data, np.uint8)
+    flags = cv2.IMREAD_UNCHANGED if image.encoding == "png16" else cv2.IMREAD_COLOR
+    pixels = cv2.imdecode(buffer, flags) if len(buffer) else None
+    expected = (image.height_px, image.width_px)
+    if pixels is None or pixels.shape[:2] != expected:
+        got = "nothing" if pixels is None else f"{pixels.shape}"
+        raise ValueError(f"{image.camera}: {image.encoding} data decodes to {got}, expected {expected}")
     if image.encoding == "png16":
-        return cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED).astype(np.float32) * DEPTH_SCALE_M
-    return cv2.cvtColor(cv2.imdecode(buffer, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        if pixels.dtype != np.uint16 or pixels.ndim != 2:
+            raise ValueError(f"{image.camera}: depth is not a 16-bit single-channel PNG")
+        return pixels.astype(np.float32) * DEPTH_SCALE_M
+    return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
+
+
+def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    ok, buffer = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError("OpenCV could not encode a JPEG")
+    return buffer.tobytes()

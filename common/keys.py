@@ -90,13 +90,18 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("onboard", "cmd/vehicle_velocity", "VelocityRef", 20.0, "best-effort", "simulation"),
     KeySpec("onboard", "cmd/arm_velocity", "ArmVelocityRef", 20.0, "best-effort", "simulation"),
     KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel"),
+    KeySpec("onboard", "cloud", "PointCloud", 2.0, "best-effort", "vessel"),
+    KeySpec("onboard", "image", "Image", 1.0, "best-effort", "vessel"),
     KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard"),
     KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard"),
     KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard"),
     KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore"),
+    KeySpec("vessel", "scene", "SceneUpdate", 0.0, "reliable", "onshore"),
+    KeySpec("vessel", "objects", "RecognisedObjects", 0.5, "best-effort", "onshore"),
     KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel"),
     KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel"),
     KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel"),
+    KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel"),
 )
 
 

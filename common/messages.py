@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import math
 import typing
+import zlib
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -87,6 +88,10 @@ def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
         if meta.get("choices") and value not in meta["choices"]:
             raise ValueError(f"{name}: {value!r} not one of {meta['choices']}")
         return value
+    if typing.get_origin(kind) is tuple:  # tuple[str, ...]
+        if not isinstance(value, (list, tuple)) or len(value) > 256:
+            raise ValueError(f"{name}: expected a list of at most 256 strings")
+        return tuple(_check_field(f"{name}[{i}]", str, v, {}) for i, v in enumerate(value))
     if typing.get_origin(kind) is dict:
         value_kind = typing.get_args(kind)[1]
         if not isinstance(value, dict) or len(value) > 256:
@@ -177,25 +182,107 @@ class JointState(Message):
 
 
 IMAGE_ENCODINGS = ("jpeg", "png16")
+POSE_FRAMES = ("vehicle", "world")
 
 
 @dataclass(frozen=True)
 class Image(Message):
     """A camera frame: RGB as JPEG, depth as 16-bit PNG in millimetres. Intrinsics of the
-    pinhole model [px]; extrinsics: the camera's pose in the vehicle frame, x, y, z [m] and
-    quaternion w, x, y, z, camera axes as OpenCV's (x right, y down, z forward)."""
+    pinhole model [px]; `pose_camera`: the camera's pose in `pose_frame`, x, y, z [m] and
+    quaternion w, x, y, z, camera axes as OpenCV's (x right, y down, z forward). The simulation
+    sends the pose in the vehicle frame (its mounting); onboard, which knows where the vehicle
+    was when the frame was taken, sends it on in the world frame."""
 
     camera: str = scalar()
     encoding: str = scalar(choices=IMAGE_ENCODINGS)
+    pose_frame: str = scalar(choices=POSE_FRAMES)
     width_px: int = scalar(1, 8192)
     height_px: int = scalar(1, 8192)
     fx_px: float = scalar(1e-3, 1e6)
     fy_px: float = scalar(1e-3, 1e6)
     cx_px: float = scalar(0.0, 8192.0)
     cy_px: float = scalar(0.0, 8192.0)
-    pose_camera_in_vehicle: np.ndarray = array("f8", (7,), -100.0, 100.0)
+    pose_camera: np.ndarray = array("f8", (7,), -1e5, 1e5)
     data: bytes = field(metadata={"max_bytes": 32 * 2**20})
     sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_unit_quaternion(self.pose_camera[3:])
+
+
+CLOUD_SOURCES = ("depth", "stereo")
+CLOUD_POINT_BYTES = 9  # x, y, z as int16 and r, g, b as uint8
+
+
+@dataclass(frozen=True)
+class PointCloud(Message):
+    """A coloured point cloud in the world frame, quantised and compressed (common.clouds):
+    each point as three int16 multiples of `scale_m` from `origin_m_world` and an RGB colour,
+    the whole zlib-compressed. `sensor_m_world`: where the rays began, for ray casting."""
+
+    source: str = scalar(choices=CLOUD_SOURCES)
+    count: int = scalar(0, 2_000_000)
+    scale_m: float = scalar(1e-4, 1.0)
+    origin_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    sensor_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    data: bytes = field(metadata={"max_bytes": 32 * 2**20})
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        expected = self.count * CLOUD_POINT_BYTES
+        try:
+            raw = zlib.decompressobj().decompress(self.data, expected + 1)
+        except zlib.error as exc:
+            raise ValueError(f"data: not zlib ({exc})") from None
+        if len(raw) != expected:
+            raise ValueError(f"data: {len(raw)} bytes decompressed; {self.count} points need {expected}")
+
+
+SCENE_KINDS = ("snapshot", "delta")
+
+
+@dataclass(frozen=True)
+class SceneUpdate(Message):
+    """The vessel's occupancy octree to shore, as OctoMap's binary stream (`octree`: what
+    `OcTree::writeBinary` writes, header included): a snapshot holds every known leaf, a delta
+    the leaves that changed since update `scene_seq - 1`. `colors`: RGB of the occupied leaves,
+    in the order OctoMap's leaf iterator visits the tree that `octree` decodes to."""
+
+    kind: str = scalar(choices=SCENE_KINDS)
+    scene_seq: int = scalar(0, 2**53)
+    resolution_m: float = scalar(1e-3, 10.0)
+    octree: bytes = field(metadata={"max_bytes": 16 * 2**20})
+    colors: np.ndarray = array("u1", (None, 3), 0, 255, max_rows=2_000_000)
+    sim_time_s: float = scalar(0.0)
+
+
+@dataclass(frozen=True)
+class SceneRequest(Message):
+    """Shore asks the vessel for a snapshot: it missed an update, or has none yet."""
+
+    last_seq: int = scalar(-1, 2**53)  # the last update applied on shore; -1: none
+    reason: str = scalar()
+
+
+@dataclass(frozen=True)
+class RecognisedObjects(Message):
+    """What the vessel recognised: per object a name, its pose in the world frame (x, y, z [m],
+    quaternion w, x, y, z), half sizes [m] and a confidence in [0, 1]. `method` says what found
+    the panel: "texture" (markers, PnP), "shape" (plane and ICP) or "texture+shape" (fused)."""
+
+    names: tuple[str, ...] = scalar()
+    poses_world: np.ndarray = array("f8", (None, 7), -1e5, 1e5, max_rows=256)
+    half_sizes_m: np.ndarray = array("f8", (None, 3), 0.0, 100.0, max_rows=256)
+    confidences: np.ndarray = array("f8", (None,), 0.0, 1.0, max_rows=256)
+    method: str = scalar()
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not len(self.names) == len(self.poses_world) == len(self.half_sizes_m) == len(self.confidences):
+            raise ValueError("names, poses_world, half_sizes_m and confidences differ in length")
 
 
 FAULTS = ("thruster", "camera", "noise", "clear")

@@ -254,6 +254,44 @@ def cmd_terrain_cloud(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_scene_export(args: argparse.Namespace) -> int:
+    from common.scene import export
+    from stations.onshore import SCENE_FILE
+
+    source = args.run_dir / SCENE_FILE
+    if not source.is_file():
+        raise ConfigError("RUN_DIR", f"{args.run_dir} holds no {SCENE_FILE}: not a run directory, "
+                                     "or no scene reached shore in that run")
+    try:
+        update = decode(str(source), source.read_bytes(), "SceneUpdate").message
+    except BadMessage as exc:
+        raise ConfigError("RUN_DIR", f"{source}: {exc.reason}") from None
+    for fmt in args.format:
+        path = args.run_dir / f"scene.{fmt}"
+        cells = export(update, path, fmt)  # type: ignore[arg-type]
+        print(f"abyss: wrote {path} ({cells} occupied cells at {update.resolution_m:g} m)")  # type: ignore[attr-defined]
+    return 0
+
+
+def cmd_stress_satellite(args: argparse.Namespace) -> int:
+    from stations.stress import stress_satellite
+
+    try:
+        resolutions = sorted({float(r) for r in args.resolutions.split(",")})
+    except ValueError:
+        raise ConfigError("--resolutions",
+                          f"{args.resolutions!r} is not a comma-separated list of metres") from None
+    if not resolutions or not all(0.02 <= r <= 2.0 for r in resolutions):
+        raise ConfigError("--resolutions", "each resolution must lie in [0.02, 2] m")
+    if not 2.0 <= args.duration <= 3600.0:
+        raise ConfigError("--duration", f"{args.duration} s: allowed 2 to 3600 s")
+    profile(args.link_profile)  # an unknown name fails here, with the names there are
+    out = args.out or Path("runs") / f"stress-satellite-{time.strftime('%Y%m%d-%H%M%S')}"
+    stress_satellite(_config(args), resolutions, args.duration, out, args.budget_ms, args.link_profile,
+                     echo=lambda line: print(f"abyss: {line}", flush=True))
+    return 0
+
+
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="abyss", description=__doc__)
     sub = root.add_subparsers(dest="command", required=True)
@@ -330,6 +368,26 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_fault)
 
 
+    scene = sub.add_parser("scene", help="the scene a run left on shore").add_subparsers(
+        dest="scene", required=True)
+    p = scene.add_parser("export",
+                         help="write the final octree as OctoMap .bt and a coloured point cloud .ply")
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    p.add_argument("--format", action="append", choices=("bt", "ply"),
+                   help="bt, ply, or both when repeated (default both)")
+    p.set_defaults(func=cmd_scene_export)
+
+    stress = sub.add_parser("stress", help="load evaluations").add_subparsers(dest="stress", required=True)
+    p = stress.add_parser("satellite", help="scene data per octree resolution over the satellite link")
+    _config_args(p)
+    p.add_argument("--resolutions", default="0.05,0.1,0.2", metavar="M,M,...", help="octree resolutions [m]")
+    p.add_argument("--duration", type=float, default=30.0, metavar="S",
+                   help="simulated seconds per resolution")
+    p.add_argument("--budget-ms", type=float, default=2000.0, help="latency budget of the p95 [ms]")
+    p.add_argument("--link-profile", default="satellite", help="the link's profile (default satellite)")
+    p.add_argument("--out", type=Path, help="directory for the JSON and the plot")
+    p.set_defaults(func=cmd_stress_satellite)
+
     terrain = sub.add_parser("terrain", help="seabed terrain from a point cloud").add_subparsers(
         dest="terrain", required=True)
     p = terrain.add_parser("build", help="reconstruct a surface (Open3D) and make it the world's terrain")
@@ -349,6 +407,8 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args: Any = parser().parse_args(argv)
+    if getattr(args, "func", None) is cmd_scene_export and not args.format:
+        args.format = ["bt", "ply"]
     try:
         return int(args.func(args))
     except AbyssError as exc:

@@ -147,6 +147,8 @@ class Up:
     # -- the run -------------------------------------------------------------------------
     def run(self, duration_s: float | None, keep_running: bool) -> int:
         self.out_dir.mkdir(parents=True, exist_ok=True)
+        self.config = dataclasses.replace(self.config, onshore=dataclasses.replace(
+            self.config.onshore, record_dir=str(self.out_dir.resolve())))
         config_path = self.out_dir / "config.json"
         config_path.write_text(self.config.to_json())
         system = self.config.system
@@ -236,10 +238,7 @@ class Up:
         stations: dict[str, Any] = {}
         links: dict[str, dict[str, Any]] = {hop: {} for hop in keys.HOPS}
         for name, station in self.stations.items():
-            try:
-                status = json.loads(station.status_path.read_text())
-            except (OSError, ValueError):
-                status = {}
+            status = read_json(station.status_path)
             for hop, stats in status.pop("links", {}).items():
                 links[hop][stats["direction"]] = stats
             code = station.died if station.died is not None else station.process.returncode
@@ -261,8 +260,15 @@ class Up:
             "mission": dataclasses.asdict(self.mission) if self.mission else None,
             "control": control_summary(self.record.last if self.record else None),
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
-            "scene": {},
+            "scene": read_json(self.out_dir / "scene.json"),
         }
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    try:
+        return dict(json.loads(path.read_text()))
+    except (OSError, ValueError):
+        return {}
 
 
 def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
@@ -302,6 +308,12 @@ def render_summary(summary: dict[str, Any]) -> str:
                      f"{c['heading_error_deg']:.2f} deg; end-effector "
                      f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
                      f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}")
+    scene = summary["scene"]
+    if scene:
+        lines.append(f"  scene on shore: {scene['occupied_cells']} occupied cells at "
+                     f"{scene['resolution_m']:g} m "
+                     f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
+                     f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}")
     sim = summary["simulation"]
     if sim:
         lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "

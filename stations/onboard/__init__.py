@@ -2,14 +2,19 @@
 end-effector goal come down from the vessel; body and joint velocity references go to the
 low level; the controllers' state goes up as telemetry. The arm moves once the vehicle holds
 its last waypoint (with `onboard.whole_body`, the vehicle then moves with the arm); both hold
-still while the failsafe is on."""
+still while the failsafe is on. Perception runs in a thread of its own: the camera frames
+become coloured clouds in the world frame, and the left camera's frames go on to the vessel."""
 
 from __future__ import annotations
 
+import dataclasses
+import logging
+import threading
 import time
 
 import numpy as np
 
+from common import keys
 from common.bus import Bus
 from common.config import Config
 from common.geometry import quat_wxyz_of, yaw_of
@@ -17,21 +22,33 @@ from common.messages import (
     ArmGoal,
     ArmVelocityRef,
     Heartbeat,
+    Image,
     JointState,
     NavState,
     Telemetry,
     VelocityRef,
     Waypoints,
 )
-from common.models import ARM_JOINTS
+from common.models import ARM_JOINTS, CAMERAS
 from common.rate import Rate
 from stations.onboard.arm_control import ArmController
 from stations.onboard.failsafe import Failsafe
 from stations.onboard.navigation import NavFilter
+from stations.onboard.perception import PoseHistory
 from stations.onboard.vehicle_control import VehicleController
 
 GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
 GRIPPER_GAIN_PER_S = 2.0
+log = logging.getLogger(__name__)
+
+
+class Shared:
+    """What the control loop hands the perception thread: poses, and where the arm is."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.poses = PoseHistory()
+        self.arm_m_world = np.zeros((0, 3))
 
 
 def run(config: Config, bus: Bus) -> None:
@@ -45,6 +62,10 @@ def run(config: Config, bus: Bus) -> None:
     waypoint_goals = bus.subscribe("vessel", "goal/waypoints")
     arm_goals = bus.subscribe("vessel", "goal/arm")
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
+    shared = Shared()
+    perception = threading.Thread(target=_perception_loop, args=(config, bus, shared), name="perception",
+                                  daemon=True)
+    perception.start()
     rate = Rate(cfg.control_period_s, bus.stop)
     every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
     position_m_world: np.ndarray | None = None
@@ -65,6 +86,8 @@ def run(config: Config, bus: Bus) -> None:
             assert isinstance(fix.message, NavState)
             position_m_world, orientation_wxyz_world = nav_filter.update(fix.message)
             sim_time_s = fix.message.sim_time_s
+            with shared.lock:
+                shared.poses.add(sim_time_s, position_m_world, orientation_wxyz_world)
         latest_joints = joints.latest()
         if position_m_world is None or latest_joints is None:
             continue
@@ -75,6 +98,8 @@ def run(config: Config, bus: Bus) -> None:
         out = vehicle.step(position_m_world, yaw, cfg.control_period_s, hold=bool(hold))
         arm_out = arm.step(position_m_world, orientation_wxyz_world, arm_rad,
                            enabled=not hold and out.mode in ("reached", "idle"))
+        with shared.lock:
+            shared.arm_m_world = arm.kinematics.chain_m_world()
         linear, yaw_rate = out.linear_mps_body, out.yaw_rate_radps
         if arm_out.vehicle_velocity is not None and arm_out.mode in ("moving", "reached"):
             linear, yaw_rate = arm_out.vehicle_velocity[:3], float(arm_out.vehicle_velocity[3])
@@ -98,3 +123,55 @@ def run(config: Config, bus: Bus) -> None:
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
                 failsafe_events=failsafe.events, sim_time_s=sim_time_s))
         tick += 1
+    perception.join(timeout=5.0)
+
+
+def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
+    """Clouds from each complete set of frames (taken at one instant), placed with the pose
+    estimated for that instant; the left frame re-encoded to the vessel at its own rate."""
+    from common.images import decode_image, encode_jpeg
+    from stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
+
+    cfg = config.onboard
+    settings = CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,
+                             cfg.stereo_disparities,
+                             cfg.self_filter_radius_m)
+    needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set()) | (
+        {"cam_right"} if "stereo" in cfg.cloud_sources else set())
+    inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}
+    sets: dict[float, dict[str, Image]] = {}
+    last_image_s = -float("inf")
+    rate = Rate(0.05, bus.stop)
+    while rate.sleep():
+        for camera, inbox in inboxes.items():
+            for received in inbox.drain():
+                assert isinstance(received.message, Image)
+                sets.setdefault(received.message.sim_time_s, {})[camera] = received.message
+        complete = [t for t, frames in sets.items() if needed <= set(frames)]
+        if not complete:
+            for t in sorted(sets)[:-4]:  # a set that never completes (a frame lost) is let go
+                del sets[t]
+            continue
+        t = max(complete)
+        frames = sets.pop(t)
+        for older in [s for s in sets if s < t]:
+            del sets[older]
+        with shared.lock:
+            pose = shared.poses.at(t)
+            arm_m_world = shared.arm_m_world.copy()
+        if pose is None:
+            log.debug("no navigation estimate at %.2f s; frames skipped", t)
+            continue
+        key = keys.spec("simulation", "camera/cam_left").key(bus.system)
+        try:
+            for cloud in clouds_of(frames, pose, arm_m_world, cfg.cloud_sources, settings):
+                bus.publish("cloud", cloud)
+            now_s = time.monotonic()
+            if cfg.image_rate_hz > 0 and now_s - last_image_s >= 1.0 / cfg.image_rate_hz:
+                left = frames["cam_left"]
+                bus.publish("image", dataclasses.replace(
+                    left, pose_frame="world", pose_camera=camera_in_world(left, pose),
+                    data=encode_jpeg(decode_image(left), cfg.image_jpeg_quality)))
+                last_image_s = now_s
+        except ValueError as exc:  # frames that do not decode, or a camera pose in the wrong frame
+            bus.reject(key, str(exc))

@@ -137,6 +137,11 @@ class ArmKinematics:
     def pose(self, frame: int) -> pin.SE3:
         return self.data.oMf[frame]
 
+    def chain_m_world(self) -> np.ndarray:
+        """The arm's joints, base to wrist, then the tool point [m, world], as of the last update."""
+        joints = [self.data.oMi[self.model.getJointId(name)].translation for name in ARM_JOINTS]
+        return np.array([*joints, self.data.oMf[self.ee].translation])
+
     def jacobian(self, frame: int) -> np.ndarray:
         """(6, n): linear then angular velocity of the frame, world axes."""
         full = pin.getFrameJacobian(self.model, self.data, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)

@@ -1,24 +1,43 @@
 """The onshore station: the operator. Sends the mission (waypoints, then an end-effector goal)
 and whatever operator tools hand it (`abyss teleop`), resends each command over the lossy
 satellite link until telemetry shows it taken, beats a heartbeat to the vessel, and publishes
-the mission status as the operator sees it."""
+the mission status as the operator sees it. It keeps its copy of the scene from the vessel's
+octree stream (asking for a snapshot when it has none or missed an update) and the recognised
+objects; with `onshore.record_dir` it leaves them there when it stops."""
 
 from __future__ import annotations
 
+import json
+import logging
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from common import keys
 from common.bus import Bus, Inbox
 from common.config import Config
-from common.messages import ArmGoal, Heartbeat, Message, MissionStatus, Telemetry, Waypoints
+from common.messages import (
+    ArmGoal,
+    Heartbeat,
+    Message,
+    MissionStatus,
+    RecognisedObjects,
+    SceneRequest,
+    SceneUpdate,
+    Telemetry,
+    Waypoints,
+    encode,
+)
 from common.rate import Rate
+from common.scene import SceneReceiver
 
 PERIOD_S = 0.1
 STATUS_PERIOD_S = 0.25
 HEARTBEAT_PERIOD_S = 1.0
+SCENE_FILE = "scene.msgpack"  # the final scene, a snapshot SceneUpdate; `abyss scene export` reads it
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -51,11 +70,13 @@ def run(config: Config, bus: Bus) -> None:
         "op/waypoints": bus.subscribe_key(keys.operator_key(bus.system, "waypoints"), "Waypoints"),
         "op/arm": bus.subscribe_key(keys.operator_key(bus.system, "arm"), "ArmGoal")}
     commands = {c.topic: c for c in (waypoints, arm)}
+    scene = Scene(bus, config.onshore.scene_request_period_s)
     rate = Rate(PERIOD_S, bus.stop)
     status: MissionStatus | None = None
     last_status_s = last_beat_s = -float("inf")
     while rate.sleep():
         now_s = time.monotonic()
+        scene.step(now_s)
         for topic, inbox in tools.items():
             for received in inbox.drain():
                 commands[topic].replace(received.message)
@@ -78,6 +99,66 @@ def run(config: Config, bus: Bus) -> None:
                 heading_error_rad=0.0, arm_mode="idle", ee_position_error_m=0.0, ee_orientation_error_rad=0.0,
                 failsafe="", failsafe_events=0))
             last_status_s = now_s
+    if config.onshore.record_dir:
+        scene.save(Path(config.onshore.record_dir))
+
+
+class Scene:
+    """Shore's copy of the scene and the recognised objects."""
+
+    def __init__(self, bus: Bus, request_period_s: float) -> None:
+        self.bus = bus
+        self.request_period_s = request_period_s
+        self.updates = bus.subscribe("vessel", "scene", maxlen=256)
+        self.objects_inbox = bus.subscribe("vessel", "objects", maxlen=4)
+        self.receiver = SceneReceiver()
+        self.objects: RecognisedObjects | None = None
+        self.requests = 0
+        self.update_bytes = 0
+        self.sim_time_s = 0.0
+        self._last_request_s = -float("inf")
+
+    def step(self, now_s: float) -> None:
+        for received in self.updates.drain():
+            assert isinstance(received.message, SceneUpdate)
+            try:
+                outcome = self.receiver.apply(received.message)
+            except ValueError as exc:  # octree bytes that do not decode
+                self.bus.reject(received.key, str(exc))
+                outcome = "gap"
+            if outcome == "applied":
+                self.update_bytes += len(received.message.octree) + received.message.colors.nbytes
+                self.sim_time_s = received.message.sim_time_s
+            elif outcome == "gap":
+                log.info("scene update %d does not follow %d: asking for a snapshot",
+                         received.message.scene_seq, self.receiver.last_seq)
+                self._last_request_s = -float("inf")
+        latest = self.objects_inbox.latest()
+        if latest is not None:
+            assert isinstance(latest.message, RecognisedObjects)
+            self.objects = latest.message
+        if self.receiver.tree is None and now_s - self._last_request_s >= self.request_period_s:
+            reason = "no map yet" if self.receiver.applied == 0 else "missed an update"
+            self.bus.publish("scene_request", SceneRequest(self.receiver.last_seq, reason))
+            self.requests += 1
+            self._last_request_s = now_s
+
+    def save(self, directory: Path) -> None:
+        """The final scene (a snapshot update) and what it took, in the run directory."""
+        directory.mkdir(parents=True, exist_ok=True)
+        snapshot = self.receiver.snapshot(self.sim_time_s)
+        if snapshot is not None:
+            (directory / SCENE_FILE).write_bytes(encode(snapshot, 0, time.time()))
+        stats = {"updates_applied": self.receiver.applied, "gaps": self.receiver.gaps,
+                 "snapshot_requests": self.requests, "update_bytes": self.update_bytes,
+                 "resolution_m": self.receiver.resolution_m,
+                 "occupied_cells": len(self.receiver.colors),
+                 "objects": {name: {"pose_world": pose.tolist(), "confidence": float(c)}
+                             for name, pose, c in zip(self.objects.names, self.objects.poses_world,
+                                                      self.objects.confidences, strict=True)}
+                 if self.objects else {},
+                 "recognition_method": self.objects.method if self.objects else ""}
+        (directory / "scene.json").write_text(json.dumps(stats, indent=2))
 
 
 def mission_status(t: Telemetry, waypoints: Command, arm: Command) -> MissionStatus:

@@ -1,22 +1,33 @@
 """The vessel station: relays telemetry to shore, downsampled for the satellite link, and
 operator commands down to the vehicle; beats a heartbeat to onboard that says whether shore
-is still heard."""
+is still heard. In a thread of its own it keeps the scene model (an octree from the onboard
+clouds), recognises the panel, and streams both to shore paced for the satellite link."""
 
 from __future__ import annotations
 
+import logging
+import threading
 import time
 
+import numpy as np
+
 from common.bus import Bus
+from common.clouds import unpack_cloud
 from common.config import Config
-from common.messages import Heartbeat
+from common.images import decode_image
+from common.messages import Heartbeat, Image, PointCloud
 from common.rate import Rate
+from stations.vessel.pacing import ScenePacer
 
 RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm"}
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
+log = logging.getLogger(__name__)
 
 
 def run(config: Config, bus: Bus) -> None:
     cfg = config.vessel
+    scene = threading.Thread(target=_scene_loop, args=(config, bus), name="scene", daemon=True)
+    scene.start()
     telemetry = bus.subscribe("onboard", "telemetry", maxlen=8)
     operator = {topic: bus.subscribe("onshore", topic) for topic in RELAYED_DOWN}
     shore_beats = bus.subscribe("onshore", "heartbeat", maxlen=4)
@@ -41,4 +52,63 @@ def run(config: Config, bus: Bus) -> None:
             bus.publish("telemetry", latest.message)
             forwarded_seq, last_relay_s = latest.seq, now_s
         if not rate.sleep():
-            return
+            break
+    scene.join(timeout=5.0)
+
+
+def _scene_loop(config: Config, bus: Bus) -> None:
+    from common.scene import SceneModel
+    from stations.vessel.recognition import PanelTracker
+
+    cfg = config.vessel
+    clouds = bus.subscribe("onboard", "cloud", maxlen=4)
+    images = bus.subscribe("onboard", "image", maxlen=2)
+    requests = bus.subscribe("onshore", "scene_request")
+    model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
+    tracker = PanelTracker()
+    satellite = bus.links["satellite"]
+    first_guess_bps = ScenePacer.first_guess(satellite.profile.rate_bps, cfg.satellite_capacity_bps)
+    pacer = ScenePacer(cfg.scene_share, first_guess_bps,
+                       cfg.scene_update_bytes)
+    rate = Rate(POLL_PERIOD_S, bus.stop)
+    last_recognition_s = -float("inf")
+    sim_time_s = 0.0
+    points: np.ndarray | None = None
+    while rate.sleep():
+        if requests.drain():
+            model.request_snapshot()
+        for received in clouds.drain():
+            assert isinstance(received.message, PointCloud)
+            cloud = received.message
+            cloud_points, colors = unpack_cloud(cloud)
+            model.insert(cloud_points, colors, cloud.sensor_m_world)
+            sim_time_s = cloud.sim_time_s
+            if cloud.source == "depth" or points is None:
+                points = cloud_points
+        now_s = time.monotonic()
+        image = images.latest()
+        due = now_s - last_recognition_s >= cfg.recognition_period_s
+        if due and (image is not None or points is not None):
+            last_recognition_s = now_s
+            rgb = None
+            if image is not None:
+                assert isinstance(image.message, Image)
+                try:
+                    if image.message.pose_frame != "world":
+                        raise ValueError(f"camera pose in the {image.message.pose_frame} frame; the vessel "
+                                         "needs it in the world frame")
+                    rgb = decode_image(image.message)
+                except ValueError as exc:
+                    bus.reject(image.key, str(exc))
+            tracker.update(rgb, image.message if image is not None else None, points)  # type: ignore[arg-type]
+            objects = tracker.objects(sim_time_s)
+            if objects is not None:
+                bus.publish("objects", objects)
+        stats = satellite.snapshot()
+        pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
+        while pacer.allows(satellite.snapshot()["in_flight"]):
+            update = model.next_update(sim_time_s)
+            if update is None:
+                break
+            bus.publish("scene", update)
+            pacer.sent(len(update.octree) + update.colors.nbytes)

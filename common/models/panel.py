@@ -1,0 +1,82 @@
+"""The valve panel as recognition knows it: the plate, its markers, its valves and levers, in
+the panel's frame (x out of the back of the plate, y left, z up; origin at the plate's centre).
+world.xml places the same panel; tests/test_model.py checks that the two agree, and that the
+face texture in `panel_face.png` is the one `face_texture()` draws.
+
+The face towards the vehicle (x = -PLATE_HALF_SIZE_M[0]) carries four ArUco markers
+(DICT_4X4_50, ids 0-3) in its corners, clear of the valves and levers, on a checkerboard that
+gives stereo matching texture to hold on to."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from common.models import MODELS_DIR
+
+PANEL_POSITION_M_WORLD = (5.0, 0.0, -8.6)  # the panel's frame is the world's, translated
+PLATE_HALF_SIZE_M = (0.05, 0.8, 0.6)
+FACE_TEXTURE_FILE = MODELS_DIR / "panel_face.png"
+TEXTURE_PX_PER_M = 400
+MARKER_DICTIONARY = "DICT_4X4_50"
+MARKER_SIDE_M = 0.27  # the black square
+MARKER_MARGIN_M = 0.015  # white quiet zone around it
+CHECKER_SQUARE_M = 0.2
+# marker id -> centre (y, z) on the face [m]
+MARKERS: dict[int, tuple[float, float]] = {
+    0: (0.635, 0.445),
+    1: (-0.635, 0.445),
+    2: (-0.635, -0.445),
+    3: (0.635, -0.445),
+}
+# the parts an operator works, their centres in the panel's frame [m]
+VALVES: dict[str, tuple[float, float, float]] = {
+    "valve_0": (-0.07, 0.5, 0.25),
+    "valve_1": (-0.07, 0.0, 0.25),
+    "valve_2": (-0.07, -0.5, 0.25),
+}
+LEVERS: dict[str, tuple[float, float, float]] = {
+    "lever_0": (-0.07, 0.3, -0.3),
+    "lever_1": (-0.07, -0.3, -0.3),
+}
+
+
+def marker_corners_m_panel(marker_id: int) -> np.ndarray:
+    """The marker's four corners in ArUco's order (top left, top right, bottom right, bottom
+    left, as seen facing the panel) in the panel's frame [m]."""
+    y, z = MARKERS[marker_id]
+    h = MARKER_SIDE_M / 2
+    x = -PLATE_HALF_SIZE_M[0]
+    # facing the panel (looking along +x), image right is -y and image down is -z
+    return np.array([[x, y + h, z + h], [x, y - h, z + h], [x, y - h, z - h], [x, y + h, z - h]])
+
+
+def face_texture() -> np.ndarray:
+    """The face as a grey image, row 0 at the top (z = +half height), column 0 at y = +half width."""
+    import cv2
+
+    width_px = round(2 * PLATE_HALF_SIZE_M[1] * TEXTURE_PX_PER_M)
+    height_px = round(2 * PLATE_HALF_SIZE_M[2] * TEXTURE_PX_PER_M)
+    square_px = round(CHECKER_SQUARE_M * TEXTURE_PX_PER_M)
+    rows, cols = np.mgrid[0:height_px, 0:width_px]
+    image = np.where((rows // square_px + cols // square_px) % 2 == 0, 235, 30).astype(np.uint8)
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, MARKER_DICTIONARY))
+    side_px = round(MARKER_SIDE_M * TEXTURE_PX_PER_M)
+    margin_px = round(MARKER_MARGIN_M * TEXTURE_PX_PER_M)
+    for marker_id, (y, z) in MARKERS.items():
+        col = round((PLATE_HALF_SIZE_M[1] - y) * TEXTURE_PX_PER_M) - side_px // 2
+        row = round((PLATE_HALF_SIZE_M[2] - z) * TEXTURE_PX_PER_M) - side_px // 2
+        image[row - margin_px : row + side_px + margin_px, col - margin_px : col + side_px + margin_px] = 255
+        image[row : row + side_px, col : col + side_px] = cv2.aruco.generateImageMarker(
+            dictionary, marker_id, side_px
+        )
+    return image
+
+
+def write_face_texture(path: Path = FACE_TEXTURE_FILE) -> None:
+    """The file MuJoCo reads: mirrored left to right, as MuJoCo maps a 2D texture onto a box's
+    -x face seen from outside mirrored."""
+    import cv2
+
+    cv2.imwrite(str(path), np.ascontiguousarray(face_texture()[:, ::-1]))

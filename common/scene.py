@@ -1,0 +1,353 @@
+"""The scene model (the vessel's) and its copy (shore's): an OctoMap occupancy octree with a
+colour per voxel, integrated from the onboard clouds by ray casting (free space along each ray, occupied at its end), and the stream
+that carries it to shore as OctoMap's binary format: one snapshot, then only what changed.
+
+Change tracking works on cells (voxels of the finest depth) identified by OctoMap's key
+(16 bits per axis) packed into an int64. The vessel keeps the max-likelihood state of every
+cell it has published; after each insertion it compares the cells in the insertion's bounding
+box, queues those that changed (occupancy flipped, or colour moved by more than
+COLOR_TOLERANCE), and publishes the queue in updates of at most `max_update_bytes`, each a
+small octree written with `OcTree::writeBinary` (which prunes), so that a snapshot too is a
+first update and then deltas, and telemetry interleaves. Shore applies each update's leaves to
+its own tree in sequence and asks for a snapshot after a gap.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pyoctomap
+
+from common.clouds import voxel_downsample
+from common.messages import SceneUpdate
+
+log = logging.getLogger(__name__)
+KEY_OFFSET = 32768  # OctoMap's tree_max_val at depth 16
+COLOR_TOLERANCE = 24  # a colour change larger than this in any channel is sent
+LOG_ODDS_SET = 100.0  # applied as an update, clamped: sets a cell occupied (+) or free (-)
+_AXIS = np.int64(1 << 16)
+
+
+def cell_keys(coords_m: np.ndarray, resolution_m: float) -> np.ndarray:
+    """The packed key of the cell holding each point."""
+    k = np.floor(coords_m / resolution_m).astype(np.int64) + KEY_OFFSET
+    return (k[:, 0] * _AXIS + k[:, 1]) * _AXIS + k[:, 2]
+
+
+def cell_centres(keys: np.ndarray, resolution_m: float) -> np.ndarray:
+    k = np.stack((keys // (_AXIS * _AXIS), (keys // _AXIS) % _AXIS, keys % _AXIS), axis=1)
+    return (k - KEY_OFFSET + 0.5) * resolution_m
+
+
+def leaves_to_cells(
+    centres_m: np.ndarray, sizes_m: np.ndarray, resolution_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Expand leaves (centres, edge lengths) into the keys of their cells, and for each cell
+    the index of its leaf."""
+    keys, owners = [], []
+    sides = np.rint(sizes_m / resolution_m).astype(np.int64)
+    for side in np.unique(sides):
+        chosen = np.nonzero(sides == side)[0]
+        corner = np.rint((centres_m[chosen] - sizes_m[chosen, None] / 2) / resolution_m).astype(np.int64)
+        steps = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        k = (corner[:, None, :] + steps[None] + KEY_OFFSET).reshape(-1, 3)
+        keys.append((k[:, 0] * _AXIS + k[:, 1]) * _AXIS + k[:, 2])
+        owners.append(np.repeat(chosen, len(steps)))
+    if not keys:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    return np.concatenate(keys), np.concatenate(owners)
+
+
+def iterate_leaves(
+    tree: object, bbx: tuple[np.ndarray, np.ndarray] | None = None, colors: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Leaves of a tree (in its iteration order): centres [m], sizes [m], occupied, colours."""
+    centres, sizes, occupied, rgb = [], [], [], []
+    iterator = tree.begin_leafs_bbx(*bbx) if bbx is not None else tree.begin_leafs()  # type: ignore[attr-defined]
+    for leaf in iterator:
+        centres.append(leaf.getCoordinate())
+        sizes.append(leaf.getSize())
+        occupied.append(tree.isNodeOccupied(leaf))  # type: ignore[attr-defined]
+        if colors:
+            rgb.append(leaf.getColor())
+    return (
+        np.array(centres, float).reshape(-1, 3),
+        np.array(sizes, float),
+        np.array(occupied, bool),
+        np.array(rgb, np.uint8).reshape(-1, 3),
+    )
+
+
+def write_cells(keys: np.ndarray, occupied: np.ndarray, resolution_m: float) -> bytes:
+    """Cells as an octree in OctoMap's binary format (max likelihood, pruned)."""
+    tree = pyoctomap.OcTree(resolution_m)
+    centres = cell_centres(keys, resolution_m)
+    tree.updateNodes(centres[occupied], LOG_ODDS_SET, True)
+    tree.updateNodes(centres[~occupied], -LOG_ODDS_SET, True)
+    tree.updateInnerOccupancy()
+    return bytes(tree.writeBinary())
+
+
+def read_binary(data: bytes, resolution_m: float) -> object:
+    """An OcTree from OctoMap's binary format (pyoctomap reads only files)."""
+    tree = pyoctomap.OcTree(resolution_m)
+    fd, path = tempfile.mkstemp(suffix=".bt")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        if not tree.readBinary(path):
+            raise ValueError("not an OctoMap binary tree")
+    finally:
+        os.unlink(path)
+    if abs(tree.getResolution() - resolution_m) > 1e-9:
+        raise ValueError(f"tree resolution {tree.getResolution()} m, the update says {resolution_m} m")
+    return tree
+
+
+class CellSet:
+    """Cells by packed key (sorted, unique), each occupied or free, with a colour."""
+
+    def __init__(self) -> None:
+        self.keys = np.zeros(0, np.int64)
+        self.occupied = np.zeros(0, bool)
+        self.colors = np.zeros((0, 3), np.uint8)
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def find(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where each key sits, and whether it is there."""
+        if not len(self.keys):
+            return np.zeros(len(keys), np.int64), np.zeros(len(keys), bool)
+        where = np.minimum(np.searchsorted(self.keys, keys), len(self.keys) - 1)
+        return where, self.keys[where] == keys
+
+    def merge(self, keys: np.ndarray, occupied: np.ndarray, colors: np.ndarray) -> None:
+        """Add or overwrite cells."""
+        merged, first = np.unique(np.concatenate((keys, self.keys)), return_index=True)  # new ones first
+        self.occupied = np.concatenate((occupied, self.occupied))[first]
+        self.colors = np.concatenate((colors, self.colors))[first]
+        self.keys = merged
+
+    def remove(self, keys: np.ndarray) -> None:
+        keep = ~np.isin(self.keys, keys, assume_unique=True)
+        self.keys, self.occupied, self.colors = self.keys[keep], self.occupied[keep], self.colors[keep]
+
+    def take(self, count: int) -> CellSet:
+        part = CellSet()
+        part.keys, part.occupied, part.colors = self.keys[:count], self.occupied[:count], self.colors[:count]
+        return part
+
+    def color_of(self) -> dict[int, tuple[int, int, int]]:
+        chosen = np.nonzero(self.occupied)[0]
+        return {
+            int(k): (int(c[0]), int(c[1]), int(c[2]))
+            for k, c in zip(self.keys[chosen], self.colors[chosen], strict=True)
+        }
+
+
+class SceneModel:
+    """The vessel's octree, what of it shore has, and what is queued to go."""
+
+    def __init__(self, resolution_m: float, max_range_m: float, max_update_bytes: int = 16_000) -> None:
+        self.resolution_m = resolution_m
+        self.max_range_m = max_range_m
+        self.max_update_bytes = max_update_bytes
+        self.tree = pyoctomap.ColorOcTree(resolution_m)
+        self.published = CellSet()
+        self.pending = CellSet()
+        self.seq = -1
+        self.snapshot_due = True
+        self._bytes_per_cell = 0.05  # learnt from each update, to size the next
+
+    def insert(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray) -> None:
+        """Integrate one cloud (rays from the sensor) and queue the cells whose state changed."""
+        if len(points_m_world) == 0:
+            return
+        points, colors = voxel_downsample(points_m_world, colors, self.resolution_m)
+        self.tree.insertPointCloud(
+            np.ascontiguousarray(points),
+            np.asarray(sensor_m_world, float),
+            max_range=self.max_range_m,
+            colors=colors / 255.0,
+        )
+        self.tree.updateInnerOccupancy()
+        everything = np.vstack((points, sensor_m_world))
+        margin = 2 * self.resolution_m
+        bbx = (everything.min(axis=0) - margin, everything.max(axis=0) + margin)
+        self._queue_changes(*iterate_leaves(self.tree, bbx, colors=True))
+
+    def _queue_changes(
+        self, centres: np.ndarray, sizes: np.ndarray, occupied: np.ndarray, colors: np.ndarray
+    ) -> None:
+        keys, owners = leaves_to_cells(centres, sizes, self.resolution_m)
+        keys, first = np.unique(keys, return_index=True)  # a leaf on the box's edge is listed once
+        owners = owners[first]
+        state, rgb = occupied[owners], colors[owners]
+        where, known = self.published.find(keys)
+        same = known & (self.published.occupied[where] == state) if len(self.published) else known
+        if len(self.published):
+            color_moved = np.any(
+                np.abs(self.published.colors[where].astype(int) - rgb) > COLOR_TOLERANCE, axis=1
+            )
+            same &= ~state | ~color_moved
+        self.pending.remove(keys[same])  # changed back before it went
+        self.pending.merge(keys[~same], state[~same], rgb[~same])
+
+    def request_snapshot(self) -> None:
+        """Shore lost track: send everything again, starting with a snapshot."""
+        self.snapshot_due = True
+
+    def next_update(self, sim_time_s: float) -> SceneUpdate | None:
+        """The next update to send, at most `max_update_bytes` of octree and colours; None if
+        shore is up to date. Cells go in key order, so each update covers a compact region."""
+        kind = "delta"
+        if self.snapshot_due:
+            self.snapshot_due, kind = False, "snapshot"
+            pending, self.pending = self.pending, CellSet()
+            self.pending.merge(self.published.keys, self.published.occupied, self.published.colors)
+            self.pending.merge(pending.keys, pending.occupied, pending.colors)
+        elif not len(self.pending):
+            return None
+        count = max(1, min(len(self.pending), int(self.max_update_bytes / self._bytes_per_cell)))
+        while True:
+            part = self.pending.take(count)
+            update = self._update(kind, part, sim_time_s)
+            size = len(update.octree) + update.colors.nbytes
+            self._bytes_per_cell = max(size / max(count, 1), 1e-3)
+            if size <= self.max_update_bytes or count == 1:
+                break
+            count = max(1, min(count // 2, int(self.max_update_bytes / self._bytes_per_cell)))
+        self.pending.remove(part.keys)
+        self.published.merge(part.keys, part.occupied, part.colors)
+        self.seq += 1
+        return update
+
+    def _update(self, kind: str, cells: CellSet, sim_time_s: float) -> SceneUpdate:
+        data = write_cells(cells.keys, cells.occupied, self.resolution_m)
+        colors = occupied_leaf_colors(
+            read_binary(data, self.resolution_m), self.resolution_m, cells.color_of()
+        )
+        return SceneUpdate(
+            kind=kind,
+            scene_seq=self.seq + 1,
+            resolution_m=self.resolution_m,
+            octree=data,
+            colors=colors,
+            sim_time_s=sim_time_s,
+        )
+
+    def binary(self) -> bytes:
+        """The whole published map in OctoMap's binary format (what shore must hold)."""
+        return write_cells(self.published.keys, self.published.occupied, self.resolution_m)
+
+
+class SceneReceiver:
+    """Shore's copy: applies updates in sequence; a gap leaves it waiting for a snapshot."""
+
+    def __init__(self) -> None:
+        self.tree: object | None = None
+        self.resolution_m = 0.0
+        self.colors: dict[int, tuple[int, int, int]] = {}  # occupied cell -> RGB
+        self.last_seq = -1
+        self.applied = 0
+        self.gaps = 0
+
+    def apply(self, update: SceneUpdate) -> str:
+        """'applied', or 'gap' (a snapshot is needed; nothing applied) or 'stale' (old update).
+        Raises ValueError if the octree bytes do not decode."""
+        if update.kind == "delta":
+            if self.tree is None or update.scene_seq > self.last_seq + 1:
+                self.gaps += self.tree is not None
+                self.tree = None  # wait for the snapshot: applying past a gap would corrupt the map
+                return "gap"
+            if update.scene_seq <= self.last_seq:
+                return "stale"
+        delta = read_binary(update.octree, update.resolution_m)
+        centres, sizes, occupied, _ = iterate_leaves(delta)
+        if int(occupied.sum()) != len(update.colors):
+            raise ValueError(f"{len(update.colors)} colours for {int(occupied.sum())} occupied leaves")
+        if update.kind == "snapshot":
+            self.tree, self.resolution_m, self.colors = (
+                pyoctomap.OcTree(update.resolution_m),
+                update.resolution_m,
+                {},
+            )
+        elif abs(update.resolution_m - self.resolution_m) > 1e-9:
+            raise ValueError(f"a delta at {update.resolution_m} m onto a map at {self.resolution_m} m")
+        keys, owners = leaves_to_cells(centres, sizes, self.resolution_m)
+        cell_occupied = occupied[owners]
+        centres_of_cells = cell_centres(keys, self.resolution_m)
+        self.tree.updateNodes(centres_of_cells[cell_occupied], LOG_ODDS_SET, True)  # type: ignore[union-attr]
+        self.tree.updateNodes(centres_of_cells[~cell_occupied], -LOG_ODDS_SET, True)  # type: ignore[union-attr]
+        self.tree.updateInnerOccupancy()  # type: ignore[union-attr]
+        color_of_leaf = np.zeros((len(occupied), 3), np.uint8)
+        color_of_leaf[occupied] = update.colors
+        for key, occ, owner in zip(keys, cell_occupied, owners, strict=True):
+            if occ:
+                self.colors[int(key)] = tuple(int(c) for c in color_of_leaf[owner])  # type: ignore[assignment]
+            else:
+                self.colors.pop(int(key), None)
+        self.last_seq = update.scene_seq
+        self.applied += 1
+        return "applied"
+
+    def binary(self) -> bytes:
+        """Shore's map in OctoMap's binary format."""
+        if self.tree is None:
+            return b""
+        return bytes(self.tree.writeBinary())  # type: ignore[attr-defined]
+
+    def occupied_cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres [m] and colours of the occupied cells."""
+        keys = np.array(sorted(self.colors), np.int64)
+        colors = np.array([self.colors[int(k)] for k in keys], np.uint8).reshape(-1, 3)
+        return cell_centres(keys, self.resolution_m), colors
+
+    def snapshot(self, sim_time_s: float = 0.0) -> SceneUpdate | None:
+        """The whole map as one snapshot update (what a run keeps; `abyss scene export` reads
+        it back); None before the first update."""
+        if self.tree is None:
+            return None
+        data = self.binary()
+        colors = occupied_leaf_colors(read_binary(data, self.resolution_m), self.resolution_m, self.colors)
+        return SceneUpdate(
+            kind="snapshot",
+            scene_seq=max(self.last_seq, 0),
+            resolution_m=self.resolution_m,
+            octree=data,
+            colors=colors,
+            sim_time_s=sim_time_s,
+        )
+
+
+def occupied_leaf_colors(
+    tree: object, resolution_m: float, color_of_cell: dict[int, tuple[int, int, int]]
+) -> np.ndarray:
+    """The colours of a tree's occupied leaves in iteration order; a leaf larger than a cell
+    takes the colour of its first cell."""
+    centres, sizes, occupied, _ = iterate_leaves(tree)
+    first = cell_keys(centres[occupied] - sizes[occupied, None] / 2 + resolution_m / 2, resolution_m)
+    return np.array([color_of_cell[int(k)] for k in first], np.uint8).reshape(-1, 3)
+
+
+def export(update: SceneUpdate, path: Path, fmt: str) -> int:
+    """Write a snapshot as an OctoMap `.bt` file or a coloured `.ply` cloud of the occupied
+    cells' centres; returns the number of occupied cells."""
+    receiver = SceneReceiver()
+    receiver.apply(update)
+    centres, colors = receiver.occupied_cells()
+    if fmt == "bt":
+        path.write_bytes(receiver.binary())
+    else:
+        import open3d as o3d
+
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centres))
+        cloud.colors = o3d.utility.Vector3dVector(colors / 255.0)
+        if not o3d.io.write_point_cloud(str(path), cloud):
+            raise OSError(f"Open3D could not write {path}")
+    return len(centres)

@@ -1,0 +1,242 @@
+"""Recognition of the valve panel, by texture and by shape, fused into one pose.
+
+- texture: the ArUco markers in the panel's corners found in the camera image, the panel's pose
+  from all their corners at once by PnP (OpenCV, iterative after IPPE), placed in the world with
+  the camera's pose; confidence from the reprojection error and the markers seen;
+- shape: the cloud near the expected panel cut to its dominant plane (Open3D RANSAC), then
+  point-to-plane ICP of the panel model (points sampled on its face, valves and levers) against
+  it, started from the texture pose, or the plane's if no marker was seen; confidence from
+  ICP's fitness and residual;
+- fusion: each where it is strong: the plane's normal and distance from the shape, the position
+  in the plane and the rotation about the normal from the markers; then a running average over
+  frames, as the panel does not move.
+The valves and levers follow from the panel's pose and the model (common/models/panel.py).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from common.geometry import quat_wxyz_of, rotation_of
+from common.messages import Image, RecognisedObjects
+from common.models import panel
+
+log = logging.getLogger(__name__)
+MIN_PLANE_POINTS = 200
+
+
+@dataclass(frozen=True)
+class Pose:
+    rotation: np.ndarray  # panel axes to world axes
+    position_m_world: np.ndarray
+    confidence: float  # [0, 1]
+
+    def as_vector(self) -> np.ndarray:
+        return np.r_[self.position_m_world, quat_wxyz_of(self.rotation)]
+
+
+def rotation_error_rad(a: np.ndarray, b: np.ndarray) -> float:
+    cos = (np.trace(a.T @ b) - 1.0) / 2.0
+    return float(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def by_texture(rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world: np.ndarray) -> Pose | None:
+    """The panel's pose from its markers, or None with fewer than two markers in view."""
+    parameters = cv2.aruco.DetectorParameters()
+    parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    detector = cv2.aruco.ArucoDetector(
+        cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, panel.MARKER_DICTIONARY)), parameters
+    )
+    corners, ids, _ = detector.detectMarkers(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+    if ids is None:
+        return None
+    seen = [
+        (int(i), c.reshape(4, 2))
+        for i, c in zip(ids.ravel(), corners, strict=True)
+        if int(i) in panel.MARKERS
+    ]
+    if len(seen) < 2:
+        return None
+    object_points = np.vstack([panel.marker_corners_m_panel(i) for i, _ in seen])
+    image_points = np.vstack([c for _, c in seen]).astype(np.float64)
+    ok, rvec, tvec = cv2.solvePnP(object_points, image_points, camera_matrix, None, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        return None
+    rvec, tvec = cv2.solvePnPRefineLM(object_points, image_points, camera_matrix, None, rvec, tvec)
+    projected, _ = cv2.projectPoints(object_points, rvec, tvec, camera_matrix, None)
+    error_px = float(np.sqrt(np.mean(np.sum((projected.reshape(-1, 2) - image_points) ** 2, axis=1))))
+    rotation_in_camera = cv2.Rodrigues(rvec)[0]
+    camera_rotation = rotation_of(pose_camera_in_world[3:])
+    rotation = camera_rotation @ rotation_in_camera
+    position = camera_rotation @ tvec.ravel() + pose_camera_in_world[:3]
+    confidence = (len(seen) / len(panel.MARKERS)) / (1.0 + error_px)
+    return Pose(rotation, position, float(np.clip(confidence, 0.0, 1.0)))
+
+
+def model_points(spacing_m: float = 0.02) -> np.ndarray:
+    """Points on the panel's face and its valves' and levers' fronts, in the panel's frame."""
+    hx, hy, hz = panel.PLATE_HALF_SIZE_M
+    ys, zs = np.meshgrid(np.arange(-hy, hy + 1e-9, spacing_m), np.arange(-hz, hz + 1e-9, spacing_m))
+    face = np.stack((np.full(ys.size, -hx), ys.ravel(), zs.ravel()), axis=1)
+    parts = [face]
+    for x, y, z in (*panel.VALVES.values(), *panel.LEVERS.values()):
+        offsets = np.arange(-0.04, 0.04 + 1e-9, spacing_m)
+        gy, gz = np.meshgrid(offsets, offsets)
+        parts.append(np.stack((np.full(gy.size, x - 0.02), y + gy.ravel(), z + gz.ravel()), axis=1))
+    return np.vstack(parts)
+
+
+def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose | None:
+    """The panel's pose from a cloud near the guess: plane segmentation, then ICP of the model."""
+    import open3d as o3d
+
+    near = np.linalg.norm(points_m_world - guess.position_m_world, axis=1) < 1.2
+    if near.sum() < MIN_PLANE_POINTS:
+        return None
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m_world[near])).voxel_down_sample(0.03)
+    o3d.utility.random.seed(rng_seed)
+    plane, inliers = cloud.segment_plane(distance_threshold=0.03, ransac_n=3, num_iterations=200)
+    if len(inliers) < MIN_PLANE_POINTS:
+        return None
+    normal = np.asarray(plane[:3]) / np.linalg.norm(plane[:3])
+    if abs(normal @ guess.rotation[:, 0]) < np.cos(np.radians(30)):
+        return None  # the dominant plane is not the panel's face (the seabed, say)
+    target = cloud.select_by_index(inliers)
+    # the face and what stands on it (valves, levers), within 0.15 m in front of the plane
+    distance = np.asarray(cloud.points) @ normal + plane[3]
+    sign = 1.0 if normal @ guess.rotation[:, 0] < 0 else -1.0  # towards the viewer
+    target = cloud.select_by_index(np.nonzero((sign * distance > -0.03) & (sign * distance < 0.15))[0])
+    target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.08, max_nn=30))
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model_points(0.03)))
+    initial = np.eye(4)
+    initial[:3, :3], initial[:3, 3] = guess.rotation, guess.position_m_world
+    result = o3d.pipelines.registration.registration_icp(
+        source,
+        target,
+        0.1,
+        initial,
+        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=20),
+    )
+    result = o3d.pipelines.registration.registration_icp(
+        source,
+        target,
+        0.03,
+        result.transformation,
+        o3d.pipelines.registration.TransformationEstimationPointToPlane(),
+        o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=50),
+    )
+    if result.fitness < 0.2:
+        return None
+    confidence = result.fitness / (1.0 + result.inlier_rmse / 0.01)
+    transform = np.asarray(result.transformation)
+    return Pose(transform[:3, :3].copy(), transform[:3, 3].copy(), float(np.clip(confidence, 0.0, 1.0)))
+
+
+def by_plane(points_m_world: np.ndarray, expected_m_world: np.ndarray) -> Pose | None:
+    """A first guess with no marker in view: the panel upright at the expected place."""
+    near = np.linalg.norm(points_m_world - expected_m_world, axis=1) < 1.5
+    if near.sum() < MIN_PLANE_POINTS:
+        return None
+    return Pose(np.eye(3), points_m_world[near].mean(axis=0), 0.1)
+
+
+def fuse_texture_shape(texture: Pose, shape: Pose) -> Pose:
+    """Each method where it is strong: the shape's plane fixes the face's normal and its
+    distance along it (thousands of points, millimetre depth), the markers fix the position in
+    the plane and the rotation about the normal (ICP slides along a flat face)."""
+    normal = shape.rotation[:, 0]
+    position = (
+        texture.position_m_world + ((shape.position_m_world - texture.position_m_world) @ normal) * normal
+    )
+    x = texture.rotation[:, 0]
+    axis = np.cross(x, normal)
+    angle = np.arctan2(np.linalg.norm(axis), float(x @ normal))
+    tilt = (
+        cv2.Rodrigues(axis / np.linalg.norm(axis) * angle)[0] if np.linalg.norm(axis) > 1e-12 else np.eye(3)
+    )
+    confidence = 1.0 - (1.0 - texture.confidence) * (1.0 - shape.confidence)
+    return Pose(tilt @ texture.rotation, position, float(confidence))
+
+
+def fuse(poses: list[Pose]) -> Pose:
+    """Confidence-weighted mean of poses (quaternions averaged as the principal eigenvector)."""
+    weights = np.array([p.confidence for p in poses])
+    weights = weights / weights.sum() if weights.sum() > 0 else np.full(len(poses), 1.0 / len(poses))
+    position = sum(w * p.position_m_world for w, p in zip(weights, poses, strict=True))
+    quats = np.array([quat_wxyz_of(p.rotation) for p in poses])
+    accumulator = sum(w * np.outer(q, q) for w, q in zip(weights, quats, strict=True))
+    mean_quat = np.linalg.eigh(accumulator)[1][:, -1]
+    confidence = 1.0 - np.prod([1.0 - p.confidence for p in poses])
+    return Pose(rotation_of(mean_quat / np.linalg.norm(mean_quat)), np.asarray(position), float(confidence))
+
+
+class PanelTracker:
+    """The panel's pose over frames: each frame's fused estimate joins a running
+    confidence-weighted average."""
+
+    def __init__(self, expected_m_world: np.ndarray | None = None) -> None:
+        self.expected_m_world = np.array(panel.PANEL_POSITION_M_WORLD if expected_m_world is None
+                                         else expected_m_world)
+        self.estimate: Pose | None = None
+        self.weight = 0.0
+        self.method = ""
+
+    def update(
+        self, rgb: np.ndarray | None, image: Image | None, points_m_world: np.ndarray | None
+    ) -> Pose | None:
+        """One frame: the image (with its camera's pose in the world) and the latest cloud."""
+        texture = shape = None
+        if rgb is not None and image is not None:
+            matrix = np.array([[image.fx_px, 0, image.cx_px], [0, image.fy_px, image.cy_px], [0, 0, 1.0]])
+            texture = by_texture(rgb, matrix, image.pose_camera)
+        if points_m_world is not None and len(points_m_world):
+            guess = texture or self.estimate or by_plane(points_m_world, self.expected_m_world)
+            if guess is not None:
+                shape = by_shape(points_m_world, guess)
+        if texture is not None and shape is not None:
+            frame = fuse_texture_shape(texture, shape)
+        elif texture is not None or shape is not None:
+            frame = texture or shape
+        else:
+            return self.estimate
+        self.method = "+".join(name for name, p in (("texture", texture), ("shape", shape)) if p is not None)
+        if self.estimate is None:
+            self.estimate, self.weight = frame, frame.confidence
+        else:
+            total = self.weight + frame.confidence
+            blended = fuse(
+                [
+                    Pose(self.estimate.rotation, self.estimate.position_m_world, self.weight / total),
+                    Pose(frame.rotation, frame.position_m_world, frame.confidence / total),
+                ]
+            )
+            confidence = max(self.estimate.confidence, frame.confidence)
+            self.estimate = Pose(blended.rotation, blended.position_m_world, confidence)
+            self.weight = min(total, 20.0)  # a bounded memory: a moved panel is found again
+        return self.estimate
+
+    def objects(self, sim_time_s: float) -> RecognisedObjects | None:
+        """The panel, its valves and its levers as recognised objects."""
+        if self.estimate is None:
+            return None
+        pose = self.estimate
+        names, poses, sizes = ["panel"], [pose.as_vector()], [panel.PLATE_HALF_SIZE_M]
+        for name, offset in (*panel.VALVES.items(), *panel.LEVERS.items()):
+            names.append(name)
+            poses.append(
+                np.r_[pose.rotation @ np.asarray(offset) + pose.position_m_world, quat_wxyz_of(pose.rotation)]
+            )
+            sizes.append((0.04, 0.12, 0.12) if name.startswith("valve") else (0.075, 0.02, 0.075))
+        return RecognisedObjects(
+            names=tuple(names),
+            poses_world=np.array(poses),
+            half_sizes_m=np.array(sizes),
+            confidences=np.full(len(names), pose.confidence),
+            method=self.method,
+            sim_time_s=sim_time_s,
+        )

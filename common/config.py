@@ -133,7 +133,7 @@ class OnboardConfig:
     hold_on_shore_loss: bool = True  # also when the vessel reports shore silent
     # perception: a coloured cloud per camera frame from each source, in the world frame
     cloud_sources: tuple[str, ...] = ("depth", "stereo")
-    cloud_voxel_m: float = 0.02  # [m] voxel downsampling before the tether
+    cloud_voxel_m: float = 0.05  # [m] voxel downsampling before the tether (half the octree's 0.1 m)
     cloud_max_range_m: float = 8.0  # [m] farther points are dropped (the water's murk)
     cloud_scale_m: float = 0.002  # [m] quantisation on the wire
     stereo_disparities: int = 64  # searched by the stereo matcher (a multiple of 16) [px]

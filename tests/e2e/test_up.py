@@ -20,19 +20,17 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 
 
 def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
-    up = Up(tmp_path / "run", "--duration", "10", "--system", "e2e-up")
+    up = Up(tmp_path / "run", "--duration", "12", "--system", "e2e-up")
     assert up.wait(90) == 0, up.output()
     summary = up.summary()
     assert summary["verdict"] == "ok"
     for name, station in summary["stations"].items():
         assert station["exit_code"] == 0 and station["alive_seen"], name
-    # every key carries traffic, so every hop in both directions does; camera frames have no
-    # consumer yet (onboard fusion is still to come)
+    # every key carries traffic, so every hop in both directions does
     for spec in keys.KEYS:
         key = spec.key("e2e-up")
         assert summary["stations"][spec.station]["sent"].get(key, 0) > 0, key
-        if not spec.topic.startswith("camera/"):
-            assert summary["stations"][spec.to]["received"].get(key, 0) > 0, key
+        assert summary["stations"][spec.to]["received"].get(key, 0) > 0, key
     for hop, (a, b) in keys.HOPS.items():
         for direction in (f"{a}->{b}", f"{b}->{a}"):
             assert summary["links"][hop][direction]["messages_delivered"] > 0, (hop, direction)
@@ -44,6 +42,18 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
     assert mission["waypoints_total"] == 3 and mission["mode"] in ("moving", "reached")
     assert mission["waypoint_index"] >= 1
     assert "all 4 stations up" in up.output()
+    # the scene went camera -> cloud -> octree -> satellite -> shore, and the panel was recognised
+    scene = summary["scene"]
+    assert scene["occupied_cells"] > 100 and scene["updates_applied"] >= 1, scene
+    assert "panel" in scene["objects"] and "valve_1" in scene["objects"]
+    panel_m = scene["objects"]["panel"]["pose_world"][:3]
+    assert abs(panel_m[0] - 5.0) < 0.15 and abs(panel_m[1]) < 0.15 and abs(panel_m[2] + 8.6) < 0.15
+    export = abyss("scene", "export", str(tmp_path / "run"))
+    assert export.returncode == 0, export.stderr
+    assert (tmp_path / "run" / "scene.bt").stat().st_size > 0 and (tmp_path / "run" / "scene.ply").is_file()
+    assert f"({scene['occupied_cells']} occupied cells" in export.stdout
+    missing = abyss("scene", "export", str(tmp_path))
+    assert missing.returncode == 2 and "holds no scene.msgpack" in missing.stderr
 
 
 def test_a_killed_station_is_reported_and_up_fails(tmp_path: Path) -> None:

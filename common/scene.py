@@ -1,6 +1,7 @@
 """The scene model (the vessel's) and its copy (shore's): an OctoMap occupancy octree with a
 colour per voxel, integrated from the onboard clouds by ray casting (free space along each ray,
-occupied at its end), and the stream that carries it to shore as OctoMap's binary format: one snapshot, then only what changed.
+occupied at its end), and the stream that carries it to shore as OctoMap's binary format: one
+snapshot, then only what changed.
 
 Change tracking works on cells (voxels of the finest depth) identified by OctoMap's key
 (16 bits per axis) packed into an int64. The vessel keeps the max-likelihood state of every

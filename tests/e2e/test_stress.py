@@ -12,8 +12,17 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(200)]
 
 
 def test_stress_satellite_reports_consistent_figures(tmp_path: Path) -> None:
-    done = abyss("stress", "satellite", "--resolutions", "0.2,0.1", "--duration", "6", "--out", str(tmp_path),
-                 timeout_s=180)
+    done = abyss(
+        "stress",
+        "satellite",
+        "--resolutions",
+        "0.2,0.1",
+        "--duration",
+        "6",
+        "--out",
+        str(tmp_path),
+        timeout_s=180,
+    )
     assert done.returncode == 0, done.stdout + done.stderr
     assert "rendered frame 6/6" in done.stdout and "finest resolution" in done.stdout
     report = json.loads((tmp_path / "stress_satellite.json").read_text())
@@ -22,7 +31,9 @@ def test_stress_satellite_reports_consistent_figures(tmp_path: Path) -> None:
     assert [r["resolution_m"] for r in results] == [0.1, 0.2]
     for r in results:
         assert 0 < r["throughput_bps"] <= r["link_rate_bps"]  # never above the link's rate
-        assert r["scene_delivered"] <= r["scene_offered"] and r["telemetry_delivered"] <= r["telemetry_offered"]
+        assert (
+            r["scene_delivered"] <= r["scene_offered"] and r["telemetry_delivered"] <= r["telemetry_offered"]
+        )
         assert r["telemetry_delivered"] >= 10  # 2 Hz for 6 s, the last ones possibly in flight
         assert r["scene_latency_p50_ms"] >= 150  # the satellite's delay is a floor
         assert r["scene_latency_p50_ms"] <= r["scene_latency_p95_ms"]

@@ -45,8 +45,10 @@ class View:
 
 
 def view_from(position_m_world: tuple[float, float, float], yaw_rad: float = 0.0) -> View:
-    w = World(SimulationConfig(start_position_m_world=position_m_world, start_yaw_rad=yaw_rad),
-              np.random.default_rng(0))
+    w = World(
+        SimulationConfig(start_position_m_world=position_m_world, start_yaw_rad=yaw_rad),
+        np.random.default_rng(0),
+    )
     cameras = Cameras(w.model, 640, 480)
     try:
         frames = {c: encode_image(cameras, w.data, c, 90) for c in CAMERAS}
@@ -75,15 +77,17 @@ def face_distances(cloud: PointCloud) -> np.ndarray:
 
 
 def test_clouds_from_depth_and_stereo_lie_on_the_panel_face(start: View) -> None:
-    clouds = {c.source: c for c in clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth", "stereo"),
-                                             CloudSettings())}
+    clouds = {
+        c.source: c
+        for c in clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth", "stereo"), CloudSettings())
+    }
     depth, stereo = face_distances(clouds["depth"]), face_distances(clouds["stereo"])
     assert len(depth) > 1000 and len(stereo) > 1000
     # measured: depth 2 mm (depth buffer, 1 mm PNG steps); stereo 4.4 cm at 4 m, which is
     # 0.14 px of disparity error at a 0.12 m baseline
     assert np.median(depth) < 0.01, np.median(depth)
     assert np.median(stereo) < 0.08, np.median(stereo)
-    points, colors = unpack_cloud(clouds["depth"])
+    _points, colors = unpack_cloud(clouds["depth"])
     assert colors.std() > 10  # coloured from the RGB camera, not one flat colour
 
 
@@ -101,7 +105,9 @@ def test_the_arm_is_cut_out_of_the_clouds(start: View) -> None:
 
 def ray_distance(w: World, origin: np.ndarray, direction: np.ndarray) -> float:
     geom = np.zeros(1, np.int32)
-    return float(mujoco.mj_ray(w.model, w.data, origin, direction / np.linalg.norm(direction), None, 1, -1, geom))
+    return float(
+        mujoco.mj_ray(w.model, w.data, origin, direction / np.linalg.norm(direction), None, 1, -1, geom)
+    )
 
 
 def test_octree_matches_the_world_geometry_at_5_cm(start: View) -> None:
@@ -131,8 +137,9 @@ def test_octree_matches_the_world_geometry_at_5_cm(start: View) -> None:
             if 0 < d < 7.5:  # within the clouds' range (8 m along the axis)
                 hits.append(origin + d * direction / np.linalg.norm(direction))
     hit_keys = cell_keys(np.array(hits), resolution_m)
-    neighbours = np.array([(dx * 65536 + dy) * 65536 + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1)
-                           for dz in (-1, 0, 1)])
+    neighbours = np.array(
+        [(dx * 65536 + dy) * 65536 + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
+    )
     recalled = [any(int(k + n) in occupied_keys for n in neighbours) for k in hit_keys]
     recall = float(np.mean(recalled))
     assert len(hits) > 200
@@ -152,7 +159,9 @@ def stream(model: SceneModel, receiver: SceneReceiver, drop: int | None = None) 
     return outcomes
 
 
-def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for_a_resync(start: View) -> None:
+def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for_a_resync(
+    start: View,
+) -> None:
     model = SceneModel(0.1, 8.0, max_update_bytes=3000)
     receiver = SceneReceiver()
     for position in ((0.0, 0.0, -7.0), (1.5, 0.0, -7.0), (2.5, 0.8, -7.6)):
@@ -210,8 +219,14 @@ def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -
 
 
 def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
-    bad = SceneUpdate(kind="snapshot", scene_seq=0, resolution_m=0.1, octree=b"# Octomap OcTree binary file\n",
-                      colors=np.zeros((0, 3), np.uint8), sim_time_s=0.0)
+    bad = SceneUpdate(
+        kind="snapshot",
+        scene_seq=0,
+        resolution_m=0.1,
+        octree=b"# Octomap OcTree binary file\n",
+        colors=np.zeros((0, 3), np.uint8),
+        sim_time_s=0.0,
+    )
     with pytest.raises(ValueError, match="binary"):
         SceneReceiver().apply(bad)
     cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]

@@ -1,0 +1,93 @@
+"""Scene modelling figures, on frames rendered from the default mission's start pose:
+- cloud fusion per frame (depth: back-projection + colouring + voxel grid + packing; stereo:
+  semi-global matching on top), against the floor of decoding the frame set alone;
+- octree insertion per frame at 0.05, 0.1 and 0.2 m, against pyoctomap's bare
+  insertPointCloud of the same cloud (the change tracking is the difference);
+- bytes on the satellite hop per scene update, full and incremental, against the OctoMap `.bt`
+  size of the same map.
+Run: .venv/bin/python bench/scene.py. Prints figures; asserts nothing."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pyoctomap
+
+from stations.simulation.rendering import choose_gl_backend
+
+choose_gl_backend()
+
+from common.clouds import unpack_cloud, voxel_downsample  # noqa: E402
+from common.config import SimulationConfig  # noqa: E402
+from common.images import decode_image  # noqa: E402
+from common.messages import encode  # noqa: E402
+from common.models import CAMERAS  # noqa: E402
+from common.scene import SceneModel  # noqa: E402
+from stations.onboard.perception import CloudSettings, clouds_of  # noqa: E402
+from stations.simulation.encoding import encode_image  # noqa: E402
+from stations.simulation.rendering import Cameras  # noqa: E402
+from stations.simulation.world import World  # noqa: E402
+
+REPEATS = 5
+
+
+def timed(action, repeats: int = REPEATS) -> float:  # type: ignore[no-untyped-def]
+    action()
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        action()
+    return (time.perf_counter() - t0) / repeats
+
+
+def frames_at(position: tuple[float, float, float]) -> tuple[dict, tuple[np.ndarray, np.ndarray]]:  # type: ignore[type-arg]
+    world = World(SimulationConfig(start_position_m_world=position), np.random.default_rng(0))
+    cameras = Cameras(world.model, 640, 480)
+    frames = {c: encode_image(cameras, world.data, c, 90) for c in CAMERAS}
+    cameras.close()
+    truth = world.truth()
+    return frames, (truth.position_m_world, truth.orientation_wxyz_world)
+
+
+def main() -> None:
+    frames, pose = frames_at((0.0, 0.0, -7.0))
+    settings = CloudSettings(voxel_m=0.05)
+    decode_s = timed(lambda: [decode_image(frames[c]) for c in CAMERAS])
+    depth_s = timed(lambda: clouds_of(frames, pose, np.zeros((0, 3)), ("depth",), settings))
+    stereo_s = timed(lambda: clouds_of(frames, pose, np.zeros((0, 3)), ("stereo",), settings))
+    print(f"cloud fusion per frame: decoding the set {decode_s * 1e3:.0f} ms (floor); depth {depth_s * 1e3:.0f} ms "
+          f"({depth_s / decode_s:.1f}x); stereo {stereo_s * 1e3:.0f} ms ({stereo_s / decode_s:.1f}x)")
+    later, later_pose = frames_at((1.5, 0.0, -7.0))
+    first = clouds_of(frames, pose, np.zeros((0, 3)), ("depth",), settings)[0]
+    second = clouds_of(later, later_pose, np.zeros((0, 3)), ("depth",), settings)[0]
+    print(f"a depth cloud: {first.count} points, {len(first.data)} bytes on the tether")
+    for resolution_m in (0.05, 0.1, 0.2):
+        points, colors = unpack_cloud(first)
+        ds_points, ds_colors = voxel_downsample(points, colors, resolution_m)
+
+        def bare() -> None:
+            tree = pyoctomap.ColorOcTree(resolution_m)
+            tree.insertPointCloud(np.ascontiguousarray(ds_points), first.sensor_m_world, max_range=8.0,
+                                  colors=ds_colors / 255.0)
+
+        model = SceneModel(resolution_m, 8.0)
+        bare_s = timed(bare, 2)
+        t0 = time.perf_counter()
+        model.insert(points, colors, first.sensor_m_world)
+        insert_s = time.perf_counter() - t0
+        full = []
+        while (u := model.next_update(0.0)) is not None:
+            full.append(len(encode(u, 0, 0.0)))
+        model.insert(*unpack_cloud(second), second.sensor_m_world)
+        delta = []
+        while (u := model.next_update(0.0)) is not None:
+            delta.append(len(encode(u, 0, 0.0)))
+        bt = len(model.binary())
+        print(f"octree {resolution_m:g} m: insertion {insert_s * 1e3:.0f} ms per frame vs bare pyoctomap "
+              f"{bare_s * 1e3:.0f} ms ({insert_s / bare_s:.1f}x); first map {sum(full)} B in {len(full)} updates, "
+              f"next frame {sum(delta)} B in {len(delta)} updates; whole map as .bt {bt} B "
+              f"(first map / .bt {sum(full) / bt:.2f}, delta / .bt {sum(delta) / bt:.2f})")
+
+
+if __name__ == "__main__":
+    main()

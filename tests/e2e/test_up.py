@@ -20,7 +20,7 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 
 
 def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
-    up = Up(tmp_path / "run", "--duration", "12", "--system", "e2e-up")
+    up = Up(tmp_path / "run", "--duration", "20", "--system", "e2e-up")
     assert up.wait(90) == 0, up.output()
     summary = up.summary()
     assert summary["verdict"] == "ok"

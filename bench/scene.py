@@ -56,7 +56,8 @@ def main() -> None:
     depth_s = timed(lambda: clouds_of(frames, pose, np.zeros((0, 3)), ("depth",), settings))
     stereo_s = timed(lambda: clouds_of(frames, pose, np.zeros((0, 3)), ("stereo",), settings))
     print(
-        f"cloud fusion per frame: decoding the set {decode_s * 1e3:.0f} ms (floor); depth {depth_s * 1e3:.0f} ms "
+        f"cloud fusion per frame: decoding the set {decode_s * 1e3:.0f} ms (floor); "
+        f"depth {depth_s * 1e3:.0f} ms "
         f"({depth_s / decode_s:.1f}x); stereo {stereo_s * 1e3:.0f} ms ({stereo_s / decode_s:.1f}x)"
     )
     later, later_pose = frames_at((1.5, 0.0, -7.0))
@@ -67,7 +68,8 @@ def main() -> None:
         points, colors = unpack_cloud(first)
         ds_points, ds_colors = voxel_downsample(points, colors, resolution_m)
 
-        def bare(resolution_m: float = resolution_m) -> None:
+        def bare(resolution_m: float = resolution_m, ds_points: np.ndarray = ds_points,
+                 ds_colors: np.ndarray = ds_colors) -> None:
             tree = pyoctomap.ColorOcTree(resolution_m)
             tree.insertPointCloud(
                 np.ascontiguousarray(ds_points), first.sensor_m_world, max_range=8.0, colors=ds_colors / 255.0
@@ -88,7 +90,8 @@ def main() -> None:
         bt = len(model.binary())
         print(
             f"octree {resolution_m:g} m: insertion {insert_s * 1e3:.0f} ms per frame vs bare pyoctomap "
-            f"{bare_s * 1e3:.0f} ms ({insert_s / bare_s:.1f}x); first map {sum(full)} B in {len(full)} updates, "
+            f"{bare_s * 1e3:.0f} ms ({insert_s / bare_s:.1f}x); "
+            f"first map {sum(full)} B in {len(full)} updates, "
             f"next frame {sum(delta)} B in {len(delta)} updates; whole map as .bt {bt} B "
             f"(first map / .bt {sum(full) / bt:.2f}, delta / .bt {sum(delta) / bt:.2f})"
         )

@@ -190,12 +190,12 @@ class SceneModel:
         owners = owners[first]
         state, rgb = occupied[owners], colors[owners]
         where, known = self.published.find(keys)
-        same = known & (self.published.occupied[where] == state) if len(self.published) else known
+        same = known  # all False while nothing is published
         if len(self.published):
             color_moved = np.any(
                 np.abs(self.published.colors[where].astype(int) - rgb) > COLOR_TOLERANCE, axis=1
             )
-            same &= ~state | ~color_moved
+            same &= (self.published.occupied[where] == state) & (~state | ~color_moved)
         self.pending.remove(keys[same])  # changed back before it went
         self.pending.merge(keys[~same], state[~same], rgb[~same])
 

@@ -38,6 +38,11 @@ class LinkRunner:
     def profile(self) -> LinkProfile:
         return self.link.profile
 
+    def in_flight(self) -> int:
+        """Messages offered and neither delivered nor lost yet."""
+        with self._cond:
+            return self.link.in_flight()
+
     def _direct(self) -> bool:
         return self.passthrough or self.link.profile.is_ideal
 

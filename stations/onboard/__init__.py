@@ -141,6 +141,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}
     sets: dict[float, dict[str, Image]] = {}
     last_image_s = -float("inf")
+    key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad frames are counted
     rate = Rate(0.05, bus.stop)
     while rate.sleep():
         for camera, inbox in inboxes.items():
@@ -162,7 +163,6 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
         if pose is None:
             log.debug("no navigation estimate at %.2f s; frames skipped", t)
             continue
-        key = keys.spec("simulation", "camera/cam_left").key(bus.system)
         try:
             for cloud in clouds_of(frames, pose, arm_m_world, cfg.cloud_sources, settings):
                 bus.publish("cloud", cloud)

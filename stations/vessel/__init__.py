@@ -106,7 +106,7 @@ def _scene_loop(config: Config, bus: Bus) -> None:
                 bus.publish("objects", objects)
         stats = satellite.snapshot()
         pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
-        while pacer.allows(satellite.snapshot()["in_flight"]):
+        while pacer.allows(satellite.in_flight()):
             update = model.next_update(sim_time_s)
             if update is None:
                 break

@@ -105,7 +105,6 @@ def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose
     normal = np.asarray(plane[:3]) / np.linalg.norm(plane[:3])
     if abs(normal @ guess.rotation[:, 0]) < np.cos(np.radians(30)):
         return None  # the dominant plane is not the panel's face (the seabed, say)
-    target = cloud.select_by_index(inliers)
     # the face and what stands on it (valves, levers), within 0.15 m in front of the plane
     distance = np.asarray(cloud.points) @ normal + plane[3]
     sign = 1.0 if normal @ guess.rotation[:, 0] < 0 else -1.0  # towards the viewer

@@ -39,6 +39,10 @@ def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
     ("seed=abc", "seed"),
     ("system=bad id!", "system"),
     ("mission.waypoints=[[1,2]]", "mission.waypoints[0]"),
+    ('onboard.cloud_sources=["lidar"]', "onboard.cloud_sources"),
+    ("onboard.stereo_disparities=60", "onboard.stereo_disparities"),
+    ("vessel.scene_share=1.5", "vessel.scene_share"),
+    ("vessel.octree_resolution_m=0.001", "vessel.octree_resolution_m"),
 ])
 def test_bad_config_names_the_field(override: str, field: str) -> None:
     with pytest.raises(ConfigError) as info:

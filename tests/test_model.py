@@ -60,3 +60,22 @@ def test_joint_limits_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
         idx = pm.joints[pm.getJointId(name)].idx_q
         np.testing.assert_allclose([pm.lowerPositionLimit[idx], pm.upperPositionLimit[idx]],
                                    mj.joint(name).range, atol=1e-12)
+
+
+def test_the_panel_recognition_knows_is_the_panel_in_the_world(models: tuple[mujoco.MjModel, pin.Model],
+                                                               tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import cv2
+
+    from common.models import panel
+
+    world, _ = models
+    assert np.allclose(world.body("panel").pos, panel.PANEL_POSITION_M_WORLD)
+    assert np.allclose(world.geom("panel_plate").size, panel.PLATE_HALF_SIZE_M)
+    face = world.geom("panel_face")
+    assert face.pos[0] + face.size[0] <= -panel.PLATE_HALF_SIZE_M[0] + 1e-9  # on the face towards -x
+    for name, offset in (*panel.VALVES.items(), *panel.LEVERS.items()):
+        assert np.allclose(world.body(name).pos, offset), name
+    panel.write_face_texture(tmp_path / "face.png")  # the shipped texture is the one drawn
+    drawn = cv2.imread(str(tmp_path / "face.png"), cv2.IMREAD_GRAYSCALE)
+    shipped = cv2.imread(str(panel.FACE_TEXTURE_FILE), cv2.IMREAD_GRAYSCALE)
+    assert drawn is not None and shipped is not None and np.array_equal(drawn, shipped)

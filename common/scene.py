@@ -139,8 +139,11 @@ class CellSet:
         self.keys, self.occupied, self.colors = self.keys[keep], self.occupied[keep], self.colors[keep]
 
     def take(self, count: int) -> CellSet:
+        """`count` cells, occupied ones first (what the operator needs to see), each kind in key
+        order (a compact region per update)."""
+        chosen = np.sort(np.argsort(~self.occupied, kind="stable")[:count])
         part = CellSet()
-        part.keys, part.occupied, part.colors = self.keys[:count], self.occupied[:count], self.colors[:count]
+        part.keys, part.occupied, part.colors = self.keys[chosen], self.occupied[chosen], self.colors[chosen]
         return part
 
     def color_of(self) -> dict[int, tuple[int, int, int]]:
@@ -205,7 +208,7 @@ class SceneModel:
 
     def next_update(self, sim_time_s: float) -> SceneUpdate | None:
         """The next update to send, at most `max_update_bytes` of octree and colours; None if
-        shore is up to date. Cells go in key order, so each update covers a compact region."""
+        shore is up to date. Occupied cells go before free ones, each in key order."""
         kind = "delta"
         if self.snapshot_due:
             self.snapshot_due, kind = False, "snapshot"

@@ -26,6 +26,7 @@ from common.scene import (
     export,
     iterate_leaves,
     leaves_to_cells,
+    read_binary,
 )
 from stations.onboard.perception import Camera, CloudSettings, camera_in_world, clouds_of
 from stations.simulation.encoding import encode_image
@@ -172,6 +173,11 @@ def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for
             outcomes = stream(model, receiver, drop=model.seq + 1)
             assert "gap" in outcomes and receiver.tree is None
             model.request_snapshot()
+        if position == (0.0, 0.0, -7.0):  # occupied cells go first: the panel before free water
+            first = model.next_update(0.0)
+            assert first is not None and receiver.apply(first) == "applied"
+            sent_occupied = iterate_leaves(read_binary(first.octree, 0.1))[2]
+            assert sent_occupied.any() and (sent_occupied.all() or not model.pending.occupied.any())
         assert set(stream(model, receiver)) == {"applied"}
         assert receiver.binary() == model.binary()  # byte for byte, OctoMap's binary format
     assert receiver.gaps == 1 and model.seq > 5  # several updates each time: 3000 bytes at most

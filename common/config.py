@@ -175,23 +175,47 @@ class VesselConfig:
     scene_update_bytes: int = 16_000  # one update at most: telemetry waits behind no more than this
     satellite_capacity_bps: float = 1e6  # [bit/s] the first guess, before one is measured
     recognition_period_s: float = 2.0  # [s]
+    # the left camera's frame relayed to shore, within the scene's share of the satellite
+    image_period_s: float = 5.0  # [s]
+    image_scale: float = 0.5  # of the onboard frame's width and height
+    image_jpeg_quality: int = 50
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             _positive(f"vessel.{f.name}", getattr(self, f.name))
+        if self.image_scale > 1.0:
+            raise ConfigError("vessel.image_scale", f"{self.image_scale} must lie in (0, 1]")
+        if self.image_jpeg_quality > 100:
+            raise ConfigError("vessel.image_jpeg_quality", f"{self.image_jpeg_quality} outside [1, 100]")
         if self.scene_share > 1.0:
             raise ConfigError("vessel.scene_share", f"{self.scene_share} must lie in (0, 1]")
         if self.octree_resolution_m < 0.01:
             raise ConfigError("vessel.octree_resolution_m", f"{self.octree_resolution_m} m: at least 0.01 m")
 
 
+VIEWERS = ("save", "web", "spawn", "none")
+
+
 @dataclass(frozen=True)
 class OnshoreConfig:
     record_dir: str = ""  # where the run's scene and recording go; `abyss up` sets its run directory
     scene_request_period_s: float = 2.0  # [s] a missing snapshot is asked for again this often
+    # the rerun viewer: save (onshore.rrd in record_dir), web (rerun's web viewer served on
+    # viewer_web_port, its data on viewer_grpc_port), spawn (the native viewer), none; web and
+    # spawn save the recording too
+    viewer: str = "save"
+    viewer_web_port: int = 9090
+    viewer_grpc_port: int = 9876
+    viewer_scene_period_s: float = 2.0  # [s] the whole octree is logged at most this often
 
     def __post_init__(self) -> None:
         _positive("onshore.scene_request_period_s", self.scene_request_period_s)
+        _positive("onshore.viewer_scene_period_s", self.viewer_scene_period_s)
+        if self.viewer not in VIEWERS:
+            raise ConfigError("onshore.viewer", f"{self.viewer!r} not one of {', '.join(VIEWERS)}")
+        for name in ("viewer_web_port", "viewer_grpc_port"):
+            if not 0 < getattr(self, name) < 65536:
+                raise ConfigError(f"onshore.{name}", f"{getattr(self, name)} outside [1, 65535]")
 
 
 Box = tuple[float, float, float, float, float, float]
@@ -216,7 +240,10 @@ class MissionConfig:
         (5.0, 0.0, -8.6, 0.05, 0.8, 0.6),  # the panel's plate
         (5.0, 0.0, -20.0, 50.0, 50.0, 10.0),  # the seabed around the panel, a floor at z = -10 m
     )
-    resend_period_s: float = 2.0  # [s] shore resends a command until telemetry shows it
+    resend_period_s: float = 2.0  # [s] shore resends a command until onboard acknowledges it
+    # onboard refuses a waypoint closer than this to an obstacle or the surface, and an arm
+    # goal out of the arm's reach from where the vehicle will be [m]
+    vehicle_clearance_m: float = 0.5
 
     def __post_init__(self) -> None:
         if not 1 <= len(self.waypoints) <= 1000:
@@ -224,7 +251,8 @@ class MissionConfig:
         if len(self.arm_target) not in (0, 6):
             raise ConfigError("mission.arm_target", "needs [x, y, z, roll, pitch, yaw], or [] for none")
         for name in ("position_tolerance_m", "heading_tolerance_rad", "arm_position_tolerance_m",
-                     "arm_orientation_tolerance_rad", "arm_settle_s", "resend_period_s"):
+                     "arm_orientation_tolerance_rad", "arm_settle_s", "resend_period_s",
+                     "vehicle_clearance_m"):
             _positive(f"mission.{name}", getattr(self, name))
         for i, box in enumerate(self.obstacles):
             for size in box[3:]:

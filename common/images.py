@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 
@@ -33,3 +35,16 @@ def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
     if not ok:
         raise RuntimeError("OpenCV could not encode a JPEG")
     return buffer.tobytes()
+
+
+def downscale(image: Image, scale: float, quality: int) -> Image:
+    """An RGB frame at `scale` of its size, as JPEG of `quality`, its intrinsics scaled with it.
+    ValueError if it does not decode."""
+    rgb = decode_image(image)
+    width_px, height_px = max(1, round(image.width_px * scale)), max(1, round(image.height_px * scale))
+    small = cv2.resize(rgb, (width_px, height_px), interpolation=cv2.INTER_AREA)
+    sx, sy = width_px / image.width_px, height_px / image.height_px
+    return dataclasses.replace(
+        image, encoding="jpeg", width_px=width_px, height_px=height_px, fx_px=image.fx_px * sx,
+        fy_px=image.fy_px * sy, cx_px=image.cx_px * sx, cy_px=image.cy_px * sy,
+        data=encode_jpeg(small, quality))

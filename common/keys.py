@@ -92,14 +92,19 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel"),
     KeySpec("onboard", "cloud", "PointCloud", 2.0, "best-effort", "vessel"),
     KeySpec("onboard", "image", "Image", 1.0, "best-effort", "vessel"),
+    KeySpec("onboard", "ack", "CommandAck", 0.0, "reliable", "vessel"),
     KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard"),
     KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard"),
+    KeySpec("vessel", "goal/mode", "OperatorMode", 0.0, "reliable", "onboard"),
     KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard"),
     KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore"),
     KeySpec("vessel", "scene", "SceneUpdate", 0.0, "reliable", "onshore"),
     KeySpec("vessel", "objects", "RecognisedObjects", 0.5, "best-effort", "onshore"),
+    KeySpec("vessel", "image", "Image", 0.2, "best-effort", "onshore"),
+    KeySpec("vessel", "ack", "CommandAck", 0.0, "reliable", "onshore"),
     KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel"),
     KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel"),
+    KeySpec("onshore", "op/mode", "OperatorMode", 0.0, "reliable", "vessel"),
     KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel"),
     KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel"),
 )
@@ -141,8 +146,9 @@ def simulation_status_key(system: str) -> str:
 
 
 def operator_key(system: str, topic: str) -> str:
-    """Commands of an operator's tool (`abyss teleop`) to the onshore station, on shore's own
-    network; the onshore station sends them down the satellite as op/<topic>."""
+    """Commands of an operator's tool (`abyss teleop`, `abyss op`) to the onshore station, on
+    shore's own network; the onshore station sends them down the satellite as op/<topic>, and
+    hands onboard's acknowledgements back on operator/ack."""
     return key(system, "onshore", "operator", topic)
 
 
@@ -161,8 +167,10 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ("abyss/<system>/simulation/control", "SimulationControl", "event",
      "faults: thruster, camera, noise, clear"),
     ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
-    ("abyss/<system>/onshore/operator/<waypoints|arm>", "Waypoints, ArmGoal", "event",
+    ("abyss/<system>/onshore/operator/<waypoints|arm|mode>", "Waypoints, ArmGoal, OperatorMode", "event",
      "operator tools to the onshore station, which sends them down"),
+    ("abyss/<system>/onshore/operator/ack", "CommandAck", "event",
+     "onboard's answers to operator commands, handed back to the tools"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
 )
 

@@ -311,6 +311,10 @@ class SimulationStatus(Message):
 
 
 MODES = ("idle", "moving", "reached", "hold")
+# hold: the vehicle holds station and the arm holds still; auto: the goals are flown, the arm
+# once the vehicle holds its last waypoint; teleop: the goals are flown, the arm at once
+OPERATOR_MODES = ("hold", "auto", "teleop")
+COMMANDS = ("waypoints", "arm", "mode")  # what an operator command sets
 
 
 @dataclass(frozen=True)
@@ -338,6 +342,7 @@ class Telemetry(Message):
     failsafe: str = scalar()  # why the vehicle and arm hold; empty when they do not
     failsafe_events: int = scalar(0, 2**31)
     sim_time_s: float = scalar(0.0)
+    operator_mode: str = field(default="auto", metadata={"choices": OPERATOR_MODES})
 
     @property
     def position_error_m(self) -> float:
@@ -373,6 +378,28 @@ class Waypoints(Message):
 
     command_id: int = scalar(0, 2**53)
     waypoints: np.ndarray = array("f8", (None, 4), -1e5, 1e5, max_rows=1000)
+
+
+@dataclass(frozen=True)
+class OperatorMode(Message):
+    """The operator's control mode (see OPERATOR_MODES); onshore -> vessel -> onboard."""
+
+    command_id: int = scalar(0, 2**53)
+    mode: str = scalar(choices=OPERATOR_MODES)
+
+
+@dataclass(frozen=True)
+class CommandAck(Message):
+    """Onboard's answer to an operator command: taken, or refused and why; onboard -> vessel
+    -> onshore. A command sent again is answered again, the same way."""
+
+    command_id: int = scalar(0, 2**53)
+    command: str = scalar(choices=COMMANDS)
+    reason: str = scalar()  # why it was refused; '' when taken
+
+    @property
+    def accepted(self) -> bool:
+        return not self.reason
 
 
 @dataclass(frozen=True)

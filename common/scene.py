@@ -260,6 +260,8 @@ class SceneReceiver:
         self.last_seq = -1
         self.applied = 0
         self.gaps = 0
+        self.latest_centres_m = np.zeros((0, 3))  # the occupied cells of the latest update applied
+        self.latest_colors = np.zeros((0, 3), np.uint8)
 
     def apply(self, update: SceneUpdate) -> str:
         """'applied', or 'gap' (a snapshot is needed; nothing applied) or 'stale' (old update).
@@ -296,6 +298,8 @@ class SceneReceiver:
                 self.colors[int(key)] = tuple(int(c) for c in color_of_leaf[owner])  # type: ignore[assignment]
             else:
                 self.colors.pop(int(key), None)
+        self.latest_centres_m = centres_of_cells[cell_occupied]
+        self.latest_colors = color_of_leaf[owners[cell_occupied]]
         self.last_seq = update.scene_seq
         self.applied += 1
         return "applied"

@@ -218,6 +218,11 @@ def cmd_teleop(args: argparse.Namespace) -> int:
     return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick)
 
 
+def cmd_op(args: argparse.Namespace) -> int:
+    from stations.operator import run_op
+    return run_op(args.connect, args.system, args.command, args.value, args.timeout)
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from stations.plot import plot_run
     for line in plot_run(args.run_dir):
@@ -351,6 +356,16 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--joystick", type=Path, metavar="DEVICE",
                    help="Linux joystick device (default /dev/input/js0 when present; else the keyboard)")
     p.set_defaults(func=cmd_teleop)
+
+    p = sub.add_parser("op", help="send one operator command through shore and print onboard's answer")
+    p.add_argument("command", choices=("waypoints", "arm", "mode"))
+    p.add_argument("value", metavar="VALUE",
+                   help="waypoints: 'x,y,z,yaw; ...' [m, rad]; arm: 'x,y,z,roll,pitch,yaw' [m, rad]; "
+                        "mode: hold|auto|teleop")
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
+    p.set_defaults(func=cmd_op)
 
     p = sub.add_parser("plot", help="the paper's four figures of controller errors from a run")
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR")

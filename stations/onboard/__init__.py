@@ -2,7 +2,9 @@
 end-effector goal come down from the vessel; body and joint velocity references go to the
 low level; the controllers' state goes up as telemetry. The arm moves once the vehicle holds
 its last waypoint (with `onboard.whole_body`, the vehicle then moves with the arm); both hold
-still while the failsafe is on. Perception runs in a thread of its own: the camera frames
+still while the failsafe is on or the operator says hold (in teleop mode the arm follows its
+goal at once). Each operator command is checked (`commands.py`) and acknowledged with its fate
+before it is flown. Perception runs in a thread of its own: the camera frames
 become coloured clouds in the world frame, and the left camera's frames go on to the vessel."""
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from common.messages import (
     Image,
     JointState,
     NavState,
+    OperatorMode,
     Telemetry,
     VelocityRef,
     Waypoints,
@@ -32,6 +35,7 @@ from common.messages import (
 from common.models import ARM_JOINTS, CAMERAS
 from common.rate import Rate
 from stations.onboard.arm_control import ArmController
+from stations.onboard.commands import CommandGate
 from stations.onboard.failsafe import Failsafe
 from stations.onboard.navigation import NavFilter
 from stations.onboard.perception import PoseHistory
@@ -57,10 +61,13 @@ def run(config: Config, bus: Bus) -> None:
     arm = ArmController(cfg, config.mission)
     nav_filter = NavFilter(cfg.nav_time_constant_s)
     failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
+    gate = CommandGate(config.mission, *arm.kinematics.reach())
+    operator_mode = "auto"
     nav = bus.subscribe("simulation", "nav", maxlen=8)
     joints = bus.subscribe("simulation", "joints", maxlen=4)
     waypoint_goals = bus.subscribe("vessel", "goal/waypoints")
     arm_goals = bus.subscribe("vessel", "goal/arm")
+    mode_goals = bus.subscribe("vessel", "goal/mode")
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
     shared = Shared()
     perception = threading.Thread(target=_perception_loop, args=(config, bus, shared), name="perception",
@@ -69,16 +76,25 @@ def run(config: Config, bus: Bus) -> None:
     rate = Rate(cfg.control_period_s, bus.stop)
     every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
     position_m_world: np.ndarray | None = None
+    orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
     tick = 0
     while rate.sleep():
         now_s = time.monotonic()
-        for goal in waypoint_goals.drain():
-            assert isinstance(goal.message, Waypoints)
-            vehicle.set_waypoints(goal.message.command_id, goal.message.waypoints)
-        for goal in arm_goals.drain():
-            assert isinstance(goal.message, ArmGoal)
-            arm.set_goal(goal.message.command_id, goal.message.position_m_world,
-                         goal.message.orientation_wxyz_world)
+        for goal in (*waypoint_goals.drain(), *arm_goals.drain(), *mode_goals.drain()):
+            command = goal.message
+            where = vehicle.waypoints[-1] if len(vehicle.waypoints) else (  # where the vehicle will hold
+                np.r_[position_m_world, yaw_of(orientation_wxyz_world)] if position_m_world is not None
+                else np.zeros(4))
+            ack, taken = gate.answer(command, where)
+            bus.publish("ack", ack)
+            if not taken:
+                log.info("%s command %d not taken: %s", ack.command, ack.command_id, ack.reason or "a resend")
+            elif isinstance(command, Waypoints):
+                vehicle.set_waypoints(command.command_id, command.waypoints)
+            elif isinstance(command, ArmGoal):
+                arm.set_goal(command.command_id, command.position_m_world, command.orientation_wxyz_world)
+            elif isinstance(command, OperatorMode):
+                operator_mode = command.mode
         for beat in heartbeats.drain():
             assert isinstance(beat.message, Heartbeat)
             failsafe.heard(now_s, beat.message)
@@ -93,11 +109,12 @@ def run(config: Config, bus: Bus) -> None:
             continue
         assert isinstance(latest_joints.message, JointState)
         arm_rad = latest_joints.message.positions_rad
-        hold = failsafe.check(now_s, bus.link_down("tether"))
+        hold = failsafe.check(now_s, bus.link_down("tether")) or (
+            "operator hold" if operator_mode == "hold" else "")
         yaw = yaw_of(orientation_wxyz_world)
         out = vehicle.step(position_m_world, yaw, cfg.control_period_s, hold=bool(hold))
-        arm_out = arm.step(position_m_world, orientation_wxyz_world, arm_rad,
-                           enabled=not hold and out.mode in ("reached", "idle"))
+        arm_free = out.mode in ("reached", "idle") or operator_mode == "teleop"
+        arm_out = arm.step(position_m_world, orientation_wxyz_world, arm_rad, enabled=not hold and arm_free)
         with shared.lock:
             shared.arm_m_world = arm.kinematics.chain_m_world()
         linear, yaw_rate = out.linear_mps_body, out.yaw_rate_radps
@@ -121,7 +138,7 @@ def run(config: Config, bus: Bus) -> None:
                 ee_position_m_world=ee_pose.translation,
                 ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
-                failsafe_events=failsafe.events, sim_time_s=sim_time_s))
+                failsafe_events=failsafe.events, sim_time_s=sim_time_s, operator_mode=operator_mode))
         tick += 1
     perception.join(timeout=5.0)
 

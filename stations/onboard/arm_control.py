@@ -142,6 +142,17 @@ class ArmKinematics:
         joints = [self.data.oMi[self.model.getJointId(name)].translation for name in ARM_JOINTS]
         return np.array([*joints, self.data.oMf[self.ee].translation])
 
+    def reach(self) -> tuple[np.ndarray, float]:
+        """The shoulder in the vehicle's frame [m] and the arm's reach from it [m]: the sum of
+        the segments between its joints and on to the tool point (an upper bound)."""
+        saved = self.q.copy()
+        self.update(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]), self.q[self.arm_q])
+        chain = self.chain_m_world()
+        self.q = saved
+        pin.computeJointJacobians(self.model, self.data, self.q)
+        pin.updateFramePlacements(self.model, self.data)
+        return chain[0], float(np.linalg.norm(np.diff(chain, axis=0), axis=1).sum())
+
     def jacobian(self, frame: int) -> np.ndarray:
         """(6, n): linear then angular velocity of the frame, world axes."""
         full = pin.getFrameJacobian(self.model, self.data, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)

@@ -1,7 +1,8 @@
-"""The vessel station: relays telemetry to shore, downsampled for the satellite link, and
-operator commands down to the vehicle; beats a heartbeat to onboard that says whether shore
-is still heard. In a thread of its own it keeps the scene model (an octree from the onboard
-clouds), recognises the panel, and streams both to shore paced for the satellite link."""
+"""The vessel station: relays telemetry to shore, downsampled for the satellite link, operator
+commands down to the vehicle and onboard's answers to them back up; beats a heartbeat to
+onboard that says whether shore is still heard. In a thread of its own it keeps the scene model
+(an octree from the onboard clouds), recognises the panel, and streams both, with a small camera
+frame now and then, to shore paced for the satellite link."""
 
 from __future__ import annotations
 
@@ -14,12 +15,12 @@ import numpy as np
 from common.bus import Bus
 from common.clouds import unpack_cloud
 from common.config import Config
-from common.images import decode_image
+from common.images import decode_image, downscale
 from common.messages import Heartbeat, Image, PointCloud
 from common.rate import Rate
 from stations.vessel.pacing import ScenePacer
 
-RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm"}
+RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode"}
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
 log = logging.getLogger(__name__)
 
@@ -30,6 +31,7 @@ def run(config: Config, bus: Bus) -> None:
     scene.start()
     telemetry = bus.subscribe("onboard", "telemetry", maxlen=8)
     operator = {topic: bus.subscribe("onshore", topic) for topic in RELAYED_DOWN}
+    acks = bus.subscribe("onboard", "ack")
     shore_beats = bus.subscribe("onshore", "heartbeat", maxlen=4)
     rate = Rate(POLL_PERIOD_S, bus.stop)
     shore_heard_s = started_s = time.monotonic()
@@ -40,6 +42,8 @@ def run(config: Config, bus: Bus) -> None:
         for topic, inbox in operator.items():  # commands go down as soon as they are seen
             for command in inbox.drain():
                 bus.publish(RELAYED_DOWN[topic], command.message)
+        for ack in acks.drain():
+            bus.publish("ack", ack.message)
         if shore_beats.drain():
             shore_heard_s = now_s
         if now_s - last_beat_s >= cfg.heartbeat_period_s:
@@ -71,7 +75,7 @@ def _scene_loop(config: Config, bus: Bus) -> None:
     pacer = ScenePacer(cfg.scene_share, first_guess_bps,
                        cfg.scene_update_bytes)
     rate = Rate(POLL_PERIOD_S, bus.stop)
-    last_recognition_s = -float("inf")
+    last_recognition_s = last_image_s = -float("inf")
     sim_time_s = 0.0
     points: np.ndarray | None = None
     while rate.sleep():
@@ -107,6 +111,17 @@ def _scene_loop(config: Config, bus: Bus) -> None:
         stats = satellite.snapshot()
         pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
         while pacer.allows(satellite.in_flight()):
+            if image is not None and now_s - last_image_s >= cfg.image_period_s:
+                last_image_s = now_s
+                assert isinstance(image.message, Image)
+                try:
+                    small = downscale(image.message, cfg.image_scale, cfg.image_jpeg_quality)
+                except ValueError as exc:
+                    bus.reject(image.key, str(exc))
+                    continue
+                bus.publish("image", small)
+                pacer.sent(len(small.data))
+                continue
             update = model.next_update(sim_time_s)
             if update is None:
                 break

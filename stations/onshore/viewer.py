@@ -1,0 +1,270 @@
+"""The operator's view of the system in Rerun: the vehicle and its arm drawn from the shared
+MuJoCo model and posed from telemetry, the mission, the scene octree, the recognised objects,
+the camera, the controllers' errors and the links' statistics. Pure logging: the caller owns
+the `rr.RecordingStream` and its sinks (file, gRPC, spawned viewer) and feeds each message
+with the sender's wall-clock stamp from its envelope."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from common.config import OnshoreConfig
+from common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
+from common.models import ARM_JOINTS, ROBOT_FILE
+
+RECORDING_FILE = "onshore.rrd"
+PATH_POINTS = 5000  # the most recent points of the path flown kept on screen
+PATH_STEP_M = 0.02  # a new path point once the vehicle has moved this far [m]
+GOAL_AXIS_M = 0.2  # length of the arm goal's axes [m]
+LINK_SERIES = {  # a link's series: name -> linkemu's stats key
+    "delay_p50_ms": "delay_p50_ms",
+    "delay_p95_ms": "delay_p95_ms",
+    "lost": "messages_lost",
+    "queue_drops": "queue_drops",
+}
+
+
+def blueprint() -> rrb.Blueprint:
+    """The layout: the 3D world large on the left; the camera, the errors and the links stacked."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="World"),
+            rrb.Vertical(
+                rrb.Spatial2DView(origin="world/camera", name="Camera"),
+                rrb.TimeSeriesView(origin="errors", name="Controller errors"),
+                rrb.TimeSeriesView(origin="links", name="Links"),
+            ),
+            column_shares=[3, 1],
+        )
+    )
+
+
+def web_viewer_url(web_port: int, grpc_port: int) -> str:
+    """The address of rerun's web viewer showing the live recording."""
+    return f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp://127.0.0.1:{grpc_port}/proxy"
+
+
+def open_recording(cfg: OnshoreConfig, system: str) -> rr.RecordingStream | None:
+    """The recording stream with the sinks `cfg.viewer` asks for; every mode but `none` saves
+    `onshore.rrd` in `cfg.record_dir` (when set). None for `none`."""
+    if cfg.viewer == "none":
+        return None
+    recording = rr.RecordingStream("abyss", recording_id=f"abyss-{system}")
+    sinks: list[rr.FileSink | rr.GrpcServerSink | rr.GrpcSink] = []
+    if cfg.record_dir:
+        sinks.append(rr.FileSink(str(Path(cfg.record_dir) / RECORDING_FILE)))
+    if cfg.viewer == "web":
+        server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=cfg.viewer_grpc_port)
+        sinks.append(server)
+    elif cfg.viewer == "spawn":
+        recording.spawn(port=cfg.viewer_grpc_port, connect=False)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{cfg.viewer_grpc_port}/proxy"))
+    recording.set_sinks(*sinks)
+    if cfg.viewer == "web":
+        rr.serve_web_viewer(web_port=cfg.viewer_web_port, open_browser=False, connect_to=server.uri)
+    return recording
+
+
+def xyzw(quat_wxyz: np.ndarray) -> rr.Quaternion:
+    """A quaternion (w, x, y, z) as Rerun's (x, y, z, w)."""
+    return rr.Quaternion(xyzw=np.asarray(quat_wxyz, dtype=float)[[1, 2, 3, 0]])
+
+
+def geometry_of(model: mujoco.MjModel, geom: int) -> rr.AsComponents | None:
+    """One MuJoCo geom as a Rerun primitive in its body's frame; None for a plane or height field."""
+    kind, size = mujoco.mjtGeom(model.geom_type[geom]), model.geom_size[geom]
+    position, quat_wxyz = model.geom_pos[geom], model.geom_quat[geom]
+    rgba = np.round(model.geom_rgba[geom] * 255).astype(np.uint8)
+    rotation = np.empty(9)
+    mujoco.mju_quat2Mat(rotation, quat_wxyz)
+    rotation = rotation.reshape(3, 3)
+    pose = {"quaternions": [xyzw(quat_wxyz)], "colors": [rgba], "fill_mode": "solid"}
+    match kind:
+        case mujoco.mjtGeom.mjGEOM_BOX:
+            return rr.Boxes3D(half_sizes=[size], centers=[position], **pose)
+        case mujoco.mjtGeom.mjGEOM_SPHERE | mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+            half_sizes = size if kind == mujoco.mjtGeom.mjGEOM_ELLIPSOID else np.full(3, size[0])
+            return rr.Ellipsoids3D(half_sizes=[half_sizes], centers=[position], **pose)
+        case mujoco.mjtGeom.mjGEOM_CYLINDER:
+            return rr.Cylinders3D(lengths=[2 * size[1]], radii=[size[0]], centers=[position], **pose)
+        case mujoco.mjtGeom.mjGEOM_CAPSULE:  # Rerun's runs from its origin along +z, MuJoCo's is centred
+            start = position - rotation[:, 2] * size[1]
+            return rr.Capsules3D(lengths=[2 * size[1]], radii=[size[0]], translations=[start], **pose)
+        case mujoco.mjtGeom.mjGEOM_MESH:
+            mesh = model.geom_dataid[geom]
+            vertex, face = model.mesh_vertadr[mesh], model.mesh_faceadr[mesh]
+            vertices = model.mesh_vert[vertex : vertex + model.mesh_vertnum[mesh]]
+            faces = model.mesh_face[face : face + model.mesh_facenum[mesh]]
+            return rr.Mesh3D(
+                vertex_positions=vertices @ rotation.T + position, triangle_indices=faces, albedo_factor=rgba
+            )
+    return None
+
+
+class Viewer:
+    """Logs what each message shows. Every method takes the message and `stamp_s`, the sender's
+    wall clock [s since the epoch], set as the `stamp` timeline (and `sim_time` when the message
+    carries the simulated time [s])."""
+
+    def __init__(self, recording: rr.RecordingStream) -> None:
+        self.recording = recording
+        self.model = mujoco.MjModel.from_xml_path(str(ROBOT_FILE))
+        self.data = mujoco.MjData(self.model)
+        self.joint_qpos = [self.model.joint(name).qposadr[0] for name in ARM_JOINTS]
+        self.body_paths = ["world"]
+        for body in range(1, self.model.nbody):
+            parent = self.body_paths[self.model.body_parentid[body]]
+            self.body_paths.append(f"{parent}/{rr.escape_entity_path_part(self.model.body(body).name)}")
+        self.path_m_world: deque[np.ndarray] = deque(maxlen=PATH_POINTS)
+        self.status: dict[str, str] = {}
+        self.link_bytes: dict[tuple[str, str], tuple[float, float]] = {}  # -> (stamp [s], bytes)
+        self.object_names: set[str] = set()
+        recording.send_blueprint(blueprint())
+        recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for geom in range(self.model.ngeom):
+            shape = geometry_of(self.model, geom)
+            if shape is not None:
+                name = self.model.geom(geom).name or f"geom{geom}"
+                path = f"{self.body_paths[self.model.geom_bodyid[geom]]}/{rr.escape_entity_path_part(name)}"
+                recording.log(path, shape, static=True)
+
+    def _at(self, stamp_s: float, sim_time_s: float | None = None) -> None:
+        self.recording.reset_time()
+        self.recording.set_time("stamp", timestamp=stamp_s)
+        if sim_time_s is not None:
+            self.recording.set_time("sim_time", duration=sim_time_s)
+
+    def _scalars(self, prefix: str, values: dict[str, float]) -> None:
+        for name, value in values.items():
+            self.recording.log(f"{prefix}/{name}", rr.Scalars(value))
+
+    def _status(self, name: str, text: str, level: str) -> None:
+        """A line at `status/<name>` when `text` differs from the last one."""
+        if self.status.get(name, "") != text:
+            self.status[name] = text
+            self.recording.log(f"status/{name}", rr.TextLog(text or "cleared", level=level))
+
+    def telemetry(self, t: Telemetry, stamp_s: float) -> None:
+        """The vehicle's pose, the arm's links, the tool, the path flown, errors and status."""
+        self._at(stamp_s, t.sim_time_s)
+        log = self.recording.log
+        yaw_quat_wxyz = np.array([math.cos(t.yaw_rad / 2), 0.0, 0.0, math.sin(t.yaw_rad / 2)])
+        log("world/vehicle", rr.Transform3D(translation=t.position_m_world, quaternion=xyzw(yaw_quat_wxyz)))
+        for path, position, quat_wxyz in self.arm_poses(t.arm_positions_rad):
+            log(path, rr.Transform3D(translation=position, quaternion=xyzw(quat_wxyz)))
+        log("world/ee", rr.Points3D([t.ee_position_m_world], radii=0.03, colors=[(255, 40, 40)]))
+        if not self.path_m_world or np.linalg.norm(t.position_m_world - self.path_m_world[-1]) >= PATH_STEP_M:
+            self.path_m_world.append(t.position_m_world)
+            log("world/path", rr.LineStrips3D([np.array(self.path_m_world)], colors=[(80, 200, 255)]))
+        self._scalars("errors", {
+            "vehicle/position_m": t.position_error_m,
+            "vehicle/heading_deg": abs(math.degrees(t.heading_error_rad)),
+            "arm/position_mm": float(np.linalg.norm(t.ee_position_error_m_world)) * 1e3,
+            "arm/orientation_deg": math.degrees(t.ee_orientation_error_rad),
+        })  # fmt: skip
+        self._status("failsafe", t.failsafe, rr.TextLogLevel.WARN if t.failsafe else rr.TextLogLevel.INFO)
+        self._status("mode", f"vehicle {t.mode}, arm {t.arm_mode}", rr.TextLogLevel.INFO)
+
+    def arm_poses(self, arm_positions_rad: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """Each body below the vehicle: its entity path and pose in its parent's frame (position
+        [m], quaternion w, x, y, z) for these joint positions [rad] (model order)."""
+        qpos = self.data.qpos
+        qpos[:] = self.model.qpos0
+        qpos[:7] = (0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)  # the vehicle's free joint at the identity
+        qpos[self.joint_qpos] = arm_positions_rad
+        mujoco.mj_kinematics(self.model, self.data)
+        poses = []
+        for body in range(2, self.model.nbody):  # 0: world, 1: the vehicle
+            parent = self.model.body_parentid[body]
+            parent_inverse, quat_wxyz = np.empty(4), np.empty(4)
+            mujoco.mju_negQuat(parent_inverse, self.data.xquat[parent])
+            mujoco.mju_mulQuat(quat_wxyz, parent_inverse, self.data.xquat[body])
+            offset = self.data.xpos[body] - self.data.xpos[parent]
+            position = self.data.xmat[parent].reshape(3, 3).T @ offset
+            poses.append((self.body_paths[body], position, quat_wxyz))
+        return poses
+
+    def waypoints(self, w: Waypoints, stamp_s: float) -> None:
+        """The waypoints, labelled wp0, wp1 ..., and the route through them."""
+        self._at(stamp_s)
+        positions = w.waypoints[:, :3]
+        self.recording.log(
+            "world/mission/waypoints",
+            rr.Points3D(positions, radii=0.08, labels=[f"wp{i}" for i in range(len(positions))]),
+            rr.LineStrips3D([positions], colors=[(255, 200, 0)]),
+        )
+
+    def arm_goal(self, g: ArmGoal, stamp_s: float) -> None:
+        """The end-effector goal as a small set of axes."""
+        self._at(stamp_s)
+        self.recording.log(
+            "world/mission/arm_goal",
+            rr.Transform3D(translation=g.position_m_world, quaternion=xyzw(g.orientation_wxyz_world)),
+            rr.TransformAxes3D(GOAL_AXIS_M),
+        )
+
+    def scene(self, centres_m_world: np.ndarray, colors_rgb: np.ndarray, resolution_m: float, stamp_s: float,
+              sim_time_s: float) -> None:  # fmt: skip
+        """The occupied octree cells [m, world], coloured, as solid voxels of `resolution_m` [m]."""
+        self._at(stamp_s, sim_time_s)
+        half_sizes = np.full((len(centres_m_world), 3), resolution_m / 2)
+        self.recording.log(
+            "world/scene/octree",
+            rr.Boxes3D(centers=centres_m_world, half_sizes=half_sizes, colors=colors_rgb, fill_mode="solid"),
+        )
+
+    def scene_update(
+        self, centres_m_world: np.ndarray, colors_rgb: np.ndarray, stamp_s: float, sim_time_s: float
+    ) -> None:
+        """The cells [m, world] that the latest scene update changed."""
+        self._at(stamp_s, sim_time_s)
+        self.recording.log("world/scene/latest_update", rr.Points3D(centres_m_world, colors=colors_rgb))
+
+    def objects(self, o: RecognisedObjects, stamp_s: float) -> None:
+        """Each recognised object as a labelled box; objects no longer recognised are cleared."""
+        self._at(stamp_s, o.sim_time_s)
+        names = set(o.names)
+        for name in self.object_names - names:
+            self.recording.log(f"world/objects/{rr.escape_entity_path_part(name)}", rr.Clear(recursive=True))
+        self.object_names = names
+        for name, pose, half_sizes, confidence in zip(
+            o.names, o.poses_world, o.half_sizes_m, o.confidences, strict=True
+        ):
+            label = f"{name} (confidence {confidence:.2f})"
+            box = rr.Boxes3D(half_sizes=[half_sizes], centers=[pose[:3]], quaternions=[xyzw(pose[3:])],
+                             labels=[label], colors=[(60, 220, 120)])  # fmt: skip
+            self.recording.log(f"world/objects/{rr.escape_entity_path_part(name)}", box)
+
+    def image(self, img: Image, stamp_s: float) -> None:
+        """A JPEG frame posed in the world, with its pinhole; other frames are not shown."""
+        if img.encoding != "jpeg" or img.pose_frame != "world":
+            return
+        self._at(stamp_s, img.sim_time_s)
+        pose = rr.Transform3D(translation=img.pose_camera[:3], quaternion=xyzw(img.pose_camera[3:]))
+        pinhole = rr.Pinhole(focal_length=[img.fx_px, img.fy_px], principal_point=[img.cx_px, img.cy_px],
+                             resolution=[img.width_px, img.height_px],
+                             camera_xyz=rr.ViewCoordinates.RDF)  # fmt: skip  # OpenCV's axes, as Image's pose
+        self.recording.log("world/camera", pose, pinhole)
+        self.recording.log("world/camera/image", rr.EncodedImage(contents=img.data, media_type="image/jpeg"))
+
+    def link_stats(self, s: LinkStats, stamp_s: float) -> None:
+        """Throughput [kbit/s] since the direction's previous report, delay percentiles [ms] and
+        the cumulative losses and queue drops [messages]."""
+        self._at(stamp_s)
+        values = {name: s.stats[key] for name, key in LINK_SERIES.items() if key in s.stats}
+        delivered_bytes = s.stats.get("bytes_delivered")
+        previous = self.link_bytes.get((s.hop, s.direction))
+        if delivered_bytes is not None:
+            self.link_bytes[s.hop, s.direction] = (stamp_s, delivered_bytes)
+            if previous is not None and stamp_s > previous[0] and delivered_bytes >= previous[1]:
+                values["throughput_kbps"] = (delivered_bytes - previous[1]) * 8e-3 / (stamp_s - previous[0])
+        sender, _, receiver = s.direction.partition("->")
+        direction = rr.escape_entity_path_part(f"{sender}_to_{receiver}")
+        self._scalars(f"links/{rr.escape_entity_path_part(s.hop)}/{direction}", values)

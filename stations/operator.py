@@ -1,0 +1,111 @@
+"""`abyss op`: one operator command from the command line. It goes to the onshore station on
+shore's own network, down the satellite and the tether to onboard, which checks it and answers
+with its fate; the answer comes back the same way and is printed. Text that does not parse is
+refused here, before anything is sent."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import zenoh
+
+from common import keys
+from common.bus import open_session, zenoh_config
+from common.errors import BadMessage, ConfigError
+from common.geometry import quat_wxyz_of, rotation_of_rpy
+from common.messages import (
+    OPERATOR_MODES,
+    ArmGoal,
+    CommandAck,
+    Message,
+    OperatorMode,
+    Waypoints,
+    decode,
+    encode,
+)
+
+RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
+
+
+def _numbers(field: str, text: str, count: int, names: str) -> list[float]:
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise ConfigError(field, f"{text.strip()!r} is not {count} numbers {names}") from None
+    if len(values) != count or not all(np.isfinite(values)):
+        raise ConfigError(field, f"{text.strip()!r} has {len(values)} values; expected {count}: {names}")
+    return values
+
+
+def parse_waypoints(text: str) -> np.ndarray:
+    """'x,y,z,yaw; x,y,z,yaw; ...' [m, m, m, rad, world] -> rows."""
+    rows = [row for row in text.split(";") if row.strip()]
+    if not rows:
+        raise ConfigError("waypoints", "no waypoint given; expected 'x,y,z,yaw; ...' [m, rad]")
+    return np.array([_numbers(f"waypoint {i}", row, 4, "x,y,z,yaw [m, rad]") for i, row in enumerate(rows)])
+
+
+def parse_arm(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """'x,y,z,roll,pitch,yaw' [m, rad, world] -> position, quaternion (w, x, y, z)."""
+    x, y, z, roll, pitch, yaw = _numbers("arm", text, 6, "x,y,z,roll,pitch,yaw [m, rad]")
+    return np.array([x, y, z]), quat_wxyz_of(rotation_of_rpy(roll, pitch, yaw))
+
+
+def command_of(kind: str, text: str, command_id: int) -> Waypoints | ArmGoal | OperatorMode:
+    if kind == "waypoints":
+        return Waypoints(command_id, parse_waypoints(text))
+    if kind == "arm":
+        return ArmGoal(command_id, *parse_arm(text))
+    if text not in OPERATOR_MODES:
+        raise ConfigError("mode", f"{text!r} not one of {', '.join(OPERATOR_MODES)}")
+    return OperatorMode(command_id, text)
+
+
+def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: float) -> CommandAck | None:
+    """Hand `command` to the onshore station and wait for onboard's answer; None if none came."""
+    assert isinstance(command, (Waypoints, ArmGoal, OperatorMode))
+    answered = threading.Event()
+    answer: list[CommandAck] = []
+
+    def on_ack(sample: zenoh.Sample) -> None:
+        try:
+            ack = decode(str(sample.key_expr), sample.payload.to_bytes(), "CommandAck").message
+        except BadMessage:
+            return
+        assert isinstance(ack, CommandAck)
+        if ack.command_id == command.command_id and ack.command == topic:
+            answer.append(ack)
+            answered.set()
+
+    session = open_session(zenoh_config(connect=[endpoint], mode="client"), "abyss op")
+    try:
+        subscriber = session.declare_subscriber(keys.operator_key(system, "ack"), on_ack)
+        deadline, sent = time.monotonic() + timeout_s, 0
+        while not answered.is_set() and time.monotonic() < deadline:
+            session.put(keys.operator_key(system, topic), encode(command, sent, time.time()))
+            sent += 1
+            answered.wait(min(RESEND_PERIOD_S, max(0.0, deadline - time.monotonic())))
+        subscriber.undeclare()
+    finally:
+        session.close()
+    return answer[0] if answer else None
+
+
+def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float) -> int:
+    try:
+        command = command_of(kind, text, int(time.time() * 1e3))
+    except ValueError as exc:  # numbers the message refuses (out of range)
+        raise ConfigError(kind, str(exc)) from None
+    ack = send(endpoint, system, command, kind, timeout_s)
+    if ack is None:
+        print(f"abyss op: no answer from onboard within {timeout_s:g} s (is system {system!r} running "
+              f"with shore at {endpoint}?)")
+        return 1
+    if not ack.accepted:
+        print(f"{kind} command {ack.command_id}: refused by onboard: {ack.reason}")
+        return 1
+    print(f"{kind} command {ack.command_id}: taken by onboard")
+    return 0

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -13,7 +15,7 @@ import zenoh
 
 from common import keys
 from common.bus import open_session, zenoh_config
-from common.config import Config, load
+from common.config import VIEWERS, Config, load
 from common.errors import AbyssError, BadMessage, ConfigError
 from common.messages import (
     FAULTS,
@@ -76,7 +78,17 @@ def _client(args: argparse.Namespace) -> zenoh.Session:
 
 def cmd_up(args: argparse.Namespace) -> int:
     from stations.supervisor import run_up
-    return run_up(_config(args), args.out, args.duration, args.keep_running, args.port, args.link)
+    config = _config(args)
+    if args.viewer is not None or not any(s.startswith("onshore.viewer=") for s in args.set):
+        viewer = args.viewer or ("spawn" if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+                                 else "save")
+        config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
+    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.link)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from stations.onshore.viewer import replay
+    return replay(args.run_dir, args.web_port)
 
 
 def cmd_station(args: argparse.Namespace) -> int:
@@ -307,6 +319,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
     p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
     p.add_argument("--port", type=int, help=f"public Zenoh port (default {7447} if free; 0: any)")
+    p.add_argument("--viewer", choices=VIEWERS,
+                   help="save: runs/<id>/onshore.rrd (the default without a display); web: rerun's web "
+                        "viewer on a local port; spawn: the native viewer (the default with a display); "
+                        "none")
     p.set_defaults(func=cmd_up)
 
     p = sub.add_parser("station", help="run one station, e.g. on its own host")
@@ -366,6 +382,12 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--system", default="default")
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
+
+    p = sub.add_parser("replay", help="open a run's recording (onshore.rrd) in the rerun viewer")
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    p.add_argument("--web-port", type=int, metavar="PORT",
+                   help="serve rerun's web viewer on this port instead of opening the native viewer")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("plot", help="the paper's four figures of controller errors from a run")
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR")

@@ -20,7 +20,7 @@ import zenoh
 
 from common import keys
 from common.bus import open_session, zenoh_config
-from common.config import Config
+from common.config import Config, OnshoreConfig
 from common.errors import AbyssError, BadMessage
 from common.messages import MissionStatus, SimulationStatus, Telemetry, decode
 from stations.record import ControlRecorder
@@ -147,8 +147,12 @@ class Up:
     # -- the run -------------------------------------------------------------------------
     def run(self, duration_s: float | None, keep_running: bool) -> int:
         self.out_dir.mkdir(parents=True, exist_ok=True)
+        onshore = self.config.onshore
+        web_port, grpc_port = (p if port_free(p) else free_port()
+                               for p in (onshore.viewer_web_port, onshore.viewer_grpc_port))
         self.config = dataclasses.replace(self.config, onshore=dataclasses.replace(
-            self.config.onshore, record_dir=str(self.out_dir.resolve())))
+            onshore, record_dir=str(self.out_dir.resolve()), viewer_web_port=web_port,
+            viewer_grpc_port=grpc_port))
         config_path = self.out_dir / "config.json"
         config_path.write_text(self.config.to_json())
         system = self.config.system
@@ -174,6 +178,7 @@ class Up:
             startup_s = time.monotonic() - t0
             if not failure:
                 self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
+                self.echo(viewer_line(self.config.onshore))
                 failure = self._watch(duration_s, keep_running)
         finally:
             self._stop_all()
@@ -262,6 +267,16 @@ class Up:
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": read_json(self.out_dir / "scene.json"),
         }
+
+
+def viewer_line(cfg: OnshoreConfig) -> str:
+    from stations.onshore.viewer import RECORDING_FILE, web_viewer_url
+    recording = Path(cfg.record_dir) / RECORDING_FILE
+    return {"save": f"abyss: recording to {recording} (abyss replay {cfg.record_dir})",
+            "web": f"abyss: web viewer at {web_viewer_url(cfg.viewer_web_port, cfg.viewer_grpc_port)} "
+                   f"(recording to {recording})",
+            "spawn": f"abyss: rerun viewer spawned (recording to {recording})",
+            "none": "abyss: no viewer, no recording"}[cfg.viewer]
 
 
 def read_json(path: Path) -> dict[str, Any]:

@@ -65,7 +65,8 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
                  "world/mission/arm_goal", "world/scene/octree", "world/scene/latest_update",
                  "world/objects/panel", "world/objects/valve_1", "world/camera/image",
                  "errors/vehicle/position_m", "errors/arm/orientation_deg",
-                 "links/satellite/vessel_to_onshore/delay_p50_ms", "links/tether/onboard_to_vessel/throughput_kbps"):
+                 "links/satellite/vessel_to_onshore/delay_p50_ms",
+                 "links/tether/onboard_to_vessel/throughput_kbps"):
         assert rows[path] > 0, (path, sorted(rows))
     assert rows["world/vehicle"] >= 10 and rows[arm] == rows["world/vehicle"]  # telemetry at 2 Hz, 20 s
 

@@ -3,7 +3,7 @@ is plugged in, from the keyboard otherwise. Teleoperation writes goals, not velo
 key press (or each half second of stick deflection) moves the goal pose by a step and sends
 it as a new command through the onshore station, down the satellite and the tether on the
 same keys the autonomous side uses. A goal survives a lost or late packet (the onshore
-station resends it until telemetry shows it taken); a velocity stream would not.
+station resends it until onboard answers it); a velocity stream would not.
 
 Keys (the vehicle's frame: forward, left, up): w/s forward/back, a/d left/right, r/f up/down,
 q/e turn left/right (vehicle) or yaw (end-effector), i/k pitch, u/o roll (end-effector),

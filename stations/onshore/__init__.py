@@ -38,7 +38,7 @@ from common.messages import (
 )
 from common.rate import Rate
 from common.scene import SceneReceiver
-from stations.onshore.viewer import Viewer, open_recording
+from stations.onshore.viewer import Sinks, Viewer
 
 PERIOD_S = 0.1
 STATUS_PERIOD_S = 0.25
@@ -85,8 +85,8 @@ def run(config: Config, bus: Bus) -> None:
     acks = bus.subscribe("vessel", "ack")
     images = bus.subscribe("vessel", "image", maxlen=2)
     link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), "LinkStats")
-    recording = open_recording(config.onshore, bus.system)
-    viewer = Viewer(recording) if recording is not None else None
+    sinks = Sinks(config.onshore, bus.system)
+    viewer = Viewer(sinks.recording) if sinks.recording is not None else None
     commands = {c.topic: c for c in (mode, waypoints, arm)}
     tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
         c.topic: bus.subscribe_key(keys.operator_key(bus.system, c.topic.removeprefix("op/")), message)
@@ -140,10 +140,8 @@ def run(config: Config, bus: Bus) -> None:
             last_status_s = now_s
     if config.onshore.record_dir:
         scene.save(Path(config.onshore.record_dir))
-    if recording is not None:
-        scene.show(time.monotonic(), final=True)
-        recording.flush()
-        recording.disconnect()
+    scene.show(time.monotonic(), final=True)
+    sinks.close()
 
 
 class Scene:

@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import subprocess
-import sys
 from collections import deque
 from pathlib import Path
 
@@ -53,28 +51,49 @@ def blueprint() -> rrb.Blueprint:
 
 def web_viewer_url(web_port: int, grpc_port: int) -> str:
     """The address of rerun's web viewer showing the live recording."""
-    return f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp://127.0.0.1:{grpc_port}/proxy"
+    return f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc_port}%2Fproxy"
 
 
-def open_recording(cfg: OnshoreConfig, system: str) -> rr.RecordingStream | None:
-    """The recording stream with the sinks `cfg.viewer` asks for; every mode but `none` saves
-    `onshore.rrd` in `cfg.record_dir` (when set). None for `none`."""
-    if cfg.viewer == "none":
-        return None
-    recording = rr.RecordingStream("abyss", recording_id=f"abyss-{system}")
-    sinks: list[rr.FileSink | rr.GrpcServerSink | rr.GrpcSink] = []
-    if cfg.record_dir:
-        sinks.append(rr.FileSink(str(Path(cfg.record_dir) / RECORDING_FILE)))
-    if cfg.viewer == "web":
-        server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=cfg.viewer_grpc_port)
-        sinks.append(server)
-    elif cfg.viewer == "spawn":
-        recording.spawn(port=cfg.viewer_grpc_port, connect=False)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{cfg.viewer_grpc_port}/proxy"))
-    recording.set_sinks(*sinks)
-    if cfg.viewer == "web":
-        rr.serve_web_viewer(web_port=cfg.viewer_web_port, open_browser=False, connect_to=server.uri)
-    return recording
+def rerun_command() -> str:
+    """rerun's own executable, shipped with the SDK."""
+    import rerun_cli
+
+    return str(Path(rerun_cli.__file__).parent / "rerun")
+
+
+class Sinks:
+    """The recording stream and what it goes to, per `cfg.viewer`: `onshore.rrd` in
+    `cfg.record_dir` (every mode but `none`), and for `web` rerun's web viewer and gRPC proxy
+    (its own process, on 127.0.0.1 only), for `spawn` the native viewer."""
+
+    def __init__(self, cfg: OnshoreConfig, system: str) -> None:
+        self.recording: rr.RecordingStream | None = None
+        self.server: subprocess.Popen[bytes] | None = None
+        if cfg.viewer == "none":
+            return
+        self.recording = rr.RecordingStream("abyss", recording_id=f"abyss-{system}")
+        sinks: list[rr.FileSink | rr.GrpcSink] = []
+        if cfg.record_dir:
+            sinks.append(rr.FileSink(str(Path(cfg.record_dir) / RECORDING_FILE)))
+        proxy = f"rerun+http://127.0.0.1:{cfg.viewer_grpc_port}/proxy"
+        if cfg.viewer == "web":
+            self.server = subprocess.Popen(
+                [rerun_command(), "--serve-web", "--bind", "127.0.0.1", "--port", str(cfg.viewer_grpc_port),
+                 "--web-viewer-port", str(cfg.viewer_web_port)],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+            sinks.append(rr.GrpcSink(proxy))
+        elif cfg.viewer == "spawn":
+            self.recording.spawn(port=cfg.viewer_grpc_port, connect=False)
+            sinks.append(rr.GrpcSink(proxy))
+        self.recording.set_sinks(*sinks)
+
+    def close(self) -> None:
+        if self.recording is not None:
+            self.recording.flush()
+            self.recording.disconnect()
+        if self.server is not None:
+            self.server.terminate()
+            self.server.wait(timeout=10)
 
 
 def xyzw(quat_wxyz: np.ndarray) -> rr.Quaternion:
@@ -280,10 +299,7 @@ def replay(run_dir: Path, web_port: int | None) -> int:
     recording = run_dir / RECORDING_FILE
     if not recording.is_file():
         raise ConfigError("RUN_DIR", f"{run_dir} holds no {RECORDING_FILE} (a run with --viewer none?)")
-    venv_bin = str(Path(sys.executable).parent)
-    rerun = shutil.which("rerun", path=os.pathsep.join((venv_bin, os.environ.get("PATH", ""))))
-    if rerun is None:
-        raise ConfigError("rerun", "the rerun command is not installed (pip install rerun-sdk)")
+    rerun = rerun_command()
     if web_port is not None:
         command = [rerun, str(recording), "--serve-web", "--bind", "127.0.0.1",
                    "--web-viewer-port", str(web_port)]

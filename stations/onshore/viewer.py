@@ -194,7 +194,8 @@ class Viewer:
             "arm/orientation_deg": math.degrees(t.ee_orientation_error_rad),
         })  # fmt: skip
         self._status("failsafe", t.failsafe, rr.TextLogLevel.WARN if t.failsafe else rr.TextLogLevel.INFO)
-        self._status("mode", f"vehicle {t.mode}, arm {t.arm_mode}", rr.TextLogLevel.INFO)
+        mode = f"operator {t.operator_mode}: vehicle {t.mode}, arm {t.arm_mode}"
+        self._status("mode", mode, rr.TextLogLevel.INFO)
 
     def arm_poses(self, arm_positions_rad: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """Each body below the vehicle: its entity path and pose in its parent's frame (position

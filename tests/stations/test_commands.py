@@ -1,0 +1,56 @@
+"""Onboard's check of operator commands: what it refuses and why, and that a resent command is
+answered the same way without being taken twice."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from common.config import MissionConfig
+from common.messages import ArmGoal, OperatorMode, Waypoints
+from stations.onboard.arm_control import ArmKinematics
+from stations.onboard.commands import CommandGate, box_clearance_m
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+LAST_WAYPOINT = np.array([3.3, 0.0, -7.9, 0.0])  # the default mission's, facing the panel
+
+
+def gate() -> CommandGate:
+    return CommandGate(MissionConfig(), *ArmKinematics().reach())
+
+
+def test_box_clearance() -> None:
+    box = (0.0, 0.0, 0.0, 1.0, 2.0, 3.0)
+    assert box_clearance_m(np.array([0.5, 0.0, 0.0]), box) == 0.0
+    assert np.isclose(box_clearance_m(np.array([4.0, 6.0, 0.0]), box), 5.0)
+
+
+def test_waypoints_near_the_surface_or_an_obstacle_are_refused_with_the_reason() -> None:
+    g = gate()
+    assert g.check_waypoints(np.array(MissionConfig().waypoints)) == ""
+    assert "of the surface" in g.check_waypoints(np.array([[1.0, 0.0, -0.2, 0.0]]))
+    assert "obstacle 1" in g.check_waypoints(np.array([[1.0, 0.0, -7.0, 0.0], [2.0, 0.0, -9.7, 0.0]]))
+    assert "waypoint 1" in g.check_waypoints(np.array([[1.0, 0.0, -7.0, 0.0], [2.0, 0.0, -9.7, 0.0]]))
+    assert "obstacle 0" in g.check_waypoints(np.array([[4.7, 0.0, -8.6, 0.0]]))  # at the panel's plate
+
+
+def test_an_arm_goal_out_of_reach_from_where_the_vehicle_will_hold_is_refused() -> None:
+    g = gate()
+    x, y, z, *_ = MissionConfig().arm_target
+    assert g.check_arm(np.array([x, y, z]), LAST_WAYPOINT) == ""
+    assert "out of reach" in g.check_arm(np.array([x + 1.5, y, z]), LAST_WAYPOINT)
+    turned_away = np.r_[LAST_WAYPOINT[:3], np.pi]  # the shoulder is on the bow: now 1.8 m further off
+    assert "out of reach" in g.check_arm(np.array([x, y, z]), turned_away)
+
+
+def test_a_resent_command_gets_the_same_answer_and_is_not_taken_twice() -> None:
+    g = gate()
+    far = ArmGoal(7, np.array([9.0, 0.0, -7.0]), IDENTITY)
+    ack, taken = g.answer(far, LAST_WAYPOINT)
+    assert not taken and not ack.accepted and ack.command == "arm" and ack.command_id == 7
+    again, taken_again = g.answer(far, LAST_WAYPOINT)
+    assert again == ack and not taken_again
+    mode = OperatorMode(7, "hold")  # the same id on another kind of command is its own command
+    ack, taken = g.answer(mode, LAST_WAYPOINT)
+    assert taken and ack.accepted and ack.command == "mode"
+    waypoints = Waypoints(8, np.array(MissionConfig().waypoints))
+    assert g.answer(waypoints, LAST_WAYPOINT)[1] and not g.answer(waypoints, LAST_WAYPOINT)[1]

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import ctypes
 import importlib
 import json
 import logging
+import os
 import signal
 import socket
 import sys
@@ -18,6 +20,19 @@ from common.bus import Bus
 from common.config import Config
 
 log = logging.getLogger(__name__)
+SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
+PR_SET_PDEATHSIG = 1
+
+
+def stop_with_supervisor() -> None:
+    """A station that `abyss up` started is sent SIGTERM when `abyss up` dies, even by SIGKILL
+    (Linux), so that no station outlives its system."""
+    pid = os.environ.get(SUPERVISOR_ENV)
+    if not pid or not sys.platform.startswith("linux"):
+        return
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != int(pid):  # it died before the line above
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def station_entry(name: str) -> Callable[[Config, Any], None]:
@@ -45,6 +60,7 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
+        stop_with_supervisor()
     log.info("%s up in system %s (listen %s, connect %s)", name, config.system, list(listen), list(connect))
     code = 0
     try:

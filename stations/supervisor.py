@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import signal
 import socket
 import subprocess
@@ -24,7 +25,7 @@ from common.config import Config, OnshoreConfig
 from common.errors import AbyssError, BadMessage
 from common.messages import MissionStatus, SimulationStatus, Telemetry, decode
 from stations.record import ControlRecorder
-from stations.runtime import free_port
+from stations.runtime import SUPERVISOR_ENV, free_port
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
@@ -112,7 +113,8 @@ class Up:
                    "--status-file", str(status_path), "--link", self.link_mode]
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
-                                       stdin=subprocess.DEVNULL, start_new_session=True)
+                                       stdin=subprocess.DEVNULL, start_new_session=True,
+                                       env={**os.environ, SUPERVISOR_ENV: str(os.getpid())})
         return Station(name, process, log_path, status_path)
 
     def _check_deaths(self) -> list[Station]:

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -28,7 +29,8 @@ class Up:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.process = subprocess.Popen(
             [sys.executable, "-m", "stations.cli", "up", "--port", "0", "--out", str(out), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT, env=env)
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT, env=env,
+            start_new_session=True)  # its stations share its process group: a failed test kills them all
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -78,8 +80,8 @@ def no_leftover_systems() -> Iterator[None]:
     yield
     while Up.started:
         up = Up.started.pop()
-        if up.process.poll() is None:
-            up.process.kill()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(up.process.pid, signal.SIGKILL)  # the supervisor and any station it left
         up.wait(30)
 
 

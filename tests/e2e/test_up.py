@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import threading
 import time
@@ -81,6 +82,19 @@ def test_a_killed_station_is_reported_and_up_fails(tmp_path: Path) -> None:
     summary = up.summary()
     assert summary["verdict"] == "failed" and summary["stations"]["onboard"]["exit_code"] == -9
     assert all(s["exit_code"] == 0 for n, s in summary["stations"].items() if n != "onboard")
+
+
+def test_a_killed_up_takes_its_stations_down(tmp_path: Path) -> None:
+    up = Up(tmp_path / "run", "--duration", "60", "--system", "e2e-orphans", "--viewer", "none")
+    up.wait_for("all 4 stations up")
+    pids = [int(re.search(r"up \(pid (\d+)", line).group(1)) for line in up.lines if "up (pid" in line]
+    assert len(pids) == 4
+    os.kill(up.process.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 20.0
+    while time.monotonic() < deadline and any(Path(f"/proc/{pid}").exists() for pid in pids):
+        time.sleep(0.2)
+    alive = [pid for pid in pids if Path(f"/proc/{pid}").exists()]
+    assert not alive, f"stations outlived abyss up: {alive}"
 
 
 def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:

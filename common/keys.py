@@ -152,6 +152,12 @@ def operator_key(system: str, topic: str) -> str:
     return key(system, "onshore", "operator", topic)
 
 
+def onboard_state_key(system: str) -> str:
+    """The onboard controllers' state at the source, past no emulated link: for scoring (the
+    scenario runner times the failsafe by it) only, as the truth is."""
+    return key(system, "onboard", "state")
+
+
 def mission_key(system: str) -> str:
     """Mission status as the operator sees it, published on shore."""
     return key(system, "onshore", "mission")
@@ -171,6 +177,7 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
      "operator tools to the onshore station, which sends them down"),
     ("abyss/<system>/onshore/operator/ack", "CommandAck", "event",
      "onboard's answers to operator commands, handed back to the tools"),
+    ("abyss/<system>/onboard/state", "Telemetry", "10 Hz", "onboard's state at the source, for scoring only"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
 )
 

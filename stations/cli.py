@@ -83,7 +83,8 @@ def cmd_up(args: argparse.Namespace) -> int:
         viewer = args.viewer or ("spawn" if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
                                  else "save")
         config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
-    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.link)
+    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.link, args.external,
+                  args.restart)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -319,6 +320,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
     p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
     p.add_argument("--port", type=int, help=f"public Zenoh port (default {7447} if free; 0: any)")
+    p.add_argument("--external", action="append", default=[], choices=keys.STATIONS, metavar="STATION",
+                   help="do not start this station: wait for yours (a real component) on its keys")
+    p.add_argument("--restart", action="store_true", help="start a station that dies again")
     p.add_argument("--viewer", choices=VIEWERS,
                    help="save: runs/<id>/onshore.rrd (the default without a display); web: rerun's web "
                         "viewer on a local port; spawn: the native viewer (the default with a display); "

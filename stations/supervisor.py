@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ from stations.runtime import SUPERVISOR_ENV, free_port
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
+EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts
 STOP_TIMEOUT_S = 15.0
 
 
@@ -61,8 +63,12 @@ class Up:
     """Start, watch and stop one whole system; write its summary."""
 
     def __init__(self, config: Config, out_dir: Path, port: int | None = None,
-                 link_mode: str = "emulated", echo: Any = None) -> None:
+                 link_mode: str = "emulated", echo: Any = None, external: Sequence[str] = (),
+                 restart: bool = False) -> None:
         self.config = config
+        self.external = tuple(keys.check_station(name) for name in external)  # started by the user
+        self.restart = restart  # a station that dies is started again instead of failing the run
+        self.mission_done_s: float | None = None  # since all stations were up
         self.out_dir = out_dir
         self.echo = echo or (lambda text: print(text, flush=True))
         self.link_mode = link_mode
@@ -126,6 +132,13 @@ class Up:
                 dead.append(station)
         return dead
 
+    def _restart(self, station: Station) -> None:
+        restarted = self._start(station.name, self.out_dir / "config.json")
+        restarted.restarts = station.restarts + 1
+        self.stations[station.name] = restarted
+        self.echo(f"abyss:   {station.name} restarted (pid {restarted.process.pid}, restart "
+                  f"{restarted.restarts})")
+
     def _report_death(self, station: Station) -> None:
         tail = station.log_path.read_text(errors="replace").splitlines()[-15:]
         self.echo(f"abyss: station {station.name} died with exit code {exit_text(station.died)}; "
@@ -165,7 +178,7 @@ class Up:
                                                     history=True),
             session.declare_subscriber(keys.mission_key(system), self._on_status),
             session.declare_subscriber(keys.simulation_status_key(system), self._on_status),
-            session.declare_subscriber(keys.spec("onboard", "telemetry").key(system), self._on_status),
+            session.declare_subscriber(keys.onboard_state_key(system), self._on_status),
         ]
         previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
                     for s in (signal.SIGINT, signal.SIGTERM)}
@@ -175,7 +188,11 @@ class Up:
             self.echo(f"abyss: system {system}; Zenoh endpoint {self.endpoint} "
                       f"(connect your own client here); run directory {self.out_dir}")
             for name in keys.STATIONS:
-                self.stations[name] = self._start(name, config_path)
+                if name in self.external:
+                    self.echo(f"abyss: waiting for external station {name}: start it with `abyss station "
+                              f"{name} --system {system} --connect {self.endpoint}`")
+                else:
+                    self.stations[name] = self._start(name, config_path)
             failure = self._wait_until_up(t0)
             startup_s = time.monotonic() - t0
             if not failure:
@@ -197,11 +214,12 @@ class Up:
 
     def _wait_until_up(self, t0: float) -> str:
         shown: set[str] = set()
-        while time.monotonic() - t0 < STARTUP_TIMEOUT_S:
+        timeout_s = STARTUP_TIMEOUT_S + (EXTERNAL_TIMEOUT_S if self.external else 0.0)
+        while time.monotonic() - t0 < timeout_s:
             with self._lock:
                 alive = set(self.alive)
             for name in sorted(alive - shown):
-                pid = self.stations[name].process.pid
+                pid = self.stations[name].process.pid if name in self.stations else "external"
                 self.echo(f"abyss:   {name} up (pid {pid}, {time.monotonic() - t0:.1f} s)")
             shown |= alive
             if alive >= set(keys.STATIONS):
@@ -212,7 +230,7 @@ class Up:
             if self.interrupted.wait(0.05):
                 return "interrupted during start-up"
         missing = sorted(set(keys.STATIONS) - shown)
-        return f"not up after {STARTUP_TIMEOUT_S:g} s: {', '.join(missing)}"
+        return f"not up after {timeout_s:g} s: {', '.join(missing)}"
 
     def _watch(self, duration_s: float | None, keep_running: bool) -> str:
         t0 = time.monotonic()
@@ -220,12 +238,16 @@ class Up:
         while True:
             for station in self._check_deaths():
                 self._report_death(station)
-                return f"{station.name} died"
+                if not self.restart:
+                    return f"{station.name} died"
+                self._restart(station)
             mission = self.mission
-            if mission is not None and mission.done and not keep_running:
-                self.echo("abyss: mission complete")
-                return ""
             elapsed = time.monotonic() - t0
+            if mission is not None and mission.done and self.mission_done_s is None:
+                self.mission_done_s = elapsed
+                self.echo(f"abyss: mission complete at t={elapsed:.1f} s")
+            if mission is not None and mission.done and not keep_running:
+                return ""
             if duration_s is not None and elapsed >= duration_s:
                 return ""
             if time.monotonic() - last_report >= 5.0:
@@ -253,7 +275,9 @@ class Up:
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
                               **{k: status.get(k, {})
                                  for k in ("sent", "received", "rejected", "latency_ms")}}
-        if not failure and any(s["exit_code"] != 0 for s in stations.values()):
+        for name in self.external:
+            stations[name] = {"external": True, "alive_seen": name in self.alive_seen}
+        if not failure and any(s.get("exit_code", 0) != 0 for s in stations.values()):
             failure = "a station exited with an error"
         return {
             "system": self.config.system,
@@ -265,6 +289,8 @@ class Up:
             "stations": stations,
             "links": links,
             "mission": dataclasses.asdict(self.mission) if self.mission else None,
+            "mission_done_s": self.mission_done_s,
+            "external": list(self.external),
             "control": control_summary(self.record.last if self.record else None),
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": read_json(self.out_dir / "scene.json"),
@@ -306,8 +332,12 @@ def render_summary(summary: dict[str, Any]) -> str:
              + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"]
     lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9}")
     for name, s in summary["stations"].items():
+        if s.get("external"):
+            lines.append(f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}")
+            continue
         lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
-                     f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}")
+                     f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}"
+                     + (f"  restarted {s['restarts']}x" if s["restarts"] else ""))
     lines.append(f"  {'link':<28} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}")
     for hop, directions in summary["links"].items():
         for direction, st in directions.items():
@@ -340,10 +370,11 @@ def render_summary(summary: dict[str, Any]) -> str:
 
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
-           port: int | None, link_mode: str) -> int:
+           port: int | None, link_mode: str, external: Sequence[str] = (), restart: bool = False) -> int:
     run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
-        return Up(config, run_dir, port, link_mode).run(duration_s, keep_running)
+        return Up(config, run_dir, port, link_mode, external=external, restart=restart).run(
+            duration_s, keep_running)
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)
         return 2

@@ -128,7 +128,7 @@ def run(config: Config, bus: Bus) -> None:
         bus.publish("cmd/arm_velocity", ArmVelocityRef(arm_out.joint_velocities_radps, gripper_mps))
         if tick % every == 0:
             ee_pose = arm.kinematics.pose(arm.kinematics.ee)
-            bus.publish("telemetry", Telemetry(
+            state = Telemetry(
                 position_m_world=position_m_world, yaw_rad=yaw, mode=out.mode, command_id=vehicle.command_id,
                 waypoint_index=out.waypoint_index, waypoints_total=out.waypoints_total,
                 position_error_m_world=out.position_error_m_world, heading_error_rad=out.heading_error_rad,
@@ -138,7 +138,9 @@ def run(config: Config, bus: Bus) -> None:
                 ee_position_m_world=ee_pose.translation,
                 ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
-                failsafe_events=failsafe.events, sim_time_s=sim_time_s, operator_mode=operator_mode))
+                failsafe_events=failsafe.events, sim_time_s=sim_time_s, operator_mode=operator_mode)
+            bus.publish("telemetry", state)
+            bus.observe(keys.onboard_state_key(bus.system), state)
         tick += 1
     perception.join(timeout=5.0)
 

@@ -43,6 +43,7 @@ from stations.onshore.viewer import Sinks, Viewer
 PERIOD_S = 0.1
 STATUS_PERIOD_S = 0.25
 HEARTBEAT_PERIOD_S = 1.0
+COMMANDS_FILE = "commands.json"  # every command shore sent, how often, and onboard's answer
 SCENE_FILE = "scene.msgpack"  # the final scene, a snapshot SceneUpdate; `abyss scene export` reads it
 log = logging.getLogger(__name__)
 
@@ -88,6 +89,7 @@ def run(config: Config, bus: Bus) -> None:
     sinks = Sinks(config.onshore, bus.system)
     viewer = Viewer(sinks.recording) if sinks.recording is not None else None
     commands = {c.topic: c for c in (mode, waypoints, arm)}
+    history: dict[tuple[str, int], dict[str, object]] = {}  # every command sent, and its fate
     tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
         c.topic: bus.subscribe_key(keys.operator_key(bus.system, c.topic.removeprefix("op/")), message)
         for c, message in ((mode, "OperatorMode"), (waypoints, "Waypoints"), (arm, "ArmGoal"))}
@@ -105,6 +107,9 @@ def run(config: Config, bus: Bus) -> None:
             ack = received.message
             assert isinstance(ack, CommandAck)
             bus.observe(keys.operator_key(bus.system, "ack"), ack)  # the tools pick their own out
+            entry = history.get((f"op/{ack.command}", ack.command_id))
+            if entry is not None:
+                entry.update(answered=True, accepted=ack.accepted, reason=ack.reason)
             if commands[f"op/{ack.command}"].answered(ack):
                 log.info("%s command %d %s", ack.command, ack.command_id,
                          "taken" if ack.accepted else f"refused: {ack.reason}")
@@ -122,6 +127,10 @@ def run(config: Config, bus: Bus) -> None:
         for command in commands.values():
             due = now_s - command.sent_s > mission.resend_period_s
             if command.message is not None and command.answer is None and due:
+                entry = history.setdefault((command.topic, command.message.command_id), {
+                    "command": command.topic.removeprefix("op/"), "command_id": command.message.command_id,
+                    "sends": 0, "answered": False, "accepted": False, "reason": ""})
+                entry["sends"] = int(entry["sends"]) + 1  # type: ignore[call-overload]
                 if viewer and command.sent_s == -float("inf"):  # sent for the first time
                     if isinstance(command.message, Waypoints):
                         viewer.waypoints(command.message, time.time())
@@ -139,7 +148,9 @@ def run(config: Config, bus: Bus) -> None:
                 failsafe="", failsafe_events=0))
             last_status_s = now_s
     if config.onshore.record_dir:
-        scene.save(Path(config.onshore.record_dir))
+        record_dir = Path(config.onshore.record_dir)
+        scene.save(record_dir)
+        (record_dir / COMMANDS_FILE).write_text(json.dumps(list(history.values()), indent=2))
     scene.show(time.monotonic(), final=True)
     sinks.close()
 

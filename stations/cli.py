@@ -236,6 +236,29 @@ def cmd_op(args: argparse.Namespace) -> int:
     return run_op(args.connect, args.system, args.command, args.value, args.timeout)
 
 
+def cmd_scenario_run(args: argparse.Namespace) -> int:
+    from stations.scenario.report import junit, markdown
+    from stations.scenario.runner import run_all
+    from stations.scenario.spec import load_scenario
+    if args.parallel < 1:
+        raise ConfigError("--parallel", f"{args.parallel}: at least 1")
+    scenarios = [load_scenario(path) for path in args.files]  # every file checked before anything runs
+    report_dir = args.report or Path("runs") / f"scenarios-{time.strftime('%Y%m%d-%H%M%S')}"
+    results = run_all(scenarios, report_dir, args.parallel)
+    if args.junit:
+        junit(results, args.junit)
+    print(f"abyss: {sum(r.passed for r in results)}/{len(results)} scenarios passed; report "
+          f"{markdown(results, report_dir)}" + (f", JUnit {args.junit}" if args.junit else ""))
+    return 0 if all(r.passed for r in results) else 1
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from stations.check import run_check
+    if not 0 < args.duration <= 600:
+        raise ConfigError("--duration", f"{args.duration} s outside (0, 600]")
+    return run_check(args.connect, args.system, args.station, args.duration)
+
+
 def cmd_plot(args: argparse.Namespace) -> int:
     from stations.plot import plot_run
     for line in plot_run(args.run_dir):
@@ -392,6 +415,23 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--web-port", type=int, metavar="PORT",
                    help="serve rerun's web viewer on this port instead of opening the native viewer")
     p.set_defaults(func=cmd_replay)
+
+    scenario = sub.add_parser("scenario", help="validation scenarios").add_subparsers(dest="scenario",
+                                                                                       required=True)
+    p = scenario.add_parser("run", help="run scenario files, each as a whole isolated system, and judge them")
+    p.add_argument("files", nargs="+", type=Path, metavar="FILE")
+    p.add_argument("--parallel", type=int, default=1, metavar="N", help="systems at once (default 1)")
+    p.add_argument("--junit", type=Path, metavar="PATH", help="write JUnit XML here")
+    p.add_argument("--report", type=Path, metavar="DIR",
+                   help="report and run directories (default runs/scenarios-<time>)")
+    p.set_defaults(func=cmd_scenario_run)
+
+    p = sub.add_parser("check", help="interface test of a running station: each of its keys' rate and schema")
+    p.add_argument("station", choices=keys.STATIONS)
+    p.add_argument("--duration", type=float, default=10.0, metavar="S", help="listen this long (default 10)")
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("plot", help="the paper's four figures of controller errors from a run")
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR")

@@ -1,0 +1,227 @@
+"""`abyss scenario run`: each scenario as a whole isolated system (`abyss up` with its own
+system id and ports, in its own process group), N at a time. The runner waits for the system
+(and for the user's external stations), applies the timed events over Zenoh as an operator's
+tools would, records onboard's state from its scoring key, and judges the assertions on what
+the run left."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from common import keys
+from common.bus import open_session, zenoh_config
+from common.errors import AbyssError, BadMessage
+from common.messages import LinkControl, SimulationControl, Telemetry, decode, encode
+from stations.scenario.checks import Run, Verdict, judge
+from stations.scenario.spec import Event, Scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+START_TIMEOUT_S = 60.0
+EXTERNAL_TIMEOUT_S = 180.0
+
+
+@dataclass
+class Result:
+    scenario: Scenario
+    out_dir: Path
+    verdicts: list[Verdict]
+    passed: bool
+    wall_s: float
+    error: str = ""  # why the run itself did not complete
+
+
+class System:
+    """One `abyss up` for a scenario, its output read line by line."""
+
+    def __init__(self, scenario: Scenario, system_id: str, out_dir: Path, say: Callable[[str], None]) -> None:
+        self.say = say
+        command = [
+            sys.executable,
+            "-m",
+            "stations.cli",
+            "up",
+            "--port",
+            "0",
+            "--out",
+            str(out_dir),
+            "--system",
+            system_id,
+            "--duration",
+            f"{scenario.duration_s:g}",
+            "--viewer",
+            "save",
+        ]
+        command += [] if scenario.stop_when_done else ["--keep-running"]
+        command += ["--restart"] if scenario.restart else []
+        for name in scenario.external:
+            command += ["--external", name]
+        for hop, profile in scenario.links.items():
+            command += ["--profile", f"{hop}={profile}"]
+        for item in scenario.config:
+            command += ["--set", item]
+        self.process = subprocess.Popen(
+            command,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=ROOT,
+            start_new_session=True,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
+        self.lines: list[str] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip("\n"))
+            if "waiting for external station" in line or "died with exit code" in line or "restarted" in line:
+                self.say(line.strip().removeprefix("abyss: ").strip())
+
+    def find(self, pattern: str) -> re.Match[str] | None:
+        for line in reversed(list(self.lines)):
+            if m := re.search(pattern, line):
+                return m
+        return None
+
+    def wait_for(self, pattern: str, timeout_s: float) -> re.Match[str] | None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and self.process.poll() is None:
+            if m := self.find(pattern):
+                return m
+            time.sleep(0.05)
+        return self.find(pattern)
+
+    def kill(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.process.pid, signal.SIGKILL)
+
+
+def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> str:
+    """Carry out one event; a line saying what was done."""
+    if event.action == "link":
+        session.put(
+            keys.link_key(system_id, event.hop), encode(LinkControl(event.profile, {}), 0, time.time())
+        )
+    elif event.action == "fault":
+        control = SimulationControl(event.fault, event.target, event.value)
+        session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
+    else:
+        found = up.find(rf"{event.station} (?:up|restarted) \(pid (\d+)")
+        if found is None:
+            return f"kill {event.station}: no pid (an external station?)"
+        os.kill(int(found.group(1)), signal.SIGKILL)
+    return event.describe()
+
+
+def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[str], None]) -> Result:
+    t0 = time.monotonic()
+    system_id = f"{scenario.name}-{os.getpid()}-{index}"[-64:]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    up = System(scenario, system_id, out_dir, say)
+    run = Run({})
+    lock = threading.Lock()
+    t_up = [0.0]
+
+    def on_state(sample: zenoh.Sample) -> None:
+        try:
+            state = decode(str(sample.key_expr), sample.payload.to_bytes(), "Telemetry").message
+        except BadMessage:
+            return
+        assert isinstance(state, Telemetry)
+        with lock:
+            run.states.append((time.monotonic() - t_up[0], state))
+
+    error = ""
+    try:
+        endpoint = up.wait_for(r"Zenoh endpoint (tcp/\S+)", 30.0)
+        timeout_s = START_TIMEOUT_S + (EXTERNAL_TIMEOUT_S if scenario.external else 0.0)
+        if endpoint is None or up.wait_for(r"all \d stations up", timeout_s) is None:
+            error = "the system did not come up:\n" + "\n".join(up.lines[-20:])
+            up.kill()
+        else:
+            t_up[0] = time.monotonic()
+            say(f"up in {time.monotonic() - t0:.1f} s")
+            session = open_session(zenoh_config(connect=[endpoint.group(1)], mode="client"), "abyss scenario")
+            subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), on_state)
+            try:
+                for event in sorted(scenario.events, key=lambda e: e.at_s):
+                    while time.monotonic() - t_up[0] < event.at_s and up.process.poll() is None:
+                        time.sleep(0.05)
+                    if up.process.poll() is not None:
+                        break
+                    say(f"t={event.at_s:g} s: {apply(event, session, system_id, up)}")
+                    run.killed += event.action == "kill"
+                up.process.wait(timeout=scenario.duration_s + 90.0)
+            except subprocess.TimeoutExpired:
+                error = "abyss up did not stop in time"
+                up.kill()
+            finally:
+                subscriber.undeclare()
+                session.close()
+    finally:
+        up.process.wait()
+        up.reader.join(timeout=5)
+    summary_path = out_dir / "summary.json"
+    if summary_path.exists():
+        run.summary = json.loads(summary_path.read_text())
+    elif not error:
+        error = "no summary.json:\n" + "\n".join(up.lines[-20:])
+    commands_path = out_dir / "commands.json"
+    run.commands = json.loads(commands_path.read_text()) if commands_path.exists() else []
+    (out_dir / "output.log").write_text("\n".join(up.lines) + "\n")
+    verdicts = judge(run, scenario.assertions) if not error else []
+    failed = {v.assertion.kind for v in verdicts if not v.passed}
+    passed = not error and failed == set(scenario.expect_failed)
+    if (out_dir / "control.csv").exists():
+        from stations.plot import plot_run
+
+        try:
+            plot_run(out_dir)
+        except (AbyssError, OSError) as exc:  # too short a run to plot
+            say(f"no plots: {exc}")
+    return Result(scenario, out_dir, verdicts, passed, time.monotonic() - t0, error)
+
+
+def run_all(scenarios: Sequence[Scenario], out_dir: Path, parallel: int) -> list[Result]:
+    """Every scenario, `parallel` at a time, with a line of progress per step."""
+    lock = threading.Lock()
+    total = len(scenarios)
+
+    def one(item: tuple[int, Scenario]) -> Result:
+        index, scenario = item
+
+        def say(text: str) -> None:
+            with lock:
+                print(f"[{index + 1}/{total} {scenario.name}] {text}", flush=True)
+
+        say(f"starting ({scenario.use}): {scenario.description}".rstrip(": "))
+        result = run_scenario(scenario, out_dir / "runs" / f"{index:02d}-{scenario.name}", index, say)
+        held = sum(v.passed for v in result.verdicts)
+        say(
+            f"{'PASS' if result.passed else 'FAIL'} in {result.wall_s:.0f} s: {held}/{len(result.verdicts)} "
+            f"assertions held"
+            + (f" (expected to fail: {', '.join(scenario.expect_failed)})" if scenario.expect_failed else "")
+            + (f"; {result.error}" if result.error else "")
+        )
+        for v in result.verdicts:
+            say(f"    {'ok  ' if v.passed else 'FAIL'} {v.assertion.describe()}: {v.detail}")
+        return result
+
+    with ThreadPoolExecutor(max_workers=parallel) as pool:
+        return list(pool.map(one, enumerate(scenarios)))

@@ -1,0 +1,197 @@
+"""A validation scenario, read from TOML: which stations run (and which are the user's own),
+each hop's profile, configuration overrides, timed events (link changes, faults, a station
+killed) and the assertions that make the verdict. A bad file fails at load with the file, the
+field and what is allowed."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from common import keys
+from common.config import load
+from common.errors import ConfigError
+from common.messages import FAULTS
+from linkemu.profile import load_profiles
+
+USES = ("distributed", "interface", "degradation", "parallel", "fault-recovery")
+ACTIONS = ("link", "fault", "kill")
+# assertion kind -> the fields it takes (beyond `kind`), each with its type
+ASSERTIONS: dict[str, dict[str, type]] = {
+    "mission_done": {"within_s": float},
+    "final_error": {"vehicle_m": float, "ee_m": float, "ee_deg": float},
+    "failsafe": {"from_s": float, "to_s": float, "enter_within_s": float, "leave_within_s": float},
+    "commands_answered": {},
+    "scene": {"min_occupied_cells": float, "objects": list},
+    "link": {"hop": str, "direction": str, "stat": str, "max": float, "min": float},
+    "stations": {"max_restarts": float},
+    "deadlines": {"min_met": float},
+}
+
+
+@dataclass(frozen=True)
+class Event:
+    at_s: float  # after all stations are up [s]
+    action: str  # link | fault | kill
+    hop: str = ""
+    profile: str = ""
+    fault: str = ""
+    target: str = ""
+    value: float = 0.0
+    station: str = ""
+
+    def describe(self) -> str:
+        if self.action == "link":
+            return f"link {self.hop} -> {self.profile}"
+        if self.action == "fault":
+            return f"fault {self.fault} {self.target} {self.value:g}".rstrip()
+        return f"kill {self.station}"
+
+
+@dataclass(frozen=True)
+class Assertion:
+    kind: str
+    args: dict[str, Any]
+
+    def describe(self) -> str:
+        return self.kind + "".join(f" {k}={v}" for k, v in self.args.items())
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    path: Path
+    description: str
+    use: str
+    duration_s: float
+    stop_when_done: bool
+    external: tuple[str, ...]
+    restart: bool
+    links: dict[str, str]
+    config: tuple[str, ...]  # section.field=value, as --set
+    events: tuple[Event, ...]
+    assertions: tuple[Assertion, ...]
+    expect_failed: tuple[str, ...] = field(default=())  # assertion kinds that must fail
+
+
+def _take(table: dict[str, Any], name: str, kind: type, where: str, default: Any = None) -> Any:
+    if name not in table:
+        if default is None:
+            raise ConfigError(f"{where}.{name}", "is required")
+        return default
+    value = table.pop(name)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
+        raise ConfigError(f"{where}.{name}", f"expected {kind.__name__}, got {value!r}")
+    return value
+
+
+def _no_more(table: dict[str, Any], where: str, allowed: list[str]) -> None:
+    if table:
+        raise ConfigError(f"{where}.{sorted(table)[0]}", f"unknown field; allowed: {', '.join(allowed)}")
+
+
+def _choice(value: str, allowed: tuple[str, ...] | list[str], where: str) -> str:
+    if value not in allowed:
+        raise ConfigError(where, f"{value!r} not one of {', '.join(allowed)}")
+    return value
+
+
+def _event(table: dict[str, Any], where: str) -> Event:
+    table = dict(table)
+    at_s = _take(table, "at_s", float, where)
+    action = _choice(_take(table, "action", str, where), ACTIONS, f"{where}.action")
+    if action == "link":
+        hop = keys.check_hop(_take(table, "hop", str, where))
+        name = _take(table, "profile", str, where)
+        _choice(name, list(load_profiles()), f"{where}.profile")
+        event = Event(at_s, action, hop=hop, profile=name)
+    elif action == "fault":
+        fault = _choice(_take(table, "fault", str, where), FAULTS, f"{where}.fault")
+        event = Event(
+            at_s,
+            action,
+            fault=fault,
+            target=_take(table, "target", str, where, ""),
+            value=_take(table, "value", float, where, 0.0),
+        )
+    else:
+        event = Event(at_s, action, station=keys.check_station(_take(table, "station", str, where)))
+    _no_more(table, where, [f for f in Event.__dataclass_fields__ if f != "action"])
+    return event
+
+
+def _assertion(table: dict[str, Any], where: str) -> Assertion:
+    table = dict(table)
+    kind = _choice(_take(table, "kind", str, where), list(ASSERTIONS), f"{where}.kind")
+    fields = ASSERTIONS[kind]
+    args = {name: _take(table, name, fields[name], where) for name in list(table) if name in fields}
+    _no_more(table, where, list(fields))
+    return Assertion(kind, args)
+
+
+def load_scenario(path: Path) -> Scenario:
+    try:
+        table = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError("scenario", f"cannot read: {exc}", str(path)) from None
+    try:
+        return _scenario(table, path)
+    except ConfigError as exc:
+        raise ConfigError(exc.field, exc.reason, str(path)) from None
+
+
+def _scenario(table: dict[str, Any], path: Path) -> Scenario:
+    name = _take(table, "name", str, "scenario")
+    keys.check_system_id(name)
+    links = _take(table, "links", dict, "scenario", {})
+    for hop, profile in links.items():
+        keys.check_hop(hop)
+        _choice(profile, list(load_profiles()), f"links.{hop}")
+    overrides = tuple(f"{k}={v}" for k, v in _take(table, "config", dict, "scenario", {}).items())
+    load(None, [*overrides, *(f"links.{hop}={p}" for hop, p in links.items())])  # fails here if bad
+    scenario = Scenario(
+        name=name,
+        path=path,
+        description=_take(table, "description", str, "scenario", ""),
+        use=_choice(_take(table, "use", str, "scenario"), USES, "use"),
+        duration_s=_take(table, "duration_s", float, "scenario"),
+        stop_when_done=_take(table, "stop_when_done", bool, "scenario", True),
+        external=tuple(keys.check_station(s) for s in _take(table, "external", list, "scenario", [])),
+        restart=_take(table, "restart", bool, "scenario", False),
+        links=links,
+        config=overrides,
+        events=tuple(
+            _event(e, f"events[{i}]") for i, e in enumerate(_take(table, "events", list, "scenario", []))
+        ),
+        assertions=tuple(
+            _assertion(a, f"assert[{i}]") for i, a in enumerate(_take(table, "assert", list, "scenario"))
+        ),
+        expect_failed=tuple(_take(table, "expect_failed", list, "scenario", [])),
+    )
+    _no_more(
+        table,
+        "scenario",
+        [
+            "name",
+            "description",
+            "use",
+            "duration_s",
+            "stop_when_done",
+            "external",
+            "restart",
+            "links",
+            "config",
+            "events",
+            "assert",
+            "expect_failed",
+        ],
+    )
+    for kind in scenario.expect_failed:
+        _choice(kind, [a.kind for a in scenario.assertions], "expect_failed")
+    if not scenario.assertions:
+        raise ConfigError("assert", "a scenario needs at least one assertion")
+    return scenario

@@ -81,7 +81,8 @@ def run_check(endpoint: str, system: str, station: str, duration_s: float) -> in
     for r in reports:
         nominal = f"{r.nominal_hz:g} Hz" if r.nominal_hz else "event"
         verdict = "ok" if r.passed else f"FAIL: {r.reason}"
-        print(f"  {r.key:<48} {r.message:<18} {nominal:>8} {r.rate_hz:>6.2f}Hz {r.received:>8} {r.invalid:>7}  {verdict}")
+        print(f"  {r.key:<48} {r.message:<18} {nominal:>8} {r.rate_hz:>6.2f}Hz {r.received:>8} "
+              f"{r.invalid:>7}  {verdict}")
     periodic_silent = [r for r in reports if r.nominal_hz and not r.received]
     failed = [r for r in reports if not r.passed]
     events = [r.key for r in reports if not r.nominal_hz and not r.received]

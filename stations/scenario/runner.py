@@ -129,11 +129,15 @@ def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> s
     return event.describe()
 
 
-def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[str], None]) -> Result:
+def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[str], None],
+                 started: Callable[[System, str], None] | None = None) -> Result:
+    """Run one scenario to its end; `started(system, system_id)` is called once `abyss up` runs."""
     t0 = time.monotonic()
     system_id = f"{scenario.name}-{os.getpid()}-{index}"[-64:]
     out_dir.mkdir(parents=True, exist_ok=True)
     up = System(scenario, system_id, out_dir, say)
+    if started is not None:
+        started(up, system_id)
     run = Run({})
     lock = threading.Lock()
     t_up = [0.0]

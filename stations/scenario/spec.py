@@ -144,6 +144,14 @@ def load_scenario(path: Path) -> Scenario:
         raise ConfigError(exc.field, exc.reason, str(path)) from None
 
 
+def scenario_of(table: dict[str, Any], where: str = "<table>") -> Scenario:
+    """A scenario from a table shaped as the TOML file (for tests that build their own)."""
+    try:
+        return _scenario(dict(table), Path(where))
+    except ConfigError as exc:
+        raise ConfigError(exc.field, exc.reason, where) from None
+
+
 def _scenario(table: dict[str, Any], path: Path) -> Scenario:
     name = _take(table, "name", str, "scenario")
     keys.check_system_id(name)

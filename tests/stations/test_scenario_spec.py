@@ -1,0 +1,82 @@
+"""Scenario files: every file of the library loads; a bad one is refused at load, naming the file,
+the field and what is allowed; assertions judge the figures a run leaves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.errors import ConfigError
+from common.messages import Telemetry
+from stations.scenario.checks import Run, judge
+from stations.scenario.spec import USES, Assertion, load_scenario, scenario_of
+
+LIBRARY = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
+MINIMAL = {"name": "x", "use": "degradation", "duration_s": 10, "assert": [{"kind": "stations"}]}
+
+
+def test_the_library_loads_and_covers_the_five_uses_but_parallel() -> None:
+    scenarios = [load_scenario(p) for p in LIBRARY]
+    assert len(scenarios) >= 9
+    assert {s.use for s in scenarios} == set(USES) - {"parallel"}  # parallel is how they run, not a file
+    assert [s.name for s in scenarios if s.expect_failed] == ["satellite-down"]
+
+
+@pytest.mark.parametrize(("change", "field", "allowed"), [
+    ({"use": "fun"}, "use", "degradation"),
+    ({"links": {"satellite": "fast"}}, "links.satellite", "satellite-storm"),
+    ({"links": {"radio": "ideal"}}, "hop", "tether"),
+    ({"events": [{"at_s": 1, "action": "explode"}]}, "events[0].action", "link, fault, kill"),
+    ({"events": [{"at_s": 1, "action": "fault", "fault": "leak"}]}, "events[0].fault", "thruster"),
+    ({"events": [{"at_s": 1, "action": "kill", "station": "shore"}]}, "station", "onshore"),
+    ({"assert": [{"kind": "vibes"}]}, "assert[0].kind", "mission_done"),
+    ({"assert": [{"kind": "mission_done", "within": 3}]}, "assert[0].within", "within_s"),
+    ({"assert": [{"kind": "mission_done", "within_s": "soon"}]}, "assert[0].within_s", "float"),
+    ({"config": {"mission.position_tolerance_m": -1}}, "mission.position_tolerance_m", "positive"),
+    ({"expect_failed": ["scene"]}, "expect_failed", "stations"),
+    ({"colour": "red"}, "scenario.colour", "duration_s"),
+    ({"assert": []}, "assert", "at least one"),
+])  # fmt: skip
+def test_a_bad_scenario_is_refused_naming_the_field(change: dict, field: str, allowed: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        scenario_of({**MINIMAL, **change}, "bad.toml")
+    assert error.value.field.endswith(field) and allowed in str(error.value), str(error.value)
+    assert str(error.value).startswith("bad.toml: ")
+
+
+def test_an_unreadable_file_names_itself(tmp_path: Path) -> None:
+    (tmp_path / "broken.toml").write_text("name = ")
+    with pytest.raises(ConfigError, match=r"broken\.toml: scenario: cannot read"):
+        load_scenario(tmp_path / "broken.toml")
+
+
+def state(failsafe: str) -> Telemetry:
+    z = np.zeros(3)
+    return Telemetry(z, 0.0, "hold" if failsafe else "moving", 1, 0, 3, z, 0.0, "idle", -1, z, 0.0, z,
+                     np.array([1.0, 0, 0, 0]), np.zeros(6), failsafe, 1, 0.0)  # fmt: skip
+
+
+def test_the_failsafe_assertion_times_entry_and_exit() -> None:
+    times = np.arange(0, 30, 0.1)
+    states = [(t, state("tether link reported down" if 8.5 <= t < 19.0 else "")) for t in times]
+    run = Run({}, states=states)
+    window = {"from_s": 8.0, "to_s": 16.0, "enter_within_s": 1.0}
+    held, late = judge(run, (Assertion("failsafe", {**window, "leave_within_s": 5.0}),
+                             Assertion("failsafe", {**window, "leave_within_s": 2.0})))  # fmt: skip
+    assert held.passed and "entered 0.5 s after" in held.detail
+    assert not late.passed and "not left within 2 s" in late.detail
+    never = judge(Run({}, states=[(t, state("")) for t in times]), (Assertion("failsafe", window),))
+    assert not never[0].passed
+
+
+def test_commands_and_links_are_judged_from_the_run() -> None:
+    summary = {"links": {"satellite": {"vessel->onshore": {"delay_p50_ms": 240.0}}}}
+    commands = [{"command": "arm", "command_id": 3, "sends": 4, "answered": False}]
+    delay = {"hop": "satellite", "direction": "vessel->onshore", "stat": "delay_p50_ms"}
+    verdicts = judge(Run(summary, commands=commands), (
+        Assertion("commands_answered", {}), Assertion("link", {**delay, "max": 300.0}),
+        Assertion("link", {**delay, "min": 300.0})))  # fmt: skip
+    assert [v.passed for v in verdicts] == [False, True, False]
+    assert "unanswered: arm 3" in verdicts[0].detail

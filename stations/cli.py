@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import os
 import sys
 import time
@@ -95,7 +96,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_station(args: argparse.Namespace) -> int:
     from stations.runtime import configure_logging, run_station
     configure_logging(args.verbose)
-    return run_station(args.name, _config(args), args.listen, args.connect, args.status_file, args.link)
+    code = run_station(args.name, _config(args), args.listen, args.connect, args.status_file, args.link)
+    # everything is closed and written: leave without the interpreter's finalisation, which
+    # aborts the process ("exception not rethrown") when a daemon thread is still inside
+    # native code (an octree insertion, an ICP) as it tears the threads down
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def cmd_keys(_args: argparse.Namespace) -> int:

@@ -90,7 +90,8 @@ class System:
         assert self.process.stdout is not None
         for line in self.process.stdout:
             self.lines.append(line.rstrip("\n"))
-            if "waiting for external station" in line or "died with exit code" in line or "restarted" in line:
+            if line.startswith("abyss:") and any(
+                    what in line for what in ("waiting for external station", "died with exit code", "restarted")):
                 self.say(line.strip().removeprefix("abyss: ").strip())
 
     def find(self, pattern: str) -> re.Match[str] | None:

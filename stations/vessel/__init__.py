@@ -57,7 +57,7 @@ def run(config: Config, bus: Bus) -> None:
             forwarded_seq, last_relay_s = latest.seq, now_s
         if not rate.sleep():
             break
-    scene.join(timeout=5.0)
+    scene.join(timeout=30.0)  # one loop at most: an octree insertion, a recognition
 
 
 def _scene_loop(config: Config, bus: Bus) -> None:

@@ -1,0 +1,100 @@
+"""The scenario library as CI runs it: `abyss scenario run --parallel 2` passes every scenario
+(the one meant to fail fails on the assertions it names), JUnit XML and the report say so, two
+systems at once give the verdicts one at a time gives, and a scenario with an external
+station passes with that station started by hand, through the pytest plugin's fixture, while
+`abyss check` tests the external station's interface."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, abyss
+
+pytestmark = [pytest.mark.e2e]
+LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))
+SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]
+COMPARED = ("satellite-down", "tether-outage")  # run again one at a time
+
+
+def verdicts(junit: Path) -> dict[str, tuple[str, ...]]:
+    """Per scenario: 'passed', or the messages of its failure."""
+    cases = ET.parse(junit).getroot().iter("testcase")
+    return {c.get("name", ""): tuple(f.get("message", "") for f in c if f.tag in ("failure", "error"))
+            or ("passed",) for c in cases}  # fmt: skip
+
+
+def assertion_outcomes(report: Path, name: str) -> list[tuple[str, str]]:
+    """(assertion, held) rows of one scenario's section of the Markdown report."""
+    section = report.read_text().split(f"## {name}\n", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"^\| `([^`]+)` \| (yes|no) \|", section, flags=re.MULTILINE)
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.CompletedProcess[str], Path]:
+    out = tmp_path_factory.mktemp("library")
+    done = abyss("scenario", "run", *map(str, SELF_CONTAINED), "--parallel", "2", "--report", str(out),
+                 "--junit", str(out / "junit.xml"), timeout_s=900)  # fmt: skip
+    return done, out
+
+
+@pytest.mark.timeout(960)
+def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedProcess[str], Path]) -> None:
+    done, out = library
+    assert done.returncode == 0, done.stdout[-6000:] + done.stderr
+    assert f"{len(SELF_CONTAINED)}/{len(SELF_CONTAINED)} scenarios passed" in done.stdout
+    assert set(verdicts(out / "junit.xml").values()) == {("passed",)}
+    # the scenario meant to fail failed on exactly the assertions it names, and the others held
+    down = dict(assertion_outcomes(out / "report.md", "satellite-down"))
+    assert down == {"mission_done within_s=20.0": "no", "commands_answered": "no", "stations": "yes"}
+    assert all(held == "yes" for _, held in assertion_outcomes(out / "report.md", "tether-outage"))
+    assert "failsafe from_s=8.0" in (out / "report.md").read_text()
+    run_dirs = sorted((out / "runs").iterdir())
+    assert len(run_dirs) == len(SELF_CONTAINED)
+    for run in run_dirs:  # each its own system: its own id in its own summary, a recording, plots
+        summary = (run / "summary.json").read_text()
+        assert f'"system": "{run.name.split("-", 1)[1]}-' in summary
+        assert (run / "onshore.rrd").stat().st_size > 0
+    assert (out / "runs" / "00-nominal" / "ee_position_error.png").exists()
+    # a killed vessel was restarted and the system carried on
+    crash = next(r for r in run_dirs if r.name.endswith("vessel-crash"))
+    assert '"restarts": 1' in (crash / "summary.json").read_text()
+
+
+@pytest.mark.timeout(960)
+def test_one_at_a_time_gives_the_same_verdicts(library: tuple[subprocess.CompletedProcess[str], Path],
+                                               tmp_path: Path) -> None:  # fmt: skip
+    _, parallel = library
+    files = [str(ROOT / "scenarios" / f"{name}.toml") for name in COMPARED]
+    done = abyss("scenario", "run", *files, "--parallel", "1", "--report", str(tmp_path), timeout_s=600)
+    assert done.returncode == 0, done.stdout[-4000:]
+    for name in COMPARED:
+        one_at_a_time = assertion_outcomes(tmp_path / "report.md", name)
+        assert one_at_a_time == assertion_outcomes(parallel / "report.md", name)
+
+
+@pytest.mark.timeout(300)
+def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    system = abyss_system(ROOT / "scenarios" / "external-onboard.toml")
+    line = system.wait_for(r"waiting for external station onboard: start it with `(abyss station [^`]+)`")
+    silent = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,
+                   "--duration", "2")  # nothing of onboard's yet: the check must fail
+    assert silent.returncode == 1 and "FAIL: 0.00 Hz, nominal 20 Hz" in silent.stdout, silent.stdout
+    own = subprocess.Popen([sys.executable, "-m", "stations.cli", *line.group(1).split()[1:]], cwd=ROOT,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)  # as the team starts theirs
+    try:
+        system.wait_for(r"all 4 stations up", 60.0)
+        checked = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,
+                        "--duration", "4")  # fmt: skip
+        assert checked.returncode == 0, checked.stdout + checked.stderr
+        assert "abyss check: onboard: 6/6 keys pass" in checked.stdout
+        result = system.result(timeout_s=240)
+    finally:
+        own.terminate()
+        own.wait(timeout=30)
+    assert result.passed, [(v.assertion.kind, v.detail) for v in result.verdicts] + [result.error]
+    assert '"external": true' in (result.out_dir / "summary.json").read_text()

@@ -32,6 +32,7 @@ from stations.scenario.spec import Event, Scenario
 ROOT = Path(__file__).resolve().parents[2]
 START_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 180.0
+SHOWN = ("waiting for external station", "died with exit code", "restarted")  # abyss up's lines passed on
 
 
 @dataclass
@@ -90,8 +91,7 @@ class System:
         assert self.process.stdout is not None
         for line in self.process.stdout:
             self.lines.append(line.rstrip("\n"))
-            if line.startswith("abyss:") and any(
-                    what in line for what in ("waiting for external station", "died with exit code", "restarted")):
+            if line.startswith("abyss:") and any(what in line for what in SHOWN):
                 self.say(line.strip().removeprefix("abyss: ").strip())
 
     def find(self, pattern: str) -> re.Match[str] | None:

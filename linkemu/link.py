@@ -15,7 +15,7 @@ import heapq
 import itertools
 import math
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -157,9 +157,11 @@ class Link:
         self.profile = profile
         self.pipeline.configure(profile)
 
-    def in_flight(self) -> int:
-        """Messages offered and neither delivered nor lost yet."""
-        return len(self._messages)
+    def in_flight(self, tags: Container[Any] | None = None) -> int:
+        """Messages offered and neither delivered nor lost yet (of those tagged one of `tags`)."""
+        if tags is None:
+            return len(self._messages)
+        return sum(m.tag in tags for m in self._messages.values())
 
     def snapshot(self) -> dict[str, float]:
         stats: dict[str, float] = {k: float(v) for k, v in self.counters.items()}

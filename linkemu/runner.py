@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from typing import Any
 
 import numpy as np
@@ -38,10 +38,10 @@ class LinkRunner:
     def profile(self) -> LinkProfile:
         return self.link.profile
 
-    def in_flight(self) -> int:
-        """Messages offered and neither delivered nor lost yet."""
+    def in_flight(self, tags: Container[Any] | None = None) -> int:
+        """Messages offered and neither delivered nor lost yet (of those tagged one of `tags`)."""
         with self._cond:
-            return self.link.in_flight()
+            return self.link.in_flight(tags)
 
     def _direct(self) -> bool:
         return self.passthrough or self.link.profile.is_ideal

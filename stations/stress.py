@@ -112,7 +112,7 @@ def run_resolution(
             next_telemetry_s += TELEMETRY_PERIOD_S
         stats = link.snapshot()
         pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
-        while pacer.allows(link.in_flight()):
+        while pacer.allows(link.in_flight({"scene"})):
             update = model.next_update(now_s)
             if update is None:
                 break

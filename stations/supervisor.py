@@ -115,7 +115,7 @@ class Up:
         log_path = self.out_dir / f"{name}.log"
         status_path = self.out_dir / f"{name}.json"
         command = [sys.executable, "-m", "stations.cli", "station", name, "--config", str(config_path),
-                   "--listen", f"tcp/127.0.0.1:{free_port()}", "--connect", self.endpoint,
+                   "--listen", "tcp/127.0.0.1:0", "--connect", self.endpoint,
                    "--status-file", str(status_path), "--link", self.link_mode]
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from common import keys
 from common.bus import Bus
 from common.clouds import unpack_cloud
 from common.config import Config
@@ -71,6 +72,7 @@ def _scene_loop(config: Config, bus: Bus) -> None:
     model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
     tracker = PanelTracker()
     satellite = bus.links["satellite"]
+    bulk_keys = {keys.spec("vessel", topic).key(bus.system) for topic in ("scene", "image")}  # paced
     first_guess_bps = ScenePacer.first_guess(satellite.profile.rate_bps, cfg.satellite_capacity_bps)
     pacer = ScenePacer(cfg.scene_share, first_guess_bps,
                        cfg.scene_update_bytes)
@@ -110,7 +112,7 @@ def _scene_loop(config: Config, bus: Bus) -> None:
                 bus.publish("objects", objects)
         stats = satellite.snapshot()
         pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
-        while pacer.allows(satellite.in_flight()):
+        while pacer.allows(satellite.in_flight(bulk_keys)):
             if image is not None and now_s - last_image_s >= cfg.image_period_s:
                 last_image_s = now_s
                 assert isinstance(image.message, Image)

@@ -4,7 +4,8 @@ link's capacity as measured, so that telemetry on the same link is never starved
 Capacity is measured the way a sender can: bytes the link delivered per second while it had
 a backlog the whole time (an idle link says nothing about its capacity). The first guess is the
 emulated profile's rate, else `satellite_capacity_bps`. One scene update at most is in flight
-at once, so telemetry never queues behind more than one update."""
+at once (counted among the link's messages in flight by key, so that telemetry in flight does
+not hold the scene back), so telemetry never queues behind more than one update."""
 
 from __future__ import annotations
 
@@ -36,9 +37,10 @@ class ScenePacer:
             )
         self._last_s, self._last_delivered, self._busy = now_s, bytes_delivered, in_flight > 0
 
-    def allows(self, in_flight: float) -> bool:
-        """Whether the next update may go now (it may take the bucket into debt)."""
-        return self.tokens_bytes > 0 and in_flight <= 1
+    def allows(self, updates_in_flight: int) -> bool:
+        """Whether the next update may go now (it may take the bucket into debt): tokens left and
+        no update of ours still in flight."""
+        return self.tokens_bytes > 0 and updates_in_flight == 0
 
     def sent(self, nbytes: int) -> None:
         self.tokens_bytes -= nbytes

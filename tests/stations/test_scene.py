@@ -252,15 +252,15 @@ def test_pacer_measures_capacity_while_backlogged_and_keeps_one_update_in_flight
         delivered += 1e6 / 8 * 0.05
         pacer.observe(step * 0.05, delivered, in_flight=3)
     assert pacer.capacity_bps == pytest.approx(1e6, rel=0.01)
-    assert not pacer.allows(in_flight=2) and pacer.allows(in_flight=1)
+    assert not pacer.allows(updates_in_flight=1) and pacer.allows(updates_in_flight=0)
     pacer.sent(100_000)  # a big update: the bucket goes into debt, refilled at half of 1 Mbit/s
-    assert not pacer.allows(in_flight=0)
+    assert not pacer.allows(updates_in_flight=0)
     t = 200 * 0.05
     for step in range(1, 20):
         pacer.observe(t + step * 0.05, delivered, in_flight=0)  # idle: capacity not measured
     assert pacer.capacity_bps == pytest.approx(1e6, rel=0.01)
     assert pacer.tokens_bytes == pytest.approx(16_000 - 100_000 + 1.0 * 62_500)  # 1 s later: still owed
-    assert not pacer.allows(in_flight=0)
+    assert not pacer.allows(updates_in_flight=0)
     for step in range(20, 40):
         pacer.observe(t + step * 0.05, delivered, in_flight=0)
-    assert pacer.allows(in_flight=0)
+    assert pacer.allows(updates_in_flight=0)

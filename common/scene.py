@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -155,7 +156,8 @@ class CellSet:
 
 
 class SceneModel:
-    """The vessel's octree, what of it shore has, and what is queued to go."""
+    """The vessel's octree, what of it shore has, and what is queued to go. One thread may
+    insert while another takes updates: the queue is guarded, the octree is the inserter's."""
 
     def __init__(self, resolution_m: float, max_range_m: float, max_update_bytes: int = 16_000) -> None:
         self.resolution_m = resolution_m
@@ -167,6 +169,7 @@ class SceneModel:
         self.seq = -1
         self.snapshot_due = True
         self._bytes_per_cell = 0.05  # learnt from each update, to size the next
+        self._lock = threading.Lock()  # over published, pending, seq, snapshot_due
 
     def insert(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray) -> None:
         """Integrate one cloud (rays from the sensor) and queue the cells whose state changed."""
@@ -192,6 +195,10 @@ class SceneModel:
         keys, first = np.unique(keys, return_index=True)  # a leaf on the box's edge is listed once
         owners = owners[first]
         state, rgb = occupied[owners], colors[owners]
+        with self._lock:
+            self._queue(keys, state, rgb)
+
+    def _queue(self, keys: np.ndarray, state: np.ndarray, rgb: np.ndarray) -> None:
         where, known = self.published.find(keys)
         same = known  # all False while nothing is published
         if len(self.published):
@@ -204,11 +211,16 @@ class SceneModel:
 
     def request_snapshot(self) -> None:
         """Shore lost track: send everything again, starting with a snapshot."""
-        self.snapshot_due = True
+        with self._lock:
+            self.snapshot_due = True
 
     def next_update(self, sim_time_s: float) -> SceneUpdate | None:
         """The next update to send, at most `max_update_bytes` of octree and colours; None if
         shore is up to date. Occupied cells go before free ones, each in key order."""
+        with self._lock:
+            return self._next_update(sim_time_s)
+
+    def _next_update(self, sim_time_s: float) -> SceneUpdate | None:
         kind = "delta"
         if self.snapshot_due:
             self.snapshot_due, kind = False, "snapshot"
@@ -247,7 +259,8 @@ class SceneModel:
 
     def binary(self) -> bytes:
         """The whole published map in OctoMap's binary format (what shore must hold)."""
-        return write_cells(self.published.keys, self.published.occupied, self.resolution_m)
+        with self._lock:
+            return write_cells(self.published.keys, self.published.occupied, self.resolution_m)
 
 
 class SceneReceiver:

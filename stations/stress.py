@@ -110,8 +110,7 @@ def run_resolution(
             offered["telemetry"] += 1
             link.offer(now_s, telemetry, tag="telemetry")
             next_telemetry_s += TELEMETRY_PERIOD_S
-        stats = link.snapshot()
-        pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
+        pacer.observe(now_s, link.snapshot()["bytes_delivered"], link.in_flight({"scene"}))
         while pacer.allows(link.in_flight({"scene"})):
             update = model.next_update(now_s)
             if update is None:

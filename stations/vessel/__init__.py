@@ -9,17 +9,21 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from common import keys
-from common.bus import Bus
+from common.bus import Bus, Inbox
 from common.clouds import unpack_cloud
 from common.config import Config
 from common.images import decode_image, downscale
 from common.messages import Heartbeat, Image, PointCloud
 from common.rate import Rate
 from stations.vessel.pacing import ScenePacer
+
+if TYPE_CHECKING:
+    from common.scene import SceneModel
 
 RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode"}
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
@@ -62,33 +66,31 @@ def run(config: Config, bus: Bus) -> None:
 
 
 def _scene_loop(config: Config, bus: Bus) -> None:
+    """Integrate the clouds and recognise the panel; a thread of its own (`_send_loop`) streams
+    the result, so that a slow insertion (a second or more for a stereo cloud on a loaded
+    machine) never holds the stream back."""
     from common.scene import SceneModel
     from stations.vessel.recognition import PanelTracker
 
     cfg = config.vessel
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)
     images = bus.subscribe("onboard", "image", maxlen=2)
-    requests = bus.subscribe("onshore", "scene_request")
     model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
     tracker = PanelTracker()
-    satellite = bus.links["satellite"]
-    bulk_keys = {keys.spec("vessel", topic).key(bus.system) for topic in ("scene", "image")}  # paced
-    first_guess_bps = ScenePacer.first_guess(satellite.profile.rate_bps, cfg.satellite_capacity_bps)
-    pacer = ScenePacer(cfg.scene_share, first_guess_bps,
-                       cfg.scene_update_bytes)
+    sim_time_s = [0.0]  # of the latest cloud, shared with the sender
+    sender = threading.Thread(target=_send_loop, args=(config, bus, model, images, sim_time_s),
+                              name="scene send", daemon=True)
+    sender.start()
     rate = Rate(POLL_PERIOD_S, bus.stop)
-    last_recognition_s = last_image_s = -float("inf")
-    sim_time_s = 0.0
+    last_recognition_s = -float("inf")
     points: np.ndarray | None = None
     while rate.sleep():
-        if requests.drain():
-            model.request_snapshot()
         for received in clouds.drain():
             assert isinstance(received.message, PointCloud)
             cloud = received.message
             cloud_points, colors = unpack_cloud(cloud)
             model.insert(cloud_points, colors, cloud.sensor_m_world)
-            sim_time_s = cloud.sim_time_s
+            sim_time_s[0] = cloud.sim_time_s
             if cloud.source == "depth" or points is None:
                 points = cloud_points
         now_s = time.monotonic()
@@ -107,12 +109,30 @@ def _scene_loop(config: Config, bus: Bus) -> None:
                 except ValueError as exc:
                     bus.reject(image.key, str(exc))
             tracker.update(rgb, image.message if image is not None else None, points)  # type: ignore[arg-type]
-            objects = tracker.objects(sim_time_s)
+            objects = tracker.objects(sim_time_s[0])
             if objects is not None:
                 bus.publish("objects", objects)
-        stats = satellite.snapshot()
-        pacer.observe(now_s, stats["bytes_delivered"], stats["in_flight"])
+    sender.join(timeout=10.0)
+
+
+def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox,
+               sim_time_s: list[float]) -> None:
+    """Scene updates, and now and then a small camera frame, paced for the satellite link."""
+    cfg = config.vessel
+    requests = bus.subscribe("onshore", "scene_request")
+    satellite = bus.links["satellite"]
+    bulk_keys = {keys.spec("vessel", topic).key(bus.system) for topic in ("scene", "image")}  # paced
+    first_guess_bps = ScenePacer.first_guess(satellite.profile.rate_bps, cfg.satellite_capacity_bps)
+    pacer = ScenePacer(cfg.scene_share, first_guess_bps, cfg.scene_update_bytes)
+    rate = Rate(POLL_PERIOD_S, bus.stop)
+    last_image_s = -float("inf")
+    while rate.sleep():
+        if requests.drain():
+            model.request_snapshot()
+        now_s = time.monotonic()
+        pacer.observe(now_s, satellite.snapshot()["bytes_delivered"], satellite.in_flight(bulk_keys))
         while pacer.allows(satellite.in_flight(bulk_keys)):
+            image = images.latest()
             if image is not None and now_s - last_image_s >= cfg.image_period_s:
                 last_image_s = now_s
                 assert isinstance(image.message, Image)
@@ -124,7 +144,7 @@ def _scene_loop(config: Config, bus: Bus) -> None:
                 bus.publish("image", small)
                 pacer.sent(len(small.data))
                 continue
-            update = model.next_update(sim_time_s)
+            update = model.next_update(sim_time_s[0])
             if update is None:
                 break
             bus.publish("scene", update)

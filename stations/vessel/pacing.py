@@ -1,8 +1,10 @@
 """How fast scene updates may go to shore: a token bucket filled at a share of the satellite
 link's capacity as measured, so that telemetry on the same link is never starved.
 
-Capacity is measured the way a sender can: bytes the link delivered per second while it had
-a backlog the whole time (an idle link says nothing about its capacity). The first guess is the
+Capacity is measured the way a sender can: bytes the link delivered per second while one of
+our updates was in flight the whole time (an idle link says nothing about its capacity, and
+telemetry in flight alone says only how little telemetry there is: counting it made the
+estimate sink to telemetry's rate and starve the scene). The first guess is the
 emulated profile's rate, else `satellite_capacity_bps`. One scene update at most is in flight
 at once (counted among the link's messages in flight by key, so that telemetry in flight does
 not hold the scene back), so telemetry never queues behind more than one update."""
@@ -25,7 +27,8 @@ class ScenePacer:
         self._busy = False
 
     def observe(self, now_s: float, bytes_delivered: float, in_flight: float) -> None:
-        """Feed the link's counters; refills the bucket and updates the capacity estimate."""
+        """Feed the link's delivered bytes and how many of our updates are in flight; refills
+        the bucket and updates the capacity estimate."""
         if self._last_s is not None:
             dt = now_s - self._last_s
             if self._busy and in_flight > 0 and dt > 0:

@@ -214,13 +214,13 @@ class SceneModel:
         with self._lock:
             self.snapshot_due = True
 
-    def next_update(self, sim_time_s: float) -> SceneUpdate | None:
-        """The next update to send, at most `max_update_bytes` of octree and colours; None if
-        shore is up to date. Occupied cells go before free ones, each in key order."""
+    def next_update(self, sim_time_s: float, max_bytes: int | None = None) -> SceneUpdate | None:
+        """The next update to send, at most `max_bytes` (else `max_update_bytes`) of octree and
+        colours; None if shore is up to date. Occupied cells go before free ones, each in key order."""
         with self._lock:
-            return self._next_update(sim_time_s)
+            return self._next_update(sim_time_s, max_bytes or self.max_update_bytes)
 
-    def _next_update(self, sim_time_s: float) -> SceneUpdate | None:
+    def _next_update(self, sim_time_s: float, max_bytes: int) -> SceneUpdate | None:
         kind = "delta"
         if self.snapshot_due:
             self.snapshot_due, kind = False, "snapshot"
@@ -229,15 +229,15 @@ class SceneModel:
             self.pending.merge(pending.keys, pending.occupied, pending.colors)
         elif not len(self.pending):
             return None
-        count = max(1, min(len(self.pending), int(self.max_update_bytes / self._bytes_per_cell)))
+        count = max(1, min(len(self.pending), int(max_bytes / self._bytes_per_cell)))
         while True:
             part = self.pending.take(count)
             update = self._update(kind, part, sim_time_s)
             size = len(update.octree) + update.colors.nbytes
             self._bytes_per_cell = max(size / max(count, 1), 1e-3)
-            if size <= self.max_update_bytes or count == 1:
+            if size <= max_bytes or count == 1:
                 break
-            count = max(1, min(count // 2, int(self.max_update_bytes / self._bytes_per_cell)))
+            count = max(1, min(count // 2, int(max_bytes / self._bytes_per_cell)))
         self.pending.remove(part.keys)
         self.published.merge(part.keys, part.occupied, part.colors)
         self.seq += 1

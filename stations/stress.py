@@ -112,7 +112,7 @@ def run_resolution(
             next_telemetry_s += TELEMETRY_PERIOD_S
         pacer.observe(now_s, link.snapshot()["bytes_delivered"], link.in_flight({"scene"}))
         while pacer.allows(link.in_flight({"scene"})):
-            update = model.next_update(now_s)
+            update = model.next_update(now_s, pacer.update_bytes())
             if update is None:
                 break
             payload = encode(update, update.scene_seq, now_s)

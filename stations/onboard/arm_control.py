@@ -24,6 +24,7 @@ from common.geometry import rotation_of
 from common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
 
 CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist, end-effector
+REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
 VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, heave, yaw rate
 
 
@@ -241,8 +242,11 @@ class ArmController:
             return ArmOutput(zero, None, "idle", np.zeros(3), 0.0, ())
         position_error, rotation_error = self.errors()
         angle = float(np.linalg.norm(rotation_error))
-        within = (np.linalg.norm(position_error) < self.mission.arm_position_tolerance_m
-                  and angle < self.mission.arm_orientation_tolerance_rad)
+        # once settled, the goal stays reached within twice the tolerances, so that navigation
+        # noise at the tolerance's edge does not make the status flicker
+        scale = REACHED_HYSTERESIS if self.within_s >= self.mission.arm_settle_s else 1.0
+        within = (np.linalg.norm(position_error) < scale * self.mission.arm_position_tolerance_m
+                  and angle < scale * self.mission.arm_orientation_tolerance_rad)
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         if not enabled:
             return ArmOutput(zero, None, "hold", position_error, angle, ())

@@ -144,7 +144,7 @@ def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox,
                 bus.publish("image", small)
                 pacer.sent(len(small.data))
                 continue
-            update = model.next_update(sim_time_s[0])
+            update = model.next_update(sim_time_s[0], pacer.update_bytes())
             if update is None:
                 break
             bus.publish("scene", update)

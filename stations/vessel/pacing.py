@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 
 SMOOTHING = 0.3  # weight of a new capacity sample
+HEAD_OF_LINE_S = 0.25  # an update takes at most this long of the link: telemetry's wait behind it [s]
+MIN_UPDATE_BYTES = 1_000
 
 
 class ScenePacer:
@@ -44,6 +46,11 @@ class ScenePacer:
         """Whether the next update may go now (it may take the bucket into debt): tokens left and
         no update of ours still in flight."""
         return self.tokens_bytes > 0 and updates_in_flight == 0
+
+    def update_bytes(self) -> int:
+        """The largest update now: `HEAD_OF_LINE_S` of the measured capacity, within
+        [MIN_UPDATE_BYTES, burst_bytes] (16 kB at 1 Mbit/s, 8 kB in a 256 kbit/s storm)."""
+        return int(min(self.burst_bytes, max(MIN_UPDATE_BYTES, self.capacity_bps / 8.0 * HEAD_OF_LINE_S)))
 
     def sent(self, nbytes: int) -> None:
         self.tokens_bytes -= nbytes

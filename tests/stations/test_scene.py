@@ -252,6 +252,7 @@ def test_pacer_measures_capacity_while_backlogged_and_keeps_one_update_in_flight
         delivered += 1e6 / 8 * 0.05
         pacer.observe(step * 0.05, delivered, in_flight=3)
     assert pacer.capacity_bps == pytest.approx(1e6, rel=0.01)
+    assert pacer.update_bytes() == 16_000  # a quarter second of 1 Mbit/s is 31 kB: the burst caps it
     assert not pacer.allows(updates_in_flight=1) and pacer.allows(updates_in_flight=0)
     pacer.sent(100_000)  # a big update: the bucket goes into debt, refilled at half of 1 Mbit/s
     assert not pacer.allows(updates_in_flight=0)
@@ -264,3 +265,5 @@ def test_pacer_measures_capacity_while_backlogged_and_keeps_one_update_in_flight
     for step in range(20, 40):
         pacer.observe(t + step * 0.05, delivered, in_flight=0)
     assert pacer.allows(updates_in_flight=0)
+    storm = ScenePacer(share=0.5, capacity_bps=256e3, burst_bytes=16_000)
+    assert storm.update_bytes() == 8_000  # telemetry waits a quarter second at most behind one

@@ -40,6 +40,15 @@ def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
     return config
 
 
+def message_of(sample: zenoh.Sample, message: str) -> Message | None:
+    """The `message` a sample carries, or None if its bytes do not decode to one: for tools that
+    listen from outside the stations (which count and log what they drop)."""
+    try:
+        return decode(str(sample.key_expr), sample.payload.to_bytes(), message).message
+    except BadMessage:
+        return None
+
+
 def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
     try:
         return zenoh.open(config)

@@ -15,7 +15,7 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.bus import open_session, zenoh_config
+from common.bus import message_of, open_session, zenoh_config
 from common.config import VIEWERS, Config, load
 from common.errors import AbyssError, BadMessage, ConfigError
 from common.messages import (
@@ -209,12 +209,9 @@ def cmd_fault(args: argparse.Namespace) -> int:
     seen: list[SimulationStatus] = []
 
     def on_status(sample: zenoh.Sample) -> None:
-        try:
-            message = decode(str(sample.key_expr), sample.payload.to_bytes(), "SimulationStatus").message
-        except BadMessage:
-            return
-        assert isinstance(message, SimulationStatus)
-        seen.append(message)
+        message = message_of(sample, "SimulationStatus")
+        if isinstance(message, SimulationStatus):
+            seen.append(message)
 
     try:
         subscriber = session.declare_subscriber(keys.simulation_status_key(args.system), on_status)

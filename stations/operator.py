@@ -12,8 +12,8 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.bus import open_session, zenoh_config
-from common.errors import BadMessage, ConfigError
+from common.bus import message_of, open_session, zenoh_config
+from common.errors import ConfigError
 from common.geometry import quat_wxyz_of, rotation_of_rpy
 from common.messages import (
     OPERATOR_MODES,
@@ -22,7 +22,6 @@ from common.messages import (
     Message,
     OperatorMode,
     Waypoints,
-    decode,
     encode,
 )
 
@@ -71,12 +70,8 @@ def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: fl
     answer: list[CommandAck] = []
 
     def on_ack(sample: zenoh.Sample) -> None:
-        try:
-            ack = decode(str(sample.key_expr), sample.payload.to_bytes(), "CommandAck").message
-        except BadMessage:
-            return
-        assert isinstance(ack, CommandAck)
-        if ack.command_id == command.command_id and ack.command == topic:
+        ack = message_of(sample, "CommandAck")
+        if isinstance(ack, CommandAck) and ack.command_id == command.command_id and ack.command == topic:
             answer.append(ack)
             answered.set()
 

@@ -29,10 +29,9 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.bus import open_session, zenoh_config
-from common.errors import BadMessage
+from common.bus import message_of, open_session, zenoh_config
 from common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from common.messages import ArmGoal, Message, Telemetry, Waypoints, decode, encode
+from common.messages import ArmGoal, Message, Telemetry, Waypoints, encode
 
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
@@ -95,11 +94,9 @@ class Teleop:
         self.sent = 0
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
-        try:
-            message = decode(str(sample.key_expr), sample.payload.to_bytes(), "Telemetry").message
-        except BadMessage:
+        message = message_of(sample, "Telemetry")
+        if not isinstance(message, Telemetry):
             return
-        assert isinstance(message, Telemetry)
         with self.lock:
             self.goals.start_from(message)
 

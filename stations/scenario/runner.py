@@ -23,9 +23,9 @@ from pathlib import Path
 import zenoh
 
 from common import keys
-from common.bus import open_session, zenoh_config
-from common.errors import AbyssError, BadMessage
-from common.messages import LinkControl, SimulationControl, Telemetry, decode, encode
+from common.bus import message_of, open_session, zenoh_config
+from common.errors import AbyssError
+from common.messages import LinkControl, SimulationControl, Telemetry, encode
 from stations.scenario.checks import Run, Verdict, judge
 from stations.scenario.spec import Event, Scenario
 
@@ -144,13 +144,10 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
     t_up = [0.0]
 
     def on_state(sample: zenoh.Sample) -> None:
-        try:
-            state = decode(str(sample.key_expr), sample.payload.to_bytes(), "Telemetry").message
-        except BadMessage:
-            return
-        assert isinstance(state, Telemetry)
-        with lock:
-            run.states.append((time.monotonic() - t_up[0], state))
+        state = message_of(sample, "Telemetry")
+        if isinstance(state, Telemetry):
+            with lock:
+                run.states.append((time.monotonic() - t_up[0], state))
 
     error = ""
     try:

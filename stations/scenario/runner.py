@@ -179,6 +179,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
     finally:
         up.process.wait()
         up.reader.join(timeout=5)
+        if up.process.stdout is not None:
+            up.process.stdout.close()
     summary_path = out_dir / "summary.json"
     if summary_path.exists():
         run.summary = json.loads(summary_path.read_text())

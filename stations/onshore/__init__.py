@@ -199,6 +199,11 @@ class Scene:
             if self.viewer:
                 self.viewer.objects(received.message, received.stamp_s)
         self.show(now_s)
+        if self.receiver.tree is None and now_s - self._last_request_s >= self.request_period_s:
+            reason = "no map yet" if self.receiver.applied == 0 else "missed an update"
+            self.bus.publish("scene_request", SceneRequest(self.receiver.last_seq, reason))
+            self.requests += 1
+            self._last_request_s = now_s
 
     def show(self, now_s: float, final: bool = False) -> None:
         """The whole scene to the viewer, when it changed, at most every `viewer_period_s`."""
@@ -207,11 +212,6 @@ class Scene:
             self.viewer.scene(*self.receiver.occupied_cells(), self.receiver.resolution_m, time.time(),
                               self.sim_time_s)
             self._shown_s, self._shown_applied = now_s, self.receiver.applied
-        if self.receiver.tree is None and now_s - self._last_request_s >= self.request_period_s:
-            reason = "no map yet" if self.receiver.applied == 0 else "missed an update"
-            self.bus.publish("scene_request", SceneRequest(self.receiver.last_seq, reason))
-            self.requests += 1
-            self._last_request_s = now_s
 
     def save(self, directory: Path) -> None:
         """The final scene (a snapshot update) and what it took, in the run directory."""

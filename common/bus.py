@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from collections import Counter, deque
@@ -17,10 +18,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from common import keys
-from common.errors import AbyssError, BadMessage, BusError, ConfigError
+from common import keys, security
+from common.certs import CertFiles
+from common.errors import AbyssError, BadMessage, BusError, ConfigError, LinkError
 from common.messages import LinkControl, LinkStats, Message, Received, decode, encode
 from common.samples import Samples
+from linkemu.netem import interface_towards, netem_args, run_tc, tc_command
 from linkemu.profile import LinkProfile
 from linkemu.profile import profile as named_profile
 from linkemu.runner import LinkRunner
@@ -29,15 +32,50 @@ log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0
 
 
-def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 mode: str = "peer") -> zenoh.Config:
-    """Explicit endpoints, multicast scouting off: stations find each other only where told."""
+ZENOH_PRIORITY = {"control": zenoh.Priority.INTERACTIVE_HIGH, "telemetry": zenoh.Priority.DATA_HIGH,
+                  "bulk": zenoh.Priority.DATA_LOW}
+LARGE_MESSAGE_BYTES = 256 * 1024  # the largest message a slow hop must carry without dropping it
+ZENOH_DEFAULT_WAIT_BEFORE_DROP_S = 0.001
+ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S = 5.0
+
+
+def slow_link_tuning(rate_bps: float) -> dict[str, Any]:
+    """`transport/link/tx/queue/congestion_control` for a link of `rate_bps`: Zenoh drops a DROP
+    message whose batches find the queue full for 1 ms, and closes the link when a BLOCK message
+    waits 5 s; a 256 kB message needs 2.1 s at 1 Mbit/s, so both waits grow with the time the
+    link takes to carry one large message."""
+    serialise_s = 0.0 if math.isinf(rate_bps) else LARGE_MESSAGE_BYTES * 8.0 / rate_bps
+    drop_us = round(1e6 * min(max(ZENOH_DEFAULT_WAIT_BEFORE_DROP_S, serialise_s), 5.0))
+    close_us = round(1e6 * max(ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S, 10.0 * serialise_s))
+    return {"drop": {"wait_before_drop": drop_us, "max_wait_before_drop_fragments": max(drop_us, 50_000)},
+            "block": {"wait_before_close": close_us}}
+
+
+def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), mode: str = "peer", *,
+                 tls: CertFiles | None = None, acl_station: str | None = None,
+                 slowest_rate_bps: float = math.inf) -> zenoh.Config:
+    """Explicit endpoints, multicast scouting off: stations find each other only where told.
+    With `tls`, every endpoint is tls/ and both ends show certificates; with `acl_station`, that
+    station's access control (`common.security`); `slowest_rate_bps` tunes the transmission queue."""
+    security.check_endpoints([*listen, *connect], tls)
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    config.insert_json5("transport/link/tx/queue/congestion_control",
+                        json.dumps(slow_link_tuning(slowest_rate_bps)))
+    if tls is not None:
+        config.insert_json5("transport/link/tls", json.dumps(security.tls_settings(tls.check())))
+    if acl_station is not None:
+        config.insert_json5("access_control", json.dumps(security.access_control(acl_station)))
     return config
+
+
+def client_config(endpoint: str) -> zenoh.Config:
+    """A tool's session with one station or `abyss up` (a tls/ endpoint takes the operator's
+    certificate from $ABYSS_TLS_DIR)."""
+    return zenoh_config(connect=[endpoint], mode="client", tls=security.tool_certificates(endpoint))
 
 
 def message_of(sample: zenoh.Sample, message: str) -> Message | None:
@@ -94,7 +132,13 @@ class Bus:
 
     def __init__(self, system: str, station: str, profiles: dict[str, LinkProfile], *,
                  listen: Sequence[str] = (), connect: Sequence[str] = (), seed: int = 0,
-                 link_mode: str = "emulated") -> None:
+                 link_mode: str = "emulated", mode: str = "peer", tls: CertFiles | None = None,
+                 peers: dict[str, str] | None = None) -> None:
+        """`mode`: Zenoh's (peer under `abyss up`; router where stations on separate hosts
+        form the network themselves, so that a tool at one end reaches all of them); `tls`: this
+        station's certificates, which turn on TLS and access control; `link_mode` netem: the
+        in-process links pass through and each hop's profile is applied with tc/netem to the
+        interface towards the neighbour at `peers[hop]` (default: the neighbour's name)."""
         self.system = keys.check_system_id(system)
         self.station = keys.check_station(station)
         self.stop = threading.Event()
@@ -106,20 +150,30 @@ class Bus:
         self._seq: Counter[str] = Counter()
         self._publish_lock = threading.Lock()
         self._closing: list[Any] = []
-        self.session = open_session(zenoh_config(listen, connect), f"station {station}")
+        hops = keys.hops_of(station)
+        self.refusals = security.refusal_log() if tls is not None else None
+        slowest_bps = min(profiles.get(hop, LinkProfile()).rate_bps for hop in hops)
+        self.session = open_session(zenoh_config(listen, connect, mode, tls=tls,
+                                                 acl_station=station if tls else None,
+                                                 slowest_rate_bps=slowest_bps), f"station {station}")
         self._publishers = {
             s.key(system): self.session.declare_publisher(
                 s.key(system),
                 congestion_control=zenoh.CongestionControl.BLOCK
                 if s.reliability == "reliable" else zenoh.CongestionControl.DROP,
+                priority=ZENOH_PRIORITY[s.priority], express=s.priority == "control",
             )
             for s in keys.KEYS if s.station == station
         }
         self.links: dict[str, LinkRunner] = {}
-        for hop, neighbour in keys.hops_of(station).items():
+        self.netem_devices: dict[str, str] = {}  # hop -> interface shaped by tc/netem
+        for hop, neighbour in hops.items():
             rng = np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
             self.links[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
                                          self._put, rng, passthrough=link_mode == "netem")
+            if link_mode == "netem":
+                self.netem_devices[hop] = interface_towards((peers or {}).get(hop, neighbour))
+                self._apply_netem(hop)
             self._closing.append(self.session.declare_subscriber(
                 keys.link_key(system, hop), lambda s, h=hop: self._on_link_control(h, s)))
             self._closing.append(self.session.declare_queryable(
@@ -127,6 +181,11 @@ class Bus:
         self._token = self.session.liveliness().declare_token(keys.alive_key(system, station))
         self._stats_thread = threading.Thread(target=self._publish_linkstats, daemon=True)
         self._stats_thread.start()
+
+    def _apply_netem(self, hop: str) -> None:
+        device, runner = self.netem_devices[hop], self.links[hop]
+        run_tc(tc_command(device, runner.profile))
+        log.info("netem on %s (%s): %s", device, runner.name, " ".join(netem_args(runner.profile)))
 
     # -- data plane ----------------------------------------------------------------------
     def publish(self, topic: str, message: Message) -> bool:
@@ -192,6 +251,8 @@ class Bus:
             runner = self.links[hop]
             base = named_profile(control.profile) if control.profile else runner.profile
             runner.reconfigure(base.with_fields(control.overrides))
+            if hop in self.netem_devices:
+                self._apply_netem(hop)
         except AbyssError as exc:
             self.reject(key, str(exc))
             return
@@ -224,13 +285,19 @@ class Bus:
             stats = self.link_stats(hop)
             links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
         latency = {key: samples.percentiles("latency", 1e3, "ms") for key, samples in self.latency_s.items()}
-        return {"sent": dict(self.sent), "received": dict(self.received),
-                "rejected": dict(self.rejected), "latency_ms": latency, "links": links}
+        refused = dict(self.refusals.refused) if self.refusals else {}
+        return {"sent": dict(self.sent), "received": dict(self.received), "rejected": dict(self.rejected),
+                "refused": refused, "latency_ms": latency, "links": links}
 
     def close(self, drain_s: float = 0.5) -> None:
         self.stop.set()
         for runner in self.links.values():
             runner.close(drain_s)
+        for hop, device in self.netem_devices.items():
+            try:
+                run_tc(tc_command(device, None))
+            except LinkError as exc:
+                log.warning("could not remove netem from %s (%s): %s", device, hop, exc)
         self._stats_thread.join(timeout=2.0)
         self._token.undeclare()
         for entity in self._closing:

@@ -25,6 +25,7 @@ HOPS: dict[str, tuple[str, str]] = {
 _SYSTEM_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 Reliability = Literal["reliable", "best-effort"]
+Priority = Literal["control", "telemetry", "bulk"]  # Zenoh priority, highest first
 
 
 def check_system_id(system: str) -> str:
@@ -72,6 +73,7 @@ class KeySpec:
     rate_hz: float  # nominal rate; 0 for event-driven keys
     reliability: Reliability  # reliable: congestion control BLOCK; best-effort: DROP
     to: str  # the neighbour that subscribes
+    priority: Priority  # control: commands, navigation, heartbeats; telemetry; bulk: images, clouds, scene
 
     @property
     def hop(self) -> str:
@@ -82,31 +84,31 @@ class KeySpec:
 
 
 KEYS: tuple[KeySpec, ...] = (
-    KeySpec("simulation", "nav", "NavState", 20.0, "best-effort", "onboard"),
-    KeySpec("simulation", "joints", "JointState", 20.0, "best-effort", "onboard"),
-    KeySpec("simulation", "camera/cam_left", "Image", 1.0, "best-effort", "onboard"),
-    KeySpec("simulation", "camera/cam_right", "Image", 1.0, "best-effort", "onboard"),
-    KeySpec("simulation", "camera/cam_depth", "Image", 1.0, "best-effort", "onboard"),
-    KeySpec("onboard", "cmd/vehicle_velocity", "VelocityRef", 20.0, "best-effort", "simulation"),
-    KeySpec("onboard", "cmd/arm_velocity", "ArmVelocityRef", 20.0, "best-effort", "simulation"),
-    KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel"),
-    KeySpec("onboard", "cloud", "PointCloud", 2.0, "best-effort", "vessel"),
-    KeySpec("onboard", "image", "Image", 1.0, "best-effort", "vessel"),
-    KeySpec("onboard", "ack", "CommandAck", 0.0, "reliable", "vessel"),
-    KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard"),
-    KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard"),
-    KeySpec("vessel", "goal/mode", "OperatorMode", 0.0, "reliable", "onboard"),
-    KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard"),
-    KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore"),
-    KeySpec("vessel", "scene", "SceneUpdate", 0.0, "reliable", "onshore"),
-    KeySpec("vessel", "objects", "RecognisedObjects", 0.5, "best-effort", "onshore"),
-    KeySpec("vessel", "image", "Image", 0.2, "best-effort", "onshore"),
-    KeySpec("vessel", "ack", "CommandAck", 0.0, "reliable", "onshore"),
-    KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel"),
-    KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel"),
-    KeySpec("onshore", "op/mode", "OperatorMode", 0.0, "reliable", "vessel"),
-    KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel"),
-    KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel"),
+    KeySpec("simulation", "nav", "NavState", 20.0, "best-effort", "onboard", "control"),
+    KeySpec("simulation", "joints", "JointState", 20.0, "best-effort", "onboard", "control"),
+    KeySpec("simulation", "camera/cam_left", "Image", 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "camera/cam_right", "Image", 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "camera/cam_depth", "Image", 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("onboard", "cmd/vehicle_velocity", "VelocityRef", 20.0, "best-effort", "simulation", "control"),
+    KeySpec("onboard", "cmd/arm_velocity", "ArmVelocityRef", 20.0, "best-effort", "simulation", "control"),
+    KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel", "telemetry"),
+    KeySpec("onboard", "cloud", "PointCloud", 2.0, "best-effort", "vessel", "bulk"),
+    KeySpec("onboard", "image", "Image", 1.0, "best-effort", "vessel", "bulk"),
+    KeySpec("onboard", "ack", "CommandAck", 0.0, "reliable", "vessel", "control"),
+    KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "goal/mode", "OperatorMode", 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard", "control"),
+    KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore", "telemetry"),
+    KeySpec("vessel", "scene", "SceneUpdate", 0.0, "reliable", "onshore", "bulk"),
+    KeySpec("vessel", "objects", "RecognisedObjects", 0.5, "best-effort", "onshore", "bulk"),
+    KeySpec("vessel", "image", "Image", 0.2, "best-effort", "onshore", "bulk"),
+    KeySpec("vessel", "ack", "CommandAck", 0.0, "reliable", "onshore", "control"),
+    KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "op/mode", "OperatorMode", 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel", "control"),
+    KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel", "control"),
 )
 
 
@@ -185,15 +187,15 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
 def keys_table() -> str:
     """The Markdown table of every key; `abyss keys` prints it, the README holds it."""
     rows = [
-        "| key | message | rate | reliability | hop |",
-        "| --- | --- | --- | --- | --- |",
+        "| key | message | rate | reliability | priority | hop |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     for s in KEYS:
         rate = f"{s.rate_hz:g} Hz" if s.rate_hz else "event"
         rows.append(
             f"| `abyss/<system>/{s.station}/{s.topic}` | {s.message} | {rate} | {s.reliability} "
-            f"| {s.hop} ({s.station} -> {s.to}) |"
+            f"| {s.priority} | {s.hop} ({s.station} -> {s.to}) |"
         )
     for pattern, message, rate, note in CONTROL_KEYS:
-        rows.append(f"| `{pattern}` | {message} | {rate} | reliable | none: {note} |")
+        rows.append(f"| `{pattern}` | {message} | {rate} | reliable | - | none: {note} |")
     return "\n".join(rows)

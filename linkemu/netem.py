@@ -15,9 +15,12 @@ netem differs from the in-process emulator in ways it cannot be told out of:
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
+import socket
 import subprocess
+import time
 
 from common.errors import LinkError
 from linkemu.profile import LinkProfile
@@ -85,3 +88,27 @@ def run_tc(command: list[str]) -> None:
     if "Cannot find device" in message:
         raise LinkError(f"no such interface: {message}")
     raise LinkError(f"{' '.join(command)} failed: {message}")
+
+
+def interface_towards(host: str, timeout_s: float = 30.0) -> str:
+    """The interface this host sends to `host` (a name or an address) through: the route the
+    kernel picks. A name is retried for `timeout_s` (a neighbour's container may start later)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            address = socket.getaddrinfo(host, None, socket.AF_INET)[0][4][0]
+            break
+        except socket.gaierror as exc:
+            if time.monotonic() > deadline:
+                raise LinkError(f"cannot resolve the neighbour {host!r} ({exc}); give its address "
+                                "with --peer HOP=ADDRESS") from None
+            time.sleep(0.5)
+    done = subprocess.run(["ip", "-j", "route", "get", address], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise LinkError(f"no route to the neighbour {host} ({address}): {done.stderr.strip()}")
+    device = str(json.loads(done.stdout)[0]["dev"])
+    if device == "lo":
+        raise LinkError(f"the neighbour {host} ({address}) is on this host: netem on lo would shape every "
+                        "local connection; run the stations on separate hosts, containers or network "
+                        "namespaces, or use --link emulated")
+    return device

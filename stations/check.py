@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import zenoh
 
 from common import keys
-from common.bus import open_session, zenoh_config
+from common.bus import client_config, open_session
 from common.errors import BadMessage
 from common.messages import decode
 
@@ -53,7 +53,7 @@ def check(endpoint: str, system: str, station: str, duration_s: float) -> list[K
         with lock:
             counts[key] += 1
 
-    session = open_session(zenoh_config(connect=[endpoint], mode="client"), "abyss check")
+    session = open_session(client_config(endpoint), "abyss check")
     try:
         subscribers = [
             session.declare_subscriber(s.key(system), lambda sample, m=s.message: on_sample(sample, m))

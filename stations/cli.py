@@ -15,7 +15,7 @@ from typing import Any
 import zenoh
 
 from common import keys
-from common.bus import message_of, open_session, zenoh_config
+from common.bus import client_config, message_of, open_session
 from common.config import VIEWERS, Config, load
 from common.errors import AbyssError, BadMessage, ConfigError
 from common.messages import (
@@ -28,6 +28,7 @@ from common.messages import (
     encode,
 )
 from common.models import CAMERAS, NAV_SENSORS, SEABED_CLOUD_FILE, THRUSTERS
+from common.security import TLS_DIR_ENV
 from linkemu.netem import run_tc, tc_command
 from linkemu.profile import FIELDS, load_profiles, profile
 
@@ -44,8 +45,17 @@ def _config_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int)
     p.add_argument("--realtime-factor", type=float, metavar="X",
                    help="simulated seconds per wall-clock second (default 1)")
-    p.add_argument("--link", choices=("emulated", "netem"), default="emulated",
-                   help="netem: in-process links become pass-throughs (tc/netem shapes them)")
+
+
+def _pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
+    """KEY=VALUE items of a repeated option."""
+    pairs = []
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key or not value:
+            raise ConfigError(option, f"{item!r} is not KEY=VALUE")
+        pairs.append((key, value))
+    return pairs
 
 
 def _config(args: argparse.Namespace) -> Config:
@@ -56,10 +66,7 @@ def _config(args: argparse.Namespace) -> Config:
         overrides.append(f"seed={args.seed}")
     if args.realtime_factor is not None:
         overrides.append(f"simulation.realtime_factor={args.realtime_factor}")
-    for item in args.profile:
-        hop, sep, name = item.partition("=")
-        if not sep:
-            raise ConfigError("--profile", f"{item!r} is not HOP=NAME")
+    for hop, name in _pairs("--profile", args.profile):
         overrides.append(f"links.{keys.check_hop(hop)}={name}")
     return load(args.config, overrides)
 
@@ -74,7 +81,7 @@ def _profile_fields(args: argparse.Namespace) -> dict[str, str]:
 
 
 def _client(args: argparse.Namespace) -> zenoh.Session:
-    return open_session(zenoh_config(connect=[args.connect], mode="client"), "abyss")
+    return open_session(client_config(args.connect), "abyss")
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -84,7 +91,7 @@ def cmd_up(args: argparse.Namespace) -> int:
         viewer = args.viewer or ("spawn" if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
                                  else "save")
         config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
-    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.link, args.external,
+    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.external,
                   args.restart)
 
 
@@ -96,7 +103,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_station(args: argparse.Namespace) -> int:
     from stations.runtime import configure_logging, run_station
     configure_logging(args.verbose)
-    code = run_station(args.name, _config(args), args.listen, args.connect, args.status_file, args.link)
+    peers = dict(_pairs("--peer", args.peer))
+    for hop in peers:
+        keys.check_hop(hop)
+    code = run_station(args.name, _config(args), args.listen, args.connect, args.status_file, args.link,
+                       args.zenoh_mode, args.tls, peers)
     # everything is closed and written: leave without the interpreter's finalisation, which
     # aborts the process ("exception not rethrown") when a daemon thread is still inside
     # native code (an octree insertion, an ICP) as it tears the threads down
@@ -104,6 +115,34 @@ def cmd_station(args: argparse.Namespace) -> int:
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
+
+
+def cmd_health(args: argparse.Namespace) -> int:
+    session = _client(args)
+    try:
+        token = keys.alive_key(args.system, args.station)
+        alive = list(session.liveliness().get(token, timeout=args.timeout))
+    finally:
+        session.close()
+    if not any(reply.ok is not None for reply in alive):
+        print(f"abyss: {args.station} of system {args.system} is not alive at {args.connect}",
+              file=sys.stderr)
+        return 1
+    print(f"{args.station} alive")
+    return 0
+
+
+def cmd_certs_make(args: argparse.Namespace) -> int:
+    from common import certs
+    hosts: dict[str, list[str]] = {}
+    for holder, host in _pairs("--host", args.host):
+        if holder not in certs.HOLDERS:
+            raise ConfigError("--host", f"unknown holder {holder!r}; allowed: {', '.join(certs.HOLDERS)}")
+        hosts.setdefault(holder, []).append(host)
+    written = certs.make(args.directory, hosts)
+    print(f"abyss: wrote {len(written)} files to {args.directory}: ca.pem (give it to every host), "
+          f"and <holder>.pem/.key for {', '.join(certs.HOLDERS)}; keep ca.key offline")
+    return 0
 
 
 def cmd_keys(_args: argparse.Namespace) -> int:
@@ -363,8 +402,36 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--status-file", type=Path, help="write counters here on exit")
+    p.add_argument("--link", choices=("emulated", "netem"), default="emulated",
+                   help="netem: the in-process links pass through, and tc/netem applies each hop's profile "
+                        "to the interface towards its neighbour (needs CAP_NET_ADMIN and sch_netem)")
+    p.add_argument("--zenoh-mode", choices=("router", "peer"), default="router",
+                   help="router (default): stations on separate hosts route for each other and for tools; "
+                        "peer: under a router such as `abyss up`'s")
+    p.add_argument("--tls", type=Path, default=os.environ.get(TLS_DIR_ENV) or None, metavar="DIR",
+                   help=f"certificates from `abyss certs make DIR`: TLS on every endpoint (tls/HOST:PORT) "
+                        f"and access control (default ${TLS_DIR_ENV})")
+    p.add_argument("--peer", action="append", default=[], metavar="HOP=HOST",
+                   help="with --link netem: the neighbour across HOP, whose route names the interface "
+                        "to shape (default: the neighbour's station name)")
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_station)
+
+    p = sub.add_parser("health",
+                       help="exit 0 when a station's liveliness token is seen (a container's health check)")
+    p.add_argument("station", choices=keys.STATIONS)
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.add_argument("--timeout", type=float, default=3.0, metavar="S")
+    p.set_defaults(func=cmd_health)
+
+    certs = sub.add_parser("certs", help="certificates for authenticated links").add_subparsers(
+        dest="certs", required=True)
+    p = certs.add_parser("make", help="a CA and one certificate per station and for the operator's tools")
+    p.add_argument("directory", type=Path, metavar="DIR")
+    p.add_argument("--host", action="append", default=[], metavar="HOLDER=NAME",
+                   help="an extra name or address in a holder's certificate (repeatable)")
+    p.set_defaults(func=cmd_certs_make)
 
     p = sub.add_parser("keys", help="print the table of every key")
     p.set_defaults(func=cmd_keys)

@@ -12,7 +12,7 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.bus import message_of, open_session, zenoh_config
+from common.bus import client_config, message_of, open_session
 from common.errors import ConfigError
 from common.geometry import quat_wxyz_of, rotation_of_rpy
 from common.messages import (
@@ -75,7 +75,7 @@ def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: fl
             answer.append(ack)
             answered.set()
 
-    session = open_session(zenoh_config(connect=[endpoint], mode="client"), "abyss op")
+    session = open_session(client_config(endpoint), "abyss op")
     try:
         subscriber = session.declare_subscriber(keys.operator_key(system, "ack"), on_ack)
         deadline, sent = time.monotonic() + timeout_s, 0

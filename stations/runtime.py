@@ -17,6 +17,7 @@ from typing import Any
 
 from common import keys
 from common.bus import Bus
+from common.certs import CertFiles
 from common.config import Config
 
 log = logging.getLogger(__name__)
@@ -47,11 +48,13 @@ def free_port(host: str = "127.0.0.1") -> int:
 
 
 def run_station(name: str, config: Config, listen: Sequence[str], connect: Sequence[str],
-                status_file: Path | None, link_mode: str = "emulated") -> int:
+                status_file: Path | None, link_mode: str = "emulated", mode: str = "peer",
+                tls_dir: Path | None = None, peers: dict[str, str] | None = None) -> int:
     """Open the bus, run the station until SIGINT/SIGTERM, close, write the status file."""
     entry = station_entry(name)
     bus = Bus(config.system, name, config.links.profiles(), listen=listen, connect=connect,
-              seed=config.seed, link_mode=link_mode)
+              seed=config.seed, link_mode=link_mode, mode=mode, peers=peers,
+              tls=CertFiles(tls_dir, name).check() if tls_dir else None)
 
     def stop(signum: int, _frame: Any) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
@@ -61,7 +64,8 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
         stop_with_supervisor()
-    log.info("%s up in system %s (listen %s, connect %s)", name, config.system, list(listen), list(connect))
+    log.info("%s up in system %s as a Zenoh %s (listen %s, connect %s%s)", name, config.system, mode,
+             list(listen), list(connect), ", TLS and access control" if tls_dir else "")
     code = 0
     try:
         entry(config, bus)

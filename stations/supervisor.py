@@ -63,7 +63,7 @@ class Up:
     """Start, watch and stop one whole system; write its summary."""
 
     def __init__(self, config: Config, out_dir: Path, port: int | None = None,
-                 link_mode: str = "emulated", echo: Any = None, external: Sequence[str] = (),
+                 echo: Any = None, external: Sequence[str] = (),
                  restart: bool = False) -> None:
         self.config = config
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
@@ -71,7 +71,6 @@ class Up:
         self.mission_done_s: float | None = None  # since all stations were up
         self.out_dir = out_dir
         self.echo = echo or (lambda text: print(text, flush=True))
-        self.link_mode = link_mode
         if port is None:
             port = DEFAULT_PORT if port_free(DEFAULT_PORT) else free_port()
         elif port == 0:
@@ -116,7 +115,7 @@ class Up:
         status_path = self.out_dir / f"{name}.json"
         command = [sys.executable, "-m", "stations.cli", "station", name, "--config", str(config_path),
                    "--listen", "tcp/127.0.0.1:0", "--connect", self.endpoint,
-                   "--status-file", str(status_path), "--link", self.link_mode]
+                   "--status-file", str(status_path), "--zenoh-mode", "peer"]
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, start_new_session=True,
@@ -370,10 +369,10 @@ def render_summary(summary: dict[str, Any]) -> str:
 
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
-           port: int | None, link_mode: str, external: Sequence[str] = (), restart: bool = False) -> int:
+           port: int | None, external: Sequence[str] = (), restart: bool = False) -> int:
     run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
-        return Up(config, run_dir, port, link_mode, external=external, restart=restart).run(
+        return Up(config, run_dir, port, external=external, restart=restart).run(
             duration_s, keep_running)
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)

@@ -29,7 +29,7 @@ import numpy as np
 import zenoh
 
 from common import keys
-from common.bus import message_of, open_session, zenoh_config
+from common.bus import client_config, message_of, open_session
 from common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
 from common.messages import ArmGoal, Message, Telemetry, Waypoints, encode
 
@@ -88,7 +88,7 @@ class Teleop:
         self.goals = Goals()
         self.target = "vehicle"
         self.lock = threading.Lock()
-        self.session = open_session(zenoh_config(connect=[endpoint], mode="client"), "abyss teleop")
+        self.session = open_session(client_config(endpoint), "abyss teleop")
         self.subscriber = self.session.declare_subscriber(
             keys.spec("vessel", "telemetry").key(system), self._on_telemetry)
         self.sent = 0

@@ -3,8 +3,8 @@ control so that a station takes each data key it receives only from the station 
 (only onshore may send operator commands down, only the vessel may publish to onboard, ...).
 
 Zenoh refuses a peer without a valid certificate in the TLS handshake, and drops a message the
-access control denies; it says so only in its own log (a warning for the handshake, a trace
-line for a denial). `RefusalLog` reads that log back and turns each refusal into a counted
+access control denies; it says so only in its own log on standard output (a warning for the
+handshake, a trace line for a denial). `RefusalLog` reads that log back and turns each refusal into a counted
 warning of the station's own log, once per peer and key, as for any bad input."""
 
 from __future__ import annotations
@@ -89,32 +89,32 @@ def access_control(station: str) -> dict[str, Any]:
 # Zenoh's log lines that say it refused a peer or a message.
 _DENIED = re.compile(r"on (?P<subject>\S+) is unauthorized to (?P<action>[\w ]+?) \((?P<flow>\w+)\) "
                      r"on (?P<key>\S+)")
-_HANDSHAKE = re.compile(r"zenoh_link_tls\S*: (?P<reason>.*?)(?:\. Hint:.*)?$")
-_AUTHORISED = re.compile(r"is authorized to")
+_HANDSHAKE = re.compile(r"zenoh_link_tls::unicast: (?P<reason>.*?)(?:\. Hint:.*)?$")
+# per message, per declared key, or by design (tls_settings): not worth a line of the station's log
+_QUIET = re.compile(r"is authorized to|caching permissions|Skipping name verification")
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 _CERT_NAME = re.compile(r"CertCommonName\((?P<name>[^)]*)\)")
-ZENOH_LOG_FILTER = "warn,zenoh::net::routing::interceptor::access_control=trace"
+_THREAD = re.compile(r"ThreadId\((?P<id>\d+)\)")
+_DROPPED = "Msg intercepted!"  # follows a denial that dropped a message (not one computed for a cache)
+ZENOH_LOG_FILTER = "warn,zenoh::net::routing::interceptor=trace"
 
 
 class RefusalLog:
-    """Reads Zenoh's log (which it writes to file descriptor 2) through a pipe: refusals become
+    """Reads Zenoh's log (which it writes to standard output) through a pipe: refusals become
     counted warnings of this process's log, the per-message 'authorized' trace lines are
-    dropped, everything else is passed on to the real standard error."""
+    dropped, everything else is passed on to the real standard output."""
 
     def __init__(self) -> None:
         self.refused: Counter[str] = Counter()
         self._logged: set[str] = set()
         self._lock = threading.Lock()
-        stderr_fd = os.dup(2)
-        sys.stderr.flush()
-        sys.stderr = os.fdopen(stderr_fd, "w", buffering=1, closefd=False)
-        for handler in logging.getLogger().handlers:  # Python's log keeps the real stderr
-            if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
-                handler.setStream(sys.stderr)
+        self._denied: dict[str, str] = {}  # thread -> the denial it logged last, until it drops the message
+        sys.stdout.flush()
+        self._out = os.fdopen(os.dup(1), "w", buffering=1)
+        sys.stdout = self._out  # Python's own prints keep the real standard output
         read_fd, write_fd = os.pipe()
-        os.dup2(write_fd, 2)
+        os.dup2(write_fd, 1)
         os.close(write_fd)
-        self._out = sys.stderr
         self._thread = threading.Thread(target=self._read, args=(read_fd,), name="zenoh-log", daemon=True)
         self._thread.start()
         zenoh.init_log_from_env_or(ZENOH_LOG_FILTER)
@@ -127,13 +127,20 @@ class RefusalLog:
     def take(self, line: str) -> None:
         """One line of Zenoh's log."""
         plain = _ANSI.sub("", line).rstrip()
-        if _AUTHORISED.search(plain):
+        thread = _THREAD.search(plain)
+        denial = self._denied.pop(thread["id"], None) if thread else None
+        if _QUIET.search(plain):
             return
         if denied := _DENIED.search(plain):
             holder = _CERT_NAME.search(denied["subject"])
             who = holder["name"] if holder else "a peer without a known certificate"
-            self.refuse(f"{who}: {denied['action'].lower()} on {denied['key']} ({denied['flow']})",
-                        "access control denied")
+            if thread:
+                action = denied["action"].lower()
+                self._denied[thread["id"]] = f"{who}: {action} on {denied['key']} ({denied['flow']})"
+            return
+        if plain.endswith(_DROPPED):
+            if denial:
+                self.refuse(denial, "access control denied")
             return
         if "WARN" in plain and (handshake := _HANDSHAKE.search(plain)):
             self.refuse(f"TLS handshake: {handshake['reason']}", "peer refused")

@@ -1,0 +1,153 @@
+"""Stations on separate hosts: each in its own network namespace on its own addresses, with
+explicit endpoints, TLS and access control on every link, as compose.yaml deploys them."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from common import certs, keys
+from common.security import TLS_DIR_ENV
+from hosts import PORT, Hosts, usable
+
+pytestmark = pytest.mark.e2e
+SYSTEM = "e2e-hosts"
+MISSION_TIMEOUT_S = 120.0
+
+
+@pytest.fixture
+def hosts() -> Iterator[Hosts]:
+    if reason := usable():
+        pytest.skip(reason)
+    made = Hosts()
+    try:
+        yield made.make()
+    finally:
+        made.remove()
+
+
+def station_args(hosts: Hosts, station: str, run_dir: Path, *extra: str) -> list[str]:
+    return ["-m", "stations.cli", "station", station, "--system", SYSTEM,
+            *hosts.endpoints(station, "tls"), "--tls", str(run_dir / "certs"),
+            "--status-file", str(run_dir / f"{station}.json"), *extra]
+
+
+def stop(processes: dict[str, subprocess.Popen[bytes]]) -> None:
+    for process in processes.values():
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+    for process in processes.values():
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def wait_up(processes: dict[str, subprocess.Popen[bytes]], run_dir: Path, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    for station, process in processes.items():
+        log = run_dir / f"{station}.log"
+        while "up in system" not in log.read_text():
+            assert process.poll() is None, f"{station} exited: {log.read_text()[-3000:]}"
+            assert time.monotonic() < deadline, f"{station} not up: {log.read_text()[-3000:]}"
+            time.sleep(0.2)
+
+
+def in_ns(hosts: Hosts, station: str, run_dir: Path, *args: str) -> dict[str, object]:
+    os.environ[TLS_DIR_ENV] = str(run_dir / "certs")
+    try:
+        done = hosts.run(station, ["tests/e2e/peer.py", *args], timeout_s=MISSION_TIMEOUT_S + 30)
+    finally:
+        del os.environ[TLS_DIR_ENV]
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
+
+
+def test_mission_over_separate_hosts_with_tls_and_access_control(hosts: Hosts, tmp_path: Path) -> None:
+    certs.make(tmp_path / "certs")
+    # nothing joins two stations but a hop: simulation cannot reach the vessel or the shore
+    assert not hosts.reaches("simulation", hosts.address[("vessel", "tether")])
+    assert not hosts.reaches("onshore", hosts.address[("onboard", "tether")])
+    processes = {s: hosts.popen(s, station_args(hosts, s, tmp_path), tmp_path / f"{s}.log")
+                 for s in keys.STATIONS}
+    try:
+        wait_up(processes, tmp_path)
+        # a tool on shore's host sees the mission through; the truth crosses three routed hops
+        seen = in_ns(hosts, "onshore", tmp_path, "watch", f"tls/127.0.0.1:{PORT}", SYSTEM,
+                     str(MISSION_TIMEOUT_S))
+        assert seen["mission_done"], seen
+        assert int(seen["truth"]) > 0, seen  # type: ignore[call-overload]
+        onboard_rov = f"tls/{hosts.address[('onboard', 'rov')]}:{PORT}"
+        # a station's certificate, but not the vessel's: its goal for onboard is refused
+        intruder = in_ns(hosts, "simulation", tmp_path, "intrude", onboard_rov, SYSTEM, "simulation", "5")
+        assert intruder["peers"] == 1
+        # no certificate at all: the handshake is refused
+        stranger = in_ns(hosts, "simulation", tmp_path, "intrude", onboard_rov, SYSTEM, "none", "3")
+        assert stranger["peers"] == 0
+        sent_on_hop = {(s, hop): hosts.bytes_sent(s, hop) for (s, hop) in hosts.device}
+    finally:
+        stop(processes)
+    logs = {s: (tmp_path / f"{s}.log").read_text() for s in keys.STATIONS}
+    status = {s: json.loads((tmp_path / f"{s}.json").read_text()) for s in keys.STATIONS}
+    for s in keys.STATIONS:
+        assert status[s]["exit_code"] == 0, logs[s][-3000:]
+        assert "TLS and access control" in logs[s]
+    # every hop carried the mission both ways
+    for (station, hop), sent in sent_on_hop.items():
+        assert sent > 10_000, f"{station} sent {sent} B on {hop}"
+    goal = keys.spec("vessel", "goal/waypoints").key(SYSTEM)
+    denied = f"simulation: put on {goal} (ingress)"
+    assert status["onboard"]["refused"].get(denied) == 5, status["onboard"]["refused"]
+    assert f"access control denied: {denied}" in logs["onboard"]
+    assert any(k.startswith("TLS handshake") for k in status["onboard"]["refused"]), status["onboard"]["refused"]
+    assert "peer refused: TLS handshake" in logs["onboard"]
+    # onboard took exactly the goals the vessel sent, none of the intruder's
+    assert status["onboard"]["received"][goal] == status["vessel"]["sent"][goal] >= 1
+    # and data flowed along the hops: each station heard its neighbours
+    for spec in keys.KEYS:
+        if spec.rate_hz >= 1.0 and not spec.topic.startswith("camera"):
+            assert status[spec.to]["received"].get(spec.key(SYSTEM), 0) > 0, spec
+
+
+def test_netem_on_separate_hosts(hosts: Hosts, tmp_path: Path) -> None:
+    """`--link netem`: each station shapes its own interface on each hop with that hop's profile.
+    On a kernel without sch_netem the station refuses to start and says why."""
+    certs.make(tmp_path / "certs")
+    args = station_args(hosts, "vessel", tmp_path, "--link", "netem")
+    probe = subprocess.run(["ip", "netns", "exec", hosts.netns("vessel"), "tc", "qdisc", "add", "dev",
+                            "tether1", "root", "netem", "delay", "1ms"], capture_output=True, text=True)
+    if probe.returncode != 0:
+        assert "unknown" in probe.stderr, probe.stderr  # the kernel's word for a missing sch_netem
+        done = hosts.run("vessel", args, timeout_s=60)
+        assert done.returncode == 2, done.stderr[-2000:]
+        assert "no sch_netem" in done.stderr and "modprobe sch_netem" in done.stderr, done.stderr[-2000:]
+        pytest.skip("kernel without sch_netem: the station refused --link netem with a clear error; "
+                    "the shaped mission needs a kernel with it")
+    subprocess.run(["ip", "netns", "exec", hosts.netns("vessel"), "tc", "qdisc", "del", "dev", "tether1", "root"],
+                   check=True)
+    processes = {s: hosts.popen(s, station_args(hosts, s, tmp_path, "--link", "netem"), tmp_path / f"{s}.log")
+                 for s in keys.STATIONS}
+    try:
+        wait_up(processes, tmp_path)
+        shown = {(s, hop): subprocess.run(["ip", "netns", "exec", hosts.netns(s), "tc", "qdisc", "show", "dev",
+                                           hosts.device[(s, hop)]], capture_output=True, text=True).stdout
+                 for (s, hop) in hosts.device}
+        seen = in_ns(hosts, "onshore", tmp_path, "watch", f"tls/127.0.0.1:{PORT}", SYSTEM,
+                     str(MISSION_TIMEOUT_S))
+    finally:
+        stop(processes)
+    for (station, hop), qdisc in shown.items():
+        assert "netem" in qdisc, (station, hop, qdisc)
+        if hop == "satellite":
+            assert "loss 5%" in qdisc and "delay 150ms" in qdisc, qdisc
+        if hop == "tether":
+            assert "delay 100ms" in qdisc and "rate 20Mbit" in qdisc, qdisc
+    assert seen["mission_done"], seen

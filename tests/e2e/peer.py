@@ -18,11 +18,11 @@ import numpy as np
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from common import keys  # noqa: E402
-from common.bus import client_config, message_of, open_session  # noqa: E402
-from common.certs import CertFiles  # noqa: E402
-from common.messages import MissionStatus, Waypoints, encode  # noqa: E402
-from common.security import TLS_DIR_ENV, tls_settings  # noqa: E402
+from common import keys
+from common.bus import client_config, message_of, open_session
+from common.certs import CertFiles
+from common.messages import MissionStatus, Waypoints, encode
+from common.security import TLS_DIR_ENV, tls_settings
 
 
 def watch(endpoint: str, system: str, timeout_s: float) -> dict[str, object]:

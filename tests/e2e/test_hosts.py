@@ -12,10 +12,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from hosts import PORT, Hosts, usable
 
 from common import certs, keys
 from common.security import TLS_DIR_ENV
-from hosts import PORT, Hosts, usable
 
 pytestmark = pytest.mark.e2e
 SYSTEM = "e2e-hosts"

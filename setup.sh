@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # Set up abyss on a fresh Debian/Ubuntu machine with Python 3.11:
-# system libraries for offscreen rendering (Mesa EGL/OSMesa) and Open3D (libusb), Chromium for
-# the web viewer's test, then a virtual environment in .venv with the package and its test tools.
+# system libraries for offscreen rendering (Mesa EGL/OSMesa) and Open3D (libusb) from
+# apt-packages.txt, Chromium and docker-compose for the tests, then a virtual environment in
+# .venv with the package and its test tools.
 set -euo pipefail
 cd "$(dirname "$0")"
 
-APT_PACKAGES="libegl1 libegl-mesa0 libosmesa6 libgl1 libusb-1.0-0 libgomp1 iproute2"
-TEST_APT_PACKAGES="chromium"  # the web viewer's test loads it in a browser; skipped without one
+APT_PACKAGES="$(grep -v '^#' apt-packages.txt | xargs)"  # what a station needs; the Dockerfile's too
+# the web viewer's test loads it in Chromium; the deployment's test validates compose.yaml
+TEST_APT_PACKAGES="chromium docker-compose"
 missing=""
 for p in $APT_PACKAGES $TEST_APT_PACKAGES; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"

@@ -88,7 +88,8 @@ class Hosts:
 
     def bytes_sent(self, station: str, hop: str) -> int:
         """Bytes the station's interface on `hop` has sent."""
-        info = json.loads(ip("-s", "-j", "link", "show", self.device[(station, hop)], netns=self.netns(station)))
+        device = self.device[(station, hop)]
+        info = json.loads(ip("-s", "-j", "link", "show", device, netns=self.netns(station)))
         return int(info[0]["stats64"]["tx"]["bytes"])
 
     def reaches(self, station: str, address: str) -> bool:

@@ -3,7 +3,10 @@
 watch ENDPOINT SYSTEM TIMEOUT_S: a tool's client session; waits until shore reports the mission
   done and the simulation's truth has arrived (three routed hops away); prints what it saw as JSON.
 intrude ENDPOINT SYSTEM HOLDER|none COUNT: a peer with HOLDER's certificate (none: without one)
-  publishes COUNT waypoint commands as if it were the vessel; prints how many peers it reached."""
+  publishes COUNT waypoint commands as if it were the vessel; prints how many peers it reached.
+receive LISTEN SECONDS: counts the messages on large/** for SECONDS (from the first one's arrival).
+send CONNECT COUNT BYTES TUNED_FOR_BPS: publishes COUNT messages of BYTES on large/N with congestion
+  control DROP, the transmission queue tuned for a link of TUNED_FOR_BPS (inf: Zenoh's defaults)."""
 
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from common import keys
-from common.bus import client_config, message_of, open_session
+from common.bus import client_config, message_of, open_session, zenoh_config
 from common.certs import CertFiles
 from common.messages import MissionStatus, Waypoints, encode
 from common.security import TLS_DIR_ENV, tls_settings
@@ -73,10 +76,40 @@ def intrude(endpoint: str, system: str, holder: str, count: int) -> dict[str, ob
     return {"peers": peers, "sent": count}
 
 
+def receive(listen: str, seconds: float) -> dict[str, object]:
+    got: list[float] = []
+    session = open_session(zenoh_config(listen=[listen]), "receive")
+    subscriber = session.declare_subscriber("large/**", lambda _s: got.append(time.monotonic()))
+    deadline = time.monotonic() + 60.0
+    while not got and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if got:
+        time.sleep(max(0.0, got[0] + seconds - time.monotonic()))
+    subscriber.undeclare()
+    session.close()
+    return {"received": len(got), "span_s": got[-1] - got[0] if got else 0.0}
+
+
+def send(connect: str, count: int, size: int, tuned_for_bps: float) -> dict[str, object]:
+    session = open_session(zenoh_config(connect=[connect], slowest_rate_bps=tuned_for_bps), "send")
+    publisher = session.declare_publisher("large/data", congestion_control=zenoh.CongestionControl.DROP)
+    time.sleep(1.0)
+    for _ in range(count):
+        publisher.put(bytes(size))
+        time.sleep(0.1)
+    time.sleep(30.0)  # the session's queue drains before it closes
+    session.close()
+    return {"sent": count}
+
+
 if __name__ == "__main__":
     verb, args = sys.argv[1], sys.argv[2:]
     if verb == "watch":
         result = watch(args[0], args[1], float(args[2]))
-    else:
+    elif verb == "intrude":
         result = intrude(args[0], args[1], args[2], int(args[3]))
+    elif verb == "receive":
+        result = receive(args[0], float(args[1]))
+    else:
+        result = send(args[0], int(args[1]), int(args[2]), float(args[3]))
     print(json.dumps(result))

@@ -17,7 +17,7 @@ import threading
 from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import zenoh
 
@@ -100,26 +100,17 @@ ZENOH_LOG_FILTER = "warn,zenoh::net::routing::interceptor=trace"
 
 
 class RefusalLog:
-    """Reads Zenoh's log (which it writes to standard output) through a pipe: refusals become
-    counted warnings of this process's log, the per-message 'authorized' trace lines are
-    dropped, everything else is passed on to the real standard output."""
+    """Zenoh's log, line by line: refusals become counted warnings of this process's log, the
+    per-message 'authorized' trace lines are dropped, everything else goes on to `out`."""
 
-    def __init__(self) -> None:
+    def __init__(self, out: TextIO) -> None:
         self.refused: Counter[str] = Counter()
+        self._out = out
         self._logged: set[str] = set()
         self._lock = threading.Lock()
         self._denied: dict[str, str] = {}  # thread -> the denial it logged last, until it drops the message
-        sys.stdout.flush()
-        self._out = os.fdopen(os.dup(1), "w", buffering=1)
-        sys.stdout = self._out  # Python's own prints keep the real standard output
-        read_fd, write_fd = os.pipe()
-        os.dup2(write_fd, 1)
-        os.close(write_fd)
-        self._thread = threading.Thread(target=self._read, args=(read_fd,), name="zenoh-log", daemon=True)
-        self._thread.start()
-        zenoh.init_log_from_env_or(ZENOH_LOG_FILTER)
 
-    def _read(self, fd: int) -> None:
+    def read(self, fd: int) -> None:
         with os.fdopen(fd, "r", errors="replace") as lines:
             for line in lines:
                 self.take(line)
@@ -160,8 +151,17 @@ _refusal_log: RefusalLog | None = None
 
 
 def refusal_log() -> RefusalLog:
-    """The process's one reader of Zenoh's log (a station is one process)."""
+    """The process's one reader of Zenoh's log (a station is one process): Zenoh writes it to
+    file descriptor 1, which from here on is a pipe read by a thread; Python's own standard
+    output keeps the real one."""
     global _refusal_log
     if _refusal_log is None:
-        _refusal_log = RefusalLog()
+        sys.stdout.flush()
+        sys.stdout = os.fdopen(os.dup(1), "w", buffering=1)
+        read_fd, write_fd = os.pipe()
+        os.dup2(write_fd, 1)
+        os.close(write_fd)
+        _refusal_log = RefusalLog(sys.stdout)
+        threading.Thread(target=_refusal_log.read, args=(read_fd,), name="zenoh-log", daemon=True).start()
+        zenoh.init_log_from_env_or(ZENOH_LOG_FILTER)
     return _refusal_log

@@ -55,7 +55,8 @@ def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), mode: 
                  tls: CertFiles | None = None, acl_station: str | None = None,
                  slowest_rate_bps: float = math.inf) -> zenoh.Config:
     """Explicit endpoints, multicast scouting off: stations find each other only where told.
-    With `tls`, every endpoint is tls/ and both ends show certificates; with `acl_station`, that
+    With `tls` (its files checked here, at start), every endpoint is tls/ and both ends show
+    certificates; with `acl_station`, that
     station's access control (`common.security`); `slowest_rate_bps` tunes the transmission queue."""
     security.check_endpoints([*listen, *connect], tls)
     config = zenoh.Config()
@@ -151,11 +152,11 @@ class Bus:
         self._publish_lock = threading.Lock()
         self._closing: list[Any] = []
         hops = keys.hops_of(station)
-        self.refusals = security.refusal_log() if tls is not None else None
         slowest_bps = min(profiles.get(hop, LinkProfile()).rate_bps for hop in hops)
-        self.session = open_session(zenoh_config(listen, connect, mode, tls=tls,
-                                                 acl_station=station if tls else None,
-                                                 slowest_rate_bps=slowest_bps), f"station {station}")
+        config = zenoh_config(listen, connect, mode, tls=tls, acl_station=station if tls else None,
+                              slowest_rate_bps=slowest_bps)  # bad endpoints or certificates fail here
+        self.refusals = security.refusal_log() if tls is not None else None
+        self.session = open_session(config, f"station {station}")
         self._publishers = {
             s.key(system): self.session.declare_publisher(
                 s.key(system),

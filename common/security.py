@@ -49,7 +49,7 @@ def tool_certificates(endpoint: str) -> CertFiles | None:
     if not directory:
         raise ConfigError(TLS_DIR_ENV, f"is not set; {endpoint} needs the directory of "
                                        "`abyss certs make DIR` (the operator's certificate)")
-    return CertFiles(Path(directory), OPERATOR).check()
+    return CertFiles(Path(directory), OPERATOR)
 
 
 def tls_settings(files: CertFiles) -> dict[str, Any]:

@@ -54,7 +54,7 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     entry = station_entry(name)
     bus = Bus(config.system, name, config.links.profiles(), listen=listen, connect=connect,
               seed=config.seed, link_mode=link_mode, mode=mode, peers=peers,
-              tls=CertFiles(tls_dir, name).check() if tls_dir else None)
+              tls=CertFiles(tls_dir, name) if tls_dir else None)
 
     def stop(signum: int, _frame: Any) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)

@@ -65,3 +65,18 @@ def test_endpoints_and_certificates_agree(tmp_path: Path) -> None:
         files.check()
     certs.make(tmp_path)
     assert files.check() is files
+
+
+def test_bad_deployment_arguments_name_the_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from stations.cli import main
+    assert main(["certs", "make", str(tmp_path), "--host", "mallory=10.0.0.9"]) == 2
+    assert "--host: unknown holder 'mallory'; allowed: simulation, onboard, vessel, onshore, operator" \
+        in capsys.readouterr().err
+    assert main(["station", "vessel", "--peer", "sea=10.0.0.9"]) == 2
+    assert "hop: unknown hop 'sea'; allowed: rov, tether, satellite" in capsys.readouterr().err
+    assert main(["station", "vessel", "--peer", "tether"]) == 2
+    assert "--peer: 'tether' is not KEY=VALUE" in capsys.readouterr().err
+    assert main(["station", "vessel", "--tls", str(tmp_path / "none"), "--listen", "tls/127.0.0.1:0"]) == 2
+    assert "abyss certs make" in capsys.readouterr().err
+    assert main(["certs", "make", str(tmp_path), "--host", "vessel=10.0.0.9"]) == 0
+    assert (tmp_path / "vessel.pem").is_file() and (tmp_path / "operator.key").stat().st_mode & 0o077 == 0

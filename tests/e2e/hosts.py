@@ -82,9 +82,12 @@ class Hosts:
             return subprocess.Popen(["ip", "netns", "exec", self.netns(station), sys.executable, *args],
                                     cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
-    def run(self, station: str, args: list[str], timeout_s: float) -> subprocess.CompletedProcess[str]:
+    def run(self, station: str, args: list[str], timeout_s: float,
+            env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+        """`python ARGS` on the station's host, with `env` added to this process's environment."""
         return subprocess.run(["ip", "netns", "exec", self.netns(station), sys.executable, *args],
-                              cwd=ROOT, capture_output=True, text=True, timeout=timeout_s, check=False)
+                              cwd=ROOT, capture_output=True, text=True, timeout=timeout_s, check=False,
+                              env={**os.environ, **(env or {})})
 
     def bytes_sent(self, station: str, hop: str) -> int:
         """Bytes the station's interface on `hop` has sent."""

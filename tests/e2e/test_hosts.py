@@ -4,7 +4,6 @@ explicit endpoints, TLS and access control on every link, as compose.yaml deploy
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import time
@@ -63,11 +62,8 @@ def wait_up(processes: dict[str, subprocess.Popen[bytes]], run_dir: Path, timeou
 
 
 def in_ns(hosts: Hosts, station: str, run_dir: Path, *args: str) -> dict[str, object]:
-    os.environ[TLS_DIR_ENV] = str(run_dir / "certs")
-    try:
-        done = hosts.run(station, ["tests/e2e/peer.py", *args], timeout_s=MISSION_TIMEOUT_S + 30)
-    finally:
-        del os.environ[TLS_DIR_ENV]
+    done = hosts.run(station, ["tests/e2e/peer.py", *args], timeout_s=MISSION_TIMEOUT_S + 30,
+                     env={TLS_DIR_ENV: str(run_dir / "certs")})
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
@@ -86,6 +82,13 @@ def test_mission_over_separate_hosts_with_tls_and_access_control(hosts: Hosts, t
                      str(MISSION_TIMEOUT_S))
         assert seen["mission_done"], seen
         assert int(seen["truth"]) > 0, seen  # type: ignore[call-overload]
+        # the containers' health check: a station's token, seen through its own TLS listener
+        certs_env = {TLS_DIR_ENV: str(tmp_path / "certs")}
+        health = ["-m", "stations.cli", "health", "onboard", "--connect", f"tls/127.0.0.1:{PORT}"]
+        healthy = hosts.run("onboard", [*health, "--system", SYSTEM], 60, certs_env)
+        assert healthy.returncode == 0, healthy.stderr
+        unknown = hosts.run("onboard", [*health, "--system", "no-such-system"], 60, certs_env)
+        assert unknown.returncode == 1 and "not alive" in unknown.stderr, unknown.stderr
         onboard_rov = f"tls/{hosts.address[('onboard', 'rov')]}:{PORT}"
         # a station's certificate, but not the vessel's: its goal for onboard is refused
         intruder = in_ns(hosts, "simulation", tmp_path, "intrude", onboard_rov, SYSTEM, "simulation", "5")

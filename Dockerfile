@@ -7,10 +7,16 @@ RUN apt-get update \
  && rm -rf /var/lib/apt/lists/*
 
 WORKDIR /abyss
-COPY pyproject.toml README.md ./
+# the package is the repository's top level (pyproject.toml maps it to `abyss`): the shared
+# code, the stations, and the testbed around them
+COPY pyproject.toml README.md __init__.py py.typed ./
 COPY common common
 COPY linkemu linkemu
 COPY stations stations
+COPY launch launch
+COPY validation validation
+COPY console console
+COPY cli cli
 COPY scenarios scenarios
 RUN pip install --no-cache-dir .
 

@@ -20,13 +20,12 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
-
-from common import keys
-from common.bus import Bus, open_session, zenoh_config
-from common.messages import Message, NavState, Waypoints, encode
-from common.samples import Samples
-from linkemu.profile import profile
-from stations.runtime import free_port
+from abyss.common import keys
+from abyss.common.bus import Bus, open_session, zenoh_config
+from abyss.common.messages import Message, NavState, Waypoints, encode
+from abyss.common.samples import Samples
+from abyss.linkemu.profile import profile
+from abyss.stations.runtime import free_port
 
 SYSTEM = "bench"
 
@@ -129,7 +128,7 @@ def bench_startup(runs: int = 3) -> list[float]:
     times = []
     for i in range(runs):
         out = Path("runs") / f"bench-startup-{i}"
-        done = subprocess.run([sys.executable, "-m", "stations.cli", "up", "--duration", "1", "--port", "0",
+        done = subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--duration", "1", "--port", "0",
                                "--out", str(out), "--system", f"bench{i}"], capture_output=True, text=True)
         m = re.search(r"all 4 stations up in ([0-9.]+) s", done.stdout)
         if m:

@@ -10,12 +10,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
-from common.config import load
-from common.models import ARM_STOWED_RAD
-from stations.onboard.arm_control import ArmController, damped_pinv
-from stations.simulation.lowlevel import References
-from stations.simulation.world import World
+from abyss.common.config import load
+from abyss.common.models import ARM_STOWED_RAD
+from abyss.stations.onboard.arm_control import ArmController, damped_pinv
+from abyss.stations.simulation.lowlevel import References
+from abyss.stations.simulation.world import World
 
 REPEATS = 2000
 

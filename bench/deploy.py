@@ -18,10 +18,9 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from common import keys
-from common.bus import client_config, open_session
-from stations.runtime import free_port
+from abyss.common import keys
+from abyss.common.bus import client_config, open_session
+from abyss.stations.runtime import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 MB = 1e6
@@ -125,7 +124,7 @@ def startup() -> tuple[float, float]:
         station, floor = [], []
         for _ in range(3):
             station.append(seconds_until_alive(
-                [sys.executable, "-m", "stations.cli", "station", "simulation", "--system", "bench-start",
+                [sys.executable, "-m", "abyss.cli", "station", "simulation", "--system", "bench-start",
                  "--connect", endpoint, "--zenoh-mode", "peer"], "bench-start", endpoint))
             floor.append(seconds_until_alive([sys.executable, "-c", BARE_ZENOH, "peer", endpoint,
                                               keys.alive_key("floor", "simulation")], "floor", endpoint))

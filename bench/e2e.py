@@ -11,9 +11,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from common import keys
-from common.config import Config
-from linkemu.link import HEADER_BYTES
+from abyss.common import keys
+from abyss.common.config import Config
+from abyss.linkemu.link import HEADER_BYTES
 
 # the chain of keys that carries the vehicle's state from simulation to shore
 CHAIN = (("simulation", "nav"), ("onboard", "telemetry"), ("vessel", "telemetry"))
@@ -23,7 +23,7 @@ MESSAGE_BYTES = {"nav": 330, "telemetry": 330}  # approximate encoded sizes
 def main(seconds: float) -> None:
     system = "bench-e2e"
     out = Path("runs") / system
-    subprocess.run([sys.executable, "-m", "stations.cli", "up", "--keep-running", "--duration", str(seconds),
+    subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--keep-running", "--duration", str(seconds),
                     "--port", "0", "--out", str(out), "--system", system], check=True, capture_output=True)
     summary = json.loads((out / "summary.json").read_text())
     profiles = Config().links.profiles()

@@ -8,9 +8,8 @@ import threading
 import time
 
 import numpy as np
-
-from linkemu.profile import profile
-from linkemu.runner import LinkRunner
+from abyss.linkemu.profile import profile
+from abyss.linkemu.runner import LinkRunner
 
 
 def timing_accuracy() -> None:

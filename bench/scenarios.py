@@ -21,7 +21,7 @@ SLIPPED = 0.95  # a simulation that keeps fewer of its deadlines than this has s
 
 def run(files: list[Path], parallel: int, out: Path) -> tuple[float, str]:
     t0 = time.monotonic()
-    command = [sys.executable, "-m", "stations.cli", "scenario", "run", *map(str, files)]
+    command = [sys.executable, "-m", "abyss.cli", "scenario", "run", *map(str, files)]
     command += ["--parallel", str(parallel), "--report", str(out)]
     done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     return time.monotonic() - t0, done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr

@@ -13,21 +13,20 @@ import time
 
 import numpy as np
 import pyoctomap
-
-from stations.simulation.rendering import choose_gl_backend
+from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
 
-from common.clouds import unpack_cloud, voxel_downsample  # noqa: E402
-from common.config import SimulationConfig  # noqa: E402
-from common.images import decode_image  # noqa: E402
-from common.messages import encode  # noqa: E402
-from common.models import CAMERAS  # noqa: E402
-from common.scene import SceneModel  # noqa: E402
-from stations.onboard.perception import CloudSettings, clouds_of  # noqa: E402
-from stations.simulation.encoding import encode_image  # noqa: E402
-from stations.simulation.rendering import Cameras  # noqa: E402
-from stations.simulation.world import World  # noqa: E402
+from abyss.common.clouds import unpack_cloud, voxel_downsample  # noqa: E402
+from abyss.common.config import SimulationConfig  # noqa: E402
+from abyss.common.images import decode_image  # noqa: E402
+from abyss.common.messages import encode  # noqa: E402
+from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.common.scene import SceneModel  # noqa: E402
+from abyss.stations.onboard.perception import CloudSettings, clouds_of  # noqa: E402
+from abyss.stations.simulation.encoding import encode_image  # noqa: E402
+from abyss.stations.simulation.rendering import Cameras  # noqa: E402
+from abyss.stations.simulation.world import World  # noqa: E402
 
 REPEATS = 5
 

@@ -12,21 +12,20 @@ import time
 
 import numpy as np
 import zenoh
-
-from stations.simulation.rendering import choose_gl_backend
+from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
 
-from common import keys  # noqa: E402
-from common.bus import open_session, zenoh_config  # noqa: E402
-from common.config import SimulationConfig  # noqa: E402
-from common.messages import SimulationStatus, decode  # noqa: E402
-from common.models import CAMERAS  # noqa: E402
-from stations.runtime import free_port  # noqa: E402
-from stations.simulation.encoding import encode_image  # noqa: E402
-from stations.simulation.lowlevel import References  # noqa: E402
-from stations.simulation.rendering import Cameras  # noqa: E402
-from stations.simulation.world import World  # noqa: E402
+from abyss.common import keys  # noqa: E402
+from abyss.common.bus import open_session, zenoh_config  # noqa: E402
+from abyss.common.config import SimulationConfig  # noqa: E402
+from abyss.common.messages import SimulationStatus, decode  # noqa: E402
+from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.stations.runtime import free_port  # noqa: E402
+from abyss.stations.simulation.encoding import encode_image  # noqa: E402
+from abyss.stations.simulation.lowlevel import References  # noqa: E402
+from abyss.stations.simulation.rendering import Cameras  # noqa: E402
+from abyss.stations.simulation.world import World  # noqa: E402
 
 
 def physics(low_level: str, seconds: float = 20.0) -> None:
@@ -64,7 +63,7 @@ def station_loop(camera_rate_hz: float, seconds: float = 15.0) -> None:
     port = free_port()
     system = f"bench-sim-{int(camera_rate_hz * 10)}"
     station = subprocess.Popen(
-        [sys.executable, "-m", "stations.cli", "station", "simulation", "--system", system,
+        [sys.executable, "-m", "abyss.cli", "station", "simulation", "--system", system,
          "--listen", f"tcp/127.0.0.1:{port}", "--set", f"simulation.camera_rate_hz={camera_rate_hz}"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     session = open_session(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]), "bench")  # peer: retries

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import subprocess
 import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
+
+from abyss.launch.state import wait_for_state
 
 ROOT = Path(__file__).resolve().parents[1]
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")
@@ -29,16 +30,15 @@ def cpu_s(pid: int) -> float:
 def run(viewer: str, seconds: float, out: Path) -> tuple[float, float]:
     """(onshore CPU share, recording bytes per minute) of one run."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "stations.cli", "up", "--port", "0", "--keep-running", "--duration",
+        [sys.executable, "-m", "abyss.cli", "up", "--port", "0", "--keep-running", "--duration",
          str(seconds + 10), "--viewer", viewer, "--out", str(out), "--system", f"bench-{viewer}"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(process.stdout or ()), daemon=True).start()
-    while not any("all 4 stations up" in line for line in lines):
-        if process.poll() is not None:
-            raise SystemExit("abyss up ended early:\n" + "".join(lines))
-        time.sleep(0.1)
-    pid = int(next(m.group(1) for line in lines if (m := re.search(r"onshore up \(pid (\d+)", line))))
+    state = wait_for_state(out, lambda s: s.phase == "up", 120.0, lambda: process.poll() is None)
+    pid = state.stations["onshore"].pid if state else None
+    if pid is None:
+        raise SystemExit("abyss up ended early:\n" + "".join(lines))
     time.sleep(5.0)  # past start-up
     t0, c0 = time.monotonic(), cpu_s(pid)
     time.sleep(seconds)

@@ -17,16 +17,15 @@ from typing import Any
 
 import numpy as np
 import zenoh
-
-from common import keys, security
-from common.certs import CertFiles
-from common.errors import AbyssError, BadMessage, BusError, ConfigError, LinkError
-from common.messages import LinkControl, LinkStats, Message, Received, decode, encode
-from common.samples import Samples
-from linkemu.netem import interface_towards, netem_args, run_tc, tc_command
-from linkemu.profile import LinkProfile
-from linkemu.profile import profile as named_profile
-from linkemu.runner import LinkRunner
+from abyss.common import keys, security
+from abyss.common.certs import CertFiles
+from abyss.common.errors import AbyssError, BadMessage, BusError, ConfigError, LinkError
+from abyss.common.messages import LinkControl, LinkStats, Message, Received, decode, encode
+from abyss.common.samples import Samples
+from abyss.linkemu.netem import interface_towards, netem_args, run_tc, tc_command
+from abyss.linkemu.profile import LinkProfile
+from abyss.linkemu.profile import profile as named_profile
+from abyss.linkemu.runner import LinkRunner
 
 log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0

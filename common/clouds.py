@@ -5,8 +5,7 @@ from __future__ import annotations
 import zlib
 
 import numpy as np
-
-from common.messages import CLOUD_POINT_BYTES, PointCloud
+from abyss.common.messages import CLOUD_POINT_BYTES, PointCloud
 
 _RECORD = np.dtype([("xyz", "<i2", 3), ("rgb", "u1", 3)])
 assert _RECORD.itemsize == CLOUD_POINT_BYTES

@@ -14,12 +14,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from common import keys
-from common.errors import ConfigError
-from common.geometry import quat_wxyz_of, rotation_of_rpy
-from common.messages import CLOUD_SOURCES
-from linkemu.profile import LinkProfile, load_profiles, profile
+from abyss.common import keys
+from abyss.common.errors import ConfigError
+from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
+from abyss.common.messages import CLOUD_SOURCES
+from abyss.linkemu.profile import LinkProfile, load_profiles, profile
 
 
 @dataclass(frozen=True)

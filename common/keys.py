@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
-from common.errors import ConfigError
+from abyss.common.errors import ConfigError
 
 PREFIX = "abyss"
 STATIONS: tuple[str, ...] = ("simulation", "onboard", "vessel", "onshore")
@@ -69,7 +69,7 @@ class KeySpec:
 
     station: str
     topic: str
-    message: str  # a message type name from common.messages
+    message: str  # a message type name from abyss.common.messages
     rate_hz: float  # nominal rate; 0 for event-driven keys
     reliability: Reliability  # reliable: congestion control BLOCK; best-effort: DROP
     to: str  # the neighbour that subscribes

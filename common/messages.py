@@ -19,8 +19,7 @@ from typing import Any, ClassVar
 
 import msgpack
 import numpy as np
-
-from common.errors import BadMessage
+from abyss.common.errors import BadMessage
 
 MESSAGES: dict[str, type[Message]] = {}
 

@@ -23,9 +23,8 @@ from pathlib import Path
 
 import numpy as np
 import pyoctomap
-
-from common.clouds import voxel_downsample
-from common.messages import SceneUpdate
+from abyss.common.clouds import voxel_downsample
+from abyss.common.messages import SceneUpdate
 
 log = logging.getLogger(__name__)
 KEY_OFFSET = 32768  # OctoMap's tree_max_val at depth 16

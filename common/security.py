@@ -20,10 +20,9 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import zenoh
-
-from common import keys
-from common.certs import HOLDERS, OPERATOR, CertFiles
-from common.errors import ConfigError
+from abyss.common import keys
+from abyss.common.certs import HOLDERS, OPERATOR, CertFiles
+from abyss.common.errors import ConfigError
 
 log = logging.getLogger(__name__)
 TLS_DIR_ENV = "ABYSS_TLS_DIR"  # the certificates' directory for tools that connect to tls/ endpoints

@@ -20,11 +20,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
-from common.errors import LinkError
-from common.samples import Samples
-from linkemu.profile import LinkProfile
-from linkemu.stages import STAGES, Packet, Stage
+from abyss.common.errors import LinkError
+from abyss.common.samples import Samples
+from abyss.linkemu.profile import LinkProfile
+from abyss.linkemu.stages import STAGES, Packet, Stage
 
 HEADER_BYTES = {"tcp": 40, "udp": 28}  # IPv4 + TCP / UDP headers per packet
 DELAY_SAMPLES = 4096  # delivered-message delays kept for percentiles
@@ -90,7 +89,7 @@ class Link:
     """One emulated link direction. Not thread-safe: the runner holds a lock around it."""
 
     def __init__(self, profile: LinkProfile, rng: np.random.Generator | None = None) -> None:
-        from linkemu.transport import TRANSPORTS  # the transports build on this module
+        from abyss.linkemu.transport import TRANSPORTS  # the transports build on this module
 
         self.profile = profile
         self.rng = rng if rng is not None else np.random.default_rng(profile.seed)

@@ -22,9 +22,9 @@ import socket
 import subprocess
 import time
 
-from common.errors import LinkError
-from linkemu.profile import LinkProfile
-from linkemu.units import format_fraction, format_rate, format_time
+from abyss.common.errors import LinkError
+from abyss.linkemu.profile import LinkProfile
+from abyss.linkemu.units import format_fraction, format_rate, format_time
 
 
 def netem_args(profile: LinkProfile) -> list[str]:

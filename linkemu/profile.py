@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from common.errors import ConfigError, UnknownProfile
-from linkemu.units import (
+from abyss.common.errors import ConfigError, UnknownProfile
+from abyss.linkemu.units import (
     format_fraction,
     format_rate,
     format_time,

@@ -10,10 +10,9 @@ from collections.abc import Callable, Container
 from typing import Any
 
 import numpy as np
-
-from common.samples import Samples
-from linkemu.link import Delivery, Link, Offer
-from linkemu.profile import LinkProfile
+from abyss.common.samples import Samples
+from abyss.linkemu.link import Delivery, Link, Offer
+from abyss.linkemu.profile import LinkProfile
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import re
 
-from common.errors import ConfigError
+from abyss.common.errors import ConfigError
 
 _NUMBER = r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*"
 _RATE = {"bit": 1.0, "kbit": 1e3, "mbit": 1e6, "gbit": 1e9, "bps": 8.0, "kbps": 8e3,

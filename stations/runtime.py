@@ -15,10 +15,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from common import keys
-from common.bus import Bus
-from common.certs import CertFiles
-from common.config import Config
+from abyss.common import keys
+from abyss.common.bus import Bus
+from abyss.common.certs import CertFiles
+from abyss.common.config import Config
 
 log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
@@ -38,7 +38,7 @@ def stop_with_supervisor() -> None:
 
 def station_entry(name: str) -> Callable[[Config, Any], None]:
     """The station's `run(config, bus)`."""
-    return importlib.import_module(f"stations.{keys.check_station(name)}").run  # type: ignore[no-any-return]
+    return importlib.import_module(f"abyss.stations.{keys.check_station(name)}").run  # type: ignore[no-any-return]
 
 
 def free_port(host: str = "127.0.0.1") -> int:

@@ -1,5 +1,5 @@
 """Pick an offscreen GL backend before any test imports MuJoCo's rendering."""
 
-from stations.simulation.rendering import choose_gl_backend
+from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()

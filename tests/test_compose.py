@@ -11,12 +11,11 @@ from typing import Any
 
 import pytest
 import yaml
-
-from common import keys
-from common.config import LinksConfig
-from linkemu.profile import load_profiles
-from stations.cli import parser
-from stations.supervisor import DEFAULT_PORT
+from abyss.cli import parser
+from abyss.common import keys
+from abyss.common.config import LinksConfig
+from abyss.launch.up import DEFAULT_PORT
+from abyss.linkemu.profile import load_profiles
 
 ROOT = Path(__file__).resolve().parents[1]
 OVERRIDES = {"ABYSS_TLS": "tls", "ABYSS_TLS_DIR": "/certs", "ABYSS_SATELLITE_PROFILE": "satellite-storm",

@@ -5,11 +5,10 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from common import keys
-from common.config import load
-from common.errors import ConfigError
-from linkemu.profile import load_profiles, profile
+from abyss.common import keys
+from abyss.common.config import load
+from abyss.common.errors import ConfigError
+from abyss.linkemu.profile import load_profiles, profile
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -20,13 +19,13 @@ def test_readme_keys_table_is_the_generated_one() -> None:
 
 
 def test_abyss_keys_prints_the_table() -> None:
-    out = subprocess.run([sys.executable, "-m", "stations.cli", "keys"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "abyss.cli", "keys"], capture_output=True, text=True,
                          check=True, cwd=ROOT).stdout
     assert out.strip() == keys.keys_table()
 
 
 def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
-    from common.messages import MESSAGES
+    from abyss.common.messages import MESSAGES
     for spec in keys.KEYS:
         assert spec.hop in keys.HOPS and spec.message in MESSAGES
     assert keys.key("s1", "onboard", "telemetry") == "abyss/s1/onboard/telemetry"
@@ -73,6 +72,6 @@ def test_profiles_parse_with_units_and_refuse_bad_values() -> None:
 
 
 def test_cli_refuses_a_bad_profile_before_starting() -> None:
-    done = subprocess.run([sys.executable, "-m", "stations.cli", "up", "--profile", "tether=nope"],
+    done = subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--profile", "tether=nope"],
                           capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert done.returncode == 2 and "links.tether" in done.stderr and "satellite" in done.stderr

@@ -7,11 +7,10 @@ import math
 import msgpack
 import numpy as np
 import pytest
+from abyss.common.errors import BadMessage
+from abyss.common.messages import ArmGoal, NavState, Telemetry, VelocityRef, Waypoints, decode, encode
 from hypothesis import given
 from hypothesis import strategies as st
-
-from common.errors import BadMessage
-from common.messages import ArmGoal, NavState, Telemetry, VelocityRef, Waypoints, decode, encode
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 

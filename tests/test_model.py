@@ -7,8 +7,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
-
-from common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
+from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
 
 
 @pytest.fixture(scope="module")
@@ -65,8 +64,7 @@ def test_joint_limits_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
 def test_the_panel_recognition_knows_is_the_panel_in_the_world(models: tuple[mujoco.MjModel, pin.Model],
                                                                tmp_path) -> None:  # type: ignore[no-untyped-def]
     import cv2
-
-    from common.models import panel
+    from abyss.common.models import panel
 
     world, _ = models
     assert np.allclose(world.body("panel").pos, panel.PANEL_POSITION_M_WORLD)

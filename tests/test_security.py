@@ -7,10 +7,9 @@ import logging
 from pathlib import Path
 
 import pytest
-
-from common import certs, keys
-from common.errors import ConfigError
-from common.security import RefusalLog, access_control, check_endpoints
+from abyss.common import certs, keys
+from abyss.common.errors import ConfigError
+from abyss.common.security import RefusalLog, access_control, check_endpoints
 
 # Zenoh 1.10's own lines (colours stripped), as a station's stdout shows them
 DENIED = ("2026-11-22T10:44:06Z TRACE rx-0 ThreadId(10) zenoh::net::routing::interceptor::access_control: "
@@ -68,7 +67,7 @@ def test_endpoints_and_certificates_agree(tmp_path: Path) -> None:
 
 
 def test_bad_deployment_arguments_name_the_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from stations.cli import main
+    from abyss.cli import main
     assert main(["certs", "make", str(tmp_path), "--host", "mallory=10.0.0.9"]) == 2
     assert "--host: unknown holder 'mallory'; allowed: simulation, onboard, vessel, onshore, operator" \
         in capsys.readouterr().err

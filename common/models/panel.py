@@ -12,8 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from common.models import MODELS_DIR
+from abyss.common.models import MODELS_DIR
 
 PANEL_POSITION_M_WORLD = (5.0, 0.0, -8.6)  # the panel's frame is the world's, translated
 PLATE_HALF_SIZE_M = (0.05, 0.8, 0.6)

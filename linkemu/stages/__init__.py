@@ -3,12 +3,12 @@ stage and returns the packets that leave it, each stamped with the time it leave
 never adds a delay that an earlier stage already applied. `STAGES` registers them by name
 in pipeline order."""
 
-from linkemu.stages.base import Packet, Stage
-from linkemu.stages.corrupt import Corrupt
-from linkemu.stages.delay import Delay
-from linkemu.stages.duplicate import Duplicate
-from linkemu.stages.loss import Loss
-from linkemu.stages.serialise import Serialise
+from abyss.linkemu.stages.base import Packet, Stage
+from abyss.linkemu.stages.corrupt import Corrupt
+from abyss.linkemu.stages.delay import Delay
+from abyss.linkemu.stages.duplicate import Duplicate
+from abyss.linkemu.stages.loss import Loss
+from abyss.linkemu.stages.serialise import Serialise
 
 STAGES: dict[str, type[Stage]] = {
     "duplicate": Duplicate,

@@ -4,8 +4,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
-
-from linkemu.profile import LinkProfile
+from abyss.linkemu.profile import LinkProfile
 
 
 @dataclass

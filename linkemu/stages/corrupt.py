@@ -1,6 +1,6 @@
 from __future__ import annotations
 
-from linkemu.stages.base import Packet, Stage
+from abyss.linkemu.stages.base import Packet, Stage
 
 
 class Corrupt(Stage):

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import math
 
-from linkemu.stages.base import Packet, Stage
+from abyss.linkemu.stages.base import Packet, Stage
 
 _PARETO_SHAPE = 3.0
 # A Pareto (type I) variable with shape 3 and scale 1 has mean 1.5 and std sqrt(3)/2.

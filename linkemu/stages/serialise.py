@@ -3,7 +3,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from linkemu.stages.base import Packet, Stage
+from abyss.linkemu.stages.base import Packet, Stage
 
 
 class Serialise(Stage):

@@ -1,7 +1,7 @@
 """Transport models: what the sender and receiver do about lost and corrupt packets."""
 
-from linkemu.transport.tcp import Tcp
-from linkemu.transport.udp import Udp
+from abyss.linkemu.transport.tcp import Tcp
+from abyss.linkemu.transport.udp import Udp
 
 TRANSPORTS = {"tcp": Tcp, "udp": Udp}
 

@@ -5,10 +5,10 @@ import math
 from collections import deque
 from typing import TYPE_CHECKING
 
-from linkemu.stages import Packet
+from abyss.linkemu.stages import Packet
 
 if TYPE_CHECKING:
-    from linkemu.link import Link
+    from abyss.linkemu.link import Link
 
 INITIAL_CWND = 10.0  # packets (Linux's initial window)
 INITIAL_RTO_S = 1.0  # RFC 6298

@@ -2,10 +2,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from linkemu.stages import Packet, Serialise
+from abyss.linkemu.stages import Packet, Serialise
 
 if TYPE_CHECKING:
-    from linkemu.link import Link
+    from abyss.linkemu.link import Link
 
 
 class Udp:

@@ -15,12 +15,11 @@ import threading
 import time
 
 import numpy as np
-
-from common import keys
-from common.bus import Bus
-from common.config import Config
-from common.geometry import quat_wxyz_of, yaw_of
-from common.messages import (
+from abyss.common import keys
+from abyss.common.bus import Bus
+from abyss.common.config import Config
+from abyss.common.geometry import quat_wxyz_of, yaw_of
+from abyss.common.messages import (
     ArmGoal,
     ArmVelocityRef,
     Heartbeat,
@@ -32,14 +31,14 @@ from common.messages import (
     VelocityRef,
     Waypoints,
 )
-from common.models import ARM_JOINTS, CAMERAS
-from common.rate import Rate
-from stations.onboard.arm_control import ArmController
-from stations.onboard.commands import CommandGate
-from stations.onboard.failsafe import Failsafe
-from stations.onboard.navigation import NavFilter
-from stations.onboard.perception import PoseHistory
-from stations.onboard.vehicle_control import VehicleController
+from abyss.common.models import ARM_JOINTS, CAMERAS
+from abyss.common.rate import Rate
+from abyss.stations.onboard.arm_control import ArmController
+from abyss.stations.onboard.commands import CommandGate
+from abyss.stations.onboard.failsafe import Failsafe
+from abyss.stations.onboard.navigation import NavFilter
+from abyss.stations.onboard.perception import PoseHistory
+from abyss.stations.onboard.vehicle_control import VehicleController
 
 GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
 GRIPPER_GAIN_PER_S = 2.0
@@ -148,8 +147,8 @@ def run(config: Config, bus: Bus) -> None:
 def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     """Clouds from each complete set of frames (taken at one instant), placed with the pose
     estimated for that instant; the left frame re-encoded to the vessel at its own rate."""
-    from common.images import decode_image, encode_jpeg
-    from stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
+    from abyss.common.images import decode_image, encode_jpeg
+    from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
     cfg = config.onboard
     settings = CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,

@@ -18,10 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-
-from common.config import MissionConfig, OnboardConfig
-from common.geometry import rotation_of
-from common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
+from abyss.common.config import MissionConfig, OnboardConfig
+from abyss.common.geometry import rotation_of
+from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
 
 CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist, end-effector
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances

@@ -8,10 +8,9 @@ from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
-
-from common.config import Box, MissionConfig
-from common.geometry import rotation_of_rpy
-from common.messages import ArmGoal, CommandAck, Message, OperatorMode, Waypoints
+from abyss.common.config import Box, MissionConfig
+from abyss.common.geometry import rotation_of_rpy
+from abyss.common.messages import ArmGoal, CommandAck, Message, OperatorMode, Waypoints
 
 ANSWERS_KEPT = 64
 

@@ -4,7 +4,7 @@ reports shore silent (satellite down); both resume when the link returns."""
 
 from __future__ import annotations
 
-from common.messages import Heartbeat
+from abyss.common.messages import Heartbeat
 
 
 class Failsafe:

@@ -8,9 +8,8 @@ alone."""
 from __future__ import annotations
 
 import numpy as np
-
-from common.geometry import quat_multiply, rotation_of, small_rotation_wxyz
-from common.messages import NavState
+from abyss.common.geometry import quat_multiply, rotation_of, small_rotation_wxyz
+from abyss.common.messages import NavState
 
 MAX_GAP_S = 1.0  # a longer gap in the fixes restarts the estimate from the next fix
 

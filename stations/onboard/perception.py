@@ -12,12 +12,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from common.clouds import pack_cloud, voxel_downsample
-from common.geometry import quat_wxyz_of, rotation_of
-from common.images import decode_image
-from common.messages import Image, PointCloud
-from stations.onboard.navigation import nlerp
+from abyss.common.clouds import pack_cloud, voxel_downsample
+from abyss.common.geometry import quat_wxyz_of, rotation_of
+from abyss.common.images import decode_image
+from abyss.common.messages import Image, PointCloud
+from abyss.stations.onboard.navigation import nlerp
 
 log = logging.getLogger(__name__)
 

@@ -7,9 +7,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from common.config import MissionConfig, OnboardConfig
-from common.geometry import wrap_rad
+from abyss.common.config import MissionConfig, OnboardConfig
+from abyss.common.geometry import wrap_rad
 
 
 @dataclass(frozen=True)

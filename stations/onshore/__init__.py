@@ -16,11 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from common import keys
-from common.bus import Bus, Inbox
-from common.config import Config
-from common.messages import (
+from abyss.common import keys
+from abyss.common.bus import Bus, Inbox
+from abyss.common.config import Config
+from abyss.common.messages import (
     ArmGoal,
     CommandAck,
     Heartbeat,
@@ -36,9 +35,9 @@ from common.messages import (
     Waypoints,
     encode,
 )
-from common.rate import Rate
-from common.scene import SceneReceiver
-from stations.onshore.viewer import Sinks, Viewer
+from abyss.common.rate import Rate
+from abyss.common.scene import SceneReceiver
+from abyss.stations.onshore.viewer import Sinks, Viewer
 
 PERIOD_S = 0.1
 STATUS_PERIOD_S = 0.25

@@ -7,7 +7,6 @@ with the sender's wall-clock stamp from its envelope."""
 from __future__ import annotations
 
 import math
-import os
 import subprocess
 from collections import deque
 from pathlib import Path
@@ -16,11 +15,9 @@ import mujoco
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
-
-from common.config import OnshoreConfig
-from common.errors import ConfigError
-from common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
-from common.models import ARM_JOINTS, ROBOT_FILE
+from abyss.common.config import OnshoreConfig
+from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
+from abyss.common.models import ARM_JOINTS, ROBOT_FILE
 
 RECORDING_FILE = "onshore.rrd"
 PATH_POINTS = 5000  # the most recent points of the path flown kept on screen
@@ -293,23 +290,3 @@ class Viewer:
         sender, _, receiver = s.direction.partition("->")
         direction = rr.escape_entity_path_part(f"{sender}_to_{receiver}")
         self._scalars(f"links/{rr.escape_entity_path_part(s.hop)}/{direction}", values)
-
-
-def replay(run_dir: Path, web_port: int | None) -> int:
-    """Open a run's recording in rerun's native viewer, or serve it to a browser on `web_port`."""
-    recording = run_dir / RECORDING_FILE
-    if not recording.is_file():
-        raise ConfigError("RUN_DIR", f"{run_dir} holds no {RECORDING_FILE} (a run with --viewer none?)")
-    rerun = rerun_command()
-    if web_port is not None:
-        command = [rerun, str(recording), "--serve-web", "--bind", "127.0.0.1",
-                   "--web-viewer-port", str(web_port)]
-        print(f"abyss: serving {recording} at http://127.0.0.1:{web_port} (Ctrl-C stops)", flush=True)
-    elif os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
-        command = [rerun, str(recording)]
-    else:
-        raise ConfigError("display", "no display for the native viewer; use --web-port PORT and a browser")
-    try:
-        return subprocess.run(command, check=False).returncode
-    except KeyboardInterrupt:
-        return 0

@@ -7,12 +7,11 @@ import threading
 import time
 
 import numpy as np
-
-from common import keys
-from common.bus import Bus
-from common.config import Config
-from common.messages import ArmVelocityRef, SimulationControl, SimulationStatus, VelocityRef
-from common.rate import Rate
+from abyss.common import keys
+from abyss.common.bus import Bus
+from abyss.common.config import Config
+from abyss.common.messages import ArmVelocityRef, SimulationControl, SimulationStatus, VelocityRef
+from abyss.common.rate import Rate
 
 STATUS_PERIOD_S = 1.0
 
@@ -20,10 +19,10 @@ STATUS_PERIOD_S = 1.0
 def run(config: Config, bus: Bus) -> None:
     sim = config.simulation
     if sim.camera_rate_hz > 0:
-        from stations.simulation.rendering import choose_gl_backend
+        from abyss.stations.simulation.rendering import choose_gl_backend
 
         choose_gl_backend()  # before MuJoCo is imported
-    from stations.simulation.world import World, references
+    from abyss.stations.simulation.world import World, references
 
     world = World(sim, np.random.default_rng(config.seed))
     vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", maxlen=4)
@@ -71,10 +70,9 @@ def run(config: Config, bus: Bus) -> None:
 def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:
     """Render every camera at the camera rate from a copy of the physics state."""
     import mujoco
-
-    from common.models import CAMERAS
-    from stations.simulation.encoding import encode_image
-    from stations.simulation.rendering import Cameras
+    from abyss.common.models import CAMERAS
+    from abyss.stations.simulation.encoding import encode_image
+    from abyss.stations.simulation.rendering import Cameras
 
     sim = config.simulation
     model = world.model  # type: ignore[attr-defined]

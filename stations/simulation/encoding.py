@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-
-from common.images import DEPTH_SCALE_M, encode_jpeg
-from common.messages import Image
-from stations.simulation.rendering import Cameras
+from abyss.common.images import DEPTH_SCALE_M, encode_jpeg
+from abyss.common.messages import Image
+from abyss.stations.simulation.rendering import Cameras
 
 
 def encode_image(cameras: Cameras, data: object, camera: str, jpeg_quality: int) -> Image:

@@ -11,9 +11,8 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-
-from common.models import ARM_JOINTS, GRIPPER_JOINTS
-from stations.simulation.thrusters import Thrusters
+from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
+from abyss.stations.simulation.thrusters import Thrusters
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from common.geometry import quat_multiply, small_rotation_wxyz
-from common.messages import NavState
-from common.models import NAV_SENSORS
+from abyss.common.geometry import quat_multiply, small_rotation_wxyz
+from abyss.common.messages import NavState
+from abyss.common.models import NAV_SENSORS
 
 
 @dataclass(frozen=True)

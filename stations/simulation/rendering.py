@@ -10,8 +10,7 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
-
-from common.errors import AbyssError
+from abyss.common.errors import AbyssError
 
 BACKENDS = ("egl", "osmesa")
 _PROBE = ("import mujoco; r = mujoco.Renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 8, 8); "

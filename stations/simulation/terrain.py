@@ -15,8 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from common.errors import AbyssError
+from abyss.common.errors import AbyssError
 
 log = logging.getLogger(__name__)
 

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-
-from common.models import THRUSTERS
+from abyss.common.models import THRUSTERS
 
 # The vehicle has thrust in surge, sway, heave and yaw; roll and pitch are left to its
 # hydrostatic restoring moment, as on the original vehicle.

@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-
-from common.config import SimulationConfig
-from common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
-from common.models import (
+from abyss.common.config import SimulationConfig
+from abyss.common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
+from abyss.common.models import (
     ARM_JOINTS,
     ARM_STOWED_RAD,
     CAMERAS,
@@ -17,9 +16,9 @@ from common.models import (
     THRUSTERS,
     WORLD_FILE,
 )
-from stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
-from stations.simulation.marine import Buoyancy, Current
-from stations.simulation.navigation import Navigation, NoiseSigmas
+from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
+from abyss.stations.simulation.marine import Buoyancy, Current
+from abyss.stations.simulation.navigation import Navigation, NoiseSigmas
 
 
 def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> References:

@@ -12,18 +12,17 @@ import time
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from common import keys
-from common.bus import Bus, Inbox
-from common.clouds import unpack_cloud
-from common.config import Config
-from common.images import decode_image, downscale
-from common.messages import Heartbeat, Image, PointCloud
-from common.rate import Rate
-from stations.vessel.pacing import ScenePacer
+from abyss.common import keys
+from abyss.common.bus import Bus, Inbox
+from abyss.common.clouds import unpack_cloud
+from abyss.common.config import Config
+from abyss.common.images import decode_image, downscale
+from abyss.common.messages import Heartbeat, Image, PointCloud
+from abyss.common.rate import Rate
+from abyss.stations.vessel.pacing import ScenePacer
 
 if TYPE_CHECKING:
-    from common.scene import SceneModel
+    from abyss.common.scene import SceneModel
 
 RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode"}
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
@@ -69,8 +68,8 @@ def _scene_loop(config: Config, bus: Bus) -> None:
     """Integrate the clouds and recognise the panel; a thread of its own (`_send_loop`) streams
     the result, so that a slow insertion (a second or more for a stereo cloud on a loaded
     machine) never holds the stream back."""
-    from common.scene import SceneModel
-    from stations.vessel.recognition import PanelTracker
+    from abyss.common.scene import SceneModel
+    from abyss.stations.vessel.recognition import PanelTracker
 
     cfg = config.vessel
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)

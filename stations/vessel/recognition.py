@@ -20,10 +20,9 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-
-from common.geometry import quat_wxyz_of, rotation_of
-from common.messages import Image, RecognisedObjects
-from common.models import panel
+from abyss.common.geometry import quat_wxyz_of, rotation_of
+from abyss.common.messages import Image, RecognisedObjects
+from abyss.common.models import panel
 
 log = logging.getLogger(__name__)
 MIN_PLANE_POINTS = 200

@@ -9,11 +9,12 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+from abyss.launch.state import RunState, wait_for_state
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -28,8 +29,8 @@ class Up:
         self.out = out
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "stations.cli", "up", "--port", "0", "--out", str(out), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT, env=env,
+            [sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=out.parent, env=env,
             start_new_session=True)  # its stations share its process group: a failed test kills them all
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -51,9 +52,21 @@ class Up:
             time.sleep(0.05)
         raise AssertionError(f"no line matching {pattern!r}; output:\n" + "\n".join(self.lines))
 
+    def state(self, holds: Callable[[RunState], bool] = lambda _: True, timeout_s: float = 60.0) -> RunState:
+        """`abyss up`'s state.json, once `holds` is true of it."""
+        state = wait_for_state(self.out, holds, timeout_s, lambda: self.process.poll() is None)
+        if state is None:
+            raise AssertionError(f"state.json never held; state {RunState.read(self.out)}; output:\n"
+                                 + "\n".join(self.lines))
+        return state
+
+    def wait_up(self, timeout_s: float = 60.0) -> RunState:
+        """Once every station is up."""
+        return self.state(lambda s: s.phase == "up", timeout_s)
+
     @property
     def endpoint(self) -> str:
-        return self.wait_for(r"Zenoh endpoint (tcp/\S+)").group(1)
+        return self.state().endpoint
 
     def stop(self, timeout_s: float = 60.0) -> int:
         if self.process.poll() is None:
@@ -86,5 +99,5 @@ def no_leftover_systems() -> Iterator[None]:
 
 
 def abyss(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "stations.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "abyss.cli", *args], capture_output=True, text=True,
                           cwd=ROOT, timeout=timeout_s)

@@ -13,7 +13,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from common import keys
+from abyss.common import keys
 
 ROOT = Path(__file__).resolve().parents[2]
 PORT = 7447

@@ -21,11 +21,11 @@ import numpy as np
 import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-from common import keys
-from common.bus import client_config, message_of, open_session, zenoh_config
-from common.certs import CertFiles
-from common.messages import MissionStatus, Waypoints, encode
-from common.security import TLS_DIR_ENV, tls_settings
+from abyss.common import keys
+from abyss.common.bus import client_config, message_of, open_session, zenoh_config
+from abyss.common.certs import CertFiles
+from abyss.common.messages import MissionStatus, Waypoints, encode
+from abyss.common.security import TLS_DIR_ENV, tls_settings
 
 
 def watch(endpoint: str, system: str, timeout_s: float) -> dict[str, object]:

@@ -11,14 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.config import MissionConfig
+from abyss.common.geometry import wrap_rad, yaw_of
+from abyss.common.messages import NavState, decode
+from abyss.validation.plot import FIGURES
 from conftest import Up, abyss
-
-from common import keys
-from common.bus import open_session, zenoh_config
-from common.config import MissionConfig
-from common.geometry import wrap_rad, yaw_of
-from common.messages import NavState, decode
-from stations.plot import FIGURES
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 LAST_WAYPOINT = MissionConfig().waypoints[-1]
@@ -86,7 +85,7 @@ def test_failsafe_holds_station_through_a_tether_outage_and_resumes(tmp_path: Pa
     truth = Truth(up.endpoint, system)
     link = ("--connect", up.endpoint, "--system", system)
     try:
-        up.wait_for("all 4 stations up")
+        up.wait_up()
         time.sleep(4.0)  # the mission is under way
         moved_m = np.ptp([s.position_m_world[0] for s in truth.since(1.0)])
         assert moved_m > 0.1, "the vehicle should be flying its first leg"

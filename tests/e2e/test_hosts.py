@@ -12,10 +12,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from abyss.common import certs, keys
+from abyss.common.security import TLS_DIR_ENV
 from hosts import PORT, Hosts, usable
-
-from common import certs, keys
-from common.security import TLS_DIR_ENV
 
 pytestmark = pytest.mark.e2e
 SYSTEM = "e2e-hosts"
@@ -34,7 +33,7 @@ def hosts() -> Iterator[Hosts]:
 
 
 def station_args(hosts: Hosts, station: str, run_dir: Path, *extra: str) -> list[str]:
-    return ["-m", "stations.cli", "station", station, "--system", SYSTEM,
+    return ["-m", "abyss.cli", "station", station, "--system", SYSTEM,
             *hosts.endpoints(station, "tls"), "--tls", str(run_dir / "certs"),
             "--status-file", str(run_dir / f"{station}.json"), *extra]
 
@@ -84,7 +83,7 @@ def test_mission_over_separate_hosts_with_tls_and_access_control(hosts: Hosts, t
         assert int(seen["truth"]) > 0, seen  # type: ignore[call-overload]
         # the containers' health check: a station's token, seen through its own TLS listener
         certs_env = {TLS_DIR_ENV: str(tmp_path / "certs")}
-        health = ["-m", "stations.cli", "health", "onboard", "--connect", f"tls/127.0.0.1:{PORT}"]
+        health = ["-m", "abyss.cli", "health", "onboard", "--connect", f"tls/127.0.0.1:{PORT}"]
         healthy = hosts.run("onboard", [*health, "--system", SYSTEM], 60, certs_env)
         assert healthy.returncode == 0, healthy.stderr
         unknown = hosts.run("onboard", [*health, "--system", "no-such-system"], 60, certs_env)

@@ -11,11 +11,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.messages import Telemetry, decode
 from conftest import Up, abyss
-
-from common import keys
-from common.bus import open_session, zenoh_config
-from common.messages import Telemetry, decode
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 SYSTEM = "e2e-op"
@@ -54,7 +53,7 @@ class TelemetryOnShore:
 
 def test_operator_commands_are_answered_and_change_the_vehicle_goal(tmp_path: Path) -> None:
     up = Up(tmp_path / "run", "--keep-running", "--duration", "90", "--system", SYSTEM, "--viewer", "none")
-    up.wait_for("all 4 stations up")
+    up.wait_up()
     link = ("--connect", up.endpoint, "--system", SYSTEM)
     shore = TelemetryOnShore(up.endpoint)
     try:

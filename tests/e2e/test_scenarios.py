@@ -84,10 +84,10 @@ def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> No
     silent = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,
                    "--duration", "2")  # nothing of onboard's yet: the check must fail
     assert silent.returncode == 1 and "FAIL: 0.00 Hz, nominal 20 Hz" in silent.stdout, silent.stdout
-    own = subprocess.Popen([sys.executable, "-m", "stations.cli", *line.group(1).split()[1:]], cwd=ROOT,
+    own = subprocess.Popen([sys.executable, "-m", "abyss.cli", *line.group(1).split()[1:]], cwd=ROOT,
                            stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)  # as the team starts theirs
     try:
-        system.wait_for(r"all 4 stations up", 60.0)
+        system.wait_up(60.0)
         checked = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,
                         "--duration", "4")  # fmt: skip
         assert checked.returncode == 0, checked.stdout + checked.stderr

@@ -15,13 +15,20 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.images import decode_image
+from abyss.common.messages import (
+    Image,
+    NavState,
+    SimulationControl,
+    SimulationStatus,
+    VelocityRef,
+    decode,
+    encode,
+)
+from abyss.stations.runtime import free_port
 from conftest import ROOT, abyss
-
-from common import keys
-from common.bus import open_session, zenoh_config
-from common.images import decode_image
-from common.messages import Image, NavState, SimulationControl, SimulationStatus, VelocityRef, decode, encode
-from stations.runtime import free_port
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
 SYSTEM = "e2e-sim"
@@ -49,7 +56,7 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
     port = free_port()
     status_file = tmp_path / "simulation.json"
     station = subprocess.Popen(
-        [sys.executable, "-m", "stations.cli", "station", "simulation", "--system", SYSTEM,
+        [sys.executable, "-m", "abyss.cli", "station", "simulation", "--system", SYSTEM,
          "--listen", f"tcp/127.0.0.1:{port}", "--status-file", str(status_file),
          "--set", "simulation.camera_rate_hz=2", "--set", "simulation.low_level=dynamic"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)

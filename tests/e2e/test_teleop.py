@@ -14,13 +14,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.messages import ArmGoal, Message, Telemetry, Waypoints, decode, encode
+from abyss.console.teleop import JS_AXIS, JS_EVENT
+from abyss.stations.runtime import free_port
 from conftest import ROOT
-
-from common import keys
-from common.bus import open_session, zenoh_config
-from common.messages import ArmGoal, Message, Telemetry, Waypoints, decode, encode
-from stations.runtime import free_port
-from stations.teleop import JS_AXIS, JS_EVENT
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(90)]
 SYSTEM = "e2e-teleop"
@@ -78,7 +77,7 @@ def vessel() -> Iterator[Vessel]:
 
 
 def teleop(vessel: Vessel, *args: str, **streams: object) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, "-m", "stations.cli", "teleop", "--connect",
+    return subprocess.Popen([sys.executable, "-m", "abyss.cli", "teleop", "--connect",
                              f"tcp/127.0.0.1:{vessel.port}", "--system", SYSTEM, *args],
                             cwd=ROOT, start_new_session=True, **streams)  # type: ignore[call-overload]
 

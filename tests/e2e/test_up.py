@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import threading
 import time
@@ -13,11 +12,10 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
 from conftest import Up, abyss
 from rerun.chunk import RrdReader
-
-from common import keys
-from common.bus import open_session, zenoh_config
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 
@@ -74,8 +72,8 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
 
 def test_a_killed_station_is_reported_and_up_fails(tmp_path: Path) -> None:
     up = Up(tmp_path / "run", "--duration", "60", "--system", "e2e-kill")
-    pid = int(up.wait_for(r"onboard up \(pid (\d+)").group(1))
-    up.wait_for("all 4 stations up")
+    pid = up.wait_up().stations["onboard"].pid
+    assert pid is not None
     os.kill(pid, signal.SIGKILL)
     assert up.wait(60) != 0
     assert "station onboard died with exit code -9 (SIGKILL)" in up.output()
@@ -86,8 +84,7 @@ def test_a_killed_station_is_reported_and_up_fails(tmp_path: Path) -> None:
 
 def test_a_killed_up_takes_its_stations_down(tmp_path: Path) -> None:
     up = Up(tmp_path / "run", "--duration", "60", "--system", "e2e-orphans", "--viewer", "none")
-    up.wait_for("all 4 stations up")
-    pids = [int(re.search(r"up \(pid (\d+)", line).group(1)) for line in up.lines if "up (pid" in line]
+    pids = [s.pid for s in up.wait_up().stations.values()]
     assert len(pids) == 4
     os.kill(up.process.pid, signal.SIGKILL)
     deadline = time.monotonic() + 20.0
@@ -100,7 +97,7 @@ def test_a_killed_up_takes_its_stations_down(tmp_path: Path) -> None:
 def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:
     ups = {name: Up(tmp_path / name, "--duration", "12", "--system", name) for name in ("alpha", "beta")}
     for up in ups.values():
-        up.wait_for("all 4 stations up")
+        up.wait_up()
     seen: dict[str, set[str]] = {}
     for name, up in ups.items():
         session = open_session(zenoh_config(connect=[up.endpoint], mode="client"), "test")
@@ -128,7 +125,7 @@ def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:
 def test_runtime_link_change_and_bad_bytes(tmp_path: Path) -> None:
     system = "e2e-live"
     up = Up(tmp_path / "run", "--keep-running", "--duration", "40", "--system", system)
-    up.wait_for("all 4 stations up")
+    up.wait_up()
     endpoint = up.endpoint
     done = abyss("link", "set", "satellite", "--loss", "30%", "--connect", endpoint, "--system", system)
     assert done.returncode == 0, done.stderr

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from linkemu.link import Delivery, Link, Offer
+from abyss.linkemu.link import Delivery, Link, Offer
 
 
 def drive(link: Link, offers: list[tuple[float, bytes]], block: bool = True) -> list[Delivery]:

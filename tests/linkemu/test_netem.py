@@ -8,10 +8,9 @@ import subprocess
 import uuid
 
 import pytest
-
-from common.errors import LinkError
-from linkemu.netem import netem_limit, run_tc, tc_command
-from linkemu.profile import load_profiles, profile
+from abyss.common.errors import LinkError
+from abyss.linkemu.netem import netem_limit, run_tc, tc_command
+from abyss.linkemu.profile import load_profiles, profile
 
 EXPECTED = {
     "ideal": "tc qdisc replace dev veth0 root netem limit 1000",

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from common.config import load
-from common.models import ARM_JOINTS, ARM_STOWED_RAD
-from stations.onboard.arm_control import ArmController, ArmKinematics, Task, box_distance, solve
-from stations.simulation.lowlevel import References
-from stations.simulation.world import World
+from abyss.common.config import load
+from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD
+from abyss.stations.onboard.arm_control import ArmController, ArmKinematics, Task, box_distance, solve
+from abyss.stations.simulation.lowlevel import References
+from abyss.stations.simulation.world import World
 
 PERIOD_S = 0.05
 LAST_WAYPOINT = "[3.3, 0, -7.9]"

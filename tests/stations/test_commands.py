@@ -4,11 +4,10 @@ answered the same way without being taken twice."""
 from __future__ import annotations
 
 import numpy as np
-
-from common.config import MissionConfig
-from common.messages import ArmGoal, OperatorMode, Waypoints
-from stations.onboard.arm_control import ArmKinematics
-from stations.onboard.commands import CommandGate, box_clearance_m
+from abyss.common.config import MissionConfig
+from abyss.common.messages import ArmGoal, OperatorMode, Waypoints
+from abyss.stations.onboard.arm_control import ArmKinematics
+from abyss.stations.onboard.commands import CommandGate, box_clearance_m
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 LAST_WAYPOINT = np.array([3.3, 0.0, -7.9, 0.0])  # the default mission's, facing the panel

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-
-from common.messages import Heartbeat, NavState
-from stations.onboard.failsafe import Failsafe
-from stations.onboard.navigation import NavFilter
+from abyss.common.messages import Heartbeat, NavState
+from abyss.stations.onboard.failsafe import Failsafe
+from abyss.stations.onboard.navigation import NavFilter
 
 
 def test_failsafe_enters_on_each_cause_counts_entries_and_resumes() -> None:

@@ -7,11 +7,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from common.errors import ConfigError
-from common.messages import Telemetry
-from stations.scenario.checks import Run, judge
-from stations.scenario.spec import USES, Assertion, load_scenario, scenario_of
+from abyss.common.errors import ConfigError
+from abyss.common.messages import Telemetry
+from abyss.validation.scenario.checks import Run, judge
+from abyss.validation.scenario.spec import USES, Assertion, load_scenario, scenario_of
 
 LIBRARY = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
 MINIMAL = {"name": "x", "use": "degradation", "duration_s": 10, "assert": [{"kind": "stations"}]}

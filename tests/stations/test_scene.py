@@ -11,14 +11,13 @@ import numpy as np
 import open3d as o3d
 import pyoctomap
 import pytest
-
-from common.clouds import unpack_cloud
-from common.config import SimulationConfig
-from common.geometry import rotation_of
-from common.images import decode_image
-from common.messages import BadMessage, PointCloud, SceneUpdate, decode, encode
-from common.models import CAMERAS, panel
-from common.scene import (
+from abyss.common.clouds import unpack_cloud
+from abyss.common.config import SimulationConfig
+from abyss.common.geometry import rotation_of
+from abyss.common.images import decode_image
+from abyss.common.messages import BadMessage, PointCloud, SceneUpdate, decode, encode
+from abyss.common.models import CAMERAS, panel
+from abyss.common.scene import (
     SceneModel,
     SceneReceiver,
     cell_centres,
@@ -28,12 +27,12 @@ from common.scene import (
     leaves_to_cells,
     read_binary,
 )
-from stations.onboard.perception import Camera, CloudSettings, camera_in_world, clouds_of
-from stations.simulation.encoding import encode_image
-from stations.simulation.rendering import Cameras
-from stations.simulation.world import World
-from stations.vessel.pacing import ScenePacer
-from stations.vessel.recognition import PanelTracker, by_texture, rotation_error_rad
+from abyss.stations.onboard.perception import Camera, CloudSettings, camera_in_world, clouds_of
+from abyss.stations.simulation.encoding import encode_image
+from abyss.stations.simulation.rendering import Cameras
+from abyss.stations.simulation.world import World
+from abyss.stations.vessel.pacing import ScenePacer
+from abyss.stations.vessel.recognition import PanelTracker, by_texture, rotation_error_rad
 
 FACE_X_M = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0] - 0.001  # the marker face's front
 

@@ -5,14 +5,13 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
-
-from common.config import SimulationConfig
-from common.images import decode_image
-from common.messages import SimulationControl
-from stations.simulation.encoding import encode_image
-from stations.simulation.lowlevel import References
-from stations.simulation.rendering import Cameras
-from stations.simulation.world import World
+from abyss.common.config import SimulationConfig
+from abyss.common.images import decode_image
+from abyss.common.messages import SimulationControl
+from abyss.stations.simulation.encoding import encode_image
+from abyss.stations.simulation.lowlevel import References
+from abyss.stations.simulation.rendering import Cameras
+from abyss.stations.simulation.world import World
 
 DT_S = 0.01
 

@@ -9,9 +9,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-
-from common.models import MODELS_DIR, SEABED_CLOUD_FILE, WORLD_FILE
-from stations.simulation import terrain
+from abyss.common.models import MODELS_DIR, SEABED_CLOUD_FILE, WORLD_FILE
+from abyss.stations.simulation import terrain
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -62,7 +61,7 @@ def test_hfield_round_trip(tmp_path: Path) -> None:
 
 def test_cli_builds_into_a_directory_and_refuses_a_missing_cloud(tmp_path: Path) -> None:
     cloud = tmp_path / "cloud.ply"
-    run = [sys.executable, "-m", "stations.cli", "terrain"]
+    run = [sys.executable, "-m", "abyss.cli", "terrain"]
     subprocess.run([*run, "cloud", str(cloud), "--seed", "3", "--points", "5000"], cwd=ROOT, check=True)
     done = subprocess.run([*run, "build", str(cloud), "--out", str(tmp_path / "t")], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)

@@ -5,9 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from common.config import MissionConfig, OnboardConfig
-from stations.onboard.vehicle_control import VehicleController
+from abyss.common.config import MissionConfig, OnboardConfig
+from abyss.stations.onboard.vehicle_control import VehicleController
 
 
 def fly(controller: VehicleController, seconds: float,

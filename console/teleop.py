@@ -27,11 +27,10 @@ from typing import IO
 
 import numpy as np
 import zenoh
-
-from common import keys
-from common.bus import client_config, message_of, open_session
-from common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from common.messages import ArmGoal, Message, Telemetry, Waypoints, encode
+from abyss.common import keys
+from abyss.common.bus import client_config, message_of, open_session
+from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
+from abyss.common.messages import ArmGoal, Message, Telemetry, Waypoints, encode
 
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {

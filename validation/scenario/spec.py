@@ -10,11 +10,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from common import keys
-from common.config import load
-from common.errors import ConfigError
-from common.messages import FAULTS
-from linkemu.profile import load_profiles
+from abyss.common import keys
+from abyss.common.config import load
+from abyss.common.errors import ConfigError
+from abyss.common.messages import FAULTS
+from abyss.linkemu.profile import load_profiles
 
 USES = ("distributed", "interface", "degradation", "parallel", "fault-recovery")
 ACTIONS = ("link", "fault", "kill")

@@ -18,15 +18,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from common.clouds import unpack_cloud
-from common.config import Config
-from common.messages import Telemetry, encode
-from common.samples import Samples
-from common.scene import SceneModel
-from linkemu.link import Link, Offer
-from linkemu.profile import profile
-from stations.vessel.pacing import ScenePacer
+from abyss.common.clouds import unpack_cloud
+from abyss.common.config import Config
+from abyss.common.messages import Telemetry, encode
+from abyss.common.samples import Samples
+from abyss.common.scene import SceneModel
+from abyss.linkemu.link import Link, Offer
+from abyss.linkemu.profile import profile
+from abyss.stations.vessel.pacing import ScenePacer
 
 STEP_S = 0.05
 TELEMETRY_PERIOD_S = 0.5
@@ -41,16 +40,15 @@ class Frame:
 
 def mission_frames(config: Config, count: int, progress: Callable[[str], None]) -> list[Frame]:
     """Depth clouds along the path start -> waypoints, `count` frames evenly spaced."""
-    from stations.simulation.rendering import choose_gl_backend
+    from abyss.stations.simulation.rendering import choose_gl_backend
 
     choose_gl_backend()  # before MuJoCo is imported
     import mujoco
-
-    from common.models import CAMERAS
-    from stations.onboard.perception import CloudSettings, clouds_of
-    from stations.simulation.encoding import encode_image
-    from stations.simulation.rendering import Cameras
-    from stations.simulation.world import World
+    from abyss.common.models import CAMERAS
+    from abyss.stations.onboard.perception import CloudSettings, clouds_of
+    from abyss.stations.simulation.encoding import encode_image
+    from abyss.stations.simulation.rendering import Cameras
+    from abyss.stations.simulation.world import World
 
     sim = config.simulation
     world = World(sim, np.random.default_rng(config.seed))

@@ -21,15 +21,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
+from abyss.common import keys
+from abyss.common.bus import message_of, open_session, zenoh_config
+from abyss.common.errors import AbyssError
+from abyss.common.messages import LinkControl, SimulationControl, Telemetry, encode
+from abyss.launch.state import RunState, wait_for_state
+from abyss.validation.scenario.checks import Run, Verdict, judge
+from abyss.validation.scenario.spec import Event, Scenario
 
-from common import keys
-from common.bus import message_of, open_session, zenoh_config
-from common.errors import AbyssError
-from common.messages import LinkControl, SimulationControl, Telemetry, encode
-from stations.scenario.checks import Run, Verdict, judge
-from stations.scenario.spec import Event, Scenario
-
-ROOT = Path(__file__).resolve().parents[2]
 START_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 180.0
 SHOWN = ("waiting for external station", "died with exit code", "restarted")  # abyss up's lines passed on
@@ -50,10 +49,12 @@ class System:
 
     def __init__(self, scenario: Scenario, system_id: str, out_dir: Path, say: Callable[[str], None]) -> None:
         self.say = say
+        self.out_dir = out_dir
         command = [
             sys.executable,
+            "-P",  # the current directory never shadows abyss's modules
             "-m",
-            "stations.cli",
+            "abyss.cli",
             "up",
             "--port",
             "0",
@@ -79,7 +80,7 @@ class System:
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
-            cwd=ROOT,
+            cwd=out_dir,
             start_new_session=True,
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
         )
@@ -94,19 +95,25 @@ class System:
             if line.startswith("abyss:") and any(what in line for what in SHOWN):
                 self.say(line.strip().removeprefix("abyss: ").strip())
 
-    def find(self, pattern: str) -> re.Match[str] | None:
-        for line in reversed(list(self.lines)):
-            if m := re.search(pattern, line):
-                return m
-        return None
+    def running(self) -> bool:
+        return self.process.poll() is None
+
+    def state(self, holds: Callable[[RunState], bool] = lambda _: True,
+              timeout_s: float = 0.0) -> RunState | None:
+        """`abyss up`'s state (`state.json`) once `holds` is true of it; None if it is not in time."""
+        return wait_for_state(self.out_dir, holds, timeout_s, self.running)
 
     def wait_for(self, pattern: str, timeout_s: float) -> re.Match[str] | None:
+        """The first line of `abyss up`'s output that matches `pattern` (for what a person reads:
+        the command to start an external station); None if none does in time."""
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and self.process.poll() is None:
-            if m := self.find(pattern):
-                return m
+        while True:
+            for line in list(self.lines):
+                if m := re.search(pattern, line):
+                    return m
+            if time.monotonic() >= deadline or not self.running():
+                return None
             time.sleep(0.05)
-        return self.find(pattern)
 
     def kill(self) -> None:
         with contextlib.suppress(ProcessLookupError):
@@ -123,10 +130,11 @@ def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> s
         control = SimulationControl(event.fault, event.target, event.value)
         session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
     else:
-        found = up.find(rf"{event.station} (?:up|restarted) \(pid (\d+)")
-        if found is None:
+        state = up.state()
+        pid = state.stations[event.station].pid if state and event.station in state.stations else None
+        if pid is None:
             return f"kill {event.station}: no pid (an external station?)"
-        os.kill(int(found.group(1)), signal.SIGKILL)
+        os.kill(pid, signal.SIGKILL)
     return event.describe()
 
 
@@ -135,6 +143,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
     """Run one scenario to its end; `started(system, system_id)` is called once `abyss up` runs."""
     t0 = time.monotonic()
     system_id = f"{scenario.name}-{os.getpid()}-{index}"[-64:]
+    out_dir = out_dir.resolve()  # abyss up runs in a directory of its own
     out_dir.mkdir(parents=True, exist_ok=True)
     up = System(scenario, system_id, out_dir, say)
     if started is not None:
@@ -151,15 +160,15 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
 
     error = ""
     try:
-        endpoint = up.wait_for(r"Zenoh endpoint (tcp/\S+)", 30.0)
         timeout_s = START_TIMEOUT_S + (EXTERNAL_TIMEOUT_S if scenario.external else 0.0)
-        if endpoint is None or up.wait_for(r"all \d stations up", timeout_s) is None:
+        state = up.state(lambda s: s.phase == "up", timeout_s)
+        if state is None:
             error = "the system did not come up:\n" + "\n".join(up.lines[-20:])
             up.kill()
         else:
             t_up[0] = time.monotonic()
             say(f"up in {time.monotonic() - t0:.1f} s")
-            session = open_session(zenoh_config(connect=[endpoint.group(1)], mode="client"), "abyss scenario")
+            session = open_session(zenoh_config(connect=[state.endpoint], mode="client"), "abyss scenario")
             subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), on_state)
             try:
                 for event in sorted(scenario.events, key=lambda e: e.at_s):
@@ -193,7 +202,7 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
     failed = {v.assertion.kind for v in verdicts if not v.passed}
     passed = not error and failed == set(scenario.expect_failed)
     if (out_dir / "control.csv").exists():
-        from stations.plot import plot_run
+        from abyss.validation.plot import plot_run
 
         try:
             plot_run(out_dir)

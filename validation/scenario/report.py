@@ -8,8 +8,8 @@ import os
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-from stations.plot import FIGURES
-from stations.scenario.runner import Result
+from abyss.validation.plot import FIGURES
+from abyss.validation.scenario.runner import Result
 
 
 def junit(results: list[Result], path: Path) -> None:

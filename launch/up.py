@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import signal
 import socket
@@ -17,16 +16,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import zenoh
-
-from common import keys
-from common.bus import open_session, zenoh_config
-from common.config import Config, OnshoreConfig
-from common.errors import AbyssError, BadMessage
-from common.messages import MissionStatus, SimulationStatus, Telemetry, decode
-from stations.record import ControlRecorder
-from stations.runtime import SUPERVISOR_ENV, free_port
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.config import Config, OnshoreConfig
+from abyss.common.errors import AbyssError, BadMessage
+from abyss.common.messages import MissionStatus, SimulationStatus, Telemetry, decode
+from abyss.launch.record import ControlRecorder
+from abyss.launch.state import RunState
+from abyss.launch.summary import control_summary, exit_text, read_json, render_summary
+from abyss.stations.runtime import SUPERVISOR_ENV, free_port
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
@@ -53,12 +52,6 @@ def port_free(port: int) -> bool:
     return True
 
 
-def exit_text(code: int | None) -> str:
-    if code is not None and code < 0:
-        return f"{code} ({signal.Signals(-code).name})"
-    return str(code)
-
-
 class Up:
     """Start, watch and stop one whole system; write its summary."""
 
@@ -69,7 +62,7 @@ class Up:
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
         self.restart = restart  # a station that dies is started again instead of failing the run
         self.mission_done_s: float | None = None  # since all stations were up
-        self.out_dir = out_dir
+        self.out_dir = out_dir.resolve()  # the stations run there, whatever the caller's directory
         self.echo = echo or (lambda text: print(text, flush=True))
         if port is None:
             port = DEFAULT_PORT if port_free(DEFAULT_PORT) else free_port()
@@ -84,6 +77,8 @@ class Up:
         self.stations: dict[str, Station] = {}
         self.interrupted = threading.Event()
         self._lock = threading.Lock()
+        self.state = RunState(config.system, self.endpoint, os.getpid())
+        self._state_lock = threading.Lock()
 
     # -- zenoh observers -----------------------------------------------------------------
     def _on_alive(self, sample: zenoh.Sample) -> None:
@@ -94,6 +89,7 @@ class Up:
                 self.alive_seen.add(name)
             else:
                 self.alive.discard(name)
+            self._change_state(name, up=name in self.alive)
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         """Mission status from shore, simulation status from the simulation, the controllers'
@@ -109,17 +105,30 @@ class Up:
         elif isinstance(message, Telemetry) and self.record is not None:
             self.record.add(message)
 
+    def _change_state(self, station: str | None = None, **changes: Any) -> None:
+        """Change the run's state (or one station's in it) and write `state.json` at once, under
+        the lock: Zenoh's callbacks change it too."""
+        with self._state_lock:
+            if station is None:
+                self.state = dataclasses.replace(self.state, **changes)
+            else:
+                self.state = self.state.with_station(station, **changes)
+            if self.out_dir.is_dir():
+                self.state.write(self.out_dir)
+
     # -- processes -----------------------------------------------------------------------
     def _start(self, name: str, config_path: Path) -> Station:
         log_path = self.out_dir / f"{name}.log"
         status_path = self.out_dir / f"{name}.json"
-        command = [sys.executable, "-m", "stations.cli", "station", name, "--config", str(config_path),
+        # -P: the stations' own directory (the run directory) never shadows abyss's modules
+        command = [sys.executable, "-P", "-m", "abyss.cli", "station", name, "--config", str(config_path),
                    "--listen", "tcp/127.0.0.1:0", "--connect", self.endpoint,
                    "--status-file", str(status_path), "--zenoh-mode", "peer"]
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
-                                       stdin=subprocess.DEVNULL, start_new_session=True,
+                                       stdin=subprocess.DEVNULL, start_new_session=True, cwd=self.out_dir,
                                        env={**os.environ, SUPERVISOR_ENV: str(os.getpid())})
+        self._change_state(name, pid=process.pid)
         return Station(name, process, log_path, status_path)
 
     def _check_deaths(self) -> list[Station]:
@@ -135,6 +144,7 @@ class Up:
         restarted = self._start(station.name, self.out_dir / "config.json")
         restarted.restarts = station.restarts + 1
         self.stations[station.name] = restarted
+        self._change_state(station.name, restarts=restarted.restarts)
         self.echo(f"abyss:   {station.name} restarted (pid {restarted.process.pid}, restart "
                   f"{restarted.restarts})")
 
@@ -169,6 +179,7 @@ class Up:
             viewer_grpc_port=grpc_port))
         config_path = self.out_dir / "config.json"
         config_path.write_text(self.config.to_json())
+        self._change_state()
         system = self.config.system
         session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
         self.record = ControlRecorder(self.out_dir)
@@ -188,6 +199,7 @@ class Up:
                       f"(connect your own client here); run directory {self.out_dir}")
             for name in keys.STATIONS:
                 if name in self.external:
+                    self._change_state(name, external=True)
                     self.echo(f"abyss: waiting for external station {name}: start it with `abyss station "
                               f"{name} --system {system} --connect {self.endpoint}`")
                 else:
@@ -196,9 +208,12 @@ class Up:
             startup_s = time.monotonic() - t0
             if not failure:
                 self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
-                self.echo(viewer_line(self.config.onshore))
+                viewer = viewer_line(self.config.onshore)
+                self.echo(viewer)
+                self._change_state(phase="up", viewer=viewer.removeprefix("abyss: "))
                 failure = self._watch(duration_s, keep_running)
         finally:
+            self._change_state(phase="stopping")
             self._stop_all()
             for observer in observers:
                 observer.undeclare()
@@ -208,6 +223,7 @@ class Up:
                 signal.signal(s, handler)
         summary = self._summary(time.monotonic() - t0, startup_s, failure)
         (self.out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        self._change_state(phase="ended", verdict=summary["verdict"], failure=summary["failure"])
         self.echo(render_summary(summary))
         return 0 if summary["verdict"] == "ok" else 1
 
@@ -244,6 +260,7 @@ class Up:
             elapsed = time.monotonic() - t0
             if mission is not None and mission.done and self.mission_done_s is None:
                 self.mission_done_s = elapsed
+                self._change_state(mission_done=True)
                 self.echo(f"abyss: mission complete at t={elapsed:.1f} s")
             if mission is not None and mission.done and not keep_running:
                 return ""
@@ -297,75 +314,13 @@ class Up:
 
 
 def viewer_line(cfg: OnshoreConfig) -> str:
-    from stations.onshore.viewer import RECORDING_FILE, web_viewer_url
+    from abyss.stations.onshore.viewer import RECORDING_FILE, web_viewer_url
     recording = Path(cfg.record_dir) / RECORDING_FILE
     return {"save": f"abyss: recording to {recording} (abyss replay {cfg.record_dir})",
             "web": f"abyss: web viewer at {web_viewer_url(cfg.viewer_web_port, cfg.viewer_grpc_port)} "
                    f"(recording to {recording})",
             "spawn": f"abyss: rerun viewer spawned (recording to {recording})",
             "none": "abyss: no viewer, no recording"}[cfg.viewer]
-
-
-def read_json(path: Path) -> dict[str, Any]:
-    try:
-        return dict(json.loads(path.read_text()))
-    except (OSError, ValueError):
-        return {}
-
-
-def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
-    """The controllers' final state and errors, from the last telemetry onboard sent."""
-    if t is None:
-        return None
-    return {"sim_time_s": t.sim_time_s, "mode": t.mode, "arm_mode": t.arm_mode,
-            "position_error_m": t.position_error_m,
-            "heading_error_deg": abs(math.degrees(t.heading_error_rad)),
-            "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
-            "ee_orientation_error_deg": math.degrees(t.ee_orientation_error_rad),
-            "failsafe": t.failsafe, "failsafe_events": t.failsafe_events}
-
-
-def render_summary(summary: dict[str, Any]) -> str:
-    lines = [f"abyss: {summary['system']}: {summary['verdict']}"
-             + (f" ({summary['failure']})" if summary["failure"] else "")
-             + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"]
-    lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9}")
-    for name, s in summary["stations"].items():
-        if s.get("external"):
-            lines.append(f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}")
-            continue
-        lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
-                     f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}"
-                     + (f"  restarted {s['restarts']}x" if s["restarts"] else ""))
-    lines.append(f"  {'link':<28} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}")
-    for hop, directions in summary["links"].items():
-        for direction, st in directions.items():
-            lines.append(
-                f"  {hop + ' ' + direction:<28} "
-                f"{int(st['messages_delivered']):>6}/{int(st['messages_offered']):<6} "
-                f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
-                f"{int(st['losses']):>5} {int(st['retransmissions']):>5}")
-    m = summary["mission"]
-    lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
-                                  f"done: {m['done']}" if m else "no status reached shore"))
-    c = summary["control"]
-    if c:
-        lines.append(f"  final errors (onboard): vehicle {c['position_error_m'] * 1e3:.1f} mm, heading "
-                     f"{c['heading_error_deg']:.2f} deg; end-effector "
-                     f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
-                     f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}")
-    scene = summary["scene"]
-    if scene:
-        lines.append(f"  scene on shore: {scene['occupied_cells']} occupied cells at "
-                     f"{scene['resolution_m']:g} m "
-                     f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
-                     f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}")
-    sim = summary["simulation"]
-    if sim:
-        lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
-                     f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
-                     + (f", faults {sim['faults']}" if sim["faults"] else ""))
-    return "\n".join(lines)
 
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,

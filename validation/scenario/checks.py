@@ -9,8 +9,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.messages import Telemetry
-from stations.scenario.spec import Assertion
+from abyss.common.messages import Telemetry
+from abyss.validation.scenario.spec import Assertion
 
 
 @dataclass

@@ -12,9 +12,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-
-from common.errors import ConfigError
-from stations.record import CONTROL_FILE, read_control
+from abyss.common.errors import ConfigError
+from abyss.launch.record import CONTROL_FILE, read_control
 
 AXES = ("x", "y", "z")
 FIGURES = ("vehicle_position_error", "vehicle_heading_error", "ee_position_error", "ee_orientation_error")

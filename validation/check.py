@@ -11,11 +11,10 @@ from collections import Counter
 from dataclasses import dataclass
 
 import zenoh
-
-from common import keys
-from common.bus import client_config, open_session
-from common.errors import BadMessage
-from common.messages import decode
+from abyss.common import keys
+from abyss.common.bus import client_config, open_session
+from abyss.common.errors import BadMessage
+from abyss.common.messages import decode
 
 RATE_TOLERANCE = 0.5  # a periodic key within this share of its nominal rate passes
 

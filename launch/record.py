@@ -9,8 +9,7 @@ from pathlib import Path
 from typing import IO
 
 import numpy as np
-
-from common.messages import Telemetry
+from abyss.common.messages import Telemetry
 
 CONTROL_FILE = "control.csv"
 COLUMNS = ("sim_time_s", "mode", "waypoint_index", "waypoints_total",

@@ -26,7 +26,7 @@ class RunningSystem:
     """A scenario's whole system, run in a background thread."""
 
     def __init__(self, scenario: Any, out_dir: Path) -> None:
-        from stations.scenario.runner import Result, System, run_scenario
+        from abyss.validation.scenario.runner import Result, System, run_scenario
 
         self.scenario = scenario
         self.lines: list[str] = []
@@ -55,9 +55,22 @@ class RunningSystem:
             raise AssertionError(f"no line matching {pattern!r}:\n" + "\n".join(self._up.lines[-30:]))
         return found
 
+    def wait_up(self, timeout_s: float = 60.0) -> Any:
+        """`abyss up`'s state (`abyss.launch.state.RunState`) once every station is up."""
+        assert self._up is not None, "abyss up did not start"
+        state = self._up.state(lambda s: s.phase == "up", timeout_s)
+        if state is None:
+            raise AssertionError("the system did not come up:\n" + "\n".join(self._up.lines[-30:]))
+        return state
+
     @property
     def endpoint(self) -> str:
-        return self.wait_for(r"Zenoh endpoint (tcp/\S+)").group(1)
+        """The Zenoh endpoint to connect your own component to (from `abyss up`'s state.json)."""
+        assert self._up is not None, "abyss up did not start"
+        state = self._up.state(timeout_s=60.0)
+        if state is None:
+            raise AssertionError("abyss up wrote no state.json:\n" + "\n".join(self._up.lines[-30:]))
+        return state.endpoint
 
     def result(self, timeout_s: float = 300.0) -> Any:
         """The run's Result (summary verdicts, run directory) once it has ended."""
@@ -75,7 +88,7 @@ class RunningSystem:
 @pytest.fixture
 def abyss_system(tmp_path: Path) -> Iterator[Any]:
     """A factory: `abyss_system(path_or_table)` starts a whole system; all are stopped after."""
-    from stations.scenario.spec import load_scenario, scenario_of
+    from abyss.validation.scenario.spec import load_scenario, scenario_of
 
     running: list[RunningSystem] = []
 

@@ -10,12 +10,11 @@ import time
 
 import numpy as np
 import zenoh
-
-from common import keys
-from common.bus import client_config, message_of, open_session
-from common.errors import ConfigError
-from common.geometry import quat_wxyz_of, rotation_of_rpy
-from common.messages import (
+from abyss.common import keys
+from abyss.common.bus import client_config, message_of, open_session
+from abyss.common.errors import ConfigError
+from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
+from abyss.common.messages import (
     OPERATOR_MODES,
     ArmGoal,
     CommandAck,

@@ -1,0 +1,83 @@
+"""What several commands share: configuration options, KEY=VALUE pairs, a tool's session."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import zenoh
+from abyss.common import keys
+from abyss.common.bus import client_config, open_session
+from abyss.common.config import Config, load
+from abyss.common.errors import ConfigError
+from abyss.linkemu.profile import FIELDS
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def config_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, help="TOML configuration file")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="override one configuration field",
+    )
+    p.add_argument("--system", help="system id: keys are abyss/<system>/...")
+    p.add_argument(
+        "--profile",
+        action="append",
+        default=[],
+        metavar="HOP=NAME",
+        help=f"link profile of a hop ({', '.join(keys.HOPS)})",
+    )
+    p.add_argument("--seed", type=int)
+    p.add_argument(
+        "--realtime-factor",
+        type=float,
+        metavar="X",
+        help="simulated seconds per wall-clock second (default 1)",
+    )
+
+
+def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
+    """KEY=VALUE items of a repeated option."""
+    pairs = []
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key or not value:
+            raise ConfigError(option, f"{item!r} is not KEY=VALUE")
+        pairs.append((key, value))
+    return pairs
+
+
+def load_config(args: argparse.Namespace) -> Config:
+    overrides = list(args.set)
+    if args.system:
+        overrides.append(f"system={args.system}")
+    if args.seed is not None:
+        overrides.append(f"seed={args.seed}")
+    if args.realtime_factor is not None:
+        overrides.append(f"simulation.realtime_factor={args.realtime_factor}")
+    for hop, name in pairs("--profile", args.profile):
+        overrides.append(f"links.{keys.check_hop(hop)}={name}")
+    return load(args.config, overrides)
+
+
+def profile_args(p: argparse.ArgumentParser) -> None:
+    for name in FIELDS:
+        p.add_argument(f"--{name.replace('_', '-')}", dest=f"field_{name}", metavar="VALUE")
+
+
+def profile_fields(args: argparse.Namespace) -> dict[str, str]:
+    return {n: getattr(args, f"field_{n}") for n in FIELDS if getattr(args, f"field_{n}") is not None}
+
+
+def client(args: argparse.Namespace) -> zenoh.Session:
+    return open_session(client_config(args.connect), "abyss")
+
+
+def connect_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")

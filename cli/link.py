@@ -1,0 +1,164 @@
+"""`abyss link show | set | netem | profiles`: the links of a running system."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+import zenoh
+from abyss.cli.args import (
+    DEFAULT_ENDPOINT,
+    client,
+    profile_args,
+    profile_fields,
+)
+from abyss.common import keys
+from abyss.common.config import Config
+from abyss.common.errors import BadMessage, ConfigError
+from abyss.common.messages import (
+    LinkControl,
+    LinkStats,
+    decode,
+    encode,
+)
+from abyss.linkemu.netem import run_tc, tc_command
+from abyss.linkemu.profile import load_profiles, profile
+
+
+def query_links(session: zenoh.Session, system: str, hop: str | None) -> list[LinkStats]:
+    selector = keys.link_key(system, hop) if hop else keys.key(system, "link", "*")
+    found = []
+    for reply in session.get(selector, consolidation=zenoh.ConsolidationMode.NONE, timeout=3.0):
+        if reply.ok is None:
+            continue
+        try:
+            message = decode(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), "LinkStats").message
+        except BadMessage as exc:
+            print(f"abyss: ignoring a bad reply: {exc}", file=sys.stderr)
+            continue
+        assert isinstance(message, LinkStats)
+        found.append(message)
+    return sorted(found, key=lambda s: (list(keys.HOPS).index(s.hop), s.direction))
+
+
+def cmd_link_show(args: argparse.Namespace) -> int:
+    session = client(args)
+    try:
+        found = query_links(session, args.system, args.hop)
+    finally:
+        session.close()
+    if not found:
+        print(f"abyss: no station of system {args.system} answered at {args.connect}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(
+            json.dumps(
+                [
+                    {
+                        "hop": s.hop,
+                        "direction": s.direction,
+                        "profile": s.profile,
+                        "fields": s.fields,
+                        "stats": s.stats,
+                    }
+                    for s in found
+                ],
+                indent=2,
+            )
+        )
+        return 0
+    for s in found:
+        f, st = s.fields, s.stats
+        print(
+            f"{s.hop} {s.direction}: profile {s.profile}: rate {f['rate']} delay {f['delay']} "
+            f"jitter {f['jitter']} loss {f['loss']} corrupt {f['corrupt']} transport {f['transport']}"
+        )
+        print(
+            f"    delivered {st['messages_delivered']:.0f}/{st['messages_offered']:.0f} messages, "
+            f"{st['bytes_delivered']:.0f} B; queue drops {st['queue_drops']:.0f}, losses "
+            f"{st['losses']:.0f}, retransmissions {st['retransmissions']:.0f}; delay p50/p95/p99 "
+            f"{st.get('delay_p50_ms', 0):.1f}/{st.get('delay_p95_ms', 0):.1f}/"
+            f"{st.get('delay_p99_ms', 0):.1f} ms"
+        )
+    return 0
+
+
+def cmd_link_set(args: argparse.Namespace) -> int:
+    fields = profile_fields(args)
+    base = profile(args.profile_name) if args.profile_name else None
+    (base or profile("ideal")).with_fields(fields)  # fail here, not in the stations
+    if base is None and not fields:
+        raise ConfigError("link set", "give --profile NAME and/or fields such as --loss 10%")
+    session = client(args)
+    try:
+        session.put(
+            keys.link_key(args.system, args.hop),
+            encode(LinkControl(args.profile_name or "", fields), 0, time.time()),
+        )
+        time.sleep(0.3)
+        found = query_links(session, args.system, args.hop)
+    finally:
+        session.close()
+    for s in found:
+        print(f"{s.hop} {s.direction}: profile {s.profile} {s.fields}")
+    if not found:
+        print(f"abyss: sent, but no station of system {args.system} answered", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_link_netem(args: argparse.Namespace) -> int:
+    p = profile(args.profile_name or _default_profile(args.hop), profile_fields(args))
+    command = tc_command(args.dev, None if args.clear else p, args.netns)
+    if args.print or not (args.apply or args.clear):
+        print(" ".join(command))
+        return 0
+    run_tc(command)
+    print(("cleared: " if args.clear else "applied: ") + " ".join(command))
+    return 0
+
+
+def _default_profile(hop: str) -> str:
+    return str(getattr(Config().links, keys.check_hop(hop)))
+
+
+def cmd_link_profiles(_args: argparse.Namespace) -> int:
+    profiles = load_profiles()
+    ideal = profiles["ideal"].fields()
+    for name, p in profiles.items():
+        print(f"{name:<16} " + " ".join(f"{k}={v}" for k, v in p.fields().items() if v != ideal[k]))
+    return 0
+
+
+def add_commands(sub: Any) -> None:
+    link = sub.add_parser("link", help="show and change the links").add_subparsers(dest="link", required=True)
+    for name, func, text in (
+        ("show", cmd_link_show, "profiles and live statistics"),
+        ("set", cmd_link_set, "change a hop's profile at run time"),
+    ):
+        p = link.add_parser(name, help=text)
+        p.add_argument("hop", nargs="?" if name == "show" else None, choices=keys.HOPS)
+        p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+        p.add_argument("--system", default="default")
+        if name == "show":
+            p.add_argument("--json", action="store_true")
+        else:
+            p.add_argument("--profile", dest="profile_name", metavar="NAME")
+            profile_args(p)
+        p.set_defaults(func=func)
+    p = link.add_parser("netem", help="render or apply a profile with tc/netem")
+    p.add_argument("hop", choices=keys.HOPS)
+    p.add_argument("--dev", required=True, metavar="IFACE")
+    p.add_argument("--netns", help="network namespace of the interface")
+    p.add_argument("--profile", dest="profile_name", metavar="NAME")
+    profile_args(p)
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--print", action="store_true", help="print the tc command (default)")
+    mode.add_argument("--apply", action="store_true")
+    mode.add_argument("--clear", action="store_true")
+    p.set_defaults(func=cmd_link_netem)
+    p = link.add_parser("profiles", help="list the named profiles")
+    p.set_defaults(func=cmd_link_profiles)

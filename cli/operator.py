@@ -1,0 +1,134 @@
+"""`abyss op | teleop | fault | replay`: the operator's tools."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from abyss.cli.args import (
+    DEFAULT_ENDPOINT,
+    client,
+)
+from abyss.common import keys
+from abyss.common.bus import message_of
+from abyss.common.errors import ConfigError
+from abyss.common.messages import (
+    FAULTS,
+    SimulationControl,
+    SimulationStatus,
+    encode,
+)
+from abyss.common.models import CAMERAS, NAV_SENSORS, THRUSTERS
+
+
+def cmd_fault(args: argparse.Namespace) -> int:
+    targets = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS, "clear": ("",)}[args.fault]
+    if args.target not in targets:
+        raise ConfigError("fault target", f"{args.target!r} not one of {', '.join(targets)}")
+    try:
+        control = SimulationControl(args.fault, args.target, args.value)
+    except ValueError as exc:
+        raise ConfigError("fault value", str(exc)) from None
+    session = client(args)
+    seen: list[SimulationStatus] = []
+
+    def on_status(sample: zenoh.Sample) -> None:
+        message = message_of(sample, "SimulationStatus")
+        if isinstance(message, SimulationStatus):
+            seen.append(message)
+
+    try:
+        subscriber = session.declare_subscriber(keys.simulation_status_key(args.system), on_status)
+        session.put(keys.simulation_control_key(args.system), encode(control, 0, time.time()))
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline and len(seen) < 2:  # the first may predate the fault
+            time.sleep(0.05)
+        subscriber.undeclare()
+    finally:
+        session.close()
+    if not seen:
+        print(f"abyss: sent, but no simulation of system {args.system} reported", file=sys.stderr)
+        return 1
+    print(f"faults now: {seen[-1].faults or 'none'}")
+    return 0
+
+
+def cmd_teleop(args: argparse.Namespace) -> int:
+    from abyss.console.teleop import run_teleop
+
+    if not 0 < args.step_m <= 1.0 or not 0 < args.step_deg <= 45.0:
+        raise ConfigError("teleop", "--step-m must lie in (0, 1] m and --step-deg in (0, 45] deg")
+    return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick)
+
+
+def cmd_op(args: argparse.Namespace) -> int:
+    from abyss.console.op import run_op
+
+    return run_op(args.connect, args.system, args.command, args.value, args.timeout)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from abyss.console.replay import replay
+
+    return replay(args.run_dir, args.web_port)
+
+
+def add_commands(sub: Any) -> None:
+    p = sub.add_parser("teleop", help="drive the vehicle or the end-effector from a joystick or the keyboard")
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.add_argument("--step-m", type=float, default=0.1, help="goal step per key [m] (joystick: m/s)")
+    p.add_argument("--step-deg", type=float, default=5.0, help="goal step per key [deg] (joystick: deg/s)")
+    p.add_argument(
+        "--joystick",
+        type=Path,
+        metavar="DEVICE",
+        help="Linux joystick device (default /dev/input/js0 when present; else the keyboard)",
+    )
+    p.set_defaults(func=cmd_teleop)
+
+    p = sub.add_parser("op", help="send one operator command through shore and print onboard's answer")
+    p.add_argument("command", choices=("waypoints", "arm", "mode"))
+    p.add_argument(
+        "value",
+        metavar="VALUE",
+        help="waypoints: 'x,y,z,yaw; ...' [m, rad]; arm: 'x,y,z,roll,pitch,yaw' [m, rad]; "
+        "mode: hold|auto|teleop",
+    )
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
+    p.set_defaults(func=cmd_op)
+
+    p = sub.add_parser("replay", help="open a run's recording (onshore.rrd) in the rerun viewer")
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    p.add_argument(
+        "--web-port",
+        type=int,
+        metavar="PORT",
+        help="serve rerun's web viewer on this port instead of opening the native viewer",
+    )
+    p.set_defaults(func=cmd_replay)
+    p = sub.add_parser("fault", help="inject a fault into a running simulation")
+    p.add_argument("fault", choices=FAULTS)
+    p.add_argument(
+        "target",
+        nargs="?",
+        default="",
+        help=f"thruster ({', '.join(THRUSTERS)}), camera ({', '.join(CAMERAS)}) or "
+        f"navigation sensor ({', '.join(NAV_SENSORS)})",
+    )
+    p.add_argument(
+        "value",
+        nargs="?",
+        type=float,
+        default=0.0,
+        help="thruster efficiency, camera on (1) / off (0), or noise scale",
+    )
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.set_defaults(func=cmd_fault)

@@ -1,0 +1,190 @@
+"""`abyss up | station | health | certs | keys`: running stations and whole systems."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from abyss.cli.args import (
+    DEFAULT_ENDPOINT,
+    client,
+    config_args,
+    load_config,
+    pairs,
+)
+from abyss.common import keys
+from abyss.common.config import VIEWERS
+from abyss.common.errors import ConfigError
+from abyss.common.security import TLS_DIR_ENV
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    from abyss.launch.up import run_up
+
+    config = load_config(args)
+    if args.viewer is not None or not any(s.startswith("onshore.viewer=") for s in args.set):
+        viewer = args.viewer or (
+            "spawn" if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") else "save"
+        )
+        config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
+    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.external, args.restart)
+
+
+def cmd_station(args: argparse.Namespace) -> int:
+    from abyss.stations.runtime import configure_logging, run_station
+
+    configure_logging(args.verbose)
+    peers = dict(pairs("--peer", args.peer))
+    for hop in peers:
+        keys.check_hop(hop)
+    code = run_station(
+        args.name,
+        load_config(args),
+        args.listen,
+        args.connect,
+        args.status_file,
+        args.link,
+        args.zenoh_mode,
+        args.tls,
+        peers,
+    )
+    # everything is closed and written: leave without the interpreter's finalisation, which
+    # aborts the process ("exception not rethrown") when a daemon thread is still inside
+    # native code (an octree insertion, an ICP) as it tears the threads down
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def cmd_health(args: argparse.Namespace) -> int:
+    session = client(args)
+    try:
+        token = keys.alive_key(args.system, args.station)
+        alive = list(session.liveliness().get(token, timeout=args.timeout))
+    finally:
+        session.close()
+    if not any(reply.ok is not None for reply in alive):
+        print(
+            f"abyss: {args.station} of system {args.system} is not alive at {args.connect}", file=sys.stderr
+        )
+        return 1
+    print(f"{args.station} alive")
+    return 0
+
+
+def cmd_certs_make(args: argparse.Namespace) -> int:
+    from abyss.common import certs
+
+    hosts: dict[str, list[str]] = {}
+    for holder, host in pairs("--host", args.host):
+        if holder not in certs.HOLDERS:
+            raise ConfigError("--host", f"unknown holder {holder!r}; allowed: {', '.join(certs.HOLDERS)}")
+        hosts.setdefault(holder, []).append(host)
+    written = certs.make(args.directory, hosts)
+    print(
+        f"abyss: wrote {len(written)} files to {args.directory}: ca.pem (give it to every host), "
+        f"and <holder>.pem/.key for {', '.join(certs.HOLDERS)}; keep ca.key offline"
+    )
+    return 0
+
+
+def cmd_keys(_args: argparse.Namespace) -> int:
+    print(keys.keys_table())
+    return 0
+
+
+def add_commands(sub: Any) -> None:
+    p = sub.add_parser("up", help="run all four stations on this machine")
+    config_args(p)
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
+    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
+    p.add_argument("--port", type=int, help=f"public Zenoh port (default {7447} if free; 0: any)")
+    p.add_argument(
+        "--external",
+        action="append",
+        default=[],
+        choices=keys.STATIONS,
+        metavar="STATION",
+        help="do not start this station: wait for yours (a real component) on its keys",
+    )
+    p.add_argument("--restart", action="store_true", help="start a station that dies again")
+    p.add_argument(
+        "--viewer",
+        choices=VIEWERS,
+        help="save: runs/<id>/onshore.rrd (the default without a display); web: rerun's web "
+        "viewer on a local port; spawn: the native viewer (the default with a display); "
+        "none",
+    )
+    p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser("station", help="run one station, e.g. on its own host")
+    p.add_argument("name", choices=keys.STATIONS)
+    config_args(p)
+    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
+    p.add_argument("--status-file", type=Path, help="write counters here on exit")
+    p.add_argument(
+        "--link",
+        choices=("emulated", "netem"),
+        default="emulated",
+        help="netem: the in-process links pass through, and tc/netem applies each hop's profile "
+        "to the interface towards its neighbour (needs CAP_NET_ADMIN and sch_netem)",
+    )
+    p.add_argument(
+        "--zenoh-mode",
+        choices=("router", "peer"),
+        default="router",
+        help="router (default): stations on separate hosts route for each other and for tools; "
+        "peer: under a router such as `abyss up`'s",
+    )
+    p.add_argument(
+        "--tls",
+        type=Path,
+        default=os.environ.get(TLS_DIR_ENV) or None,
+        metavar="DIR",
+        help=f"certificates from `abyss certs make DIR`: TLS on every endpoint (tls/HOST:PORT) "
+        f"and access control (default ${TLS_DIR_ENV})",
+    )
+    p.add_argument(
+        "--peer",
+        action="append",
+        default=[],
+        metavar="HOP=HOST",
+        help="with --link netem: the neighbour across HOP, whose route names the interface "
+        "to shape (default: the neighbour's station name)",
+    )
+    p.add_argument("-v", "--verbose", action="store_true")
+    p.set_defaults(func=cmd_station)
+
+    p = sub.add_parser(
+        "health", help="exit 0 when a station's liveliness token is seen (a container's health check)"
+    )
+    p.add_argument("station", choices=keys.STATIONS)
+    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
+    p.add_argument("--system", default="default")
+    p.add_argument("--timeout", type=float, default=3.0, metavar="S")
+    p.set_defaults(func=cmd_health)
+
+    certs = sub.add_parser("certs", help="certificates for authenticated links").add_subparsers(
+        dest="certs", required=True
+    )
+    p = certs.add_parser("make", help="a CA and one certificate per station and for the operator's tools")
+    p.add_argument("directory", type=Path, metavar="DIR")
+    p.add_argument(
+        "--host",
+        action="append",
+        default=[],
+        metavar="HOLDER=NAME",
+        help="an extra name or address in a holder's certificate (repeatable)",
+    )
+    p.set_defaults(func=cmd_certs_make)
+
+    p = sub.add_parser("keys", help="print the table of every key")
+    p.set_defaults(func=cmd_keys)

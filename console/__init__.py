@@ -1,0 +1,1 @@
+"""The operator's tools: one command (`abyss op`), teleoperation, replaying a recording."""

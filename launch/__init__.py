@@ -1,0 +1,1 @@
+"""Whole systems on this machine: `abyss up` (the supervisor), its run directory and summary."""

@@ -1,0 +1,80 @@
+"""A whole run's summary: `summary.json`'s figures and the screen of text `abyss up` ends with."""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from abyss.common.messages import Telemetry
+
+
+def exit_text(code: int | None) -> str:
+    if code is not None and code < 0:
+        return f"{code} ({signal.Signals(-code).name})"
+    return str(code)
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    try:
+        return dict(json.loads(path.read_text()))
+    except (OSError, ValueError):
+        return {}
+
+
+def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
+    """The controllers' final state and errors, from the last telemetry onboard sent."""
+    if t is None:
+        return None
+    return {"sim_time_s": t.sim_time_s, "mode": t.mode, "arm_mode": t.arm_mode,
+            "position_error_m": t.position_error_m,
+            "heading_error_deg": abs(math.degrees(t.heading_error_rad)),
+            "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
+            "ee_orientation_error_deg": math.degrees(t.ee_orientation_error_rad),
+            "failsafe": t.failsafe, "failsafe_events": t.failsafe_events}
+
+
+def render_summary(summary: dict[str, Any]) -> str:
+    lines = [f"abyss: {summary['system']}: {summary['verdict']}"
+             + (f" ({summary['failure']})" if summary["failure"] else "")
+             + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"]
+    lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9}")
+    for name, s in summary["stations"].items():
+        if s.get("external"):
+            lines.append(f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}")
+            continue
+        lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
+                     f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}"
+                     + (f"  restarted {s['restarts']}x" if s["restarts"] else ""))
+    lines.append(f"  {'link':<28} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}")
+    for hop, directions in summary["links"].items():
+        for direction, st in directions.items():
+            lines.append(
+                f"  {hop + ' ' + direction:<28} "
+                f"{int(st['messages_delivered']):>6}/{int(st['messages_offered']):<6} "
+                f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
+                f"{int(st['losses']):>5} {int(st['retransmissions']):>5}")
+    m = summary["mission"]
+    lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
+                                  f"done: {m['done']}" if m else "no status reached shore"))
+    c = summary["control"]
+    if c:
+        lines.append(f"  final errors (onboard): vehicle {c['position_error_m'] * 1e3:.1f} mm, heading "
+                     f"{c['heading_error_deg']:.2f} deg; end-effector "
+                     f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
+                     f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}")
+    scene = summary["scene"]
+    if scene:
+        lines.append(f"  scene on shore: {scene['occupied_cells']} occupied cells at "
+                     f"{scene['resolution_m']:g} m "
+                     f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
+                     f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}")
+    sim = summary["simulation"]
+    if sim:
+        lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
+                     f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
+                     + (f", faults {sim['faults']}" if sim["faults"] else ""))
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""Verdicts on a system: scenarios, the interface check, stress tests, plots, the pytest plugin."""

@@ -20,12 +20,13 @@ from pathlib import Path
 
 import numpy as np
 import zenoh
+
 from abyss.common import keys
-from abyss.common.bus import Bus, open_session, zenoh_config
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.config import Config, LinksConfig
 from abyss.common.messages import Message, NavState, Waypoints, encode
 from abyss.common.samples import Samples
-from abyss.linkemu.profile import profile
-from abyss.stations.runtime import free_port
+from abyss.stations.runtime import Shell, free_port
 
 SYSTEM = "bench"
 
@@ -83,17 +84,18 @@ def drive(case: Case, publish: Callable[[], object], received: Callable[[], int]
 def bench_bus(case: Case) -> Result:
     port = free_port()
     spec = keys.spec(case.publisher, case.topic)
-    ideal = {hop: profile("ideal") for hop in keys.HOPS}
-    sender = Bus(SYSTEM, case.publisher, ideal, listen=[f"tcp/127.0.0.1:{port}"])
-    receiver = Bus(SYSTEM, spec.to, ideal, connect=[f"tcp/127.0.0.1:{port}"])
+    ideal = Config(links=LinksConfig("ideal", "ideal", "ideal"), system=SYSTEM)
+    sending = Shell(case.publisher, ideal, listen=[f"tcp/127.0.0.1:{port}"])
+    receiving = Shell(spec.to, ideal, connect=[f"tcp/127.0.0.1:{port}"])
+    sender, receiver = sending.bus, receiving.bus
     receiver.subscribe(case.publisher, case.topic, maxlen=8)
     key = spec.key(SYSTEM)
     receiver.latency_s[key] = latency = Samples()
     time.sleep(1.0)
     result = drive(case, lambda: sender.publish(case.topic, case.message), lambda: receiver.received[key],
                    latency)
-    sender.close()
-    receiver.close()
+    sending.close()
+    receiving.close()
     return result
 
 

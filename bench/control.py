@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+
 from abyss.common.config import load
 from abyss.common.models import ARM_STOWED_RAD
 from abyss.stations.onboard.arm_control import ArmController, damped_pinv

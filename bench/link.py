@@ -8,6 +8,7 @@ import threading
 import time
 
 import numpy as np
+
 from abyss.linkemu.profile import profile
 from abyss.linkemu.runner import LinkRunner
 

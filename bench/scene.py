@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 import pyoctomap
+
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()

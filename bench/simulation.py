@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 import zenoh
+
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()

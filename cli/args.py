@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 import zenoh
+
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
 from abyss.common.config import Config, load

@@ -9,6 +9,7 @@ import time
 from typing import Any
 
 import zenoh
+
 from abyss.cli.args import (
     DEFAULT_ENDPOINT,
     client,

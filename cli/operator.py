@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+
 from abyss.cli.args import (
     DEFAULT_ENDPOINT,
     client,

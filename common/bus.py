@@ -1,8 +1,9 @@
-"""A station's Zenoh session. Everything a station publishes to a neighbour goes through
-the link emulator of that hop and direction at this station's egress (one shared queue
-per direction); everything it receives is decoded and validated before the station sees
-it. Control (link profiles) and observation (link statistics, liveliness) keys bypass
-the emulator: they belong to the testbed, not to the system under test."""
+"""A station's Zenoh session, as the station sees it: publish and subscribe, nothing else.
+Everything it receives is decoded and validated before the station sees it (a malformed
+message is dropped, counted and logged once with its reason). What it publishes to a
+neighbour leaves through that hop's egress: Zenoh directly, or, where the testbed routes it
+(`route`), through the link emulator of that hop and direction. The station cannot see the
+emulator: link control and statistics live on the testbed's side (`abyss.linkemu.control`)."""
 
 from __future__ import annotations
 
@@ -12,23 +13,18 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, TypeVar
 
-import numpy as np
 import zenoh
+
 from abyss.common import keys, security
 from abyss.common.certs import CertFiles
-from abyss.common.errors import AbyssError, BadMessage, BusError, ConfigError, LinkError
-from abyss.common.messages import LinkControl, LinkStats, Message, Received, decode, encode
+from abyss.common.errors import BadMessage, BusError, ConfigError
+from abyss.common.messages import Message, Received, decode, encode
 from abyss.common.samples import Samples
-from abyss.linkemu.netem import interface_towards, netem_args, run_tc, tc_command
-from abyss.linkemu.profile import LinkProfile
-from abyss.linkemu.profile import profile as named_profile
-from abyss.linkemu.runner import LinkRunner
 
 log = logging.getLogger(__name__)
-LINKSTATS_PERIOD_S = 1.0
 
 
 ZENOH_PRIORITY = {"control": zenoh.Priority.INTERACTIVE_HIGH, "telemetry": zenoh.Priority.DATA_HIGH,
@@ -95,6 +91,14 @@ def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
                        "endpoints are free and of the form tcp/HOST:PORT") from None
 
 
+M = TypeVar("M", bound=Message)
+
+
+def messages_of(items: Iterable[Received], kind: type[M]) -> list[M]:
+    """The messages of `items` as `kind` (what the bus decoded them as on their key)."""
+    return [r.message for r in items if isinstance(r.message, kind)]
+
+
 class Inbox:
     """Messages received on one key, newest last; bounded."""
 
@@ -127,37 +131,29 @@ class Inbox:
             return items
 
 
-class Bus:
-    """Publish and subscribe for one station of one system."""
+Egress = Callable[[bytes, bool, str], bool]  # (payload, reliable, key) -> False if dropped on the way
 
-    def __init__(self, system: str, station: str, profiles: dict[str, LinkProfile], *,
-                 listen: Sequence[str] = (), connect: Sequence[str] = (), seed: int = 0,
-                 link_mode: str = "emulated", mode: str = "peer", tls: CertFiles | None = None,
-                 peers: dict[str, str] | None = None) -> None:
-        """`mode`: Zenoh's (peer under `abyss up`; router where stations on separate hosts
-        form the network themselves, so that a tool at one end reaches all of them); `tls`: this
-        station's certificates, which turn on TLS and access control; `link_mode` netem: the
-        in-process links pass through and each hop's profile is applied with tc/netem to the
-        interface towards the neighbour at `peers[hop]` (default: the neighbour's name)."""
+
+class Bus:
+    """Publish and subscribe for one station of one system. Counters are guarded: Zenoh's
+    callback threads and the station's threads touch them at once."""
+
+    def __init__(self, system: str, station: str, session: zenoh.Session) -> None:
         self.system = keys.check_system_id(system)
         self.station = keys.check_station(station)
-        self.stop = threading.Event()
+        self.session = session
+        self.stop = threading.Event()  # set when the station is asked to stop
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
         self.latency_s: dict[str, Samples] = {}  # per received key: sender stamp to receipt
         self._reasons_logged: set[tuple[str, str]] = set()
         self._seq: Counter[str] = Counter()
-        self._publish_lock = threading.Lock()
-        self._closing: list[Any] = []
-        hops = keys.hops_of(station)
-        slowest_bps = min(profiles.get(hop, LinkProfile()).rate_bps for hop in hops)
-        config = zenoh_config(listen, connect, mode, tls=tls, acl_station=station if tls else None,
-                              slowest_rate_bps=slowest_bps)  # bad endpoints or certificates fail here
-        self.refusals = security.refusal_log() if tls is not None else None
-        self.session = open_session(config, f"station {station}")
+        self._lock = threading.Lock()  # the counters, sequence numbers and reasons
+        self._subscribers: list[Any] = []
+        self._egress: dict[str, Egress] = {}
         self._publishers = {
-            s.key(system): self.session.declare_publisher(
+            s.key(system): session.declare_publisher(
                 s.key(system),
                 congestion_control=zenoh.CongestionControl.BLOCK
                 if s.reliability == "reliable" else zenoh.CongestionControl.DROP,
@@ -165,27 +161,11 @@ class Bus:
             )
             for s in keys.KEYS if s.station == station
         }
-        self.links: dict[str, LinkRunner] = {}
-        self.netem_devices: dict[str, str] = {}  # hop -> interface shaped by tc/netem
-        for hop, neighbour in hops.items():
-            rng = np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
-            self.links[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
-                                         self._put, rng, passthrough=link_mode == "netem")
-            if link_mode == "netem":
-                self.netem_devices[hop] = interface_towards((peers or {}).get(hop, neighbour))
-                self._apply_netem(hop)
-            self._closing.append(self.session.declare_subscriber(
-                keys.link_key(system, hop), lambda s, h=hop: self._on_link_control(h, s)))
-            self._closing.append(self.session.declare_queryable(
-                keys.link_key(system, hop), lambda q, h=hop: self._on_link_query(h, q)))
-        self._token = self.session.liveliness().declare_token(keys.alive_key(system, station))
-        self._stats_thread = threading.Thread(target=self._publish_linkstats, daemon=True)
-        self._stats_thread.start()
 
-    def _apply_netem(self, hop: str) -> None:
-        device, runner = self.netem_devices[hop], self.links[hop]
-        run_tc(tc_command(device, runner.profile))
-        log.info("netem on %s (%s): %s", device, runner.name, " ".join(netem_args(runner.profile)))
+    def route(self, hop: str, egress: Egress) -> None:
+        """Send what goes across `hop` through `egress` (the testbed's link emulator), which
+        hands it back to `transmit` when the link delivers it."""
+        self._egress[keys.check_hop(hop)] = egress
 
     # -- data plane ----------------------------------------------------------------------
     def publish(self, topic: str, message: Message) -> bool:
@@ -195,11 +175,19 @@ class Bus:
         if spec.message != message.TYPE:
             raise ConfigError(topic, f"carries {spec.message}, not {message.TYPE}")
         key = spec.key(self.system)
-        with self._publish_lock:  # stations publish from more than one thread
+        with self._lock:  # stations publish from more than one thread
             payload = encode(message, self._seq[key], time.time())
             self._seq[key] += 1
             self.sent[key] += 1
-        return self.links[spec.hop].send(payload, spec.reliability == "reliable", tag=key)
+        egress = self._egress.get(spec.hop)
+        if egress is None:
+            self.transmit(key, payload)
+            return True
+        return egress(payload, spec.reliability == "reliable", key)
+
+    def transmit(self, key: str, payload: bytes) -> None:
+        """Put encoded bytes on the wire now (the egress's delivery)."""
+        self._publishers[key].put(payload)
 
     def subscribe(self, station: str, topic: str, maxlen: int = 64) -> Inbox:
         """Receive what neighbour `station` publishes on `topic`."""
@@ -211,97 +199,51 @@ class Bus:
     def subscribe_key(self, key: str, message: str, maxlen: int = 64) -> Inbox:
         """Receive `message`s on any key, a control key included; validated and counted."""
         inbox = Inbox(maxlen)
-        self._closing.append(self.session.declare_subscriber(
-            key, lambda sample: self._on_sample(key, message, sample, inbox)))
+        self._subscribers.append(self.session.declare_subscriber(
+            key, lambda sample: self._on_sample(key, message, sample.payload.to_bytes(), inbox)))
         return inbox
 
-    def _put(self, key: str, payload: bytes) -> None:
-        self._publishers[key].put(payload)
-
-    def _on_sample(self, key: str, expected: str, sample: zenoh.Sample, inbox: Inbox) -> None:
+    def _on_sample(self, key: str, expected: str, payload: bytes, inbox: Inbox) -> None:
         try:
-            received = decode(key, sample.payload.to_bytes(), expected)
+            received = decode(key, payload, expected)
         except BadMessage as exc:
             self.reject(key, exc.reason)
             return
-        self.received[key] += 1
-        self.latency_s.setdefault(key, Samples()).add(time.time() - received.stamp_s)
+        with self._lock:
+            self.received[key] += 1
+            self.latency_s.setdefault(key, Samples()).add(time.time() - received.stamp_s)
         inbox.put(received)
 
     def reject(self, key: str, reason: str) -> None:
         """Count a malformed input, and log its reason the first time it is seen."""
-        self.rejected[key] += 1
-        if (key, reason) not in self._reasons_logged:
+        with self._lock:
+            self.rejected[key] += 1
+            first = (key, reason) not in self._reasons_logged
             self._reasons_logged.add((key, reason))
+        if first:
             log.warning("dropped a message on %s: %s", key, reason)
 
-    # -- control and observation ---------------------------------------------------------
+    # -- observation ---------------------------------------------------------------------
     def observe(self, key: str, message: Message) -> None:
-        """Publish on an observation key, outside the emulated links."""
-        with self._publish_lock:
+        """Publish on an observation key (scoring, status), outside the links."""
+        with self._lock:
             payload = encode(message, self._seq[key], time.time())
             self._seq[key] += 1
         self.session.put(key, payload)
 
-    def _on_link_control(self, hop: str, sample: zenoh.Sample) -> None:
-        key = keys.link_key(self.system, hop)
-        try:
-            control = decode(key, sample.payload.to_bytes(), "LinkControl").message
-            assert isinstance(control, LinkControl)
-            runner = self.links[hop]
-            base = named_profile(control.profile) if control.profile else runner.profile
-            runner.reconfigure(base.with_fields(control.overrides))
-            if hop in self.netem_devices:
-                self._apply_netem(hop)
-        except AbyssError as exc:
-            self.reject(key, str(exc))
-            return
-        self.received[key] += 1
-        log.info("link %s now %s %s", runner.name, runner.profile.name, runner.profile.fields())
-
-    def link_down(self, hop: str) -> bool:
-        """Whether this station's emulator of `hop` is set to lose everything (an outage)."""
-        runner = self.links.get(hop)
-        return runner is not None and not runner.passthrough and runner.profile.loss >= 1.0
-
-    def link_stats(self, hop: str) -> LinkStats:
-        runner = self.links[hop]
-        return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,
-                         fields=runner.profile.fields(), stats=runner.snapshot())
-
-    def _on_link_query(self, hop: str, query: zenoh.Query) -> None:
-        query.reply(keys.link_key(self.system, hop), encode(self.link_stats(hop), 0, time.time()))
-
-    def _publish_linkstats(self) -> None:
-        while not self.stop.wait(LINKSTATS_PERIOD_S):
-            for hop in self.links:
-                self.observe(keys.linkstats_key(self.system, self.station, hop), self.link_stats(hop))
-
     # -- life ----------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
-        """What this station did, for summary.json."""
-        links = {}
-        for hop in self.links:
-            stats = self.link_stats(hop)
-            links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
-        latency = {key: samples.percentiles("latency", 1e3, "ms") for key, samples in self.latency_s.items()}
-        refused = dict(self.refusals.refused) if self.refusals else {}
-        return {"sent": dict(self.sent), "received": dict(self.received), "rejected": dict(self.rejected),
-                "refused": refused, "latency_ms": latency, "links": links}
+        """What this station sent, received and rejected, for summary.json."""
+        with self._lock:
+            latency = {key: samples.percentiles("latency", 1e3, "ms")
+                       for key, samples in self.latency_s.items()}
+            return {"sent": dict(self.sent), "received": dict(self.received), "rejected": dict(self.rejected),
+                    "latency_ms": latency}
 
-    def close(self, drain_s: float = 0.5) -> None:
+    def close(self) -> None:
+        """Undeclare the subscribers and publishers (the session is the caller's)."""
         self.stop.set()
-        for runner in self.links.values():
-            runner.close(drain_s)
-        for hop, device in self.netem_devices.items():
-            try:
-                run_tc(tc_command(device, None))
-            except LinkError as exc:
-                log.warning("could not remove netem from %s (%s): %s", device, hop, exc)
-        self._stats_thread.join(timeout=2.0)
-        self._token.undeclare()
-        for entity in self._closing:
+        for entity in [*self._subscribers, *self._publishers.values()]:
             entity.undeclare()
-        for publisher in self._publishers.values():
-            publisher.undeclare()
-        self.session.close()
+        self._subscribers.clear()
+        self._publishers.clear()

@@ -9,12 +9,13 @@ import ipaddress
 from dataclasses import dataclass
 from pathlib import Path
 
-from abyss.common import keys
-from abyss.common.errors import ConfigError
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+from abyss.common import keys
+from abyss.common.errors import ConfigError
 
 OPERATOR = "operator"  # the common name of the operator's tools (abyss op, link, check, health)
 HOLDERS: tuple[str, ...] = (*keys.STATIONS, OPERATOR)

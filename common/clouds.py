@@ -5,6 +5,7 @@ from __future__ import annotations
 import zlib
 
 import numpy as np
+
 from abyss.common.messages import CLOUD_POINT_BYTES, PointCloud
 
 _RECORD = np.dtype([("xyz", "<i2", 3), ("rgb", "u1", 3)])
@@ -24,8 +25,8 @@ def voxel_downsample(
     packed = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int64 per voxel
     _, inverse, counts = np.unique(packed, return_inverse=True, return_counts=True)
     columns = np.column_stack((points_m, colors.astype(np.float64)))
-    means = np.column_stack([np.bincount(inverse, weights=c, minlength=len(counts)) for c in columns.T])
-    means /= counts[:, None]
+    sums = np.column_stack([np.bincount(inverse, weights=c, minlength=len(counts)) for c in columns.T])
+    means = sums / counts[:, None]
     return means[:, :3], np.round(means[:, 3:]).astype(np.uint8)
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from abyss.common import keys
 from abyss.common.errors import ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy

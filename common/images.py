@@ -6,6 +6,7 @@ import dataclasses
 
 import cv2
 import numpy as np
+
 from abyss.common.messages import Image
 
 DEPTH_SCALE_M = 0.001  # one PNG count [m]

@@ -109,6 +109,7 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("onshore", "op/mode", "OperatorMode", 0.0, "reliable", "vessel", "control"),
     KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel", "control"),
     KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "scene_ack", "SceneAck", 0.0, "reliable", "vessel", "control"),
 )
 
 

@@ -14,11 +14,13 @@ import functools
 import math
 import typing
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import msgpack
 import numpy as np
+
 from abyss.common.errors import BadMessage
 
 MESSAGES: dict[str, type[Message]] = {}
@@ -35,7 +37,12 @@ def scalar(lo: float = -math.inf, hi: float = math.inf, choices: tuple[str, ...]
     return field(metadata={"lo": lo, "hi": hi, "choices": choices})
 
 
-def _check_number(name: str, value: Any, kind: type, lo: float, hi: float) -> Any:
+def blob(max_bytes: int) -> Any:
+    """A bytes field of at most `max_bytes`."""
+    return field(metadata={"max_bytes": max_bytes})
+
+
+def _check_number(name: str, value: Any, kind: type[int] | type[float], lo: float, hi: float) -> Any:
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if not isinstance(value, kind) or isinstance(value, bool):
@@ -102,14 +109,11 @@ def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
     raise TypeError(f"{name}: unsupported field type {kind}")
 
 
-@functools.cache
-def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
-
-
-@functools.cache
-def _fields(cls: type) -> tuple[dataclasses.Field[Any], ...]:
-    return dataclasses.fields(cls)
+# Per message class, cached. Typed as taking any class: mypy holds a frozen dataclass's class
+# object unhashable (it reads the instances' __hash__), so functools.cache's Hashable arguments
+# would refuse type[Message].
+_hints: Callable[[type], dict[str, Any]] = functools.cache(typing.get_type_hints)
+_fields: Callable[[type], tuple[dataclasses.Field[Any], ...]] = functools.cache(dataclasses.fields)
 
 
 @dataclass(frozen=True)
@@ -202,7 +206,7 @@ class Image(Message):
     cx_px: float = scalar(0.0, 8192.0)
     cy_px: float = scalar(0.0, 8192.0)
     pose_camera: np.ndarray = array("f8", (7,), -1e5, 1e5)
-    data: bytes = field(metadata={"max_bytes": 32 * 2**20})
+    data: bytes = blob(32 * 2**20)
     sim_time_s: float = scalar(0.0)
 
     def __post_init__(self) -> None:
@@ -225,7 +229,7 @@ class PointCloud(Message):
     scale_m: float = scalar(1e-4, 1.0)
     origin_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     sensor_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
-    data: bytes = field(metadata={"max_bytes": 32 * 2**20})
+    data: bytes = blob(32 * 2**20)
     sim_time_s: float = scalar(0.0)
 
     def __post_init__(self) -> None:
@@ -252,7 +256,7 @@ class SceneUpdate(Message):
     kind: str = scalar(choices=SCENE_KINDS)
     scene_seq: int = scalar(0, 2**53)
     resolution_m: float = scalar(1e-3, 10.0)
-    octree: bytes = field(metadata={"max_bytes": 16 * 2**20})
+    octree: bytes = blob(16 * 2**20)
     colors: np.ndarray = array("u1", (None, 3), 0, 255, max_rows=2_000_000)
     sim_time_s: float = scalar(0.0)
 
@@ -263,6 +267,14 @@ class SceneRequest(Message):
 
     last_seq: int = scalar(-1, 2**53)  # the last update applied on shore; -1: none
     reason: str = scalar()
+
+
+@dataclass(frozen=True)
+class SceneAck(Message):
+    """Shore received scene update `scene_seq` (applied or not): the vessel paces its stream
+    by these, end to end, as a real sender must."""
+
+    scene_seq: int = scalar(0, 2**53)
 
 
 @dataclass(frozen=True)

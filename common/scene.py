@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pyoctomap
+
 from abyss.common.clouds import voxel_downsample
 from abyss.common.messages import SceneUpdate
 
@@ -368,6 +369,6 @@ def export(update: SceneUpdate, path: Path, fmt: str) -> int:
 
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centres))
         cloud.colors = o3d.utility.Vector3dVector(colors / 255.0)
-        if not o3d.io.write_point_cloud(str(path), cloud):
+        if not o3d.io.write_point_cloud(path, cloud):
             raise OSError(f"Open3D could not write {path}")
     return len(centres)

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 import zenoh
+
 from abyss.common import keys
 from abyss.common.certs import HOLDERS, OPERATOR, CertFiles
 from abyss.common.errors import ConfigError

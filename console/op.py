@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import zenoh
+
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.errors import ConfigError

@@ -27,10 +27,11 @@ from typing import IO
 
 import numpy as np
 import zenoh
+
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from abyss.common.messages import ArmGoal, Message, Telemetry, Waypoints, encode
+from abyss.common.messages import ArmGoal, Telemetry, Waypoints, encode
 
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
@@ -64,7 +65,7 @@ class Goals:
             self.ee_position_m_world = np.array(t.ee_position_m_world)
             self.ee_rotation = rotation_of(t.ee_orientation_wxyz_world)
 
-    def move(self, target: str, translation: np.ndarray, rotation_rad: np.ndarray) -> Message:
+    def move(self, target: str, translation: np.ndarray, rotation_rad: np.ndarray) -> Waypoints | ArmGoal:
         """Move one goal by steps in the vehicle's heading frame; the command to send."""
         assert self.vehicle is not None and self.ee_position_m_world is not None
         heading = rotation_of_rpy(0.0, 0.0, self.yaw_rad)

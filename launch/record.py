@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import IO
 
 import numpy as np
+
 from abyss.common.messages import Telemetry
 
 CONTROL_FILE = "control.csv"

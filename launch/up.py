@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
+
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import Config, OnshoreConfig

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
 from abyss.common.errors import LinkError
 from abyss.common.samples import Samples
 from abyss.linkemu.profile import LinkProfile

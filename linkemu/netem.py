@@ -96,7 +96,7 @@ def interface_towards(host: str, timeout_s: float = 30.0) -> str:
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            address = socket.getaddrinfo(host, None, socket.AF_INET)[0][4][0]
+            address = str(socket.getaddrinfo(host, None, socket.AF_INET)[0][4][0])
             break
         except socket.gaierror as exc:
             if time.monotonic() > deadline:

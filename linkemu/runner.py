@@ -10,6 +10,7 @@ from collections.abc import Callable, Container
 from typing import Any
 
 import numpy as np
+
 from abyss.common.samples import Samples
 from abyss.linkemu.link import Delivery, Link, Offer
 from abyss.linkemu.profile import LinkProfile

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Mapping
 
 from abyss.common.errors import ConfigError
 
@@ -14,7 +15,7 @@ _TIME = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 _SIZE = {"b": 1, "kb": 1024, "mb": 1024**2}
 
 
-def _parse(field: str, text: str | float | int, units: dict[str, float], kind: str,
+def _parse(field: str, text: str | float | int, units: Mapping[str, float], kind: str,
            example: str) -> float:
     if isinstance(text, (int, float)) and not isinstance(text, bool):
         raise ConfigError(field, f"{text!r} has no unit; write it like {example!r} "

@@ -15,10 +15,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from abyss.common import keys
-from abyss.common.bus import Bus
+from abyss.common import keys, security
+from abyss.common.bus import Bus, open_session, zenoh_config
 from abyss.common.certs import CertFiles
 from abyss.common.config import Config
+from abyss.linkemu.control import StationLinks
 
 log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
@@ -38,7 +39,7 @@ def stop_with_supervisor() -> None:
 
 def station_entry(name: str) -> Callable[[Config, Any], None]:
     """The station's `run(config, bus)`."""
-    return importlib.import_module(f"abyss.stations.{keys.check_station(name)}").run  # type: ignore[no-any-return]
+    return importlib.import_module(f"abyss.stations.{keys.check_station(name)}").run
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -47,14 +48,50 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+class Shell:
+    """What hosts one station in the testbed: its Zenoh session, the bus the station sees, the
+    links behind that bus (emulated or netem, with their control plane) and its liveliness
+    token. `close()` undoes it all, links first, so that nothing blocks on a link."""
+
+    def __init__(self, name: str, config: Config, listen: Sequence[str] = (), connect: Sequence[str] = (),
+                 link_mode: str = "emulated", mode: str = "peer", tls_dir: Path | None = None,
+                 peers: dict[str, str] | None = None) -> None:
+        profiles = config.links.profiles()
+        tls = CertFiles(tls_dir, name) if tls_dir else None
+        slowest_bps = min(profiles[hop].rate_bps for hop in keys.hops_of(name))
+        settings = zenoh_config(listen, connect, mode, tls=tls, acl_station=name if tls else None,
+                             slowest_rate_bps=slowest_bps)  # bad endpoints or certificates fail here
+        self.refusals = security.refusal_log() if tls is not None else None
+        self.session = open_session(settings, f"station {name}")
+        self.bus = Bus(config.system, name, self.session)
+        self.links = StationLinks(self.session, config.system, name, profiles, self.bus.transmit,
+                                  seed=config.seed, link_mode=link_mode, peers=peers)
+        for hop in self.links.runners:
+            self.bus.route(hop, self.links.egress(hop))
+        self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
+
+    def status(self) -> dict[str, Any]:
+        status = self.bus.status()
+        status["rejected"] = {**status["rejected"], **self.links.rejected}
+        status["refused"] = dict(self.refusals.refused) if self.refusals else {}
+        status["links"] = self.links.status()
+        return status
+
+    def close(self, drain_s: float = 0.5) -> None:
+        self.bus.stop.set()
+        self.links.close(drain_s)
+        self._token.undeclare()
+        self.bus.close()
+        self.session.close()
+
+
 def run_station(name: str, config: Config, listen: Sequence[str], connect: Sequence[str],
                 status_file: Path | None, link_mode: str = "emulated", mode: str = "peer",
                 tls_dir: Path | None = None, peers: dict[str, str] | None = None) -> int:
-    """Open the bus, run the station until SIGINT/SIGTERM, close, write the status file."""
+    """Open the shell, run the station until SIGINT/SIGTERM, close, write the status file."""
     entry = station_entry(name)
-    bus = Bus(config.system, name, config.links.profiles(), listen=listen, connect=connect,
-              seed=config.seed, link_mode=link_mode, mode=mode, peers=peers,
-              tls=CertFiles(tls_dir, name) if tls_dir else None)
+    shell = Shell(name, config, listen, connect, link_mode, mode, tls_dir, peers)
+    bus = shell.bus
 
     def stop(signum: int, _frame: Any) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
@@ -72,8 +109,8 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     except Exception:
         log.exception("%s failed", name)
         code = 1
-    status = bus.status()
-    bus.close()
+    status = shell.status()
+    shell.close()
     if status_file is not None:
         status_file.write_text(json.dumps({"exit_code": code, **status}, indent=2))
     log.info("%s stopped (exit %d)", name, code)

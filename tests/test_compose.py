@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 import yaml
+
 from abyss.cli import parser
 from abyss.common import keys
 from abyss.common.config import LinksConfig

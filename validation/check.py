@@ -5,12 +5,14 @@ their schema; a team checks a hardware driver this way before it replaces a stat
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
 
 import zenoh
+
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
 from abyss.common.errors import BadMessage
@@ -55,7 +57,7 @@ def check(endpoint: str, system: str, station: str, duration_s: float) -> list[K
     session = open_session(client_config(endpoint), "abyss check")
     try:
         subscribers = [
-            session.declare_subscriber(s.key(system), lambda sample, m=s.message: on_sample(sample, m))
+            session.declare_subscriber(s.key(system), functools.partial(on_sample, message=s.message))
             for s in specs]
         time.sleep(duration_s)
         for subscriber in subscribers:

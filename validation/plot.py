@@ -12,6 +12,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+
 from abyss.common.errors import ConfigError
 from abyss.launch.record import CONTROL_FILE, read_control
 

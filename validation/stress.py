@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
 from abyss.common.messages import Telemetry, encode
@@ -44,6 +45,7 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
 
     choose_gl_backend()  # before MuJoCo is imported
     import mujoco
+
     from abyss.common.models import CAMERAS
     from abyss.stations.onboard.perception import CloudSettings, clouds_of
     from abyss.stations.simulation.encoding import encode_image
@@ -82,12 +84,9 @@ def run_resolution(
     cfg = config.vessel
     link = Link(profile(link_profile), np.random.default_rng(seed))
     model = SceneModel(resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
-    pacer = ScenePacer(
-        cfg.scene_share,
-        ScenePacer.first_guess(link.profile.rate_bps, cfg.satellite_capacity_bps),
-        cfg.scene_update_bytes,
-    )
-    telemetry = encode(_telemetry(), 0, 0.0)
+    pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
+    acks: dict[int, float] = {}  # scene seq -> when shore's acknowledgement reaches the vessel [s]
+    telemetry = encode(sample_telemetry(), 0, 0.0)
     latency = {"scene": Samples(), "telemetry": Samples()}
     offered = {"scene": 0, "telemetry": 0}
     delivered = {"scene": 0, "telemetry": 0}
@@ -108,21 +107,27 @@ def run_resolution(
             offered["telemetry"] += 1
             link.offer(now_s, telemetry, tag="telemetry")
             next_telemetry_s += TELEMETRY_PERIOD_S
-        pacer.observe(now_s, link.snapshot()["bytes_delivered"], link.in_flight({"scene"}))
-        while pacer.allows(link.in_flight({"scene"})):
+        for seq in [seq for seq, at_s in acks.items() if at_s <= now_s]:  # shore's acks are back
+            pacer.acknowledged(now_s, seq)
+            del acks[seq]
+        pacer.tick(now_s)
+        while pacer.allows():
             update = model.next_update(now_s, pacer.update_bytes())
             if update is None:
                 break
             payload = encode(update, update.scene_seq, now_s)
-            if link.offer(now_s, payload, block=True, tag="scene") is Offer.ACCEPTED:
+            if link.offer(now_s, payload, block=True, tag=("scene", update.scene_seq)) is Offer.ACCEPTED:
                 offered["scene"] += 1
                 update_bytes.append(len(payload))
                 if update.kind == "snapshot":
                     snapshot_bytes = len(payload)
-            pacer.sent(len(payload))
+            pacer.sent(now_s, len(payload), update.scene_seq)
         for delivery in link.advance(now_s):
-            latency[delivery.tag].add(delivery.delivered_s - delivery.offered_s)
-            delivered[delivery.tag] += 1
+            name = delivery.tag if delivery.tag == "telemetry" else "scene"
+            latency[name].add(delivery.delivered_s - delivery.offered_s)
+            delivered[name] += 1
+            if name == "scene":  # shore acknowledges it; the ack takes the link's delay back
+                acks[delivery.tag[1]] = delivery.delivered_s + link.profile.delay_s
     stats = link.snapshot()
     bt_bytes = len(model.binary())
     result: dict[str, Any] = {
@@ -149,7 +154,7 @@ def run_resolution(
     return result
 
 
-def _telemetry() -> Telemetry:
+def sample_telemetry() -> Telemetry:
     zero3 = np.zeros(3)
     return Telemetry(
         position_m_world=zero3,

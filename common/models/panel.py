@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
 from abyss.common.models import MODELS_DIR
 
 PANEL_POSITION_M_WORLD = (5.0, 0.0, -8.6)  # the panel's frame is the world's, translated

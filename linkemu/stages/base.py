@@ -4,6 +4,7 @@ import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+
 from abyss.linkemu.profile import LinkProfile
 
 

@@ -3,6 +3,6 @@
 from abyss.linkemu.transport.tcp import Tcp
 from abyss.linkemu.transport.udp import Udp
 
-TRANSPORTS = {"tcp": Tcp, "udp": Udp}
+TRANSPORTS: dict[str, type[Tcp] | type[Udp]] = {"tcp": Tcp, "udp": Udp}
 
 __all__ = ["TRANSPORTS", "Tcp", "Udp"]

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 from collections import deque
@@ -85,7 +86,7 @@ class Tcp:
         self.in_flight[packet.seq] = packet
         self.highest_sent = max(self.highest_sent, packet.seq)
         for copy in self.link.transmit(t_s, packet.copy()):
-            self.link.schedule(copy.t_s, lambda t, c=copy: self._arrive(t, c))
+            self.link.schedule(copy.t_s, functools.partial(self._arrive, packet=copy))
         transmission = packet.transmission
         self.link.schedule(t_s + self.rto_s, lambda t: self._timeout(t, packet.seq, transmission))
 

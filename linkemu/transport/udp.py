@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 from abyss.linkemu.stages import Packet, Serialise
@@ -28,7 +29,7 @@ class Udp:
             return
         self.travelling[mid] = len(copies)
         for copy in copies:
-            self.link.schedule(copy.t_s, lambda t, c=copy: self._arrive(t, c))
+            self.link.schedule(copy.t_s, functools.partial(self._arrive, packet=copy))
 
     def _arrive(self, t_s: float, packet: Packet) -> None:
         if self.link.checksum_ok(packet):

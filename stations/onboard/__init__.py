@@ -1,11 +1,9 @@
 """The onboard station: the high-level controllers close to the vehicle. Waypoints and an
 end-effector goal come down from the vessel; body and joint velocity references go to the
-low level; the controllers' state goes up as telemetry. The arm moves once the vehicle holds
-its last waypoint (with `onboard.whole_body`, the vehicle then moves with the arm); both hold
-still while the failsafe is on or the operator says hold (in teleop mode the arm follows its
-goal at once). Each operator command is checked (`commands.py`) and acknowledged with its fate
-before it is flown. Perception runs in a thread of its own: the camera frames
-become coloured clouds in the world frame, and the left camera's frames go on to the vessel."""
+low level; the controllers' state goes up as telemetry. The control itself is `core.Onboard`,
+a plain step without Zenoh; `run` is its I/O shell. Perception runs in a thread of its own: the
+camera frames become coloured clouds in the world frame, and the left camera's frames go on to
+the vessel."""
 
 from __future__ import annotations
 
@@ -15,33 +13,16 @@ import threading
 import time
 
 import numpy as np
-from abyss.common import keys
-from abyss.common.bus import Bus
-from abyss.common.config import Config
-from abyss.common.geometry import quat_wxyz_of, yaw_of
-from abyss.common.messages import (
-    ArmGoal,
-    ArmVelocityRef,
-    Heartbeat,
-    Image,
-    JointState,
-    NavState,
-    OperatorMode,
-    Telemetry,
-    VelocityRef,
-    Waypoints,
-)
-from abyss.common.models import ARM_JOINTS, CAMERAS
-from abyss.common.rate import Rate
-from abyss.stations.onboard.arm_control import ArmController
-from abyss.stations.onboard.commands import CommandGate
-from abyss.stations.onboard.failsafe import Failsafe
-from abyss.stations.onboard.navigation import NavFilter
-from abyss.stations.onboard.perception import PoseHistory
-from abyss.stations.onboard.vehicle_control import VehicleController
 
-GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
-GRIPPER_GAIN_PER_S = 2.0
+from abyss.common import keys
+from abyss.common.bus import Bus, messages_of
+from abyss.common.config import Config
+from abyss.common.messages import ArmGoal, Heartbeat, Image, JointState, NavState, OperatorMode, Waypoints
+from abyss.common.models import CAMERAS
+from abyss.common.rate import Rate
+from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.stations.onboard.perception import PoseHistory
+
 log = logging.getLogger(__name__)
 
 
@@ -55,92 +36,38 @@ class Shared:
 
 
 def run(config: Config, bus: Bus) -> None:
-    cfg = config.onboard
-    vehicle = VehicleController(cfg, config.mission)
-    arm = ArmController(cfg, config.mission)
-    nav_filter = NavFilter(cfg.nav_time_constant_s)
-    failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
-    gate = CommandGate(config.mission, *arm.kinematics.reach())
-    operator_mode = "auto"
+    """The I/O shell: read what came in, step the core, publish what it returns, keep the rate."""
+    core = Onboard(config)
     nav = bus.subscribe("simulation", "nav", maxlen=8)
     joints = bus.subscribe("simulation", "joints", maxlen=4)
-    waypoint_goals = bus.subscribe("vessel", "goal/waypoints")
-    arm_goals = bus.subscribe("vessel", "goal/arm")
-    mode_goals = bus.subscribe("vessel", "goal/mode")
+    goals = [bus.subscribe("vessel", topic) for topic in ("goal/waypoints", "goal/arm", "goal/mode")]
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
     shared = Shared()
     perception = threading.Thread(target=_perception_loop, args=(config, bus, shared), name="perception",
                                   daemon=True)
     perception.start()
-    rate = Rate(cfg.control_period_s, bus.stop)
-    every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
-    position_m_world: np.ndarray | None = None
-    orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
-    tick = 0
+    rate = Rate(config.onboard.control_period_s, bus.stop)
     while rate.sleep():
-        now_s = time.monotonic()
-        for goal in (*waypoint_goals.drain(), *arm_goals.drain(), *mode_goals.drain()):
-            command = goal.message
-            where = vehicle.waypoints[-1] if len(vehicle.waypoints) else (  # where the vehicle will hold
-                np.r_[position_m_world, yaw_of(orientation_wxyz_world)] if position_m_world is not None
-                else np.zeros(4))
-            ack, taken = gate.answer(command, where)
-            bus.publish("ack", ack)
-            if not taken:
-                log.info("%s command %d not taken: %s", ack.command, ack.command_id, ack.reason or "a resend")
-            elif isinstance(command, Waypoints):
-                vehicle.set_waypoints(command.command_id, command.waypoints)
-            elif isinstance(command, ArmGoal):
-                arm.set_goal(command.command_id, command.position_m_world, command.orientation_wxyz_world)
-            elif isinstance(command, OperatorMode):
-                operator_mode = command.mode
-        for beat in heartbeats.drain():
-            assert isinstance(beat.message, Heartbeat)
-            failsafe.heard(now_s, beat.message)
-        for fix in nav.drain():
-            assert isinstance(fix.message, NavState)
-            position_m_world, orientation_wxyz_world = nav_filter.update(fix.message)
-            sim_time_s = fix.message.sim_time_s
-            with shared.lock:
-                shared.poses.add(sim_time_s, position_m_world, orientation_wxyz_world)
-        latest_joints = joints.latest()
-        if position_m_world is None or latest_joints is None:
-            continue
-        assert isinstance(latest_joints.message, JointState)
-        arm_rad = latest_joints.message.positions_rad
-        hold = failsafe.check(now_s, bus.link_down("tether")) or (
-            "operator hold" if operator_mode == "hold" else "")
-        yaw = yaw_of(orientation_wxyz_world)
-        out = vehicle.step(position_m_world, yaw, cfg.control_period_s, hold=bool(hold))
-        arm_free = out.mode in ("reached", "idle") or operator_mode == "teleop"
-        arm_out = arm.step(position_m_world, orientation_wxyz_world, arm_rad, enabled=not hold and arm_free)
+        latest_joints = messages_of([r for r in (joints.latest(),) if r is not None], JointState)
+        commands = [r.message for inbox in goals for r in inbox.drain()]
+        inputs = OnboardInputs(
+            commands=[c for c in commands if isinstance(c, (Waypoints, ArmGoal, OperatorMode))],
+            heartbeats=messages_of(heartbeats.drain(), Heartbeat), nav=messages_of(nav.drain(), NavState),
+            joints=latest_joints[-1] if latest_joints else None)
+        out = core.step(inputs, time.monotonic())
         with shared.lock:
-            shared.arm_m_world = arm.kinematics.chain_m_world()
-        linear, yaw_rate = out.linear_mps_body, out.yaw_rate_radps
-        if arm_out.vehicle_velocity is not None and arm_out.mode in ("moving", "reached"):
-            linear, yaw_rate = arm_out.vehicle_velocity[:3], float(arm_out.vehicle_velocity[3])
-        bus.publish("cmd/vehicle_velocity", VelocityRef(linear, yaw_rate))
-        gripper_mps = 0.0
-        if arm_out.mode in ("moving", "reached"):
-            opening_error_m = GRIPPER_OPENING_M - latest_joints.message.gripper_opening_m
-            gripper_mps = float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
-        bus.publish("cmd/arm_velocity", ArmVelocityRef(arm_out.joint_velocities_radps, gripper_mps))
-        if tick % every == 0:
-            ee_pose = arm.kinematics.pose(arm.kinematics.ee)
-            state = Telemetry(
-                position_m_world=position_m_world, yaw_rad=yaw, mode=out.mode, command_id=vehicle.command_id,
-                waypoint_index=out.waypoint_index, waypoints_total=out.waypoints_total,
-                position_error_m_world=out.position_error_m_world, heading_error_rad=out.heading_error_rad,
-                arm_mode=arm_out.mode, arm_command_id=arm.command_id,
-                ee_position_error_m_world=arm_out.position_error_m_world,
-                ee_orientation_error_rad=arm_out.orientation_error_rad,
-                ee_position_m_world=ee_pose.translation,
-                ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
-                arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
-                failsafe_events=failsafe.events, sim_time_s=sim_time_s, operator_mode=operator_mode)
-            bus.publish("telemetry", state)
-            bus.observe(keys.onboard_state_key(bus.system), state)
-        tick += 1
+            for pose in out.poses:
+                shared.poses.add(*pose)
+            if out.arm_m_world is not None:
+                shared.arm_m_world = out.arm_m_world
+        for ack in out.acks:
+            bus.publish("ack", ack)
+        if out.vehicle is not None and out.arm is not None:
+            bus.publish("cmd/vehicle_velocity", out.vehicle)
+            bus.publish("cmd/arm_velocity", out.arm)
+        if out.telemetry is not None:
+            bus.publish("telemetry", out.telemetry)
+            bus.observe(keys.onboard_state_key(bus.system), out.telemetry)
     perception.join(timeout=5.0)
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+
 from abyss.common.config import MissionConfig, OnboardConfig
 from abyss.common.geometry import rotation_of
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE

@@ -8,6 +8,7 @@ from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
+
 from abyss.common.config import Box, MissionConfig
 from abyss.common.geometry import rotation_of_rpy
 from abyss.common.messages import ArmGoal, CommandAck, Message, OperatorMode, Waypoints

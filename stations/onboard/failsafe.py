@@ -1,6 +1,7 @@
 """The onboard failsafe: the vehicle holds station and the arm holds still while the vessel
 is silent (its heartbeat stops: tether down, vessel dead) or, optionally, while the vessel
-reports shore silent (satellite down); both resume when the link returns."""
+reports shore silent (satellite down); both resume when the link returns. It judges by the
+heartbeats alone, as a real vehicle must: it cannot ask the link whether it is down."""
 
 from __future__ import annotations
 
@@ -20,12 +21,10 @@ class Failsafe:
         self.heard_s = now_s
         self.shore_heard = heartbeat.shore_heard
 
-    def check(self, now_s: float, tether_down: bool) -> str:
+    def check(self, now_s: float) -> str:
         """Why the vehicle must hold now ('' when it need not); counts each entry."""
         reason = ""
-        if tether_down:
-            reason = "tether link reported down"
-        elif self.heard_s is not None and now_s - self.heard_s > self.goal_timeout_s:
+        if self.heard_s is not None and now_s - self.heard_s > self.goal_timeout_s:
             reason = f"no heartbeat from the vessel for {now_s - self.heard_s:.1f} s"
         elif self.hold_on_shore_loss and not self.shore_heard:
             reason = "the vessel reports shore silent (satellite link lost)"

@@ -8,6 +8,7 @@ alone."""
 from __future__ import annotations
 
 import numpy as np
+
 from abyss.common.geometry import quat_multiply, rotation_of, small_rotation_wxyz
 from abyss.common.messages import NavState
 

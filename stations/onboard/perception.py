@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from abyss.common.clouds import pack_cloud, voxel_downsample
 from abyss.common.geometry import quat_wxyz_of, rotation_of
 from abyss.common.images import decode_image
@@ -81,7 +82,7 @@ def stereo_depth(
     """Depth [m] along the left camera's axis from a rectified pair by semi-global matching;
     0 where no disparity was found. The full-pixel-pairs mode: the five-direction default
     overestimated disparity here by 0.14 px on average (4.5 cm closer at 4 m)."""
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM.create(
         minDisparity=0,
         numDisparities=disparities,
         blockSize=block_px,

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from abyss.common.config import MissionConfig, OnboardConfig
 from abyss.common.geometry import wrap_rad
 

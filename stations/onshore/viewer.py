@@ -10,11 +10,13 @@ import math
 import subprocess
 from collections import deque
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
+
 from abyss.common.config import OnshoreConfig
 from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
 from abyss.common.models import ARM_JOINTS, ROBOT_FILE
@@ -103,10 +105,10 @@ def geometry_of(model: mujoco.MjModel, geom: int) -> rr.AsComponents | None:
     kind, size = mujoco.mjtGeom(model.geom_type[geom]), model.geom_size[geom]
     position, quat_wxyz = model.geom_pos[geom], model.geom_quat[geom]
     rgba = np.round(model.geom_rgba[geom] * 255).astype(np.uint8)
-    rotation = np.empty(9)
+    rotation: np.ndarray = np.empty(9)
     mujoco.mju_quat2Mat(rotation, quat_wxyz)
     rotation = rotation.reshape(3, 3)
-    pose = {"quaternions": [xyzw(quat_wxyz)], "colors": [rgba], "fill_mode": "solid"}
+    pose: dict[str, Any] = {"quaternions": [xyzw(quat_wxyz)], "colors": [rgba], "fill_mode": "solid"}
     match kind:
         case mujoco.mjtGeom.mjGEOM_BOX:
             return rr.Boxes3D(half_sizes=[size], centers=[position], **pose)
@@ -166,7 +168,7 @@ class Viewer:
         for name, value in values.items():
             self.recording.log(f"{prefix}/{name}", rr.Scalars(value))
 
-    def _status(self, name: str, text: str, level: str) -> None:
+    def _status(self, name: str, text: str, level: rr.TextLogLevel) -> None:
         """A line at `status/<name>` when `text` differs from the last one."""
         if self.status.get(name, "") != text:
             self.status[name] = text

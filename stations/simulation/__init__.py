@@ -7,6 +7,7 @@ import threading
 import time
 
 import numpy as np
+
 from abyss.common import keys
 from abyss.common.bus import Bus
 from abyss.common.config import Config
@@ -70,6 +71,7 @@ def run(config: Config, bus: Bus) -> None:
 def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:
     """Render every camera at the camera rate from a copy of the physics state."""
     import mujoco
+
     from abyss.common.models import CAMERAS
     from abyss.stations.simulation.encoding import encode_image
     from abyss.stations.simulation.rendering import Cameras

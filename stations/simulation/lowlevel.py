@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+
 from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
 from abyss.stations.simulation.thrusters import Thrusters
 

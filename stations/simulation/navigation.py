@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
 from abyss.common.geometry import quat_multiply, small_rotation_wxyz
 from abyss.common.messages import NavState
 from abyss.common.models import NAV_SENSORS

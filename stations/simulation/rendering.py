@@ -10,6 +10,7 @@ import sys
 from dataclasses import dataclass
 
 import numpy as np
+
 from abyss.common.errors import AbyssError
 
 BACKENDS = ("egl", "osmesa")

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from abyss.common.errors import AbyssError
 
 log = logging.getLogger(__name__)
@@ -94,7 +95,8 @@ def reconstruct(points_m: np.ndarray, depth: int = 8) -> Terrain:
     x, y = np.meshgrid(xs, xs, indexing="xy")
     top = float(points_m[:, 2].max()) + 10.0
     rays = np.c_[x.ravel(), y.ravel(), np.full(x.size, top), np.zeros((x.size, 2)), -np.ones(x.size)]
-    hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+    rays_t = o3d.core.Tensor(rays.astype(np.float32), o3d.core.float32, o3d.core.Device("CPU:0"))
+    hit = scene.cast_rays(rays_t)["t_hit"].numpy()
     heights = top - hit.reshape(GRID, GRID).astype(float)
     missing = ~np.isfinite(heights)
     if missing.all():
@@ -134,7 +136,7 @@ def read_cloud(path: Path) -> np.ndarray:
 
     if not path.exists():
         raise TerrainError(f"{path}: no such file")
-    points = np.asarray(o3d.io.read_point_cloud(str(path)).points)
+    points = np.asarray(o3d.io.read_point_cloud(path).points)
     if len(points) == 0:
         raise TerrainError(f"{path}: no points read (a .ply, .pcd or .xyz point cloud is expected)")
     return points
@@ -143,7 +145,7 @@ def read_cloud(path: Path) -> np.ndarray:
 def write_cloud(points_m: np.ndarray, path: Path) -> None:
     import open3d as o3d
 
-    o3d.io.write_point_cloud(str(path), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m)))
+    o3d.io.write_point_cloud(path, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m)))
 
 
 def hfield_xml(heights_m: np.ndarray, file_name: str) -> tuple[str, str]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+
 from abyss.common.models import THRUSTERS
 
 # The vehicle has thrust in surge, sway, heave and yaw; roll and pitch are left to its

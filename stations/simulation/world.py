@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+
 from abyss.common.config import SimulationConfig
 from abyss.common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
 from abyss.common.models import (

@@ -2,7 +2,8 @@
 commands down to the vehicle and onboard's answers to them back up; beats a heartbeat to
 onboard that says whether shore is still heard. In a thread of its own it keeps the scene model
 (an octree from the onboard clouds), recognises the panel, and streams both, with a small camera
-frame now and then, to shore paced for the satellite link."""
+frame now and then, to shore, paced by shore's acknowledgements. The relay and the stream are
+plain cores (`core.py`); this module is their I/O shell."""
 
 from __future__ import annotations
 
@@ -12,25 +13,24 @@ import time
 from typing import TYPE_CHECKING
 
 import numpy as np
-from abyss.common import keys
-from abyss.common.bus import Bus, Inbox
+
+from abyss.common.bus import Bus, Inbox, messages_of
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
-from abyss.common.images import decode_image, downscale
-from abyss.common.messages import Heartbeat, Image, PointCloud
+from abyss.common.images import decode_image
+from abyss.common.messages import CommandAck, Image, PointCloud, SceneAck, Telemetry
 from abyss.common.rate import Rate
-from abyss.stations.vessel.pacing import ScenePacer
+from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs, SceneStream
 
 if TYPE_CHECKING:
     from abyss.common.scene import SceneModel
 
-RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode"}
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
 log = logging.getLogger(__name__)
 
 
 def run(config: Config, bus: Bus) -> None:
-    cfg = config.vessel
+    """The I/O shell of the relay (`core.Relay`); the scene runs in a thread of its own."""
     scene = threading.Thread(target=_scene_loop, args=(config, bus), name="scene", daemon=True)
     scene.start()
     telemetry = bus.subscribe("onboard", "telemetry", maxlen=8)
@@ -38,27 +38,16 @@ def run(config: Config, bus: Bus) -> None:
     acks = bus.subscribe("onboard", "ack")
     shore_beats = bus.subscribe("onshore", "heartbeat", maxlen=4)
     rate = Rate(POLL_PERIOD_S, bus.stop)
-    shore_heard_s = started_s = time.monotonic()
-    last_beat_s = last_relay_s = -float("inf")
-    forwarded_seq = -1
+    relay = Relay(config.vessel, time.monotonic())
     while True:
-        now_s = time.monotonic()
-        for topic, inbox in operator.items():  # commands go down as soon as they are seen
-            for command in inbox.drain():
-                bus.publish(RELAYED_DOWN[topic], command.message)
-        for ack in acks.drain():
-            bus.publish("ack", ack.message)
-        if shore_beats.drain():
-            shore_heard_s = now_s
-        if now_s - last_beat_s >= cfg.heartbeat_period_s:
-            silence_s = now_s - max(shore_heard_s, started_s)
-            bus.publish("heartbeat", Heartbeat(silence_s, silence_s < cfg.shore_timeout_s))
-            last_beat_s = now_s
         latest = telemetry.latest()
-        due = now_s - last_relay_s >= cfg.telemetry_period_s
-        if due and latest is not None and latest.seq != forwarded_seq:
-            bus.publish("telemetry", latest.message)
-            forwarded_seq, last_relay_s = latest.seq, now_s
+        onboard_state = latest.message if latest and isinstance(latest.message, Telemetry) else None
+        inputs = RelayInputs(
+            commands=[(topic, r.message) for topic, inbox in operator.items() for r in inbox.drain()],
+            acks=messages_of(acks.drain(), CommandAck), shore_heard=bool(shore_beats.drain()),
+            telemetry=(latest.seq, onboard_state) if latest and onboard_state else None)
+        for topic, message in relay.step(inputs, time.monotonic()):
+            bus.publish(topic, message)
         if not rate.sleep():
             break
     scene.join(timeout=30.0)  # one loop at most: an octree insertion, a recognition
@@ -116,35 +105,17 @@ def _scene_loop(config: Config, bus: Bus) -> None:
 
 def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox,
                sim_time_s: list[float]) -> None:
-    """Scene updates, and now and then a small camera frame, paced for the satellite link."""
-    cfg = config.vessel
+    """The I/O shell of the scene stream (`core.SceneStream`), paced by shore's acknowledgements."""
     requests = bus.subscribe("onshore", "scene_request")
-    satellite = bus.links["satellite"]
-    bulk_keys = {keys.spec("vessel", topic).key(bus.system) for topic in ("scene", "image")}  # paced
-    first_guess_bps = ScenePacer.first_guess(satellite.profile.rate_bps, cfg.satellite_capacity_bps)
-    pacer = ScenePacer(cfg.scene_share, first_guess_bps, cfg.scene_update_bytes)
+    acks = bus.subscribe("onshore", "scene_ack", maxlen=256)
+    stream = SceneStream(config.vessel, model)
     rate = Rate(POLL_PERIOD_S, bus.stop)
-    last_image_s = -float("inf")
     while rate.sleep():
-        if requests.drain():
-            model.request_snapshot()
-        now_s = time.monotonic()
-        pacer.observe(now_s, satellite.snapshot()["bytes_delivered"], satellite.in_flight(bulk_keys))
-        while pacer.allows(satellite.in_flight(bulk_keys)):
-            image = images.latest()
-            if image is not None and now_s - last_image_s >= cfg.image_period_s:
-                last_image_s = now_s
-                assert isinstance(image.message, Image)
-                try:
-                    small = downscale(image.message, cfg.image_scale, cfg.image_jpeg_quality)
-                except ValueError as exc:
-                    bus.reject(image.key, str(exc))
-                    continue
-                bus.publish("image", small)
-                pacer.sent(len(small.data))
-                continue
-            update = model.next_update(sim_time_s[0], pacer.update_bytes())
-            if update is None:
-                break
-            bus.publish("scene", update)
-            pacer.sent(len(update.octree) + update.colors.nbytes)
+        image = images.latest()
+        frame = image.message if image and isinstance(image.message, Image) else None
+        out = stream.step(time.monotonic(), sim_time_s[0], messages_of(acks.drain(), SceneAck),
+                          bool(requests.drain()), frame)
+        for reason in out.rejected:
+            bus.reject(image.key if image else "image", reason)
+        for topic, message in out.messages:
+            bus.publish(topic, message)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from abyss.common.geometry import quat_wxyz_of, rotation_of
 from abyss.common.messages import Image, RecognisedObjects
 from abyss.common.models import panel
@@ -107,7 +108,8 @@ def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose
     # the face and what stands on it (valves, levers), within 0.15 m in front of the plane
     distance = np.asarray(cloud.points) @ normal + plane[3]
     sign = 1.0 if normal @ guess.rotation[:, 0] < 0 else -1.0  # towards the viewer
-    target = cloud.select_by_index(np.nonzero((sign * distance > -0.03) & (sign * distance < 0.15))[0])
+    near_face = (sign * distance > -0.03) & (sign * distance < 0.15)
+    target = cloud.select_by_index(np.flatnonzero(near_face).tolist())
     target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.08, max_nn=30))
     source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model_points(0.03)))
     initial = np.eye(4)
@@ -198,8 +200,10 @@ class PanelTracker:
                 shape = by_shape(points_m_world, guess)
         if texture is not None and shape is not None:
             frame = fuse_texture_shape(texture, shape)
-        elif texture is not None or shape is not None:
-            frame = texture or shape
+        elif texture is not None:
+            frame = texture
+        elif shape is not None:
+            frame = shape
         else:
             return self.estimate
         self.method = "+".join(name for name, p in (("texture", texture), ("shape", shape)) if p is not None)

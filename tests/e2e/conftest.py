@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+
 from abyss.launch.state import RunState, wait_for_state
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -20,7 +20,6 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session, zenoh_config
 from abyss.common.certs import CertFiles

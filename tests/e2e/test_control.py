@@ -11,13 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from conftest import Up, abyss
+
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import MissionConfig
 from abyss.common.geometry import wrap_rad, yaw_of
 from abyss.common.messages import NavState, decode
 from abyss.validation.plot import FIGURES
-from conftest import Up, abyss
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 LAST_WAYPOINT = MissionConfig().waypoints[-1]

@@ -12,9 +12,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from hosts import PORT, Hosts, usable
+
 from abyss.common import certs, keys
 from abyss.common.security import TLS_DIR_ENV
-from hosts import PORT, Hosts, usable
 
 pytestmark = pytest.mark.e2e
 SYSTEM = "e2e-hosts"

@@ -11,10 +11,11 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from conftest import Up, abyss
+
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.messages import Telemetry, decode
-from conftest import Up, abyss
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 SYSTEM = "e2e-op"

@@ -15,6 +15,8 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from conftest import ROOT, abyss
+
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.images import decode_image
@@ -28,7 +30,6 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.stations.runtime import free_port
-from conftest import ROOT, abyss
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
 SYSTEM = "e2e-sim"

@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ROOT
+
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.messages import ArmGoal, Message, Telemetry, Waypoints, decode, encode
 from abyss.console.teleop import JS_AXIS, JS_EVENT
 from abyss.stations.runtime import free_port
-from conftest import ROOT
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(90)]
 SYSTEM = "e2e-teleop"

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
 from conftest import Up, abyss
 from rerun.chunk import RrdReader
+
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 

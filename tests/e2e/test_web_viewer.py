@@ -9,9 +9,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from abyss.stations.runtime import free_port
 from browser import Browser, chromium
 from conftest import Up
+
+from abyss.stations.runtime import free_port
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 COLOURFUL_PX = 1500  # the hull, the path, the voxels: more saturated pixels than the UI's accents

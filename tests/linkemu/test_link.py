@@ -7,12 +7,13 @@ import math
 
 import numpy as np
 import pytest
-from abyss.common.errors import LinkError
-from abyss.linkemu.link import HEADER_BYTES, Link, Offer
-from abyss.linkemu.profile import LinkProfile, profile
 from drive import drive, ids, numbered
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+from abyss.common.errors import LinkError
+from abyss.linkemu.link import HEADER_BYTES, Link, Offer
+from abyss.linkemu.profile import LinkProfile, profile
 
 
 def link(**fields: str) -> Link:

@@ -8,6 +8,7 @@ import subprocess
 import uuid
 
 import pytest
+
 from abyss.common.errors import LinkError
 from abyss.linkemu.netem import netem_limit, run_tc, tc_command
 from abyss.linkemu.profile import load_profiles, profile

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
+
 from abyss.common import keys
 from abyss.common.bus import message_of, open_session, zenoh_config
 from abyss.common.errors import AbyssError

@@ -7,6 +7,7 @@ import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
+
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
 
 
@@ -64,6 +65,7 @@ def test_joint_limits_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
 def test_the_panel_recognition_knows_is_the_panel_in_the_world(models: tuple[mujoco.MjModel, pin.Model],
                                                                tmp_path) -> None:  # type: ignore[no-untyped-def]
     import cv2
+
     from abyss.common.models import panel
 
     world, _ = models

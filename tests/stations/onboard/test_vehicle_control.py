@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from abyss.common.config import MissionConfig, OnboardConfig
 from abyss.stations.onboard.vehicle_control import VehicleController
 

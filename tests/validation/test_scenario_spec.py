@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from abyss.common.errors import ConfigError
 from abyss.common.messages import Telemetry
 from abyss.validation.scenario.checks import Run, judge

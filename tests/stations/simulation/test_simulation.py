@@ -5,6 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import pytest
+
 from abyss.common.config import SimulationConfig
 from abyss.common.images import decode_image
 from abyss.common.messages import SimulationControl

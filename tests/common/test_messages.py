@@ -7,10 +7,11 @@ import math
 import msgpack
 import numpy as np
 import pytest
-from abyss.common.errors import BadMessage
-from abyss.common.messages import ArmGoal, NavState, Telemetry, VelocityRef, Waypoints, decode, encode
 from hypothesis import given
 from hypothesis import strategies as st
+
+from abyss.common.errors import BadMessage
+from abyss.common.messages import ArmGoal, NavState, Telemetry, VelocityRef, Waypoints, decode, encode
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 

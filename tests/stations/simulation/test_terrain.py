@@ -9,10 +9,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+
 from abyss.common.models import MODELS_DIR, SEABED_CLOUD_FILE, WORLD_FILE
 from abyss.stations.simulation import terrain
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

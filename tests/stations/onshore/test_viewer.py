@@ -13,12 +13,13 @@ import numpy as np
 import pyarrow as pa
 import pytest
 import rerun as rr
+from rerun.chunk import RrdReader
+
 from abyss.common.geometry import rotation_of
 from abyss.common.images import encode_jpeg
 from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
 from abyss.stations.onshore.viewer import Viewer
-from rerun.chunk import RrdReader
 
 STAMP_S = 1.7e9  # a wall-clock stamp [s since the epoch]
 YAW_RAD = 0.6

@@ -11,6 +11,7 @@ import numpy as np
 import open3d as o3d
 import pyoctomap
 import pytest
+
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import SimulationConfig
 from abyss.common.geometry import rotation_of
@@ -31,7 +32,6 @@ from abyss.stations.onboard.perception import Camera, CloudSettings, camera_in_w
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
-from abyss.stations.vessel.pacing import ScenePacer
 from abyss.stations.vessel.recognition import PanelTracker, by_texture, rotation_error_rad
 
 FACE_X_M = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0] - 0.001  # the marker face's front
@@ -242,27 +242,3 @@ def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
         decode("k", payload, "PointCloud")
     with pytest.raises(ValueError, match="decodes to nothing"):
         decode_image(dataclasses.replace(start.frames["cam_left"], data=b"not a jpeg"))
-
-
-def test_pacer_measures_capacity_while_backlogged_and_keeps_one_update_in_flight() -> None:
-    pacer = ScenePacer(share=0.5, capacity_bps=10e6, burst_bytes=16_000)  # a wrong first guess
-    delivered = 0.0
-    for step in range(200):  # a link that delivers 1 Mbit/s while it has a backlog
-        delivered += 1e6 / 8 * 0.05
-        pacer.observe(step * 0.05, delivered, in_flight=3)
-    assert pacer.capacity_bps == pytest.approx(1e6, rel=0.01)
-    assert pacer.update_bytes() == 16_000  # a quarter second of 1 Mbit/s is 31 kB: the burst caps it
-    assert not pacer.allows(updates_in_flight=1) and pacer.allows(updates_in_flight=0)
-    pacer.sent(100_000)  # a big update: the bucket goes into debt, refilled at half of 1 Mbit/s
-    assert not pacer.allows(updates_in_flight=0)
-    t = 200 * 0.05
-    for step in range(1, 20):
-        pacer.observe(t + step * 0.05, delivered, in_flight=0)  # idle: capacity not measured
-    assert pacer.capacity_bps == pytest.approx(1e6, rel=0.01)
-    assert pacer.tokens_bytes == pytest.approx(16_000 - 100_000 + 1.0 * 62_500)  # 1 s later: still owed
-    assert not pacer.allows(updates_in_flight=0)
-    for step in range(20, 40):
-        pacer.observe(t + step * 0.05, delivered, in_flight=0)
-    assert pacer.allows(updates_in_flight=0)
-    storm = ScenePacer(share=0.5, capacity_bps=256e3, burst_bytes=16_000)
-    assert storm.update_bytes() == 8_000  # telemetry waits a quarter second at most behind one

@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 import pytest
+
 from abyss.common import certs, keys
 from abyss.common.errors import ConfigError
 from abyss.common.security import RefusalLog, access_control, check_endpoints

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from abyss.common.config import load
 from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD
 from abyss.stations.onboard.arm_control import ArmController, ArmKinematics, Task, box_distance, solve

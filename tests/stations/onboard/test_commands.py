@@ -4,6 +4,7 @@ answered the same way without being taken twice."""
 from __future__ import annotations
 
 import numpy as np
+
 from abyss.common.config import MissionConfig
 from abyss.common.messages import ArmGoal, OperatorMode, Waypoints
 from abyss.stations.onboard.arm_control import ArmKinematics

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+
 from abyss.common.messages import Heartbeat, NavState
 from abyss.stations.onboard.failsafe import Failsafe
 from abyss.stations.onboard.navigation import NavFilter
@@ -10,19 +11,18 @@ from abyss.stations.onboard.navigation import NavFilter
 
 def test_failsafe_enters_on_each_cause_counts_entries_and_resumes() -> None:
     failsafe = Failsafe(goal_timeout_s=2.0, hold_on_shore_loss=True)
-    assert failsafe.check(100.0, tether_down=False) == ""  # never heard: nothing to hold yet
+    assert failsafe.check(100.0) == ""  # never heard: nothing to hold yet
     failsafe.heard(100.0, Heartbeat(0.0, True))
-    assert failsafe.check(101.0, tether_down=False) == ""
-    assert "no heartbeat" in failsafe.check(102.5, tether_down=False)
-    assert "no heartbeat" in failsafe.check(103.0, tether_down=False) and failsafe.events == 1
+    assert failsafe.check(101.0) == ""
+    assert "no heartbeat" in failsafe.check(102.5)
+    assert "no heartbeat" in failsafe.check(103.0) and failsafe.events == 1
     failsafe.heard(103.1, Heartbeat(0.0, True))
-    assert failsafe.check(103.2, tether_down=False) == ""
-    assert "tether" in failsafe.check(103.3, tether_down=True) and failsafe.events == 2
+    assert failsafe.check(103.2) == ""
     failsafe.heard(103.4, Heartbeat(6.0, False))
-    assert "shore silent" in failsafe.check(103.5, tether_down=False) and failsafe.events == 2
+    assert "shore silent" in failsafe.check(103.5) and failsafe.events == 2
     relaxed = Failsafe(goal_timeout_s=2.0, hold_on_shore_loss=False)
     relaxed.heard(0.0, Heartbeat(6.0, False))
-    assert relaxed.check(0.1, tether_down=False) == ""
+    assert relaxed.check(0.1) == ""
 
 
 def test_nav_filter_cuts_the_fix_noise_and_follows_motion() -> None:

@@ -5,12 +5,13 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from abyss.common import keys
 from abyss.common.config import load
 from abyss.common.errors import ConfigError
 from abyss.linkemu.profile import load_profiles, profile
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_readme_keys_table_is_the_generated_one() -> None:

@@ -1,0 +1,135 @@
+"""The testbed's side of one station's links: the emulator of each hop at the station's
+egress, and its control plane over Zenoh. A profile is set on `abyss/<system>/link/<hop>`
+(put) and read with its statistics there (get); the statistics go out on
+`abyss/<system>/<station>/linkstats/<hop>` every second; with `--link netem` the emulators
+pass through and each hop's profile is applied with tc/netem to the interface towards the
+neighbour. The station itself never sees any of this (`abyss.common.bus`)."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import numpy as np
+import zenoh
+
+from abyss.common import keys
+from abyss.common.errors import AbyssError, BadMessage, LinkError
+from abyss.common.messages import LinkControl, LinkStats, decode, encode
+from abyss.linkemu.netem import interface_towards, netem_args, run_tc, tc_command
+from abyss.linkemu.profile import LinkProfile
+from abyss.linkemu.profile import profile as named_profile
+from abyss.linkemu.runner import LinkRunner
+
+log = logging.getLogger(__name__)
+LINKSTATS_PERIOD_S = 1.0
+LINK_MODES = ("emulated", "netem")
+
+
+class StationLinks:
+    """Each hop of `station`: its emulator (`runners[hop].send` is the station's egress), the
+    link control keys, the statistics, netem where asked."""
+
+    def __init__(self, session: zenoh.Session, system: str, station: str, profiles: dict[str, LinkProfile],
+                 deliver: Callable[[str, bytes], None], *, seed: int = 0, link_mode: str = "emulated",
+                 peers: dict[str, str] | None = None) -> None:
+        """`deliver(key, payload)` puts a message on the wire when its link delivers it;
+        `peers[hop]`: the neighbour whose route names the interface netem shapes (default:
+        the neighbour's station name)."""
+        if link_mode not in LINK_MODES:
+            raise LinkError(f"link mode {link_mode!r}: allowed {', '.join(LINK_MODES)}")
+        self.session = session
+        self.system = system
+        self.station = station
+        self.stop = threading.Event()
+        self.received: Counter[str] = Counter()  # link control messages taken
+        self.rejected: Counter[str] = Counter()
+        self.runners: dict[str, LinkRunner] = {}
+        self.netem_devices: dict[str, str] = {}  # hop -> interface shaped by tc/netem
+        self._entities: list[zenoh.Subscriber | zenoh.Queryable] = []
+        for hop, neighbour in keys.hops_of(station).items():
+            rng = np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
+            self.runners[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
+                                           deliver, rng, passthrough=link_mode == "netem")
+            if link_mode == "netem":
+                self.netem_devices[hop] = interface_towards((peers or {}).get(hop, neighbour))
+                self._apply_netem(hop)
+            self._entities.append(session.declare_subscriber(
+                keys.link_key(system, hop), functools.partial(self._on_control_sample, hop)))
+            self._entities.append(session.declare_queryable(
+                keys.link_key(system, hop), functools.partial(self._on_query, hop)))
+        self._stats_thread = threading.Thread(target=self._publish_stats, name="linkstats", daemon=True)
+        self._stats_thread.start()
+
+    def egress(self, hop: str) -> Callable[[bytes, bool, str], bool]:
+        """What the station's bus sends `hop`'s messages through."""
+        runner = self.runners[hop]
+        return lambda payload, reliable, key: runner.send(payload, reliable, tag=key)
+
+    def _apply_netem(self, hop: str) -> None:
+        device, runner = self.netem_devices[hop], self.runners[hop]
+        run_tc(tc_command(device, runner.profile))
+        log.info("netem on %s (%s): %s", device, runner.name, " ".join(netem_args(runner.profile)))
+
+    def _on_control_sample(self, hop: str, sample: zenoh.Sample) -> None:
+        self._on_control(hop, sample.payload.to_bytes())
+
+    def _on_control(self, hop: str, payload: bytes) -> None:
+        key = keys.link_key(self.system, hop)
+        runner = self.runners[hop]
+        try:
+            control = decode(key, payload, "LinkControl").message
+            assert isinstance(control, LinkControl)
+            base = named_profile(control.profile) if control.profile else runner.profile
+            runner.reconfigure(base.with_fields(control.overrides))
+            if hop in self.netem_devices:
+                self._apply_netem(hop)
+        except (AbyssError, BadMessage) as exc:
+            self.rejected[key] += 1
+            log.warning("link control on %s refused: %s", key, exc)
+            return
+        self.received[key] += 1
+        log.info("link %s now %s %s", runner.name, runner.profile.name, runner.profile.fields())
+
+    def stats(self, hop: str) -> LinkStats:
+        runner = self.runners[hop]
+        return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,
+                         fields=runner.profile.fields(), stats=runner.snapshot())
+
+    def _on_query(self, hop: str, query: zenoh.Query) -> None:
+        query.reply(keys.link_key(self.system, hop), encode(self.stats(hop), 0, time.time()))
+
+    def _publish_stats(self) -> None:
+        seq = 0
+        while not self.stop.wait(LINKSTATS_PERIOD_S):
+            for hop in self.runners:
+                key = keys.linkstats_key(self.system, self.station, hop)
+                self.session.put(key, encode(self.stats(hop), seq, time.time()))
+            seq += 1
+
+    def status(self) -> dict[str, dict[str, object]]:
+        """Each hop's direction, profile and statistics, for summary.json."""
+        links: dict[str, dict[str, object]] = {}
+        for hop in self.runners:
+            stats = self.stats(hop)
+            links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
+        return links
+
+    def close(self, drain_s: float = 0.5) -> None:
+        """Stop the emulators (what is still in flight after `drain_s` is counted, not
+        delivered), remove netem, undeclare the control keys."""
+        self.stop.set()
+        for runner in self.runners.values():
+            runner.close(drain_s)
+        for hop, device in self.netem_devices.items():
+            try:
+                run_tc(tc_command(device, None))
+            except LinkError as exc:
+                log.warning("could not remove netem from %s (%s): %s", device, hop, exc)
+        self._stats_thread.join(timeout=2.0)
+        for entity in self._entities:
+            entity.undeclare()

@@ -1,0 +1,144 @@
+"""Onboard's core, without Zenoh: one control step from what came in since the last one to
+what goes out. The vehicle flies its waypoints, the arm moves once the vehicle holds its last
+waypoint (with `onboard.whole_body`, the vehicle then moves with the arm); both hold still
+while the failsafe is on (the vessel's heartbeats stopped, or it reports shore silent) or the
+operator says hold; in teleop mode the arm follows its goal at once. Each operator command is
+checked (`commands.py`) and acknowledged with its fate before it is flown."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from abyss.common.config import Config
+from abyss.common.geometry import quat_wxyz_of, yaw_of
+from abyss.common.messages import (
+    ArmGoal,
+    ArmVelocityRef,
+    CommandAck,
+    Heartbeat,
+    JointState,
+    NavState,
+    OperatorMode,
+    Telemetry,
+    VelocityRef,
+    Waypoints,
+)
+from abyss.common.models import ARM_JOINTS
+from abyss.stations.onboard.arm_control import ArmController
+from abyss.stations.onboard.commands import CommandGate
+from abyss.stations.onboard.failsafe import Failsafe
+from abyss.stations.onboard.navigation import NavFilter
+from abyss.stations.onboard.vehicle_control import VehicleController
+
+GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
+GRIPPER_GAIN_PER_S = 2.0
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class OnboardInputs:
+    """What reached onboard since the last step, oldest first."""
+
+    commands: list[Waypoints | ArmGoal | OperatorMode] = field(default_factory=list)
+    heartbeats: list[Heartbeat] = field(default_factory=list)
+    nav: list[NavState] = field(default_factory=list)
+    joints: JointState | None = None  # the latest
+
+
+@dataclass
+class OnboardOutputs:
+    acks: list[CommandAck] = field(default_factory=list)
+    vehicle: VelocityRef | None = None  # None until navigation and joints have come
+    arm: ArmVelocityRef | None = None
+    telemetry: Telemetry | None = None  # every `telemetry_period_s`
+    poses: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)  # sim time [s], p, q
+    arm_m_world: np.ndarray | None = None  # the arm's chain, for the perception's self-filter
+
+
+class Onboard:
+    def __init__(self, config: Config) -> None:
+        cfg = self.cfg = config.onboard
+        self.vehicle = VehicleController(cfg, config.mission)
+        self.arm = ArmController(cfg, config.mission)
+        self.nav_filter = NavFilter(cfg.nav_time_constant_s)
+        self.failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
+        self.gate = CommandGate(config.mission, *self.arm.kinematics.reach())
+        self.operator_mode = "auto"
+        self.every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
+        self.position_m_world: np.ndarray | None = None
+        self.orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
+        self.sim_time_s = 0.0
+        self.tick = 0
+
+    def _holding_at(self) -> np.ndarray:
+        """Where the vehicle will hold: x, y, z [m, world], yaw [rad]."""
+        if len(self.vehicle.waypoints):
+            return np.asarray(self.vehicle.waypoints[-1])
+        if self.position_m_world is not None:
+            return np.r_[self.position_m_world, yaw_of(self.orientation_wxyz_world)]
+        return np.zeros(4)
+
+    def step(self, inputs: OnboardInputs, now_s: float) -> OnboardOutputs:
+        """One control period at `now_s` [s, this station's monotonic clock]."""
+        out = OnboardOutputs()
+        for command in inputs.commands:
+            ack, taken = self.gate.answer(command, self._holding_at())
+            out.acks.append(ack)
+            if not taken:
+                log.info("%s command %d not taken: %s", ack.command, ack.command_id, ack.reason or "a resend")
+            elif isinstance(command, Waypoints):
+                self.vehicle.set_waypoints(command.command_id, command.waypoints)
+            elif isinstance(command, ArmGoal):
+                self.arm.set_goal(command.command_id, command.position_m_world,
+                                  command.orientation_wxyz_world)
+            elif isinstance(command, OperatorMode):
+                self.operator_mode = command.mode
+        for beat in inputs.heartbeats:
+            self.failsafe.heard(now_s, beat)
+        for fix in inputs.nav:
+            self.position_m_world, self.orientation_wxyz_world = self.nav_filter.update(fix)
+            self.sim_time_s = fix.sim_time_s
+            out.poses.append((fix.sim_time_s, self.position_m_world, self.orientation_wxyz_world))
+        if self.position_m_world is None or inputs.joints is None:
+            return out
+        self._control(inputs.joints, now_s, out)
+        self.tick += 1
+        return out
+
+    def _control(self, joints: JointState, now_s: float, out: OnboardOutputs) -> None:
+        assert self.position_m_world is not None
+        cfg, vehicle, arm = self.cfg, self.vehicle, self.arm
+        position, orientation = self.position_m_world, self.orientation_wxyz_world
+        arm_rad = joints.positions_rad
+        hold = self.failsafe.check(now_s) or ("operator hold" if self.operator_mode == "hold" else "")
+        yaw = yaw_of(orientation)
+        v = vehicle.step(position, yaw, cfg.control_period_s, hold=bool(hold))
+        arm_free = v.mode in ("reached", "idle") or self.operator_mode == "teleop"
+        a = arm.step(position, orientation, arm_rad, enabled=not hold and arm_free)
+        out.arm_m_world = arm.kinematics.chain_m_world()
+        linear, yaw_rate = v.linear_mps_body, v.yaw_rate_radps
+        if a.vehicle_velocity is not None and a.mode in ("moving", "reached"):
+            linear, yaw_rate = a.vehicle_velocity[:3], float(a.vehicle_velocity[3])
+        out.vehicle = VelocityRef(linear, yaw_rate)
+        gripper_mps = 0.0
+        if a.mode in ("moving", "reached"):
+            opening_error_m = GRIPPER_OPENING_M - joints.gripper_opening_m
+            gripper_mps = float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
+        out.arm = ArmVelocityRef(a.joint_velocities_radps, gripper_mps)
+        if self.tick % self.every == 0:
+            ee_pose = arm.kinematics.pose(arm.kinematics.ee)
+            out.telemetry = Telemetry(
+                position_m_world=position, yaw_rad=yaw, mode=v.mode, command_id=vehicle.command_id,
+                waypoint_index=v.waypoint_index, waypoints_total=v.waypoints_total,
+                position_error_m_world=v.position_error_m_world, heading_error_rad=v.heading_error_rad,
+                arm_mode=a.mode, arm_command_id=arm.command_id,
+                ee_position_error_m_world=a.position_error_m_world,
+                ee_orientation_error_rad=a.orientation_error_rad,
+                ee_position_m_world=ee_pose.translation,
+                ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
+                arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
+                failsafe_events=self.failsafe.events, sim_time_s=self.sim_time_s,
+                operator_mode=self.operator_mode)

@@ -1,0 +1,96 @@
+"""The vessel's cores, without Zenoh: the relay between onboard and shore, and the scene
+stream to shore. Each takes what came in and the time, and returns what to send."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from abyss.common.config import VesselConfig
+from abyss.common.images import downscale
+from abyss.common.messages import CommandAck, Heartbeat, Image, Message, SceneAck, Telemetry
+from abyss.stations.vessel.pacing import ScenePacer
+
+if TYPE_CHECKING:
+    from abyss.common.scene import SceneModel
+
+RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode"}
+Outgoing = list[tuple[str, Message]]  # (topic, message) in the order to publish
+
+
+@dataclass
+class RelayInputs:
+    commands: list[tuple[str, Message]] = field(default_factory=list)  # (op/<topic>, command) from shore
+    acks: list[CommandAck] = field(default_factory=list)  # onboard's answers
+    shore_heard: bool = False  # a heartbeat of shore's came since the last step
+    telemetry: tuple[int, Telemetry] | None = None  # onboard's latest, with its sequence number
+
+
+class Relay:
+    """Operator commands down as soon as they are seen, onboard's answers up, onboard's
+    telemetry up at `telemetry_period_s`, and a heartbeat to onboard that says whether shore
+    is heard."""
+
+    def __init__(self, cfg: VesselConfig, now_s: float) -> None:
+        self.cfg = cfg
+        self.shore_heard_s = now_s  # shore is given `shore_timeout_s` from the start
+        self.last_beat_s = self.last_relay_s = -float("inf")
+        self.forwarded_seq = -1
+
+    def step(self, inputs: RelayInputs, now_s: float) -> Outgoing:
+        out: Outgoing = [(RELAYED_DOWN[topic], command) for topic, command in inputs.commands]
+        out += [("ack", ack) for ack in inputs.acks]
+        if inputs.shore_heard:
+            self.shore_heard_s = now_s
+        if now_s - self.last_beat_s >= self.cfg.heartbeat_period_s:
+            silence_s = now_s - self.shore_heard_s
+            out.append(("heartbeat", Heartbeat(silence_s, silence_s < self.cfg.shore_timeout_s)))
+            self.last_beat_s = now_s
+        due = now_s - self.last_relay_s >= self.cfg.telemetry_period_s
+        if due and inputs.telemetry is not None and inputs.telemetry[0] != self.forwarded_seq:
+            out.append(("telemetry", inputs.telemetry[1]))
+            self.forwarded_seq, self.last_relay_s = inputs.telemetry[0], now_s
+        return out
+
+
+@dataclass
+class StreamOutputs:
+    messages: Outgoing = field(default_factory=list)
+    rejected: list[str] = field(default_factory=list)  # why an image could not be sent
+
+
+class SceneStream:
+    """Scene updates, and now and then a small camera frame, paced by shore's acknowledgements
+    (`pacing.ScenePacer`)."""
+
+    def __init__(self, cfg: VesselConfig, model: SceneModel) -> None:
+        self.cfg = cfg
+        self.model = model
+        self.pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
+        self.last_image_s = -float("inf")
+
+    def step(self, now_s: float, sim_time_s: float, acks: list[SceneAck], snapshot_asked: bool,
+             image: Image | None) -> StreamOutputs:
+        out = StreamOutputs()
+        for ack in acks:
+            self.pacer.acknowledged(now_s, ack.scene_seq)
+        if snapshot_asked:
+            self.model.request_snapshot()
+        self.pacer.tick(now_s)
+        while self.pacer.allows():
+            if image is not None and now_s - self.last_image_s >= self.cfg.image_period_s:
+                self.last_image_s = now_s
+                try:
+                    small = downscale(image, self.cfg.image_scale, self.cfg.image_jpeg_quality)
+                except ValueError as exc:
+                    out.rejected.append(str(exc))
+                    continue
+                out.messages.append(("image", small))
+                self.pacer.sent(now_s, len(small.data))
+                continue
+            update = self.model.next_update(sim_time_s, self.pacer.update_bytes())
+            if update is None:
+                break
+            out.messages.append(("scene", update))
+            self.pacer.sent(now_s, len(update.octree) + update.colors.nbytes, update.scene_seq)
+        return out

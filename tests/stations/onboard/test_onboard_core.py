@@ -1,0 +1,49 @@
+"""Onboard's core without Zenoh, its heartbeats from the vessel carried by linkemu's `Link` on
+explicit times, out of the core's sight (as under `--link netem` or on a real tether): a cut
+link must still trip the failsafe, and the vehicle must go on once the link returns."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from abyss.common.config import Config
+from abyss.common.messages import Heartbeat, JointState, NavState, decode, encode
+from abyss.linkemu.link import Link
+from abyss.linkemu.profile import profile
+from abyss.stations.onboard.core import Onboard, OnboardInputs
+
+STEP_S = 0.05
+
+
+def test_a_cut_tether_trips_the_failsafe_by_heartbeats_alone_and_it_lets_go_after() -> None:
+    config = Config()
+    core = Onboard(config)
+    tether = Link(profile("tether"), np.random.default_rng(0))
+    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
+    cut_s, restored_s = 5.0, 10.0
+    held: list[tuple[float, str]] = []
+    for step in range(int(20.0 / STEP_S)):
+        now_s = step * STEP_S
+        if abs(now_s - cut_s) < 1e-9:
+            tether.reconfigure(profile("outage"))
+        if abs(now_s - restored_s) < 1e-9:
+            tether.reconfigure(profile("tether"))
+        if step % round(config.vessel.heartbeat_period_s / STEP_S) == 0:
+            tether.offer(now_s, encode(Heartbeat(0.0, True), step, now_s))
+        beats = [decode("k", d.payload, "Heartbeat").message for d in tether.advance(now_s)]
+        nav = NavState(np.array([0.0, 0.0, -5.0]), np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(3),
+                       sim_time_s=now_s)
+        out = core.step(OnboardInputs(heartbeats=beats, nav=[nav], joints=joints), now_s)  # type: ignore[arg-type]
+        assert out.vehicle is not None and out.arm is not None
+        if out.telemetry is not None:
+            held.append((now_s, out.telemetry.failsafe))
+    before = [reason for t, reason in held if t < cut_s]
+    entered = next(t for t, reason in held if t >= cut_s and reason)
+    assert not any(before)
+    timeout_s = config.onboard.goal_timeout_s
+    # the last beat before the cut left up to one heartbeat period earlier and took the tether's delay
+    assert cut_s + timeout_s - config.vessel.heartbeat_period_s <= entered <= cut_s + timeout_s + 0.5
+    assert "no heartbeat" in dict(held)[entered]
+    left = next(t for t, reason in held if t > restored_s and not reason)
+    assert left < restored_s + 8.0  # the tether's TCP resumes after a backed-off retransmission timeout
+    assert core.failsafe.events == 1

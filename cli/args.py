@@ -80,5 +80,6 @@ def client(args: argparse.Namespace) -> zenoh.Session:
 
 
 def connect_args(p: argparse.ArgumentParser) -> None:
+    """--connect and --system of a tool that talks to a running system."""
     p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
     p.add_argument("--system", default="default")

@@ -11,8 +11,8 @@ from typing import Any
 import zenoh
 
 from abyss.cli.args import (
-    DEFAULT_ENDPOINT,
     client,
+    connect_args,
     profile_args,
     profile_fields,
 )
@@ -142,8 +142,7 @@ def add_commands(sub: Any) -> None:
     ):
         p = link.add_parser(name, help=text)
         p.add_argument("hop", nargs="?" if name == "show" else None, choices=keys.HOPS)
-        p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
-        p.add_argument("--system", default="default")
+        connect_args(p)
         if name == "show":
             p.add_argument("--json", action="store_true")
         else:

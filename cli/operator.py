@@ -11,8 +11,8 @@ from typing import Any
 import zenoh
 
 from abyss.cli.args import (
-    DEFAULT_ENDPOINT,
     client,
+    connect_args,
 )
 from abyss.common import keys
 from abyss.common.bus import message_of
@@ -80,8 +80,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def add_commands(sub: Any) -> None:
     p = sub.add_parser("teleop", help="drive the vehicle or the end-effector from a joystick or the keyboard")
-    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
-    p.add_argument("--system", default="default")
+    connect_args(p)
     p.add_argument("--step-m", type=float, default=0.1, help="goal step per key [m] (joystick: m/s)")
     p.add_argument("--step-deg", type=float, default=5.0, help="goal step per key [deg] (joystick: deg/s)")
     p.add_argument(
@@ -100,8 +99,7 @@ def add_commands(sub: Any) -> None:
         help="waypoints: 'x,y,z,yaw; ...' [m, rad]; arm: 'x,y,z,roll,pitch,yaw' [m, rad]; "
         "mode: hold|auto|teleop",
     )
-    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
-    p.add_argument("--system", default="default")
+    connect_args(p)
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
 
@@ -130,6 +128,5 @@ def add_commands(sub: Any) -> None:
         default=0.0,
         help="thruster efficiency, camera on (1) / off (0), or noise scale",
     )
-    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
-    p.add_argument("--system", default="default")
+    connect_args(p)
     p.set_defaults(func=cmd_fault)

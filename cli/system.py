@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from abyss.cli.args import (
-    DEFAULT_ENDPOINT,
     client,
     config_args,
+    connect_args,
     load_config,
     pairs,
 )
@@ -167,8 +167,7 @@ def add_commands(sub: Any) -> None:
         "health", help="exit 0 when a station's liveliness token is seen (a container's health check)"
     )
     p.add_argument("station", choices=keys.STATIONS)
-    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
-    p.add_argument("--system", default="default")
+    connect_args(p)
     p.add_argument("--timeout", type=float, default=3.0, metavar="S")
     p.set_defaults(func=cmd_health)
 

@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from abyss.cli.args import (
-    DEFAULT_ENDPOINT,
     config_args,
+    connect_args,
     load_config,
 )
 from abyss.common import keys
@@ -98,8 +98,7 @@ def add_commands(sub: Any) -> None:
     p = sub.add_parser("check", help="interface test of a running station: each of its keys' rate and schema")
     p.add_argument("station", choices=keys.STATIONS)
     p.add_argument("--duration", type=float, default=10.0, metavar="S", help="listen this long (default 10)")
-    p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
-    p.add_argument("--system", default="default")
+    connect_args(p)
     p.set_defaults(func=cmd_check)
 
     p = sub.add_parser("plot", help="the paper's four figures of controller errors from a run")

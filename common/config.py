@@ -73,6 +73,10 @@ class SimulationConfig:
     camera_width_px: int = 640
     camera_height_px: int = 480
     jpeg_quality: int = 90
+    # where the physics state is kept (every state_period_s) and resumed from at start, so that
+    # a restarted simulation goes on where the vehicle was; "" keeps none (`abyss up` sets it)
+    state_file: str = ""
+    state_period_s: float = 0.5
 
     def __post_init__(self) -> None:
         if self.low_level not in LOW_LEVELS:
@@ -81,6 +85,7 @@ class SimulationConfig:
         _positive("simulation.physics_step_s", self.physics_step_s)
         _positive("simulation.realtime_factor", self.realtime_factor)
         _positive("simulation.current_period_s", self.current_period_s)
+        _positive("simulation.state_period_s", self.state_period_s)
         _positive("simulation.arm_kp", self.arm_kp)
         _positive("simulation.gripper_kp", self.gripper_kp)
         for name in ("arm_ki", "current_variation_mps", "usbl_sigma_m",

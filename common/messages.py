@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import secrets
 import typing
 import zlib
 from collections.abc import Callable
@@ -251,7 +252,10 @@ class SceneUpdate(Message):
     """The vessel's occupancy octree to shore, as OctoMap's binary stream (`octree`: what
     `OcTree::writeBinary` writes, header included): a snapshot holds every known leaf, a delta
     the leaves that changed since update `scene_seq - 1`. `colors`: RGB of the occupied leaves,
-    in the order OctoMap's leaf iterator visits the tree that `octree` decodes to."""
+    in the order OctoMap's leaf iterator visits the tree that `octree` decodes to. `stream_id`
+    is new with each scene model (a restarted vessel starts a new stream at `scene_seq` 0)."""
+
+    VERSION: ClassVar[int] = 2  # 2: stream_id
 
     kind: str = scalar(choices=SCENE_KINDS)
     scene_seq: int = scalar(0, 2**53)
@@ -259,6 +263,7 @@ class SceneUpdate(Message):
     octree: bytes = blob(16 * 2**20)
     colors: np.ndarray = array("u1", (None, 3), 0, 255, max_rows=2_000_000)
     sim_time_s: float = scalar(0.0)
+    stream_id: int = field(default=0, metadata={"lo": 0, "hi": 2**53, "choices": ()})
 
 
 @dataclass(frozen=True)
@@ -333,7 +338,11 @@ class Telemetry(Message):
     """The onboard controllers' state, onboard -> vessel -> onshore. Errors are goal minus
     estimate: position in the world frame [m], heading [rad], the end-effector's position [m,
     world] and orientation (angle of the rotation from the estimate to the goal) [rad]. `mode`
-    is the vehicle's, `arm_mode` the arm's; `failsafe` names why both hold ('' when they don't)."""
+    is the vehicle's, `arm_mode` the arm's; `failsafe` names why both hold ('' when they don't);
+    `boot_id` is new each time onboard starts, so that shore sees a reboot and hands the goals
+    in force again."""
+
+    VERSION: ClassVar[int] = 2  # 2: boot_id
 
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
@@ -354,6 +363,7 @@ class Telemetry(Message):
     failsafe_events: int = scalar(0, 2**31)
     sim_time_s: float = scalar(0.0)
     operator_mode: str = field(default="auto", metadata={"choices": OPERATOR_MODES})
+    boot_id: int = field(default=0, metadata={"lo": 0, "hi": 2**53, "choices": ()})
 
     @property
     def position_error_m(self) -> float:
@@ -381,6 +391,13 @@ class Heartbeat(Message):
 
     shore_silence_s: float = scalar(0.0)  # since shore was last heard [s]
     shore_heard: bool = True
+
+
+def new_id() -> int:
+    """An id that no other of its kind has (a command, a station's boot, a scene stream): 53
+    random bits (the ids' range). Ids from the clock (milliseconds) collided when two tools
+    sent in the same one."""
+    return secrets.randbelow(2**53 - 1) + 1
 
 
 @dataclass(frozen=True)

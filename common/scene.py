@@ -25,7 +25,7 @@ import numpy as np
 import pyoctomap
 
 from abyss.common.clouds import voxel_downsample
-from abyss.common.messages import SceneUpdate
+from abyss.common.messages import SceneUpdate, new_id
 
 log = logging.getLogger(__name__)
 KEY_OFFSET = 32768  # OctoMap's tree_max_val at depth 16
@@ -167,6 +167,7 @@ class SceneModel:
         self.published = CellSet()
         self.pending = CellSet()
         self.seq = -1
+        self.stream_id = new_id()  # shore tells this model's updates from a previous vessel's
         self.snapshot_due = True
         self._bytes_per_cell = 0.05  # learnt from each update, to size the next
         self._lock = threading.Lock()  # over published, pending, seq, snapshot_due
@@ -255,6 +256,7 @@ class SceneModel:
             octree=data,
             colors=colors,
             sim_time_s=sim_time_s,
+            stream_id=self.stream_id,
         )
 
     def binary(self) -> bytes:
@@ -264,7 +266,9 @@ class SceneModel:
 
 
 class SceneReceiver:
-    """Shore's copy: applies updates in sequence; a gap leaves it waiting for a snapshot."""
+    """Shore's copy: applies updates in sequence; a gap leaves it waiting for a snapshot. The
+    updates of a new stream (a restarted vessel's new model) go onto the map shore holds:
+    what the vessel saw before its restart stays on shore."""
 
     def __init__(self) -> None:
         self.tree: object | None = None
@@ -273,12 +277,21 @@ class SceneReceiver:
         self.last_seq = -1
         self.applied = 0
         self.gaps = 0
+        self.stream_id: int | None = None
+        self.new_streams = 0  # streams that followed another (vessel restarts)
         self.latest_centres_m = np.zeros((0, 3))  # the occupied cells of the latest update applied
         self.latest_colors = np.zeros((0, 3), np.uint8)
 
     def apply(self, update: SceneUpdate) -> str:
         """'applied', or 'gap' (a snapshot is needed; nothing applied) or 'stale' (old update).
         Raises ValueError if the octree bytes do not decode."""
+        merge = False  # a new stream's first update, onto the map held
+        if update.stream_id != self.stream_id:
+            merge = self.tree is not None
+            if merge:
+                self.last_seq = update.scene_seq - 1
+                self.new_streams += 1
+            self.stream_id = update.stream_id
         if update.kind == "delta":
             if self.tree is None or update.scene_seq > self.last_seq + 1:
                 self.gaps += self.tree is not None
@@ -290,7 +303,7 @@ class SceneReceiver:
         centres, sizes, occupied, _ = iterate_leaves(delta)
         if int(occupied.sum()) != len(update.colors):
             raise ValueError(f"{len(update.colors)} colours for {int(occupied.sum())} occupied leaves")
-        if update.kind == "snapshot":
+        if update.kind == "snapshot" and not merge:
             self.tree, self.resolution_m, self.colors = (
                 pyoctomap.OcTree(update.resolution_m),
                 update.resolution_m,

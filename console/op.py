@@ -23,6 +23,7 @@ from abyss.common.messages import (
     OperatorMode,
     Waypoints,
     encode,
+    new_id,
 )
 
 RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
@@ -91,7 +92,7 @@ def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: fl
 
 def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float) -> int:
     try:
-        command = command_of(kind, text, int(time.time() * 1e3))
+        command = command_of(kind, text, new_id())
     except ValueError as exc:  # numbers the message refuses (out of range)
         raise ConfigError(kind, str(exc)) from None
     ack = send(endpoint, system, command, kind, timeout_s)

@@ -31,7 +31,7 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from abyss.common.messages import ArmGoal, Telemetry, Waypoints, encode
+from abyss.common.messages import ArmGoal, Telemetry, Waypoints, encode, new_id
 
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
@@ -69,7 +69,7 @@ class Goals:
         """Move one goal by steps in the vehicle's heading frame; the command to send."""
         assert self.vehicle is not None and self.ee_position_m_world is not None
         heading = rotation_of_rpy(0.0, 0.0, self.yaw_rad)
-        command_id = int(time.time() * 1e3)
+        command_id = new_id()
         if target == "vehicle":
             self.vehicle[:3] += heading @ translation
             self.vehicle[3] = wrap_rad(self.vehicle[3] + rotation_rad[2])

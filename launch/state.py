@@ -38,7 +38,7 @@ class RunState:
     stations: dict[str, StationState] = field(default_factory=dict)
     mission_done: bool = False
     viewer: str = ""  # where to look: the web viewer's address or the recording
-    verdict: str = ""  # once ended: ok or failed
+    verdict: str = ""  # once ended: done, incomplete, interrupted or failed (launch.summary)
     failure: str = ""
 
     def __post_init__(self) -> None:

@@ -12,6 +12,27 @@ import numpy as np
 
 from abyss.common.messages import Telemetry
 
+VERDICTS = {  # the word, and what `abyss up` exits with
+    "done": 0,  # shore saw the mission done, and nothing failed
+    "incomplete": 3,  # the run reached its duration before the mission was done
+    "interrupted": 130,  # Ctrl-C or SIGTERM before the mission was done (128 + SIGINT)
+    "failed": 1,  # a station died and was not restarted, exited with an error or did not stop
+}
+
+
+def verdict_of(failure: str, mission_done: bool, interrupted: bool) -> str:
+    if failure:
+        return "failed"
+    if mission_done:
+        return "done"
+    return "interrupted" if interrupted else "incomplete"
+
+
+def exit_code(verdict: str, keep_running: bool) -> int:
+    """A run asked to keep running for its duration is not judged on its mission: `incomplete`
+    exits 0 there."""
+    return 0 if verdict == "incomplete" and keep_running else VERDICTS[verdict]
+
 
 def exit_text(code: int | None) -> str:
     if code is not None and code < 0:
@@ -50,6 +71,12 @@ def render_summary(summary: dict[str, Any]) -> str:
         lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
                      f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}"
                      + (f"  restarted {s['restarts']}x" if s["restarts"] else ""))
+    for r in summary.get("restarts", []):
+        back = f"down {r['down_s']:.1f} s" if r.get("down_s") is not None else "not back"
+        lines.append(f"  restart: {r['station']} at t={r['t_s']:.1f} s (exit {exit_text(r['exit_code'])}), "
+                     f"{back}, the vehicle strayed {r['drift_m'] * 1e3:.0f} mm meanwhile")
+    for e in summary.get("events", []):
+        lines.append(f"  on shore: {e['station']} {e['event']} (sim t={e['sim_time_s']:.1f} s)")
     lines.append(f"  {'link':<28} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}")
     for hop, directions in summary["links"].items():
         for direction, st in directions.items():

@@ -16,22 +16,28 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import Config, OnshoreConfig
 from abyss.common.errors import AbyssError, BadMessage
-from abyss.common.messages import MissionStatus, SimulationStatus, Telemetry, decode
+from abyss.common.messages import MissionStatus, NavState, SimulationStatus, Telemetry, decode
 from abyss.launch.record import ControlRecorder
 from abyss.launch.state import RunState
-from abyss.launch.summary import control_summary, exit_text, read_json, render_summary
+from abyss.launch.summary import control_summary, exit_code, exit_text, read_json, render_summary, verdict_of
+from abyss.stations.onshore.core import CARRIED_OVER, EVENTS_FILE, read_json_list
 from abyss.stations.runtime import SUPERVISOR_ENV, free_port
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts
-STOP_TIMEOUT_S = 15.0
+SIMULATION_STATE_FILE = "simulation-state.npy"  # a restarted simulation resumes from it
+STOP_TIMEOUT_S = 10.0  # twice a station's stop bound (stations.runtime): past it, a defect
+# a restarted station is back when its session is up and, for these, once its output is seen
+# again (onboard's telemetry, the simulation's truth): a session comes up before the station runs
+HEARD_FROM: dict[str, type] = {"onboard": Telemetry, "simulation": NavState}
 
 
 @dataclass
@@ -76,7 +82,12 @@ class Up:
         self.simulation: SimulationStatus | None = None
         self.record: ControlRecorder | None = None
         self.stations: dict[str, Station] = {}
+        self.restarts: list[dict[str, Any]] = []  # each restart: station, when, exit code, down for, drift
+        self._down: dict[str, dict[str, Any]] = {}  # restarts whose station is not up again yet
+        self.truth_m_world: np.ndarray | None = None  # the vehicle's position, from the simulation
+        self.up_s: float | None = None  # when all stations were first up (monotonic)
         self.interrupted = threading.Event()
+        self.keep_running = False
         self._lock = threading.Lock()
         self.state = RunState(config.system, self.endpoint, os.getpid())
         self._state_lock = threading.Lock()
@@ -88,6 +99,10 @@ class Up:
             if sample.kind == zenoh.SampleKind.PUT:
                 self.alive.add(name)
                 self.alive_seen.add(name)
+                if name in self._down:  # its session is back; it is up once it is heard from
+                    self._down[name]["alive"] = True
+                    if name not in HEARD_FROM:
+                        self._back(name)
             else:
                 self.alive.discard(name)
             self._change_state(name, up=name in self.alive)
@@ -99,6 +114,16 @@ class Up:
             message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
         except BadMessage:
             return
+        if isinstance(message, NavState):  # the simulation's truth
+            with self._lock:
+                for down in self._down.values():
+                    drift_m = float(np.linalg.norm(message.position_m_world - down["from_m_world"]))
+                    down["drift_m"] = round(max(down["drift_m"], drift_m), 4)
+                self.truth_m_world = message.position_m_world
+        with self._lock:
+            for name, kind in HEARD_FROM.items():
+                if isinstance(message, kind) and self._down.get(name, {}).get("alive"):
+                    self._back(name)
         if isinstance(message, MissionStatus):
             self.mission = message
         elif isinstance(message, SimulationStatus):
@@ -132,6 +157,11 @@ class Up:
         self._change_state(name, pid=process.pid)
         return Station(name, process, log_path, status_path)
 
+    def _back(self, name: str) -> None:
+        """A restarted station is up again: how long it was down (the caller holds the lock)."""
+        down = self._down.pop(name)
+        down["down_s"] = round(time.monotonic() - down["died_s"], 3)
+
     def _check_deaths(self) -> list[Station]:
         dead = []
         for station in self.stations.values():
@@ -146,6 +176,14 @@ class Up:
         restarted.restarts = station.restarts + 1
         self.stations[station.name] = restarted
         self._change_state(station.name, restarts=restarted.restarts)
+        with self._lock:  # how far the vehicle strays until the station is up again
+            record = {"station": station.name, "exit_code": station.died,
+                      "t_s": round(time.monotonic() - (self.up_s or time.monotonic()), 3),
+                      "down_s": None, "drift_m": 0.0, "died_s": time.monotonic(),
+                      "from_m_world": self.truth_m_world}
+            self.restarts.append(record)
+            if self.truth_m_world is not None:
+                self._down[station.name] = record
         self.echo(f"abyss:   {station.name} restarted (pid {restarted.process.pid}, restart "
                   f"{restarted.restarts})")
 
@@ -156,11 +194,14 @@ class Up:
         for line in tail:
             self.echo(f"    {line}")
 
-    def _stop_all(self) -> None:
+    def _stop_all(self) -> str:
+        """SIGINT to every station; one that has not stopped in `STOP_TIMEOUT_S` is killed, and
+        that is a failure of the run (a station must stop within its bound)."""
         for station in self.stations.values():
             if station.process.poll() is None:
                 station.process.send_signal(signal.SIGINT)
         deadline = time.monotonic() + STOP_TIMEOUT_S
+        stuck = []
         for station in self.stations.values():
             try:
                 station.process.wait(timeout=max(0.1, deadline - time.monotonic()))
@@ -168,6 +209,8 @@ class Up:
                 self.echo(f"abyss: {station.name} did not stop in {STOP_TIMEOUT_S:g} s; killing it")
                 station.process.kill()
                 station.process.wait()
+                stuck.append(station.name)
+        return f"{', '.join(stuck)} did not stop within {STOP_TIMEOUT_S:g} s" if stuck else ""
 
     # -- the run -------------------------------------------------------------------------
     def run(self, duration_s: float | None, keep_running: bool) -> int:
@@ -175,9 +218,14 @@ class Up:
         onshore = self.config.onshore
         web_port, grpc_port = (p if port_free(p) else free_port()
                                for p in (onshore.viewer_web_port, onshore.viewer_grpc_port))
-        self.config = dataclasses.replace(self.config, onshore=dataclasses.replace(
-            onshore, record_dir=str(self.out_dir.resolve()), viewer_web_port=web_port,
-            viewer_grpc_port=grpc_port))
+        self.config = dataclasses.replace(
+            self.config,
+            onshore=dataclasses.replace(onshore, record_dir=str(self.out_dir), viewer_web_port=web_port,
+                                        viewer_grpc_port=grpc_port),
+            simulation=dataclasses.replace(self.config.simulation,
+                                           state_file=str(self.out_dir / SIMULATION_STATE_FILE)))
+        for name in (SIMULATION_STATE_FILE, *CARRIED_OVER):  # an earlier run's: restarts read them
+            (self.out_dir / name).unlink(missing_ok=True)
         config_path = self.out_dir / "config.json"
         config_path.write_text(self.config.to_json())
         self._change_state()
@@ -190,11 +238,13 @@ class Up:
             session.declare_subscriber(keys.mission_key(system), self._on_status),
             session.declare_subscriber(keys.simulation_status_key(system), self._on_status),
             session.declare_subscriber(keys.onboard_state_key(system), self._on_status),
+            session.declare_subscriber(keys.truth_key(system), self._on_status),
         ]
         previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
                     for s in (signal.SIGINT, signal.SIGTERM)}
         t0 = time.monotonic()
         failure, startup_s = "", 0.0
+        self.keep_running = keep_running
         try:
             self.echo(f"abyss: system {system}; Zenoh endpoint {self.endpoint} "
                       f"(connect your own client here); run directory {self.out_dir}")
@@ -207,7 +257,8 @@ class Up:
                     self.stations[name] = self._start(name, config_path)
             failure = self._wait_until_up(t0)
             startup_s = time.monotonic() - t0
-            if not failure:
+            self.up_s = time.monotonic()
+            if not failure and not self.interrupted.is_set():
                 self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
                 viewer = viewer_line(self.config.onshore)
                 self.echo(viewer)
@@ -215,7 +266,7 @@ class Up:
                 failure = self._watch(duration_s, keep_running)
         finally:
             self._change_state(phase="stopping")
-            self._stop_all()
+            failure = failure or self._stop_all()
             for observer in observers:
                 observer.undeclare()
             session.close()
@@ -226,7 +277,7 @@ class Up:
         (self.out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
         self._change_state(phase="ended", verdict=summary["verdict"], failure=summary["failure"])
         self.echo(render_summary(summary))
-        return 0 if summary["verdict"] == "ok" else 1
+        return exit_code(summary["verdict"], keep_running)
 
     def _wait_until_up(self, t0: float) -> str:
         shown: set[str] = set()
@@ -244,7 +295,7 @@ class Up:
                 self._report_death(station)
                 return f"{station.name} died during start-up"
             if self.interrupted.wait(0.05):
-                return "interrupted during start-up"
+                return ""  # the verdict says interrupted
         missing = sorted(set(keys.STATIONS) - shown)
         return f"not up after {timeout_s:g} s: {', '.join(missing)}"
 
@@ -278,7 +329,7 @@ class Up:
                 self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")
-                return ""
+                return ""  # the verdict says interrupted unless the mission was already done
 
     def _summary(self, wall_s: float, startup_s: float, failure: str) -> dict[str, Any]:
         stations: dict[str, Any] = {}
@@ -288,7 +339,7 @@ class Up:
             for hop, stats in status.pop("links", {}).items():
                 links[hop][stats["direction"]] = stats
             code = station.died if station.died is not None else station.process.returncode
-            stations[name] = {"exit_code": code, "restarts": station.restarts,
+            stations[name] = {"exit_code": code, "restarts": station.restarts, "stop_s": status.get("stop_s"),
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
                               **{k: status.get(k, {})
                                  for k in ("sent", "received", "rejected", "latency_ms")}}
@@ -299,8 +350,11 @@ class Up:
         return {
             "system": self.config.system,
             "endpoint": self.endpoint,
-            "verdict": "ok" if not failure else "failed",
+            "verdict": verdict_of(failure, self.mission_done_s is not None, self.interrupted.is_set()),
             "failure": failure,
+            "keep_running": self.keep_running,
+            "restarts": [{k: v for k, v in r.items() if k not in ("died_s", "from_m_world")}
+                         for r in self.restarts],
             "startup_s": round(startup_s, 3),
             "wall_s": round(wall_s, 3),
             "stations": stations,
@@ -311,6 +365,7 @@ class Up:
             "control": control_summary(self.record.last if self.record else None),
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": read_json(self.out_dir / "scene.json"),
+            "events": read_json_list(self.out_dir / EVENTS_FILE),  # the restarts as shore saw them
         }
 
 

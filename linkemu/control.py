@@ -36,10 +36,11 @@ class StationLinks:
 
     def __init__(self, session: zenoh.Session, system: str, station: str, profiles: dict[str, LinkProfile],
                  deliver: Callable[[str, bytes], None], *, seed: int = 0, link_mode: str = "emulated",
-                 peers: dict[str, str] | None = None) -> None:
+                 peers: dict[str, str] | None = None, stopping: threading.Event | None = None) -> None:
         """`deliver(key, payload)` puts a message on the wire when its link delivers it;
         `peers[hop]`: the neighbour whose route names the interface netem shapes (default:
-        the neighbour's station name)."""
+        the neighbour's station name); `stopping`: set when the station is asked to stop, from
+        when on no send waits for room on a link."""
         if link_mode not in LINK_MODES:
             raise LinkError(f"link mode {link_mode!r}: allowed {', '.join(LINK_MODES)}")
         self.session = session
@@ -54,7 +55,8 @@ class StationLinks:
         for hop, neighbour in keys.hops_of(station).items():
             rng = np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
             self.runners[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
-                                           deliver, rng, passthrough=link_mode == "netem")
+                                           deliver, rng, passthrough=link_mode == "netem",
+                                           stopping=stopping)
             if link_mode == "netem":
                 self.netem_devices[hop] = interface_towards((peers or {}).get(hop, neighbour))
                 self._apply_netem(hop)
@@ -119,17 +121,22 @@ class StationLinks:
             links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
         return links
 
-    def close(self, drain_s: float = 0.5) -> None:
+    def close(self, drain_s: float = 0.0, join_s: float = 1.0) -> None:
         """Stop the emulators (what is still in flight after `drain_s` is counted, not
-        delivered), remove netem, undeclare the control keys."""
+        delivered; a delivery under way is given `join_s` for all links together), remove
+        netem, undeclare the control keys."""
         self.stop.set()
         for runner in self.runners.values():
-            runner.close(drain_s)
+            runner.close(drain_s, join_s=0.0)
+        deadline = time.monotonic() + join_s
+        for runner in self.runners.values():
+            if not runner.join(deadline - time.monotonic()):
+                log.warning("link %s: a delivery still under way at close, let go", runner.name)
         for hop, device in self.netem_devices.items():
             try:
                 run_tc(tc_command(device, None))
             except LinkError as exc:
                 log.warning("could not remove netem from %s (%s): %s", device, hop, exc)
-        self._stats_thread.join(timeout=2.0)
+        self._stats_thread.join(timeout=max(0.0, deadline - time.monotonic()))
         for entity in self._entities:
             entity.undeclare()

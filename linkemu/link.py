@@ -236,5 +236,5 @@ COUNTERS = (
     "messages_offered", "messages_delivered", "messages_dropped", "messages_lost",
     "bytes_offered", "bytes_delivered", "packets_sent", "queue_drops", "losses",
     "packets_corrupted", "corrupt_delivered", "duplicates", "retransmissions", "timeouts",
-    "undelivered_at_close",
+    "undelivered_at_close", "refused_at_stop",
 )

@@ -20,13 +20,17 @@ log = logging.getLogger(__name__)
 
 class LinkRunner:
     """Thread-safe wrapper of a `Link`. The ideal profile is a pass-through on the caller's
-    thread, still counted; `passthrough=True` (the netem backend) forces that."""
+    thread, still counted; `passthrough=True` (the netem backend) forces that. Once `stopping`
+    is set (the station is asked to stop), no sender waits for room any more: what it offers
+    to a full queue is refused and counted (`refused_at_stop`)."""
 
     def __init__(self, name: str, profile: LinkProfile, deliver: Callable[[Any, bytes], None],
-                 rng: np.random.Generator, passthrough: bool = False) -> None:
+                 rng: np.random.Generator, passthrough: bool = False,
+                 stopping: threading.Event | None = None) -> None:
         self.name = name
         self.deliver = deliver
         self.passthrough = passthrough
+        self.stopping = stopping or threading.Event()
         self.link = Link(profile, rng)
         self.late_s = Samples()  # actual - scheduled delivery time
         self._cond = threading.Condition()
@@ -56,7 +60,8 @@ class LinkRunner:
             else:
                 direct = False
                 while True:
-                    if self._closed:
+                    if self._closed or self.stopping.is_set():
+                        self.link.counters["refused_at_stop"] += 1
                         return False
                     result = self.link.offer(time.monotonic(), payload, block, tag)
                     if result is not Offer.FULL:
@@ -77,17 +82,23 @@ class LinkRunner:
         with self._cond:
             return {**self.link.snapshot(), **self.late_s.percentiles("late", 1e6, "us", (50, 99))}
 
-    def close(self, drain_s: float = 0.0) -> None:
+    def close(self, drain_s: float = 0.0, join_s: float = 2.0) -> None:
         """Stop; with `drain_s`, first wait that long for messages still in flight. Whatever
-        is still in flight then is counted as `undelivered_at_close`."""
+        is still in flight then is counted as `undelivered_at_close`. The delivery thread is
+        given `join_s` to finish a delivery under way (0: the caller joins it, `join`)."""
         deadline = time.monotonic() + drain_s
         with self._cond:
             while self.link.in_flight() and time.monotonic() < deadline:
                 self._cond.wait(0.05)
-            self.link.counters["undelivered_at_close"] = self.link.in_flight()
+            self.link.counters["undelivered_at_close"] += self.link.in_flight()
             self._closed = True
             self._cond.notify_all()
-        self._thread.join(timeout=2.0)
+        self.join(join_s)
+
+    def join(self, timeout_s: float) -> bool:
+        """Wait up to `timeout_s` for the delivery thread to end; whether it did."""
+        self._thread.join(timeout=max(0.0, timeout_s))
+        return not self._thread.is_alive()
 
     def _loop(self) -> None:
         while True:

@@ -11,6 +11,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -65,7 +66,7 @@ class Shell:
         self.session = open_session(settings, f"station {name}")
         self.bus = Bus(config.system, name, self.session)
         self.links = StationLinks(self.session, config.system, name, profiles, self.bus.transmit,
-                                  seed=config.seed, link_mode=link_mode, peers=peers)
+                                  seed=config.seed, link_mode=link_mode, peers=peers, stopping=self.bus.stop)
         for hop in self.links.runners:
             self.bus.route(hop, self.links.egress(hop))
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
@@ -77,7 +78,9 @@ class Shell:
         status["links"] = self.links.status()
         return status
 
-    def close(self, drain_s: float = 0.5) -> None:
+    def close(self, drain_s: float = 0.0) -> None:
+        """Links first (no sender waits on them any more; what is in flight is counted), then
+        the station's keys and the session."""
         self.bus.stop.set()
         self.links.close(drain_s)
         self._token.undeclare()
@@ -93,8 +96,11 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     shell = Shell(name, config, listen, connect, link_mode, mode, tls_dir, peers)
     bus = shell.bus
 
+    asked_s: list[float] = []  # when the stop was asked for (this process's monotonic clock)
+
     def stop(signum: int, _frame: Any) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
+        asked_s.append(time.monotonic())
         bus.stop.set()
 
     if threading.current_thread() is threading.main_thread():
@@ -109,8 +115,9 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     except Exception:
         log.exception("%s failed", name)
         code = 1
-    status = shell.status()
-    shell.close()
+    asked_s.append(time.monotonic())
+    shell.close()  # the links first: nothing still in flight is waited for, only counted
+    status = {**shell.status(), "stop_s": round(time.monotonic() - asked_s[0], 3)}  # from the signal
     if status_file is not None:
         status_file.write_text(json.dumps({"exit_code": code, **status}, indent=2))
     log.info("%s stopped (exit %d)", name, code)

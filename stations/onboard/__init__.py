@@ -20,6 +20,7 @@ from abyss.common.config import Config
 from abyss.common.messages import ArmGoal, Heartbeat, Image, JointState, NavState, OperatorMode, Waypoints
 from abyss.common.models import CAMERAS
 from abyss.common.rate import Rate
+from abyss.common.workers import Workers
 from abyss.stations.onboard.core import Onboard, OnboardInputs
 from abyss.stations.onboard.perception import PoseHistory
 
@@ -38,14 +39,17 @@ class Shared:
 def run(config: Config, bus: Bus) -> None:
     """The I/O shell: read what came in, step the core, publish what it returns, keep the rate."""
     core = Onboard(config)
+    shared = Shared()
+    with Workers(bus.stop) as workers:
+        workers.start("perception", _perception_loop, config, bus, shared)
+        _control_loop(config, bus, core, shared)
+
+
+def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> None:
     nav = bus.subscribe("simulation", "nav", maxlen=8)
     joints = bus.subscribe("simulation", "joints", maxlen=4)
     goals = [bus.subscribe("vessel", topic) for topic in ("goal/waypoints", "goal/arm", "goal/mode")]
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
-    shared = Shared()
-    perception = threading.Thread(target=_perception_loop, args=(config, bus, shared), name="perception",
-                                  daemon=True)
-    perception.start()
     rate = Rate(config.onboard.control_period_s, bus.stop)
     while rate.sleep():
         latest_joints = messages_of([r for r in (joints.latest(),) if r is not None], JointState)
@@ -68,7 +72,6 @@ def run(config: Config, bus: Bus) -> None:
         if out.telemetry is not None:
             bus.publish("telemetry", out.telemetry)
             bus.observe(keys.onboard_state_key(bus.system), out.telemetry)
-    perception.join(timeout=5.0)
 
 
 def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:

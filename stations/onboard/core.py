@@ -25,6 +25,7 @@ from abyss.common.messages import (
     Telemetry,
     VelocityRef,
     Waypoints,
+    new_id,
 )
 from abyss.common.models import ARM_JOINTS
 from abyss.stations.onboard.arm_control import ArmController
@@ -72,6 +73,7 @@ class Onboard:
         self.orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
         self.sim_time_s = 0.0
         self.tick = 0
+        self.boot_id = new_id()  # shore sees a reboot by it, and hands the goals in force again
 
     def _holding_at(self) -> np.ndarray:
         """Where the vehicle will hold: x, y, z [m, world], yaw [rad]."""
@@ -141,4 +143,4 @@ class Onboard:
                 ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
                 failsafe_events=self.failsafe.events, sim_time_s=self.sim_time_s,
-                operator_mode=self.operator_mode)
+                operator_mode=self.operator_mode, boot_id=self.boot_id)

@@ -34,18 +34,20 @@ from abyss.common.messages import (
 )
 from abyss.common.rate import Rate
 from abyss.common.scene import SceneReceiver
-from abyss.stations.onshore.core import Operator, OperatorInputs
+from abyss.stations.onshore.core import CARRIED_OVER, Operator, OperatorInputs, read_json_list
 from abyss.stations.onshore.viewer import Sinks, Viewer
 
 PERIOD_S = 0.1
-COMMANDS_FILE = "commands.json"  # every command shore sent, how often, and onboard's answer
+SAVE_PERIOD_S = 1.0  # both files are rewritten this often when they changed: a killed shore keeps them
 SCENE_FILE = "scene.msgpack"  # the final scene, a snapshot SceneUpdate; `abyss scene export` reads it
 log = logging.getLogger(__name__)
 
 
 def run(config: Config, bus: Bus) -> None:
     """The I/O shell of `core.Operator`, the scene (`Scene`) and the viewer."""
-    operator = Operator(config.mission)
+    record_dir = Path(config.onshore.record_dir) if config.onshore.record_dir else None
+    earlier = [read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER]
+    operator = Operator(config.mission, *earlier)  # a restarted shore goes on with what it had
     telemetry = bus.subscribe("vessel", "telemetry", maxlen=8)
     acks = bus.subscribe("vessel", "ack")
     images = bus.subscribe("vessel", "image", maxlen=2)
@@ -57,9 +59,14 @@ def run(config: Config, bus: Bus) -> None:
         for topic, message in (("mode", "OperatorMode"), ("waypoints", "Waypoints"), ("arm", "ArmGoal"))}
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)
     rate = Rate(PERIOD_S, bus.stop)
+    saved: tuple[str, str] = ("", "")
+    saved_s = -float("inf")
     while rate.sleep():
         now_s = time.monotonic()
+        streams = scene.receiver.new_streams
         scene.step(now_s)
+        if scene.receiver.new_streams > streams:
+            operator.event("vessel", "restarted: a new scene stream, kept on the map shore holds")
         received = telemetry.drain()
         out = operator.step(OperatorInputs(
             tool_commands=[(topic, r.message) for topic, inbox in tools.items() for r in inbox.drain()],
@@ -72,12 +79,24 @@ def run(config: Config, bus: Bus) -> None:
             bus.observe(keys.mission_key(bus.system), out.status)
         if viewer:
             _show(viewer, out.first_sent, received, [*images.drain(), *link_stats.drain()])
-    if config.onshore.record_dir:
-        record_dir = Path(config.onshore.record_dir)
+        if record_dir and now_s - saved_s >= SAVE_PERIOD_S:
+            saved, saved_s = _save(record_dir, operator, saved), now_s
+    if record_dir:
         scene.save(record_dir)
-        (record_dir / COMMANDS_FILE).write_text(json.dumps(list(operator.history.values()), indent=2))
+        _save(record_dir, operator, saved)
     scene.show(time.monotonic(), final=True)
     sinks.close()
+
+
+def _save(record_dir: Path, operator: Operator, saved: tuple[str, str]) -> tuple[str, str]:
+    """The command history and the events, each written (whole, then renamed) if it changed."""
+    texts = (json.dumps(list(operator.history.values()), indent=2), json.dumps(operator.events, indent=2))
+    for name, text, before in zip(CARRIED_OVER, texts, saved, strict=True):
+        if text != before:
+            partial = record_dir / f".{name}.partial"
+            partial.write_text(text)
+            partial.replace(record_dir / name)
+    return texts
 
 
 def _show(viewer: Viewer, first_sent: list[Message], telemetry: list[Received],

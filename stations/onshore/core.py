@@ -1,14 +1,20 @@
 """The operator's core on shore, without Zenoh: the mission's commands (auto mode, waypoints,
 then an end-effector goal) and whatever the operator's tools hand in, each resent over the
 lossy satellite until onboard's answer comes back; every command's fate; a heartbeat to the
-vessel; the mission status as the operator sees it. A restarted onshore station starts the
-mission's commands anew; onboard answers a command it already took without taking it again."""
+vessel; the mission status as the operator sees it.
+
+Shore joins the mission it finds: it sends the mission's commands once onboard's first telemetry
+shows onboard has none (or after `JOIN_WAIT_S` without telemetry); a restarted shore that finds
+onboard flying takes the commands in force as its own instead of starting over. When onboard
+reboots (a new `boot_id` in its telemetry), shore hands it the goals in force again: the
+waypoints not yet reached, the end-effector goal, the mode. Each is an event (`events`)."""
 
 from __future__ import annotations
 
+import json
 import logging
-import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -22,11 +28,25 @@ from abyss.common.messages import (
     OperatorMode,
     Telemetry,
     Waypoints,
+    new_id,
 )
 
 HEARTBEAT_PERIOD_S = 1.0
 STATUS_PERIOD_S = 0.25
+COMMANDS_FILE = "commands.json"  # every command shore sent, how often, and onboard's answer
+EVENTS_FILE = "events.json"  # the restarts shore saw and what it did about them
+CARRIED_OVER = (COMMANDS_FILE, EVENTS_FILE)  # what a restarted shore reads back from its run directory
+JOIN_WAIT_S = 5.0  # how long a starting shore listens for onboard's state before it sends the mission
 log = logging.getLogger(__name__)
+
+
+def read_json_list(path: Path) -> list[dict[str, object]]:
+    """What an earlier run of this station left in `path` (a restart); [] if nothing."""
+    try:
+        items = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []
+    return [item for item in items if isinstance(item, dict)] if isinstance(items, list) else []
 
 
 @dataclass
@@ -42,16 +62,18 @@ class Command:
         assert isinstance(message, (Waypoints, ArmGoal, OperatorMode))
         self.message, self.answer, self.sent_s = message, None, -float("inf")
 
+    def in_force(self, message: Waypoints | ArmGoal | OperatorMode, now_s: float) -> None:
+        """Take a command onboard already flies (found in its telemetry) as this one: answered,
+        not to be sent."""
+        self.message, self.sent_s = message, now_s
+        self.answer = CommandAck(message.command_id, self.topic.removeprefix("op/"), "")
+
     def answered(self, ack: CommandAck) -> bool:
         """Take onboard's answer if it is to this command."""
         if self.message is None or self.message.command_id != ack.command_id or self.answer is not None:
             return False
         self.answer = ack
         return True
-
-
-def new_command_id() -> int:
-    return int(time.time() * 1e3)
 
 
 @dataclass
@@ -70,22 +92,86 @@ class OperatorOutputs:
 
 
 class Operator:
-    def __init__(self, mission: MissionConfig) -> None:
+    def __init__(self, mission: MissionConfig, history: list[dict[str, object]] | None = None,
+                 events: list[dict[str, object]] | None = None) -> None:
+        """`history` and `events`: what an earlier run of this station left (a restart)."""
         self.mission = mission
-        first_id = new_command_id()
-        self.mode = Command("op/mode", OperatorMode(first_id, "auto"))
-        self.waypoints = Command("op/waypoints", Waypoints(first_id + 1, np.array(mission.waypoints)))
+        self.mode = Command("op/mode", OperatorMode(new_id(), "auto"))
+        self.waypoints = Command("op/waypoints", Waypoints(new_id(), np.array(mission.waypoints)))
         self.arm = Command("op/arm")
         goal = mission.arm_goal()
         if goal is not None:
-            self.arm.replace(ArmGoal(first_id + 2, *goal))
+            self.arm.replace(ArmGoal(new_id(), *goal))
         self.commands = {c.topic: c for c in (self.mode, self.waypoints, self.arm)}
-        self.history: dict[tuple[str, int], dict[str, object]] = {}  # every command sent, and its fate
+        self.history: dict[tuple[str, int], dict[str, object]] = {  # every command sent, and its fate
+            (f"op/{e['command']}", int(e["command_id"])): e for e in history or []}  # type: ignore[call-overload]
+        self.events: list[dict[str, object]] = list(events or [])  # restarts seen, what shore did
         self.status: MissionStatus | None = None
         self.last_status_s = self.last_beat_s = -float("inf")
+        self.first_step_s: float | None = None
+        self.joined = False  # the mission's commands are released (sent, or found in force)
+        self.onboard: Telemetry | None = None  # the latest telemetry of onboard's current boot
+        self.waypoint_offset = 0  # mission waypoints reached before the list in force began
+
+    def event(self, station: str, what: str) -> None:
+        """Something shore saw of a station (a restart), at the simulated time of its latest telemetry."""
+        log.info("%s: %s", station, what)
+        sim_time_s = self.onboard.sim_time_s if self.onboard else 0.0
+        self.events.append({"station": station, "event": what, "sim_time_s": round(sim_time_s, 3)})
+
+    def _join(self, t: Telemetry, now_s: float) -> None:
+        """Onboard's first telemetry: start the mission, or take the one it flies (shore restarted)."""
+        self.joined = True
+        if t.command_id < 0:
+            return
+        assert isinstance(self.waypoints.message, Waypoints)
+        mission = self.waypoints.message.waypoints
+        total = t.waypoints_total if 0 < t.waypoints_total <= len(mission) else len(mission)
+        self.waypoint_offset = len(mission) - total
+        self.waypoints.in_force(Waypoints(t.command_id, mission[self.waypoint_offset:]), now_s)
+        goal = self.mission.arm_goal()
+        if goal is not None and t.arm_command_id >= 0:
+            self.arm.in_force(ArmGoal(t.arm_command_id, *goal), now_s)
+        self.mode.in_force(OperatorMode(new_id(), t.operator_mode), now_s)
+        for command in (self.waypoints, self.arm):
+            entry = self.history.get((command.topic, command.message.command_id)) if command.message else None
+            if entry is not None:  # sent by this station before its restart, flown since
+                entry.update(answered=True, accepted=True)
+        index = self.waypoint_offset + t.waypoint_index
+        self.onboard = t
+        self.event("onshore", f"rejoined the mission in progress (waypoint {index}/{len(mission)}, "
+                   f"arm {t.arm_mode})")
+
+    def _rehand(self, before: Telemetry | None, t: Telemetry) -> None:
+        """Onboard rebooted: the goals in force again, the waypoints from the one it was flying."""
+        flown = self.waypoints.message
+        assert isinstance(flown, Waypoints)
+        reached = 0
+        if before is not None and before.command_id == flown.command_id:
+            reached = min(before.waypoint_index, len(flown.waypoints) - 1)
+        if reached:
+            self.waypoint_offset += reached
+            self.waypoints.replace(Waypoints(new_id(), flown.waypoints[reached:]))
+        else:
+            self.waypoints.replace(flown)
+        for command in (self.arm, self.mode):
+            if command.message is not None:
+                command.replace(command.message)
+        self.onboard = t
+        self.event("onboard", f"restarted: goals handed again from waypoint {self.waypoint_offset}")
+
+    def _telemetry(self, t: Telemetry, now_s: float) -> None:
+        if not self.joined:
+            self._join(t, now_s)
+        elif self.onboard is not None and t.boot_id != self.onboard.boot_id:
+            self._rehand(self.onboard, t)
+        self.onboard = t
+        self.status = mission_status(t, self.waypoints, self.arm, self.waypoint_offset)
 
     def step(self, inputs: OperatorInputs, now_s: float) -> OperatorOutputs:
         out = OperatorOutputs()
+        if self.first_step_s is None:
+            self.first_step_s = now_s
         for topic, message in inputs.tool_commands:
             self.commands[topic].replace(message)
         for ack in inputs.acks:
@@ -97,9 +183,11 @@ class Operator:
                 log.info("%s command %d %s", ack.command, ack.command_id,
                          "taken" if ack.accepted else f"refused: {ack.reason}")
         for t in inputs.telemetry:
-            self.status = mission_status(t, self.waypoints, self.arm)
+            self._telemetry(t, now_s)
+        if not self.joined and now_s - self.first_step_s >= JOIN_WAIT_S:
+            self.joined = True  # no telemetry: send the mission anyway, resent until answered
         # the satellite loses packets: resend each command until onboard's answer comes back
-        for command in self.commands.values():
+        for command in self.commands.values() if self.joined else ():
             due = now_s - command.sent_s > self.mission.resend_period_s
             if command.message is not None and command.answer is None and due:
                 entry = self.history.setdefault((command.topic, command.message.command_id), {
@@ -123,14 +211,17 @@ class Operator:
         return out
 
 
-def mission_status(t: Telemetry, waypoints: Command, arm: Command) -> MissionStatus:
+def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int = 0) -> MissionStatus:
     """The mission as telemetry shows it; done once the vehicle holds its last waypoint and
-    the end-effector its goal, both of the commands this station sent last."""
+    the end-effector its goal, both of the commands this station sent last. Waypoints count
+    from the mission's first: `offset` were reached before the list in force began."""
     assert isinstance(waypoints.message, Waypoints)
-    vehicle_done = t.command_id == waypoints.message.command_id and t.mode == "reached"
+    flying = t.command_id == waypoints.message.command_id
+    vehicle_done = flying and t.mode == "reached"
     arm_done = arm.message is None or (t.arm_command_id == arm.message.command_id and t.arm_mode == "reached")
     return MissionStatus(
-        mode=t.mode, waypoint_index=t.waypoint_index, waypoints_total=len(waypoints.message.waypoints),
+        mode=t.mode, waypoint_index=offset + t.waypoint_index if flying else offset,
+        waypoints_total=offset + len(waypoints.message.waypoints),
         position_error_m=t.position_error_m, heading_error_rad=abs(t.heading_error_rad), arm_mode=t.arm_mode,
         ee_position_error_m=float(np.linalg.norm(t.ee_position_error_m_world)),
         ee_orientation_error_rad=t.ee_orientation_error_rad, failsafe=t.failsafe,

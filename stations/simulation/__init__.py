@@ -3,8 +3,11 @@ real time (or `simulation.realtime_factor` of it), with cameras rendered in thei
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -13,8 +16,13 @@ from abyss.common.bus import Bus
 from abyss.common.config import Config
 from abyss.common.messages import ArmVelocityRef, SimulationControl, SimulationStatus, VelocityRef
 from abyss.common.rate import Rate
+from abyss.common.workers import Workers
+
+if TYPE_CHECKING:
+    from abyss.stations.simulation.world import World
 
 STATUS_PERIOD_S = 1.0
+log = logging.getLogger(__name__)
 
 
 def run(config: Config, bus: Bus) -> None:
@@ -23,22 +31,31 @@ def run(config: Config, bus: Bus) -> None:
         from abyss.stations.simulation.rendering import choose_gl_backend
 
         choose_gl_backend()  # before MuJoCo is imported
-    from abyss.stations.simulation.world import World, references
+    from abyss.stations.simulation.world import World
 
     world = World(sim, np.random.default_rng(config.seed))
+    if sim.state_file and world.resume(Path(sim.state_file)):
+        log.info("resumed at t=%.2f s from %s (a restart)", world.data.time, sim.state_file)
+    lock = threading.Lock()
+    blackout: set[str] = set()
+    with Workers(bus.stop) as workers:
+        if sim.camera_rate_hz > 0:
+            workers.start("cameras", _camera_loop, config, bus, world, lock, blackout)
+        _physics_loop(config, bus, world, lock, blackout)
+
+
+def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str]) -> None:
+    """Step the physics at its period, apply the faults asked for, publish the sensors."""
+    from abyss.stations.simulation.world import references
+
+    sim = config.simulation
     vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", maxlen=4)
     arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
     control_key = keys.simulation_control_key(bus.system)
     controls = bus.subscribe_key(control_key, "SimulationControl")
-    lock = threading.Lock()
-    blackout: set[str] = set()
-    camera_thread = None
-    if sim.camera_rate_hz > 0:
-        camera_thread = threading.Thread(target=_camera_loop, args=(config, bus, world, lock, blackout),
-                                         name="cameras", daemon=True)
-        camera_thread.start()
     rate = Rate(sim.control_period_s / sim.realtime_factor, bus.stop)
     wall0, sim0 = time.monotonic(), world.data.time
+    saved_s = -float("inf")  # simulated time of the state last kept
     while True:
         for control in controls.drain():
             assert isinstance(control.message, SimulationControl)
@@ -56,6 +73,10 @@ def run(config: Config, bus: Bus) -> None:
         bus.publish("nav", world.nav())
         bus.publish("joints", joints)
         bus.observe(keys.truth_key(bus.system), truth)
+        if sim.state_file and truth.sim_time_s - saved_s >= sim.state_period_s:
+            with lock:
+                world.save_state(Path(sim.state_file))
+            saved_s = truth.sim_time_s
         wall = time.monotonic()
         if wall - wall0 >= STATUS_PERIOD_S:
             bus.observe(keys.simulation_status_key(bus.system), SimulationStatus(
@@ -64,8 +85,6 @@ def run(config: Config, bus: Bus) -> None:
             wall0, sim0 = wall, truth.sim_time_s
         if not rate.sleep():
             break
-    if camera_thread is not None:
-        camera_thread.join(timeout=5.0)
 
 
 def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:

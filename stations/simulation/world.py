@@ -3,6 +3,8 @@ navigation sensors and faults. A pure core: references and time in, states out."
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 
@@ -20,6 +22,8 @@ from abyss.common.models import (
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import Buoyancy, Current
 from abyss.stations.simulation.navigation import Navigation, NoiseSigmas
+
+STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
 
 
 def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> References:
@@ -97,6 +101,30 @@ class World:
             gripper_opening_m=float(np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]]
                                                 for n in GRIPPER_JOINTS), 0.0, 1.0)),
             sim_time_s=float(d.time))
+
+    # -- restarts ------------------------------------------------------------------------
+    def save_state(self, path: Path) -> None:
+        """The whole integration state (time, positions, velocities, controls), written whole
+        and renamed: a simulation killed at any moment leaves a state to resume from."""
+        state = np.empty(mujoco.mj_stateSize(self.model, STATE))
+        mujoco.mj_getState(self.model, self.data, state, STATE)
+        partial = path.with_name(f".{path.name}.partial")
+        with partial.open("wb") as f:
+            np.save(f, state)
+        partial.replace(path)
+
+    def resume(self, path: Path) -> bool:
+        """Go on from a state `save_state` left; False (and nothing changed) if there is none
+        or it is of another model."""
+        try:
+            state = np.load(path)
+        except (OSError, ValueError):
+            return False
+        if state.shape != (mujoco.mj_stateSize(self.model, STATE),):
+            return False
+        mujoco.mj_setState(self.model, self.data, state, STATE)
+        mujoco.mj_forward(self.model, self.data)
+        return True
 
     # -- faults --------------------------------------------------------------------------
     def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:

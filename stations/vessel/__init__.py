@@ -8,7 +8,6 @@ plain cores (`core.py`); this module is their I/O shell."""
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from typing import TYPE_CHECKING
 
@@ -20,6 +19,7 @@ from abyss.common.config import Config
 from abyss.common.images import decode_image
 from abyss.common.messages import CommandAck, Image, PointCloud, SceneAck, Telemetry
 from abyss.common.rate import Rate
+from abyss.common.workers import Workers
 from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs, SceneStream
 
 if TYPE_CHECKING:
@@ -30,9 +30,21 @@ log = logging.getLogger(__name__)
 
 
 def run(config: Config, bus: Bus) -> None:
-    """The I/O shell of the relay (`core.Relay`); the scene runs in a thread of its own."""
-    scene = threading.Thread(target=_scene_loop, args=(config, bus), name="scene", daemon=True)
-    scene.start()
+    """The relay in the main thread; the scene model and its stream in threads of their own."""
+    from abyss.common.scene import SceneModel
+
+    cfg = config.vessel
+    model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
+    images = bus.subscribe("onboard", "image", maxlen=2)
+    sim_time_s = [0.0]  # of the latest cloud, shared by the model and the stream
+    with Workers(bus.stop) as workers:
+        workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s)
+        workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s)
+        _relay_loop(config, bus)
+
+
+def _relay_loop(config: Config, bus: Bus) -> None:
+    """The I/O shell of the relay (`core.Relay`)."""
     telemetry = bus.subscribe("onboard", "telemetry", maxlen=8)
     operator = {topic: bus.subscribe("onshore", topic) for topic in RELAYED_DOWN}
     acks = bus.subscribe("onboard", "ack")
@@ -50,25 +62,17 @@ def run(config: Config, bus: Bus) -> None:
             bus.publish(topic, message)
         if not rate.sleep():
             break
-    scene.join(timeout=30.0)  # one loop at most: an octree insertion, a recognition
 
 
-def _scene_loop(config: Config, bus: Bus) -> None:
-    """Integrate the clouds and recognise the panel; a thread of its own (`_send_loop`) streams
-    the result, so that a slow insertion (a second or more for a stereo cloud on a loaded
-    machine) never holds the stream back."""
-    from abyss.common.scene import SceneModel
+def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float]) -> None:
+    """Integrate the clouds and recognise the panel; another thread (`_send_loop`) streams the
+    result, so that a slow insertion (a second or more for a stereo cloud on a loaded machine)
+    never holds the stream back."""
     from abyss.stations.vessel.recognition import PanelTracker
 
     cfg = config.vessel
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)
-    images = bus.subscribe("onboard", "image", maxlen=2)
-    model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
     tracker = PanelTracker()
-    sim_time_s = [0.0]  # of the latest cloud, shared with the sender
-    sender = threading.Thread(target=_send_loop, args=(config, bus, model, images, sim_time_s),
-                              name="scene send", daemon=True)
-    sender.start()
     rate = Rate(POLL_PERIOD_S, bus.stop)
     last_recognition_s = -float("inf")
     points: np.ndarray | None = None
@@ -100,7 +104,6 @@ def _scene_loop(config: Config, bus: Bus) -> None:
             objects = tracker.objects(sim_time_s[0])
             if objects is not None:
                 bus.publish("objects", objects)
-    sender.join(timeout=10.0)
 
 
 def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox,

@@ -118,7 +118,7 @@ def test_keys_in_a_pseudo_terminal_move_the_goals(vessel: Vessel) -> None:
         os.write(master, b"q")
         turned = vessel.wait_for(2)[-1]
         assert isinstance(turned, Waypoints) and turned.waypoints[0, 3] == pytest.approx(np.radians(5))
-        assert turned.command_id > first.command_id
+        assert turned.command_id != first.command_id
         os.write(master, b"\t")
         expect("driving the end-effector")
         os.write(master, b"r")

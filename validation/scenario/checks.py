@@ -108,15 +108,21 @@ def link(
     return min <= value <= max, f"{hop} {direction} {stat} = {value:g} (allowed [{min:g}, {max:g}])"
 
 
-def stations(run: Run, max_restarts: float = 0) -> tuple[bool, str]:
+def stations(run: Run, max_restarts: float = 0, max_drift_m: float = math.inf) -> tuple[bool, str]:
+    """No station failed; at most `max_restarts`, each station back up, and the vehicle never
+    further than `max_drift_m` from where it was while a station was down."""
     own = {n: s for n, s in run.summary.get("stations", {}).items() if not s.get("external")}
     restarts = sum(s["restarts"] for s in own.values())
     failed = [n for n, s in own.items() if s["exit_code"] != 0]
-    ok = run.summary.get("verdict") == "ok" and not failed and restarts <= max_restarts
+    back = [r for r in run.summary.get("restarts", []) if r.get("down_s") is not None]
+    drift_m = max((r["drift_m"] for r in back), default=0.0)
+    ok = (run.summary.get("verdict") in ("done", "incomplete") and not failed and restarts <= max_restarts
+          and len(back) == restarts and drift_m <= max_drift_m)
     return ok, (
         f"verdict {run.summary.get('verdict')}"
         + (f" ({run.summary['failure']})" if run.summary.get("failure") else "")
-        + f", {restarts} restarts, {run.killed} killed"
+        + f", {restarts} restarts ({len(back)} back up), {run.killed} killed"
+        + (f", the vehicle strayed at most {drift_m * 1e3:.0f} mm while a station was down" if back else "")
     )
 
 

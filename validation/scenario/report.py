@@ -28,6 +28,8 @@ def junit(results: list[Result], path: Path) -> None:
             name=r.scenario.name,
             time=f"{r.wall_s:.1f}",
         )
+        properties = ET.SubElement(case, "properties")
+        ET.SubElement(properties, "property", name="verdict", value=r.outcome)
         if r.error:
             ET.SubElement(case, "error", message=r.error.splitlines()[0]).text = r.error
         elif not r.passed:
@@ -39,7 +41,7 @@ def junit(results: list[Result], path: Path) -> None:
                 f"{'held' if v.passed else 'failed'}: {v.assertion.describe()}: {v.detail}"
                 for v in r.verdicts
             )
-        ET.SubElement(case, "system-out").text = f"run directory: {r.out_dir}"
+        ET.SubElement(case, "system-out").text = f"verdict: {r.outcome}\nrun directory: {r.out_dir}"
     path.parent.mkdir(parents=True, exist_ok=True)
     ET.ElementTree(suite).write(path, encoding="utf-8", xml_declaration=True)
 
@@ -49,14 +51,14 @@ def markdown(results: list[Result], directory: Path) -> Path:
     lines = [
         "# abyss scenario report",
         "",
-        "| scenario | use | verdict | assertions held | wall s |",
-        "| --- | --- | --- | --- | --- |",
+        "| scenario | use | result | verdict | assertions held | wall s |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     for r in results:
         held = f"{sum(v.passed for v in r.verdicts)}/{len(r.verdicts)}"
         lines.append(
             f"| [{r.scenario.name}](#{r.scenario.name}) | {r.scenario.use} | "
-            f"{'PASS' if r.passed else 'FAIL'} | {held} | {r.wall_s:.0f} |"
+            f"{'PASS' if r.passed else 'FAIL'} | {r.outcome} | {held} | {r.wall_s:.0f} |"
         )
     for r in results:
         rel = Path(os.path.relpath(r.out_dir, directory))
@@ -66,7 +68,7 @@ def markdown(results: list[Result], directory: Path) -> Path:
             "",
             r.scenario.description,
             "",
-            f"Verdict: **{'PASS' if r.passed else 'FAIL'}**"
+            f"Result: **{'PASS' if r.passed else 'FAIL'}**, verdict **{r.outcome}**"
             + (
                 f" (expected to fail: {', '.join(r.scenario.expect_failed)})"
                 if r.scenario.expect_failed

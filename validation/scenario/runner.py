@@ -43,6 +43,13 @@ class Result:
     passed: bool
     wall_s: float
     error: str = ""  # why the run itself did not complete
+    run_verdict: str = ""  # abyss up's: done, incomplete, interrupted or failed
+
+    @property
+    def outcome(self) -> str:
+        """The scenario's word: `failed` when an assertion did not come out as the scenario
+        expects or the run did not complete, else abyss up's verdict."""
+        return self.run_verdict if self.passed and self.run_verdict else "failed"
 
 
 class System:
@@ -209,7 +216,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
             plot_run(out_dir)
         except (AbyssError, OSError) as exc:  # too short a run to plot
             say(f"no plots: {exc}")
-    return Result(scenario, out_dir, verdicts, passed, time.monotonic() - t0, error)
+    return Result(scenario, out_dir, verdicts, passed, time.monotonic() - t0, error,
+                  str(run.summary.get("verdict", "")))
 
 
 def run_all(scenarios: Sequence[Scenario], out_dir: Path, parallel: int) -> list[Result]:
@@ -228,8 +236,8 @@ def run_all(scenarios: Sequence[Scenario], out_dir: Path, parallel: int) -> list
         result = run_scenario(scenario, out_dir / "runs" / f"{index:02d}-{scenario.name}", index, say)
         held = sum(v.passed for v in result.verdicts)
         say(
-            f"{'PASS' if result.passed else 'FAIL'} in {result.wall_s:.0f} s: {held}/{len(result.verdicts)} "
-            f"assertions held"
+            f"{'PASS' if result.passed else 'FAIL'} ({result.outcome}) in {result.wall_s:.0f} s: {held}/"
+            f"{len(result.verdicts)} assertions held"
             + (f" (expected to fail: {', '.join(scenario.expect_failed)})" if scenario.expect_failed else "")
             + (f"; {result.error}" if result.error else "")
         )

@@ -26,7 +26,7 @@ ASSERTIONS: dict[str, dict[str, type]] = {
     "commands_answered": {},
     "scene": {"min_occupied_cells": float, "objects": list},
     "link": {"hop": str, "direction": str, "stat": str, "max": float, "min": float},
-    "stations": {"max_restarts": float},
+    "stations": {"max_restarts": float, "max_drift_m": float},
     "deadlines": {"min_met": float},
 }
 

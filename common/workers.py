@@ -1,0 +1,69 @@
+"""A station's threads as one group, the way trio's nurseries hold tasks: each worker runs until
+the station's stop event is set; the first worker to raise sets it for all, and its exception
+reaches the station's exit code when the group closes instead of dying silently in a thread.
+Closing never waits longer than `join_s` in all: a worker still inside native code then (an
+octree insertion, a render) is let go and named, not waited for."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+
+log = logging.getLogger(__name__)
+JOIN_S = 3.0  # the part of a station's 5 s stop bound its threads may take
+
+
+class WorkerFailed(RuntimeError):
+    """A worker thread of a station raised."""
+
+
+class Workers:
+    """`with Workers(bus.stop) as workers: workers.start("scene", loop, ...)`; the body is the
+    station's main loop. Leaving the block sets `stop`, joins the workers and raises the first
+    failure (a worker's, or the body's own, which wins)."""
+
+    def __init__(self, stop: threading.Event, join_s: float = JOIN_S) -> None:
+        self.stop = stop
+        self.join_s = join_s
+        self.failures: list[tuple[str, BaseException]] = []
+        self.abandoned: list[str] = []  # workers still running when the group closed
+        self._threads: list[threading.Thread] = []
+        self._lock = threading.Lock()
+
+    def start(self, name: str, target: Callable[..., None], *args: Any) -> None:
+        thread = threading.Thread(target=self._run, args=(name, target, args), name=name, daemon=True)
+        self._threads.append(thread)
+        thread.start()
+
+    def _run(self, name: str, target: Callable[..., None], args: tuple[Any, ...]) -> None:
+        try:
+            target(*args)
+        except BaseException as exc:  # every failure must reach the exit code
+            log.exception("worker %s failed; stopping the station", name)
+            with self._lock:
+                self.failures.append((name, exc))
+            self.stop.set()
+
+    def __enter__(self) -> Workers:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop.set()
+        deadline = time.monotonic() + self.join_s
+        for thread in self._threads:
+            thread.join(timeout=max(0.0, deadline - time.monotonic()))
+            if thread.is_alive():
+                self.abandoned.append(thread.name)
+        if self.abandoned:
+            log.warning("workers still running %.1f s after stop, let go: %s", self.join_s,
+                        ", ".join(self.abandoned))
+        with self._lock:
+            failures = list(self.failures)
+        if exc is None and failures:
+            name, first = failures[0]
+            raise WorkerFailed(f"worker {name} failed: {type(first).__name__}: {first}") from first

@@ -1,0 +1,76 @@
+"""A station stops within its bound (5 s after SIGINT) whatever it was doing: here the onshore
+station, a real process, blocked in a publish on a satellite link driven at five times its
+capacity by an operator tool that floods it with long waypoint lists."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from abyss.common import keys
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.messages import LinkControl, Waypoints, encode
+from abyss.stations.runtime import free_port
+
+STOP_BOUND_S = 5.0
+RATE_BPS = 512_000  # the satellite's rate for this test
+WAYPOINTS_BYTES = 1000 * 4 * 8  # the longest list a message carries
+SHORE_PERIOD_S = 0.1  # shore sends the latest command once a period: 5x the rate above
+
+
+@pytest.mark.timeout(120)
+def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: Path) -> None:
+    assert WAYPOINTS_BYTES * 8 / SHORE_PERIOD_S >= 5 * RATE_BPS
+    system, port = "stoptest", free_port()
+    status_path, log_path = tmp_path / "onshore.json", tmp_path / "onshore.log"
+    endpoint = f"tcp/127.0.0.1:{port}"
+    session = open_session(zenoh_config([endpoint], mode="router"), "test")  # as abyss up's
+    with log_path.open("wb") as log:
+        station = subprocess.Popen(
+            [sys.executable, "-P", "-m", "abyss.cli", "station", "onshore", "--system", system,
+             "--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--status-file", str(status_path),
+             "--set", "onshore.viewer=none"], stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
+    flooding = threading.Event()
+    try:
+        up = session.liveliness().declare_subscriber(keys.alive_key(system, "onshore"), history=True)
+        assert up.recv() is not None  # blocks until the station's token is seen
+        session.put(keys.link_key(system, "satellite"),
+                    encode(LinkControl("", {"rate": f"{RATE_BPS // 1000}kbit"}), 0, time.time()))
+        waypoints = np.tile([0.0, 0.0, -10.0, 0.0], (1000, 1))
+
+        def flood() -> None:
+            command_id = 1
+            while not flooding.is_set():
+                message = Waypoints(command_id, waypoints)
+                session.put(keys.operator_key(system, "waypoints"), encode(message, command_id, time.time()))
+                command_id += 1
+                flooding.wait(SHORE_PERIOD_S / 2)
+
+        flooder = threading.Thread(target=flood, daemon=True)
+        flooder.start()
+        time.sleep(3.0)  # the queue fills in about half a second; let shore block on it for a while
+        asked_s = time.monotonic()
+        station.send_signal(signal.SIGINT)
+        station.wait(timeout=30)
+        stop_s = time.monotonic() - asked_s
+    finally:
+        flooding.set()
+        if station.poll() is None:
+            station.kill()
+        session.close()
+    log_text = log_path.read_text()
+    assert station.returncode == 0, log_text
+    assert stop_s < STOP_BOUND_S, log_text
+    status = json.loads(status_path.read_text())
+    satellite = status["links"]["satellite"]
+    assert satellite["refused_at_stop"] >= 1, satellite  # it was blocked in a publish when asked
+    assert satellite["messages_offered"] >= 3
+    assert status["stop_s"] < STOP_BOUND_S

@@ -99,6 +99,7 @@ def no_leftover_systems() -> Iterator[None]:
         up.wait(30)
 
 
-def abyss(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "abyss.cli", *args], capture_output=True, text=True,
-                          cwd=ROOT, timeout=timeout_s)
+def abyss(*args: str, timeout_s: float = 60.0, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
+    """An abyss command as a user types it, in `cwd` (-P: that directory never shadows abyss)."""
+    return subprocess.run([sys.executable, "-P", "-m", "abyss.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=timeout_s)

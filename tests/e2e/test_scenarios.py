@@ -6,6 +6,8 @@ station passes with that station started by hand, through the pytest plugin's fi
 
 from __future__ import annotations
 
+import json
+import os
 import re
 import subprocess
 import sys
@@ -36,10 +38,12 @@ def assertion_outcomes(report: Path, name: str) -> list[tuple[str, str]]:
 
 @pytest.fixture(scope="module")
 def library(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.CompletedProcess[str], Path]:
-    out = tmp_path_factory.mktemp("library")
-    done = abyss("scenario", "run", *map(str, SELF_CONTAINED), "--parallel", "2", "--report", str(out),
-                 "--junit", str(out / "junit.xml"), timeout_s=900)  # fmt: skip
-    return done, out
+    """The library run as a user runs it from a directory of their own, every path relative."""
+    here = tmp_path_factory.mktemp("user")
+    files = [os.path.relpath(path, here) for path in SELF_CONTAINED]
+    done = abyss("scenario", "run", *files, "--parallel", "2", "--report", "rep", "--junit", "rep/junit.xml",
+                 timeout_s=900, cwd=here)  # fmt: skip
+    return done, here / "rep"
 
 
 @pytest.mark.timeout(960)
@@ -48,6 +52,10 @@ def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedPro
     assert done.returncode == 0, done.stdout[-6000:] + done.stderr
     assert f"{len(SELF_CONTAINED)}/{len(SELF_CONTAINED)} scenarios passed" in done.stdout
     assert set(verdicts(out / "junit.xml").values()) == {("passed",)}
+    words = {c.get("name"): c.find("properties/property[@name='verdict']").get("value")  # type: ignore[union-attr]
+             for c in ET.parse(out / "junit.xml").getroot().iter("testcase")}
+    assert words["nominal"] == words["tether-outage"] == words["every-station-killed"] == "done", words
+    assert words["satellite-down"] == "incomplete", words  # passes: it is meant to miss its mission
     # the scenario meant to fail failed on exactly the assertions it names, and the others held
     down = dict(assertion_outcomes(out / "report.md", "satellite-down"))
     assert down == {"mission_done within_s=20.0": "no", "commands_answered": "no", "stations": "yes"}
@@ -63,6 +71,13 @@ def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedPro
     # a killed vessel was restarted and the system carried on
     crash = next(r for r in run_dirs if r.name.endswith("vessel-crash"))
     assert '"restarts": 1' in (crash / "summary.json").read_text()
+    # every station killed in turn: each back, each restart on shore, the mission done
+    killed = json.loads(next(r for r in run_dirs if r.name.endswith("every-station-killed"))
+                        .joinpath("summary.json").read_text())
+    assert [r["station"] for r in killed["restarts"]] == ["simulation", "onboard", "vessel", "onshore"]
+    assert all(r["down_s"] is not None for r in killed["restarts"]), killed["restarts"]
+    assert {e["station"] for e in killed["events"]} == {"onboard", "vessel", "onshore"}, killed["events"]
+    assert killed["verdict"] == "done" and killed["mission"]["done"]
 
 
 @pytest.mark.timeout(960)

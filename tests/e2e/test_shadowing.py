@@ -59,7 +59,7 @@ def test_up_flies_the_mission_beside_folders_that_shadow_abyss(tmp_path: Path) -
     assert "wrong" not in output, output
     run = tmp_path / "run"
     summary = json.loads((run / "summary.json").read_text())
-    assert summary["verdict"] == "ok", output
+    assert summary["verdict"] == "done", output
     assert summary["mission"] is not None and summary["mission"]["done"] is True, output
     assert summary["mission_done_s"] is not None and summary["mission_done_s"] < DURATION_S
     for name, station in summary["stations"].items():
@@ -67,5 +67,5 @@ def test_up_flies_the_mission_beside_folders_that_shadow_abyss(tmp_path: Path) -
         log = (run / f"{name}.log").read_text()
         assert "wrong" not in log, log
     state = json.loads((run / "state.json").read_text())
-    assert state["phase"] == "ended" and state["verdict"] == "ok" and state["mission_done"] is True
+    assert state["phase"] == "ended" and state["verdict"] == "done" and state["mission_done"] is True
     assert not (tmp_path / "runs").exists()  # --out was taken relative to the current directory

@@ -25,7 +25,7 @@ from abyss.common.errors import ConfigError
 from abyss.common.messages import MissionStatus, SimulationStatus
 from abyss.launch import up as up_module
 from abyss.launch.state import RunState
-from abyss.launch.summary import render_summary
+from abyss.launch.summary import exit_code, render_summary, verdict_of
 from abyss.launch.up import Station, Up, port_free, run_up, viewer_line
 
 # children that say "ready" once their signal handlers are set, so no signal comes too early
@@ -200,7 +200,7 @@ def test_start_up_ends_when_every_station_is_alive(system: Callable[..., System]
         assert any(line.startswith(f"abyss:   {name} up (pid {pid}, ") for line in s.lines), s.output()
 
 
-def test_start_up_fails_on_a_death_an_interrupt_or_the_timeout(
+def test_start_up_fails_on_a_death_or_the_timeout_and_ends_on_an_interrupt(
         system: Callable[..., System], monkeypatch: pytest.MonkeyPatch) -> None:
     s = system()
     for name in ("simulation", "vessel", "onshore"):
@@ -214,7 +214,7 @@ def test_start_up_fails_on_a_death_an_interrupt_or_the_timeout(
     for name in keys.STATIONS:
         s.station(name, RUNS)
     s.up.interrupted.set()
-    assert s.up._wait_until_up(time.monotonic()) == "interrupted during start-up"
+    assert s.up._wait_until_up(time.monotonic()) == ""  # not a failure: the verdict says interrupted
 
     monkeypatch.setattr(up_module, "STARTUP_TIMEOUT_S", 0.3)
     s = system()
@@ -323,7 +323,7 @@ def test_summary_keeps_the_failure_given_and_the_died_code(system: Callable[...,
     assert "onboard     -9 (SIGKILL)" in render_summary(summary)
 
 
-def test_summary_of_a_clean_run_is_ok(system: Callable[..., System]) -> None:
+def test_summary_of_a_clean_run_is_done(system: Callable[..., System]) -> None:
     s = system()
     for name in keys.STATIONS:
         s.exited(name, 0).status_path.write_text(json.dumps(status_file(name)))
@@ -331,10 +331,10 @@ def test_summary_of_a_clean_run_is_ok(system: Callable[..., System]) -> None:
     s.up.mission_done_s = 28.2
     s.up.simulation = SimulationStatus(sim_time_s=29.5, realtime_factor=0.98, deadlines_met=0.995)
     summary = s.up._summary(31.0, 1.2, failure="")
-    assert summary["verdict"] == "ok" and summary["failure"] == ""
+    assert summary["verdict"] == "done" and summary["failure"] == ""
     assert summary["mission"]["done"] is True and summary["mission_done_s"] == 28.2
     text = render_summary(summary)
-    assert text.splitlines()[0] == "abyss: unit: ok; up in 1.2 s, ran 31 s"
+    assert text.splitlines()[0] == "abyss: unit: done; up in 1.2 s, ran 31 s"
     assert "  mission: reached, 3/3 waypoints, done: True" in text
     assert "  simulation: 29.5 s simulated, real-time factor 0.98, deadlines met 99.5%" in text
 
@@ -372,3 +372,18 @@ def test_render_summary_of_every_section() -> None:
         "  simulation: 18.8 s simulated, real-time factor 0.99, deadlines met 99.5%, "
         "faults {'thruster_2': 0.5}",
     ]
+
+
+@pytest.mark.parametrize(("failure", "done", "interrupted", "keep_running", "verdict", "code"), [
+    ("", True, False, False, "done", 0),
+    ("", True, True, True, "done", 0),  # Ctrl-C ends a run kept running after its mission
+    ("", False, False, False, "incomplete", 3),
+    ("", False, False, True, "incomplete", 0),  # asked to run for its duration, not for a mission
+    ("", False, True, False, "interrupted", 130),
+    ("onboard died", True, False, False, "failed", 1),
+    ("onboard did not stop within 10 s", False, True, True, "failed", 1),
+])
+def test_the_verdict_and_the_exit_code(failure: str, done: bool, interrupted: bool, keep_running: bool,
+                                       verdict: str, code: int) -> None:
+    assert verdict_of(failure, done, interrupted) == verdict
+    assert exit_code(verdict, keep_running) == code

@@ -74,6 +74,14 @@ class Up:
             self.process.send_signal(signal.SIGINT)
         return self.wait(timeout_s)
 
+    def interrupt(self, timeout_s: float = 60.0) -> str:
+        """Ctrl-C, as a user ends a run kept running: its verdict, which must agree with the exit
+        code (done: 0, interrupted: 130) and name no failure."""
+        code = self.stop(timeout_s)
+        verdict = str(self.summary()["verdict"])
+        assert (verdict, code) in (("done", 0), ("interrupted", 130)), (verdict, code, self.output())
+        return verdict
+
     def wait(self, timeout_s: float = 60.0) -> int:
         code = self.process.wait(timeout=timeout_s)
         self._reader.join(timeout=5)

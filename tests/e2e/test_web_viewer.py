@@ -47,5 +47,5 @@ def test_the_web_viewer_shows_the_live_system_in_a_browser(tmp_path: Path) -> No
         browser.close()
     assert colourful_px_in_3d_view(blank) < COLOURFUL_PX
     assert seen >= COLOURFUL_PX, f"the 3D view stayed blank ({seen} colourful pixels); see {tmp_path}"
-    assert up.stop() == 0, up.output()
+    up.interrupt()
     assert (tmp_path / "run" / "onshore.rrd").stat().st_size > 0  # saved as well as served

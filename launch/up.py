@@ -24,10 +24,10 @@ from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import Config, OnshoreConfig
 from abyss.common.errors import AbyssError, BadMessage
 from abyss.common.messages import MissionStatus, NavState, SimulationStatus, Telemetry, decode
+from abyss.common.runfiles import CARRIED_OVER, EVENTS_FILE, read_json_list
 from abyss.launch.record import ControlRecorder
 from abyss.launch.state import RunState
 from abyss.launch.summary import control_summary, exit_code, exit_text, read_json, render_summary, verdict_of
-from abyss.stations.onshore.core import CARRIED_OVER, EVENTS_FILE, read_json_list
 from abyss.stations.runtime import SUPERVISOR_ENV, free_port
 
 DEFAULT_PORT = 7447
@@ -266,7 +266,8 @@ class Up:
                 failure = self._watch(duration_s, keep_running)
         finally:
             self._change_state(phase="stopping")
-            failure = failure or self._stop_all()
+            stuck = self._stop_all()  # always: every station is stopped, whatever failed
+            failure = failure or stuck
             for observer in observers:
                 observer.undeclare()
             session.close()

@@ -33,8 +33,9 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.common.rate import Rate
+from abyss.common.runfiles import CARRIED_OVER, read_json_list
 from abyss.common.scene import SceneReceiver
-from abyss.stations.onshore.core import CARRIED_OVER, Operator, OperatorInputs, read_json_list
+from abyss.stations.onshore.core import Operator, OperatorInputs
 from abyss.stations.onshore.viewer import Sinks, Viewer
 
 PERIOD_S = 0.1

@@ -11,10 +11,8 @@ waypoints not yet reached, the end-effector goal, the mode. Each is an event (`e
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -33,20 +31,8 @@ from abyss.common.messages import (
 
 HEARTBEAT_PERIOD_S = 1.0
 STATUS_PERIOD_S = 0.25
-COMMANDS_FILE = "commands.json"  # every command shore sent, how often, and onboard's answer
-EVENTS_FILE = "events.json"  # the restarts shore saw and what it did about them
-CARRIED_OVER = (COMMANDS_FILE, EVENTS_FILE)  # what a restarted shore reads back from its run directory
 JOIN_WAIT_S = 5.0  # how long a starting shore listens for onboard's state before it sends the mission
 log = logging.getLogger(__name__)
-
-
-def read_json_list(path: Path) -> list[dict[str, object]]:
-    """What an earlier run of this station left in `path` (a restart); [] if nothing."""
-    try:
-        items = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return []
-    return [item for item in items if isinstance(item, dict)] if isinstance(items, list) else []
 
 
 @dataclass

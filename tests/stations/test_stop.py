@@ -18,6 +18,7 @@ import pytest
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.messages import LinkControl, Waypoints, encode
+from abyss.stations.onshore.core import JOIN_WAIT_S
 from abyss.stations.runtime import free_port
 
 STOP_BOUND_S = 5.0
@@ -56,7 +57,9 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
 
         flooder = threading.Thread(target=flood, daemon=True)
         flooder.start()
-        time.sleep(3.0)  # the queue fills in about half a second; let shore block on it for a while
+        # shore sends nothing before it has heard onboard or JOIN_WAIT_S passed; then the queue
+        # fills in about half a second; let shore block on it for a while
+        time.sleep(JOIN_WAIT_S + 3.0)
         asked_s = time.monotonic()
         station.send_signal(signal.SIGINT)
         station.wait(timeout=30)

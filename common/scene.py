@@ -287,10 +287,9 @@ class SceneReceiver:
         Raises ValueError if the octree bytes do not decode."""
         merge = False  # a new stream's first update, onto the map held
         if update.stream_id != self.stream_id:
-            merge = self.tree is not None
-            if merge:
-                self.last_seq = update.scene_seq - 1
-                self.new_streams += 1
+            merge = self.tree is not None and update.scene_seq == 0  # else its start was lost: a gap
+            self.new_streams += merge
+            self.last_seq = -1  # the new stream's sequence numbers start again
             self.stream_id = update.stream_id
         if update.kind == "delta":
             if self.tree is None or update.scene_seq > self.last_seq + 1:

@@ -118,9 +118,10 @@ class World:
         or it is of another model."""
         try:
             state = np.load(path)
-        except (OSError, ValueError):
+        except (OSError, ValueError, EOFError):  # none, or cut short (a crash before the rename hit disk)
             return False
-        if state.shape != (mujoco.mj_stateSize(self.model, STATE),):
+        if not isinstance(state, np.ndarray) or state.shape != (mujoco.mj_stateSize(self.model, STATE),) \
+                or not np.all(np.isfinite(state)):
             return False
         mujoco.mj_setState(self.model, self.data, state, STATE)
         mujoco.mj_forward(self.model, self.data)

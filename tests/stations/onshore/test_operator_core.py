@@ -1,0 +1,185 @@
+"""Shore's operator core (stations.onshore.core.Operator), without Zenoh: when it sends the
+mission's commands (onboard's first telemetry, or JOIN_WAIT_S without any), how a restarted
+shore takes the commands onboard already flies instead of starting over, and how it hands the
+goals in force again to a rebooted onboard, the waypoints from the one not yet reached."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from abyss.common.config import Config, MissionConfig
+from abyss.common.messages import (
+    ArmGoal,
+    CommandAck,
+    Heartbeat,
+    Message,
+    MissionStatus,
+    OperatorMode,
+    Telemetry,
+    Waypoints,
+)
+from abyss.stations.onshore.core import (
+    JOIN_WAIT_S,
+    STATUS_PERIOD_S,
+    Operator,
+    OperatorInputs,
+    OperatorOutputs,
+)
+
+OP_TOPICS = {"op/mode", "op/waypoints", "op/arm"}
+
+
+@pytest.fixture
+def mission() -> MissionConfig:
+    mission = Config().mission
+    assert len(mission.waypoints) == 3 and mission.arm_goal() is not None
+    return mission
+
+
+def telemetry(**fields: object) -> Telemetry:
+    """Onboard's telemetry: a fresh onboard at rest, with `fields` changed."""
+    values: dict[str, object] = {
+        "position_m_world": np.zeros(3), "yaw_rad": 0.0, "mode": "idle", "command_id": -1,
+        "waypoint_index": 0, "waypoints_total": 0, "position_error_m_world": np.zeros(3),
+        "heading_error_rad": 0.0, "arm_mode": "idle", "arm_command_id": -1,
+        "ee_position_error_m_world": np.zeros(3), "ee_orientation_error_rad": 0.0,
+        "ee_position_m_world": np.zeros(3), "ee_orientation_wxyz_world": np.array([1.0, 0.0, 0.0, 0.0]),
+        "arm_positions_rad": np.zeros(6), "failsafe": "", "failsafe_events": 0, "sim_time_s": 1.0,
+        "operator_mode": "auto", "boot_id": 1,
+    }
+    values.update(fields)
+    return Telemetry(**values)  # type: ignore[arg-type]
+
+
+def commands(out: OperatorOutputs) -> dict[str, Message]:
+    """The op/* commands a step sent, by topic (each at most once a step)."""
+    sent = [(topic, message) for topic, message in out.messages if topic.startswith("op/")]
+    assert len({topic for topic, _ in sent}) == len(sent), sent
+    return dict(sent)
+
+
+def command_id(message: Message) -> int:
+    assert isinstance(message, (Waypoints, ArmGoal, OperatorMode))
+    return message.command_id
+
+
+def assert_mission_commands(sent: dict[str, Message], mission: MissionConfig) -> None:
+    assert set(sent) == OP_TOPICS
+    mode, waypoints, arm = sent["op/mode"], sent["op/waypoints"], sent["op/arm"]
+    assert isinstance(mode, OperatorMode) and mode.mode == "auto"
+    assert isinstance(waypoints, Waypoints)
+    np.testing.assert_array_equal(waypoints.waypoints, np.array(mission.waypoints))
+    goal = mission.arm_goal()
+    assert isinstance(arm, ArmGoal) and goal is not None
+    np.testing.assert_allclose(arm.position_m_world, goal[0])
+    np.testing.assert_allclose(arm.orientation_wxyz_world, goal[1])
+
+
+def test_nothing_but_a_heartbeat_before_telemetry_or_the_join_wait(mission: MissionConfig) -> None:
+    operator = Operator(mission)
+    out = operator.step(OperatorInputs(), 0.0)
+    assert [topic for topic, _ in out.messages] == ["heartbeat"]
+    assert isinstance(out.messages[0][1], Heartbeat)
+    out = operator.step(OperatorInputs(), JOIN_WAIT_S - 0.1)
+    assert commands(out) == {} and out.first_sent == []
+    assert out.status is not None and out.status.waypoints_total == 3 and not out.status.done
+
+
+def test_a_fresh_onboards_first_telemetry_releases_the_mission(mission: MissionConfig) -> None:
+    operator = Operator(mission)
+    assert commands(operator.step(OperatorInputs(), 0.0)) == {}
+    out = operator.step(OperatorInputs(telemetry=[telemetry(command_id=-1)]), 0.1)
+    sent = commands(out)
+    assert_mission_commands(sent, mission)
+    assert sorted(type(m).__name__ for m in out.first_sent) == ["ArmGoal", "OperatorMode", "Waypoints"]
+    assert operator.events == []  # a fresh start is no event
+    # unanswered, each is resent after the resend period, with its own id
+    again = commands(operator.step(OperatorInputs(), 0.1 + mission.resend_period_s + 0.1))
+    assert {t: command_id(m) for t, m in again.items()} == {t: command_id(m) for t, m in sent.items()}
+
+
+def test_without_telemetry_the_mission_goes_out_after_the_join_wait(mission: MissionConfig) -> None:
+    operator = Operator(mission)
+    assert commands(operator.step(OperatorInputs(), 0.0)) == {}
+    assert commands(operator.step(OperatorInputs(), JOIN_WAIT_S - 0.1)) == {}
+    assert_mission_commands(commands(operator.step(OperatorInputs(), JOIN_WAIT_S + 0.1)), mission)
+
+
+def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfig) -> None:
+    history: list[dict[str, object]] = [
+        {"command": "waypoints", "command_id": 123, "sends": 1, "answered": False, "accepted": False,
+         "reason": ""}]
+    operator = Operator(mission, history=history)
+    flying = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="moving",
+                       arm_command_id=456, arm_mode="idle", operator_mode="auto", boot_id=7)
+    out = operator.step(OperatorInputs(telemetry=[flying]), 0.0)
+    assert commands(out) == {} and out.first_sent == []
+    assert [e["station"] for e in operator.events] == ["onshore"]
+    assert out.status is not None
+    assert (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
+    assert not out.status.done
+    entry = operator.history[("op/waypoints", 123)]
+    assert entry["answered"] is True and entry["accepted"] is True
+    # onboard holds the last waypoint and the end-effector its goal: the mission is done
+    reached = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="reached",
+                        arm_command_id=456, arm_mode="reached", boot_id=7)
+    out = operator.step(OperatorInputs(telemetry=[reached]), STATUS_PERIOD_S + 0.01)
+    assert isinstance(out.status, MissionStatus) and out.status.done
+    assert (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
+    # taken as answered: nothing is resent, however long shore waits
+    out = operator.step(OperatorInputs(), JOIN_WAIT_S + 2 * mission.resend_period_s)
+    assert commands(out) == {}
+    assert len(operator.events) == 1
+
+
+def test_the_arm_goal_of_another_command_is_not_done(mission: MissionConfig) -> None:
+    operator = Operator(mission)
+    first = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="reached",
+                      arm_command_id=456, arm_mode="reached")
+    operator.step(OperatorInputs(telemetry=[first]), 0.0)
+    other = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="reached",
+                      arm_command_id=789, arm_mode="reached")
+    out = operator.step(OperatorInputs(telemetry=[other]), STATUS_PERIOD_S + 0.01)
+    assert out.status is not None and not out.status.done
+
+
+def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig) -> None:
+    operator = Operator(mission)
+    now_s = 0.0
+    sent = commands(operator.step(OperatorInputs(telemetry=[telemetry(boot_id=1)]), now_s))
+    assert set(sent) == OP_TOPICS
+    ids = {topic: command_id(m) for topic, m in sent.items()}
+    acks = [CommandAck(ids[f"op/{c}"], c, "") for c in ("waypoints", "arm", "mode")]
+    now_s += STATUS_PERIOD_S + 0.01
+    out = operator.step(OperatorInputs(acks=acks), now_s)
+    assert commands(out) == {} and len(out.answers) == 3
+    boot_a = telemetry(boot_id=1, command_id=ids["op/waypoints"], waypoint_index=2, waypoints_total=3,
+                       mode="moving", arm_command_id=-1, sim_time_s=40.0)
+    now_s += STATUS_PERIOD_S + 0.01
+    out = operator.step(OperatorInputs(telemetry=[boot_a]), now_s)
+    assert commands(out) == {}
+    assert out.status is not None and (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
+    assert operator.events == []
+
+    boot_b = telemetry(boot_id=2, command_id=-1, sim_time_s=41.0)
+    now_s += STATUS_PERIOD_S + 0.01
+    out = operator.step(OperatorInputs(telemetry=[boot_b]), now_s)
+    again = commands(out)
+    assert set(again) == OP_TOPICS
+    waypoints = again["op/waypoints"]
+    assert isinstance(waypoints, Waypoints) and waypoints.command_id != ids["op/waypoints"]
+    np.testing.assert_array_equal(waypoints.waypoints, np.array(mission.waypoints)[2:])
+    assert command_id(again["op/arm"]) == ids["op/arm"]
+    assert command_id(again["op/mode"]) == ids["op/mode"]
+    assert [e["station"] for e in operator.events] == ["onboard"]
+    assert out.status is not None and (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
+
+    # onboard flies the remaining waypoint: counted from the mission's first
+    flying = telemetry(boot_id=2, command_id=waypoints.command_id, waypoint_index=0, waypoints_total=1,
+                       mode="moving", sim_time_s=42.0)
+    now_s += STATUS_PERIOD_S + 0.01
+    out = operator.step(OperatorInputs(telemetry=[flying]), now_s)
+    assert out.status is not None
+    assert (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
+    assert not out.status.done

@@ -1,0 +1,100 @@
+"""Scene streams on shore (common.scene.SceneReceiver): a restarted vessel's new SceneModel starts
+a new stream whose updates go onto the map shore holds (what the vessel saw before stays), while a
+snapshot of the same stream after a gap replaces the map. Synthetic walls, no rendering."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from abyss.common.messages import SceneUpdate, decode, encode
+from abyss.common.scene import SceneModel, SceneReceiver
+
+RESOLUTION_M = 0.1
+SENSOR_M_WORLD = np.zeros(3)
+
+
+def wall(x_m: float, color: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Points of a 1 m square wall facing the sensor at x = `x_m`, all of one colour."""
+    grid = np.arange(-0.475, 0.5, 0.05)
+    y, z = np.meshgrid(grid, grid)
+    points = np.column_stack((np.full(y.size, x_m), y.ravel(), z.ravel()))
+    return points, np.tile(np.array(color, np.uint8), (len(points), 1))
+
+
+def model_of(x_m: float, color: tuple[int, int, int]) -> SceneModel:
+    model = SceneModel(RESOLUTION_M, 8.0, max_update_bytes=600)  # several updates per wall
+    model.insert(*wall(x_m, color), SENSOR_M_WORLD)
+    return model
+
+
+def updates(model: SceneModel) -> list[SceneUpdate]:
+    """Everything the model has queued, as it arrives on shore (through the codec)."""
+    out = []
+    while (update := model.next_update(0.0)) is not None:
+        wire = decode("k", encode(update, update.scene_seq, 0.0), "SceneUpdate").message
+        assert isinstance(wire, SceneUpdate)
+        out.append(wire)
+    return out
+
+
+def occupied(model: SceneModel) -> set[int]:
+    return set(model.published.keys[model.published.occupied].tolist())
+
+
+def test_each_scene_model_has_its_own_stream_id() -> None:
+    first, second = SceneModel(RESOLUTION_M, 8.0), SceneModel(RESOLUTION_M, 8.0)
+    assert first.stream_id != second.stream_id
+    first.insert(*wall(2.03, (200, 0, 0)), SENSOR_M_WORLD)
+    assert {u.stream_id for u in updates(first)} == {first.stream_id}
+
+
+def test_a_new_streams_updates_go_onto_the_map_shore_holds() -> None:
+    before, after = model_of(2.03, (200, 0, 0)), model_of(-2.03, (0, 0, 200))  # a restarted vessel
+    receiver = SceneReceiver()
+    assert {receiver.apply(u) for u in updates(before)} == {"applied"}
+    cells_before = occupied(before)
+    assert set(receiver.colors) == cells_before and len(cells_before) > 50
+    assert receiver.new_streams == 0
+
+    first, *later = updates(after)
+    assert first.kind == "snapshot" and first.scene_seq == 0 and later  # then deltas
+    assert receiver.apply(first) == "applied"
+    assert receiver.new_streams == 1 and receiver.stream_id == after.stream_id
+    assert cells_before < set(receiver.colors)  # kept, and the new stream's first cells added
+    assert [receiver.apply(u) for u in later] == ["applied"] * len(later)
+    assert set(receiver.colors) == cells_before | occupied(after)
+    assert not cells_before & occupied(after)  # two walls apart: the union is more than either
+    assert {receiver.colors[k] for k in cells_before} == {(200, 0, 0)}
+    assert {receiver.colors[k] for k in occupied(after)} == {(0, 0, 200)}
+    assert receiver.gaps == 0 and receiver.new_streams == 1
+
+
+def test_a_snapshot_of_the_same_stream_after_a_gap_replaces_the_map() -> None:
+    before, after = model_of(2.03, (200, 0, 0)), model_of(-2.03, (0, 0, 200))
+    receiver = SceneReceiver()
+    for update in updates(before):
+        receiver.apply(update)
+    first, lost, *rest = updates(after)
+    assert receiver.apply(first) == "applied"
+    assert occupied(before) < set(receiver.colors)
+    assert rest and receiver.apply(rest[0]) == "gap"  # `lost` never came
+    assert receiver.tree is None and receiver.gaps == 1
+    after.request_snapshot()
+    resync = updates(after)
+    assert resync[0].kind == "snapshot" and resync[0].stream_id == after.stream_id
+    assert resync[0].scene_seq > lost.scene_seq
+    assert [receiver.apply(u) for u in resync] == ["applied"] * len(resync)
+    assert set(receiver.colors) == occupied(after)  # the restarted vessel's map only
+    assert receiver.binary() == after.binary()
+    assert receiver.new_streams == 1
+
+
+def test_a_new_stream_whose_first_update_was_lost_is_a_gap() -> None:
+    before, after = model_of(2.03, (200, 0, 0)), model_of(-2.03, (0, 0, 200))
+    receiver = SceneReceiver()
+    for u in updates(before):
+        receiver.apply(u)
+    _lost, second, *_ = updates(after)
+    assert second.scene_seq == 1
+    assert receiver.apply(second) == "gap"  # not taken as the stream's start: shore asks for a snapshot
+    assert receiver.tree is None and receiver.new_streams == 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 COMMANDS_FILE = "commands.json"  # every command shore sent, how often, and onboard's answer
@@ -17,3 +18,14 @@ def read_json_list(path: Path) -> list[dict[str, object]]:
     except (OSError, ValueError):
         return []
     return [item for item in items if isinstance(item, dict)] if isinstance(items, list) else []
+
+
+def write_whole(path: Path, data: bytes | str) -> None:
+    """Write `path` so that a reader, or a process killed meanwhile, never leaves half a file:
+    to a file of this process's beside it, then renamed over it."""
+    partial = path.with_name(f".{path.name}.{os.getpid()}")
+    if isinstance(data, str):
+        partial.write_text(data)
+    else:
+        partial.write_bytes(data)
+    partial.replace(path)

@@ -9,12 +9,13 @@ the verdict. A reader never sees half a file."""
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
+
+from abyss.common.runfiles import write_whole
 
 STATE_FILE = "state.json"
 PHASES = ("starting", "up", "stopping", "ended")
@@ -51,10 +52,7 @@ class RunState:
         return replace(self, stations=stations)
 
     def write(self, run_dir: Path) -> None:
-        path = run_dir / STATE_FILE
-        partial = path.with_name(f".{STATE_FILE}.{os.getpid()}")
-        partial.write_text(json.dumps(asdict(self), indent=2))
-        partial.replace(path)
+        write_whole(run_dir / STATE_FILE, json.dumps(asdict(self), indent=2))
 
     @staticmethod
     def read(run_dir: Path) -> RunState | None:

@@ -41,6 +41,25 @@ HEARD_FROM: dict[str, type] = {"onboard": Telemetry, "simulation": NavState}
 
 
 @dataclass
+class Outage:
+    """A station that died and was restarted: until it is back (its session up and, where the
+    supervisor sees its output, that output again), how far the vehicle strays."""
+
+    station: str
+    exit_code: int | None
+    t_s: float  # since all stations were up
+    died_s: float  # monotonic
+    from_m_world: np.ndarray | None  # the vehicle's position when the station died
+    alive: bool = False  # its session is back
+    down_s: float | None = None  # until it was back; None while it is not
+    drift_m: float = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        return {"station": self.station, "exit_code": self.exit_code, "t_s": round(self.t_s, 3),
+                "down_s": self.down_s, "drift_m": round(self.drift_m, 4)}
+
+
+@dataclass
 class Station:
     name: str
     process: subprocess.Popen[bytes]
@@ -82,8 +101,8 @@ class Up:
         self.simulation: SimulationStatus | None = None
         self.record: ControlRecorder | None = None
         self.stations: dict[str, Station] = {}
-        self.restarts: list[dict[str, Any]] = []  # each restart: station, when, exit code, down for, drift
-        self._down: dict[str, dict[str, Any]] = {}  # restarts whose station is not up again yet
+        self.restarts: list[Outage] = []
+        self._down: dict[str, Outage] = {}  # restarts whose station is not back yet
         self.truth_m_world: np.ndarray | None = None  # the vehicle's position, from the simulation
         self.up_s: float | None = None  # when all stations were first up (monotonic)
         self.interrupted = threading.Event()
@@ -100,7 +119,7 @@ class Up:
                 self.alive.add(name)
                 self.alive_seen.add(name)
                 if name in self._down:  # its session is back; it is up once it is heard from
-                    self._down[name]["alive"] = True
+                    self._down[name].alive = True
                     if name not in HEARD_FROM:
                         self._back(name)
             else:
@@ -117,12 +136,13 @@ class Up:
         if isinstance(message, NavState):  # the simulation's truth
             with self._lock:
                 for down in self._down.values():
-                    drift_m = float(np.linalg.norm(message.position_m_world - down["from_m_world"]))
-                    down["drift_m"] = round(max(down["drift_m"], drift_m), 4)
+                    if down.from_m_world is not None:
+                        drift_m = float(np.linalg.norm(message.position_m_world - down.from_m_world))
+                        down.drift_m = max(down.drift_m, drift_m)
                 self.truth_m_world = message.position_m_world
         with self._lock:
             for name, kind in HEARD_FROM.items():
-                if isinstance(message, kind) and self._down.get(name, {}).get("alive"):
+                if isinstance(message, kind) and name in self._down and self._down[name].alive:
                     self._back(name)
         if isinstance(message, MissionStatus):
             self.mission = message
@@ -160,7 +180,7 @@ class Up:
     def _back(self, name: str) -> None:
         """A restarted station is up again: how long it was down (the caller holds the lock)."""
         down = self._down.pop(name)
-        down["down_s"] = round(time.monotonic() - down["died_s"], 3)
+        down.down_s = round(time.monotonic() - down.died_s, 3)
 
     def _check_deaths(self) -> list[Station]:
         dead = []
@@ -176,14 +196,12 @@ class Up:
         restarted.restarts = station.restarts + 1
         self.stations[station.name] = restarted
         self._change_state(station.name, restarts=restarted.restarts)
-        with self._lock:  # how far the vehicle strays until the station is up again
-            record = {"station": station.name, "exit_code": station.died,
-                      "t_s": round(time.monotonic() - (self.up_s or time.monotonic()), 3),
-                      "down_s": None, "drift_m": 0.0, "died_s": time.monotonic(),
-                      "from_m_world": self.truth_m_world}
-            self.restarts.append(record)
-            if self.truth_m_world is not None:
-                self._down[station.name] = record
+        now_s = time.monotonic()
+        with self._lock:
+            outage = Outage(station.name, station.died, now_s - (self.up_s or now_s), now_s,
+                            self.truth_m_world)
+            self.restarts.append(outage)
+            self._down[station.name] = outage
         self.echo(f"abyss:   {station.name} restarted (pid {restarted.process.pid}, restart "
                   f"{restarted.restarts})")
 
@@ -354,8 +372,7 @@ class Up:
             "verdict": verdict_of(failure, self.mission_done_s is not None, self.interrupted.is_set()),
             "failure": failure,
             "keep_running": self.keep_running,
-            "restarts": [{k: v for k, v in r.items() if k not in ("died_s", "from_m_world")}
-                         for r in self.restarts],
+            "restarts": [outage.summary() for outage in self.restarts],
             "startup_s": round(startup_s, 3),
             "wall_s": round(wall_s, 3),
             "stations": stations,

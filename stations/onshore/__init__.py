@@ -33,7 +33,7 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.common.rate import Rate
-from abyss.common.runfiles import CARRIED_OVER, read_json_list
+from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
 from abyss.common.scene import SceneReceiver
 from abyss.stations.onshore.core import Operator, OperatorInputs
 from abyss.stations.onshore.viewer import Sinks, Viewer
@@ -94,9 +94,7 @@ def _save(record_dir: Path, operator: Operator, saved: tuple[str, str]) -> tuple
     texts = (json.dumps(list(operator.history.values()), indent=2), json.dumps(operator.events, indent=2))
     for name, text, before in zip(CARRIED_OVER, texts, saved, strict=True):
         if text != before:
-            partial = record_dir / f".{name}.partial"
-            partial.write_text(text)
-            partial.replace(record_dir / name)
+            write_whole(record_dir / name, text)
     return texts
 
 

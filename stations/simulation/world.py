@@ -3,6 +3,7 @@ navigation sensors and faults. A pure core: references and time in, states out."
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import mujoco
@@ -19,6 +20,7 @@ from abyss.common.models import (
     THRUSTERS,
     WORLD_FILE,
 )
+from abyss.common.runfiles import write_whole
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import Buoyancy, Current
 from abyss.stations.simulation.navigation import Navigation, NoiseSigmas
@@ -108,10 +110,9 @@ class World:
         and renamed: a simulation killed at any moment leaves a state to resume from."""
         state = np.empty(mujoco.mj_stateSize(self.model, STATE))
         mujoco.mj_getState(self.model, self.data, state, STATE)
-        partial = path.with_name(f".{path.name}.partial")
-        with partial.open("wb") as f:
-            np.save(f, state)
-        partial.replace(path)
+        buffer = io.BytesIO()
+        np.save(buffer, state)
+        write_whole(path, buffer.getvalue())
 
     def resume(self, path: Path) -> bool:
         """Go on from a state `save_state` left; False (and nothing changed) if there is none

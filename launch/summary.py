@@ -70,7 +70,8 @@ def render_summary(summary: dict[str, Any]) -> str:
             continue
         lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
                      f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9}"
-                     + (f"  restarted {s['restarts']}x" if s["restarts"] else ""))
+                     + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
+                     + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else ""))
     for r in summary.get("restarts", []):
         back = f"down {r['down_s']:.1f} s" if r.get("down_s") is not None else "not back"
         lines.append(f"  restart: {r['station']} at t={r['t_s']:.1f} s (exit {exit_text(r['exit_code'])}), "

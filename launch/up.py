@@ -359,6 +359,7 @@ class Up:
                 links[hop][stats["direction"]] = stats
             code = station.died if station.died is not None else station.process.returncode
             stations[name] = {"exit_code": code, "restarts": station.restarts, "stop_s": status.get("stop_s"),
+                              "stop_cut": status.get("stop_cut", False),
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
                               **{k: status.get(k, {})
                                  for k in ("sent", "received", "rejected", "latency_ms")}}

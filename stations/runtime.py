@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import importlib
 import json
 import logging
@@ -25,6 +26,7 @@ from abyss.linkemu.control import StationLinks
 log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
 PR_SET_PDEATHSIG = 1
+STOP_BOUND_S = 4.5  # a station stops within 5 s of SIGINT/SIGTERM (this, and exiting)
 
 
 def stop_with_supervisor() -> None:
@@ -97,9 +99,14 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     bus = shell.bus
 
     asked_s: list[float] = []  # when the stop was asked for (this process's monotonic clock)
+    stopped = threading.Event()
+    outcome: dict[str, Any] = {"exit_code": 0}  # what the watchdog writes if it has to cut the stop
 
     def stop(signum: int, _frame: Any) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
+        if not asked_s:
+            threading.Thread(target=_stop_watchdog, args=(name, stopped, status_file, outcome),
+                             name="stop watchdog", daemon=True).start()
         asked_s.append(time.monotonic())
         bus.stop.set()
 
@@ -116,12 +123,29 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
         log.exception("%s failed", name)
         code = 1
     asked_s.append(time.monotonic())
+    outcome.update(exit_code=code, **shell.status())  # the counters so far, should the close hang
     shell.close()  # the links first: nothing still in flight is waited for, only counted
     status = {**shell.status(), "stop_s": round(time.monotonic() - asked_s[0], 3)}  # from the signal
     if status_file is not None:
         status_file.write_text(json.dumps({"exit_code": code, **status}, indent=2))
+    stopped.set()
     log.info("%s stopped (exit %d)", name, code)
     return code
+
+
+def _stop_watchdog(name: str, stopped: threading.Event, status_file: Path | None,
+                   outcome: dict[str, Any]) -> None:
+    """A station stops within STOP_BOUND_S of being asked, whatever hangs: past it, every
+    thread's stack goes to the log (what hung: a Zenoh teardown, a native call), the status is
+    written from the counters taken before the close, marked `stop_cut`, and the process ends."""
+    if stopped.wait(STOP_BOUND_S):
+        return
+    log.error("%s: not stopped %.1f s after it was asked; the threads' stacks:", name, STOP_BOUND_S)
+    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+    if status_file is not None:
+        status_file.write_text(json.dumps({**outcome, "stop_s": STOP_BOUND_S, "stop_cut": True}, indent=2))
+    sys.stderr.flush()
+    os._exit(int(outcome["exit_code"]))
 
 
 def configure_logging(verbose: bool = False) -> None:

@@ -77,3 +77,43 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
     assert satellite["refused_at_stop"] >= 1, satellite  # it was blocked in a publish when asked
     assert satellite["messages_offered"] >= 3
     assert status["stop_s"] < STOP_BOUND_S
+
+
+HANGING_STATION = """
+import sys, time
+from pathlib import Path
+import abyss.stations.runtime as runtime
+from abyss.common.config import Config
+
+def hang(config, bus):  # a station whose work ignores the stop: a call that never returns
+    time.sleep(600)
+
+runtime.station_entry = lambda name: hang
+runtime.configure_logging()
+sys.exit(runtime.run_station("onshore", Config(system="hang"), [], [sys.argv[1]], Path(sys.argv[2])))
+"""
+
+
+@pytest.mark.timeout(120)
+def test_a_station_that_hangs_is_cut_at_its_bound_with_its_stacks_and_status(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_session(zenoh_config([endpoint], mode="router"), "test")
+    status_path = tmp_path / "onshore.json"
+    station = subprocess.Popen([sys.executable, "-P", "-c", HANGING_STATION, endpoint, str(status_path)],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=tmp_path)
+    try:
+        up = session.liveliness().declare_subscriber(keys.alive_key("hang", "onshore"), history=True)
+        assert up.recv() is not None
+        asked_s = time.monotonic()
+        station.send_signal(signal.SIGINT)
+        output, _ = station.communicate(timeout=30)
+        stop_s = time.monotonic() - asked_s
+    finally:
+        if station.poll() is None:
+            station.kill()
+        session.close()
+    text = output.decode(errors="replace")
+    assert stop_s < STOP_BOUND_S, text
+    assert "not stopped 4.5 s after it was asked" in text and "in hang" in text, text  # the stack says where
+    status = json.loads(status_path.read_text())
+    assert status["stop_cut"] is True and status["exit_code"] == 0

@@ -1,4 +1,4 @@
-"""`abyss link show | set | netem | profiles`: the links of a running system."""
+"""`abyss link show | set | netem | shape | profiles`: the links of a running system."""
 
 from __future__ import annotations
 
@@ -160,5 +160,49 @@ def add_commands(sub: Any) -> None:
     mode.add_argument("--apply", action="store_true")
     mode.add_argument("--clear", action="store_true")
     p.set_defaults(func=cmd_link_netem)
+    p = link.add_parser("shape", help="shape this host's packets to a neighbour with the TUN shaper "
+                        "(for a host without a station: your own component)")
+    p.add_argument("hop", choices=keys.HOPS)
+    p.add_argument("--peer", required=True, metavar="HOST", help="the neighbour across HOP (name or address)")
+    p.add_argument("--profile", dest="profile_name", metavar="NAME")
+    profile_args(p)
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--every", type=float, default=5.0, metavar="S", help="print statistics every S seconds")
+    p.set_defaults(func=cmd_link_shape)
     p = link.add_parser("profiles", help="list the named profiles")
     p.set_defaults(func=cmd_link_profiles)
+
+
+def cmd_link_shape(args: argparse.Namespace) -> int:
+    """A host without a station (a real component in a namespace or container): its packets
+    towards the neighbour across HOP through the TUN shaper, until Ctrl-C or --duration."""
+    import signal
+    import threading
+
+    import numpy as np
+
+    from abyss.linkemu.route import route_towards
+    from abyss.linkemu.tun import TunShaper, tun_name
+
+    p = profile(args.profile_name or _default_profile(args.hop), profile_fields(args))
+    route = route_towards(args.peer)
+    shaper = TunShaper(f"{args.hop}:->{args.peer}", route, p, np.random.default_rng(p.seed),
+                       tun_name(args.hop))
+    stop = threading.Event()
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: stop.set())
+    print(f"abyss: shaping packets to {route.address} ({args.hop}, profile {p.name}) through "
+          f"{shaper.device}, then {route.device}; Ctrl-C to stop", flush=True)
+    t0 = time.monotonic()
+    try:
+        while not stop.wait(args.every):
+            stats = shaper.snapshot()
+            print(f"abyss: t={time.monotonic() - t0:5.0f} s  " + " ".join(
+                f"{k}={stats[k]:g}" for k in ("packets_sent", "packets_forwarded", "queue_drops", "losses",
+                                               "packets_corrupted", "tun_tx_dropped")), flush=True)
+            if args.duration is not None and time.monotonic() - t0 >= args.duration:
+                break
+    finally:
+        shaper.close()
+    print(json.dumps({"hop": args.hop, "peer": route.address, "profile": p.name, **shaper.snapshot()}))
+    return 0

@@ -21,6 +21,7 @@ from abyss.common import keys
 from abyss.common.config import VIEWERS
 from abyss.common.errors import ConfigError
 from abyss.common.security import TLS_DIR_ENV
+from abyss.linkemu.control import LINK_MODES
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -132,10 +133,13 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--status-file", type=Path, help="write counters here on exit")
     p.add_argument(
         "--link",
-        choices=("emulated", "netem"),
+        choices=LINK_MODES,
         default="emulated",
-        help="netem: the in-process links pass through, and tc/netem applies each hop's profile "
-        "to the interface towards its neighbour (needs CAP_NET_ADMIN and sch_netem)",
+        help="emulated (default): in-process, at the station's egress; tun: the in-process links "
+        "pass through and a TUN forwarder applies each hop's profile to this host's packets "
+        "towards the neighbour, kernel TCP included (needs CAP_NET_ADMIN and /dev/net/tun); "
+        "netem: tc/netem on the interface towards the neighbour (needs CAP_NET_ADMIN and "
+        "sch_netem); auto: netem, else tun, else emulated, and the log says which",
     )
     p.add_argument(
         "--zenoh-mode",
@@ -157,8 +161,8 @@ def add_commands(sub: Any) -> None:
         action="append",
         default=[],
         metavar="HOP=HOST",
-        help="with --link netem: the neighbour across HOP, whose route names the interface "
-        "to shape (default: the neighbour's station name)",
+        help="with --link tun|netem|auto: the neighbour across HOP, whose route is shaped "
+        "(default: the neighbour's station name)",
     )
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_station)

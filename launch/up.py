@@ -14,7 +14,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import zenoh
@@ -69,6 +69,23 @@ class Station:
     died: int | None = None  # exit code if it ended before it was asked to stop
 
 
+class Placement(Protocol):
+    """Where the stations run and how they reach each other and the supervisor."""
+
+    def prefix(self, station: str) -> list[str]: ...
+    def args(self, station: str, endpoint: str) -> list[str]: ...
+
+
+class Local:
+    """Every station a process of this host on loopback, a peer under the supervisor's router."""
+
+    def prefix(self, station: str) -> list[str]:
+        return []
+
+    def args(self, station: str, endpoint: str) -> list[str]:
+        return ["--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--zenoh-mode", "peer"]
+
+
 def port_free(port: int) -> bool:
     with socket.socket() as s:
         try:
@@ -83,8 +100,9 @@ class Up:
 
     def __init__(self, config: Config, out_dir: Path, port: int | None = None,
                  echo: Any = None, external: Sequence[str] = (),
-                 restart: bool = False) -> None:
+                 restart: bool = False, placement: Placement | None = None) -> None:
         self.config = config
+        self.placement = placement or Local()
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
         self.restart = restart  # a station that dies is started again instead of failing the run
         self.mission_done_s: float | None = None  # since all stations were up
@@ -167,9 +185,9 @@ class Up:
         log_path = self.out_dir / f"{name}.log"
         status_path = self.out_dir / f"{name}.json"
         # -P: the stations' own directory (the run directory) never shadows abyss's modules
-        command = [sys.executable, "-P", "-m", "abyss.cli", "station", name, "--config", str(config_path),
-                   "--listen", "tcp/127.0.0.1:0", "--connect", self.endpoint,
-                   "--status-file", str(status_path), "--zenoh-mode", "peer"]
+        command = [*self.placement.prefix(name), sys.executable, "-P", "-m", "abyss.cli", "station", name,
+                   "--config", str(config_path), "--status-file", str(status_path),
+                   *self.placement.args(name, self.endpoint)]
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, start_new_session=True, cwd=self.out_dir,
@@ -399,10 +417,11 @@ def viewer_line(cfg: OnshoreConfig) -> str:
 
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
-           port: int | None, external: Sequence[str] = (), restart: bool = False) -> int:
+           port: int | None, external: Sequence[str] = (), restart: bool = False,
+           placement: Placement | None = None) -> int:
     run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
-        return Up(config, run_dir, port, external=external, restart=restart).run(
+        return Up(config, run_dir, port, external=external, restart=restart, placement=placement).run(
             duration_s, keep_running)
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)

@@ -1,9 +1,10 @@
 """The testbed's side of one station's links: the emulator of each hop at the station's
 egress, and its control plane over Zenoh. A profile is set on `abyss/<system>/link/<hop>`
 (put) and read with its statistics there (get); the statistics go out on
-`abyss/<system>/<station>/linkstats/<hop>` every second; with `--link netem` the emulators
-pass through and each hop's profile is applied with tc/netem to the interface towards the
-neighbour. The station itself never sees any of this (`abyss.common.bus`)."""
+`abyss/<system>/<station>/linkstats/<hop>` every second. With a shaper (`--link tun`: the
+TUN forwarder, `--link netem`: tc/netem; `auto`: netem where the kernel has it, else tun, else
+emulated) the emulators pass through and each hop's profile shapes this host's packets
+towards the neighbour instead. The station itself never sees any of this (`abyss.common.bus`)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 import zenoh
@@ -20,25 +22,41 @@ import zenoh
 from abyss.common import keys
 from abyss.common.errors import AbyssError, BadMessage, LinkError
 from abyss.common.messages import LinkControl, LinkStats, decode, encode
-from abyss.linkemu.netem import interface_towards, netem_args, run_tc, tc_command
+from abyss.linkemu.netem import NetemShaper
 from abyss.linkemu.profile import LinkProfile
 from abyss.linkemu.profile import profile as named_profile
+from abyss.linkemu.route import route_towards
 from abyss.linkemu.runner import LinkRunner
+from abyss.linkemu.tun import TunShaper, tun_name
 
 log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0
-LINK_MODES = ("emulated", "netem")
+LINK_MODES = ("emulated", "tun", "netem", "auto")
+AUTO_ORDER = ("netem", "tun")  # then emulated
+
+
+class Shaper(Protocol):
+    """A hop's profile applied to this host's real packets (tun, netem)."""
+
+    def reconfigure(self, profile: LinkProfile) -> None: ...
+    def snapshot(self) -> dict[str, float]: ...
+    def close(self) -> None: ...
+
+
+def link_rng(seed: int, station: str, hop: str) -> np.random.Generator:
+    """One random stream per station and hop, from the system's seed."""
+    return np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
 
 
 class StationLinks:
     """Each hop of `station`: its emulator (`runners[hop].send` is the station's egress), the
-    link control keys, the statistics, netem where asked."""
+    link control keys, the statistics, a shaper of real packets where asked."""
 
     def __init__(self, session: zenoh.Session, system: str, station: str, profiles: dict[str, LinkProfile],
                  deliver: Callable[[str, bytes], None], *, seed: int = 0, link_mode: str = "emulated",
                  peers: dict[str, str] | None = None, stopping: threading.Event | None = None) -> None:
         """`deliver(key, payload)` puts a message on the wire when its link delivers it;
-        `peers[hop]`: the neighbour whose route names the interface netem shapes (default:
+        `peers[hop]`: the neighbour whose route a shaper takes (a name or an address; default:
         the neighbour's station name); `stopping`: set when the station is asked to stop, from
         when on no send waits for room on a link."""
         if link_mode not in LINK_MODES:
@@ -50,16 +68,12 @@ class StationLinks:
         self.received: Counter[str] = Counter()  # link control messages taken
         self.rejected: Counter[str] = Counter()
         self.runners: dict[str, LinkRunner] = {}
-        self.netem_devices: dict[str, str] = {}  # hop -> interface shaped by tc/netem
         self._entities: list[zenoh.Subscriber | zenoh.Queryable] = []
+        self.mode, self.shapers = self._shapers(link_mode, profiles, peers or {}, seed)
         for hop, neighbour in keys.hops_of(station).items():
-            rng = np.random.default_rng([seed, keys.STATIONS.index(station), list(keys.HOPS).index(hop)])
             self.runners[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
-                                           deliver, rng, passthrough=link_mode == "netem",
-                                           stopping=stopping)
-            if link_mode == "netem":
-                self.netem_devices[hop] = interface_towards((peers or {}).get(hop, neighbour))
-                self._apply_netem(hop)
+                                           deliver, link_rng(seed, station, hop),
+                                           passthrough=hop in self.shapers, stopping=stopping)
             self._entities.append(session.declare_subscriber(
                 keys.link_key(system, hop), functools.partial(self._on_control_sample, hop)))
             self._entities.append(session.declare_queryable(
@@ -72,10 +86,40 @@ class StationLinks:
         runner = self.runners[hop]
         return lambda payload, reliable, key: runner.send(payload, reliable, tag=key)
 
-    def _apply_netem(self, hop: str) -> None:
-        device, runner = self.netem_devices[hop], self.runners[hop]
-        run_tc(tc_command(device, runner.profile))
-        log.info("netem on %s (%s): %s", device, runner.name, " ".join(netem_args(runner.profile)))
+    def _shapers(self, link_mode: str, profiles: dict[str, LinkProfile], peers: dict[str, str],
+                 seed: int) -> tuple[str, dict[str, Shaper]]:
+        """The link mode in force and its shapers; `auto` says which it took and why."""
+        if link_mode == "emulated":
+            return link_mode, {}
+        tried: list[str] = []
+        try:
+            routes = {hop: route_towards(peers.get(hop, neighbour))
+                      for hop, neighbour in keys.hops_of(self.station).items()}
+        except LinkError as exc:
+            if link_mode != "auto":
+                raise
+            routes, tried = {}, [str(exc)]
+        for mode in (AUTO_ORDER if link_mode == "auto" else (link_mode,)) if routes else ():
+            shapers: dict[str, Shaper] = {}
+            try:
+                for hop, route in routes.items():
+                    name = f"{hop}:{self.station}->{keys.hops_of(self.station)[hop]}"
+                    profile = profiles.get(hop, LinkProfile())
+                    shapers[hop] = (NetemShaper(name, route.device, profile) if mode == "netem" else
+                                    TunShaper(name, route, profile, link_rng(seed, self.station, hop),
+                                              tun_name(hop)))
+            except LinkError as exc:
+                for shaper in shapers.values():
+                    shaper.close()
+                if link_mode != "auto":
+                    raise
+                tried.append(f"{mode}: {exc}")
+                continue
+            if tried:
+                log.info("link mode auto: %s (%s)", mode, "; ".join(tried))
+            return mode, shapers
+        log.warning("link mode auto: emulated (%s)", "; ".join(tried))
+        return "emulated", {}
 
     def _on_control_sample(self, hop: str, sample: zenoh.Sample) -> None:
         self._on_control(hop, sample.payload.to_bytes())
@@ -88,8 +132,8 @@ class StationLinks:
             assert isinstance(control, LinkControl)
             base = named_profile(control.profile) if control.profile else runner.profile
             runner.reconfigure(base.with_fields(control.overrides))
-            if hop in self.netem_devices:
-                self._apply_netem(hop)
+            if hop in self.shapers:
+                self.shapers[hop].reconfigure(runner.profile)
         except (AbyssError, BadMessage) as exc:
             self.rejected[key] += 1
             log.warning("link control on %s refused: %s", key, exc)
@@ -99,8 +143,11 @@ class StationLinks:
 
     def stats(self, hop: str) -> LinkStats:
         runner = self.runners[hop]
+        stats = runner.snapshot()
+        if hop in self.shapers:
+            stats.update(self.shapers[hop].snapshot())
         return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,
-                         fields=runner.profile.fields(), stats=runner.snapshot())
+                         fields=runner.profile.fields(), stats=stats)
 
     def _on_query(self, hop: str, query: zenoh.Query) -> None:
         query.reply(keys.link_key(self.system, hop), encode(self.stats(hop), 0, time.time()))
@@ -118,13 +165,14 @@ class StationLinks:
         links: dict[str, dict[str, object]] = {}
         for hop in self.runners:
             stats = self.stats(hop)
-            links[hop] = {"direction": stats.direction, "profile": stats.profile, **stats.stats}
+            links[hop] = {"direction": stats.direction, "profile": stats.profile, "mode": self.mode,
+                          **stats.stats}
         return links
 
     def close(self, drain_s: float = 0.0, join_s: float = 1.0) -> None:
         """Stop the emulators (what is still in flight after `drain_s` is counted, not
         delivered; a delivery under way is given `join_s` for all links together), remove
-        netem, undeclare the control keys."""
+        the shapers, undeclare the control keys."""
         self.stop.set()
         for runner in self.runners.values():
             runner.close(drain_s, join_s=0.0)
@@ -132,11 +180,8 @@ class StationLinks:
         for runner in self.runners.values():
             if not runner.join(deadline - time.monotonic()):
                 log.warning("link %s: a delivery still under way at close, let go", runner.name)
-        for hop, device in self.netem_devices.items():
-            try:
-                run_tc(tc_command(device, None))
-            except LinkError as exc:
-                log.warning("could not remove netem from %s (%s): %s", device, hop, exc)
+        for shaper in self.shapers.values():
+            shaper.close()
         self._stats_thread.join(timeout=max(0.0, deadline - time.monotonic()))
         for entity in self._entities:
             entity.undeclare()

@@ -15,16 +15,16 @@ netem differs from the in-process emulator in ways it cannot be told out of:
 
 from __future__ import annotations
 
-import json
+import logging
 import math
 import shutil
-import socket
 import subprocess
-import time
 
 from abyss.common.errors import LinkError
 from abyss.linkemu.profile import LinkProfile
 from abyss.linkemu.units import format_fraction, format_rate, format_time
+
+log = logging.getLogger(__name__)
 
 
 def netem_args(profile: LinkProfile) -> list[str]:
@@ -90,25 +90,23 @@ def run_tc(command: list[str]) -> None:
     raise LinkError(f"{' '.join(command)} failed: {message}")
 
 
-def interface_towards(host: str, timeout_s: float = 30.0) -> str:
-    """The interface this host sends to `host` (a name or an address) through: the route the
-    kernel picks. A name is retried for `timeout_s` (a neighbour's container may start later)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
+class NetemShaper:
+    """A hop's profile as tc/netem on the interface towards the neighbour; removed at close."""
+
+    def __init__(self, name: str, device: str, profile: LinkProfile) -> None:
+        self.name = name
+        self.device = device
+        self.reconfigure(profile)
+
+    def reconfigure(self, profile: LinkProfile) -> None:
+        run_tc(tc_command(self.device, profile))
+        log.info("netem on %s (%s): %s", self.device, self.name, " ".join(netem_args(profile)))
+
+    def snapshot(self) -> dict[str, float]:
+        return {}  # the kernel's own counters: `tc -s qdisc show dev DEVICE`
+
+    def close(self) -> None:
         try:
-            address = str(socket.getaddrinfo(host, None, socket.AF_INET)[0][4][0])
-            break
-        except socket.gaierror as exc:
-            if time.monotonic() > deadline:
-                raise LinkError(f"cannot resolve the neighbour {host!r} ({exc}); give its address "
-                                "with --peer HOP=ADDRESS") from None
-            time.sleep(0.5)
-    done = subprocess.run(["ip", "-j", "route", "get", address], capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise LinkError(f"no route to the neighbour {host} ({address}): {done.stderr.strip()}")
-    device = str(json.loads(done.stdout)[0]["dev"])
-    if device == "lo":
-        raise LinkError(f"the neighbour {host} ({address}) is on this host: netem on lo would shape every "
-                        "local connection; run the stations on separate hosts, containers or network "
-                        "namespaces, or use --link emulated")
-    return device
+            run_tc(tc_command(self.device, None))
+        except LinkError as exc:
+            log.warning("could not remove netem from %s (%s): %s", self.device, self.name, exc)

@@ -23,6 +23,7 @@ class Packet:
     corrupt: bool = False
     transmission: int = 0  # 0 for the first, 1.. for retransmissions
     acked: bool = False
+    head: bytes = b""  # bytes before `data` that no stage touches (a TUN packet's IP header)
 
     def copy(self) -> Packet:
         return dataclasses.replace(self)

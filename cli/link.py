@@ -77,13 +77,17 @@ def cmd_link_show(args: argparse.Namespace) -> int:
             f"{s.hop} {s.direction}: profile {s.profile}: rate {f['rate']} delay {f['delay']} "
             f"jitter {f['jitter']} loss {f['loss']} corrupt {f['corrupt']} transport {f['transport']}"
         )
-        print(
-            f"    delivered {st['messages_delivered']:.0f}/{st['messages_offered']:.0f} messages, "
-            f"{st['bytes_delivered']:.0f} B; queue drops {st['queue_drops']:.0f}, losses "
-            f"{st['losses']:.0f}, retransmissions {st['retransmissions']:.0f}; delay p50/p95/p99 "
-            f"{st.get('delay_p50_ms', 0):.1f}/{st.get('delay_p95_ms', 0):.1f}/"
-            f"{st.get('delay_p99_ms', 0):.1f} ms"
-        )
+        delays = (f"delay p50/p95/p99 {st.get('delay_p50_ms', 0):.1f}/{st.get('delay_p95_ms', 0):.1f}/"
+                  f"{st.get('delay_p99_ms', 0):.1f} ms")
+        print(f"    delivered {st['messages_delivered']:.0f}/{st['messages_offered']:.0f} messages, "
+              f"{st['bytes_delivered']:.0f} B")
+        if "packets_forwarded" in st:  # the TUN shaper: packets, and the kernel's TCP retransmits
+            print(f"    TUN shaper: {st['packets_forwarded']:.0f}/{st['packets_sent']:.0f} packets out; "
+                  f"queue drops {st['queue_drops']:.0f}, losses {st['losses']:.0f}, corrupted "
+                  f"{st['packets_corrupted']:.0f}, dropped at the TUN {st['tun_tx_dropped']:.0f}; {delays}")
+        else:
+            print(f"    queue drops {st.get('queue_drops', 0):.0f}, losses {st.get('losses', 0):.0f}, "
+                  f"retransmissions {st.get('retransmissions', 0):.0f}; {delays}")
     return 0
 
 

@@ -17,6 +17,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -172,3 +173,26 @@ class Lab:
         with open(f"/run/netns/{self.netns(station)}", "rb") as handle:
             if ctypes.CDLL(None, use_errno=True).setns(handle.fileno(), CLONE_NEWNET) != 0:
                 raise LinkError(f"cannot enter {self.netns(station)}: {os.strerror(ctypes.get_errno())}")
+
+
+@dataclass
+class LabPlacement:
+    """`abyss up`'s stations in the lab: each in its namespace, listening on its hop addresses,
+    shaping its own egress (`link`); the supervisor, in shore's namespace, reached by shore."""
+
+    lab: Lab
+    link: str = "auto"
+
+    def prefix(self, station: str) -> list[str]:
+        return self.lab.prefix(station)
+
+    def args(self, station: str, endpoint: str) -> list[str]:
+        supervisor = ["--connect", endpoint] if station == "onshore" else []
+        return [*self.lab.endpoints(station), *supervisor, "--link", self.link]
+
+    def shape_for(self, station: str, profiles: dict[str, str]) -> list[list[str]]:
+        """Commands that shape an external station's egress (your component hosts no shaper):
+        `abyss link shape` on its host, one per hop."""
+        return [[*self.prefix(station), sys.executable, "-P", "-m", "abyss.cli", "link", "shape", hop,
+                 "--peer", self.lab.address(neighbour, hop), "--profile", profiles[hop], "--every", "60"]
+                for hop, neighbour in keys.hops_of(station).items()]

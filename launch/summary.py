@@ -78,14 +78,15 @@ def render_summary(summary: dict[str, Any]) -> str:
                      f"{back}, the vehicle strayed {r['drift_m'] * 1e3:.0f} mm meanwhile")
     for e in summary.get("events", []):
         lines.append(f"  on shore: {e['station']} {e['event']} (sim t={e['sim_time_s']:.1f} s)")
-    lines.append(f"  {'link':<28} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}")
+    lines.append(f"  {'link':<28} {'mode':<8} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} "
+                 f"{'retx':>5}")
     for hop, directions in summary["links"].items():
         for direction, st in directions.items():
-            lines.append(
-                f"  {hop + ' ' + direction:<28} "
+            lines.append(  # with a shaper, delays and losses are its packets'; the kernel retransmits
+                f"  {hop + ' ' + direction:<28} {st.get('mode', 'emulated'):<8} "
                 f"{int(st['messages_delivered']):>6}/{int(st['messages_offered']):<6} "
                 f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
-                f"{int(st['losses']):>5} {int(st['retransmissions']):>5}")
+                f"{int(st['losses']):>5} {int(st.get('retransmissions', 0)):>5}")
     m = summary["mission"]
     lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
                                   f"done: {m['done']}" if m else "no status reached shore"))

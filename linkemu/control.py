@@ -33,6 +33,8 @@ log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0
 LINK_MODES = ("emulated", "tun", "netem", "auto")
 AUTO_ORDER = ("netem", "tun")  # then emulated
+MESSAGE_COUNTERS = ("messages_", "bytes_offered", "bytes_delivered", "undelivered_at_close",
+                    "refused_at_stop")
 
 
 class Shaper(Protocol):
@@ -144,7 +146,8 @@ class StationLinks:
     def stats(self, hop: str) -> LinkStats:
         runner = self.runners[hop]
         stats = runner.snapshot()
-        if hop in self.shapers:
+        if hop in self.shapers:  # the runner only counts messages; the shaper has the packets
+            stats = {k: v for k, v in stats.items() if k.startswith(MESSAGE_COUNTERS)}
             stats.update(self.shapers[hop].snapshot())
         return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,
                          fields=runner.profile.fields(), stats=stats)

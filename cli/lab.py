@@ -46,10 +46,13 @@ def cmd_lab_up(args: argparse.Namespace) -> int:
 def cmd_lab_exec(args: argparse.Namespace) -> int:
     from abyss.launch.lab import Lab
 
+    command = list(args.command)
+    if command[:1] == ["--name"] and len(command) > 1:  # after STATION, where argparse's remainder begins
+        args.name, command = command[1], command[2:]
+    command = command[1:] if command[:1] == ["--"] else command
     lab = Lab(args.name)
     if lab.netns(args.station) not in lab.existing():
         raise LinkError(f"no lab {lab.name!r} on this machine: start one with `sudo abyss lab up`")
-    command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         raise LinkError("nothing to run: abyss lab exec STATION -- COMMAND [ARGS...]")
     sys.stdout.flush()

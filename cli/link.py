@@ -180,6 +180,7 @@ def add_commands(sub: Any) -> None:
 def cmd_link_shape(args: argparse.Namespace) -> int:
     """A host without a station (a real component in a namespace or container): its packets
     towards the neighbour across HOP through the TUN shaper, until Ctrl-C or --duration."""
+    import ipaddress
     import signal
     import threading
 
@@ -190,8 +191,9 @@ def cmd_link_shape(args: argparse.Namespace) -> int:
 
     p = profile(args.profile_name or _default_profile(args.hop), profile_fields(args))
     route = route_towards(args.peer)
-    shaper = TunShaper(f"{args.hop}:->{args.peer}", route, p, np.random.default_rng(p.seed),
-                       tun_name(args.hop))
+    # one random stream per direction: both ends of a hop drawing the same delays would correlate them
+    rng = np.random.default_rng([p.seed, int(ipaddress.IPv4Address(route.address))])
+    shaper = TunShaper(f"{args.hop}:->{args.peer}", route, p, rng, tun_name(args.hop))
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.set())

@@ -305,7 +305,7 @@ def test_summary_of_a_station_that_died_without_its_status_file_is_failed(
                                     "up in 1.5 s, ran 12 s")
     assert "  onboard          1        0         0         0" in text
     assert "  onshore     external, never seen" in text
-    assert "  rov simulation->onboard           9/10       100.0   150.0     1     2" in text
+    assert "  rov simulation->onboard      emulated      9/10       100.0   150.0     1     2" in text
     assert "  mission: no status reached shore" in text
 
 
@@ -362,8 +362,8 @@ def test_render_summary_of_every_section() -> None:
         "  station       exit     sent  received  rejected",
         "  simulation       0       11         7         0  restarted 2x",
         "  onboard     external, seen",
-        "  link                             delivered  p50 ms  p99 ms  lost  retx",
-        "  satellite vessel->onshore        70/71       239.1  1187.2     7    12",
+        "  link                         mode         delivered  p50 ms  p99 ms  lost  retx",
+        "  satellite vessel->onshore    emulated     70/71       239.1  1187.2     7    12",
         "  mission: no status reached shore",
         "  final errors (onboard): vehicle 5.5 mm, heading 0.04 deg; end-effector 3.29 mm, 0.07 deg; "
         "failsafe events 0",

@@ -150,11 +150,13 @@ def padhye_bps(mss_bytes: int, rtt_s: float, p: float, t0_s: float, b: int = 1) 
                             + t0_s * min(1.0, 3 * math.sqrt(3 * b * p / 8)) * p * (1 + 32 * p * p))
 
 
-@pytest.mark.parametrize(("loss", "bound"), [("1%", (0.75, 1.25)), ("5%", (1.0, 1.6))])
+@pytest.mark.parametrize(("loss", "bound"), [("1%", (0.75, 1.35)), ("5%", (0.85, 1.2))])
 def test_tcp_goodput_against_the_padhye_model(loss: str, bound: tuple[float, float]) -> None:
-    """Satellite rate, delay and jitter. PFTK assumes that after a loss the rest of its round
-    is lost too, so at high independent loss it overestimates timeouts and underestimates
-    goodput: at 1 % the model is within 25 % of PFTK, at the satellite's 5 % it is 1.0-1.6x."""
+    """Satellite rate, delay and jitter. PFTK is Reno's square-root law plus the rounds lost to
+    timeouts; the model (Linux's recovery: SACK, RACK-TLP) recovers most losses without one but
+    halves a window of whole packets: at the satellite's 5 % it is 0.85-1.2x PFTK, at 1 % (50
+    losses in 5000 packets, so a wider spread) 0.75-1.35x. Its check against kernel TCP is
+    tests/e2e/test_tcp_model.py."""
     mss = 1460
     lnk = Link(profile("satellite", {"loss": loss, "corrupt": "0%"}))
     out = drive(lnk, numbered(5000, mss))
@@ -163,6 +165,22 @@ def test_tcp_goodput_against_the_padhye_model(loss: str, bound: tuple[float, flo
     predicted = padhye_bps(mss, gauges["rtt_mean_ms"] / 1e3, lnk.profile.loss,
                            gauges["first_rto_mean_ms"] / 1e3)
     assert bound[0] < goodput_bps / predicted < bound[1]
+
+
+def test_tcp_small_messages_waiting_for_the_window_share_segments() -> None:
+    lnk = link(rate="1mbit", delay="100ms", transport="tcp")
+    payloads = numbered(200, size=100)  # all at once: the initial window holds ten segments
+    out = drive(lnk, payloads)
+    assert [d.payload for d in out] == [p for _, p in payloads]
+    assert lnk.counters["packets_sent"] < 30  # ten alone, the rest fourteen to a segment
+
+
+def test_tcp_window_restarts_after_an_idle_spell() -> None:
+    lnk = link(rate="20mbit", delay="100ms", transport="tcp")
+    drive(lnk, numbered(500, size=1460))
+    assert lnk.transport.gauges()["cwnd_packets"] > 100
+    drive(lnk, [(30.0, bytes(1460))])  # idle for many timeouts: back to the initial window
+    assert lnk.transport.gauges()["cwnd_packets"] <= 11
 
 
 def test_loss_throttles_tcp() -> None:

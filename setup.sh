@@ -1,14 +1,18 @@
 #!/usr/bin/env bash
 # Set up abyss on a fresh Debian/Ubuntu machine with Python 3.11:
 # system libraries for offscreen rendering (Mesa EGL/OSMesa) and Open3D (libusb) from
-# apt-packages.txt, Chromium and docker-compose for the tests, then a virtual environment in
-# .venv with the package and its test tools.
+# apt-packages.txt, Chromium, a Docker engine, docker-compose and debootstrap for the tests, then
+# a virtual environment in .venv with the package and its test tools.
 set -euo pipefail
 cd "$(dirname "$0")"
 
 APT_PACKAGES="$(grep -v '^#' apt-packages.txt | xargs)"  # what a station needs; the Dockerfile's too
-# the web viewer's test loads it in Chromium; the deployment's test validates compose.yaml
-TEST_APT_PACKAGES="chromium docker-compose"
+# the web viewer's test loads it in Chromium; the deployment's tests validate compose.yaml and run
+# it: Debian's engine (unless one is installed already, e.g. Docker's own docker-ce) and debootstrap
+# for the base image, as no container registry may be reachable (deploy/base-image.sh); ping for
+# the namespace lab's test
+TEST_APT_PACKAGES="chromium docker-compose debootstrap iputils-ping"
+command -v dockerd >/dev/null || TEST_APT_PACKAGES="$TEST_APT_PACKAGES docker.io"
 missing=""
 for p in $APT_PACKAGES $TEST_APT_PACKAGES; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"

@@ -51,8 +51,9 @@ def test_compose_agrees_with_the_code(env: dict[str, str]) -> None:
         args = parser().parse_args(command)  # the station's own command line accepts it
         assert args.func.__name__ == "cmd_station" and args.name == station
         assert args.system == env.get("ABYSS_SYSTEM", "compose")
-        assert args.link == env.get("ABYSS_LINK", "netem")
-        assert "NET_ADMIN" in service["cap_add"]
+        assert args.link == env.get("ABYSS_LINK", "auto")  # netem, else the TUN shaper, else emulated
+        assert "NET_ADMIN" in service["cap_add"]  # tc/netem or a TUN device on its own interfaces
+        assert "/dev/net/tun" in str(service["devices"])  # the TUN shaper's device
         scheme = env.get("ABYSS_TLS", "tcp")
         assert args.listen == [f"{scheme}/0.0.0.0:{DEFAULT_PORT}"]
         # connects towards the vehicle, to the neighbour's service name on their shared network
@@ -79,7 +80,9 @@ def test_compose_agrees_with_the_code(env: dict[str, str]) -> None:
 def test_the_image_installs_what_setup_installs() -> None:
     dockerfile = (ROOT / "Dockerfile").read_text()
     assert "apt-packages.txt" in dockerfile and "apt-packages.txt" in (ROOT / "setup.sh").read_text()
-    assert "FROM python:3.11" in dockerfile
+    # the official image by default, any Debian 12 with Python 3.11 instead (deploy/base-image.sh)
+    assert "ARG BASE=python:3.11-slim-bookworm" in dockerfile and "FROM ${BASE}" in dockerfile
+    assert "python3 -m venv /opt/abyss" in dockerfile and "ENV PATH=/opt/abyss/bin:$PATH" in dockerfile
     assert "ENTRYPOINT [\"abyss\"]" in dockerfile
 
 

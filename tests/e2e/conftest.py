@@ -14,10 +14,23 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+from hosts import Hosts, usable
 
 from abyss.launch.state import RunState, wait_for_state
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture
+def hosts() -> Iterator[Hosts]:
+    """A lab of network namespaces of its own (root, /dev/net/tun), removed after the test."""
+    if reason := usable():
+        pytest.skip(reason)
+    made = Hosts()
+    try:
+        yield made.make()
+    finally:
+        made.remove()
 
 
 class Up:

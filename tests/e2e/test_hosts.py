@@ -9,12 +9,11 @@ import json
 import signal
 import subprocess
 import time
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from hosts import PORT, Hosts, usable
+from hosts import PORT, Hosts
 
 from abyss.common import certs, keys
 from abyss.common.security import TLS_DIR_ENV
@@ -22,17 +21,6 @@ from abyss.common.security import TLS_DIR_ENV
 pytestmark = pytest.mark.e2e
 SYSTEM = "e2e-hosts"
 MISSION_TIMEOUT_S = 120.0
-
-
-@pytest.fixture
-def hosts() -> Iterator[Hosts]:
-    if reason := usable():
-        pytest.skip(reason)
-    made = Hosts()
-    try:
-        yield made.make()
-    finally:
-        made.remove()
 
 
 def station_args(hosts: Hosts, station: str, run_dir: Path, *extra: str) -> list[str]:

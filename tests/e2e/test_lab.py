@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -28,17 +27,6 @@ Z_99 = 2.576  # two-sided 99 % quantile of the normal distribution
 PING_BYTES = 84  # IPv4 + ICMP headers + ping's 56 bytes
 ABYSS = [sys.executable, "-P", "-m", "abyss.cli"]
 PINGS = (("tether", "onboard", "vessel", 100, 0.1), ("satellite", "onshore", "vessel", 120, 0.25))
-
-
-@pytest.fixture
-def hosts() -> Iterator[Hosts]:
-    if reason := usable():
-        pytest.skip(reason)
-    made = Hosts()
-    try:
-        yield made.make()
-    finally:
-        made.remove()
 
 
 class Shapers:

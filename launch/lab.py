@@ -106,6 +106,7 @@ class Lab:
         if reason := usable():
             raise LinkError(reason)
         if self.existing():
+            self.check_ours()
             pid = self.owner()
             if pid is not None:
                 raise LinkError(f"lab {self.name!r} is in use by process {pid}: stop it (`abyss lab down "
@@ -137,8 +138,17 @@ class Lab:
             subprocess.run(["ip", "netns", "del", self.netns(station)], capture_output=True, check=False)
         self.record.unlink(missing_ok=True)
 
+    def check_ours(self) -> None:
+        """LinkError when a namespace of this lab's name exists that no lab made (no record):
+        someone else's, never removed here."""
+        if (found := self.existing()) and not self.record.is_file():
+            raise LinkError(f"network namespace {found[0]} exists and is no abyss lab's (no "
+                            f"{self.record}): give this lab another --name, or remove it "
+                            f"(`ip netns del {found[0]}`) if it is yours")
+
     def down(self, timeout_s: float = 15.0) -> str:
         """Stop the run that owns the lab (SIGTERM, as Ctrl-C) and remove the lab; what was done."""
+        self.check_ours()
         pid = self.owner()
         if pid is not None:
             os.kill(pid, signal.SIGTERM)

@@ -200,6 +200,15 @@ def test_a_killed_runs_lab_is_removed_and_one_in_use_is_not_taken(tmp_path: Path
         lab.make(echo=remade.append)
         assert remade == [f"abyss: removed lab {lab.name!r} left by a run that was killed"]
         assert len(lab.existing()) == 4
+        lab.remove()
+        # a namespace of the lab's name that no lab made: refused, and left alone
+        subprocess.run(["ip", "netns", "add", lab.netns("vessel")], check=True)
+        foreign = abyss("lab", "up", "--name", lab.name, "--duration", "1", cwd=tmp_path)
+        assert foreign.returncode == 2 and "is no abyss lab's" in foreign.stderr, foreign.stderr
+        assert f"ip netns del {lab.netns('vessel')}" in foreign.stderr
+        refused = abyss("lab", "down", "--name", lab.name)
+        assert refused.returncode == 2 and "is no abyss lab's" in refused.stderr, refused.stderr
+        assert lab.existing() == [lab.netns("vessel")]
     finally:
         owner.kill()
         lab.remove()

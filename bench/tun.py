@@ -28,7 +28,6 @@ from abyss.launch.lab import Lab, usable
 
 ROOT = Path(__file__).resolve().parents[1]
 FLOW = [sys.executable, str(ROOT / "tests" / "e2e" / "udpflow.py")]
-ABYSS = [sys.executable, "-P", "-m", "abyss.cli"]
 PORT = 5301
 RATES_MBPS = {1500: (50, 100, 200, 400), 200: (5, 10, 20, 40)}  # per IP packet size
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -66,10 +65,8 @@ class Shaper:
     def __init__(self, lab: Lab, log: Path) -> None:
         self.log = log
         with log.open("w") as out:
-            self.process = subprocess.Popen(
-                [*lab.prefix("simulation"), *ABYSS, "link", "shape", "rov", "--peer",
-                 lab.address("onboard", "rov"), "--profile", "ideal", "--every", "3600"],
-                stdout=out, stderr=subprocess.STDOUT, text=True)
+            self.process = subprocess.Popen(lab.shape("simulation", "rov", "ideal", "--every", "3600"),
+                                            stdout=out, stderr=subprocess.STDOUT, text=True)
         deadline = time.monotonic() + 30.0
         while "abyss: shaping packets" not in log.read_text():
             if self.process.poll() is not None or time.monotonic() > deadline:

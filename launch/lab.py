@@ -165,6 +165,13 @@ class Lab:
         """What runs a command on the station's host."""
         return ["ip", "netns", "exec", self.netns(station)]
 
+    def shape(self, station: str, hop: str, profile: str, *options: str) -> list[str]:
+        """`abyss link shape` on the station's host: its packets across `hop`, towards the
+        neighbour there, shaped with `profile` (and `options`: fields, --seed, --every ...)."""
+        neighbour = next(s for s in keys.HOPS[hop] if s != station)
+        return [*self.prefix(station), sys.executable, "-P", "-m", "abyss.cli", "link", "shape", hop,
+                "--peer", self.address(neighbour, hop), "--profile", profile, *options]
+
     def endpoints(self, station: str, scheme: str = "tcp", loopback: bool = True) -> list[str]:
         """`abyss station` options: listen on each hop's address (and loopback, for tools on that
         host); connect towards the vehicle (onboard to simulation, vessel to onboard, ...); each
@@ -203,6 +210,4 @@ class LabPlacement:
     def shape_for(self, station: str, profiles: dict[str, str]) -> list[list[str]]:
         """Commands that shape an external station's egress (your component hosts no shaper):
         `abyss link shape` on its host, one per hop."""
-        return [[*self.prefix(station), sys.executable, "-P", "-m", "abyss.cli", "link", "shape", hop,
-                 "--peer", self.lab.address(neighbour, hop), "--profile", profiles[hop], "--every", "60"]
-                for hop, neighbour in keys.hops_of(station).items()]
+        return [self.lab.shape(station, hop, profiles[hop], "--every", "60") for hop in keys.hops_of(station)]

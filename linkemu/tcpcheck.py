@@ -332,9 +332,8 @@ def run_kernel(case: Case, variant: str, phase: Phase, seed: int, timeout_s: flo
     started: list[subprocess.Popen[str]] = []
     window = [f"--window={phase.window_s}"] if phase.window_s is not None else []
 
-    def start(station: str, *args: str) -> subprocess.Popen[str]:
-        process = subprocess.Popen([*lab.prefix(station), sys.executable, "-P", *args],
-                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    def start(command: list[str]) -> subprocess.Popen[str]:
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         started.append(process)
         _first_line(process, START_TIMEOUT_S)
         return process
@@ -345,13 +344,12 @@ def run_kernel(case: Case, variant: str, phase: Phase, seed: int, timeout_s: flo
             sysctls = [f"net.ipv4.{k}={v}" for k, v in (*COMMON_SYSCTLS, *VARIANTS[variant].sysctls)]
             for station in (sender, receiver):
                 _check([*lab.prefix(station), "sysctl", "-q", "-w", *sysctls])
-            shapers = [start(station, "-m", "abyss.cli", "link", "shape", case.hop,
-                             "--peer", lab.address(peer, case.hop), "--profile", case.profile,
-                             *(f"--{k}={v}" for k, v in case.overrides), f"--seed={shaper_seed}",
-                             "--every=3600", f"--duration={timeout_s}")
-                       for station, peer, shaper_seed in ((sender, receiver, seed),
-                                                          (receiver, sender, seed + ACK_SEED_OFFSET))]
-            listening = start(receiver, "-m", __name__, "receive", f"--timeout={timeout_s}", *window)
+            fields = [f"--{k}={v}" for k, v in case.overrides]
+            shapers = [start(lab.shape(station, case.hop, case.profile, *fields, f"--seed={shaper_seed}",
+                                       "--every=3600", f"--duration={timeout_s}"))
+                       for station, shaper_seed in ((sender, seed), (receiver, seed + ACK_SEED_OFFSET))]
+            listening = start([*lab.prefix(receiver), sys.executable, "-P", "-m", __name__, "receive",
+                               f"--timeout={timeout_s}", *window])
         sent = subprocess.run(
             [*lab.prefix(sender), sys.executable, "-P", "-m", __name__, "send",
              f"--to={lab.address(receiver, case.hop)}", f"--timeout={timeout_s}",

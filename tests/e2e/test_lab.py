@@ -19,6 +19,7 @@ import pytest
 from conftest import ROOT, abyss
 from hosts import Hosts, usable
 
+from abyss.common import keys
 from abyss.launch.lab import Lab
 from abyss.linkemu.profile import LinkProfile, profile
 
@@ -35,14 +36,11 @@ class Shapers:
     def __init__(self, hosts: Hosts, profiles: dict[str, str], log_dir: Path) -> None:
         self.processes: list[tuple[subprocess.Popen[str], Path]] = []
         for hop, name in profiles.items():
-            a, b = (s for (s, h) in hosts.ends if h == hop)
-            for station, neighbour in ((a, b), (b, a)):
+            for station in keys.HOPS[hop]:
                 log = log_dir / f"shape-{hop}-{station}.log"
                 with log.open("w") as out:
-                    process = subprocess.Popen(
-                        [*hosts.prefix(station), *ABYSS, "link", "shape", hop, "--peer",
-                         hosts.address(neighbour, hop), "--profile", name, "--every", "60"],
-                        stdout=out, stderr=subprocess.STDOUT, text=True)
+                    process = subprocess.Popen(hosts.shape(station, hop, name, "--every", "60"),
+                                               stdout=out, stderr=subprocess.STDOUT, text=True)
                 self.processes.append((process, log))
         deadline = time.monotonic() + 30.0
         for process, log in self.processes:  # each says so once its route goes through it

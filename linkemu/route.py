@@ -29,7 +29,7 @@ def route_towards(host: str, timeout_s: float = 30.0) -> Route:
         except socket.gaierror as exc:
             if time.monotonic() > deadline:
                 raise LinkError(f"cannot resolve the neighbour {host!r} ({exc}); give its address "
-                                "with --peer HOP=ADDRESS") from None
+                                "with --peer (an IPv4 address)") from None
             time.sleep(0.5)
     done = subprocess.run(["ip", "-j", "route", "get", address], capture_output=True, text=True, check=False)
     if done.returncode != 0:

@@ -53,7 +53,9 @@ def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
     return pairs
 
 
-def load_config(args: argparse.Namespace) -> Config:
+def load_config(args: argparse.Namespace, default: Path | None = None) -> Config:
+    """--config (else `default`, else the defaults), then --set, --system, --seed,
+    --realtime-factor and --profile on top."""
     overrides = list(args.set)
     if args.system:
         overrides.append(f"system={args.system}")
@@ -63,7 +65,7 @@ def load_config(args: argparse.Namespace) -> Config:
         overrides.append(f"simulation.realtime_factor={args.realtime_factor}")
     for hop, name in pairs("--profile", args.profile):
         overrides.append(f"links.{keys.check_hop(hop)}={name}")
-    return load(args.config, overrides)
+    return load(args.config or default, overrides)
 
 
 def profile_args(p: argparse.ArgumentParser) -> None:

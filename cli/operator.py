@@ -1,4 +1,4 @@
-"""`abyss op | teleop | fault | replay`: the operator's tools."""
+"""`abyss op | teleop | fault`: the operator's tools."""
 
 from __future__ import annotations
 
@@ -72,12 +72,6 @@ def cmd_op(args: argparse.Namespace) -> int:
     return run_op(args.connect, args.system, args.command, args.value, args.timeout)
 
 
-def cmd_replay(args: argparse.Namespace) -> int:
-    from abyss.console.replay import replay
-
-    return replay(args.run_dir, args.web_port)
-
-
 def add_commands(sub: Any) -> None:
     p = sub.add_parser("teleop", help="drive the vehicle or the end-effector from a joystick or the keyboard")
     connect_args(p)
@@ -103,15 +97,6 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
 
-    p = sub.add_parser("replay", help="open a run's recording (onshore.rrd) in the rerun viewer")
-    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
-    p.add_argument(
-        "--web-port",
-        type=int,
-        metavar="PORT",
-        help="serve rerun's web viewer on this port instead of opening the native viewer",
-    )
-    p.set_defaults(func=cmd_replay)
     p = sub.add_parser("fault", help="inject a fault into a running simulation")
     p.add_argument("fault", choices=FAULTS)
     p.add_argument(

@@ -18,7 +18,7 @@ from abyss.cli.args import (
     pairs,
 )
 from abyss.common import keys
-from abyss.common.config import VIEWERS
+from abyss.common.config import RECORD_LEVELS, VIEWERS, Config
 from abyss.common.errors import ConfigError
 from abyss.common.security import TLS_DIR_ENV
 from abyss.linkemu.control import LINK_MODES
@@ -27,13 +27,42 @@ from abyss.linkemu.control import LINK_MODES
 def cmd_up(args: argparse.Namespace) -> int:
     from abyss.launch.up import run_up
 
-    config = load_config(args)
+    config = up_config(args, load_config(args))
+    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.external, args.restart)
+
+
+def up_config(args: argparse.Namespace, config: Config) -> Config:
+    """`--viewer` (default: spawn with a display, else save) and `--record` on top of `config`."""
     if args.viewer is not None or not any(s.startswith("onshore.viewer=") for s in args.set):
         viewer = args.viewer or (
             "spawn" if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") else "save"
         )
         config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
-    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.external, args.restart)
+    if args.record is not None:
+        config = dataclasses.replace(config, record=dataclasses.replace(config.record, level=args.record))
+    return config
+
+
+def run_args(p: argparse.ArgumentParser) -> None:
+    """What `abyss up` and `abyss replay` share: configuration, duration, run directory, viewer, recording."""
+    config_args(p)
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
+    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
+    p.add_argument("--port", type=int, help=f"public Zenoh port (default {7447} if free; 0: any)")
+    p.add_argument(
+        "--viewer",
+        choices=VIEWERS,
+        help="save: runs/<id>/onshore.rrd (the default without a display); web: rerun's web "
+        "viewer on a local port; spawn: the native viewer (the default with a display); "
+        "none",
+    )
+    p.add_argument(
+        "--record",
+        choices=RECORD_LEVELS,
+        help="the bus recording in RUN_DIR/record: all (the default): every key, images, clouds "
+        "and scene capped at record.bulk_max_rate_hz; control: what is not bulk; none",
+    )
 
 
 def cmd_station(args: argparse.Namespace) -> int:
@@ -43,6 +72,11 @@ def cmd_station(args: argparse.Namespace) -> int:
     peers = dict(pairs("--peer", args.peer))
     for hop in peers:
         keys.check_hop(hop)
+    entry = None
+    if args.replay is not None:
+        from abyss.recording.replay import replayer
+
+        entry = replayer(args.replay, args.speed)
     code = run_station(
         args.name,
         load_config(args),
@@ -53,6 +87,7 @@ def cmd_station(args: argparse.Namespace) -> int:
         args.zenoh_mode,
         args.tls,
         peers,
+        entry,
     )
     # everything is closed and written: leave without the interpreter's finalisation, which
     # aborts the process ("exception not rethrown") when a daemon thread is still inside
@@ -102,11 +137,7 @@ def cmd_keys(_args: argparse.Namespace) -> int:
 
 def add_commands(sub: Any) -> None:
     p = sub.add_parser("up", help="run all four stations on this machine")
-    config_args(p)
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
-    p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
-    p.add_argument("--port", type=int, help=f"public Zenoh port (default {7447} if free; 0: any)")
+    run_args(p)
     p.add_argument(
         "--external",
         action="append",
@@ -116,13 +147,6 @@ def add_commands(sub: Any) -> None:
         help="do not start this station: wait for yours (a real component) on its keys",
     )
     p.add_argument("--restart", action="store_true", help="start a station that dies again")
-    p.add_argument(
-        "--viewer",
-        choices=VIEWERS,
-        help="save: runs/<id>/onshore.rrd (the default without a display); web: rerun's web "
-        "viewer on a local port; spawn: the native viewer (the default with a display); "
-        "none",
-    )
     p.set_defaults(func=cmd_up)
 
     p = sub.add_parser("station", help="run one station, e.g. on its own host")
@@ -164,6 +188,9 @@ def add_commands(sub: Any) -> None:
         help="with --link tun|netem|auto: the neighbour across HOP, whose route is shaped "
         "(default: the neighbour's station name)",
     )
+    p.add_argument("--replay", type=Path, metavar="RUN_DIR",
+                   help="play this station's messages of a recorded run back instead of running it")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X", help="with --replay: time scale")
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_station)
 

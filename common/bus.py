@@ -14,7 +14,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import zenoh
 
@@ -134,6 +134,12 @@ class Inbox:
 Egress = Callable[[bytes, bool, str], bool]  # (payload, reliable, key) -> False if dropped on the way
 
 
+class Tap(Protocol):
+    """The testbed's recorder of what a station sends and receives (abyss.recording.store)."""
+
+    def add(self, direction: str, key: str, payload: bytes, reason: str = "") -> None: ...
+
+
 class Bus:
     """Publish and subscribe for one station of one system. Counters are guarded: Zenoh's
     callback threads and the station's threads touch them at once."""
@@ -152,6 +158,7 @@ class Bus:
         self._lock = threading.Lock()  # the counters, sequence numbers and reasons
         self._subscribers: list[Any] = []
         self._egress: dict[str, Egress] = {}
+        self.tap: Tap | None = None  # the testbed's recorder, where the run records
         self._publishers = {
             s.key(system): session.declare_publisher(
                 s.key(system),
@@ -179,6 +186,8 @@ class Bus:
             payload = encode(message, self._seq[key], time.time())
             self._seq[key] += 1
             self.sent[key] += 1
+        if self.tap is not None:
+            self.tap.add("sent", key, payload)
         egress = self._egress.get(spec.hop)
         if egress is None:
             self.transmit(key, payload)
@@ -199,8 +208,8 @@ class Bus:
     def subscribe_key(self, key: str, message: str, maxlen: int = 64) -> Inbox:
         """Receive `message`s on any key, a control key included; validated and counted."""
         inbox = Inbox(maxlen)
-        self._subscribers.append(self.session.declare_subscriber(
-            key, lambda sample: self._on_sample(key, message, sample.payload.to_bytes(), inbox)))
+        self._subscribers.append(self.session.declare_subscriber(key, lambda sample: self._on_sample(
+            str(sample.key_expr), message, sample.payload.to_bytes(), inbox)))
         return inbox
 
     def _on_sample(self, key: str, expected: str, payload: bytes, inbox: Inbox) -> None:
@@ -208,7 +217,11 @@ class Bus:
             received = decode(key, payload, expected)
         except BadMessage as exc:
             self.reject(key, exc.reason)
+            if self.tap is not None:
+                self.tap.add("rejected", key, payload, exc.reason)
             return
+        if self.tap is not None:
+            self.tap.add("received", key, payload)
         with self._lock:
             self.received[key] += 1
             self.latency_s.setdefault(key, Samples()).add(time.time() - received.stamp_s)

@@ -223,6 +223,25 @@ class OnshoreConfig:
                 raise ConfigError(f"onshore.{name}", f"{getattr(self, name)} outside [1, 65535]")
 
 
+RECORD_LEVELS = ("none", "control", "all")
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """The bus recording (abyss.recording.store): what each station sent and received."""
+
+    level: str = "all"  # none | control (what is not bulk) | all
+    directory: str = ""  # where each station writes <station>.mcap; "" records nothing (`abyss up` sets it)
+    max_rate_hz: float = 50.0  # per key and direction: the rest is skipped and counted
+    bulk_max_rate_hz: float = 2.0  # the same for images, clouds, the scene stream
+
+    def __post_init__(self) -> None:
+        if self.level not in RECORD_LEVELS:
+            raise ConfigError("record.level", f"{self.level!r} not one of {', '.join(RECORD_LEVELS)}")
+        _positive("record.max_rate_hz", self.max_rate_hz)
+        _positive("record.bulk_max_rate_hz", self.bulk_max_rate_hz)
+
+
 Box = tuple[float, float, float, float, float, float]
 
 
@@ -281,6 +300,7 @@ class Config:
     vessel: VesselConfig = field(default_factory=VesselConfig)
     onshore: OnshoreConfig = field(default_factory=OnshoreConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
+    record: RecordConfig = field(default_factory=RecordConfig)
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)

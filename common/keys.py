@@ -166,6 +166,18 @@ def mission_key(system: str) -> str:
     return key(system, "onshore", "mission")
 
 
+def replay_key(system: str) -> str:
+    """The start of a replay (`abyss replay`), put by `abyss up` for the replayed stations."""
+    return key(system, "replay")
+
+
+def observation_keys(system: str) -> tuple[str, ...]:
+    """The testbed's keys that `abyss up` records beside the stations' data (as key expressions)."""
+    return (truth_key(system), simulation_status_key(system), onboard_state_key(system), mission_key(system),
+            key(system, "*", "linkstats", "*"), operator_key(system, "*"), simulation_control_key(system),
+            key(system, "link", "*"), replay_key(system))
+
+
 CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     # (key pattern, message, rate, note)
     ("abyss/<system>/link/<hop>", "LinkControl", "event",
@@ -182,6 +194,7 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
      "onboard's answers to operator commands, handed back to the tools"),
     ("abyss/<system>/onboard/state", "Telemetry", "10 Hz", "onboard's state at the source, for scoring only"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
+    ("abyss/<system>/replay", "ReplayStart", "1 Hz", "when replayed stations begin (`abyss replay`)"),
 )
 
 

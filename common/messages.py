@@ -466,6 +466,14 @@ class MissionStatus(Message):
     done: bool = False
 
 
+@dataclass(frozen=True)
+class ReplayStart(Message):
+    """When the replayed stations begin (`abyss replay`): the recorded run's first message is
+    published again at `start_s` (wall clock [s]), the rest at their recorded times after it."""
+
+    start_s: float = scalar(0.0)
+
+
 def _pack(value: Any) -> Any:
     if isinstance(value, np.ndarray):
         little = value.astype(value.dtype.newbyteorder("<"), copy=False)

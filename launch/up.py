@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -23,17 +24,27 @@ from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import Config, OnshoreConfig
 from abyss.common.errors import AbyssError, BadMessage
-from abyss.common.messages import MissionStatus, NavState, SimulationStatus, Telemetry, decode
+from abyss.common.messages import (
+    MissionStatus,
+    NavState,
+    ReplayStart,
+    SimulationStatus,
+    Telemetry,
+    decode,
+    encode,
+)
 from abyss.common.runfiles import CARRIED_OVER, EVENTS_FILE, read_json_list
 from abyss.launch.record import ControlRecorder
 from abyss.launch.state import RunState
 from abyss.launch.summary import control_summary, exit_code, exit_text, read_json, render_summary, verdict_of
-from abyss.stations.runtime import SUPERVISOR_ENV, free_port
+from abyss.recording.store import RECORD_DIR, TESTBED, Recorder
+from abyss.stations.runtime import SUPERVISOR_ENV, free_port, station_recorder
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts
 SIMULATION_STATE_FILE = "simulation-state.npy"  # a restarted simulation resumes from it
+REPLAY_DELAY_S = 1.0  # from every station up to the replayed stations' first message
 STOP_TIMEOUT_S = 10.0  # twice a station's stop bound (stations.runtime): past it, a defect
 # a restarted station is back when its session is up and, for these, once its output is seen
 # again (onboard's telemetry, the simulation's truth): a session comes up before the station runs
@@ -95,13 +106,28 @@ def port_free(port: int) -> bool:
     return True
 
 
+@dataclass(frozen=True)
+class Replayed:
+    """Stations played back from a recorded run instead of run (`abyss replay`)."""
+
+    run_dir: Path
+    stations: tuple[str, ...]
+    speed: float = 1.0
+
+    def args(self, station: str) -> list[str]:
+        return ["--replay", str(self.run_dir), "--speed", str(self.speed)] if station in self.stations else []
+
+
 class Up:
     """Start, watch and stop one whole system; write its summary."""
 
     def __init__(self, config: Config, out_dir: Path, port: int | None = None,
                  echo: Any = None, external: Sequence[str] = (),
-                 restart: bool = False, placement: Placement | None = None) -> None:
+                 restart: bool = False, placement: Placement | None = None,
+                 replayed: Replayed | None = None) -> None:
         self.config = config
+        self.replayed = replayed
+        self.replay_start: ReplayStart | None = None
         self.placement = placement or Local()
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
         self.restart = restart  # a station that dies is started again instead of failing the run
@@ -118,6 +144,7 @@ class Up:
         self.mission: MissionStatus | None = None
         self.simulation: SimulationStatus | None = None
         self.record: ControlRecorder | None = None
+        self.testbed: Recorder | None = None  # the observation keys' recording
         self.stations: dict[str, Station] = {}
         self.restarts: list[Outage] = []
         self._down: dict[str, Outage] = {}  # restarts whose station is not back yet
@@ -169,6 +196,10 @@ class Up:
         elif isinstance(message, Telemetry) and self.record is not None:
             self.record.add(message)
 
+    def _on_observed(self, sample: zenoh.Sample) -> None:
+        if self.testbed is not None:
+            self.testbed.add("observed", str(sample.key_expr), sample.payload.to_bytes())
+
     def _change_state(self, station: str | None = None, **changes: Any) -> None:
         """Change the run's state (or one station's in it) and write `state.json` at once, under
         the lock: Zenoh's callbacks change it too."""
@@ -187,7 +218,8 @@ class Up:
         # -P: the stations' own directory (the run directory) never shadows abyss's modules
         command = [*self.placement.prefix(name), sys.executable, "-P", "-m", "abyss.cli", "station", name,
                    "--config", str(config_path), "--status-file", str(status_path),
-                   *self.placement.args(name, self.endpoint)]
+                   *self.placement.args(name, self.endpoint),
+                   *(self.replayed.args(name) if self.replayed else [])]
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, start_new_session=True, cwd=self.out_dir,
@@ -259,7 +291,9 @@ class Up:
             onshore=dataclasses.replace(onshore, record_dir=str(self.out_dir), viewer_web_port=web_port,
                                         viewer_grpc_port=grpc_port),
             simulation=dataclasses.replace(self.config.simulation,
-                                           state_file=str(self.out_dir / SIMULATION_STATE_FILE)))
+                                           state_file=str(self.out_dir / SIMULATION_STATE_FILE)),
+            record=dataclasses.replace(self.config.record, directory=str(self.out_dir / RECORD_DIR)))
+        shutil.rmtree(self.out_dir / RECORD_DIR, ignore_errors=True)  # an earlier run's
         for name in (SIMULATION_STATE_FILE, *CARRIED_OVER):  # an earlier run's: restarts read them
             (self.out_dir / name).unlink(missing_ok=True)
         config_path = self.out_dir / "config.json"
@@ -268,7 +302,9 @@ class Up:
         system = self.config.system
         session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
         self.record = ControlRecorder(self.out_dir)
+        self.testbed = station_recorder(self.config, TESTBED)
         observers = [
+            *(session.declare_subscriber(key, self._on_observed) for key in keys.observation_keys(system)),
             session.liveliness().declare_subscriber(keys.key(system, "*", "alive"), self._on_alive,
                                                     history=True),
             session.declare_subscriber(keys.mission_key(system), self._on_status),
@@ -299,7 +335,7 @@ class Up:
                 viewer = viewer_line(self.config.onshore)
                 self.echo(viewer)
                 self._change_state(phase="up", viewer=viewer.removeprefix("abyss: "))
-                failure = self._watch(duration_s, keep_running)
+                failure = self._watch(session, duration_s, keep_running)
         finally:
             self._change_state(phase="stopping")
             stuck = self._stop_all()  # always: every station is stopped, whatever failed
@@ -308,6 +344,8 @@ class Up:
                 observer.undeclare()
             session.close()
             self.record.close()
+            if self.testbed is not None:
+                self.testbed.close()
             for s, handler in previous.items():
                 signal.signal(s, handler)
         summary = self._summary(time.monotonic() - t0, startup_s, failure)
@@ -336,10 +374,17 @@ class Up:
         missing = sorted(set(keys.STATIONS) - shown)
         return f"not up after {timeout_s:g} s: {', '.join(missing)}"
 
-    def _watch(self, duration_s: float | None, keep_running: bool) -> str:
+    def _watch(self, session: zenoh.Session, duration_s: float | None, keep_running: bool) -> str:
         t0 = time.monotonic()
-        last_report = t0
+        last_report = next_start_s = t0
+        if self.replayed is not None:
+            self.replay_start = ReplayStart(time.time() + REPLAY_DELAY_S)
+            self.echo(f"abyss: replaying {', '.join(self.replayed.stations)} of {self.replayed.run_dir} "
+                      f"from t={REPLAY_DELAY_S:g} s (speed {self.replayed.speed:g})")
         while True:
+            if self.replay_start is not None and time.monotonic() >= next_start_s:
+                next_start_s = time.monotonic() + 1.0  # again each second, for a replayer that starts late
+                session.put(keys.replay_key(self.config.system), encode(self.replay_start, 0, time.time()))
             for station in self._check_deaths():
                 self._report_death(station)
                 if not self.restart:
@@ -418,11 +463,11 @@ def viewer_line(cfg: OnshoreConfig) -> str:
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
            port: int | None, external: Sequence[str] = (), restart: bool = False,
-           placement: Placement | None = None) -> int:
+           placement: Placement | None = None, replayed: Replayed | None = None) -> int:
     run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
-        return Up(config, run_dir, port, external=external, restart=restart, placement=placement).run(
-            duration_s, keep_running)
+        return Up(config, run_dir, port, external=external, restart=restart, placement=placement,
+                  replayed=replayed).run(duration_s, keep_running)
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)
         return 2

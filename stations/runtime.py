@@ -22,6 +22,7 @@ from abyss.common.bus import Bus, open_session, zenoh_config
 from abyss.common.certs import CertFiles
 from abyss.common.config import Config
 from abyss.linkemu.control import StationLinks
+from abyss.recording.store import Caps, Recorder, free_recording_path
 
 log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
@@ -71,6 +72,8 @@ class Shell:
                                   seed=config.seed, link_mode=link_mode, peers=peers, stopping=self.bus.stop)
         for hop in self.links.runners:
             self.bus.route(hop, self.links.egress(hop))
+        self.recorder = station_recorder(config, name)
+        self.bus.tap = self.recorder
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
 
     def status(self) -> dict[str, Any]:
@@ -78,6 +81,8 @@ class Shell:
         status["rejected"] = {**status["rejected"], **self.links.rejected}
         status["refused"] = dict(self.refusals.refused) if self.refusals else {}
         status["links"] = self.links.status()
+        if self.recorder is not None:
+            status["recording"] = self.recorder.status()
         return status
 
     def close(self, drain_s: float = 0.0) -> None:
@@ -87,14 +92,27 @@ class Shell:
         self.links.close(drain_s)
         self._token.undeclare()
         self.bus.close()
+        if self.recorder is not None:
+            self.recorder.close()
         self.session.close()
+
+
+def station_recorder(config: Config, name: str) -> Recorder | None:
+    """The recorder of `name`'s bus, where the run records (`record.directory`, `record.level`)."""
+    record = config.record
+    if not record.directory or record.level == "none":
+        return None
+    return Recorder(free_recording_path(Path(record.directory), name), name, config.system, record.level,
+                    Caps(record.max_rate_hz, record.bulk_max_rate_hz))
 
 
 def run_station(name: str, config: Config, listen: Sequence[str], connect: Sequence[str],
                 status_file: Path | None, link_mode: str = "emulated", mode: str = "peer",
-                tls_dir: Path | None = None, peers: dict[str, str] | None = None) -> int:
-    """Open the shell, run the station until SIGINT/SIGTERM, close, write the status file."""
-    entry = station_entry(name)
+                tls_dir: Path | None = None, peers: dict[str, str] | None = None,
+                entry: Callable[[Config, Any], None] | None = None) -> int:
+    """Open the shell, run the station (or `entry` in its place: a replay) until SIGINT/SIGTERM,
+    close, write the status file."""
+    entry = entry or station_entry(name)
     shell = Shell(name, config, listen, connect, link_mode, mode, tls_dir, peers)
     bus = shell.bus
 

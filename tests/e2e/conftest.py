@@ -120,6 +120,19 @@ def no_leftover_systems() -> Iterator[None]:
         up.wait(30)
 
 
+@pytest.fixture(scope="session")
+def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One default mission, recorded (`--record all`, the rerun recording saved), shared by the
+    tests that read, export and replay a recording: its run directory."""
+    out = tmp_path_factory.mktemp("recorded") / "run"
+    done = subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out),
+                           "--viewer", "save", "--record", "all", "--duration", "120"],
+                          capture_output=True, text=True, cwd=out.parent, timeout=240)
+    summary = json.loads((out / "summary.json").read_text())
+    assert done.returncode == 0 and summary["verdict"] == "done", done.stdout + done.stderr
+    return out
+
+
 def abyss(*args: str, timeout_s: float = 60.0, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
     """An abyss command as a user types it, in `cwd` (-P: that directory never shadows abyss)."""
     return subprocess.run([sys.executable, "-P", "-m", "abyss.cli", *args], capture_output=True, text=True,

@@ -1,4 +1,4 @@
-"""`abyss replay`: a run's recording in rerun's native viewer, or served to a browser."""
+"""`abyss view`: a run's recording in rerun's native viewer, or served to a browser."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from abyss.common.errors import ConfigError
 from abyss.stations.onshore.viewer import RECORDING_FILE, rerun_command
 
 
-def replay(run_dir: Path, web_port: int | None) -> int:
+def view(run_dir: Path, web_port: int | None) -> int:
     """Open a run's recording in rerun's native viewer, or serve it to a browser on `web_port`."""
     recording = run_dir / RECORDING_FILE
     if not recording.is_file():

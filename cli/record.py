@@ -1,0 +1,98 @@
+"""`abyss replay | view`: a recorded run played back in place of stations, or opened in rerun."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from abyss.cli.args import load_config
+from abyss.cli.system import run_args, up_config
+from abyss.common import keys
+from abyss.common.errors import ConfigError
+
+CONFIG_FILE = "config.json"  # what `abyss up` ran with, in its run directory
+COMPARE_FILE = "compare.json"
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from abyss.console.view import view
+
+    return view(args.run_dir, args.web_port)
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    if not args.as_station and not args.compare:  # what `abyss replay` was before recordings
+        print(f"abyss: `abyss replay RUN_DIR` opening the rerun recording is now "
+              f"`abyss view {args.run_dir}`; `abyss replay RUN_DIR --as STATION` plays stations back",
+              file=sys.stderr)
+        return cmd_view(args)
+    from abyss.launch.up import Replayed, run_up
+    from abyss.recording.compare import compare, differing, render
+    from abyss.recording.replay import check_replayable
+    from abyss.recording.store import open_recording
+
+    if not args.as_station:
+        raise ConfigError("--compare", "needs the stations to replay: --as STATION (the others run live "
+                          "and are compared)")
+    run_dir = args.run_dir.resolve()
+    recording = open_recording(run_dir)
+    stations = tuple(dict.fromkeys(args.as_station))
+    check_replayable(recording, stations)
+    base = run_dir / CONFIG_FILE
+    config = up_config(args, load_config(args, base if base.is_file() else None))
+    out = args.out or Path("runs") / f"{config.system}-replay-{time.strftime('%Y%m%d-%H%M%S')}"
+    if out.resolve() == run_dir:
+        raise ConfigError("--out", f"{out} is the recorded run; give the replay a run directory of its own")
+    duration_s = args.duration
+    if duration_s is None:  # the recording's length; a live shore ends the run at the mission's end
+        stamps = [r.sent_s for r in recording.published()]
+        duration_s = (max(stamps) - min(stamps)) / args.speed + (2.0 if "onshore" in stations else 15.0)
+    # with shore replayed, no live shore judges the mission: the run is the recording's length
+    keep_running = args.keep_running or "onshore" in stations
+    code = run_up(config, out, duration_s, keep_running, args.port,
+                  replayed=Replayed(run_dir, stations, args.speed))
+    if not args.compare:
+        return code
+    live = [s for s in keys.STATIONS if s not in stations]
+    diffs = compare(recording, open_recording(out), live, args.tolerance)
+    print(f"abyss: {', '.join(live)} on the recorded inputs of {', '.join(stations)}, against {run_dir}:")
+    print(render(diffs))
+    (out / COMPARE_FILE).write_text(json.dumps([d.row() for d in diffs], indent=2))
+    changed = differing(diffs)
+    print(f"abyss: {len(changed)} of {len(diffs)} keys differ{': ' + ', '.join(changed) if changed else ''} "
+          f"(tolerance {args.tolerance:g} of each field's recorded spread; {out / COMPARE_FILE})")
+    return 1 if changed else code
+
+
+def add_commands(sub: Any) -> None:
+    p = sub.add_parser("view", help="open a run's rerun recording (onshore.rrd) in the rerun viewer")
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    web_port_arg(p)
+    p.set_defaults(func=cmd_view)
+
+    p = sub.add_parser(
+        "replay",
+        help="play recorded stations back in place of live ones (the rest run live); --compare: "
+        "how the live stations' outputs differ from the recording",
+    )
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
+    p.add_argument("--as", dest="as_station", action="append", default=[], choices=keys.STATIONS,
+                   metavar="STATION", help="a station to play back from the recording (repeatable)")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X", help="recorded time scale (default 1)")
+    p.add_argument("--compare", action="store_true",
+                   help="then compare the live stations' outputs with the recording, per key; exit 1 "
+                   "if one differs")
+    p.add_argument("--tolerance", type=float, default=0.1, metavar="FRACTION",
+                   help="with --compare: a field differs past this share of its recorded spread")
+    run_args(p)
+    web_port_arg(p)
+    p.set_defaults(func=cmd_replay)
+
+
+def web_port_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--web-port", type=int, metavar="PORT",
+                   help="serve rerun's web viewer on this port instead of opening the native viewer")

@@ -1,0 +1,387 @@
+"""The bus recording of a run: what each station sent and received, on every data key, in
+RUN_DIR/record/<station>.mcap; the testbed's observation keys (truth, link statistics, status)
+in RUN_DIR/record/testbed.mcap.
+
+Each file is an MCAP file (profile `abyss`) that `mcap` and Foxglove list: one channel per key
+and direction (`sent`: at the station's egress, before its link; `received`: as the station's bus
+took it off the wire, after the link's delay, loss and corruption; `rejected`: bytes the station
+dropped as malformed, with the reason; `observed`: a testbed key), the abyss message as its
+msgpack bytes (`common.messages`), `log_time` the recording station's wall clock, `publish_time`
+the sender's stamp, `sequence` the sender's. Records are written one by one, unchunked, and
+flushed every `FLUSH_PERIOD_S`: a killed station's file reads up to its last flush
+(`read_file` says where it stops). Bounded: a level (`none`, `control`: what is not bulk, `all`)
+and a rate cap per key and direction (a token bucket; what it skips is counted)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import mcap.exceptions
+import msgpack
+from mcap.records import Channel, Metadata
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import StreamReader
+from mcap.writer import Writer
+
+from abyss.common import keys
+from abyss.common.errors import AbyssError, BadMessage
+from abyss.common.messages import MESSAGES, Message, Received, decode
+
+log = logging.getLogger(__name__)
+
+RECORD_DIR = "record"  # in the run directory
+TESTBED = "testbed"  # the file of the supervisor's observation keys
+FORMAT_VERSION = 1  # of this layout: channels, metadata, the rejected records
+LEVELS = ("none", "control", "all")
+DIRECTIONS = ("sent", "received", "rejected", "observed")
+FLUSH_PERIOD_S = 0.5
+MESSAGE_ENCODING = "msgpack"  # the envelope of common.messages
+REJECTED_ENCODING = "abyss-rejected"  # msgpack {reason, payload}
+
+
+class RecordingError(AbyssError):
+    """A recording that cannot be read as asked: missing, truncated where it must not be, too old."""
+
+    def __init__(self, path: Path, reason: str, fix: str) -> None:
+        super().__init__(f"{path}: {reason}; {fix}")
+        self.path = path
+
+
+def free_recording_path(directory: Path, station: str) -> Path:
+    """`<station>.mcap` in `directory`, or, for a restarted station, `<station>-<life>.mcap`: each
+    life of a station keeps its own file."""
+    path, life = directory / f"{station}.mcap", 1
+    while path.exists():
+        path, life = directory / f"{station}-{life}.mcap", life + 1
+    return path
+
+
+def recorded(level: str, spec: keys.KeySpec) -> bool:
+    """Whether `level` records the data key `spec`."""
+    return level == "all" or (level == "control" and spec.priority != "bulk")
+
+
+class _Bucket:
+    """A token bucket of `rate_hz` with two seconds of burst: a key's messages beyond its cap are
+    skipped, never those of a key at its cap whose messages come in bursts (a camera's clouds)."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate_hz, self.capacity = rate_hz, max(2.0, 2.0 * rate_hz)
+        self.tokens, self.t_s = self.capacity, time.monotonic()
+
+    def take(self) -> bool:
+        now_s = time.monotonic()
+        self.tokens = min(self.capacity, self.tokens + (now_s - self.t_s) * self.rate_hz)
+        self.t_s = now_s
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
+
+
+@dataclass(frozen=True)
+class Caps:
+    """Per key and direction [messages/s]: `bulk_hz` for bulk keys (images, clouds, scene), `max_hz`
+    for the rest."""
+
+    max_hz: float = 50.0
+    bulk_hz: float = 2.0
+
+    def of(self, key: str) -> float:
+        spec = data_spec(key)
+        return self.bulk_hz if spec is not None and spec.priority == "bulk" else self.max_hz
+
+
+def data_spec(key: str) -> keys.KeySpec | None:
+    """The data key `abyss/<system>/<station>/<topic>` is, or None (a testbed key)."""
+    parts = key.split("/", 3)
+    if len(parts) < 4:
+        return None
+    try:
+        return keys.spec(parts[2], parts[3])
+    except AbyssError:
+        return None
+
+
+class Recorder:
+    """Writes one station's (or the testbed's) recording from any thread: the callers only queue,
+    a writer thread encodes and flushes."""
+
+    def __init__(self, path: Path, station: str, system: str, level: str, caps: Caps = Caps()) -> None:
+        if level not in LEVELS:
+            raise AbyssError(f"record level {level!r}: allowed: {', '.join(LEVELS)}")
+        self.path, self.station, self.level, self.caps = path, station, level, caps
+        self.counts: Counter[str] = Counter()  # recorded, per direction
+        self.skipped: Counter[str] = Counter()  # over a key's cap, per key
+        self.bytes_written = 0
+        self._buckets: dict[tuple[str, str], _Bucket] = {}
+        self._queue: queue.SimpleQueue[tuple[str, str, bytes, float, str] | None] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._file: IO[bytes] = path.open("wb")
+        self._writer = Writer(self._file, use_chunking=False, use_statistics=True)
+        self._writer.start(profile="abyss", library="abyss recording")
+        self._writer.add_metadata("abyss", {
+            "format_version": str(FORMAT_VERSION), "station": station, "system": system, "level": level,
+            "max_rate_hz": str(caps.max_hz), "bulk_max_rate_hz": str(caps.bulk_hz),
+            "messages": json.dumps({name: cls.VERSION for name, cls in MESSAGES.items()})})
+        self._channels: dict[tuple[str, str], int] = {}
+        self._schemas: dict[str, int] = {}
+        self._thread = threading.Thread(target=self._write_loop, name=f"recorder {station}", daemon=True)
+        self._thread.start()
+
+    def wants(self, key: str) -> bool:
+        spec = data_spec(key)
+        return self.level != "none" and (spec is None or recorded(self.level, spec))
+
+    def add(self, direction: str, key: str, payload: bytes, reason: str = "") -> None:
+        """Queue one message as this station `direction` it, now; skipped over its key's cap."""
+        if not self.wants(key):
+            return
+        with self._lock:
+            bucket = self._buckets.get((key, direction))
+            if bucket is None:
+                bucket = self._buckets[(key, direction)] = _Bucket(self.caps.of(key))
+            if not bucket.take():
+                self.skipped[f"{direction} {key}"] += 1
+                return
+        self._queue.put((direction, key, payload, time.time(), reason))
+
+    def status(self) -> dict[str, Any]:
+        with self._lock:
+            return {"file": str(self.path), "level": self.level, "recorded": dict(self.counts),
+                    "skipped_over_cap": dict(self.skipped), "bytes": self.bytes_written}
+
+    def close(self) -> None:
+        """Write what is queued, then the MCAP summary (a file without it reads all the same)."""
+        self._queue.put(None)
+        self._thread.join(timeout=5.0)
+
+    # -- the writer thread ---------------------------------------------------------------
+    def _channel(self, direction: str, key: str) -> int:
+        channel = self._channels.get((key, direction))
+        if channel is not None:
+            return channel
+        spec = data_spec(key)
+        message = spec.message if spec is not None else ""
+        schema = 0
+        if direction != "rejected" and message:
+            if message not in self._schemas:
+                self._schemas[message] = self._writer.register_schema(
+                    message, "abyss-message", json.dumps({"version": MESSAGES[message].VERSION}).encode())
+            schema = self._schemas[message]
+        metadata = {"direction": direction, "station": self.station, "message": message,
+                    "hop": spec.hop if spec is not None else "",
+                    "publisher": key.split("/")[2] if key.count("/") >= 2 else ""}
+        channel = self._channels[(key, direction)] = self._writer.register_channel(
+            key, REJECTED_ENCODING if direction == "rejected" else MESSAGE_ENCODING, schema, metadata)
+        return channel
+
+    def _write_loop(self) -> None:
+        last_flush_s = time.monotonic()
+        while True:
+            try:
+                item = self._queue.get(timeout=FLUSH_PERIOD_S)
+            except queue.Empty:
+                item = ()  # type: ignore[assignment]
+            if item is None:
+                break
+            if item:
+                self._write(*item)
+            if time.monotonic() - last_flush_s >= FLUSH_PERIOD_S:
+                self._file.flush()
+                last_flush_s = time.monotonic()
+        self._writer.finish()
+        self._file.close()
+
+    def _write(self, direction: str, key: str, payload: bytes, recorded_s: float, reason: str) -> None:
+        seq, sent_s = 0, recorded_s
+        if direction == "rejected":
+            payload = msgpack.packb({"reason": reason, "payload": payload}, use_bin_type=True)
+        else:
+            seq, sent_s = envelope_of(payload)
+        self._writer.add_message(self._channel(direction, key), log_time=round(recorded_s * 1e9),
+                                 data=payload, publish_time=round(sent_s * 1e9), sequence=seq % 2**32)
+        with self._lock:
+            self.counts[direction] += 1
+            self.bytes_written += len(payload)
+
+
+def envelope_of(payload: bytes) -> tuple[int, float]:
+    """The sequence number and the sender's stamp [s] of an encoded message (0 and 0.0 if the bytes
+    hold none)."""
+    try:
+        envelope = msgpack.unpackb(payload, raw=False)
+        return int(envelope["seq"]), float(envelope["stamp_s"])
+    except Exception:  # bytes that decode to no envelope: a rejected message's own
+        return 0, 0.0
+
+
+# -- reading -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Record:
+    """One recorded message as `station` saw it: `sent_s` the sender's stamp, `recorded_s` when the
+    recording station sent it or took it off the wire (its wall clock)."""
+
+    station: str
+    direction: str
+    key: str
+    hop: str
+    message: str  # the type name; '' for a testbed key read without one, or rejected bytes
+    seq: int
+    sent_s: float
+    recorded_s: float
+    payload: bytes
+    reason: str = ""  # rejected only
+
+    @property
+    def publisher(self) -> str:
+        return self.key.split("/")[2]
+
+    @property
+    def topic(self) -> str:
+        """`<publisher>/<topic>`: the key without `abyss/<system>/`."""
+        return self.key.split("/", 2)[2]
+
+    def decode(self) -> Received:
+        return decode(self.key, self.payload, self.message or None)
+
+
+@dataclass
+class RecordingFile:
+    path: Path
+    station: str
+    system: str
+    level: str
+    records: list[Record]
+    complete: bool  # its summary was written: the station closed it
+    read_bytes: int  # where reading stopped
+    size_bytes: int
+
+
+def read_file(path: Path) -> RecordingFile:
+    """Every record of one station's file, up to where a killed station stopped writing."""
+    if not path.is_file():
+        raise RecordingError(path, "no such recording", "record a run with `abyss up --record all`")
+    size = path.stat().st_size
+    records: list[Record] = []
+    channels: dict[int, Channel] = {}
+    meta: dict[str, str] = {}
+    complete = False
+    with path.open("rb") as f:
+        reader = StreamReader(f, skip_magic=False)
+        try:
+            for record in reader.records:
+                if isinstance(record, Metadata) and record.name == "abyss":
+                    meta = dict(record.metadata)
+                    _check_version(path, meta)
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, McapMessage):
+                    records.append(_record_of(channels[record.channel_id], record))
+                elif type(record).__name__ == "Footer":
+                    complete = True
+        except (mcap.exceptions.McapError, EOFError, ValueError, KeyError, OSError) as exc:
+            log.info("%s: read up to byte %d of %d (%s)", path, f.tell(), size, exc)
+        read_bytes = f.tell()
+    if not meta:
+        raise RecordingError(path, "not an abyss recording (no abyss metadata at its start)",
+                             "give the run directory of an `abyss up` with --record control or all")
+    return RecordingFile(path, meta["station"], meta["system"], meta["level"], records, complete, read_bytes,
+                         size)
+
+
+def _check_version(path: Path, meta: dict[str, str]) -> None:
+    version = meta.get("format_version", "?")
+    if version != str(FORMAT_VERSION):
+        raise RecordingError(path, f"recording format version {version}, this abyss reads {FORMAT_VERSION}",
+                             "record the run again with this abyss, or read it with the abyss that made it")
+    try:
+        recorded_versions = json.loads(meta.get("messages", "{}"))
+    except ValueError:
+        recorded_versions = {}
+    older = sorted(f"{name} v{v} (now v{MESSAGES[name].VERSION})" for name, v in recorded_versions.items()
+                   if name in MESSAGES and v != MESSAGES[name].VERSION)
+    if older:
+        raise RecordingError(path, f"messages of an older schema: {', '.join(older)}",
+                             "record the run again with this abyss, or read it with the abyss that made it")
+
+
+def _record_of(channel: Channel, message: McapMessage) -> Record:
+    meta = channel.metadata
+    payload, reason = message.data, ""
+    if channel.message_encoding == REJECTED_ENCODING:
+        rejected = msgpack.unpackb(message.data, raw=False)
+        payload, reason = rejected["payload"], rejected["reason"]
+    return Record(meta.get("station", ""), meta.get("direction", ""), channel.topic, meta.get("hop", ""),
+                  meta.get("message", ""), message.sequence, message.publish_time / 1e9,
+                  message.log_time / 1e9, payload, reason)
+
+
+@dataclass
+class Recording:
+    """A run's whole recording: each station's file and the testbed's."""
+
+    run_dir: Path
+    files: list[RecordingFile] = field(default_factory=list)  # a restarted station's lives in order
+
+    @property
+    def system(self) -> str:
+        return self.files[0].system
+
+    @property
+    def stations(self) -> set[str]:
+        """The stations recorded (the testbed's observation file not among them)."""
+        return {f.station for f in self.files} - {TESTBED}
+
+    def records(self, stations: tuple[str, ...] = (), directions: tuple[str, ...] = ()) -> list[Record]:
+        """Records of these stations' files in these directions (all if empty), by recorded time."""
+        chosen = [r for f in self.files if not stations or f.station in stations
+                  for r in f.records if not directions or r.direction in directions]
+        return sorted(chosen, key=lambda r: r.recorded_s)
+
+    def published(self, publishers: tuple[str, ...] = ()) -> list[Record]:
+        """Each message of these publishers (all if empty) once, by its sender's stamp: the copy the
+        publisher recorded at its egress, or, for a station that was not recorded (an external one),
+        the first copy a receiver recorded."""
+        chosen: dict[tuple[str, int, float], Record] = {}
+        for r in self.records(directions=("sent", "received")):
+            spec = data_spec(r.key)
+            if spec is None or (publishers and spec.station not in publishers):
+                continue
+            if spec.station in self.stations and r.direction == "received":
+                continue
+            chosen.setdefault((r.key, r.seq, r.sent_s), r)
+        return sorted(chosen.values(), key=lambda r: r.sent_s)
+
+    def observed(self) -> list[Record]:
+        return self.records(stations=(TESTBED,), directions=("observed",))
+
+    def messages(self, records: list[Record]) -> Iterator[tuple[Record, Message]]:
+        """Each record with its message; records that do not decode (rejected ones) are left out."""
+        for r in records:
+            try:
+                yield r, r.decode().message
+            except BadMessage:
+                continue
+
+
+def open_recording(run_dir: Path) -> Recording:
+    """The recording of `run_dir`, with an error that names the fix if there is none."""
+    folder = run_dir / RECORD_DIR
+    paths = sorted(folder.glob("*.mcap"), key=lambda p: p.stat().st_mtime) if folder.is_dir() else []
+    if not paths:
+        raise RecordingError(folder, "no recording", "the run was made with --record none, or by an abyss "
+                             "before recording; run `abyss up --record all` (the default)")
+    recording = Recording(run_dir)
+    recording.files = [read_file(path) for path in paths]
+    return recording

@@ -1,0 +1,118 @@
+"""The bus recording of a whole run, and the recorded stations played back in place of live ones:
+the live stations reach the recorded run's scene and mission; `--compare` finds a changed gain and
+nothing in an unchanged system; a run killed mid-mission keeps its recording up to the kill."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+from pathlib import Path
+
+import pytest
+from conftest import Up, abyss
+
+from abyss.common import keys
+from abyss.recording.store import data_spec, open_recording
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+
+
+def test_every_data_key_is_recorded_as_sent_and_as_received(recorded_run: Path) -> None:
+    recording = open_recording(recorded_run)
+    assert recording.stations == set(keys.STATIONS) and all(f.complete for f in recording.files)
+    size_mb = sum(f.size_bytes for f in recording.files) / 1e6
+    assert size_mb < 50, f"{size_mb:.1f} MB"
+    seen = {(r.direction, r.topic) for r in recording.records()}
+    for spec in keys.KEYS:
+        topic = f"{spec.station}/{spec.topic}"
+        if spec.topic in ("scene_request", "op/waypoints", "op/arm", "op/mode", "goal/waypoints", "goal/arm",
+                          "goal/mode", "ack") and ("sent", topic) not in seen:
+            continue  # events a run may not have
+        assert ("sent", topic) in seen and ("received", topic) in seen, topic
+    summary = json.loads((recorded_run / "summary.json").read_text())
+    for r in recording.records(stations=("vessel",), directions=("received",)):
+        spec = data_spec(r.key)
+        assert spec is not None and r.hop == spec.hop
+    # as received: the tether's 100 ms +/- 10 ms is in the receiver's stamps, none on the ideal rov hop
+    def delays_s(station: str, topic: str) -> list[float]:
+        return sorted(r.recorded_s - r.sent_s for r in recording.records((station,), ("received",))
+                      if r.topic == topic)
+
+    tether, rov = delays_s("vessel", "onboard/telemetry"), delays_s("onboard", "simulation/nav")
+    assert tether[len(tether) // 2] > 0.08 and rov[len(rov) // 2] < 0.05
+    sent = summary["stations"]["onboard"]["sent"]["abyss/default/onboard/telemetry"]
+    recorded = sum(1 for r in recording.published(("onboard",)) if r.topic == "onboard/telemetry")
+    assert recorded == sent  # under its cap: every message
+    assert {r.topic for r in recording.observed()} >= {"simulation/truth", "onshore/mission"}
+
+
+def test_replayed_simulation_and_onboard_drive_live_vessel_and_shore_to_the_recorded_end(
+        recorded_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "replay"
+    done = abyss("replay", str(recorded_run), "--as", "simulation", "--as", "onboard", "--out", str(out),
+                 "--viewer", "none", "--port", "0", timeout_s=200)
+    assert done.returncode == 0, done.stdout + done.stderr
+    recorded, replayed = (json.loads((run / "summary.json").read_text()) for run in (recorded_run, out))
+    assert replayed["verdict"] == "done"
+    cells = [s["scene"]["occupied_cells"] for s in (recorded, replayed)]
+    assert abs(cells[1] - cells[0]) <= 0.05 * cells[0], cells
+    state = ("mode", "waypoint_index", "waypoints_total", "arm_mode", "done")
+    assert {k: replayed["mission"][k] for k in state} == {k: recorded["mission"][k] for k in state}
+    assert sorted(replayed["scene"]["objects"]) == sorted(recorded["scene"]["objects"])
+    # the replayed stations ran no station code: onboard sent what its recording holds (up to the
+    # mission's end on the live shore), and took the live shore's commands (new ids) as the recorded ones
+    assert "replaying simulation, onboard" in done.stdout
+    onboard_sent = sum(replayed["stations"]["onboard"]["sent"].values())
+    recorded_sent = sum(1 for r in open_recording(recorded_run).published(("onboard",)))
+    assert 0.9 * recorded_sent <= onboard_sent <= recorded_sent + 3, (onboard_sent, recorded_sent)
+
+
+@pytest.mark.parametrize("gain", [None, "1.2"])
+def test_compare_names_the_keys_a_changed_gain_changes_and_nothing_else(
+        recorded_run: Path, tmp_path: Path, gain: str | None) -> None:
+    out = tmp_path / "compare"
+    changed = ["--set", f"onboard.kp_position={gain}"] if gain else []
+    done = abyss("replay", str(recorded_run), "--as", "simulation", "--as", "vessel", "--as", "onshore",
+                 "--compare", "--out", str(out), "--viewer", "none", "--port", "0", *changed, timeout_s=200)
+    rows = {row["key"]: row for row in json.loads((out / "compare.json").read_text())}
+    assert set(rows) == {f"onboard/{s.topic}" for s in keys.KEYS if s.station == "onboard"}
+    differing = sorted(k for k, row in rows.items() if row["differs"])
+    if gain is None:
+        assert done.returncode == 0 and differing == [], done.stdout + done.stderr
+        assert "0 of 6 keys differ" in done.stdout
+    else:
+        assert done.returncode == 1 and differing == ["onboard/cmd/vehicle_velocity"], done.stdout
+        assert rows["onboard/cmd/vehicle_velocity"]["fields"]["linear_mps_body"]["differs"]
+        assert "1 of 6 keys differ: onboard/cmd/vehicle_velocity" in done.stdout
+    assert all(row["paired"] > 0 for row in rows.values())
+
+
+def test_a_killed_run_keeps_its_recording_up_to_the_kill(tmp_path: Path) -> None:
+    up = Up(tmp_path / "killed", "--viewer", "none", "--record", "control")
+    state = up.wait_up()
+    up.wait_for(r"t=\s+5 s", 60)
+    for pid in [*(s.pid for s in state.stations.values() if s.pid), state.supervisor_pid]:
+        os.kill(pid, signal.SIGKILL)  # every station, then abyss up (whose death would stop them)
+    up.wait()
+    recording = open_recording(tmp_path / "killed")
+    assert recording.stations == set(keys.STATIONS)
+    assert not any(f.complete for f in recording.files)  # none was closed
+    nav = [r for r in recording.published(("simulation",)) if r.topic == "simulation/nav"]
+    assert len(nav) >= 20 * 4  # at 20 Hz, past t = 5 s less the last flush
+    assert all(r.decode().message for r in nav)  # every record read whole
+    assert not [r for r in recording.records() if data_spec(r.key) and data_spec(r.key).priority == "bulk"]
+
+
+def test_bad_replays_fail_at_start_with_the_fix(tmp_path: Path, recorded_run: Path) -> None:
+    empty = abyss("replay", str(tmp_path), "--as", "onboard")
+    assert empty.returncode == 2 and f"{tmp_path}/record: no recording" in empty.stderr
+    assert "--record all" in empty.stderr
+    unknown = abyss("replay", str(recorded_run), "--as", "rov")
+    assert unknown.returncode == 2 and "invalid choice: 'rov'" in unknown.stderr
+    same = abyss("replay", str(recorded_run), "--as", "onboard", "--out", str(recorded_run))
+    assert same.returncode == 2 and "is the recorded run" in same.stderr
+    compare = abyss("replay", str(recorded_run), "--compare")
+    assert compare.returncode == 2 and "--as STATION" in compare.stderr
+    alias = abyss("replay", str(tmp_path))
+    assert "is now `abyss view" in alias.stderr

@@ -454,7 +454,7 @@ class Up:
 def viewer_line(cfg: OnshoreConfig) -> str:
     from abyss.stations.onshore.viewer import RECORDING_FILE, web_viewer_url
     recording = Path(cfg.record_dir) / RECORDING_FILE
-    return {"save": f"abyss: recording to {recording} (abyss replay {cfg.record_dir})",
+    return {"save": f"abyss: recording to {recording} (abyss view {cfg.record_dir})",
             "web": f"abyss: web viewer at {web_viewer_url(cfg.viewer_web_port, cfg.viewer_grpc_port)} "
                    f"(recording to {recording})",
             "spawn": f"abyss: rerun viewer spawned (recording to {recording})",

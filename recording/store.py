@@ -33,7 +33,8 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from abyss.common import keys
-from abyss.common.errors import AbyssError, BadMessage
+from abyss.common.config import RECORD_LEVELS
+from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import MESSAGES, Message, Received, decode
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,6 @@ log = logging.getLogger(__name__)
 RECORD_DIR = "record"  # in the run directory
 TESTBED = "testbed"  # the file of the supervisor's observation keys
 FORMAT_VERSION = 1  # of this layout: channels, metadata, the rejected records
-LEVELS = ("none", "control", "all")
 DIRECTIONS = ("sent", "received", "rejected", "observed")
 FLUSH_PERIOD_S = 0.5
 MESSAGE_ENCODING = "msgpack"  # the envelope of common.messages
@@ -117,8 +117,8 @@ class Recorder:
     a writer thread encodes and flushes."""
 
     def __init__(self, path: Path, station: str, system: str, level: str, caps: Caps = Caps()) -> None:
-        if level not in LEVELS:
-            raise AbyssError(f"record level {level!r}: allowed: {', '.join(LEVELS)}")
+        if level not in RECORD_LEVELS:
+            raise ConfigError("record.level", f"{level!r} not one of {', '.join(RECORD_LEVELS)}")
         self.path, self.station, self.level, self.caps = path, station, level, caps
         self.counts: Counter[str] = Counter()  # recorded, per direction
         self.skipped: Counter[str] = Counter()  # over a key's cap, per key
@@ -187,19 +187,19 @@ class Recorder:
         return channel
 
     def _write_loop(self) -> None:
-        last_flush_s = time.monotonic()
+        next_flush_s = time.monotonic() + FLUSH_PERIOD_S
         while True:
             try:
                 item = self._queue.get(timeout=FLUSH_PERIOD_S)
             except queue.Empty:
-                item = ()  # type: ignore[assignment]
+                item = ("", "", b"", 0.0, "")  # nothing came: only the flush is due
             if item is None:
                 break
-            if item:
+            if item[0]:
                 self._write(*item)
-            if time.monotonic() - last_flush_s >= FLUSH_PERIOD_S:
+            if time.monotonic() >= next_flush_s:
                 self._file.flush()
-                last_flush_s = time.monotonic()
+                next_flush_s = time.monotonic() + FLUSH_PERIOD_S
         self._writer.finish()
         self._file.close()
 

@@ -7,7 +7,7 @@ import argparse
 import sys
 from typing import Any
 
-from abyss.cli import lab, link, models, operator, record, system, validation
+from abyss.cli import export, lab, link, models, operator, record, system, validation
 from abyss.common.errors import AbyssError
 
 DESCRIPTION = (
@@ -19,7 +19,7 @@ DESCRIPTION = (
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="abyss", description=DESCRIPTION)
     sub = root.add_subparsers(dest="command", required=True)
-    for group in (system, link, lab, operator, record, validation, models):
+    for group in (system, link, lab, operator, record, export, validation, models):
         group.add_commands(sub)
     return root
 

@@ -42,7 +42,6 @@ log = logging.getLogger(__name__)
 RECORD_DIR = "record"  # in the run directory
 TESTBED = "testbed"  # the file of the supervisor's observation keys
 FORMAT_VERSION = 1  # of this layout: channels, metadata, the rejected records
-DIRECTIONS = ("sent", "received", "rejected", "observed")
 FLUSH_PERIOD_S = 0.5
 MESSAGE_ENCODING = "msgpack"  # the envelope of common.messages
 REJECTED_ENCODING = "abyss-rejected"  # msgpack {reason, payload}

@@ -89,15 +89,17 @@ class _Bucket:
 
 @dataclass(frozen=True)
 class Caps:
-    """Per key and direction [messages/s]: `bulk_hz` for bulk keys (images, clouds, scene), `max_hz`
-    for the rest."""
+    """Per key and direction [messages/s]: `bulk_hz` for best-effort bulk keys (images, clouds),
+    `max_hz` for the rest. A reliable stream (the scene's deltas) is capped at `max_hz` only: a
+    skipped delta would leave every later one without its base."""
 
     max_hz: float = 50.0
     bulk_hz: float = 2.0
 
     def of(self, key: str) -> float:
         spec = data_spec(key)
-        return self.bulk_hz if spec is not None and spec.priority == "bulk" else self.max_hz
+        bulk = spec is not None and spec.priority == "bulk" and spec.reliability == "best-effort"
+        return self.bulk_hz if bulk else self.max_hz
 
 
 def data_spec(key: str) -> keys.KeySpec | None:
@@ -122,6 +124,7 @@ class Recorder:
         self.counts: Counter[str] = Counter()  # recorded, per direction
         self.skipped: Counter[str] = Counter()  # over a key's cap, per key
         self.bytes_written = 0
+        self.writer_cpu_s = 0.0  # the writer thread's CPU time, as of its latest flush
         self._buckets: dict[tuple[str, str], _Bucket] = {}
         self._queue: queue.SimpleQueue[tuple[str, str, bytes, float, str] | None] = queue.SimpleQueue()
         self._lock = threading.Lock()
@@ -158,7 +161,8 @@ class Recorder:
     def status(self) -> dict[str, Any]:
         with self._lock:
             return {"file": str(self.path), "level": self.level, "recorded": dict(self.counts),
-                    "skipped_over_cap": dict(self.skipped), "bytes": self.bytes_written}
+                    "skipped_over_cap": dict(self.skipped), "bytes": self.bytes_written,
+                    "writer_cpu_s": round(self.writer_cpu_s, 3)}
 
     def close(self) -> None:
         """Write what is queued, then the MCAP summary (a file without it reads all the same)."""
@@ -199,8 +203,10 @@ class Recorder:
             if time.monotonic() >= next_flush_s:
                 self._file.flush()
                 next_flush_s = time.monotonic() + FLUSH_PERIOD_S
+                self.writer_cpu_s = time.thread_time()
         self._writer.finish()
         self._file.close()
+        self.writer_cpu_s = time.thread_time()
 
     def _write(self, direction: str, key: str, payload: bytes, recorded_s: float, reason: str) -> None:
         seq, sent_s = 0, recorded_s

@@ -73,6 +73,10 @@ def test_compose_agrees_with_the_code(env: dict[str, str]) -> None:
         assert service["environment"]["ABYSS_TLS_DIR"] == env.get("ABYSS_TLS_DIR", "")
     onshore = compose["services"]["onshore"]
     assert "onshore.record_dir=/runs" in option_values(onshore["command"], "--set")
+    for station in keys.STATIONS:  # every station's bus recording in the shared volume
+        service = compose["services"][station]
+        assert "record.directory=/runs/record" in option_values(service["command"], "--set"), station
+        assert "runs:/runs:rw" in service["volumes"], station
     assert "runs:/runs:rw" in onshore["volumes"]  # the recording outlives the container
     assert str(DEFAULT_PORT) in str(onshore["ports"])
 

@@ -21,6 +21,7 @@ from conftest import abyss
 from rerun.chunk import RrdReader
 
 from abyss.common import keys
+from abyss.recording.store import open_recording
 from abyss.stations.runtime import free_port
 
 LINK = "auto"  # compose.yaml's default: netem where the kernel has sch_netem, else the TUN shaper
@@ -113,6 +114,12 @@ def test_compose_up_runs_the_mission(image: str, tmp_path: Path) -> None:
         entities = {chunk.entity_path.lstrip("/") for chunk in RrdReader(recording).stream().to_chunks()}
         assert "world/vehicle" in entities, sorted(entities)[:20]
         engine.say(f"recording {recording.stat().st_size / 1e6:.1f} MB, {len(entities)} entities")
+        # every station's bus recording, in the same volume, closed as each station stopped
+        copied = engine.docker("cp", f"{compose.container('onshore')}:/runs/record", str(tmp_path / "record"))
+        assert copied.returncode == 0, copied.stderr
+        bus = open_recording(tmp_path)
+        assert bus.stations == set(keys.STATIONS) and all(f.complete for f in bus.files)
+        assert any(r.topic == "onboard/telemetry" for r in bus.records(("onshore",), ("received",)))
     finally:
         down = compose("down", "-v", "--remove-orphans", "-t", "10")
         assert down.returncode == 0, down.stderr

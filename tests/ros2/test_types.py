@@ -1,0 +1,13 @@
+"""The ROS 2 table (`ros2.types`) and the README agree."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from abyss.ros2.types import topics_table
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_readme_topic_table_is_the_generated_one() -> None:
+    assert topics_table() in (ROOT / "README.md").read_text()

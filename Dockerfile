@@ -42,6 +42,8 @@ COPY launch launch
 COPY validation validation
 COPY console console
 COPY cli cli
+COPY recording recording
+COPY ros2 ros2
 COPY scenarios scenarios
 RUN pip install --disable-pip-version-check --no-cache-dir --no-deps --no-build-isolation --no-index . \
  && rm -rf build

@@ -128,6 +128,7 @@ class Up:
         self.config = config
         self.replayed = replayed
         self.replay_start: ReplayStart | None = None
+        self.session: zenoh.Session | None = None  # the supervisor's, while it runs
         self.placement = placement or Local()
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
         self.restart = restart  # a station that dies is started again instead of failing the run
@@ -195,6 +196,10 @@ class Up:
             self.simulation = message
         elif isinstance(message, Telemetry) and self.record is not None:
             self.record.add(message)
+
+    def _put(self, key: str, message: ReplayStart) -> None:
+        if self.session is not None:
+            self.session.put(key, encode(message, 0, time.time()))
 
     def _on_observed(self, sample: zenoh.Sample) -> None:
         if self.testbed is not None:
@@ -300,7 +305,7 @@ class Up:
         config_path.write_text(self.config.to_json())
         self._change_state()
         system = self.config.system
-        session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
+        session = self.session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
         self.record = ControlRecorder(self.out_dir)
         self.testbed = station_recorder(self.config, TESTBED)
         observers = [
@@ -335,7 +340,7 @@ class Up:
                 viewer = viewer_line(self.config.onshore)
                 self.echo(viewer)
                 self._change_state(phase="up", viewer=viewer.removeprefix("abyss: "))
-                failure = self._watch(session, duration_s, keep_running)
+                failure = self._watch(duration_s, keep_running)
         finally:
             self._change_state(phase="stopping")
             stuck = self._stop_all()  # always: every station is stopped, whatever failed
@@ -374,7 +379,7 @@ class Up:
         missing = sorted(set(keys.STATIONS) - shown)
         return f"not up after {timeout_s:g} s: {', '.join(missing)}"
 
-    def _watch(self, session: zenoh.Session, duration_s: float | None, keep_running: bool) -> str:
+    def _watch(self, duration_s: float | None, keep_running: bool) -> str:
         t0 = time.monotonic()
         last_report = next_start_s = t0
         if self.replayed is not None:
@@ -384,7 +389,7 @@ class Up:
         while True:
             if self.replay_start is not None and time.monotonic() >= next_start_s:
                 next_start_s = time.monotonic() + 1.0  # again each second, for a replayer that starts late
-                session.put(keys.replay_key(self.config.system), encode(self.replay_start, 0, time.time()))
+                self._put(keys.replay_key(self.config.system), self.replay_start)
             for station in self._check_deaths():
                 self._report_death(station)
                 if not self.restart:

@@ -4,8 +4,10 @@ ports, the station command line) with its defaults and with the environment's ov
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -88,6 +90,11 @@ def test_the_image_installs_what_setup_installs() -> None:
     assert "ARG BASE=python:3.11-slim-bookworm" in dockerfile and "FROM ${BASE}" in dockerfile
     assert "python3 -m venv /opt/abyss" in dockerfile and "ENV PATH=/opt/abyss/bin:$PATH" in dockerfile
     assert "ENTRYPOINT [\"abyss\"]" in dockerfile
+    # every package folder goes into the image (pip refuses a package list with one missing)
+    packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    folders = {name.split(".")[1] for name in packages if name.count(".") >= 1}
+    copied = set(re.findall(r"^COPY (\w+) \1$", dockerfile, re.MULTILINE))
+    assert folders <= copied, sorted(folders - copied)
 
 
 def test_an_invalid_compose_file_is_refused(tmp_path: Path) -> None:

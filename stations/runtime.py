@@ -113,14 +113,11 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     """Open the shell, run the station (or `entry` in its place: a replay) until SIGINT/SIGTERM,
     close, write the status file."""
     entry = entry or station_entry(name)
-    shell = Shell(name, config, listen, connect, link_mode, mode, tls_dir, peers)
-    bus = shell.bus
-
     asked_s: list[float] = []  # when the stop was asked for (this process's monotonic clock)
     stopped = threading.Event()
     outcome: dict[str, Any] = {"exit_code": 0}  # what the watchdog writes if it has to cut the stop
 
-    def stop(signum: int, _frame: Any) -> None:
+    def asked(signum: int) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
         if not asked_s:
             threading.Thread(target=_stop_watchdog, args=(name, stopped, status_file, outcome),
@@ -128,6 +125,22 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
         asked_s.append(time.monotonic())
         bus.stop.set()
 
+    # The handler takes no lock: it runs in the main thread between two of its bytecodes, maybe
+    # inside bus.stop.wait() with the event's lock half taken, which set() takes too (a deadlock
+    # that once left a station to its watchdog). It writes the signal to a pipe; a thread of its
+    # own reads it and asks for the stop.
+    signals_r, signals_w = os.pipe()
+
+    def stop(signum: int, _frame: Any) -> None:
+        os.write(signals_w, bytes([signum]))
+
+    def watch_signals() -> None:
+        while data := os.read(signals_r, 1):
+            asked(data[0])
+
+    threading.Thread(target=watch_signals, name="signals", daemon=True).start()
+    shell = Shell(name, config, listen, connect, link_mode, mode, tls_dir, peers)
+    bus = shell.bus
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)

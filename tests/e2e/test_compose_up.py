@@ -119,7 +119,7 @@ def test_compose_up_runs_the_mission(image: str, tmp_path: Path) -> None:
         assert copied.returncode == 0, copied.stderr
         bus = open_recording(tmp_path)
         assert bus.stations == set(keys.STATIONS) and all(f.complete for f in bus.files)
-        assert any(r.topic == "onboard/telemetry" for r in bus.records(("onshore",), ("received",)))
+        assert any(r.topic == "vessel/telemetry" for r in bus.records(("onshore",), ("received",)))
     finally:
         down = compose("down", "-v", "--remove-orphans", "-t", "10")
         assert down.returncode == 0, down.stderr

@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -47,14 +49,40 @@ def test_every_data_key_is_recorded_as_sent_and_as_received(recorded_run: Path) 
     assert {r.topic for r in recording.observed()} >= {"simulation/truth", "onshore/mission"}
 
 
+REPLAYS = {  # name: what is replayed (and compared); the rest runs live
+    # the whole recording (the mission, then 10 s for the scene stream to reach shore whole)
+    "shore-live": ("--as", "simulation", "--as", "onboard", "--keep-running"),
+    "onboard-live": ("--as", "simulation", "--as", "vessel", "--as", "onshore", "--compare"),
+    "onboard-changed": ("--as", "simulation", "--as", "vessel", "--as", "onshore", "--compare",
+                        "--set", "onboard.kp_position=1.2"),
+}
+
+
+@pytest.fixture(scope="module")
+def replays(recorded_run: Path, tmp_path_factory: pytest.TempPathFactory,
+            ) -> dict[str, tuple[subprocess.CompletedProcess[str], Path]]:
+    """The replays the tests below judge, as a user runs them, all at once (each its own system):
+    the exit, the output and the run directory of each."""
+    base = tmp_path_factory.mktemp("replays")
+    started = {name: subprocess.Popen(
+        [sys.executable, "-P", "-m", "abyss.cli", "replay", str(recorded_run), *args,
+         "--out", str(base / name), "--viewer", "none", "--port", "0", "--system", name],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=base)
+        for name, args in REPLAYS.items()}
+    done = {}
+    for name, process in started.items():
+        stdout, stderr = process.communicate(timeout=200)
+        result = subprocess.CompletedProcess(process.args, process.returncode, stdout, stderr)
+        done[name] = (result, base / name)
+    return done
+
+
 def test_replayed_simulation_and_onboard_drive_live_vessel_and_shore_to_the_recorded_end(
-        recorded_run: Path, tmp_path: Path) -> None:
-    out = tmp_path / "replay"
-    done = abyss("replay", str(recorded_run), "--as", "simulation", "--as", "onboard", "--out", str(out),
-                 "--viewer", "none", "--port", "0", timeout_s=200)
+        recorded_run: Path, replays: dict[str, tuple[subprocess.CompletedProcess[str], Path]]) -> None:
+    done, out = replays["shore-live"]
     assert done.returncode == 0, done.stdout + done.stderr
     recorded, replayed = (json.loads((run / "summary.json").read_text()) for run in (recorded_run, out))
-    assert replayed["verdict"] == "done"
+    assert replayed["verdict"] == "done" and replayed["mission_done_s"] is not None
     cells = [s["scene"]["occupied_cells"] for s in (recorded, replayed)]
     assert abs(cells[1] - cells[0]) <= 0.05 * cells[0], cells
     state = ("mode", "waypoint_index", "waypoints_total", "arm_mode", "done")
@@ -68,17 +96,14 @@ def test_replayed_simulation_and_onboard_drive_live_vessel_and_shore_to_the_reco
     assert 0.9 * recorded_sent <= onboard_sent <= recorded_sent + 3, (onboard_sent, recorded_sent)
 
 
-@pytest.mark.parametrize("gain", [None, "1.2"])
+@pytest.mark.parametrize("name", ["onboard-live", "onboard-changed"])
 def test_compare_names_the_keys_a_changed_gain_changes_and_nothing_else(
-        recorded_run: Path, tmp_path: Path, gain: str | None) -> None:
-    out = tmp_path / "compare"
-    changed = ["--set", f"onboard.kp_position={gain}"] if gain else []
-    done = abyss("replay", str(recorded_run), "--as", "simulation", "--as", "vessel", "--as", "onshore",
-                 "--compare", "--out", str(out), "--viewer", "none", "--port", "0", *changed, timeout_s=200)
+        replays: dict[str, tuple[subprocess.CompletedProcess[str], Path]], name: str) -> None:
+    done, out = replays[name]
     rows = {row["key"]: row for row in json.loads((out / "compare.json").read_text())}
     assert set(rows) == {f"onboard/{s.topic}" for s in keys.KEYS if s.station == "onboard"}
     differing = sorted(k for k, row in rows.items() if row["differs"])
-    if gain is None:
+    if name == "onboard-live":
         assert done.returncode == 0 and differing == [], done.stdout + done.stderr
         assert "0 of 6 keys differ" in done.stdout
     else:

@@ -50,8 +50,8 @@ def test_every_data_key_is_recorded_as_sent_and_as_received(recorded_run: Path) 
 
 
 REPLAYS = {  # name: what is replayed (and compared); the rest runs live
-    # the whole recording (the mission, then 10 s for the scene stream to reach shore whole)
-    "shore-live": ("--as", "simulation", "--as", "onboard", "--keep-running"),
+    # the whole recording (40 s: the mission, then 10 s for the scene stream to reach shore whole)
+    "shore-live": ("--as", "simulation", "--as", "onboard", "--keep-running", "--duration", "42"),
     "onboard-live": ("--as", "simulation", "--as", "vessel", "--as", "onshore", "--compare"),
     "onboard-changed": ("--as", "simulation", "--as", "vessel", "--as", "onshore", "--compare",
                         "--set", "onboard.kp_position=1.2"),

@@ -20,7 +20,9 @@ from conftest import ROOT, abyss
 pytestmark = [pytest.mark.e2e]
 LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))
 SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]
-COMPARED = ("satellite-down", "tether-outage")  # run again one at a time
+# run again one at a time: the scenario whose assertions hang on timing (the failsafe's within a bound
+# of the outage), which load could change; satellite-down's outcome does not depend on timing
+COMPARED = ("tether-outage",)
 
 
 def verdicts(junit: Path) -> dict[str, tuple[str, ...]]:

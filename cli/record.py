@@ -14,7 +14,6 @@ from abyss.cli.system import run_args, up_config
 from abyss.common import keys
 from abyss.common.errors import ConfigError
 
-CONFIG_FILE = "config.json"  # what `abyss up` ran with, in its run directory
 COMPARE_FILE = "compare.json"
 
 
@@ -30,14 +29,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
               f"`abyss view {args.run_dir}`; `abyss replay RUN_DIR --as STATION` plays stations back",
               file=sys.stderr)
         return cmd_view(args)
-    from abyss.launch.up import Replayed, run_up
+    from abyss.launch.up import CONFIG_FILE, Replayed, run_up
     from abyss.recording.compare import compare, differing, render
-    from abyss.recording.replay import check_replayable
+    from abyss.recording.replay import check_replayable, check_speed
     from abyss.recording.store import open_recording
 
     if not args.as_station:
         raise ConfigError("--compare", "needs the stations to replay: --as STATION (the others run live "
                           "and are compared)")
+    check_speed(args.speed)
     run_dir = args.run_dir.resolve()
     recording = open_recording(run_dir)
     stations = tuple(dict.fromkeys(args.as_station))

@@ -43,6 +43,7 @@ from abyss.stations.runtime import SUPERVISOR_ENV, free_port, station_recorder
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts
+CONFIG_FILE = "config.json"  # what the stations (and a replay of the run) are given
 SIMULATION_STATE_FILE = "simulation-state.npy"  # a restarted simulation resumes from it
 REPLAY_DELAY_S = 1.0  # from every station up to the replayed stations' first message
 STOP_TIMEOUT_S = 10.0  # twice a station's stop bound (stations.runtime): past it, a defect
@@ -247,7 +248,7 @@ class Up:
         return dead
 
     def _restart(self, station: Station) -> None:
-        restarted = self._start(station.name, self.out_dir / "config.json")
+        restarted = self._start(station.name, self.out_dir / CONFIG_FILE)
         restarted.restarts = station.restarts + 1
         self.stations[station.name] = restarted
         self._change_state(station.name, restarts=restarted.restarts)
@@ -301,7 +302,7 @@ class Up:
         shutil.rmtree(self.out_dir / RECORD_DIR, ignore_errors=True)  # an earlier run's
         for name in (SIMULATION_STATE_FILE, *CARRIED_OVER):  # an earlier run's: restarts read them
             (self.out_dir / name).unlink(missing_ok=True)
-        config_path = self.out_dir / "config.json"
+        config_path = self.out_dir / CONFIG_FILE
         config_path.write_text(self.config.to_json())
         self._change_state()
         system = self.config.system

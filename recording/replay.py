@@ -93,10 +93,15 @@ class Commands:
         return message
 
 
+def check_speed(speed: float) -> float:
+    if not speed > 0:
+        raise ConfigError("--speed", f"{speed} must be a positive factor (2: twice as fast)")
+    return speed
+
+
 def replayer(run_dir: Path, speed: float) -> Callable[[Config, Bus], None]:
     """The station entry (`run(config, bus)`) that plays `bus.station`'s recorded messages back."""
-    if speed <= 0:
-        raise ConfigError("--speed", f"{speed} must be a positive factor")
+    check_speed(speed)
     recording = open_recording(run_dir)
 
     def run(config: Config, bus: Bus) -> None:

@@ -139,6 +139,8 @@ def test_bad_replays_fail_at_start_with_the_fix(tmp_path: Path, recorded_run: Pa
     assert unknown.returncode == 2 and "invalid choice: 'rov'" in unknown.stderr
     same = abyss("replay", str(recorded_run), "--as", "onboard", "--out", str(recorded_run))
     assert same.returncode == 2 and "is the recorded run" in same.stderr
+    stopped = abyss("replay", str(recorded_run), "--as", "onboard", "--speed", "0")
+    assert stopped.returncode == 2 and "--speed: 0.0 must be a positive factor" in stopped.stderr
     compare = abyss("replay", str(recorded_run), "--compare")
     assert compare.returncode == 2 and "--as STATION" in compare.stderr
     alias = abyss("replay", str(tmp_path))

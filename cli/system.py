@@ -18,7 +18,7 @@ from abyss.cli.args import (
     pairs,
 )
 from abyss.common import keys
-from abyss.common.config import RECORD_LEVELS, VIEWERS, Config
+from abyss.common.config import RECORD_LEVELS, ROS2_STATIONS, VIEWERS, Config
 from abyss.common.errors import ConfigError
 from abyss.common.security import TLS_DIR_ENV
 from abyss.linkemu.control import LINK_MODES
@@ -40,6 +40,14 @@ def up_config(args: argparse.Namespace, config: Config) -> Config:
         config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
     if args.record is not None:
         config = dataclasses.replace(config, record=dataclasses.replace(config.record, level=args.record))
+    ros2 = {name: value for name, value in (("station", getattr(args, "ros2", None)),
+                                           ("domain", getattr(args, "ros_domain", None)),
+                                           ("namespace", getattr(args, "ros_namespace", None)))
+            if value is not None}
+    if ros2:
+        if "station" not in ros2 and not config.ros2.station:
+            raise ConfigError("--ros-domain/--ros-namespace", "need --ros2 STATION")
+        config = dataclasses.replace(config, ros2=dataclasses.replace(config.ros2, **ros2))
     return config
 
 
@@ -72,14 +80,17 @@ def cmd_station(args: argparse.Namespace) -> int:
     peers = dict(pairs("--peer", args.peer))
     for hop in peers:
         keys.check_hop(hop)
+    config = load_config(args)
     entry = None
     if args.replay is not None:
         from abyss.recording.replay import replayer
 
         entry = replayer(args.replay, args.speed)
+    elif config.ros2.station == args.name:
+        from abyss.ros2.gateway import run as entry
     code = run_station(
         args.name,
-        load_config(args),
+        config,
         args.listen,
         args.connect,
         args.status_file,
@@ -147,6 +158,12 @@ def add_commands(sub: Any) -> None:
         help="do not start this station: wait for yours (a real component) on its keys",
     )
     p.add_argument("--restart", action="store_true", help="start a station that dies again")
+    p.add_argument("--ros2", choices=ROS2_STATIONS, metavar="STATION",
+                   help="a ROS 2 node takes this station's place: a gateway speaks rmw_zenoh to it "
+                        f"(choices: {', '.join(ROS2_STATIONS)}; README: ROS 2 nodes)")
+    p.add_argument("--ros-domain", type=int, metavar="N", help="with --ros2: ROS_DOMAIN_ID (default 0)")
+    p.add_argument("--ros-namespace", metavar="NS",
+                   help="with --ros2: the topics' namespace (default /abyss)")
     p.set_defaults(func=cmd_up)
 
     p = sub.add_parser("station", help="run one station, e.g. on its own host")

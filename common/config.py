@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -242,6 +243,36 @@ class RecordConfig:
         _positive("record.bulk_max_rate_hz", self.bulk_max_rate_hz)
 
 
+ROS2_STATIONS = ("onboard",)  # the stations a ROS 2 node can take the place of (ros2.gateway)
+_ROS_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
+
+
+@dataclass(frozen=True)
+class Ros2Config:
+    """The ROS 2 gateway (abyss.ros2.gateway): a ROS 2 node over rmw_zenoh in a station's place."""
+
+    station: str = ""  # the station the gateway stands for (`abyss up --ros2 STATION`); "" none
+    domain: int = 0  # ROS_DOMAIN_ID: the first chunk of every rmw_zenoh key
+    namespace: str = "/abyss"  # the gateway's topics: <namespace>/<station>/<topic>
+    # the Zenoh router the ROS 2 nodes connect to: the gateway listens as one (rmw_zenohd's default
+    # endpoint) or, with `connect`, joins one that runs already (rmw_zenohd)
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    connect: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.station not in ("", *ROS2_STATIONS):
+            raise ConfigError("ros2.station", f"{self.station!r}: a ROS 2 node can stand for "
+                              f"{', '.join(ROS2_STATIONS)}")
+        if not 0 <= self.domain <= 232:
+            raise ConfigError("ros2.domain", f"{self.domain}: a ROS domain id is 0 to 232")
+        if not _ROS_NAMESPACE.match(self.namespace):
+            raise ConfigError("ros2.namespace", f"{self.namespace!r} is not an absolute ROS 2 namespace "
+                              "such as /abyss or /team/rov1")
+        if not self.listen and not self.connect:
+            raise ConfigError("ros2.listen", "empty, and so is ros2.connect: the ROS 2 nodes would have "
+                              "no router")
+
+
 Box = tuple[float, float, float, float, float, float]
 
 
@@ -301,6 +332,7 @@ class Config:
     onshore: OnshoreConfig = field(default_factory=OnshoreConfig)
     mission: MissionConfig = field(default_factory=MissionConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)

@@ -22,7 +22,7 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
-from abyss.common.config import Config, OnshoreConfig
+from abyss.common.config import Config, OnshoreConfig, Ros2Config
 from abyss.common.errors import AbyssError, BadMessage
 from abyss.common.messages import (
     MissionStatus,
@@ -333,6 +333,8 @@ class Up:
                               f"{name} --system {system} --connect {self.endpoint}`")
                 else:
                     self.stations[name] = self._start(name, config_path)
+                if name == self.config.ros2.station:
+                    self.echo(ros2_line(self.config.ros2))
             failure = self._wait_until_up(t0)
             startup_s = time.monotonic() - t0
             self.up_s = time.monotonic()
@@ -465,6 +467,16 @@ def viewer_line(cfg: OnshoreConfig) -> str:
                    f"(recording to {recording})",
             "spawn": f"abyss: rerun viewer spawned (recording to {recording})",
             "none": "abyss: no viewer, no recording"}[cfg.viewer]
+
+
+def ros2_line(ros2: Ros2Config) -> str:
+    """How a ROS 2 node joins the gateway that stands for a station (README: ROS 2 nodes)."""
+    endpoint = (ros2.connect or ros2.listen)[0]
+    where = "its router" if not ros2.connect else "the router it joined"
+    return (f"abyss: {ros2.station} is a ROS 2 gateway (domain {ros2.domain}, topics under "
+            f"{ros2.namespace}); start your node with RMW_IMPLEMENTATION=rmw_zenoh_cpp "
+            f"ROS_DOMAIN_ID={ros2.domain} "
+            f"ZENOH_CONFIG_OVERRIDE='connect/endpoints=[\"{endpoint}\"]' ({where}) and use_sim_time:=true")
 
 
 def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,

@@ -138,7 +138,7 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
             writer.start(profile="ros2", library="abyss export")
             channels = _Channels(writer)
             for r, m in exported:  # every topic first, even one whose messages all fail to convert
-                for t in m.topics:
+                for t in m.exported:
                     channels.add(t.topic(r.topic), t.type, m.qos(t))
             channels.add(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
             first_s = exported[0][0].recorded_s if exported else time.time()
@@ -173,7 +173,7 @@ def _write_record(channels: _Channels, session: types.Session, clock: SimClock, 
         if m.message != message.TYPE:
             raise ValueError(f"a {message.TYPE}, the table maps {m.message}")
         stamp_s = types.stamp_of(message, clock(r.sent_s))
-        for t in m.topics:
+        for t in m.exported:
             converted = t.convert(message, types.header(stamp_s, t.frame_id), session)
             if converted is not None:
                 channels.write(t.topic(r.topic), converted, r.recorded_s, r.sent_s)

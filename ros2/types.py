@@ -1,7 +1,8 @@
 """The one table from abyss messages to ROS 2: per key its ROS 2 topics, types, frames and QoS,
 and the conversion of each message to a message of the standard type (rosbags' typestore, ROS 2
-Jazzy, plus `octomap_msgs/Octomap`). The MCAP export (`ros2.mcap`) writes by it; a ROS 2 gateway
-would publish by it.
+Jazzy, plus `octomap_msgs/Octomap`), and back for what a ROS 2 node publishes in a station's place.
+The MCAP export (`ros2.mcap`) writes by it; the ROS 2 gateway (`ros2.gateway`) publishes and
+subscribes by it.
 
 Frames (REP 103, REP 105):
 - `world`: abyss's world frame, z up, x towards the panel, taken as ENU with x east and y north.
@@ -37,9 +38,12 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from abyss.common import keys
-from abyss.common.clouds import unpack_cloud
-from abyss.common.geometry import quat_wxyz_of
+from abyss.common.clouds import pack_cloud, unpack_cloud
+from abyss.common.config import ROS2_STATIONS
+from abyss.common.geometry import quat_wxyz_of, rotation_of, wrap_rad, yaw_of
+from abyss.common.images import decode_image
 from abyss.common.messages import (
+    MODES,
     ArmGoal,
     ArmVelocityRef,
     CommandAck,
@@ -50,6 +54,7 @@ from abyss.common.messages import (
     Message,
     MissionStatus,
     NavState,
+    OperatorMode,
     PointCloud,
     RecognisedObjects,
     SceneUpdate,
@@ -57,6 +62,7 @@ from abyss.common.messages import (
     Telemetry,
     VelocityRef,
     Waypoints,
+    new_id,
 )
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, GRIPPER_JOINTS, ROBOT_FILE
 from abyss.common.scene import SceneReceiver
@@ -209,13 +215,40 @@ class ArmFrames:
 
 
 class Session:
-    """What the conversions keep between the messages of one stream of them (an export): the
-    arm's kinematics, and shore's copy of the scene, onto which each update (a snapshot or a delta)
-    is applied, so that every Octomap message is the whole map, as ROS consumers take it."""
+    """What the conversions keep between the messages of one stream of them (an export, a
+    gateway): the arm's kinematics, and shore's copy of the scene, onto which each update (a
+    snapshot or a delta) is applied, so that every Octomap message is the whole map, as ROS
+    consumers take it. A gateway's conversions back to abyss read what it last handed the ROS 2
+    node: the navigation, the joints, the goals (with their command ids) and the operator mode."""
 
     def __init__(self) -> None:
         self.arm = ArmFrames()
         self.scene = SceneReceiver()
+        self.nav: NavState | None = None
+        self.joints: JointState | None = None
+        self.waypoints: Waypoints | None = None
+        self.arm_goal: ArmGoal | None = None
+        self.operator_mode = "auto"
+        self.ee_pose: tuple[np.ndarray, np.ndarray] | None = None  # the node's: position, w x y z [world]
+        self.boot_id = new_id()
+
+    def handed(self, message: Message) -> None:
+        """Remember a message the ROS 2 node was given."""
+        if isinstance(message, NavState):
+            self.nav = message
+        elif isinstance(message, JointState):
+            self.joints = message
+        elif isinstance(message, Waypoints):
+            self.waypoints = message
+        elif isinstance(message, ArmGoal):
+            self.arm_goal = message
+        elif isinstance(message, OperatorMode):
+            self.operator_mode = message.mode
+
+    @property
+    def sim_time_s(self) -> float:
+        """The latest simulated time handed over (the navigation's)."""
+        return self.nav.sim_time_s if self.nav is not None else 0.0
 
 
 # -- the conversions: (abyss message, header of the topic's frame, session) -> ROS 2 message or None
@@ -254,16 +287,33 @@ def arm_tf(joints: JointState, head: Any, session: Session) -> Any:
     return _tf([_transform(head.stamp, *link) for link in links])
 
 
+ARM_COMMAND_LABEL = "velocity: " + ", ".join((*ARM_JOINTS, "gripper_opening"))
+
+
 def joint_velocities(ref: ArmVelocityRef, head: Any, session: Session) -> Any:
-    """A velocity command as a JointState of velocities only (no positions)."""
-    finger_mps = ref.gripper_velocity_mps / 2
-    return _joint_state(head, [], [*ref.joint_velocities_radps, finger_mps, finger_mps])
+    """A velocity command as ros2_control's forward velocity controller takes it: a
+    Float64MultiArray of the six joints' velocities [rad/s] in model order, then the gripper's
+    opening speed [m/s]."""
+    dim = _T["std_msgs/msg/MultiArrayDimension"](label=ARM_COMMAND_LABEL, size=7, stride=7)
+    return _T["std_msgs/msg/Float64MultiArray"](
+        layout=_T["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=0),
+        data=_floats([*ref.joint_velocities_radps, ref.gripper_velocity_mps]))
 
 
 def twist(ref: VelocityRef, head: Any, session: Session) -> Any:
     """The vehicle's velocity reference in base_link; the yaw rate about its z axis."""
     return _T["geometry_msgs/msg/TwistStamped"](header=head, twist=_T["geometry_msgs/msg/Twist"](
         linear=_vector(ref.linear_mps_body), angular=_vector((0.0, 0.0, ref.yaw_rate_radps))))
+
+
+def raw_image(image: Image, head: Any, session: Session) -> Any | None:
+    """A colour frame as `rgb8` pixels (image_transport's raw base topic)."""
+    if image.encoding != "jpeg":
+        return None
+    pixels = decode_image(image)
+    return _T["sensor_msgs/msg/Image"](
+        header=header_of(head, optical_frame(image.camera)), height=image.height_px, width=image.width_px,
+        encoding="rgb8", is_bigendian=0, step=3 * image.width_px, data=np.ascontiguousarray(pixels).ravel())
 
 
 def compressed_image(image: Image, head: Any, session: Session) -> Any | None:
@@ -430,8 +480,12 @@ def status_diagnostics(status: SimulationStatus, head: Any, session: Session) ->
                             **{f"fault {k}": v for k, v in status.faults.items()}})
 
 
-def clock(status: SimulationStatus, head: Any, session: Session) -> Any:
+def clock(status: SimulationStatus | NavState, head: Any, session: Session) -> Any:
     return _T["rosgraph_msgs/msg/Clock"](clock=head.stamp)
+
+
+def operator_mode(mode: OperatorMode, head: Any, session: Session) -> Any:
+    return _T["std_msgs/msg/String"](data=mode.mode)
 
 
 def header_of(head: Any, frame_id: str) -> Any:
@@ -450,6 +504,133 @@ def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndar
     return _tf(arm + cameras)
 
 
+# -- back from ROS 2: what a ROS 2 node publishes in a station's place (the gateway) --------
+# (ROS 2 message, session) -> abyss message, or None when it leaves nothing to send yet;
+# ValueError names what is wrong with it
+Parse = Callable[[Any, Session], Message | None]
+
+
+def _frame(head: Any, allowed: str) -> None:
+    if head.frame_id not in ("", allowed):
+        raise ValueError(f"frame_id {head.frame_id!r}, expected {allowed!r}")
+
+
+def twist_in(msg: Any, session: Session) -> VelocityRef:
+    """The vehicle's velocity reference in base_link: linear x, y, z and the yaw rate (angular z);
+    the vehicle is passively stable in roll and pitch, whose rates are not commanded."""
+    _frame(msg.header, BASE_LINK)
+    linear, angular = msg.twist.linear, msg.twist.angular
+    return VelocityRef(np.array([linear.x, linear.y, linear.z]), float(angular.z))
+
+
+def joint_velocities_in(msg: Any, session: Session) -> ArmVelocityRef:
+    data = np.asarray(msg.data, dtype=np.float64)
+    if data.shape != (7,):
+        raise ValueError(f"{len(data)} values, expected 7 ({ARM_COMMAND_LABEL})")
+    return ArmVelocityRef(data[:6], float(data[6]))
+
+
+def ee_pose_in(msg: Any, session: Session) -> None:
+    """Where the node sees the tool, in the world: kept for the telemetry."""
+    _frame(msg.header, WORLD)
+    p, q = msg.pose.position, msg.pose.orientation
+    orientation = np.array([q.w, q.x, q.y, q.z])
+    if not np.isfinite([p.x, p.y, p.z]).all() or abs(np.linalg.norm(orientation) - 1.0) > 1e-3:
+        raise ValueError("the pose's position is not finite or its orientation not a unit quaternion")
+    session.ee_pose = np.array([p.x, p.y, p.z]), orientation
+    return None
+
+
+CLOUD_SCALE_M = 0.002  # the quantisation of a node's cloud on abyss's wire (onboard.cloud_scale_m's default)
+
+
+def point_cloud_in(msg: Any, session: Session) -> PointCloud | None:
+    """A cloud in the world frame: float32 x, y, z and, where present, PCL's packed `rgb`
+    (float32 or uint32 0x00RRGGBB; grey without), NaN points dropped; its rays began where the
+    vehicle is (the navigation handed over). None before navigation."""
+    _frame(msg.header, WORLD)
+    fields = {f.name: f for f in msg.fields}
+    float32, uint32 = _T["sensor_msgs/msg/PointField"].FLOAT32, _T["sensor_msgs/msg/PointField"].UINT32
+    for name in ("x", "y", "z"):
+        if name not in fields or fields[name].datatype != float32:
+            raise ValueError(f"no float32 field {name!r}: fields {sorted(fields)}")
+    count, step = int(msg.width) * int(msg.height), int(msg.point_step)
+    if msg.is_bigendian or step < 12 or len(msg.data) < count * step:
+        raise ValueError(f"{len(msg.data)} bytes for {count} points of {step} bytes (little-endian)")
+    rows = np.asarray(msg.data, np.uint8)[:count * step].reshape(count, step)
+
+    def column(name: str, dtype: str) -> np.ndarray:
+        offset = int(fields[name].offset)
+        if offset + 4 > step:
+            raise ValueError(f"field {name!r} at offset {offset} lies past the point's {step} bytes")
+        return rows[:, offset:offset + 4].copy().view(dtype).ravel()
+
+    points_m = np.column_stack([column(name, "<f4") for name in ("x", "y", "z")]).astype(np.float64)
+    colors = np.full((count, 3), 128, np.uint8)
+    if "rgb" in fields and fields["rgb"].datatype in (float32, uint32):
+        rgb = column("rgb", "<u4")
+        colors = np.column_stack([(rgb >> 16) & 0xFF, (rgb >> 8) & 0xFF, rgb & 0xFF]).astype(np.uint8)
+    finite = np.isfinite(points_m).all(axis=1)
+    if session.nav is None:
+        return None
+    stamp = msg.header.stamp
+    return pack_cloud("stereo", points_m[finite], colors[finite], session.nav.position_m_world, CLOUD_SCALE_M,
+                      stamp.sec + stamp.nanosec * 1e-9)
+
+
+TELEMETRY_VALUES = {  # the key-values read from the node's first DiagnosticStatus; the rest are ignored
+    "mode": f"the vehicle's: {', '.join(MODES)} (default idle)",
+    "waypoint": "the index of the waypoint flown to, counted from 0, as `i` or `i/n` (default 0)",
+    "arm_mode": f"the arm's: {', '.join(MODES)} (default idle)",
+    "failsafe": "why the vehicle and the arm hold; empty when they do not (default)",
+    "failsafe_events": "how many times the failsafe came on (default 0)",
+}
+
+
+def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
+    """The controllers' state as the node states it in the values of TELEMETRY_VALUES, the rest
+    from what the gateway handed the node: the position and heading from the navigation, the
+    errors against the goals (and the tool's pose, /ee_pose, where the node publishes it), the
+    command ids of the goals in force, the joints, the operator mode. None before navigation."""
+    if not msg.status:
+        raise ValueError("no DiagnosticStatus in the array")
+    values = {kv.key: kv.value for kv in msg.status[0].values}
+    waypoint = values.get("waypoint", "0").partition("/")[0]
+    if not waypoint.isdigit():
+        raise ValueError(f"waypoint {values['waypoint']!r} is not `i` or `i/n`")
+    events = values.get("failsafe_events", "0")
+    if not events.isdigit():
+        raise ValueError(f"failsafe_events {events!r} is not a count")
+    nav = session.nav
+    if nav is None:
+        return None
+    position, yaw = nav.position_m_world, yaw_of(nav.orientation_wxyz_world)
+    index, error_m, heading_rad, command_id, total = int(waypoint), np.zeros(3), 0.0, -1, 0
+    if session.waypoints is not None:
+        rows = session.waypoints.waypoints
+        command_id, total = session.waypoints.command_id, len(rows)
+        target = rows[min(index, total - 1)]
+        error_m, heading_rad = target[:3] - position, wrap_rad(float(target[3]) - yaw)
+    ee_m, ee_wxyz = session.ee_pose or (np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+    ee_error_m, ee_error_rad, arm_command_id = np.zeros(3), 0.0, -1
+    if session.arm_goal is not None:
+        goal = session.arm_goal
+        arm_command_id = goal.command_id
+        if session.ee_pose is not None:
+            ee_error_m = goal.position_m_world - ee_m
+            relative = rotation_of(ee_wxyz).T @ rotation_of(goal.orientation_wxyz_world)
+            ee_error_rad = float(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0)))
+    joints = session.joints.positions_rad if session.joints is not None else np.zeros(len(ARM_JOINTS))
+    return Telemetry(
+        position_m_world=position, yaw_rad=yaw, mode=values.get("mode", "idle"), command_id=command_id,
+        waypoint_index=min(index, total), waypoints_total=total, position_error_m_world=error_m,
+        heading_error_rad=heading_rad, arm_mode=values.get("arm_mode", "idle"), arm_command_id=arm_command_id,
+        ee_position_error_m_world=ee_error_m, ee_orientation_error_rad=ee_error_rad, ee_position_m_world=ee_m,
+        ee_orientation_wxyz_world=ee_wxyz, arm_positions_rad=joints, failsafe=values.get("failsafe", ""),
+        failsafe_events=int(events), sim_time_s=session.sim_time_s, operator_mode=session.operator_mode,
+        boot_id=session.boot_id)
+
+
 # -- the table ------------------------------------------------------------------------------
 Convert = Callable[[Any, Any, Session], Any]  # (abyss message, header, session) -> ROS 2 message | None
 
@@ -460,7 +641,9 @@ class RosTopic:
     (the abyss key without `abyss/<system>`); /tf and /clock are shared by the keys that feed them.
     `frame_id`: the header's (a camera's topics: its optical frame), `child_frame_id` that of the
     body an Odometry's twist is in; for /tf, the parents and the children of its transforms.
-    `qos`: None for the key's (best-effort: SENSOR_QOS, reliable: RELIABLE_QOS)."""
+    `qos`: None for the key's (best-effort: SENSOR_QOS, reliable: RELIABLE_QOS). `parse`: the
+    conversion back, where a ROS 2 node may publish the topic in the station's place (a gateway);
+    `export`: False for a topic only a gateway publishes."""
 
     name: str
     type: str
@@ -468,9 +651,12 @@ class RosTopic:
     convert: Convert
     child_frame_id: str = ""
     qos: Qos | None = None
+    parse: Parse | None = None
+    export: bool = True
 
-    def topic(self, abyss_topic: str) -> str:
-        return self.name.format(key=f"{TOPIC_PREFIX}/{abyss_topic}")
+    def topic(self, abyss_topic: str, namespace: str = TOPIC_PREFIX) -> str:
+        """The topic's name; `{key}` is `<namespace>/<abyss_topic>`."""
+        return self.name.format(key=f"{namespace}/{abyss_topic}")
 
 
 CAMERA_FRAME = optical_frame("<camera>")
@@ -482,24 +668,30 @@ ODOMETRY = RosTopic("{key}", "nav_msgs/msg/Odometry", WORLD, odometry, BASE_LINK
 CAMERA_INFO = RosTopic("{key}/camera_info", "sensor_msgs/msg/CameraInfo", CAMERA_FRAME, camera_info)
 ARM_PARENTS, ARM_CHILDREN = "arm_base .. arm_link6", "arm_link1 .. arm_link6, finger_left, finger_right"
 
+CLOCK = "/clock"
 BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
-    "NavState": (ODOMETRY, RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS)),
+    "NavState": (ODOMETRY, RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS),
+                 RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS, export=False)),
     "JointState": (RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_state),
                    RosTopic(TF, TF_MESSAGE, ARM_PARENTS, arm_tf, ARM_CHILDREN, TF_QOS)),
-    "Image": (RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", CAMERA_FRAME,
+    "Image": (RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, raw_image, export=False),
+              RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", CAMERA_FRAME,
                        compressed_image), CAMERA_INFO),
-    "VelocityRef": (RosTopic("{key}", "geometry_msgs/msg/TwistStamped", BASE_LINK, twist),),
-    "ArmVelocityRef": (RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_velocities),),
-    "Telemetry": (RosTopic("{key}/diagnostics", DIAGNOSTICS, "", telemetry_diagnostics),
-                  RosTopic("{key}/ee_pose", POSE, WORLD, end_effector_pose)),
-    "PointCloud": (RosTopic("{key}", "sensor_msgs/msg/PointCloud2", WORLD, point_cloud),),
+    "VelocityRef": (RosTopic("{key}", "geometry_msgs/msg/TwistStamped", BASE_LINK, twist, parse=twist_in),),
+    "ArmVelocityRef": (RosTopic("{key}", "std_msgs/msg/Float64MultiArray", "", joint_velocities,
+                                parse=joint_velocities_in),),
+    "Telemetry": (RosTopic("{key}/ee_pose", POSE, WORLD, end_effector_pose, parse=ee_pose_in),
+                  RosTopic("{key}/diagnostics", DIAGNOSTICS, "", telemetry_diagnostics, parse=telemetry_in)),
+    "PointCloud": (RosTopic("{key}", "sensor_msgs/msg/PointCloud2", WORLD, point_cloud,
+                            parse=point_cloud_in),),
     "CommandAck": (RosTopic("{key}", DIAGNOSTICS, "", ack_diagnostics),),
     "Waypoints": (RosTopic("{key}", "nav_msgs/msg/Path", WORLD, path),),
     "ArmGoal": (RosTopic("{key}", POSE, WORLD, goal_pose),),
+    "OperatorMode": (RosTopic("{key}", "std_msgs/msg/String", "", operator_mode),),
     "Heartbeat": (RosTopic("{key}", DIAGNOSTICS, "", heartbeat_diagnostics),),
     "SceneUpdate": (RosTopic("{key}", "octomap_msgs/msg/Octomap", WORLD, octomap),),
     "RecognisedObjects": (RosTopic("{key}", "visualization_msgs/msg/MarkerArray", WORLD, objects),),
-    "SimulationStatus": (RosTopic("/clock", "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS),
+    "SimulationStatus": (RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS),
                          RosTopic("{key}", DIAGNOSTICS, "", status_diagnostics)),
     "LinkStats": (RosTopic("{key}", DIAGNOSTICS, "", link_diagnostics),),
     "MissionStatus": (RosTopic("{key}", DIAGNOSTICS, "", mission_diagnostics),),
@@ -510,7 +702,6 @@ BY_KEY: dict[str, tuple[RosTopic, ...]] = {  # keys that differ from their messa
     "simulation/truth": (ODOMETRY,),  # /tf is the navigation's: what the stations steer by
 }
 NOT_EXPORTED: dict[str, str] = {  # message -> why
-    "OperatorMode": "the operator mode is in the telemetry's diagnostics",
     "SceneRequest": "the scene stream's flow control",
     "SceneAck": "the scene stream's flow control",
 }
@@ -532,6 +723,10 @@ class KeyMap:
     message: str
     reliability: keys.Reliability
     topics: tuple[RosTopic, ...]
+
+    @property
+    def exported(self) -> tuple[RosTopic, ...]:
+        return tuple(t for t in self.topics if t.export)
 
     def qos(self, topic: RosTopic) -> Qos:
         return topic.qos or (SENSOR_QOS if self.reliability == "best-effort" else RELIABLE_QOS)
@@ -574,9 +769,19 @@ def serialize(message: Any) -> bytes:
 
 
 def topics_table() -> str:
-    """The Markdown table of the ROS 2 topics; the README holds it."""
-    rows = ["| abyss key | ROS 2 topic | type | frame_id | child_frame_id | QoS |",
-            "| --- | --- | --- | --- | --- | --- |"]
+    """The Markdown table of the ROS 2 topics; the README holds it. `export`: in `abyss export
+    mcap`; `gateway`: what the ROS 2 gateway hands a node in a station's place, or takes from it."""
+    rows = ["| abyss key | ROS 2 topic | type | frame_id | child_frame_id | QoS | export | gateway |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    specs = {f"{s.station}/{s.topic}": s for s in keys.KEYS}
+
+    def gateway(key: str, t: RosTopic) -> str:
+        spec = specs.get(key)
+        if spec is not None and spec.to in ROS2_STATIONS:
+            return f"to {spec.to}'s node"
+        if spec is not None and spec.station in ROS2_STATIONS and t.parse is not None:
+            return f"from {spec.station}'s node"
+        return "-"
 
     def code(text: str) -> str:
         return f"`{text}`" if text else "-"
@@ -589,8 +794,9 @@ def topics_table() -> str:
         key = m.key.replace("*/linkstats/*", "<station>/linkstats/<hop>")
         for t in m.topics:
             rows.append(f"| {code(key)} | {code(t.topic(key))} | {t.type} | {code(t.frame_id)} "
-                        f"| {code(t.child_frame_id)} | {qos_text(m.qos(t))} |")
+                        f"| {code(t.child_frame_id)} | {qos_text(m.qos(t))} | {'yes' if t.export else '-'} "
+                        f"| {gateway(m.key, t)} |")
     rows.append(f"| (robot.xml; each camera's first frame) | {code(TF_STATIC)} | {TF_MESSAGE} "
                 f"| `{BASE_LINK}`, `arm_link6` | `arm_base`, `ee`, {code(CAMERA_FRAME)} "
-                f"| {qos_text(TF_STATIC_QOS)} |")
+                f"| {qos_text(TF_STATIC_QOS)} | yes | to the node |")
     return "\n".join(rows)

@@ -1,0 +1,175 @@
+"""The ROS 2 gateway: a ROS 2 node takes a station's place (`abyss up --ros2 onboard`), met on
+the wire it speaks with RMW_IMPLEMENTATION=rmw_zenoh_cpp (`ros2.rmw`), with no ROS on abyss's
+side. It runs in the station's shell, so its abyss side is the station's: the same keys, links,
+recording and liveliness token; its ROS 2 side is a Zenoh router of its own (rmw_zenohd's
+endpoint, `ros2.listen`) or a session joined to one (`ros2.connect`).
+
+- Down to the node, what the station would receive, by the table of `ros2.types`: each message
+  on each of its key's ROS 2 topics (the navigation as Odometry, /tf and /clock in simulated
+  time; joints; camera images and their CameraInfo; the goals; the heartbeat), and /tf_static
+  (transient local) with the arm's fixed links and each camera's mounting.
+- Up from the node, what the station would publish: each topic the table can parse back (the
+  velocity references; the telemetry from the node's diagnostics and tool pose), validated
+  (type, type hash, attachment, CDR, the abyss message's bounds); a sample that fails is
+  dropped, counted on its topic's key in the station's `rejected` and logged once.
+- The operator's commands: the node has no command ids, so the gateway answers for it. A
+  command is handed over once a ROS 2 subscriber of its topic is known, then acknowledged as
+  taken; until then it waits for shore's next send, and a command sent again is answered the
+  same way. The telemetry carries the ids of the goals last handed over.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import threading
+from typing import Any
+
+import numpy as np
+
+from abyss.common import keys
+from abyss.common.bus import Bus, open_session, zenoh_config
+from abyss.common.config import Config
+from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
+from abyss.common.rate import Rate
+from abyss.ros2 import rmw, types
+
+log = logging.getLogger(__name__)
+
+LOOP_PERIOD_S = 0.005  # the latency the gateway adds, at most, to what goes down
+COMMAND_KINDS = {Waypoints.TYPE: "waypoints", ArmGoal.TYPE: "arm", OperatorMode.TYPE: "mode"}
+INBOX_DEPTH = 64
+
+
+def node_name(station: str) -> str:
+    return f"abyss_{station}_gateway"
+
+
+def ros_session_config(listen: tuple[str, ...], connect: tuple[str, ...]) -> Any:
+    """A Zenoh router on `listen` (where ROS 2 nodes connect, as to rmw_zenohd) joined to
+    `connect`, with timestamps, as rmw_zenoh's sessions have them."""
+    settings = zenoh_config(listen, connect, mode="router")
+    settings.insert_json5("timestamping/enabled", "true")
+    return settings
+
+
+class Gateway:
+    def __init__(self, config: Config, bus: Bus) -> None:
+        cfg = config.ros2
+        self.bus, self.namespace = bus, cfg.namespace
+        self.session = open_session(ros_session_config(cfg.listen, cfg.connect), "the ROS 2 gateway")
+        self.node = rmw.Node(self.session, cfg.domain, cfg.namespace, node_name(bus.station))
+        self.convert = types.Session()
+        self._lock = threading.Lock()  # the conversions' session: the loop and Zenoh's callbacks
+        self.publishers: dict[str, rmw.Publisher] = {}
+        self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Any]] = []
+        self.answers: dict[tuple[str, int], CommandAck] = {}
+        self._waiting_logged: set[tuple[str, int]] = set()
+        for spec in keys.KEYS:
+            mapping = types.key_map(f"{spec.station}/{spec.topic}")
+            if spec.to == bus.station and mapping is not None:
+                self.downlinks.append((spec, mapping, bus.subscribe(spec.station, spec.topic, INBOX_DEPTH)))
+                for t in mapping.topics:
+                    name = self.topic(spec, t)
+                    if name not in self.publishers:
+                        self.publishers[name] = self.node.publisher(name, t.type, mapping.qos(t))
+            elif spec.station == bus.station and mapping is not None:
+                for t in (t for t in mapping.topics if t.parse is not None):
+                    self.node.subscription(self.topic(spec, t), t.type, mapping.qos(t),
+                                           functools.partial(self._up, spec, t), bus.reject)
+        self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
+        self.camera_mounts: dict[str, np.ndarray] = {}
+        self._publish_static()
+        log.info("ROS 2 gateway for %s: node %s/%s in domain %d, Zenoh %s (listen %s, connect %s); %d topics "
+                 "down, %d up", bus.station, cfg.namespace, self.node.name, cfg.domain, self.node.zid,
+                 list(cfg.listen), list(cfg.connect), len(self.publishers) + 1,
+                 sum(isinstance(e, rmw.Subscription) for e in self.node.endpoints))
+
+    def topic(self, spec: keys.KeySpec, t: types.RosTopic) -> str:
+        return t.topic(f"{spec.station}/{spec.topic}", self.namespace)
+
+    # -- down: abyss -> ROS 2 ------------------------------------------------------------
+    def run(self) -> None:
+        rate = Rate(LOOP_PERIOD_S, self.bus.stop)
+        while rate.sleep():
+            for spec, mapping, inbox in self.downlinks:
+                for received in inbox.drain():
+                    if received.message.TYPE in COMMAND_KINDS:
+                        self._command(spec, mapping, received.message)
+                    else:
+                        self._down(spec, mapping, received.message)
+
+    def _down(self, spec: keys.KeySpec, mapping: types.KeyMap, message: Message) -> None:
+        """Hand a message to the node on each of its key's topics."""
+        with self._lock:
+            self.convert.handed(message)
+            stamp_s = types.stamp_of(message, self.convert.sim_time_s)
+            for t in mapping.topics:
+                try:
+                    converted = t.convert(message, types.header(stamp_s, t.frame_id), self.convert)
+                except ValueError as exc:
+                    self.bus.reject(spec.key(self.bus.system), f"not converted to {t.type}: {exc}")
+                    continue
+                if converted is not None:
+                    self.publishers[self.topic(spec, t)].put(types.serialize(converted))
+        mounted = isinstance(message, Image) and message.pose_frame == "vehicle"
+        if mounted and message.camera not in self.camera_mounts:
+            self.camera_mounts[message.camera] = message.pose_camera
+            self._publish_static()
+
+    def _publish_static(self) -> None:
+        """/tf_static: the arm's fixed links and the cameras mounted so far, all in one message
+        (the cache of a transient local publisher of depth 1 keeps the last)."""
+        with self._lock:
+            static = types.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
+        self.static.put(types.serialize(static))
+
+    def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Message) -> None:
+        """Hand an operator command over once the node subscribes to it, and answer for it."""
+        assert isinstance(command, (Waypoints, ArmGoal, OperatorMode))
+        answered = self.answers.get((command.TYPE, command.command_id))
+        if answered is None:
+            topics = [self.topic(spec, t) for t in mapping.topics]
+            unmatched = [name for name in topics if not self.publishers[name].matched()]
+            if unmatched:
+                if (command.TYPE, command.command_id) not in self._waiting_logged:
+                    self._waiting_logged.add((command.TYPE, command.command_id))
+                    log.info("%s %d waits for a ROS 2 subscriber of %s; shore sends it again",
+                             COMMAND_KINDS[command.TYPE], command.command_id, ", ".join(unmatched))
+                return
+            self._down(spec, mapping, command)
+            answered = self.answers[command.TYPE, command.command_id] = CommandAck(
+                command.command_id, COMMAND_KINDS[command.TYPE], "")
+            log.info("%s %d handed to the ROS 2 node on %s", COMMAND_KINDS[command.TYPE], command.command_id,
+                     ", ".join(topics))
+        self.bus.publish("ack", answered)
+
+    # -- up: ROS 2 -> abyss --------------------------------------------------------------
+    def _up(self, spec: keys.KeySpec, t: types.RosTopic, ros_message: Any) -> None:
+        """A sample the node published (checked on the wire by rmw.Subscription) to the
+        station's key."""
+        assert t.parse is not None
+        try:
+            with self._lock:
+                message = t.parse(ros_message, self.convert)
+        except ValueError as exc:
+            self.bus.reject(rmw.topic_key(self.node.domain, self.topic(spec, t), t.type), str(exc))
+            return
+        if message is None:
+            return
+        self.bus.publish(spec.topic, message)
+        if isinstance(message, Telemetry):  # the station's own state, for scoring (keys.onboard_state_key)
+            self.bus.observe(keys.onboard_state_key(self.bus.system), message)
+
+    def close(self) -> None:
+        self.node.close()
+        self.session.close()
+
+
+def run(config: Config, bus: Bus) -> None:
+    """The station's entry in the gateway's form (`stations.runtime.run_station`)."""
+    gateway = Gateway(config, bus)
+    try:
+        gateway.run()
+    finally:
+        gateway.close()

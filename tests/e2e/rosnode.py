@@ -143,6 +143,45 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs/msg/DiagnosticArray")
 
 
 @dataclass
+class PointField(IdlStruct, typename="sensor_msgs/msg/PointField"):
+    name: str
+    offset: uint32
+    datatype: uint8
+    count: uint32
+
+
+@dataclass
+class PointCloud2(IdlStruct, typename="sensor_msgs/msg/PointCloud2"):
+    header: Header
+    height: uint32
+    width: uint32
+    fields: sequence[PointField]
+    is_bigendian: bool
+    point_step: uint32
+    row_step: uint32
+    data: sequence[uint8]
+    is_dense: bool
+
+
+@dataclass
+class Transform(IdlStruct, typename="geometry_msgs/msg/Transform"):
+    translation: Vector3
+    rotation: Quaternion
+
+
+@dataclass
+class TransformStamped(IdlStruct, typename="geometry_msgs/msg/TransformStamped"):
+    header: Header
+    child_frame_id: str
+    transform: Transform
+
+
+@dataclass
+class TFMessage(IdlStruct, typename="tf2_msgs/msg/TFMessage"):
+    transforms: sequence[TransformStamped]
+
+
+@dataclass
 class Clock(IdlStruct, typename="rosgraph_msgs/msg/Clock"):
     clock: Time
 

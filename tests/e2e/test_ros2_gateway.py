@@ -1,0 +1,147 @@
+"""The ROS 2 gateway end to end: `abyss up --ros2 onboard`, and in onboard's place a ROS 2 node
+written from rmw_zenoh's wire contract alone (rosnode.py: zenoh-python and pycdr2, none of the
+gateway's code). The node discovers the gateway's endpoints, flies the mission's waypoints with
+velocity commands, and meanwhile bad samples on every topic the gateway takes are counted and
+dropped, and `abyss check onboard` judges the node's keys through the gateway."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import rosnode
+import zenoh
+import zenoh.ext
+from conftest import Up
+from rosnode import (
+    QOS_SENSOR,
+    DiagnosticArray,
+    Float64MultiArray,
+    Odometry,
+    PointCloud2,
+    PoseStamped,
+    RosNode,
+    TFMessage,
+    Token,
+    TwistStamped,
+    WaypointPilot,
+    data_key,
+    dds_name,
+    rihs01,
+    ros_type,
+)
+
+from abyss.common.messages import NavState
+from abyss.recording.store import open_recording
+from abyss.stations.runtime import free_port
+
+LAST_WAYPOINT_M = np.array([3.3, 0.0, -7.9])  # the default mission's
+UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each is sent
+    "/abyss/onboard/cmd/vehicle_velocity": TwistStamped,
+    "/abyss/onboard/cmd/arm_velocity": Float64MultiArray,
+    "/abyss/onboard/telemetry/diagnostics": DiagnosticArray,
+    "/abyss/onboard/telemetry/ee_pose": PoseStamped,
+    "/abyss/onboard/cloud": PointCloud2,
+}
+
+
+def _gateway_graph(node: RosNode, timeout_s: float = 20.0) -> list[Token]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        graph = node.graph()
+        if any(t.kind == "NN" and t.node == "abyss_onboard_gateway" for t in graph):
+            return graph
+    raise AssertionError("the gateway's node token never appeared")
+
+
+def _send_bad_samples(session: zenoh.Session, gid: bytes) -> int:
+    """Malformed CDR, a wrong type hash, a missing attachment, a wrong type: each on every topic
+    the gateway takes; returns how many per topic."""
+    attachment = rosnode.attachment(1, gid)
+    for topic, message in UP_TOPICS.items():
+        key = data_key(0, topic, message)
+        prefix = key.rsplit("/", 2)[0]
+        session.put(key, b"\x00\x01\x00\x00\xff\xff", attachment=attachment)
+        session.put(f"{prefix}/{dds_name(ros_type(message))}/RIHS01_{'0' * 64}", b"\x00\x01\x00\x00",
+                    attachment=attachment)
+        session.put(key, b"\x00\x01\x00\x00" + bytes(64))
+        session.put(f"{prefix}/std_msgs::msg::dds_::String_/{rihs01('std_msgs/msg/String')}",
+                    b"\x00\x01\x00\x00\x01\x00\x00\x00\x00", attachment=attachment)
+    return 4
+
+
+def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = Up(tmp_path / "run", "--ros2", "onboard", "--set", f'ros2.listen=["{endpoint}"]',
+            "--set", "mission.arm_target=[]", "--duration", "120", "--viewer", "none", "--record", "control")
+    up.wait_for(r"onboard is a ROS 2 gateway .*connect/endpoints=\[\"" + endpoint)
+    up_endpoint = up.wait_for(r"Zenoh endpoint (\S+)").group(1)
+    up.wait_up()
+    node = RosNode(endpoint)
+    stop = threading.Event()
+    try:
+        graph = _gateway_graph(node)
+        by_topic = {(t.kind, t.topic): t for t in graph if t.node == "abyss_onboard_gateway"}
+        odometry = by_topic["MP", "/abyss/simulation/nav"]
+        assert (odometry.namespace, odometry.type, odometry.hash, odometry.qos) == \
+            ("/abyss", "nav_msgs::msg::dds_::Odometry_", rihs01("nav_msgs/msg/Odometry"), QOS_SENSOR)
+        velocity = by_topic["MS", "/abyss/onboard/cmd/vehicle_velocity"]
+        assert velocity.type == "geometry_msgs::msg::dds_::TwistStamped_"
+        assert by_topic["MP", "/tf_static"].qos == ":1:,1:,:,:,,"  # reliable, transient local, depth 1
+        assert by_topic["MP", "/clock"].qos == "2::,1:,:,:,,"
+        assert {("MP", "/abyss/vessel/goal/waypoints"), ("MS", "/abyss/onboard/cmd/arm_velocity"),
+                ("MP", "/abyss/simulation/camera/cam_left/image")} <= set(by_topic)
+
+        pilot = WaypointPilot(node)
+        flying = threading.Thread(target=pilot.fly, args=(stop,), daemon=True)
+        flying.start()
+        check = subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "check", "onboard", "--connect",
+                                up_endpoint, "--duration", "4"], capture_output=True, text=True, timeout=60)
+        bad_each = _send_bad_samples(node.session, bytes(16))
+        # /tf_static from the gateway's cache to a subscriber that comes late, as tf2's does
+        static: list[TFMessage] = []
+        late = zenoh.ext.declare_advanced_subscriber(
+            node.session, data_key(0, "/tf_static", TFMessage),
+            lambda s: static.append(TFMessage.deserialize(s.payload.to_bytes())),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1))
+        assert up.wait(120) == 0, up.output()
+        late.undeclare()
+    finally:
+        stop.set()
+        node.close()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["verdict"] == "done" and summary["mission"]["done"], summary["mission"]
+    recording = open_recording(tmp_path / "run")
+    truth = [m for _, m in recording.messages(
+        [r for r in recording.observed() if r.topic == "simulation/truth"])]
+    assert isinstance(truth[-1], NavState)
+    assert np.linalg.norm(truth[-1].position_m_world - LAST_WAYPOINT_M) < 0.25, truth[-1]
+    # the node read odometry and simulated time, and commanded the vehicle by TwistStamped
+    assert len(pilot.flight.odometry) > 100 and pilot.flight.commands > 100
+    assert pilot.flight.clock_s[-1] > 5.0 and np.all(np.diff(pilot.flight.clock_s) >= 0)
+    last = pilot.flight.odometry[-1]
+    assert isinstance(last, Odometry) and last.child_frame_id == "base_link"
+    # what the node published reached the simulation as onboard's keys
+    received = summary["stations"]["simulation"]["received"]
+    assert received["abyss/default/onboard/cmd/vehicle_velocity"] > 100
+    # every bad sample dropped and counted on its topic, nothing crashed
+    rejected = summary["stations"]["onboard"]["rejected"]
+    for topic, message in UP_TOPICS.items():
+        assert rejected.get(data_key(0, topic, message), 0) >= bad_each, (topic, rejected)
+    assert all(s["exit_code"] == 0 for s in summary["stations"].values())
+    log = (tmp_path / "run" / "onboard.log").read_text()
+    for reason in ("does not decode", "type hash RIHS01_000", "no attachment",
+                   "type std_msgs::msg::dds_::String_"):
+        assert reason in log, reason
+    # abyss check judges the node's rates and contents through the gateway
+    assert "onboard/cmd/vehicle_velocity" in check.stdout, check.stdout + check.stderr
+    lines = {line.split()[0]: line for line in check.stdout.splitlines() if line.strip().startswith("abyss/")}
+    for key in ("cmd/vehicle_velocity", "cmd/arm_velocity", "telemetry"):
+        assert lines[f"abyss/default/onboard/{key}"].rstrip().endswith("ok"), check.stdout
+    assert "FAIL" in lines["abyss/default/onboard/cloud"]  # this node sends no clouds: the check says so
+    assert static and {"arm_base", "ee"} <= {t.child_frame_id for t in static[-1].transforms}

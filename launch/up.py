@@ -23,7 +23,7 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import Config, OnshoreConfig, Ros2Config
-from abyss.common.errors import AbyssError, BadMessage
+from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import (
     MissionStatus,
     NavState,
@@ -132,12 +132,17 @@ class Up:
         self.session: zenoh.Session | None = None  # the supervisor's, while it runs
         self.placement = placement or Local()
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
+        if config.ros2.station in self.external:
+            raise ConfigError("--ros2", f"{config.ros2.station} is --external too: the gateway stands for a "
+                              "station that abyss up starts")
         self.restart = restart  # a station that dies is started again instead of failing the run
         self.mission_done_s: float | None = None  # since all stations were up
         self.out_dir = out_dir.resolve()  # the stations run there, whatever the caller's directory
         self.echo = echo or (lambda text: print(text, flush=True))
         if port is None:
-            port = DEFAULT_PORT if port_free(DEFAULT_PORT) else free_port()
+            ros2_ports = {e.rpartition(":")[2] for e in config.ros2.listen} if config.ros2.station else set()
+            taken = str(DEFAULT_PORT) in ros2_ports  # the gateway's router: rmw_zenohd's port, by default
+            port = DEFAULT_PORT if not taken and port_free(DEFAULT_PORT) else free_port()
         elif port == 0:
             port = free_port()
         self.endpoint = f"tcp/127.0.0.1:{port}"

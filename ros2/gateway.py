@@ -112,8 +112,8 @@ class Gateway:
                     continue
                 if converted is not None:
                     self.publishers[self.topic(spec, t)].put(types.serialize(converted))
-        mounted = isinstance(message, Image) and message.pose_frame == "vehicle"
-        if mounted and message.camera not in self.camera_mounts:
+        if isinstance(message, Image) and message.pose_frame == "vehicle" \
+                and message.camera not in self.camera_mounts:
             self.camera_mounts[message.camera] = message.pose_camera
             self._publish_static()
 

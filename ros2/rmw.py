@@ -170,7 +170,7 @@ class Publisher:
             self._publisher: Any = zenoh.ext.declare_advanced_publisher(
                 node.session, self.key, reliability=_reliability(qos), congestion_control=_congestion(qos),
                 cache=zenoh.ext.CacheConfig(max_samples=qos.depth or DEFAULT_DEPTH), publisher_detection=True,
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(sporadic_heartbeat=0.5))
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5))
         else:
             self._publisher = node.session.declare_publisher(
                 self.key, reliability=_reliability(qos), congestion_control=_congestion(qos))

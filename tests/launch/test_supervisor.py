@@ -20,13 +20,13 @@ from pathlib import Path
 import pytest
 
 from abyss.common import keys
-from abyss.common.config import Config
+from abyss.common.config import Config, Ros2Config
 from abyss.common.errors import ConfigError
 from abyss.common.messages import MissionStatus, SimulationStatus
 from abyss.launch import up as up_module
 from abyss.launch.state import RunState
 from abyss.launch.summary import exit_code, render_summary, verdict_of
-from abyss.launch.up import Station, Up, port_free, run_up, viewer_line
+from abyss.launch.up import Station, Up, port_free, ros2_line, run_up, viewer_line
 
 # children that say "ready" once their signal handlers are set, so no signal comes too early
 IGNORES_SIGINT = ("import signal, sys\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
@@ -120,6 +120,13 @@ def test_an_unknown_external_station_is_refused(tmp_path: Path, capsys: pytest.C
     err = capsys.readouterr().err
     assert err.startswith("abyss: ") and "unknown station 'sonar'" in err
     assert not (tmp_path / "run").exists()
+
+
+def test_a_ros2_gateway_for_an_external_station_is_refused(tmp_path: Path) -> None:
+    config = Config(system="unit", ros2=Ros2Config(station="onboard"))
+    with pytest.raises(ConfigError, match="onboard is --external too"):
+        Up(config, tmp_path / "run", port=0, external=["onboard"])
+    assert "ROS_DOMAIN_ID=0" in ros2_line(config.ros2) and "tcp/127.0.0.1:7447" in ros2_line(config.ros2)
 
 
 def test_viewer_line_names_where_to_look(tmp_path: Path) -> None:

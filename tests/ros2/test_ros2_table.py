@@ -11,3 +11,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_readme_topic_table_is_the_generated_one() -> None:
     assert topics_table() in (ROOT / "README.md").read_text()
+
+
+def test_readme_lists_what_a_ros2_node_states_in_its_diagnostics() -> None:
+    from abyss.ros2.types import TELEMETRY_VALUES
+
+    readme = (ROOT / "README.md").read_text()
+    for key, meaning in TELEMETRY_VALUES.items():
+        assert f"  - `{key}`: {meaning}" in readme, key

@@ -86,8 +86,6 @@ def cmd_station(args: argparse.Namespace) -> int:
         from abyss.recording.replay import replayer
 
         entry = replayer(args.replay, args.speed)
-    elif config.ros2.station == args.name:
-        from abyss.ros2.gateway import run as entry
     code = run_station(
         args.name,
         config,

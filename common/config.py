@@ -243,7 +243,7 @@ class RecordConfig:
         _positive("record.bulk_max_rate_hz", self.bulk_max_rate_hz)
 
 
-ROS2_STATIONS = ("onboard",)  # the stations a ROS 2 node can take the place of (ros2.gateway)
+ROS2_STATIONS = ("onboard", "vessel")  # the stations a ROS 2 node can stand for (ros2.gateway)
 _ROS_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
 
 

@@ -29,6 +29,7 @@ from abyss.common.messages import SceneUpdate, new_id
 
 log = logging.getLogger(__name__)
 KEY_OFFSET = 32768  # OctoMap's tree_max_val at depth 16
+GREY = 128  # the colour of a cell whose map gives none
 COLOR_TOLERANCE = 24  # a colour change larger than this in any channel is sent
 LOG_ODDS_SET = 100.0  # applied as an update, clamped: sets a cell occupied (+) or free (-)
 _AXIS = np.int64(1 << 16)
@@ -188,6 +189,15 @@ class SceneModel:
         margin = 2 * self.resolution_m
         bbx = (everything.min(axis=0) - margin, everything.max(axis=0) + margin)
         self._queue_changes(*iterate_leaves(self.tree, bbx, colors=True))
+
+    def adopt(self, octree: bytes) -> int:
+        """Take a whole map made elsewhere (a ROS 2 node's, OctoMap's binary file) for the model's:
+        the cells whose state differs from what shore holds are queued, grey (the binary form
+        has no colours). Returns its leaves; ValueError when it is no tree of this resolution."""
+        tree = read_binary(octree, self.resolution_m)
+        centres, sizes, occupied, _ = iterate_leaves(tree)
+        self._queue_changes(centres, sizes, occupied, np.full((len(occupied), 3), GREY, np.uint8))
+        return len(occupied)
 
     def _queue_changes(
         self, centres: np.ndarray, sizes: np.ndarray, occupied: np.ndarray, colors: np.ndarray

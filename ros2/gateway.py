@@ -1,17 +1,20 @@
-"""The ROS 2 gateway: a ROS 2 node takes a station's place (`abyss up --ros2 onboard`), met on
-the wire it speaks with RMW_IMPLEMENTATION=rmw_zenoh_cpp (`ros2.rmw`), with no ROS on abyss's
-side. It runs in the station's shell, so its abyss side is the station's: the same keys, links,
-recording and liveliness token; its ROS 2 side is a Zenoh router of its own (rmw_zenohd's
-endpoint, `ros2.listen`) or a session joined to one (`ros2.connect`).
+"""The ROS 2 gateway: a ROS 2 node stands for a station (`abyss up --ros2 onboard|vessel`), met
+on the wire it speaks with RMW_IMPLEMENTATION=rmw_zenoh_cpp (`ros2.rmw`), with no ROS on
+abyss's side. It runs in the station's shell, so its abyss side is the station's: the same
+keys, links, recording and liveliness token; its ROS 2 side is a Zenoh router of its own
+(rmw_zenohd's endpoint, `ros2.listen`) or a session joined to one (`ros2.connect`). Which keys
+cross is `types.gateway_keys`: all of onboard's; the vessel's scene model only (the vessel
+station runs with the node's map in place of its own octree).
 
-- Down to the node, what the station would receive, by the table of `ros2.types`: each message
-  on each of its key's ROS 2 topics (the navigation as Odometry, /tf and /clock in simulated
-  time; joints; camera images and their CameraInfo; the goals; the heartbeat), and /tf_static
-  (transient local) with the arm's fixed links and each camera's mounting.
-- Up from the node, what the station would publish: each topic the table can parse back (the
-  velocity references; the telemetry from the node's diagnostics and tool pose), validated
-  (type, type hash, attachment, CDR, the abyss message's bounds); a sample that fails is
-  dropped, counted on its topic's key in the station's `rejected` and logged once.
+- Down to the node, by the table of `ros2.types`: each message on each of its key's ROS 2
+  topics (the navigation as Odometry and /tf; joints; camera images and their CameraInfo; the
+  goals; the heartbeat; clouds), /clock with the latest simulated time handed over, and
+  /tf_static (transient local) with the arm's fixed links and each camera's mounting.
+- Up from the node: each topic the table can parse back (the velocity references; the telemetry
+  from the node's diagnostics and tool pose; clouds; the map), validated (type, type hash,
+  attachment, CDR, the abyss message's bounds); a sample that fails is dropped, counted on its
+  topic's key in the station's `rejected` and logged once. What is valid goes out on the
+  station's key, or to the station's own handler of it (the vessel's scene model).
 - The operator's commands: the node has no command ids, so the gateway answers for it. A
   command is handed over once a ROS 2 subscriber of its topic is known, then acknowledged as
   taken; until then it waits for shore's next send, and a command sent again is answered the
@@ -23,6 +26,7 @@ from __future__ import annotations
 import functools
 import logging
 import threading
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -54,7 +58,11 @@ def ros_session_config(listen: tuple[str, ...], connect: tuple[str, ...]) -> Any
 
 
 class Gateway:
-    def __init__(self, config: Config, bus: Bus) -> None:
+    """`on_up`: per abyss topic of the station, what takes the node's message in place of the
+    bus (ValueError: the message is refused with that reason)."""
+
+    def __init__(self, config: Config, bus: Bus,
+                 on_up: dict[str, Callable[[Any], object]] | None = None) -> None:
         cfg = config.ros2
         self.bus, self.namespace = bus, cfg.namespace
         self.session = open_session(ros_session_config(cfg.listen, cfg.connect), "the ROS 2 gateway")
@@ -65,24 +73,30 @@ class Gateway:
         self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Any]] = []
         self.answers: dict[tuple[str, int], CommandAck] = {}
         self._waiting_logged: set[tuple[str, int]] = set()
-        for spec in keys.KEYS:
-            mapping = types.key_map(f"{spec.station}/{spec.topic}")
-            if spec.to == bus.station and mapping is not None:
-                self.downlinks.append((spec, mapping, bus.subscribe(spec.station, spec.topic, INBOX_DEPTH)))
-                for t in mapping.topics:
-                    name = self.topic(spec, t)
-                    if name not in self.publishers:
-                        self.publishers[name] = self.node.publisher(name, t.type, mapping.qos(t))
-            elif spec.station == bus.station and mapping is not None:
-                for t in (t for t in mapping.topics if t.parse is not None):
-                    self.node.subscription(self.topic(spec, t), t.type, mapping.qos(t),
-                                           functools.partial(self._up, spec, t), bus.reject)
+        self.on_up = on_up or {}
+        down, up = types.gateway_keys(bus.station)
+        for key in down:
+            spec, mapping = keys.spec(*key.split("/", 1)), types.key_map(key)
+            assert mapping is not None
+            self.downlinks.append((spec, mapping, bus.subscribe(spec.station, spec.topic, INBOX_DEPTH)))
+            for t in mapping.topics:
+                name = self.topic(spec, t)
+                if name not in self.publishers:
+                    self.publishers[name] = self.node.publisher(name, t.type, mapping.qos(t))
+        for key in up:
+            spec, mapping = keys.spec(*key.split("/", 1)), types.key_map(key)
+            assert mapping is not None
+            for t in (t for t in mapping.topics if t.parse is not None):
+                self.node.subscription(self.topic(spec, t), t.type, mapping.qos(t),
+                                       functools.partial(self._up, spec, t), bus.reject)
+        self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", types.CLOCK_QOS)
+        self.clock_s = -1.0
         self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
         self.camera_mounts: dict[str, np.ndarray] = {}
         self._publish_static()
         log.info("ROS 2 gateway for %s: node %s/%s in domain %d, Zenoh %s (listen %s, connect %s); %d topics "
                  "down, %d up", bus.station, cfg.namespace, self.node.name, cfg.domain, self.node.zid,
-                 list(cfg.listen), list(cfg.connect), len(self.publishers) + 1,
+                 list(cfg.listen), list(cfg.connect), len(self.publishers) + 2,
                  sum(isinstance(e, rmw.Subscription) for e in self.node.endpoints))
 
     def topic(self, spec: keys.KeySpec, t: types.RosTopic) -> str:
@@ -112,6 +126,10 @@ class Gateway:
                     continue
                 if converted is not None:
                     self.publishers[self.topic(spec, t)].put(types.serialize(converted))
+            if self.convert.sim_time_s > self.clock_s:
+                self.clock_s = self.convert.sim_time_s
+                clock = types.clock(None, types.header(self.clock_s, ""), self.convert)
+                self.clock.put(types.serialize(clock))
         if isinstance(message, Image) and message.pose_frame == "vehicle" \
                 and message.camera not in self.camera_mounts:
             self.camera_mounts[message.camera] = message.pose_camera
@@ -149,13 +167,16 @@ class Gateway:
         """A sample the node published (checked on the wire by rmw.Subscription) to the
         station's key."""
         assert t.parse is not None
+        handler = self.on_up.get(spec.topic)
         try:
             with self._lock:
                 message = t.parse(ros_message, self.convert)
+            if message is not None and handler is not None:
+                handler(message)
         except ValueError as exc:
             self.bus.reject(rmw.topic_key(self.node.domain, self.topic(spec, t), t.type), str(exc))
             return
-        if message is None:
+        if message is None or handler is not None:
             return
         self.bus.publish(spec.topic, message)
         if isinstance(message, Telemetry):  # the station's own state, for scoring (keys.onboard_state_key)
@@ -167,7 +188,7 @@ class Gateway:
 
 
 def run(config: Config, bus: Bus) -> None:
-    """The station's entry in the gateway's form (`stations.runtime.run_station`)."""
+    """Onboard's entry when a ROS 2 node stands for it: the gateway alone."""
     gateway = Gateway(config, bus)
     try:
         gateway.run()

@@ -231,9 +231,11 @@ class Session:
         self.operator_mode = "auto"
         self.ee_pose: tuple[np.ndarray, np.ndarray] | None = None  # the node's: position, w x y z [world]
         self.boot_id = new_id()
+        self.sim_time_s = 0.0  # the latest simulated time handed over
 
     def handed(self, message: Message) -> None:
         """Remember a message the ROS 2 node was given."""
+        self.sim_time_s = max(self.sim_time_s, float(getattr(message, "sim_time_s", 0.0)))
         if isinstance(message, NavState):
             self.nav = message
         elif isinstance(message, JointState):
@@ -244,11 +246,6 @@ class Session:
             self.arm_goal = message
         elif isinstance(message, OperatorMode):
             self.operator_mode = message.mode
-
-    @property
-    def sim_time_s(self) -> float:
-        """The latest simulated time handed over (the navigation's)."""
-        return self.nav.sim_time_s if self.nav is not None else 0.0
 
 
 # -- the conversions: (abyss message, header of the topic's frame, session) -> ROS 2 message or None
@@ -377,6 +374,20 @@ def octree_data(octree: bytes) -> bytes:
     return data
 
 
+def octree_file(data: bytes, resolution_m: float) -> bytes:
+    """OctoMap's binary file of an Octomap message's data (octree_data's inverse): its header
+    needs the node count, which the data holds: two bytes per inner node, whose children are two
+    bits each (00 unknown, 01 free, 10 occupied, 11 inner)."""
+    children = np.frombuffer(data, np.uint8)[:, None] >> np.array([0, 2, 4, 6], np.uint8) & 3
+    inner = int((children == 3).sum())
+    if len(data) % 2 or len(data) != 2 * (inner + 1):
+        raise ValueError(f"{len(data)} bytes are not OctoMap's binary stream of a tree "
+                         f"({inner} inner children need {2 * (inner + 1)} bytes)")
+    size = len(data) // 2 + int(((children == 1) | (children == 2)).sum())
+    head = f"# Octomap OcTree binary file\nid OcTree\nsize {size}\nres {resolution_m}\ndata\n"
+    return head.encode() + data
+
+
 def octomap(update: SceneUpdate, head: Any, session: Session) -> Any | None:
     """The whole map shore holds once this update is applied (binary: free or occupied, no
     colours); None after a gap, until the snapshot that ends it."""
@@ -480,7 +491,7 @@ def status_diagnostics(status: SimulationStatus, head: Any, session: Session) ->
                             **{f"fault {k}": v for k, v in status.faults.items()}})
 
 
-def clock(status: SimulationStatus | NavState, head: Any, session: Session) -> Any:
+def clock(status: SimulationStatus | None, head: Any, session: Session) -> Any:
     return _T["rosgraph_msgs/msg/Clock"](clock=head.stamp)
 
 
@@ -578,6 +589,19 @@ def point_cloud_in(msg: Any, session: Session) -> PointCloud | None:
                       stamp.sec + stamp.nanosec * 1e-9)
 
 
+def octomap_in(msg: Any, session: Session) -> SceneUpdate:
+    """A node's whole map (binary, in the world frame) as a snapshot of it (no colours: the
+    binary form has none), for the vessel's scene model to adopt (`SceneModel.adopt`)."""
+    _frame(msg.header, WORLD)
+    if not msg.binary or msg.id != "OcTree":
+        kind = "binary" if msg.binary else "full"
+        raise ValueError(f"a {kind} {msg.id!r} map; the scene takes a binary OcTree")
+    stamp = msg.header.stamp
+    return SceneUpdate(kind="snapshot", scene_seq=0, resolution_m=float(msg.resolution),
+                       octree=octree_file(np.asarray(msg.data, np.int8).tobytes(), float(msg.resolution)),
+                       colors=np.zeros((0, 3), np.uint8), sim_time_s=stamp.sec + stamp.nanosec * 1e-9)
+
+
 TELEMETRY_VALUES = {  # the key-values read from the node's first DiagnosticStatus; the rest are ignored
     "mode": f"the vehicle's: {', '.join(MODES)} (default idle)",
     "waypoint": "the index of the waypoint flown to, counted from 0, as `i` or `i/n` (default 0)",
@@ -670,8 +694,7 @@ ARM_PARENTS, ARM_CHILDREN = "arm_base .. arm_link6", "arm_link1 .. arm_link6, fi
 
 CLOCK = "/clock"
 BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
-    "NavState": (ODOMETRY, RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS),
-                 RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS, export=False)),
+    "NavState": (ODOMETRY, RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS)),
     "JointState": (RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_state),
                    RosTopic(TF, TF_MESSAGE, ARM_PARENTS, arm_tf, ARM_CHILDREN, TF_QOS)),
     "Image": (RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, raw_image, export=False),
@@ -689,7 +712,8 @@ BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
     "ArmGoal": (RosTopic("{key}", POSE, WORLD, goal_pose),),
     "OperatorMode": (RosTopic("{key}", "std_msgs/msg/String", "", operator_mode),),
     "Heartbeat": (RosTopic("{key}", DIAGNOSTICS, "", heartbeat_diagnostics),),
-    "SceneUpdate": (RosTopic("{key}", "octomap_msgs/msg/Octomap", WORLD, octomap),),
+    "SceneUpdate": (RosTopic("{key}", "octomap_msgs/msg/Octomap", WORLD, octomap,
+                             parse=octomap_in),),
     "RecognisedObjects": (RosTopic("{key}", "visualization_msgs/msg/MarkerArray", WORLD, objects),),
     "SimulationStatus": (RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS),
                          RosTopic("{key}", DIAGNOSTICS, "", status_diagnostics)),
@@ -752,6 +776,19 @@ def key_map(abyss_topic: str) -> KeyMap | None:
     return next((m for m in TABLE if m.matches(abyss_topic)), None)
 
 
+def gateway_keys(station: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The abyss keys (`<station>/<topic>`) a ROS 2 node in `station`'s place is handed, and
+    those it publishes. Onboard: all it receives, all it sends that parse back. The vessel: its
+    scene model only, clouds in and the map out; its relay of commands, telemetry and
+    acknowledgements (abyss's operator protocol) stays abyss's."""
+    if station == "vessel":
+        return ("onboard/cloud",), ("vessel/scene",)
+    maps = [(f"{s.station}/{s.topic}", s, key_map(f"{s.station}/{s.topic}")) for s in keys.KEYS]
+    return (tuple(key for key, s, m in maps if s.to == station and m is not None),
+            tuple(key for key, s, m in maps if s.station == station and m is not None
+                  and any(t.parse is not None for t in m.topics)))
+
+
 def stamp_of(message: Message, sent_sim_s: float) -> float:
     """A message's header stamp [s, simulated]: its own `sim_time_s`, else `sent_sim_s`, when
     its sender sent it in simulated time."""
@@ -773,15 +810,11 @@ def topics_table() -> str:
     mcap`; `gateway`: what the ROS 2 gateway hands a node in a station's place, or takes from it."""
     rows = ["| abyss key | ROS 2 topic | type | frame_id | child_frame_id | QoS | export | gateway |",
             "| --- | --- | --- | --- | --- | --- | --- | --- |"]
-    specs = {f"{s.station}/{s.topic}": s for s in keys.KEYS}
-
     def gateway(key: str, t: RosTopic) -> str:
-        spec = specs.get(key)
-        if spec is not None and spec.to in ROS2_STATIONS:
-            return f"to {spec.to}'s node"
-        if spec is not None and spec.station in ROS2_STATIONS and t.parse is not None:
-            return f"from {spec.station}'s node"
-        return "-"
+        uses = [f"to {station}'s node" for station in ROS2_STATIONS if key in gateway_keys(station)[0]]
+        uses += [f"from {station}'s node" for station in ROS2_STATIONS
+                 if key in gateway_keys(station)[1] and t.parse is not None]
+        return ", ".join(uses) or "-"
 
     def code(text: str) -> str:
         return f"`{text}`" if text else "-"
@@ -799,4 +832,6 @@ def topics_table() -> str:
     rows.append(f"| (robot.xml; each camera's first frame) | {code(TF_STATIC)} | {TF_MESSAGE} "
                 f"| `{BASE_LINK}`, `arm_link6` | `arm_base`, `ee`, {code(CAMERA_FRAME)} "
                 f"| {qos_text(TF_STATIC_QOS)} | yes | to the node |")
+    rows.append(f"| (the latest simulated time handed over) | {code(CLOCK)} | rosgraph_msgs/msg/Clock "
+                f"| - | - | {qos_text(CLOCK_QOS)} | - | to the node |")
     return "\n".join(rows)

@@ -37,7 +37,12 @@ class Shared:
 
 
 def run(config: Config, bus: Bus) -> None:
-    """The I/O shell: read what came in, step the core, publish what it returns, keep the rate."""
+    """The I/O shell: read what came in, step the core, publish what it returns, keep the rate.
+    With `ros2.station = "onboard"`, a ROS 2 node stands for all of it (abyss.ros2.gateway)."""
+    if config.ros2.station == "onboard":
+        from abyss.ros2 import gateway
+
+        return gateway.run(config, bus)
     core = Onboard(config)
     shared = Shared()
     with Workers(bus.stop) as workers:

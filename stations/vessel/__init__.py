@@ -30,17 +30,30 @@ log = logging.getLogger(__name__)
 
 
 def run(config: Config, bus: Bus) -> None:
-    """The relay in the main thread; the scene model and its stream in threads of their own."""
+    """The relay in the main thread; the scene model and its stream in threads of their own.
+    With `ros2.station = "vessel"`, a ROS 2 node is the scene model: the ROS 2 gateway hands it
+    the clouds, and the model adopts each map it publishes instead of inserting them itself."""
     from abyss.common.scene import SceneModel
 
     cfg = config.vessel
     model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
     images = bus.subscribe("onboard", "image", maxlen=2)
     sim_time_s = [0.0]  # of the latest cloud, shared by the model and the stream
-    with Workers(bus.stop) as workers:
-        workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s)
-        workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s)
-        _relay_loop(config, bus)
+    gateway = None
+    if config.ros2.station == "vessel":
+        from abyss.ros2.gateway import Gateway
+
+        gateway = Gateway(config, bus, on_up={"scene": lambda update: model.adopt(update.octree)})
+    try:
+        with Workers(bus.stop) as workers:
+            workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, gateway is None)
+            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s)
+            if gateway is not None:
+                workers.start("ros2 gateway", gateway.run)
+            _relay_loop(config, bus)
+    finally:
+        if gateway is not None:
+            gateway.close()
 
 
 def _relay_loop(config: Config, bus: Bus) -> None:
@@ -64,10 +77,11 @@ def _relay_loop(config: Config, bus: Bus) -> None:
             break
 
 
-def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float]) -> None:
-    """Integrate the clouds and recognise the panel; another thread (`_send_loop`) streams the
-    result, so that a slow insertion (a second or more for a stereo cloud on a loaded machine)
-    never holds the stream back."""
+def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float],
+                insert: bool = True) -> None:
+    """Integrate the clouds (unless a ROS 2 node maps them: `insert` False) and recognise the
+    panel; another thread (`_send_loop`) streams the result, so that a slow insertion (a second
+    or more for a stereo cloud on a loaded machine) never holds the stream back."""
     from abyss.stations.vessel.recognition import PanelTracker
 
     cfg = config.vessel
@@ -81,7 +95,8 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             assert isinstance(received.message, PointCloud)
             cloud = received.message
             cloud_points, colors = unpack_cloud(cloud)
-            model.insert(cloud_points, colors, cloud.sensor_m_world)
+            if insert:
+                model.insert(cloud_points, colors, cloud.sensor_m_world)
             sim_time_s[0] = cloud.sim_time_s
             if cloud.source == "depth" or points is None:
                 points = cloud_points

@@ -15,13 +15,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import pyoctomap
 import xxhash
 import zenoh
 from pycdr2 import IdlStruct
-from pycdr2.types import array, float64, int32, sequence, uint8, uint32
-from rosbags.typesys import Stores, get_typestore
+from pycdr2.types import array, float64, int8, int32, sequence, uint8, uint32
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 _HASHES = get_typestore(Stores.ROS2_JAZZY)  # REP 2016 hashes, from a maintained library
+_HASHES.register(get_types_from_msg(  # octomap_msgs/msg/Octomap.msg, its fields
+    "std_msgs/Header header\nbool binary\nstring id\nfloat64 resolution\nint8[] data\n",
+    "octomap_msgs/msg/Octomap"))
 
 
 # -- the messages, as their .msg files define them ------------------------------------------
@@ -179,6 +184,15 @@ class TransformStamped(IdlStruct, typename="geometry_msgs/msg/TransformStamped")
 @dataclass
 class TFMessage(IdlStruct, typename="tf2_msgs/msg/TFMessage"):
     transforms: sequence[TransformStamped]
+
+
+@dataclass
+class Octomap(IdlStruct, typename="octomap_msgs/msg/Octomap"):
+    header: Header
+    binary: bool
+    id: str
+    resolution: float64
+    data: sequence[int8]
 
 
 @dataclass
@@ -410,3 +424,46 @@ class WaypointPilot:
         while not stop.wait(period_s):
             self.step(tick)
             tick += 1
+
+
+class Mapper:
+    """A ROS 2 scene model in the vessel's place: every cloud's points marked occupied in an
+    OctoMap (octomap's own library), the whole map published as a binary Octomap each period."""
+
+    def __init__(self, node: RosNode, resolution_m: float, prefix: str = "/abyss") -> None:
+        self.node, self.resolution_m = node, resolution_m
+        self.scene = f"{prefix}/vessel/scene"
+        self.lock = threading.Lock()
+        self.points_m: list[np.ndarray] = []
+        self.maps = 0
+        node.subscribe(f"{prefix}/onboard/cloud", PointCloud2, self._cloud, QOS_SENSOR)
+        node.publisher(self.scene, Octomap)
+
+    def _cloud(self, cloud: PointCloud2) -> None:
+        offsets = {f.name: f.offset for f in cloud.fields}
+        rows = np.frombuffer(bytes(cloud.data), np.uint8).reshape(-1, cloud.point_step)
+        xyz = np.column_stack([rows[:, offsets[a]:offsets[a] + 4].copy().view("<f4").ravel() for a in "xyz"])
+        with self.lock:
+            self.points_m.append(xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64))
+
+    def step(self) -> None:
+        with self.lock:
+            if not self.points_m:
+                return
+            points_m = np.vstack(self.points_m)
+        tree = pyoctomap.OcTree(self.resolution_m)
+        tree.updateNodes(points_m, 2.0, True)
+        tree.updateInnerOccupancy()
+        binary = bytes(tree.writeBinary())
+        data = binary[binary.index(b"\ndata\n") + 6:]
+        self.node.publish(self.scene, Octomap(Header(Time(0, 0), "world"), True, "OcTree", self.resolution_m,
+                                              list(np.frombuffer(data, np.int8))))
+        self.maps += 1
+
+    def map_points(self) -> np.ndarray:
+        with self.lock:
+            return np.vstack(self.points_m) if self.points_m else np.zeros((0, 3))
+
+    def run(self, stop: threading.Event, period_s: float = 1.0) -> None:
+        while not stop.wait(period_s):
+            self.step()

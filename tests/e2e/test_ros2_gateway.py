@@ -1,8 +1,9 @@
-"""The ROS 2 gateway end to end: `abyss up --ros2 onboard`, and in onboard's place a ROS 2 node
-written from rmw_zenoh's wire contract alone (rosnode.py: zenoh-python and pycdr2, none of the
-gateway's code). The node discovers the gateway's endpoints, flies the mission's waypoints with
-velocity commands, and meanwhile bad samples on every topic the gateway takes are counted and
-dropped, and `abyss check onboard` judges the node's keys through the gateway."""
+"""The ROS 2 gateway end to end, with ROS 2 nodes written from rmw_zenoh's wire contract alone
+(rosnode.py: zenoh-python and pycdr2, none of the gateway's code). `abyss up --ros2 onboard`:
+the node discovers the gateway's endpoints, flies the mission's waypoints with velocity
+commands, and meanwhile bad samples on every topic the gateway takes are counted and dropped,
+and `abyss check onboard` judges the node's keys through the gateway. `--ros2 vessel`: the node
+maps onboard's clouds, and shore's scene is its map."""
 
 from __future__ import annotations
 
@@ -36,8 +37,10 @@ from rosnode import (
     ros_type,
 )
 
-from abyss.common.messages import NavState
+from abyss.common.messages import NavState, SceneUpdate, decode
+from abyss.common.scene import cell_keys, iterate_leaves, leaves_to_cells, read_binary
 from abyss.recording.store import open_recording
+from abyss.stations.onshore import SCENE_FILE
 from abyss.stations.runtime import free_port
 
 LAST_WAYPOINT_M = np.array([3.3, 0.0, -7.9])  # the default mission's
@@ -50,11 +53,12 @@ UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each 
 }
 
 
-def _gateway_graph(node: RosNode, timeout_s: float = 20.0) -> list[Token]:
+def _gateway_graph(node: RosNode, name: str = "abyss_onboard_gateway",
+                   timeout_s: float = 20.0) -> list[Token]:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         graph = node.graph()
-        if any(t.kind == "NN" and t.node == "abyss_onboard_gateway" for t in graph):
+        if any(t.kind == "NN" and t.node == name for t in graph):
             return graph
     raise AssertionError("the gateway's node token never appeared")
 
@@ -145,3 +149,46 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
         assert lines[f"abyss/default/onboard/{key}"].rstrip().endswith("ok"), check.stdout
     assert "FAIL" in lines["abyss/default/onboard/cloud"]  # this node sends no clouds: the check says so
     assert static and {"arm_base", "ee"} <= {t.child_frame_id for t in static[-1].transforms}
+
+
+def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
+    """`--ros2 vessel`: the node is the vessel's scene model. It is handed onboard's clouds as
+    PointCloud2 and publishes its map as an Octomap, which the vessel streams to shore in place
+    of its own octree; maps it cannot adopt are refused with their reason."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = Up(tmp_path / "run", "--ros2", "vessel", "--set", f'ros2.listen=["{endpoint}"]', "--duration", "25",
+            "--keep-running", "--viewer", "save", "--record", "none")
+    up.wait_up()
+    node = RosNode(endpoint, name="team_mapper")
+    stop = threading.Event()
+    try:
+        graph = _gateway_graph(node, "abyss_vessel_gateway")
+        mine = {(t.kind, t.topic) for t in graph if t.node == "abyss_vessel_gateway"}
+        assert {("MP", "/abyss/onboard/cloud"), ("MS", "/abyss/vessel/scene"), ("MP", "/clock")} <= mine
+        assert ("MP", "/abyss/simulation/nav") not in mine  # the vessel is handed clouds only
+        mapper = rosnode.Mapper(node, 0.1)  # vessel.octree_resolution_m
+        mapping = threading.Thread(target=mapper.run, args=(stop,), daemon=True)
+        mapping.start()
+        head = rosnode.Header(rosnode.Time(0, 0), "world")
+        wrong = [rosnode.Octomap(head, True, "OcTree", 0.05, [0, 0]),  # another resolution
+                 rosnode.Octomap(head, False, "OcTree", 0.1, []),  # a full map, not binary
+                 rosnode.Octomap(head, True, "OcTree", 0.1, [3, 0, 0])]  # torn data
+        for octomap in wrong:
+            node.publish(mapper.scene, octomap)
+        assert up.wait(90) == 0, up.output()
+    finally:
+        stop.set()
+        node.close()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert mapper.maps >= 5 and summary["scene"]["occupied_cells"] > 100, summary["scene"]
+    snapshot = decode("scene", (tmp_path / "run" / SCENE_FILE).read_bytes(), "SceneUpdate").message
+    assert isinstance(snapshot, SceneUpdate)
+    centres, sizes, occupied, _ = iterate_leaves(read_binary(snapshot.octree, 0.1))
+    shore, owners = leaves_to_cells(centres, sizes, 0.1)
+    shore = shore[occupied[owners]]
+    node_cells = set(cell_keys(mapper.map_points(), 0.1).tolist())
+    assert len(shore) > 100 and set(shore.tolist()) <= node_cells  # the node's map, not the vessel's own
+    rejected = summary["stations"]["vessel"]["rejected"]
+    assert rejected.get(data_key(0, mapper.scene, rosnode.Octomap), 0) >= len(wrong), rejected
+    log = (tmp_path / "run" / "vessel.log").read_text()
+    assert "tree resolution 0.05" in log and "a full 'OcTree' map" in log and "not OctoMap's binary" in log

@@ -164,3 +164,25 @@ def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
     cloud.fields = cloud.fields[1:]
     with pytest.raises(ValueError, match="no float32 field 'x'"):
         types.point_cloud_in(cloud, session)
+
+
+def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
+    from abyss.common.scene import SceneModel, cell_keys, write_cells
+
+    keys_m = np.array([[4.05, 0.05, -8.45], [4.35, 0.05, -8.45], [4.05, 0.35, -8.05]])
+    binary = write_cells(cell_keys(keys_m, 0.1), np.array([True, True, False]), 0.1)
+    data = types.octree_data(binary)
+    octomap = types.TYPESTORE.types["octomap_msgs/msg/Octomap"](
+        header=types.header(2.0, types.WORLD), binary=True, id="OcTree", resolution=0.1,
+        data=np.frombuffer(data, np.int8))
+    snapshot = types.octomap_in(octomap, types.Session())
+    size = binary.split(b"\nsize ")[1].split(b"\n")[0]  # as OctoMap wrote it
+    assert snapshot.octree.endswith(data) and b"\nsize " + size + b"\n" in snapshot.octree
+    model = SceneModel(0.1, 10.0)
+    assert model.adopt(snapshot.octree) >= 2  # leaves: OctoMap prunes
+    update = model.next_update(2.0)
+    assert update is not None and len(update.colors) == 2 and (update.colors == 128).all()
+    with pytest.raises(ValueError, match="not OctoMap's binary stream"):
+        types.octree_file(data[:-2], 0.1)
+    with pytest.raises(ValueError, match=r"tree resolution 0\.05"):
+        SceneModel(0.1, 10.0).adopt(types.octree_file(data, 0.05))

@@ -4,7 +4,9 @@ same run. Run: .venv/bin/python bench/gateway.py. Prints figures; asserts nothin
 Down (abyss -> ROS 2): each message as onboard receives it goes out either as abyss sends it
 (msgpack `encode` and one put) or as the gateway sends it (`ros2.types` conversion to every
 topic of its key, CDR, rmw_zenoh's attachment, one put per topic: NavState is Odometry, /tf and
-/clock; JointState is JointState and /tf through Pinocchio's forward kinematics). Up (ROS 2 ->
+/clock; JointState is JointState and /tf through Pinocchio's forward kinematics, and /clock; a
+cloud, the vessel's node's input, is PointCloud2 and /clock: each message advances simulated
+time here, as it does live). Up (ROS 2 ->
 abyss): a TwistStamped as the gateway takes it (checks, CDR decode, conversion, abyss encode)
 against abyss's own decode and encode of the VelocityRef. Both over a second Zenoh session on
 loopback in this process: CPU per message (process time over a flood, Zenoh's threads
@@ -20,6 +22,7 @@ import numpy as np
 import zenoh
 
 from abyss.common.bus import open_session, zenoh_config
+from abyss.common.clouds import pack_cloud
 from abyss.common.messages import JointState, Message, NavState, VelocityRef, decode, encode
 from abyss.common.samples import Samples
 from abyss.ros2 import rmw, types
@@ -29,6 +32,8 @@ FLOOD, PACED, PACE_S = 2000, 300, 0.005
 NAV = NavState(np.array([1.0, 0.2, -7.0]), np.array([0.99, 0.0, 0.0, 0.141]), np.full(3, 0.1),
                np.full(3, 0.01), 3.5)
 JOINTS = JointState(np.linspace(-0.5, 0.5, 6), np.zeros(6), 0.03, 3.5)
+CLOUD = pack_cloud("stereo", np.random.default_rng(0).uniform(-1, 1, (8000, 3)) + np.array([4.0, 0.0, -8.5]),
+                   np.full((8000, 3), 128, np.uint8), np.array([1.0, 0.0, -7.0]), 0.002, 3.5)
 Sample = tuple[str, bytes, bytes | None]  # key, payload, attachment
 
 
@@ -80,6 +85,7 @@ class GatewayDown:
         self.session = types.Session()
         self.gids = {t.name: bytes(16) for t in self.mapping.topics}
         self.keys = {t.name: rmw.topic_key(0, t.topic(abyss_topic), t.type) for t in self.mapping.topics}
+        self.clock_key = rmw.topic_key(0, types.CLOCK, "rosgraph_msgs/msg/Clock")
         self.seq = 0
 
     def __call__(self, message: Message) -> list[Sample]:
@@ -91,6 +97,9 @@ class GatewayDown:
             converted = t.convert(message, types.header(stamp_s, t.frame_id), self.session)
             samples.append((self.keys[t.name], types.serialize(converted),
                             rmw.attachment(self.seq, time.time_ns(), self.gids[t.name])))
+        clock = types.clock(None, types.header(stamp_s, ""), self.session)
+        stamp = rmw.attachment(self.seq, time.time_ns(), bytes(16))
+        samples.append((self.clock_key, types.serialize(clock), stamp))
         return samples
 
 
@@ -137,21 +146,25 @@ def main() -> None:
     abyss_twist = encode(VelocityRef(np.array([0.2, 0.0, -0.1]), 0.1), 1, time.time())
     ros_twist, attachment = twist_cdr(), rmw.attachment(1, time.time_ns(), bytes(16))
     nav_down, joints_down = GatewayDown("simulation/nav"), GatewayDown("simulation/joints")
+    cloud_down = GatewayDown("onboard/cloud")
     session = types.Session()
     cases: list[tuple[str, Callable[[], list[Sample]], Callable[[], list[Sample]]]] = [
         ("down NavState (Odometry, /tf, /clock)", lambda: abyss_down(NAV), lambda: nav_down(NAV)),
-        ("down JointState (JointState, /tf by FK)", lambda: abyss_down(JOINTS), lambda: joints_down(JOINTS)),
+        ("down JointState (JointState, /tf by FK, /clock)", lambda: abyss_down(JOINTS),
+         lambda: joints_down(JOINTS)),
+        ("down PointCloud 8000 points (PointCloud2, /clock)", lambda: abyss_down(CLOUD),
+         lambda: cloud_down(CLOUD)),
         ("up TwistStamped -> VelocityRef", lambda: abyss_up(abyss_twist),
          lambda: gateway_up(ros_twist, attachment, session)),
     ]
-    print(f"{'case':<42} {'abyss CPU us':>12} {'gateway CPU us':>15} {'ratio':>6}  "
+    print(f"{'case':<50} {'abyss CPU us':>12} {'gateway CPU us':>15} {'ratio':>6}  "
           f"{'abyss p50/p95 us':>17} {'gateway p50/p95 us':>19}")
     try:
         for name, abyss_path, gateway_path in cases:
             abyss_cpu, abyss_latency = measure(wire, abyss_path)
             gateway_cpu, gateway_latency = measure(wire, gateway_path)
             a, g = (s.percentiles("l", 1e6, "us") for s in (abyss_latency, gateway_latency))
-            print(f"{name:<42} {abyss_cpu:>12.0f} {gateway_cpu:>15.0f} {gateway_cpu / abyss_cpu:>5.1f}x  "
+            print(f"{name:<50} {abyss_cpu:>12.0f} {gateway_cpu:>15.0f} {gateway_cpu / abyss_cpu:>5.1f}x  "
                   f"{a['l_p50_us']:>8.0f}/{a['l_p95_us']:<8.0f} {g['l_p50_us']:>9.0f}/{g['l_p95_us']:<9.0f}")
     finally:
         wire.close()

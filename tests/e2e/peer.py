@@ -4,13 +4,17 @@ watch ENDPOINT SYSTEM TIMEOUT_S: a tool's client session; waits until shore repo
   done and the simulation's truth has arrived (three routed hops away); prints what it saw as JSON.
 intrude ENDPOINT SYSTEM HOLDER|none COUNT: a peer with HOLDER's certificate (none: without one)
   publishes COUNT waypoint commands as if it were the vessel; prints how many peers it reached.
-receive LISTEN SECONDS: counts the messages on large/** for SECONDS (from the first one's arrival).
-send CONNECT COUNT BYTES TUNED_FOR_BPS: publishes COUNT messages of BYTES on large/N with congestion
-  control DROP, the transmission queue tuned for a link of TUNED_FOR_BPS (inf: Zenoh's defaults)."""
+receive LISTEN SECONDS [ALL]: counts the messages on large/** for SECONDS (from the first one's
+  arrival), or until ALL have arrived (no more are sent: nothing is left to count).
+send CONNECT COUNT BYTES TUNED_FOR_BPS [UNTIL_FILE]: publishes COUNT messages of BYTES on large/N with
+  congestion control DROP, the transmission queue tuned for a link of TUNED_FOR_BPS (inf: Zenoh's
+  defaults); keeps its session open 30 s for the queue to drain, or until UNTIL_FILE exists (the
+  receiver has counted)."""
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import threading
@@ -75,28 +79,38 @@ def intrude(endpoint: str, system: str, holder: str, count: int) -> dict[str, ob
     return {"peers": peers, "sent": count}
 
 
-def receive(listen: str, seconds: float) -> dict[str, object]:
+def receive(listen: str, seconds: float, every: float = math.inf) -> dict[str, object]:
     got: list[float] = []
+    arrived = threading.Event()
+
+    def on_sample(_sample: zenoh.Sample) -> None:
+        got.append(time.monotonic())
+        if len(got) >= every:
+            arrived.set()
+
     session = open_session(zenoh_config(listen=[listen]), "receive")
-    subscriber = session.declare_subscriber("large/**", lambda _s: got.append(time.monotonic()))
+    subscriber = session.declare_subscriber("large/**", on_sample)
     deadline = time.monotonic() + 60.0
     while not got and time.monotonic() < deadline:
         time.sleep(0.05)
     if got:
-        time.sleep(max(0.0, got[0] + seconds - time.monotonic()))
+        arrived.wait(max(0.0, got[0] + seconds - time.monotonic()))
     subscriber.undeclare()
     session.close()
     return {"received": len(got), "span_s": got[-1] - got[0] if got else 0.0}
 
 
-def send(connect: str, count: int, size: int, tuned_for_bps: float) -> dict[str, object]:
+def send(connect: str, count: int, size: int, tuned_for_bps: float, until: Path | None = None,
+         ) -> dict[str, object]:
     session = open_session(zenoh_config(connect=[connect], slowest_rate_bps=tuned_for_bps), "send")
     publisher = session.declare_publisher("large/data", congestion_control=zenoh.CongestionControl.DROP)
     time.sleep(1.0)
     for _ in range(count):
         publisher.put(bytes(size))
         time.sleep(0.1)
-    time.sleep(30.0)  # the session's queue drains before it closes
+    deadline = time.monotonic() + 30.0  # the session's queue drains before it closes
+    while time.monotonic() < deadline and not (until is not None and until.exists()):
+        time.sleep(0.05)
     session.close()
     return {"sent": count}
 
@@ -108,7 +122,7 @@ if __name__ == "__main__":
     elif verb == "intrude":
         result = intrude(args[0], args[1], args[2], int(args[3]))
     elif verb == "receive":
-        result = receive(args[0], float(args[1]))
+        result = receive(args[0], float(args[1]), *(float(a) for a in args[2:3]))
     else:
-        result = send(args[0], int(args[1]), int(args[2]), float(args[3]))
+        result = send(args[0], int(args[1]), int(args[2]), float(args[3]), *(Path(a) for a in args[4:5]))
     print(json.dumps(result))

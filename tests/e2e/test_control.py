@@ -4,9 +4,13 @@ failsafe on a tether outage and the resume, `abyss plot` on the run."""
 from __future__ import annotations
 
 import math
+import os
+import signal
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -49,31 +53,60 @@ class Truth:
         self.session.close()
 
 
-@pytest.mark.parametrize(("low_level", "tolerance_m", "tolerance_deg", "profile"), [
-    ("kinematic", 0.02, 1.0, "ideal"),
-    ("dynamic", 0.05, 2.0, "tether"),
-])
-def test_three_waypoints_are_reached(tmp_path: Path, low_level: str, tolerance_m: float, tolerance_deg: float,
-                                     profile: str) -> None:
+FLIGHTS = {  # low level: (tolerance [m], tolerance [deg], the tether's profile)
+    "kinematic": (0.02, 1.0, "ideal"),
+    "dynamic": (0.05, 2.0, "tether"),
+}
+
+
+@dataclass
+class Flight:
+    summary: dict[str, Any]
+    final: NavState  # the last true state the scorer saw
+    output: str
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Flight]:
+    """The waypoints flown with each low level, two systems at once (as the scenario library runs
+    them), each to the end of its mission or 150 s: what each summary and the scorer saw. The
+    controller accepts a waypoint at half the bound; the tests below hold the true pose to it."""
+    ups = {low_level: Up(tmp_path_factory.mktemp(low_level) / "run", "--system", f"e2e-wp-{low_level}",
+                         "--duration", "150", "--profile", f"tether={profile}",
+                         "--set", f"simulation.low_level={low_level}",
+                         "--set", f"mission.position_tolerance_m={tolerance_m / 2}",
+                         "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg / 2)}",
+                         "--set", "mission.arm_target=[]")
+           for low_level, (tolerance_m, tolerance_deg, profile) in FLIGHTS.items()}  # fmt: skip
+    truths: dict[str, Truth] = {}
+    try:
+        for low_level, up in ups.items():
+            truths[low_level] = Truth(up.endpoint, f"e2e-wp-{low_level}")
+        for up in ups.values():
+            assert up.wait(180) == 0, up.output()
+        return {low_level: Flight(up.summary(), truths[low_level].since(0.0)[-1], up.output())
+                for low_level, up in ups.items()}
+    except BaseException:  # both stopped now (a module fixture's failure skips no_leftover_systems)
+        for up in ups.values():
+            if up.process.poll() is None:
+                os.killpg(up.process.pid, signal.SIGKILL)
+        raise
+    finally:
+        for truth in truths.values():
+            truth.close()
+
+
+@pytest.mark.parametrize("low_level", FLIGHTS)
+def test_three_waypoints_are_reached(flights: dict[str, Flight], low_level: str) -> None:
     """Within 150 s (measured: 15-70 s kinematic, 18-40 s dynamic, on 2 loaded cores). The
     controller accepts a waypoint at half the bound; the true pose, scored on the truth key,
     must be within the bound."""
-    system = f"e2e-wp-{low_level}"
-    up = Up(tmp_path / "run", "--system", system, "--duration", "150", "--profile", f"tether={profile}",
-            "--set", f"simulation.low_level={low_level}",
-            "--set", f"mission.position_tolerance_m={tolerance_m / 2}",
-            "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg / 2)}",
-            "--set", "mission.arm_target=[]")
-    truth = Truth(up.endpoint, system)
-    try:
-        assert up.wait(180) == 0, up.output()
-        final = truth.since(0.0)[-1]
-    finally:
-        truth.close()
-    summary = up.summary()
-    assert summary["mission"]["done"], up.output()
-    control = summary["control"]
+    tolerance_m, tolerance_deg, _ = FLIGHTS[low_level]
+    flight = flights[low_level]
+    assert flight.summary["mission"]["done"], flight.output
+    control = flight.summary["control"]
     assert control["position_error_m"] < tolerance_m and control["heading_error_deg"] < tolerance_deg
+    final = flight.final
     true_error_m = np.linalg.norm(np.array(LAST_WAYPOINT[:3]) - final.position_m_world)
     true_heading_deg = abs(math.degrees(wrap_rad(LAST_WAYPOINT[3] - yaw_of(final.orientation_wxyz_world))))
     assert true_error_m < tolerance_m and true_heading_deg < tolerance_deg

@@ -49,7 +49,7 @@ EXPECTED: dict[str, dict[str, str]] = {
     "simulation/camera/cam_depth": {"image": "sensor_msgs/msg/Image", "camera_info": CAMERA_INFO},
     "simulation/status": {CLOCK: "rosgraph_msgs/msg/Clock", "": DIAGNOSTICS},
     "onboard/cmd/vehicle_velocity": {"": "geometry_msgs/msg/TwistStamped"},
-    "onboard/cmd/arm_velocity": {"": "sensor_msgs/msg/JointState"},
+    "onboard/cmd/arm_velocity": {"": "std_msgs/msg/Float64MultiArray"},
     "onboard/telemetry": TELEMETRY,
     "onboard/state": TELEMETRY,
     "onboard/cloud": {"": "sensor_msgs/msg/PointCloud2"},
@@ -57,6 +57,7 @@ EXPECTED: dict[str, dict[str, str]] = {
     "onboard/ack": {"": DIAGNOSTICS},
     "vessel/goal/waypoints": {"": "nav_msgs/msg/Path"},
     "vessel/goal/arm": {"": POSE},
+    "vessel/goal/mode": {"": "std_msgs/msg/String"},
     "vessel/heartbeat": {"": DIAGNOSTICS},
     "vessel/telemetry": TELEMETRY,
     "vessel/scene": {"": "octomap_msgs/msg/Octomap"},
@@ -65,6 +66,7 @@ EXPECTED: dict[str, dict[str, str]] = {
     "vessel/ack": {"": DIAGNOSTICS},
     "onshore/op/waypoints": {"": "nav_msgs/msg/Path"},
     "onshore/op/arm": {"": POSE},
+    "onshore/op/mode": {"": "std_msgs/msg/String"},
     "onshore/heartbeat": {"": DIAGNOSTICS},
     "onshore/mission": {"": DIAGNOSTICS},
 }
@@ -311,6 +313,12 @@ def test_images_clouds_scene_paths_and_diagnostics_hold_the_recorded_values(
     goal, goal_pose = recorded(recording, "vessel/goal/arm")[0], decoded["/abyss/vessel/goal/arm"][0]
     np.testing.assert_allclose(xyz(goal_pose.pose.position), goal.position_m_world)
     np.testing.assert_allclose(wxyz(goal_pose.pose.orientation), goal.orientation_wxyz_world)
+    for key in ("vessel/goal/mode", "onshore/op/mode"):
+        modes = [m.mode for m in recorded(recording, key)]
+        assert modes and [m.data for m in decoded[f"/abyss/{key}"]] == modes
+    commands = recorded(recording, "onboard/cmd/arm_velocity")
+    for ref, command in zip(commands, decoded["/abyss/onboard/cmd/arm_velocity"], strict=True):
+        np.testing.assert_allclose(command.data, [*ref.joint_velocities_radps, ref.gripper_velocity_mps])
 
     for key in sorted({r.topic for r in recording.observed() if "/linkstats/" in r.topic}):
         stats, array = recorded(recording, key)[-1], decoded[f"/abyss/{key}"][-1]

@@ -309,9 +309,9 @@ class Up:
             (self.out_dir / name).unlink(missing_ok=True)
         config_path = self.out_dir / CONFIG_FILE
         config_path.write_text(self.config.to_json())
-        self._change_state()
         system = self.config.system
         session = self.session = open_session(zenoh_config([self.endpoint], mode="router"), "abyss up")
+        self._change_state()  # state.json names the endpoint once it takes connections
         self.record = ControlRecorder(self.out_dir)
         self.testbed = station_recorder(self.config, TESTBED)
         observers = [

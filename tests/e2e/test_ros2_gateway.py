@@ -53,14 +53,16 @@ UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each 
 }
 
 
-def _gateway_graph(node: RosNode, name: str = "abyss_onboard_gateway",
+def _gateway_graph(node: RosNode, name: str, needs: set[tuple[str, str]],
                    timeout_s: float = 20.0) -> list[Token]:
+    """The graph once the gateway's node and the endpoints `needs` (kind, topic) are in it: the
+    gateway declares its node's token first and each endpoint's as it makes it."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         graph = node.graph()
-        if any(t.kind == "NN" and t.node == name for t in graph):
+        if needs <= {(t.kind, t.topic) for t in graph if t.node == name}:
             return graph
-    raise AssertionError("the gateway's node token never appeared")
+    raise AssertionError(f"the gateway {name} never showed all of {sorted(needs)}")
 
 
 def _send_bad_samples(session: zenoh.Session, gid: bytes) -> int:
@@ -89,7 +91,9 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
     node = RosNode(endpoint)
     stop = threading.Event()
     try:
-        graph = _gateway_graph(node)
+        graph = _gateway_graph(node, "abyss_onboard_gateway", {
+            ("MP", "/abyss/simulation/nav"), ("MS", "/abyss/onboard/cmd/vehicle_velocity"),
+            ("MP", "/tf_static"), ("MP", "/clock")})
         by_topic = {(t.kind, t.topic): t for t in graph if t.node == "abyss_onboard_gateway"}
         odometry = by_topic["MP", "/abyss/simulation/nav"]
         assert (odometry.namespace, odometry.type, odometry.hash, odometry.qos) == \
@@ -162,9 +166,9 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
     node = RosNode(endpoint, name="team_mapper")
     stop = threading.Event()
     try:
-        graph = _gateway_graph(node, "abyss_vessel_gateway")
+        graph = _gateway_graph(node, "abyss_vessel_gateway", {
+            ("MP", "/abyss/onboard/cloud"), ("MS", "/abyss/vessel/scene"), ("MP", "/clock")})
         mine = {(t.kind, t.topic) for t in graph if t.node == "abyss_vessel_gateway"}
-        assert {("MP", "/abyss/onboard/cloud"), ("MS", "/abyss/vessel/scene"), ("MP", "/clock")} <= mine
         assert ("MP", "/abyss/simulation/nav") not in mine  # the vessel is handed clouds only
         mapper = rosnode.Mapper(node, 0.1)  # vessel.octree_resolution_m
         mapping = threading.Thread(target=mapper.run, args=(stop,), daemon=True)

@@ -69,7 +69,7 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 def cmd_op(args: argparse.Namespace) -> int:
     from abyss.console.op import run_op
 
-    return run_op(args.connect, args.system, args.command, args.value, args.timeout)
+    return run_op(args.connect, args.system, args.command, args.value, args.timeout, args.turn or args.to)
 
 
 def add_commands(sub: Any) -> None:
@@ -86,13 +86,16 @@ def add_commands(sub: Any) -> None:
     p.set_defaults(func=cmd_teleop)
 
     p = sub.add_parser("op", help="send one operator command through shore and print onboard's answer")
-    p.add_argument("command", choices=("waypoints", "arm", "mode"))
+    p.add_argument("command", choices=("waypoints", "arm", "mode", "valve", "lever"))
     p.add_argument(
         "value",
         metavar="VALUE",
         help="waypoints: 'x,y,z,yaw; ...' [m, rad]; arm: 'x,y,z,roll,pitch,yaw' [m, rad]; "
-        "mode: hold|auto|teleop",
+        "mode: hold|auto|teleop; valve: a valve's name (valve_0..2) with --turn; lever: a lever's "
+        "name (lever_0, lever_1) with --to",
     )
+    p.add_argument("--turn", metavar="DEG", default="", help="valve: the angle to turn it by [deg]")
+    p.add_argument("--to", choices=("up", "down"), default="", help="lever: the stop to throw it to")
     connect_args(p)
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
@@ -103,15 +106,15 @@ def add_commands(sub: Any) -> None:
         "target",
         nargs="?",
         default="",
-        help=f"thruster ({', '.join(THRUSTERS)}), camera ({', '.join(CAMERAS)}) or "
-        f"navigation sensor ({', '.join(NAV_SENSORS)})",
+        help=f"thruster ({', '.join(THRUSTERS)}), camera ({', '.join(CAMERAS)}), "
+        f"navigation sensor ({', '.join(NAV_SENSORS)}) or a part of the panel to seize",
     )
     p.add_argument(
         "value",
         nargs="?",
         type=float,
         default=0.0,
-        help="thruster efficiency, camera on (1) / off (0), or noise scale",
+        help="thruster efficiency, camera on (1) / off (0), noise scale, or seized (1) / freed (0)",
     )
     connect_args(p)
     p.set_defaults(func=cmd_fault)

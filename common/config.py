@@ -20,6 +20,7 @@ from abyss.common import keys
 from abyss.common.errors import ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.common.messages import CLOUD_SOURCES
+from abyss.common.models import panel
 from abyss.linkemu.profile import LinkProfile, load_profiles, profile
 
 
@@ -280,13 +281,16 @@ Box = tuple[float, float, float, float, float, float]
 class MissionConfig:
     # rows of x, y, z [m, world] and yaw [rad]
     waypoints: tuple[tuple[float, float, float, float], ...] = (
-        (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.3, 0.0, -7.9, 0.0))
+        (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.2, 0.0, -8.0, 0.0))
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
     # the end-effector's goal once the last waypoint is reached: x, y, z [m, world], roll, pitch,
-    # yaw [rad] (rotations about the world's x, y, z, in that order); empty: no arm goal. The
-    # default grips the handle of the middle valve (fingers across the handle bar).
-    arm_target: tuple[float, ...] = (4.86, 0.0, -8.35, 1.5707963267948966, 0.0, 0.0)
+    # yaw [rad] (rotations about the world's x, y, z, in that order); empty: no arm goal
+    arm_target: tuple[float, ...] = ()
+    # or the interventions, one after the other once the last waypoint is reached: rows of a part
+    # of the panel and what to do with it: a valve and the angle to turn it by [deg], or a lever
+    # and the stop to throw it to (up, down); the success of each is judged on the simulation's truth
+    interventions: tuple[tuple[str, str], ...] = (("valve_1", "90"), ("lever_0", "down"))
     arm_position_tolerance_m: float = 0.005
     arm_orientation_tolerance_rad: float = 0.02
     arm_settle_s: float = 2.0  # [s] within both tolerances this long: the goal is reached
@@ -305,6 +309,14 @@ class MissionConfig:
             raise ConfigError("mission.waypoints", "needs 1 to 1000 rows of [x, y, z, yaw]")
         if len(self.arm_target) not in (0, 6):
             raise ConfigError("mission.arm_target", "needs [x, y, z, roll, pitch, yaw], or [] for none")
+        if self.arm_target and self.interventions:
+            raise ConfigError("mission.interventions", "an arm goal (mission.arm_target) or interventions, "
+                              "not both: set the other to []")
+        for i, (part, amount) in enumerate(self.interventions):
+            try:
+                panel.intent(part, amount)
+            except ValueError as exc:
+                raise ConfigError(f"mission.interventions[{i}]", str(exc)) from None
         for name in ("position_tolerance_m", "heading_tolerance_rad", "arm_position_tolerance_m",
                      "arm_orientation_tolerance_rad", "arm_settle_s", "resend_period_s",
                      "vehicle_clearance_m"):

@@ -98,6 +98,7 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard", "control"),
     KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard", "control"),
     KeySpec("vessel", "goal/mode", "OperatorMode", 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "goal/intervene", "InterventionGoal", 0.0, "reliable", "onboard", "control"),
     KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard", "control"),
     KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore", "telemetry"),
     KeySpec("vessel", "scene", "SceneUpdate", 0.0, "reliable", "onshore", "bulk"),
@@ -107,6 +108,7 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel", "control"),
     KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel", "control"),
     KeySpec("onshore", "op/mode", "OperatorMode", 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "op/intervene", "Intervention", 0.0, "reliable", "vessel", "control"),
     KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel", "control"),
     KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel", "control"),
     KeySpec("onshore", "scene_ack", "SceneAck", 0.0, "reliable", "vessel", "control"),
@@ -138,6 +140,12 @@ def alive_key(system: str, station: str) -> str:
 def truth_key(system: str) -> str:
     """The vehicle's true state, for scoring only: no station may steer by it."""
     return key(system, "simulation", "truth")
+
+
+def panel_truth_key(system: str) -> str:
+    """The panel's true state (valve and lever angles, the fingers' contact forces), for
+    scoring only: an intervention is judged by it, not by what onboard believes."""
+    return key(system, "simulation", "truth", "panel")
 
 
 def simulation_control_key(system: str) -> str:
@@ -173,7 +181,8 @@ def replay_key(system: str) -> str:
 
 def observation_keys(system: str) -> tuple[str, ...]:
     """The testbed's keys that `abyss up` records beside the stations' data (as key expressions)."""
-    return (truth_key(system), simulation_status_key(system), onboard_state_key(system), mission_key(system),
+    return (truth_key(system), panel_truth_key(system), simulation_status_key(system),
+            onboard_state_key(system), mission_key(system),
             key(system, "*", "linkstats", "*"), operator_key(system, "*"), simulation_control_key(system),
             key(system, "link", "*"), replay_key(system))
 
@@ -185,10 +194,13 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ("abyss/<system>/<station>/linkstats/<hop>", "LinkStats", "1 Hz", "what each emulator measured"),
     ("abyss/<system>/<station>/alive", "liveliness", "-", "token held while the station runs"),
     ("abyss/<system>/simulation/truth", "NavState", "20 Hz", "true vehicle state, for scoring only"),
+    ("abyss/<system>/simulation/truth/panel", "PanelState", "10 Hz",
+     "true valve and lever angles and finger forces, for scoring only"),
     ("abyss/<system>/simulation/control", "SimulationControl", "event",
-     "faults: thruster, camera, noise, clear"),
+     "faults: thruster, camera, noise, seize, clear"),
     ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
-    ("abyss/<system>/onshore/operator/<waypoints|arm|mode>", "Waypoints, ArmGoal, OperatorMode", "event",
+    ("abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
+     "Waypoints, ArmGoal, OperatorMode, Intervention", "event",
      "operator tools to the onshore station, which sends them down"),
     ("abyss/<system>/onshore/operator/ack", "CommandAck", "event",
      "onboard's answers to operator commands, handed back to the tools"),

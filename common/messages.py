@@ -176,13 +176,17 @@ class ArmVelocityRef(Message):
 
 @dataclass(frozen=True)
 class JointState(Message):
-    """Arm joint positions and velocities (model order) and the gripper opening;
-    simulation -> onboard."""
+    """Arm joint positions and velocities (model order), the gripper's opening (the two fingers'
+    travel, summed) and the force its motors squeeze with (as a real gripper reports from its
+    motor current; 0 with the kinematic low level); simulation -> onboard."""
+
+    VERSION: ClassVar[int] = 2  # 2: gripper_force_n
 
     positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)
     velocities_radps: np.ndarray = array("f8", (6,), -100.0, 100.0)
     gripper_opening_m: float = scalar(0.0, 1.0)
     sim_time_s: float = scalar(0.0)
+    gripper_force_n: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1e4, "choices": ()})
 
 
 IMAGE_ENCODINGS = ("jpeg", "png16")
@@ -301,7 +305,7 @@ class RecognisedObjects(Message):
             raise ValueError("names, poses_world, half_sizes_m and confidences differ in length")
 
 
-FAULTS = ("thruster", "camera", "noise", "clear")
+FAULTS = ("thruster", "camera", "noise", "seize", "clear")
 
 
 @dataclass(frozen=True)
@@ -309,7 +313,8 @@ class SimulationControl(Message):
     """A fault injected into the simulation (scenario runner, tests):
     thruster NAME VALUE: that thruster's efficiency (0: failed, 0.5: weakened, 1: healthy);
     camera NAME VALUE: 0 blacks the camera out, 1 restores it; noise SENSOR VALUE: that
-    navigation sensor's noise scale (usbl, depth, dvl, imu; 1 is nominal); clear: undo all."""
+    navigation sensor's noise scale (usbl, depth, dvl, imu; 1 is nominal); seize PART VALUE: 1
+    seizes that valve or lever where it stands (it turns no further), 0 frees it; clear: undo all."""
 
     fault: str = scalar(choices=FAULTS)
     target: str = scalar()
@@ -330,7 +335,10 @@ MODES = ("idle", "moving", "reached", "hold")
 # hold: the vehicle holds station and the arm holds still; auto: the goals are flown, the arm
 # once the vehicle holds its last waypoint; teleop: the goals are flown, the arm at once
 OPERATOR_MODES = ("hold", "auto", "teleop")
-COMMANDS = ("waypoints", "arm", "mode")  # what an operator command sets
+COMMANDS = ("waypoints", "arm", "mode", "intervene")  # what an operator command sets
+LEVER_STOPS = ("up", "down")
+# an intervention's phases, in order; it ends done or failed (its reason says why); "" none yet
+INTERVENTION_PHASES = ("", "approach", "pre-grasp", "grasp", "turn", "release", "retreat", "done", "failed")
 
 
 @dataclass(frozen=True)
@@ -340,9 +348,11 @@ class Telemetry(Message):
     world] and orientation (angle of the rotation from the estimate to the goal) [rad]. `mode`
     is the vehicle's, `arm_mode` the arm's; `failsafe` names why both hold ('' when they don't);
     `boot_id` is new each time onboard starts, so that shore sees a reboot and hands the goals
-    in force again."""
+    in force again. The intervention (`intervention_*`, -1 and "" when none): the part, the
+    phase and why it failed; how far onboard has turned it [rad], of the goal; the gripper as
+    the low level reports it."""
 
-    VERSION: ClassVar[int] = 2  # 2: boot_id
+    VERSION: ClassVar[int] = 3  # 2: boot_id; 3: the intervention
 
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
@@ -364,6 +374,14 @@ class Telemetry(Message):
     sim_time_s: float = scalar(0.0)
     operator_mode: str = field(default="auto", metadata={"choices": OPERATOR_MODES})
     boot_id: int = field(default=0, metadata={"lo": 0, "hi": 2**53, "choices": ()})
+    intervention_id: int = field(default=-1, metadata={"lo": -1, "hi": 2**53, "choices": ()})
+    intervention_target: str = ""
+    intervention_phase: str = field(default="", metadata={"choices": INTERVENTION_PHASES})
+    intervention_reason: str = ""
+    turned_rad: float = field(default=0.0, metadata={"lo": -10.0, "hi": 10.0, "choices": ()})
+    turn_goal_rad: float = field(default=0.0, metadata={"lo": -10.0, "hi": 10.0, "choices": ()})
+    gripper_opening_m: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1.0, "choices": ()})
+    gripper_force_n: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1e4, "choices": ()})
 
     @property
     def position_error_m(self) -> float:
@@ -382,6 +400,57 @@ class ArmGoal(Message):
     def __post_init__(self) -> None:
         super().__post_init__()
         _check_unit_quaternion(self.orientation_wxyz_world)
+
+
+@dataclass(frozen=True)
+class Intervention(Message):
+    """An operator's intent on a part of the panel (common.models.panel): turn valve `target` by
+    `turn_rad`, or throw lever `target` to its stop `to` (up or down); onshore -> vessel, which
+    resolves the part from the panel it recognised."""
+
+    command_id: int = scalar(0, 2**53)
+    target: str = scalar()
+    turn_rad: float = scalar(-2 * math.pi, 2 * math.pi)  # a valve's; 0 for a lever
+    to: str = scalar(choices=("", *LEVER_STOPS))  # a lever's; "" for a valve
+
+
+@dataclass(frozen=True)
+class InterventionGoal(Message):
+    """An intervention resolved in the world frame (vessel -> onboard): the part's pivot [m] and
+    rotation axis (unit), the tool point's grasp pose (position [m], orientation w, x, y, z), and
+    the turn about the axis [rad, signed, from the grasp]; `to_stop`: the turn ends at a
+    mechanical stop (a lever thrown), where the part stopping is success, not a fault."""
+
+    command_id: int = scalar(0, 2**53)
+    target: str = scalar()
+    pivot_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    axis_world: np.ndarray = array("f8", (3,), -1.0 - 1e-6, 1.0 + 1e-6)
+    grasp_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
+    grasp_orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0 - 1e-6, 1.0 + 1e-6)
+    turn_rad: float = scalar(-2 * math.pi, 2 * math.pi)
+    to_stop: bool = False
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_unit_quaternion(self.grasp_orientation_wxyz_world)
+        if abs(float(np.linalg.norm(self.axis_world)) - 1.0) > 1e-3:
+            raise ValueError("axis_world: not a unit vector")
+
+
+@dataclass(frozen=True)
+class PanelState(Message):
+    """The simulation's truth of the panel, for scoring only: each valve's and lever's joint
+    angle [rad], and the normal force [N] of the fingers' contacts with each (0: untouched)."""
+
+    names: tuple[str, ...] = scalar()
+    angles_rad: np.ndarray = array("f8", (None,), -10.0, 10.0, max_rows=64)
+    finger_force_n: np.ndarray = array("f8", (None,), 0.0, 1e6, max_rows=64)
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not len(self.names) == len(self.angles_rad) == len(self.finger_force_n):
+            raise ValueError("names, angles_rad and finger_force_n differ in length")
 
 
 @dataclass(frozen=True)
@@ -453,6 +522,8 @@ class LinkStats(Message):
 class MissionStatus(Message):
     """The mission as the operator sees it from the telemetry that reached shore."""
 
+    VERSION: ClassVar[int] = 2  # 2: the interventions
+
     mode: str = scalar(choices=MODES)
     waypoint_index: int = scalar(0, 1000)
     waypoints_total: int = scalar(0, 1000)
@@ -464,6 +535,11 @@ class MissionStatus(Message):
     failsafe: str = scalar()  # why the vehicle and arm hold; empty when they do not
     failsafe_events: int = scalar(0, 2**31)
     done: bool = False
+    interventions_done: int = field(default=0, metadata={"lo": 0, "hi": 1000, "choices": ()})
+    interventions_total: int = field(default=0, metadata={"lo": 0, "hi": 1000, "choices": ()})
+    intervention_target: str = ""  # the one in hand, or the last
+    intervention_phase: str = field(default="", metadata={"choices": INTERVENTION_PHASES})
+    intervention_reason: str = ""  # why it failed
 
 
 @dataclass(frozen=True)

@@ -19,12 +19,14 @@ from abyss.common.messages import (
     OPERATOR_MODES,
     ArmGoal,
     CommandAck,
+    Intervention,
     Message,
     OperatorMode,
     Waypoints,
     encode,
     new_id,
 )
+from abyss.common.models import panel
 
 RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
 
@@ -54,7 +56,19 @@ def parse_arm(text: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array([x, y, z]), quat_wxyz_of(rotation_of_rpy(roll, pitch, yaw))
 
 
-def command_of(kind: str, text: str, command_id: int) -> Waypoints | ArmGoal | OperatorMode:
+INTENTS = ("valve", "lever")  # `abyss op valve NAME --turn DEG`, `abyss op lever NAME --to STOP`
+
+
+def command_of(kind: str, text: str, command_id: int,
+               amount: str = "") -> Waypoints | ArmGoal | OperatorMode | Intervention:
+    """The command `abyss op KIND TEXT` sends; `amount`: a valve's turn [deg] or a lever's stop."""
+    if kind in INTENTS:
+        try:
+            if panel.part_kind(text) != kind:
+                raise ValueError(f"{text} is a {panel.part_kind(text)}, not a {kind}")
+            return Intervention(command_id, text, *panel.intent(text, amount))
+        except ValueError as exc:
+            raise ConfigError(kind, str(exc)) from None
     if kind == "waypoints":
         return Waypoints(command_id, parse_waypoints(text))
     if kind == "arm":
@@ -66,7 +80,7 @@ def command_of(kind: str, text: str, command_id: int) -> Waypoints | ArmGoal | O
 
 def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: float) -> CommandAck | None:
     """Hand `command` to the onshore station and wait for onboard's answer; None if none came."""
-    assert isinstance(command, (Waypoints, ArmGoal, OperatorMode))
+    assert isinstance(command, (Waypoints, ArmGoal, OperatorMode, Intervention))
     answered = threading.Event()
     answer: list[CommandAck] = []
 
@@ -90,18 +104,19 @@ def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: fl
     return answer[0] if answer else None
 
 
-def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float) -> int:
+def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float, amount: str = "") -> int:
     try:
-        command = command_of(kind, text, new_id())
+        command = command_of(kind, text, new_id(), amount)
     except ValueError as exc:  # numbers the message refuses (out of range)
         raise ConfigError(kind, str(exc)) from None
-    ack = send(endpoint, system, command, kind, timeout_s)
+    topic = "intervene" if kind in INTENTS else kind
+    ack = send(endpoint, system, command, topic, timeout_s)
     if ack is None:
         print(f"abyss op: no answer from onboard within {timeout_s:g} s (is system {system!r} running "
               f"with shore at {endpoint}?)")
         return 1
     if not ack.accepted:
-        print(f"{kind} command {ack.command_id}: refused by onboard: {ack.reason}")
+        print(f"{kind} command {ack.command_id}: refused: {ack.reason}")
         return 1
     print(f"{kind} command {ack.command_id}: taken by onboard")
     return 0

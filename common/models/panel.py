@@ -36,10 +36,68 @@ VALVES: dict[str, tuple[float, float, float]] = {
     "valve_1": (-0.07, 0.0, 0.25),
     "valve_2": (-0.07, -0.5, 0.25),
 }
-LEVERS: dict[str, tuple[float, float, float]] = {
+LEVERS: dict[str, tuple[float, float, float]] = {  # the pivot
     "lever_0": (-0.07, 0.3, -0.3),
     "lever_1": (-0.07, -0.3, -0.3),
 }
+
+# -- how the parts are worked (world.xml's joints; tests/common/test_model.py holds the two equal)
+# A valve is a quarter-turn valve: a bar handle across its spindle, turned about the panel's x
+# (positive: right-handed about x, i.e. anticlockwise as the vehicle sees it) between stops at
+# +-90 degrees. A lever is a shaft standing straight out of the face, thrown about the panel's y
+# between stops at +-45 degrees (positive: up), and resting in the middle, as a directional
+# control valve's does. Both start at 0.
+VALVE_AXIS_PANEL = (1.0, 0.0, 0.0)
+LEVER_AXIS_PANEL = (0.0, 1.0, 0.0)
+VALVE_RANGE_RAD = (-np.pi / 2, np.pi / 2)
+LEVER_RANGE_RAD = (-np.pi / 4, np.pi / 4)
+LEVER_LENGTH_M = 0.2
+HANDLE_THICKNESS_M = 0.04  # the valve's bar and the lever's shaft, across: what the fingers close on
+# where the tool point grasps each, at rest, from its pivot: the fingers (0.08 m long, their tips
+# 0.02 m beyond the tool point, the palm behind them) reach over the bar but stop short of the
+# spindle; on a lever they hold the shaft's outer part, the palm clear beyond its end
+VALVE_GRASP_M_PIVOT = (-0.045, 0.0, 0.0)
+LEVER_GRASP_M_PIVOT = (-0.175, 0.0, 0.0)
+# the tool at the grasp, at rest: its x (the approach) into the panel, its y (the fingers' closing
+# direction) up, across the bar and the shaft: a roll of 90 degrees about x
+GRASP_ROTATION_PANEL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def part_kind(name: str) -> str:
+    """"valve" or "lever"; ValueError with the names there are for another."""
+    if name in VALVES:
+        return "valve"
+    if name in LEVERS:
+        return "lever"
+    raise ValueError(f"{name!r} is not a part of the panel: {', '.join((*VALVES, *LEVERS))}")
+
+
+def intent(name: str, amount: str) -> tuple[float, str]:
+    """An operator's intent on a part as the messages carry it: (turn [rad], "") for a valve
+    and an angle [deg], (0, stop) for a lever and "up" or "down"; ValueError says what is allowed."""
+    if part_kind(name) == "lever":
+        if amount not in ("up", "down"):
+            raise ValueError(f"{name} is a lever: it is thrown up or down, not {amount!r}")
+        return 0.0, amount
+    try:
+        turn_deg = float(amount)
+    except ValueError:
+        turn_deg = float("nan")
+    if not -180.0 <= turn_deg <= 180.0 or turn_deg == 0.0:
+        raise ValueError(f"{name} is a valve: it is turned by an angle in [-180, 180] deg, not {amount!r}")
+    return float(np.radians(turn_deg)), ""
+
+
+def part_range_rad(name: str) -> tuple[float, float]:
+    return VALVE_RANGE_RAD if part_kind(name) == "valve" else LEVER_RANGE_RAD
+
+
+def part_geometry(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A part's pivot [m] and rotation axis in the panel's frame, and the tool point's grasp
+    from the pivot at rest [m, panel]."""
+    if part_kind(name) == "valve":
+        return np.array(VALVES[name]), np.array(VALVE_AXIS_PANEL), np.array(VALVE_GRASP_M_PIVOT)
+    return np.array(LEVERS[name]), np.array(LEVER_AXIS_PANEL), np.array(LEVER_GRASP_M_PIVOT)
 
 
 def marker_corners_m_panel(marker_id: int) -> np.ndarray:

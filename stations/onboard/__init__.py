@@ -17,7 +17,16 @@ import numpy as np
 from abyss.common import keys
 from abyss.common.bus import Bus, messages_of
 from abyss.common.config import Config
-from abyss.common.messages import ArmGoal, Heartbeat, Image, JointState, NavState, OperatorMode, Waypoints
+from abyss.common.messages import (
+    ArmGoal,
+    Heartbeat,
+    Image,
+    InterventionGoal,
+    JointState,
+    NavState,
+    OperatorMode,
+    Waypoints,
+)
 from abyss.common.models import CAMERAS
 from abyss.common.rate import Rate
 from abyss.common.workers import Workers
@@ -53,14 +62,16 @@ def run(config: Config, bus: Bus) -> None:
 def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> None:
     nav = bus.subscribe("simulation", "nav", maxlen=8)
     joints = bus.subscribe("simulation", "joints", maxlen=4)
-    goals = [bus.subscribe("vessel", topic) for topic in ("goal/waypoints", "goal/arm", "goal/mode")]
+    goals = [bus.subscribe("vessel", topic) for topic in ("goal/waypoints", "goal/arm", "goal/mode",
+                                                              "goal/intervene")]
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
     rate = Rate(config.onboard.control_period_s, bus.stop)
     while rate.sleep():
         latest_joints = messages_of([r for r in (joints.latest(),) if r is not None], JointState)
         commands = [r.message for inbox in goals for r in inbox.drain()]
         inputs = OnboardInputs(
-            commands=[c for c in commands if isinstance(c, (Waypoints, ArmGoal, OperatorMode))],
+            commands=[c for c in commands
+                      if isinstance(c, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))],
             heartbeats=messages_of(heartbeats.drain(), Heartbeat), nav=messages_of(nav.drain(), NavState),
             joints=latest_joints[-1] if latest_joints else None)
         out = core.step(inputs, time.monotonic())

@@ -14,7 +14,7 @@ nothing while it is safe, and they rank above it when it is not.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
@@ -176,6 +176,19 @@ def box_distance(point: np.ndarray, box: Sequence[float]) -> tuple[float, np.nda
 
 
 @dataclass(frozen=True)
+class PoseReference:
+    """A moving goal for the tool point: where it should be now, and how fast that moves (the
+    feedforward) [world]. With `axis_world`, the orientation splits into two tasks: the rotation
+    about that axis (an intervention's turn) ranks above the other two directions."""
+
+    position_m_world: np.ndarray
+    rotation: np.ndarray  # tool axes to world axes
+    velocity_mps_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity_radps_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    axis_world: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
 class ArmOutput:
     joint_velocities_radps: np.ndarray  # (6,) model order
     vehicle_velocity: np.ndarray | None  # surge, sway, heave [m/s, body], yaw rate [rad/s]; whole body
@@ -234,10 +247,13 @@ class ArmController:
         return found
 
     def step(self, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray, arm_rad: np.ndarray,
-             enabled: bool) -> ArmOutput:
+             enabled: bool, reference: PoseReference | None = None) -> ArmOutput:
+        """One period towards the goal, or with `reference` along it instead (the goal kept)."""
         kin, cfg = self.kinematics, self.cfg
         kin.update(position_m_world, orientation_wxyz_world, arm_rad)
         zero = np.zeros(len(ARM_JOINTS))
+        if reference is not None:
+            return self._follow(reference, arm_rad, enabled)
         if self.goal_position_m_world is None:
             return ArmOutput(zero, None, "idle", np.zeros(3), 0.0, ())
         position_error, rotation_error = self.errors()
@@ -262,6 +278,38 @@ class ArmController:
         vehicle = xdot[len(ARM_JOINTS):] if cfg.whole_body else None
         return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, "reached" if reached else "moving",
                          position_error, angle, tuple(c.name for c in active))
+
+    def _follow(self, ref: PoseReference, arm_rad: np.ndarray, enabled: bool) -> ArmOutput:
+        """Track a moving pose: feedforward plus feedback, under the same constraints. The turn
+        about `ref.axis_world` is a task of its own, ranked below the position (which holds the
+        handle) and above the rest of the orientation."""
+        kin, cfg = self.kinematics, self.cfg
+        pose = kin.pose(kin.ee)
+        position_error = ref.position_m_world - pose.translation
+        rotation_error = np.asarray(pin.log3(ref.rotation @ pose.rotation.T))
+        angle = float(np.linalg.norm(rotation_error))
+        if not enabled:
+            return ArmOutput(np.zeros(len(ARM_JOINTS)), None, "hold", position_error, angle, ())
+        jacobian = kin.jacobian(kin.ee)
+        angular = ref.angular_velocity_radps_world + cfg.kp_ee_orientation * rotation_error
+        tasks = [Task("end-effector position", jacobian[:3], _limit(
+            ref.velocity_mps_world + cfg.kp_ee_position * position_error, cfg.max_ee_speed_mps))]
+        if ref.axis_world is None:
+            tasks.append(Task("end-effector orientation", jacobian[3:],
+                              _limit(angular, cfg.max_ee_rate_radps)))
+        else:
+            axis = ref.axis_world / np.linalg.norm(ref.axis_world)
+            across = np.linalg.svd(axis[None, :])[2][1:]  # two unit rows normal to the axis
+            tasks += [Task("turn about the axis", axis[None, :] @ jacobian[3:],
+                           np.clip([axis @ angular], -cfg.max_ee_rate_radps, cfg.max_ee_rate_radps)),
+                      Task("orientation across the axis", across @ jacobian[3:],
+                           _limit(across @ angular, cfg.max_ee_rate_radps))]
+        xdot, active, _ = solve_constrained(self.constraints(arm_rad), tasks, kin.n, cfg.kp_constraint,
+                                            cfg.damping, cfg.singular_value_threshold)
+        xdot = self._within_speed_limits(xdot)
+        vehicle = xdot[len(ARM_JOINTS):] if cfg.whole_body else None
+        return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, "moving", position_error, angle,
+                         tuple(c.name for c in active))
 
     def _within_speed_limits(self, xdot: np.ndarray) -> np.ndarray:
         """Scale the whole solution (its direction kept) so that no variable exceeds its limit."""

@@ -11,7 +11,7 @@ import numpy as np
 
 from abyss.common.config import Box, MissionConfig
 from abyss.common.geometry import rotation_of_rpy
-from abyss.common.messages import ArmGoal, CommandAck, Message, OperatorMode, Waypoints
+from abyss.common.messages import ArmGoal, CommandAck, InterventionGoal, Message, OperatorMode, Waypoints
 
 ANSWERS_KEPT = 64
 
@@ -32,17 +32,21 @@ class CommandGate:
         self.reach_m = reach_m
         self.answers: OrderedDict[tuple[str, int], CommandAck] = OrderedDict()  # by (type, id)
 
-    def answer(self, command: Message, vehicle_goal: np.ndarray) -> tuple[CommandAck, bool]:
+    def answer(self, command: Message, vehicle_goal: np.ndarray,
+               arm_busy: str = "") -> tuple[CommandAck, bool]:
         """The acknowledgement of `command`, and whether it is new and taken (to be applied).
-        `vehicle_goal`: x, y, z [m, world], yaw [rad] where the vehicle will hold."""
-        assert isinstance(command, (Waypoints, ArmGoal, OperatorMode))
+        `vehicle_goal`: x, y, z [m, world], yaw [rad] where the vehicle will hold; `arm_busy`:
+        why the arm takes no new goal now ('' when it does)."""
+        assert isinstance(command, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))
         known = self.answers.get((command.TYPE, command.command_id))
         if known is not None:
             return known, False
         if isinstance(command, Waypoints):
             kind, reason = "waypoints", self.check_waypoints(command.waypoints)
         elif isinstance(command, ArmGoal):
-            kind, reason = "arm", self.check_arm(command.position_m_world, vehicle_goal)
+            kind, reason = "arm", arm_busy or self.check_arm(command.position_m_world, vehicle_goal)
+        elif isinstance(command, InterventionGoal):
+            kind, reason = "intervene", arm_busy or self.check_arm(command.grasp_m_world, vehicle_goal)
         else:
             kind, reason = "mode", ""
         ack = CommandAck(command.command_id, kind, reason)

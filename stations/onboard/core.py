@@ -7,6 +7,7 @@ checked (`commands.py`) and acknowledged with its fate before it is flown."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
@@ -19,6 +20,7 @@ from abyss.common.messages import (
     ArmVelocityRef,
     CommandAck,
     Heartbeat,
+    InterventionGoal,
     JointState,
     NavState,
     OperatorMode,
@@ -31,6 +33,7 @@ from abyss.common.models import ARM_JOINTS
 from abyss.stations.onboard.arm_control import ArmController
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
+from abyss.stations.onboard.intervention import InterventionRun
 from abyss.stations.onboard.navigation import NavFilter
 from abyss.stations.onboard.vehicle_control import VehicleController
 
@@ -43,7 +46,7 @@ log = logging.getLogger(__name__)
 class OnboardInputs:
     """What reached onboard since the last step, oldest first."""
 
-    commands: list[Waypoints | ArmGoal | OperatorMode] = field(default_factory=list)
+    commands: list[Waypoints | ArmGoal | OperatorMode | InterventionGoal] = field(default_factory=list)
     heartbeats: list[Heartbeat] = field(default_factory=list)
     nav: list[NavState] = field(default_factory=list)
     joints: JointState | None = None  # the latest
@@ -74,6 +77,13 @@ class Onboard:
         self.sim_time_s = 0.0
         self.tick = 0
         self.boot_id = new_id()  # shore sees a reboot by it, and hands the goals in force again
+        self.intervention: InterventionRun | None = None  # the latest, once taken
+
+    def _arm_busy(self) -> str:
+        run = self.intervention
+        if run is None or not run.active:
+            return ""
+        return f"the intervention on {run.goal.target} is in progress ({run.phase})"
 
     def _holding_at(self) -> np.ndarray:
         """Where the vehicle will hold: x, y, z [m, world], yaw [rad]."""
@@ -87,7 +97,7 @@ class Onboard:
         """One control period at `now_s` [s, this station's monotonic clock]."""
         out = OnboardOutputs()
         for command in inputs.commands:
-            ack, taken = self.gate.answer(command, self._holding_at())
+            ack, taken = self.gate.answer(command, self._holding_at(), self._arm_busy())
             out.acks.append(ack)
             if not taken:
                 log.info("%s command %d not taken: %s", ack.command, ack.command_id, ack.reason or "a resend")
@@ -96,6 +106,9 @@ class Onboard:
             elif isinstance(command, ArmGoal):
                 self.arm.set_goal(command.command_id, command.position_m_world,
                                   command.orientation_wxyz_world)
+                self.intervention = None
+            elif isinstance(command, InterventionGoal):
+                self.intervention = InterventionRun(command)
             elif isinstance(command, OperatorMode):
                 self.operator_mode = command.mode
         for beat in inputs.heartbeats:
@@ -119,14 +132,25 @@ class Onboard:
         yaw = yaw_of(orientation)
         v = vehicle.step(position, yaw, cfg.control_period_s, hold=bool(hold))
         arm_free = v.mode in ("reached", "idle") or self.operator_mode == "teleop"
-        a = arm.step(position, orientation, arm_rad, enabled=not hold and arm_free)
+        enabled = not hold and arm_free
+        run, gripper_mps = self.intervention, None
+        reference = None
+        if run is not None:
+            arm.kinematics.update(position, orientation, arm_rad)
+            command = run.step(arm.kinematics.pose(arm.kinematics.ee), joints.gripper_opening_m,
+                               cfg.control_period_s, enabled)
+            reference, gripper_mps = command.reference, command.gripper_mps
+        a = arm.step(position, orientation, arm_rad, enabled, reference)
+        if run is not None and not run.active and a.mode == "moving":
+            a = dataclasses.replace(a, mode="reached")
         out.arm_m_world = arm.kinematics.chain_m_world()
         linear, yaw_rate = v.linear_mps_body, v.yaw_rate_radps
         if a.vehicle_velocity is not None and a.mode in ("moving", "reached"):
             linear, yaw_rate = a.vehicle_velocity[:3], float(a.vehicle_velocity[3])
         out.vehicle = VelocityRef(linear, yaw_rate)
-        gripper_mps = 0.0
-        if a.mode in ("moving", "reached"):
+        if gripper_mps is None:
+            gripper_mps = 0.0
+        if run is None and a.mode in ("moving", "reached"):
             opening_error_m = GRIPPER_OPENING_M - joints.gripper_opening_m
             gripper_mps = float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
         out.arm = ArmVelocityRef(a.joint_velocities_radps, gripper_mps)
@@ -143,4 +167,10 @@ class Onboard:
                 ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
                 failsafe_events=self.failsafe.events, sim_time_s=self.sim_time_s,
-                operator_mode=self.operator_mode, boot_id=self.boot_id)
+                operator_mode=self.operator_mode, boot_id=self.boot_id,
+                gripper_opening_m=joints.gripper_opening_m, gripper_force_n=joints.gripper_force_n)
+            if run is not None:
+                out.telemetry = dataclasses.replace(
+                    out.telemetry, intervention_id=run.command_id, intervention_target=run.goal.target,
+                    intervention_phase=run.phase, intervention_reason=run.reason,
+                    turned_rad=float(np.clip(run.turned_rad, -10.0, 10.0)), turn_goal_rad=run.goal.turn_rad)

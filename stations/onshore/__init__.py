@@ -57,7 +57,8 @@ def run(config: Config, bus: Bus) -> None:
     viewer = Viewer(sinks.recording) if sinks.recording is not None else None
     tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
         f"op/{topic}": bus.subscribe_key(keys.operator_key(bus.system, topic), message)
-        for topic, message in (("mode", "OperatorMode"), ("waypoints", "Waypoints"), ("arm", "ArmGoal"))}
+        for topic, message in (("mode", "OperatorMode"), ("waypoints", "Waypoints"), ("arm", "ArmGoal"),
+                               ("intervene", "Intervention"))}
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)
     rate = Rate(PERIOD_S, bus.stop)
     saved: tuple[str, str] = ("", "")

@@ -21,6 +21,7 @@ from abyss.common.messages import (
     ArmGoal,
     CommandAck,
     Heartbeat,
+    Intervention,
     Message,
     MissionStatus,
     OperatorMode,
@@ -28,6 +29,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
+from abyss.common.models import panel
 
 HEARTBEAT_PERIOD_S = 1.0
 STATUS_PERIOD_S = 0.25
@@ -40,15 +42,15 @@ class Command:
     """The latest command on one op key, resent until onboard answers it."""
 
     topic: str
-    message: Waypoints | ArmGoal | OperatorMode | None = None
+    message: Waypoints | ArmGoal | OperatorMode | Intervention | None = None
     answer: CommandAck | None = None
     sent_s: float = -float("inf")
 
     def replace(self, message: Message) -> None:
-        assert isinstance(message, (Waypoints, ArmGoal, OperatorMode))
+        assert isinstance(message, (Waypoints, ArmGoal, OperatorMode, Intervention))
         self.message, self.answer, self.sent_s = message, None, -float("inf")
 
-    def in_force(self, message: Waypoints | ArmGoal | OperatorMode, now_s: float) -> None:
+    def in_force(self, message: Waypoints | ArmGoal | OperatorMode | Intervention, now_s: float) -> None:
         """Take a command onboard already flies (found in its telemetry) as this one: answered,
         not to be sent."""
         self.message, self.sent_s = message, now_s
@@ -88,7 +90,11 @@ class Operator:
         goal = mission.arm_goal()
         if goal is not None:
             self.arm.replace(ArmGoal(new_id(), *goal))
-        self.commands = {c.topic: c for c in (self.mode, self.waypoints, self.arm)}
+        self.intervene = Command("op/intervene")
+        self.intervention_index = 0  # of the mission's interventions, the one in hand
+        if mission.interventions:
+            self.intervene.replace(mission_intervention(mission, 0))
+        self.commands = {c.topic: c for c in (self.mode, self.waypoints, self.arm, self.intervene)}
         self.history: dict[tuple[str, int], dict[str, object]] = {  # every command sent, and its fate
             (f"op/{e['command']}", int(e["command_id"])): e for e in history or []}  # type: ignore[call-overload]
         self.events: list[dict[str, object]] = list(events or [])  # restarts seen, what shore did
@@ -119,7 +125,12 @@ class Operator:
         if goal is not None and t.arm_command_id >= 0:
             self.arm.in_force(ArmGoal(t.arm_command_id, *goal), now_s)
         self.mode.in_force(OperatorMode(new_id(), t.operator_mode), now_s)
-        for command in (self.waypoints, self.arm):
+        targets = [part for part, _ in self.mission.interventions]
+        if t.intervention_id >= 0 and t.intervention_target in targets:  # the one onboard works on
+            self.intervention_index = targets.index(t.intervention_target)
+            self.intervene.in_force(mission_intervention(self.mission, self.intervention_index,
+                                                         t.intervention_id), now_s)
+        for command in (self.waypoints, self.arm, self.intervene):
             entry = self.history.get((command.topic, command.message.command_id)) if command.message else None
             if entry is not None:  # sent by this station before its restart, flown since
                 entry.update(answered=True, accepted=True)
@@ -140,7 +151,7 @@ class Operator:
             self.waypoints.replace(Waypoints(new_id(), flown.waypoints[reached:]))
         else:
             self.waypoints.replace(flown)
-        for command in (self.arm, self.mode):
+        for command in (self.arm, self.mode, self.intervene):
             if command.message is not None:
                 command.replace(command.message)
         self.onboard = t
@@ -152,7 +163,18 @@ class Operator:
         elif self.onboard is not None and t.boot_id != self.onboard.boot_id:
             self._rehand(self.onboard, t)
         self.onboard = t
-        self.status = mission_status(t, self.waypoints, self.arm, self.waypoint_offset)
+        self._next_intervention(t)
+        self.status = mission_status(t, self.waypoints, self.arm, self.waypoint_offset,
+                                     self.intervene, self.intervention_index, len(self.mission.interventions))
+
+    def _next_intervention(self, t: Telemetry) -> None:
+        """The mission's next intervention once onboard has done the one in hand."""
+        current = self.intervene.message
+        done = (current is not None and t.intervention_id == current.command_id
+                and t.intervention_phase == "done")
+        if done and self.intervention_index + 1 < len(self.mission.interventions):
+            self.intervention_index += 1
+            self.intervene.replace(mission_intervention(self.mission, self.intervention_index))
 
     def step(self, inputs: OperatorInputs, now_s: float) -> OperatorOutputs:
         out = OperatorOutputs()
@@ -192,23 +214,37 @@ class Operator:
                 mode="idle", waypoint_index=0, waypoints_total=len(self.mission.waypoints),
                 position_error_m=0.0,
                 heading_error_rad=0.0, arm_mode="idle", ee_position_error_m=0.0, ee_orientation_error_rad=0.0,
-                failsafe="", failsafe_events=0)
+                failsafe="", failsafe_events=0, interventions_total=len(self.mission.interventions))
             self.last_status_s = now_s
         return out
 
 
-def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int = 0) -> MissionStatus:
-    """The mission as telemetry shows it; done once the vehicle holds its last waypoint and
-    the end-effector its goal, both of the commands this station sent last. Waypoints count
-    from the mission's first: `offset` were reached before the list in force began."""
+def mission_intervention(mission: MissionConfig, index: int, command_id: int | None = None) -> Intervention:
+    part, amount = mission.interventions[index]
+    return Intervention(command_id if command_id is not None else new_id(), part, *panel.intent(part, amount))
+
+
+def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int = 0,
+                   intervene: Command | None = None, index: int = 0, total: int = 0) -> MissionStatus:
+    """The mission as telemetry shows it; done once the vehicle holds its last waypoint, the
+    end-effector its goal and onboard says the last intervention is done, all of the commands
+    this station sent last. Waypoints count from the mission's first: `offset` were reached
+    before the list in force began; interventions: `index` of `total` is in hand."""
     assert isinstance(waypoints.message, Waypoints)
     flying = t.command_id == waypoints.message.command_id
     vehicle_done = flying and t.mode == "reached"
     arm_done = arm.message is None or (t.arm_command_id == arm.message.command_id and t.arm_mode == "reached")
+    current = intervene.message if intervene is not None else None
+    on_it = current is not None and t.intervention_id == current.command_id
+    finished = index + (1 if on_it and t.intervention_phase == "done" else 0) if current is not None else 0
+    phase = t.intervention_phase if on_it else ""
     return MissionStatus(
         mode=t.mode, waypoint_index=offset + t.waypoint_index if flying else offset,
         waypoints_total=offset + len(waypoints.message.waypoints),
         position_error_m=t.position_error_m, heading_error_rad=abs(t.heading_error_rad), arm_mode=t.arm_mode,
         ee_position_error_m=float(np.linalg.norm(t.ee_position_error_m_world)),
         ee_orientation_error_rad=t.ee_orientation_error_rad, failsafe=t.failsafe,
-        failsafe_events=t.failsafe_events, done=vehicle_done and arm_done)
+        failsafe_events=t.failsafe_events, done=vehicle_done and arm_done and finished >= total,
+        interventions_done=finished, interventions_total=total,
+        intervention_target=current.target if isinstance(current, Intervention) else "",
+        intervention_phase=phase, intervention_reason=t.intervention_reason if on_it else "")

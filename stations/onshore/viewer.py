@@ -1,8 +1,9 @@
 """The operator's view of the system in Rerun: the vehicle and its arm drawn from the shared
 MuJoCo model and posed from telemetry, the mission, the scene octree, the recognised objects,
-the camera, the controllers' errors and the links' statistics. Pure logging: the caller owns
-the `rr.RecordingStream` and its sinks (file, gRPC, spawned viewer) and feeds each message
-with the sender's wall-clock stamp from its envelope."""
+the camera, the controllers' errors, the links' statistics and the intervention on the panel,
+each plot in one unit. Pure logging: the caller owns the `rr.RecordingStream` and its sinks
+(file, gRPC, spawned viewer) and feeds each message with the sender's wall-clock stamp from its
+envelope."""
 
 from __future__ import annotations
 
@@ -17,7 +18,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from abyss.common import keys
 from abyss.common.config import OnshoreConfig
+from abyss.common.geometry import rotation_of
 from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
 from abyss.common.models import ARM_JOINTS, ROBOT_FILE
 
@@ -25,27 +28,69 @@ RECORDING_FILE = "onshore.rrd"
 PATH_POINTS = 5000  # the most recent points of the path flown kept on screen
 PATH_STEP_M = 0.02  # a new path point once the vehicle has moved this far [m]
 GOAL_AXIS_M = 0.2  # length of the arm goal's axes [m]
-LINK_SERIES = {  # a link's series: name -> linkemu's stats key
-    "delay_p50_ms": "delay_p50_ms",
-    "delay_p95_ms": "delay_p95_ms",
-    "lost": "messages_lost",
-    "queue_drops": "queue_drops",
+# the controllers' errors, one plot per quantity and unit: the group under `errors/` -> the view's name
+ERROR_VIEWS = {
+    "vehicle_position_m": "Vehicle position error [m]",
+    "heading_deg": "Heading error [deg]",
+    "tool_position_mm": "Tool position error [mm]",
+    "tool_orientation_deg": "Tool orientation error [deg]",
 }
+# a hop's plots, one per unit: the group under `links/<hop>/` -> the view's name after the hop's
+LINK_VIEWS = {
+    "throughput_kbps": "throughput [kbit/s]",
+    "delay_ms": "delay [ms]",
+    "count": "losses and retransmissions [count]",
+}
+LINK_DELAYS = {"p50": "delay_p50_ms", "p99": "delay_p99_ms"}  # series -> linkemu's stats key [ms]
+# cumulative counters [messages or packets]: series -> linkemu's stats key
+LINK_COUNTS = {
+    "messages_lost": "messages_lost",
+    "messages_dropped": "messages_dropped",
+    "packets_lost": "losses",
+    "queue_drops": "queue_drops",
+    "retransmissions": "retransmissions",
+}
+# the intervention's views: origin -> name
+INTERVENTION_VIEWS = {
+    "intervention/angle_deg": "Valve and lever angles [deg]",
+    "intervention/grasp/opening_mm": "Grasp: gripper opening [mm]",
+    "intervention/grasp/force_n": "Grasp: grip force [N]",
+}
+CONFIDENT_RGB = np.array([60, 220, 120])  # a recognised object's box at confidence 1
+DOUBTFUL_RGB = np.array([230, 90, 60])  # ... and at confidence 0
+LABEL_POINT_M = 0.01  # radius of the point that carries an object's label [m]
 
 
 def blueprint() -> rrb.Blueprint:
-    """The layout: the 3D world large on the left; the camera, the errors and the links stacked."""
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="World"),
-            rrb.Vertical(
-                rrb.Spatial2DView(origin="world/camera", name="Camera"),
-                rrb.TimeSeriesView(origin="errors", name="Controller errors"),
-                rrb.TimeSeriesView(origin="links", name="Links"),
-            ),
-            column_shares=[3, 1],
-        )
+    """Two tabs. Operations: the 3D world large on the left; on the right the camera above the
+    controllers' errors and the intervention, a tab each. Links: per hop (a row each) its
+    throughput, delay and counts. No plot mixes units."""
+    controller = rrb.Vertical(
+        *(rrb.TimeSeriesView(origin=f"errors/{group}", name=name) for group, name in ERROR_VIEWS.items()),
+        name="Controller",
     )
+    intervention = rrb.Vertical(
+        rrb.TextLogView(origin="intervention/phase", name="Intervention phase"),
+        *(rrb.TimeSeriesView(origin=origin, name=name) for origin, name in INTERVENTION_VIEWS.items()),
+        name="Intervention",
+    )
+    links = rrb.Grid(
+        *(rrb.TimeSeriesView(origin=f"links/{hop}/{group}", name=f"{hop} {name}")
+          for hop in keys.HOPS for group, name in LINK_VIEWS.items()),
+        grid_columns=len(LINK_VIEWS), name="Links",
+    )  # fmt: skip
+    operations = rrb.Horizontal(
+        rrb.Spatial3DView(origin="world", name="World"),
+        rrb.Vertical(
+            rrb.Spatial2DView(origin="world/camera", name="Camera"),
+            rrb.Tabs(controller, intervention),
+            row_shares=[1, 3],
+        ),
+        column_shares=[3, 2], name="Operations",
+    )  # fmt: skip
+    # the side panels collapsed, to leave the views the room; each opens with a click
+    return rrb.Blueprint(rrb.Tabs(operations, links), rrb.BlueprintPanel(state="collapsed"),
+                         rrb.SelectionPanel(state="collapsed"), rrb.TimePanel(state="collapsed"))  # fmt: skip
 
 
 def web_viewer_url(web_port: int, grpc_port: int) -> str:
@@ -149,6 +194,7 @@ class Viewer:
         self.status: dict[str, str] = {}
         self.link_bytes: dict[tuple[str, str], tuple[float, float]] = {}  # -> (stamp [s], bytes)
         self.object_names: set[str] = set()
+        self.intervention_phase: tuple[str, str] | None = None  # (target, phase) last logged
         recording.send_blueprint(blueprint())
         recording.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         for geom in range(self.model.ngeom):
@@ -187,10 +233,10 @@ class Viewer:
             self.path_m_world.append(t.position_m_world)
             log("world/path", rr.LineStrips3D([np.array(self.path_m_world)], colors=[(80, 200, 255)]))
         self._scalars("errors", {
-            "vehicle/position_m": t.position_error_m,
-            "vehicle/heading_deg": abs(math.degrees(t.heading_error_rad)),
-            "arm/position_mm": float(np.linalg.norm(t.ee_position_error_m_world)) * 1e3,
-            "arm/orientation_deg": math.degrees(t.ee_orientation_error_rad),
+            "vehicle_position_m/distance": t.position_error_m,
+            "heading_deg/heading": abs(math.degrees(t.heading_error_rad)),
+            "tool_position_mm/distance": float(np.linalg.norm(t.ee_position_error_m_world)) * 1e3,
+            "tool_orientation_deg/angle": math.degrees(t.ee_orientation_error_rad),
         })  # fmt: skip
         self._status("failsafe", t.failsafe, rr.TextLogLevel.WARN if t.failsafe else rr.TextLogLevel.INFO)
         mode = f"operator {t.operator_mode}: vehicle {t.mode}, arm {t.arm_mode}"
@@ -252,7 +298,10 @@ class Viewer:
         self.recording.log("world/scene/latest_update", rr.Points3D(centres_m_world, colors=colors_rgb))
 
     def objects(self, o: RecognisedObjects, stamp_s: float) -> None:
-        """Each recognised object as a labelled box; objects no longer recognised are cleared."""
+        """Each recognised object as a box coloured from red (confidence 0) to green (1), with its
+        confidence (shown when selected), labelled with its name alone on a point at the top of
+        the box: the panel's label above its valves' and levers'. Objects no longer recognised
+        are cleared."""
         self._at(stamp_s, o.sim_time_s)
         names = set(o.names)
         for name in self.object_names - names:
@@ -261,10 +310,16 @@ class Viewer:
         for name, pose, half_sizes, confidence in zip(
             o.names, o.poses_world, o.half_sizes_m, o.confidences, strict=True
         ):
-            label = f"{name} (confidence {confidence:.2f})"
+            path = f"world/objects/{rr.escape_entity_path_part(name)}"
+            rgb = np.round(DOUBTFUL_RGB + np.clip(confidence, 0.0, 1.0) * (CONFIDENT_RGB - DOUBTFUL_RGB))
+            rgb = rgb.astype(np.uint8)
             box = rr.Boxes3D(half_sizes=[half_sizes], centers=[pose[:3]], quaternions=[xyzw(pose[3:])],
-                             labels=[label], colors=[(60, 220, 120)])  # fmt: skip
-            self.recording.log(f"world/objects/{rr.escape_entity_path_part(name)}", box)
+                             colors=[rgb])  # fmt: skip
+            self.recording.log(path, box, rr.AnyValues(confidence=float(confidence)))
+            half_height_m = np.abs(rotation_of(pose[3:])[2]) @ half_sizes  # the box's extent along z
+            top_m_world = pose[:3] + np.array([0.0, 0.0, half_height_m])
+            self.recording.log(f"{path}/label", rr.Points3D([top_m_world], radii=LABEL_POINT_M, colors=[rgb],
+                                                             labels=[name], show_labels=True))  # fmt: skip
 
     def image(self, img: Image, stamp_s: float) -> None:
         """A JPEG frame posed in the world, with its pinhole; other frames are not shown."""
@@ -279,16 +334,38 @@ class Viewer:
         self.recording.log("world/camera/image", rr.EncodedImage(contents=img.data, media_type="image/jpeg"))
 
     def link_stats(self, s: LinkStats, stamp_s: float) -> None:
-        """Throughput [kbit/s] since the direction's previous report, delay percentiles [ms] and
-        the cumulative losses and queue drops [messages]."""
+        """Under `links/<hop>/`, per direction: the throughput [kbit/s] since the direction's
+        previous report, the delay percentiles [ms] and the cumulative counts of messages lost
+        and dropped and packets lost, dropped from the queue and retransmitted."""
         self._at(stamp_s)
-        values = {name: s.stats[key] for name, key in LINK_SERIES.items() if key in s.stats}
+        sender, _, receiver = s.direction.partition("->")
+        direction = rr.escape_entity_path_part(f"{sender}_to_{receiver}")
+        prefix = f"links/{rr.escape_entity_path_part(s.hop)}"
         delivered_bytes = s.stats.get("bytes_delivered")
         previous = self.link_bytes.get((s.hop, s.direction))
         if delivered_bytes is not None:
             self.link_bytes[s.hop, s.direction] = (stamp_s, delivered_bytes)
             if previous is not None and stamp_s > previous[0] and delivered_bytes >= previous[1]:
-                values["throughput_kbps"] = (delivered_bytes - previous[1]) * 8e-3 / (stamp_s - previous[0])
-        sender, _, receiver = s.direction.partition("->")
-        direction = rr.escape_entity_path_part(f"{sender}_to_{receiver}")
-        self._scalars(f"links/{rr.escape_entity_path_part(s.hop)}/{direction}", values)
+                throughput_kbps = (delivered_bytes - previous[1]) * 8e-3 / (stamp_s - previous[0])
+                self._scalars(f"{prefix}/throughput_kbps", {direction: throughput_kbps})
+        for group, series in (("delay_ms", LINK_DELAYS), ("count", LINK_COUNTS)):
+            values = {name: s.stats[key] for name, key in series.items() if key in s.stats}
+            self._scalars(f"{prefix}/{group}/{direction}", values)
+
+    def intervention(
+        self, stamp_s: float, sim_time_s: float, target: str, phase: str, reason: str, turned_deg: float,
+        goal_deg: float, opening_mm: float, force_n: float,
+    ) -> None:  # fmt: skip
+        """The intervention on `target` (a valve or lever): a line at `intervention/phase` when
+        the target or its phase changes (a warning for "failed"), with `reason` when given; the
+        angle turned and the goal [deg] at `intervention/angle_deg/<target>/`; the gripper's
+        opening [mm] and grip force [N] under `intervention/grasp/`."""
+        self._at(stamp_s, sim_time_s)
+        if self.intervention_phase != (target, phase):
+            self.intervention_phase = (target, phase)
+            level = rr.TextLogLevel.WARN if phase == "failed" else rr.TextLogLevel.INFO
+            text = f"{target}: {phase}" + (f" ({reason})" if reason else "")
+            self.recording.log("intervention/phase", rr.TextLog(text, level=level))
+        self._scalars(f"intervention/angle_deg/{rr.escape_entity_path_part(target)}",
+                      {"turned": turned_deg, "goal": goal_deg})  # fmt: skip
+        self._scalars("intervention/grasp", {"opening_mm": opening_mm, "force_n": force_n})

@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from abyss.stations.simulation.world import World
 
 STATUS_PERIOD_S = 1.0
+PANEL_EVERY = 2  # control periods: the panel's truth at 10 Hz
 log = logging.getLogger(__name__)
 
 
@@ -70,9 +71,12 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         with lock:
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
+            panel = world.panel() if rate.ticks % PANEL_EVERY == 0 else None
         bus.publish("nav", world.nav())
         bus.publish("joints", joints)
         bus.observe(keys.truth_key(bus.system), truth)
+        if panel is not None:
+            bus.observe(keys.panel_truth_key(bus.system), panel)
         if sim.state_file and truth.sim_time_s - saved_s >= sim.state_period_s:
             with lock:
                 world.save_state(Path(sim.state_file))

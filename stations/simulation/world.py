@@ -10,7 +10,14 @@ import mujoco
 import numpy as np
 
 from abyss.common.config import SimulationConfig
-from abyss.common.messages import ArmVelocityRef, JointState, NavState, SimulationControl, VelocityRef
+from abyss.common.messages import (
+    ArmVelocityRef,
+    JointState,
+    NavState,
+    PanelState,
+    SimulationControl,
+    VelocityRef,
+)
 from abyss.common.models import (
     ARM_JOINTS,
     ARM_STOWED_RAD,
@@ -19,6 +26,7 @@ from abyss.common.models import (
     NAV_SENSORS,
     THRUSTERS,
     WORLD_FILE,
+    panel,
 )
 from abyss.common.runfiles import write_whole
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
@@ -26,6 +34,7 @@ from abyss.stations.simulation.marine import Buoyancy, Current
 from abyss.stations.simulation.navigation import Navigation, NoiseSigmas
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
+SEIZED_PLAY_RAD = 0.005  # a seized valve or lever moves no further than this either way
 
 
 def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> References:
@@ -54,6 +63,12 @@ class World:
         self.navigation = Navigation(NoiseSigmas(config.usbl_sigma_m, config.depth_sigma_m,
                                                  config.dvl_sigma_mps, config.imu_sigma_rad), rng)
         self.faults: dict[str, float] = {}
+        self.parts = (*panel.VALVES, *panel.LEVERS)
+        self._part_qpos = np.array([self.model.joint(n).qposadr[0] for n in self.parts])
+        self._part_joints = np.array([self.model.joint(n).id for n in self.parts])
+        self._part_range_rad = self.model.jnt_range[self._part_joints].copy()
+        self._part_bodies = np.array([self.model.body(n).id for n in self.parts])
+        self._finger_bodies = {self.model.body(n).id for n in GRIPPER_JOINTS}
         robot_dofs = np.r_[np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs,
                            self.plant.gripper_dofs]
         self._passive_dofs = np.setdiff1d(np.arange(self.model.nv), robot_dofs)
@@ -102,7 +117,25 @@ class World:
             velocities_radps=d.qvel[p.arm_dofs].copy(),
             gripper_opening_m=float(np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]]
                                                 for n in GRIPPER_JOINTS), 0.0, 1.0)),
-            sim_time_s=float(d.time))
+            sim_time_s=float(d.time),
+            gripper_force_n=float(np.mean(np.abs(d.actuator_force[p.gripper_motors]))))
+
+    def panel(self) -> PanelState:
+        """The valves' and levers' angles, and how hard the fingers press on each (the normal
+        force of their contacts)."""
+        m, d = self.model, self.data
+        force_n = np.zeros(len(self.parts))
+        wrench = np.zeros(6)
+        for i in range(d.ncon):
+            contact = d.contact[i]
+            bodies = {int(m.geom_bodyid[contact.geom1]), int(m.geom_bodyid[contact.geom2])}
+            if not bodies & self._finger_bodies:
+                continue
+            for j, body in enumerate(self._part_bodies):
+                if body in bodies:
+                    mujoco.mj_contactForce(m, d, i, wrench)
+                    force_n[j] += abs(wrench[0])  # along the contact normal
+        return PanelState(self.parts, d.qpos[self._part_qpos].copy(), force_n, float(d.time))
 
     # -- restarts ------------------------------------------------------------------------
     def save_state(self, path: Path) -> None:
@@ -133,12 +166,14 @@ class World:
         """Raises ValueError with the allowed targets for an unknown one."""
         if fault.fault == "clear":
             self.faults.clear()
+            self.model.jnt_range[self._part_joints] = self._part_range_rad
             cameras.clear()
             self.navigation.scale = dict.fromkeys(NAV_SENSORS, 1.0)
             if self.controller.dynamics:
                 self.controller.thrusters.efficiency[:] = 1.0
             return
-        allowed = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS}[fault.fault]
+        allowed = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS,
+                   "seize": self.parts}[fault.fault]
         if fault.target not in allowed:
             raise ValueError(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
         if fault.fault == "thruster":
@@ -146,6 +181,11 @@ class World:
                 raise ValueError("thruster efficiency must lie in [0, 1]")
             if self.controller.dynamics:
                 self.controller.thrusters.efficiency[THRUSTERS.index(fault.target)] = fault.value
+        elif fault.fault == "seize":  # stuck where it stands: its stops close in on it
+            i = self.parts.index(fault.target)
+            angle_rad = float(self.data.qpos[self._part_qpos[i]])
+            seized = (angle_rad - SEIZED_PLAY_RAD, angle_rad + SEIZED_PLAY_RAD)
+            self.model.jnt_range[self._part_joints[i]] = seized if fault.value else self._part_range_rad[i]
         elif fault.fault == "camera":
             (cameras.add if fault.value == 0.0 else cameras.discard)(fault.target)
         else:

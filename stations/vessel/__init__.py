@@ -17,7 +17,7 @@ from abyss.common.bus import Bus, Inbox, messages_of
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
 from abyss.common.images import decode_image
-from abyss.common.messages import CommandAck, Image, PointCloud, SceneAck, Telemetry
+from abyss.common.messages import CommandAck, Image, PointCloud, RecognisedObjects, SceneAck, Telemetry
 from abyss.common.rate import Rate
 from abyss.common.workers import Workers
 from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs, SceneStream
@@ -39,6 +39,7 @@ def run(config: Config, bus: Bus) -> None:
     model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
     images = bus.subscribe("onboard", "image", maxlen=2)
     sim_time_s = [0.0]  # of the latest cloud, shared by the model and the stream
+    objects: list[RecognisedObjects | None] = [None]  # recognition's latest, for the relay
     gateway = None
     if config.ros2.station == "vessel":
         from abyss.ros2.gateway import Gateway
@@ -46,17 +47,18 @@ def run(config: Config, bus: Bus) -> None:
         gateway = Gateway(config, bus, on_up={"scene": lambda update: model.adopt(update.octree)})
     try:
         with Workers(bus.stop) as workers:
-            workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, gateway is None)
+            workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, objects,
+                          gateway is None)
             workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s)
             if gateway is not None:
                 workers.start("ros2 gateway", gateway.run)
-            _relay_loop(config, bus)
+            _relay_loop(config, bus, objects)
     finally:
         if gateway is not None:
             gateway.close()
 
 
-def _relay_loop(config: Config, bus: Bus) -> None:
+def _relay_loop(config: Config, bus: Bus, objects: list[RecognisedObjects | None]) -> None:
     """The I/O shell of the relay (`core.Relay`)."""
     telemetry = bus.subscribe("onboard", "telemetry", maxlen=8)
     operator = {topic: bus.subscribe("onshore", topic) for topic in RELAYED_DOWN}
@@ -70,7 +72,7 @@ def _relay_loop(config: Config, bus: Bus) -> None:
         inputs = RelayInputs(
             commands=[(topic, r.message) for topic, inbox in operator.items() for r in inbox.drain()],
             acks=messages_of(acks.drain(), CommandAck), shore_heard=bool(shore_beats.drain()),
-            telemetry=(latest.seq, onboard_state) if latest and onboard_state else None)
+            telemetry=(latest.seq, onboard_state) if latest and onboard_state else None, objects=objects[0])
         for topic, message in relay.step(inputs, time.monotonic()):
             bus.publish(topic, message)
         if not rate.sleep():
@@ -78,7 +80,7 @@ def _relay_loop(config: Config, bus: Bus) -> None:
 
 
 def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float],
-                insert: bool = True) -> None:
+                recognised: list[RecognisedObjects | None], insert: bool = True) -> None:
     """Integrate the clouds (unless a ROS 2 node maps them: `insert` False) and recognise the
     panel; another thread (`_send_loop`) streams the result, so that a slow insertion (a second
     or more for a stereo cloud on a loaded machine) never holds the stream back."""
@@ -118,6 +120,7 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             tracker.update(rgb, image.message if image is not None else None, points)  # type: ignore[arg-type]
             objects = tracker.objects(sim_time_s[0])
             if objects is not None:
+                recognised[0] = objects
                 bus.publish("objects", objects)
 
 

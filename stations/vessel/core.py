@@ -8,13 +8,24 @@ from typing import TYPE_CHECKING
 
 from abyss.common.config import VesselConfig
 from abyss.common.images import downscale
-from abyss.common.messages import CommandAck, Heartbeat, Image, Message, SceneAck, Telemetry
+from abyss.common.messages import (
+    CommandAck,
+    Heartbeat,
+    Image,
+    Intervention,
+    Message,
+    RecognisedObjects,
+    SceneAck,
+    Telemetry,
+)
+from abyss.stations.vessel.intents import resolve
 from abyss.stations.vessel.pacing import ScenePacer
 
 if TYPE_CHECKING:
     from abyss.common.scene import SceneModel
 
-RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode"}
+RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode",
+                "op/intervene": "goal/intervene"}
 Outgoing = list[tuple[str, Message]]  # (topic, message) in the order to publish
 
 
@@ -24,21 +35,51 @@ class RelayInputs:
     acks: list[CommandAck] = field(default_factory=list)  # onboard's answers
     shore_heard: bool = False  # a heartbeat of shore's came since the last step
     telemetry: tuple[int, Telemetry] | None = None  # onboard's latest, with its sequence number
+    objects: RecognisedObjects | None = None  # what recognition found, the latest
 
 
 class Relay:
     """Operator commands down as soon as they are seen, onboard's answers up, onboard's
     telemetry up at `telemetry_period_s`, and a heartbeat to onboard that says whether shore
-    is heard."""
+    is heard. An intervention goes down resolved in the world frame (intents.resolve) once the
+    panel is recognised (shore resends it meanwhile), or is refused here with the reason; the
+    parts' angles are believed as the interventions onboard finished left them."""
 
     def __init__(self, cfg: VesselConfig, now_s: float) -> None:
         self.cfg = cfg
         self.shore_heard_s = now_s  # shore is given `shore_timeout_s` from the start
         self.last_beat_s = self.last_relay_s = -float("inf")
         self.forwarded_seq = -1
+        self.objects: RecognisedObjects | None = None
+        self.believed_rad: dict[str, float] = {}  # each part's angle, as the interventions left it
+        self.resolved: dict[int, tuple[str, float]] = {}  # command id: the part, its angle then
+
+    def _intervention(self, intent: Intervention) -> tuple[str, Message] | None:
+        believed = self.believed_rad.get(intent.target, 0.0)
+        start_rad = self.resolved.get(intent.command_id, (intent.target, believed))[1]
+        goal, reason = resolve(intent, self.objects, start_rad)
+        if goal is not None:
+            self.resolved[intent.command_id] = (intent.target, start_rad)
+            return "goal/intervene", goal
+        return ("ack", CommandAck(intent.command_id, "intervene", reason)) if reason else None
+
+    def _believe(self, t: Telemetry) -> None:
+        if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
+            target, start_rad = self.resolved[t.intervention_id]
+            self.believed_rad[target] = start_rad + t.turned_rad
 
     def step(self, inputs: RelayInputs, now_s: float) -> Outgoing:
-        out: Outgoing = [(RELAYED_DOWN[topic], command) for topic, command in inputs.commands]
+        if inputs.objects is not None:
+            self.objects = inputs.objects
+        if inputs.telemetry is not None:
+            self._believe(inputs.telemetry[1])
+        out: Outgoing = []
+        for topic, command in inputs.commands:
+            if isinstance(command, Intervention):
+                resolved = self._intervention(command)
+                out += [resolved] if resolved else []
+            else:
+                out.append((RELAYED_DOWN[topic], command))
         out += [("ack", ack) for ack in inputs.acks]
         if inputs.shore_heard:
             self.shore_heard_s = now_s

@@ -1,5 +1,5 @@
-"""Headless Debian Chromium driven over the DevTools protocol: open a page, take screenshots.
-WebGL runs on SwiftShader (software), as a machine without a GPU has it."""
+"""Headless Debian Chromium driven over the DevTools protocol: open a page, take screenshots,
+evaluate JavaScript in it. WebGL runs on SwiftShader (software), as a machine without a GPU has it."""
 
 from __future__ import annotations
 
@@ -73,6 +73,13 @@ class Browser:
 
     def open(self, url: str) -> None:
         self.call("Page.navigate", url=url)
+
+    def evaluate(self, expression: str) -> Any:
+        """The value of a JavaScript expression in the page (JSON-serialisable)."""
+        answer = self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+        if "exceptionDetails" in answer:
+            raise RuntimeError(f"{expression}: {answer['exceptionDetails']}")
+        return answer["result"].get("value")
 
     def screenshot(self) -> np.ndarray:
         """The page as BGR pixels."""

@@ -97,7 +97,7 @@ def test_another_format_or_an_older_schema_is_refused_with_the_fix(tmp_path: Pat
     write(tmp_path / "old.mcap", 1).close()
     monkeypatch.undo()
     with pytest.raises(RecordingError, match=r"old\.mcap: messages of an older schema: JointState v0 "
-                                             r"\(now v1\)"):
+                                             rf"\(now v{JointState.VERSION}\)"):
         read_file(tmp_path / "old.mcap")
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
     with pytest.raises(RecordingError, match="not an abyss recording"):

@@ -13,7 +13,8 @@ from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 
 PERIOD_S = 0.05
-LAST_WAYPOINT = "[3.3, 0, -7.9]"
+LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
+VALVE_HANDLE = "[4.86, 0, -8.35, 1.5708, 0, 0]"  # fingers across the middle valve's handle
 
 
 def test_a_lower_task_never_disturbs_a_higher_one() -> None:
@@ -65,7 +66,8 @@ def fly(arm: ArmController, world: World, seconds: float) -> list[np.ndarray]:
 
 
 def setup(*overrides: str) -> tuple[ArmController, World]:
-    config = load(None, ["simulation.low_level=kinematic",
+    config = load(None, ["simulation.low_level=kinematic", "mission.interventions=[]",
+                         f"mission.arm_target={VALVE_HANDLE}",
                          f"simulation.start_position_m_world={LAST_WAYPOINT}", *overrides])
     return ArmController(config.onboard, config.mission), World(config.simulation, np.random.default_rng(0))
 

@@ -5,6 +5,8 @@ goals in force again to a rebooted onboard, the waypoints from the one not yet r
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -32,7 +34,8 @@ OP_TOPICS = {"op/mode", "op/waypoints", "op/arm"}
 
 @pytest.fixture
 def mission() -> MissionConfig:
-    mission = Config().mission
+    mission = dataclasses.replace(Config().mission, interventions=(),
+                                  arm_target=(4.86, 0.0, -8.35, 1.57, 0.0, 0.0))
     assert len(mission.waypoints) == 3 and mission.arm_goal() is not None
     return mission
 

@@ -1,6 +1,7 @@
 """The Rerun viewer: messages logged through it land in a recording, read back with Rerun's
-own reader, at the entity paths and timelines the operator's layout expects; the arm drawn
-from the logged transforms is where MuJoCo puts it."""
+own reader, at the entity paths and timelines the operator's layout expects; each plot of the
+layout is in one unit, named in its title and in the paths it shows; the arm drawn from the
+logged transforms is where MuJoCo puts it."""
 
 from __future__ import annotations
 
@@ -13,19 +14,33 @@ import numpy as np
 import pyarrow as pa
 import pytest
 import rerun as rr
+import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
 
+from abyss.common import keys
 from abyss.common.geometry import rotation_of
 from abyss.common.images import encode_jpeg
 from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
-from abyss.stations.onshore.viewer import Viewer
+from abyss.stations.onshore.viewer import Viewer, blueprint
 
 STAMP_S = 1.7e9  # a wall-clock stamp [s since the epoch]
 YAW_RAD = 0.6
 ARM_RAD = np.array([0.4, 0.9, -1.6, 0.3, 0.7, -0.5])
 Recording = tuple[dict[str, list[pa.RecordBatch]], Path]  # batches by entity path, the file
 HAND = "world/vehicle/arm_base/arm_link1/arm_link2/arm_link3/arm_link4/arm_link5/arm_link6"
+DELAY_MS = "links/satellite/delay_ms/vessel_to_onshore"  # the satellite hop's downlink's
+COUNT = "links/satellite/count/vessel_to_onshore"
+# a plot's unit, as its title gives it -> how the paths of its series say it
+UNIT_IN_PATH = {"m": "_m", "mm": "_mm", "deg": "_deg", "ms": "_ms", "kbit/s": "_kbps", "count": "count",
+                "N": "_n"}  # fmt: skip
+# the intervention, a call each: target, phase, reason, turned [deg], goal [deg], opening [mm], force [N]
+INTERVENTION = [
+    ("valve_1", "approach", "", 0.0, 90.0, 80.0, 0.0),
+    ("valve_1", "approach", "", 0.0, 90.0, 60.0, 0.0),  # the same phase: no second line
+    ("valve_1", "turning", "", 30.0, 90.0, 40.0, 12.0),
+    ("valve_1", "failed", "slipped off the handle", 35.0, 90.0, 80.0, 0.5),
+]
 
 
 def telemetry(i: int, failsafe: str = "") -> Telemetry:
@@ -41,7 +56,8 @@ def telemetry(i: int, failsafe: str = "") -> Telemetry:
 
 def link_stats(bytes_delivered: float) -> LinkStats:
     stats = {"bytes_delivered": bytes_delivered, "delay_p50_ms": 250.0, "delay_p95_ms": 400.0,
-             "messages_lost": 2.0, "queue_drops": 1.0}  # fmt: skip
+             "delay_p99_ms": 700.0, "messages_lost": 2.0, "queue_drops": 1.0, "retransmissions": 4.0,
+             "messages_offered": 90.0}  # fmt: skip
     return LinkStats(hop="satellite", direction="vessel->onshore", profile="satellite", stats=stats)
 
 
@@ -67,6 +83,19 @@ def values(batches: list[pa.RecordBatch], column: str) -> list:
 
 def scalars(batches: list[pa.RecordBatch]) -> list[float]:
     return [value for (value,) in values(batches, "Scalars:scalars")]
+
+
+def views(part: rrb.Container | rrb.View) -> list[rrb.View]:
+    """The views in a blueprint's container, depth first."""
+    if isinstance(part, rrb.View):
+        return [part]
+    return [view for content in part.contents for view in views(content)]
+
+
+def plots() -> dict[str, str]:
+    """The layout's time series views: name -> origin."""
+    layout = views(blueprint().root_container)
+    return {str(v.name): str(v.origin) for v in layout if v.class_identifier == "TimeSeries"}
 
 
 @pytest.fixture
@@ -97,6 +126,9 @@ def recording(tmp_path: Path) -> Recording:
                        sim_time_s=0.5), STAMP_S + 5)  # fmt: skip
     viewer.link_stats(link_stats(0.0), STAMP_S + 5)
     viewer.link_stats(link_stats(250_000.0), STAMP_S + 7)  # 2 Mbit in 2 s
+    for i, (target, phase, reason, turned_deg, goal_deg, opening_mm, force_n) in enumerate(INTERVENTION):
+        viewer.intervention(STAMP_S + 8 + i, 1.0 + i, target, phase, reason, turned_deg, goal_deg, opening_mm,
+                            force_n)  # fmt: skip
     stream.flush()
     stream.disconnect()
     return read(path), path
@@ -106,11 +138,14 @@ def test_every_view_lands_at_its_entity_path(recording: Recording) -> None:
     batches, path = recording
     expected = ["world", "world/vehicle", "world/vehicle/hull", HAND, f"{HAND}/finger_left", "world/ee",
                 "world/path", "world/mission/waypoints", "world/mission/arm_goal", "world/scene/octree",
-                "world/scene/latest_update", "world/objects/panel", "world/camera", "world/camera/image",
-                "errors/vehicle/position_m", "errors/vehicle/heading_deg", "errors/arm/position_mm",
-                "errors/arm/orientation_deg", "status/failsafe", "status/mode",
-                "links/satellite/vessel_to_onshore/delay_p50_ms", "links/satellite/vessel_to_onshore/lost",
-                "links/satellite/vessel_to_onshore/throughput_kbps"]  # fmt: skip
+                "world/scene/latest_update", "world/objects/panel", "world/objects/panel/label",
+                "world/camera", "world/camera/image", "errors/vehicle_position_m/distance",
+                "errors/heading_deg/heading", "errors/tool_position_mm/distance",
+                "errors/tool_orientation_deg/angle", "status/failsafe", "status/mode", f"{DELAY_MS}/p50",
+                f"{DELAY_MS}/p99", f"{COUNT}/messages_lost", f"{COUNT}/retransmissions",
+                "links/satellite/throughput_kbps/vessel_to_onshore", "intervention/phase",
+                "intervention/angle_deg/valve_1/turned", "intervention/angle_deg/valve_1/goal",
+                "intervention/grasp/opening_mm", "intervention/grasp/force_n"]  # fmt: skip
     missing = [p for p in expected if sum(b.num_rows for b in batches.get(p, [])) == 0]
     assert not missing, f"no rows at {missing}; logged: {sorted(batches)}"
     assert RrdReader(path).blueprints(), "no blueprint sent"
@@ -119,15 +154,68 @@ def test_every_view_lands_at_its_entity_path(recording: Recording) -> None:
 
 def test_values_read_back(recording: Recording) -> None:
     batches, _ = recording
-    assert scalars(batches["errors/vehicle/position_m"]) == pytest.approx([0.5] * 3)
-    assert scalars(batches["errors/arm/position_mm"]) == pytest.approx([5.0] * 3)
-    assert scalars(batches["errors/vehicle/heading_deg"]) == pytest.approx([5.7296] * 3, abs=1e-4)
-    throughput = scalars(batches["links/satellite/vessel_to_onshore/throughput_kbps"])
+    assert scalars(batches["errors/vehicle_position_m/distance"]) == pytest.approx([0.5] * 3)
+    assert scalars(batches["errors/tool_position_mm/distance"]) == pytest.approx([5.0] * 3)
+    assert scalars(batches["errors/heading_deg/heading"]) == pytest.approx([5.7296] * 3, abs=1e-4)
+    assert scalars(batches["errors/tool_orientation_deg/angle"]) == pytest.approx([2.8648] * 3, abs=1e-4)
+    throughput = scalars(batches["links/satellite/throughput_kbps/vessel_to_onshore"])
     assert throughput == pytest.approx([1000.0])  # only from the second report on
+    assert scalars(batches[f"{DELAY_MS}/p99"]) == pytest.approx([700.0] * 2)
+    assert scalars(batches[f"{COUNT}/queue_drops"]) == pytest.approx([1.0] * 2)
+    assert scalars(batches[f"{COUNT}/retransmissions"]) == pytest.approx([4.0] * 2)
     assert values(batches["status/failsafe"], "TextLog:text") == [["shore lost"], ["cleared"]]
     path_m_world = np.array(values(batches["world/path"], "LineStrips3D:strips")[-1][0])
     assert path_m_world == pytest.approx(np.array([[1.0, -2, -6], [2.0, -2, -6], [3.0, -2, -6]]))
-    assert values(batches["world/objects/panel"], "Boxes3D:labels") == [["panel (confidence 0.87)"]]
+
+
+def test_objects_are_labelled_by_name_above_their_box(recording: Recording) -> None:
+    batches, _ = recording
+    assert values(batches["world/objects/panel/label"], "Points3D:labels") == [["panel"]]
+    top_m_world = values(batches["world/objects/panel/label"], "Points3D:positions")[0][0]
+    assert top_m_world == pytest.approx([5.0, 0.0, -6.6])  # the panel's top edge: its centre + 0.4 m
+    assert values(batches["world/objects/panel"], "confidence") == [[pytest.approx(0.87)]]
+    assert "Boxes3D:labels" not in {name for b in batches["world/objects/panel"] for name in b.schema.names}
+
+
+def test_the_intervention_logs_its_phase_changes_angles_and_grasp(recording: Recording) -> None:
+    batches, _ = recording
+    phase = batches["intervention/phase"]
+    assert values(phase, "TextLog:text") == [["valve_1: approach"], ["valve_1: turning"],
+                                             ["valve_1: failed (slipped off the handle)"]]  # fmt: skip
+    assert values(phase, "TextLog:level") == [["INFO"], ["INFO"], ["WARN"]]
+    _, _, _, turned_deg, goal_deg, opening_mm, force_n = zip(*INTERVENTION, strict=True)
+    assert scalars(batches["intervention/angle_deg/valve_1/turned"]) == pytest.approx(turned_deg)
+    assert scalars(batches["intervention/angle_deg/valve_1/goal"]) == pytest.approx(goal_deg)
+    assert scalars(batches["intervention/grasp/opening_mm"]) == pytest.approx(opening_mm)
+    assert scalars(batches["intervention/grasp/force_n"]) == pytest.approx(force_n)
+    assert all("sim_time" in b.schema.names for b in phase)
+
+
+def test_each_plot_has_one_unit_named_in_its_title_and_its_paths() -> None:
+    link_plots = ("throughput [kbit/s]", "delay [ms]", "losses and retransmissions [count]")
+    assert sorted(plots()) == sorted([
+        "Vehicle position error [m]", "Heading error [deg]", "Tool position error [mm]",
+        "Tool orientation error [deg]", "Valve and lever angles [deg]", "Grasp: gripper opening [mm]",
+        "Grasp: grip force [N]", *(f"{hop} {plot}" for hop in keys.HOPS for plot in link_plots)])  # fmt: skip
+    for name, origin in plots().items():
+        unit = name.rpartition("[")[2].rstrip("]")
+        assert origin.endswith(UNIT_IN_PATH[unit]), (name, origin)
+    by_name = {view.name: view for view in views(blueprint().root_container)}
+    assert (by_name["Intervention phase"].class_identifier, by_name["Intervention phase"].origin) == (
+        "TextLog", "intervention/phase")  # fmt: skip
+    assert by_name["World"].class_identifier == "3D"
+
+
+def test_every_scalar_logged_is_in_exactly_one_plot(recording: Recording) -> None:
+    batches, _ = recording
+    origins = plots().values()
+    logged = [path for path, b in batches.items() if any("Scalars:scalars" in x.schema.names for x in b)]
+    plots_of = {path: [o for o in origins if f"{path}/".startswith(f"{o}/")] for path in logged}
+    assert len(logged) == 14, logged  # 4 errors, 6 of the satellite's downlink, 4 of the intervention
+    assert all(len(plots) == 1 for plots in plots_of.values()), plots_of
+    empty = set(origins) - {plot for plots in plots_of.values() for plot in plots}
+    groups = ("throughput_kbps", "delay_ms", "count")
+    assert empty == {f"links/{hop}/{group}" for hop in ("rov", "tether") for group in groups}  # no reports
 
 
 def test_messages_without_sim_time_are_not_logged_at_a_stale_one(recording: Recording) -> None:
@@ -136,7 +224,7 @@ def test_messages_without_sim_time_are_not_logged_at_a_stale_one(recording: Reco
     for path in (
         "world/mission/waypoints",
         "world/mission/arm_goal",
-        "links/satellite/vessel_to_onshore/lost",
+        f"{COUNT}/messages_lost",
     ):
         assert all("sim_time" not in b.schema.names for b in batches[path]), path
 

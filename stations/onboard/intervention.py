@@ -1,0 +1,250 @@
+"""An intervention on the panel, onboard: the primitive that works one part from a goal the
+vessel resolved (messages.InterventionGoal) and reports each phase in telemetry.
+
+    approach   the tool to the pre-grasp pose, PRE_GRASP_M back along its approach, gripper open
+    pre-grasp  in along the approach to the grasp pose, the fingers passing either side of the handle
+    grasp      the fingers close until the opening stops: holding if they stopped on the handle,
+               closed on nothing if they met short of it
+    turn       the tool turns about the part's axis through its pivot (arm_control.PoseReference
+               with the axis as a task of its own), the reference never more than LEAD_MAX_RAD
+               ahead of where the tool is; the part not following is a stall: a lever at its
+               stop is thrown, anything else does not turn
+    release    the fingers open
+    retreat    back out along the approach to the pre-grasp pose of the part as it now stands
+    done | failed
+
+A grasp that closes on nothing, or one lost during the turn (the opening collapses: the handle
+slipped out), is tried once more from the approach; the second time, or a part that does not
+turn, ends failed with its reason, after the release and the retreat: the arm backs off and
+nothing is pushed further. The phases' clocks stop while the arm holds (failsafe, operator
+hold), and the gripper keeps squeezing what it holds meanwhile."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from abyss.common.geometry import rotation_of, small_rotation_wxyz
+from abyss.common.messages import InterventionGoal
+from abyss.stations.onboard.arm_control import PoseReference
+
+PRE_GRASP_M = 0.10
+OPEN_M = 0.07  # the gripper's opening on the way in and out [m]
+OPEN_GAIN_PER_S = 2.0
+SQUEEZE_MPS = 0.05  # the fingers close, and squeeze what they hold, at this speed [m/s]
+HOLD_MIN_M = 0.008  # the fingers meet the 0.04 m handle at 0.016 m: below this they hold nothing
+PRIED_M = 0.006  # the fingers forced open this far past their hold: the part resists the turn
+OPENING_STILL_M = 0.0005  # the opening moved less than this over SETTLE_S: the fingers stopped
+SLIDE_MPS = 0.05  # in and out along the approach [m/s]
+TURN_RATE_RADPS = 0.3
+LEAD_MAX_RAD = math.radians(8.0)
+STALL_S = 2.0  # the tool turned less than PROGRESS_RAD in this long: the part does not turn
+PROGRESS_RAD = math.radians(1.0)
+TURN_TOLERANCE_RAD = math.radians(2.0)
+AT_STOP_RAD = math.radians(8.0)  # a thrown lever that stops this close to its stop is there
+OVERTRAVEL_RAD = math.radians(5.0)  # a lever is pushed this far past its stop, and stops there
+POSITION_TOLERANCE_M = 0.005
+ORIENTATION_TOLERANCE_RAD = 0.03
+SETTLE_S = 0.3
+TIMEOUT_S = {"approach": 40.0, "pre-grasp": 10.0, "grasp": 5.0, "release": 4.0, "retreat": 10.0}
+ATTEMPTS = 2  # a failed grasp or a slip is tried once more
+
+
+@dataclass(frozen=True)
+class Command:
+    """What the primitive asks of the arm this period."""
+
+    reference: PoseReference
+    gripper_mps: float
+
+
+class InterventionRun:
+    """One intervention, from its goal to done or failed."""
+
+    def __init__(self, goal: InterventionGoal) -> None:
+        self.goal = goal
+        self.command_id = goal.command_id
+        self.axis = np.asarray(goal.axis_world, float) / np.linalg.norm(goal.axis_world)
+        self.pivot = np.asarray(goal.pivot_m_world, float)
+        self.grasp_m = np.asarray(goal.grasp_m_world, float)
+        self.grasp_rotation = rotation_of(goal.grasp_orientation_wxyz_world)
+        self.phase = "approach"
+        self.reason = ""  # why it failed, once it will
+        self.retry = ""  # why the grasp is tried again, while it is
+        self.attempts = 1
+        self.phase_s = 0.0  # in this phase, while the arm was free
+        self.settled_s = 0.0  # within tolerance for this long
+        self.from_rad = 0.0  # the part's angle (from the goal's grasp) where this grasp began
+        self.turned_rad = 0.0  # the tool's turn about the axis since the grasp pose, measured
+        self.reference_rad = 0.0  # the turn's reference
+        self.progress = (0.0, 0.0)  # (phase_s, turned_rad) when the part last moved on
+        self.slide_m = 0.0  # along the approach, in the slides
+        self.openings: list[tuple[float, float]] = []  # (phase_s, opening) while closing
+        self.hold_opening_m = 0.0  # where the fingers stopped on the handle
+
+    @property
+    def active(self) -> bool:
+        return self.phase not in ("done", "failed")
+
+    @property
+    def holding(self) -> bool:
+        return self.phase in ("grasp", "turn")
+
+    # -- geometry --------------------------------------------------------------------------
+    def pose_at(self, angle_rad: float, back_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """The tool's pose with the part turned `angle_rad` from the grasp, `back_m` out along
+        the approach: position [m, world] and rotation."""
+        turn = rotation_of(small_rotation_wxyz(self.axis * angle_rad))
+        rotation = turn @ self.grasp_rotation
+        position = self.pivot + turn @ (self.grasp_m - self.pivot) - back_m * rotation[:, 0]
+        return position, rotation
+
+    def measure(self, tool: pin.SE3) -> float:
+        """How far the tool has turned about the axis from the grasp's orientation [rad]."""
+        return float(self.axis @ pin.log3(tool.rotation @ self.grasp_rotation.T))
+
+    # -- the primitive ---------------------------------------------------------------------
+    def step(self, tool: pin.SE3, opening_m: float, dt_s: float, enabled: bool) -> Command:
+        """One control period: the tool's pose and the gripper's opening as measured now."""
+        self.turned_rad = self.measure(tool)
+        if not self.active:  # backed off: the arm stays at the pre-grasp pose
+            return Command(PoseReference(*self.pose_at(self.from_rad, PRE_GRASP_M)), 0.0)
+        if not enabled:  # the arm holds: so does the primitive, and the grip
+            position, rotation = self._held_pose()
+            return Command(PoseReference(position, rotation), -SQUEEZE_MPS if self.holding else 0.0)
+        self.phase_s += dt_s
+        return getattr(self, "_" + self.phase.replace("-", "_"))(tool, opening_m, dt_s)
+
+    def _held_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.phase in ("grasp", "turn", "release"):
+            return self.pose_at(self.reference_rad if self.phase == "turn" else self.turned_rad)
+        back = {"approach": PRE_GRASP_M, "pre-grasp": PRE_GRASP_M - self.slide_m,
+                "retreat": self.slide_m}.get(self.phase, PRE_GRASP_M)
+        return self.pose_at(self.from_rad, back)
+
+    def _next(self, phase: str) -> None:
+        self.phase, self.phase_s, self.settled_s, self.slide_m = phase, 0.0, 0.0, 0.0
+        self.openings = []
+
+    def _fail(self, reason: str) -> None:
+        """Back off: open, retreat, then failed with `reason`."""
+        self.reason = reason
+        self._next("release")
+
+    def _timed_out(self, what: str) -> bool:
+        if self.phase_s < TIMEOUT_S[self.phase]:
+            return False
+        self._fail(f"{self.goal.target}: {what} in {TIMEOUT_S[self.phase]:g} s")
+        return True
+
+    def _settled(self, tool: pin.SE3, position: np.ndarray, rotation: np.ndarray, dt_s: float) -> bool:
+        error_m = float(np.linalg.norm(position - tool.translation))
+        error_rad = float(np.linalg.norm(pin.log3(rotation @ tool.rotation.T)))
+        within = error_m < POSITION_TOLERANCE_M and error_rad < ORIENTATION_TOLERANCE_RAD
+        self.settled_s = self.settled_s + dt_s if within else 0.0
+        return self.settled_s >= SETTLE_S
+
+    def _open(self, opening_m: float) -> float:
+        return float(np.clip(OPEN_GAIN_PER_S * (OPEN_M - opening_m), -0.05, 0.05))
+
+    def _approach(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
+        position, rotation = self.pose_at(self.from_rad, PRE_GRASP_M)
+        if self._settled(tool, position, rotation, dt_s) and opening_m > OPEN_M - 0.01:
+            self._next("pre-grasp")
+        else:
+            self._timed_out("the pre-grasp pose not reached")
+        return Command(PoseReference(position, rotation), self._open(opening_m))
+
+    def _pre_grasp(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
+        self.slide_m = min(PRE_GRASP_M, self.slide_m + SLIDE_MPS * dt_s)
+        position, rotation = self.pose_at(self.from_rad, PRE_GRASP_M - self.slide_m)
+        sliding = self.slide_m < PRE_GRASP_M
+        velocity = SLIDE_MPS * rotation[:, 0] if sliding else np.zeros(3)
+        if not sliding and self._settled(tool, position, rotation, dt_s):
+            self._next("grasp")
+        else:
+            self._timed_out("the grasp pose not reached (blocked short of the handle?)")
+        return Command(PoseReference(position, rotation, velocity), self._open(opening_m))
+
+    def _grasp(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
+        position, rotation = self.pose_at(self.from_rad)
+        self.openings.append((self.phase_s, opening_m))
+        earlier = [o for t, o in self.openings if t <= self.phase_s - SETTLE_S]
+        if earlier and abs(earlier[-1] - opening_m) < OPENING_STILL_M:
+            if opening_m >= HOLD_MIN_M:
+                self.hold_opening_m = opening_m
+                self.reference_rad = self.from_rad
+                self.progress = (self.phase_s, self.turned_rad)
+                self._next("turn")
+            else:
+                self._again(f"the grasp closed on nothing (opening {opening_m * 1e3:.0f} mm)")
+        else:
+            self._timed_out("the fingers did not stop closing")
+        return Command(PoseReference(position, rotation), -SQUEEZE_MPS)
+
+    def _turn(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
+        goal = self.goal.turn_rad
+        if self.goal.to_stop:  # pushed into its stop (within LEAD_MAX_RAD of where it is)
+            goal += math.copysign(OVERTRAVEL_RAD, self.goal.turn_rad)
+        if opening_m < HOLD_MIN_M:  # the handle slipped out of the fingers
+            self._again(f"the grasp slipped at {math.degrees(self.turned_rad):.0f} deg")
+            return self._release(tool, opening_m, dt_s)
+        if abs(goal - self.turned_rad) < TURN_TOLERANCE_RAD:
+            self._next("release")
+            return self._release(tool, opening_m, dt_s)
+        direction = math.copysign(1.0, goal - self.turned_rad)
+        if direction * (self.turned_rad - self.progress[1]) > PROGRESS_RAD:
+            self.progress = (self.phase_s, self.turned_rad)
+        elif self.phase_s - self.progress[0] > STALL_S or opening_m > self.hold_opening_m + PRIED_M:
+            # the part does not follow the tool: it stopped, or it forces the fingers open
+            if self.goal.to_stop and abs(self.goal.turn_rad - self.turned_rad) < AT_STOP_RAD:
+                self._next("release")  # a lever at its stop
+            else:
+                turned_deg, goal_deg = math.degrees(self.turned_rad), math.degrees(self.goal.turn_rad)
+                self._fail(f"{self.goal.target} does not turn: stopped at {turned_deg:.0f} of {goal_deg:.0f} "
+                           "deg (seized?)")
+            return self._release(tool, opening_m, dt_s)
+        step = direction * TURN_RATE_RADPS * dt_s
+        ahead = (self.reference_rad + step - self.turned_rad) * direction
+        advancing = ahead <= LEAD_MAX_RAD and (goal - self.reference_rad) * direction > 0
+        if advancing:
+            self.reference_rad += step
+        position, rotation = self.pose_at(self.reference_rad)
+        rate = direction * TURN_RATE_RADPS if advancing else 0.0
+        velocity = rate * np.cross(self.axis, position - self.pivot)
+        return Command(PoseReference(position, rotation, velocity, rate * self.axis, self.axis), -SQUEEZE_MPS)
+
+    def _again(self, why: str) -> None:
+        """Try the grasp once more, from where the part now stands, or fail."""
+        if self.attempts >= ATTEMPTS:
+            self._fail(f"{self.goal.target}: {why}, and again on the retry")
+            return
+        self.attempts += 1
+        self.retry = why
+        self._next("release")
+
+    def _release(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
+        position, rotation = self.pose_at(self.turned_rad)
+        if opening_m > OPEN_M - 0.01 or self.phase_s >= TIMEOUT_S["release"]:
+            self.from_rad = self.turned_rad
+            self._next("retreat")
+        return Command(PoseReference(position, rotation), self._open(opening_m))
+
+    def _retreat(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
+        self.slide_m = min(PRE_GRASP_M, self.slide_m + SLIDE_MPS * dt_s)
+        position, rotation = self.pose_at(self.from_rad, self.slide_m)
+        sliding = self.slide_m < PRE_GRASP_M
+        velocity = -SLIDE_MPS * rotation[:, 0] if sliding else np.zeros(3)
+        if not sliding and (self._settled(tool, position, rotation, dt_s)
+                            or self.phase_s >= TIMEOUT_S["retreat"]):
+            if self.reason:
+                self._next("failed")
+            elif self.retry:
+                self.retry = ""
+                self._next("approach")
+            else:
+                self._next("done")
+        return Command(PoseReference(position, rotation, velocity), self._open(opening_m))

@@ -1,0 +1,54 @@
+"""The operator's intents resolved on the vessel: a part of the panel, named, becomes a goal in
+the world frame from the panel the vessel recognised (its estimate, not the simulation's truth)
+and the part's angle as the vessel believes it (where the last intervention on it left it)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from abyss.common.geometry import quat_wxyz_of, rotation_of, small_rotation_wxyz
+from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects
+from abyss.common.models import panel
+
+ALREADY_RAD = math.radians(1.0)
+FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
+
+
+def resolve(intent: Intervention, objects: RecognisedObjects | None,
+            believed_rad: float = 0.0) -> tuple[InterventionGoal | None, str]:
+    """The goal, or None and why it is refused; None and "" while the panel is not recognised
+    yet (the intent waits)."""
+    try:
+        kind = panel.part_kind(intent.target)
+    except ValueError as exc:
+        return None, str(exc)
+    if kind == "valve" and intent.to:
+        return None, f"{intent.target} is a valve: it is turned by an angle, not thrown to a stop"
+    if kind == "lever" and not intent.to:
+        return None, f"{intent.target} is a lever: it is thrown to its stop, up or down"
+    low, high = panel.part_range_rad(intent.target)
+    target_rad = believed_rad + intent.turn_rad if kind == "valve" else (high if intent.to == "up" else low)
+    if not low - 1e-9 <= target_rad <= high + 1e-9:
+        low_deg, high_deg, at_deg = math.degrees(low), math.degrees(high), math.degrees(believed_rad)
+        return None, (f"{intent.target} turns between {low_deg:.0f} and {high_deg:.0f} deg; at {at_deg:.0f} "
+                      f"deg it can turn by {low_deg - at_deg:.0f} to {high_deg - at_deg:.0f} deg")
+    if abs(target_rad - believed_rad) < ALREADY_RAD:
+        return None, f"{intent.target} is at {math.degrees(believed_rad):.0f} deg already"
+    if objects is None or "panel" not in objects.names:
+        return None, ""
+    pose = objects.poses_world[objects.names.index("panel")]
+    panel_rotation, panel_m_world = rotation_of(pose[3:]), pose[:3]
+    pivot, axis, grasp = panel.part_geometry(intent.target)
+    turned = rotation_of(small_rotation_wxyz(axis * believed_rad))
+    grasp_rotation = panel.GRASP_ROTATION_PANEL
+    if kind == "valve" and target_rad > 0:  # the fingers are symmetric: the grasp that ends the
+        grasp_rotation = grasp_rotation @ FLIP_ABOUT_X  # turn with the tool rolled least
+    return InterventionGoal(
+        command_id=intent.command_id, target=intent.target,
+        pivot_m_world=panel_rotation @ pivot + panel_m_world, axis_world=panel_rotation @ axis,
+        grasp_m_world=panel_rotation @ (pivot + turned @ grasp) + panel_m_world,
+        grasp_orientation_wxyz_world=quat_wxyz_of(panel_rotation @ turned @ grasp_rotation),
+        turn_rad=target_rad - believed_rad, to_stop=kind == "lever"), ""
+

@@ -10,7 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.messages import Telemetry
+from abyss.common.config import MissionConfig
+from abyss.common.messages import PanelState, Telemetry
+from abyss.common.models import panel
+
+VALVE_TOLERANCE_DEG = 5.0  # a valve turned within this of its target is turned
+LEVER_TOLERANCE_DEG = 3.0  # a lever within this of its stop is at its stop
 
 VERDICTS = {  # the word, and what `abyss up` exits with
     "done": 0,  # shore saw the mission done, and nothing failed
@@ -59,6 +64,29 @@ def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
             "failsafe": t.failsafe, "failsafe_events": t.failsafe_events}
 
 
+def interventions_summary(mission: MissionConfig, start: PanelState | None,
+                          last: PanelState | None) -> list[dict[str, Any]]:
+    """Each of the mission's interventions judged on the simulation's truth: the part's angle
+    against its target (a valve: where it started plus the turn; a lever: its stop)."""
+    judged = []
+    angles_deg: dict[str, float] = {}  # each part as the interventions before left it to be
+    for part, amount in mission.interventions:
+        turn_rad, stop = panel.intent(part, amount)
+        index = start.names.index(part) if start is not None and part in start.names else None
+        begin_deg = angles_deg.get(part, math.degrees(start.angles_rad[index]) if start is not None
+                                   and index is not None else 0.0)
+        low, high = panel.part_range_rad(part)
+        target_deg = (math.degrees(high if stop == "up" else low) if stop
+                      else begin_deg + math.degrees(turn_rad))
+        angles_deg[part] = target_deg
+        truth_deg = math.degrees(last.angles_rad[index]) if last is not None and index is not None else None
+        tolerance_deg = LEVER_TOLERANCE_DEG if stop else VALVE_TOLERANCE_DEG
+        judged.append({"part": part, "target_deg": round(target_deg, 2), "tolerance_deg": tolerance_deg,
+                       "truth_deg": None if truth_deg is None else round(truth_deg, 2),
+                       "success": truth_deg is not None and abs(truth_deg - target_deg) <= tolerance_deg})
+    return judged
+
+
 def render_summary(summary: dict[str, Any]) -> str:
     lines = [f"abyss: {summary['system']}: {summary['verdict']}"
              + (f" ({summary['failure']})" if summary["failure"] else "")
@@ -90,6 +118,11 @@ def render_summary(summary: dict[str, Any]) -> str:
     m = summary["mission"]
     lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
                                   f"done: {m['done']}" if m else "no status reached shore"))
+    for i in summary.get("interventions", []):
+        truth = "no truth" if i["truth_deg"] is None else f"{i['truth_deg']:.1f} deg"
+        lines.append(f"  intervention (simulation's truth): {i['part']} at {truth}, target "
+                     f"{i['target_deg']:.0f} +- {i['tolerance_deg']:g} deg: "
+                     f"{'success' if i['success'] else 'NOT DONE'}")
     c = summary["control"]
     if c:
         lines.append(f"  final errors (onboard): vehicle {c['position_error_m'] * 1e3:.1f} mm, heading "

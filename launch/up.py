@@ -27,6 +27,7 @@ from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import (
     MissionStatus,
     NavState,
+    PanelState,
     ReplayStart,
     SimulationStatus,
     Telemetry,
@@ -36,7 +37,15 @@ from abyss.common.messages import (
 from abyss.common.runfiles import CARRIED_OVER, EVENTS_FILE, read_json_list
 from abyss.launch.record import ControlRecorder
 from abyss.launch.state import RunState
-from abyss.launch.summary import control_summary, exit_code, exit_text, read_json, render_summary, verdict_of
+from abyss.launch.summary import (
+    control_summary,
+    exit_code,
+    exit_text,
+    interventions_summary,
+    read_json,
+    render_summary,
+    verdict_of,
+)
 from abyss.recording.store import RECORD_DIR, TESTBED, Recorder
 from abyss.stations.runtime import SUPERVISOR_ENV, free_port, station_recorder
 
@@ -156,6 +165,7 @@ class Up:
         self.restarts: list[Outage] = []
         self._down: dict[str, Outage] = {}  # restarts whose station is not back yet
         self.truth_m_world: np.ndarray | None = None  # the vehicle's position, from the simulation
+        self.panel: tuple[PanelState, PanelState] | None = None  # the panel's truth: the first, the latest
         self.up_s: float | None = None  # when all stations were first up (monotonic)
         self.interrupted = threading.Event()
         self.keep_running = False
@@ -196,6 +206,8 @@ class Up:
             for name, kind in HEARD_FROM.items():
                 if isinstance(message, kind) and name in self._down and self._down[name].alive:
                     self._back(name)
+        if isinstance(message, PanelState):
+            self.panel = (self.panel[0] if self.panel else message, message)
         if isinstance(message, MissionStatus):
             self.mission = message
         elif isinstance(message, SimulationStatus):
@@ -322,6 +334,7 @@ class Up:
             session.declare_subscriber(keys.simulation_status_key(system), self._on_status),
             session.declare_subscriber(keys.onboard_state_key(system), self._on_status),
             session.declare_subscriber(keys.truth_key(system), self._on_status),
+            session.declare_subscriber(keys.panel_truth_key(system), self._on_status),
         ]
         previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
                     for s in (signal.SIGINT, signal.SIGTERM)}
@@ -405,6 +418,8 @@ class Up:
                 self._restart(station)
             mission = self.mission
             elapsed = time.monotonic() - t0
+            if mission is not None and mission.done and not self._interventions_true():
+                mission = None  # shore believes it; the simulation's truth does not (yet)
             if mission is not None and mission.done and self.mission_done_s is None:
                 self.mission_done_s = elapsed
                 self._change_state(mission_done=True)
@@ -420,11 +435,22 @@ class Up:
                     state = (f"{mission.mode}, waypoint {mission.waypoint_index}/"
                              f"{mission.waypoints_total}, error {mission.position_error_m:.2f} m; arm "
                              f"{mission.arm_mode}, error {mission.ee_position_error_m * 1e3:.0f} mm"
+                             + (f"; intervention {mission.interventions_done}/{mission.interventions_total} "
+                                f"{mission.intervention_target} {mission.intervention_phase}"
+                                if mission.interventions_total else "")
+                             + (f" ({mission.intervention_reason})" if mission.intervention_reason else "")
                              + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else ""))
                 self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")
                 return ""  # the verdict says interrupted unless the mission was already done
+
+    def _interventions(self) -> list[dict[str, Any]]:
+        start, last = self.panel if self.panel else (None, None)
+        return interventions_summary(self.config.mission, start, last)
+
+    def _interventions_true(self) -> bool:
+        return all(i["success"] for i in self._interventions())
 
     def _summary(self, wall_s: float, startup_s: float, failure: str) -> dict[str, Any]:
         stations: dict[str, Any] = {}
@@ -458,6 +484,7 @@ class Up:
             "mission_done_s": self.mission_done_s,
             "external": list(self.external),
             "control": control_summary(self.record.last if self.record else None),
+            "interventions": self._interventions(),
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": read_json(self.out_dir / "scene.json"),
             "events": read_json_list(self.out_dir / EVENTS_FILE),  # the restarts as shore saw them

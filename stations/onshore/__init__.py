@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from pathlib import Path
 
@@ -109,7 +110,13 @@ def _show(viewer: Viewer, first_sent: list[Message], telemetry: list[Received],
             viewer.arm_goal(command, time.time())
     for r in telemetry:
         if isinstance(r.message, Telemetry):
-            viewer.telemetry(r.message, r.stamp_s)
+            t = r.message
+            viewer.telemetry(t, r.stamp_s)
+            if t.intervention_target:
+                viewer.intervention(r.stamp_s, t.sim_time_s, t.intervention_target, t.intervention_phase,
+                                    t.intervention_reason, math.degrees(t.turned_rad),
+                                    math.degrees(t.turn_goal_rad), t.gripper_opening_m * 1e3,
+                                    t.gripper_force_n)
     for r in others:
         if isinstance(r.message, Image):
             viewer.image(r.message, r.stamp_s)

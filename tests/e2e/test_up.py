@@ -62,11 +62,11 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
         rows[chunk.entity_path.lstrip("/")] += chunk.num_rows
     arm = "world/vehicle/arm_base/arm_link1/arm_link2/arm_link3/arm_link4/arm_link5/arm_link6"
     for path in ("world/vehicle", "world/vehicle/hull", arm, "world/path", "world/mission/waypoints",
-                 "world/mission/arm_goal", "world/scene/octree", "world/scene/latest_update",
+                 "world/scene/octree", "world/scene/latest_update",
                  "world/objects/panel", "world/objects/valve_1", "world/camera/image",
-                 "errors/vehicle/position_m", "errors/arm/orientation_deg",
-                 "links/satellite/vessel_to_onshore/delay_p50_ms",
-                 "links/tether/onboard_to_vessel/throughput_kbps"):
+                 "errors/vehicle_position_m/distance", "errors/tool_orientation_deg/angle",
+                 "links/satellite/delay_ms/vessel_to_onshore/p50",
+                 "links/tether/throughput_kbps/onboard_to_vessel"):
         assert rows[path] > 0, (path, sorted(rows))
     assert rows["world/vehicle"] >= 10 and rows[arm] == rows["world/vehicle"]  # telemetry at 2 Hz, 20 s
 

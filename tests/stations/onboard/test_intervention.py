@@ -1,0 +1,134 @@
+"""The intervention onboard, closed on MuJoCo's model of the vehicle, the arm and the panel:
+the turning task alone (kinematic low level, the tool's pose measured from the simulated
+joints), then the whole primitive on the dynamic low level, judged on the simulation's truth
+of the panel (the valve's and lever's joint angles), not on what onboard believes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from abyss.common.config import load
+from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
+from abyss.common.models import ARM_JOINTS, panel
+from abyss.stations.onboard.arm_control import ArmController, PoseReference
+from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun
+from abyss.stations.simulation.lowlevel import References
+from abyss.stations.simulation.world import World
+from abyss.stations.vessel.intents import resolve
+
+PERIOD_S = 0.05
+LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
+
+
+def recognised(offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RecognisedObjects:
+    """The panel as the vessel would recognise it: where world.xml puts it, plus `offset_m`."""
+    position = np.add(panel.PANEL_POSITION_M_WORLD, offset_m)
+    return RecognisedObjects(("panel",), np.array([[*position, 1.0, 0.0, 0.0, 0.0]]),
+                             np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "texture", 0.0)
+
+
+def goal_of(part: str, amount: str,
+            offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> InterventionGoal:
+    goal, reason = resolve(Intervention(1, part, *panel.intent(part, amount)), recognised(offset_m))
+    assert goal is not None, reason
+    return goal
+
+
+def setup(low_level: str) -> tuple[ArmController, World]:
+    config = load(None, [f"simulation.low_level={low_level}", "simulation.camera_rate_hz=0",
+                         f"simulation.start_position_m_world={LAST_WAYPOINT}"])
+    return ArmController(config.onboard, config.mission), World(config.simulation, np.random.default_rng(0))
+
+
+def tool_pose(arm: ArmController, world: World) -> pin.SE3:
+    """The tool's pose from the simulated vehicle and joints (the truth, not onboard's estimate)."""
+    truth = world.truth()
+    arm.kinematics.update(truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad)
+    return arm.kinematics.pose(arm.kinematics.ee).copy()
+
+
+def track(arm: ArmController, world: World, reference: PoseReference, gripper_mps: float = 0.0) -> None:
+    truth = world.truth()
+    out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad, True,
+                   reference)
+    world.step(References(np.zeros(4), out.joint_velocities_radps, gripper_mps), PERIOD_S)
+
+
+def test_the_turning_task_turns_the_tool_about_the_valve_axis_with_the_handle_held() -> None:
+    arm, world = setup("kinematic")
+    goal = goal_of("valve_1", "90")
+    run = InterventionRun(goal)  # its geometry only: the poses along the turn
+    for _ in range(round(12.0 / PERIOD_S)):  # onto the grasp pose
+        track(arm, world, PoseReference(*run.pose_at(0.0)))
+    start = tool_pose(arm, world)
+    rate_radps, angle_rad = 0.3, 0.0
+    while angle_rad < goal.turn_rad:
+        angle_rad = min(goal.turn_rad, angle_rad + rate_radps * PERIOD_S)
+        position, rotation = run.pose_at(angle_rad)
+        velocity = rate_radps * np.cross(run.axis, position - run.pivot)
+        track(arm, world, PoseReference(position, rotation, velocity, rate_radps * run.axis, run.axis))
+    for _ in range(round(1.0 / PERIOD_S)):
+        track(arm, world, PoseReference(*run.pose_at(goal.turn_rad), axis_world=run.axis))
+    end = tool_pose(arm, world)
+    turned_deg = math.degrees(float(run.axis @ pin.log3(end.rotation @ start.rotation.T)))
+    assert turned_deg == pytest.approx(90.0, abs=5.0)
+    handle_error_m = float(np.linalg.norm(end.translation - run.pose_at(goal.turn_rad)[0]))
+    assert handle_error_m < 0.005, handle_error_m
+
+
+def work(goal: InterventionGoal, seize: bool = False, seconds: float = 60.0) -> tuple[InterventionRun, World,
+                                                                                       list[np.ndarray]]:
+    """The primitive on the dynamic low level until it ends; the arm's joints seen on the way."""
+    arm, world = setup("dynamic")
+    if seize:
+        world.apply_fault(SimulationControl("seize", goal.target, 1.0), set())
+    run, joints = InterventionRun(goal), []
+    for _ in range(round(seconds / PERIOD_S)):
+        state = world.joints()
+        command = run.step(tool_pose(arm, world), state.gripper_opening_m, PERIOD_S, True)
+        if not run.active:
+            break
+        track(arm, world, command.reference, command.gripper_mps)
+        joints.append(state.positions_rad)
+    return run, world, joints
+
+
+def truth_deg(world: World, part: str) -> float:
+    state = world.panel()
+    return math.degrees(float(state.angles_rad[state.names.index(part)]))
+
+
+@pytest.mark.parametrize(("part", "amount", "target_deg", "tolerance_deg"),
+                         [("valve_1", "90", 90.0, 5.0), ("valve_0", "-45", -45.0, 5.0),
+                          ("lever_0", "down", -45.0, 3.0)])
+def test_the_primitive_works_the_part_judged_on_the_truth(part: str, amount: str, target_deg: float,
+                                                          tolerance_deg: float) -> None:
+    run, world, _ = work(goal_of(part, amount))
+    assert run.phase == "done", run.reason
+    assert truth_deg(world, part) == pytest.approx(target_deg, abs=tolerance_deg)
+    others = [p for p in (*panel.VALVES, *panel.LEVERS) if p != part]
+    assert all(abs(truth_deg(world, p)) < 1.0 for p in others)  # nothing else was moved
+    assert world.joints().gripper_opening_m > 0.05  # let go
+
+
+def test_a_seized_valve_ends_failed_with_its_reason_and_the_arm_backs_off_within_its_limits() -> None:
+    run, world, joints = work(goal_of("valve_1", "90"), seize=True)
+    assert run.phase == "failed" and "valve_1 does not turn" in run.reason, (run.phase, run.reason)
+    assert abs(truth_deg(world, "valve_1")) < 2.0
+    lower, upper = setup("kinematic")[0].kinematics.lower_rad, setup("kinematic")[0].kinematics.upper_rad
+    seen = np.array(joints)
+    assert np.all(seen >= lower - 1e-3) and np.all(seen <= upper + 1e-3), "a joint past its limit"
+    assert world.joints().gripper_opening_m > 0.05  # released
+    tool = world.data.site("ee").xpos
+    assert np.linalg.norm(tool - run.pose_at(run.turned_rad)[0]) > PRE_GRASP_M * 0.8  # backed off
+    assert len(ARM_JOINTS) == seen.shape[1]
+
+
+def test_a_panel_recognised_off_ends_in_a_failed_grasp_not_a_forced_one() -> None:
+    run, world, _ = work(goal_of("valve_1", "90", offset_m=(0.0, 0.0, 0.06)))  # 6 cm high
+    assert run.phase == "failed" and "valve_1" in run.reason and "grasp" in run.reason, run.reason
+    assert abs(truth_deg(world, "valve_1")) < 5.0

@@ -116,7 +116,8 @@ def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float, a
               f"with shore at {endpoint}?)")
         return 1
     if not ack.accepted:
-        print(f"{kind} command {ack.command_id}: refused: {ack.reason}")
+        by = "" if kind in INTENTS else " by onboard"  # an intent the vessel cannot resolve, it refuses
+        print(f"{kind} command {ack.command_id}: refused{by}: {ack.reason}")
         return 1
     print(f"{kind} command {ack.command_id}: taken by onboard")
     return 0

@@ -66,6 +66,11 @@ def small_rotation_wxyz(rotvec: np.ndarray) -> np.ndarray:
     return np.r_[np.cos(angle / 2), np.sin(angle / 2) * rotvec / angle]
 
 
+def rotation_about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """The rotation matrix of `angle_rad` about the unit vector `axis`."""
+    return rotation_of(small_rotation_wxyz(np.asarray(axis, dtype=float) * angle_rad))
+
+
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The Hamilton product a b of quaternions (w, x, y, z)."""
     w1, x1, y1, z1 = a

@@ -73,8 +73,8 @@ def interventions_summary(mission: MissionConfig, start: PanelState | None,
     for part, amount in mission.interventions:
         turn_rad, stop = panel.intent(part, amount)
         index = start.names.index(part) if start is not None and part in start.names else None
-        begin_deg = angles_deg.get(part, math.degrees(start.angles_rad[index]) if start is not None
-                                   and index is not None else 0.0)
+        started_deg = 0.0 if start is None or index is None else math.degrees(start.angles_rad[index])
+        begin_deg = angles_deg.get(part, started_deg)
         low, high = panel.part_range_rad(part)
         target_deg = (math.degrees(high if stop == "up" else low) if stop
                       else begin_deg + math.degrees(turn_rad))

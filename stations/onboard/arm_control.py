@@ -271,13 +271,19 @@ class ArmController:
                       _limit(cfg.kp_ee_position * position_error, cfg.max_ee_speed_mps)),
                  Task("end-effector orientation", jacobian[3:],
                       _limit(cfg.kp_ee_orientation * rotation_error, cfg.max_ee_rate_radps))]
+        reached = self.within_s >= self.mission.arm_settle_s
+        return self._solve(tasks, arm_rad, "reached" if reached else "moving", position_error, angle)
+
+    def _solve(self, tasks: list[Task], arm_rad: np.ndarray, mode: str, position_error: np.ndarray,
+               angle: float) -> ArmOutput:
+        """The tasks under the constraints, within the speed limits."""
+        kin, cfg = self.kinematics, self.cfg
         xdot, active, _ = solve_constrained(self.constraints(arm_rad), tasks, kin.n, cfg.kp_constraint,
                                             cfg.damping, cfg.singular_value_threshold)
         xdot = self._within_speed_limits(xdot)
-        reached = self.within_s >= self.mission.arm_settle_s
         vehicle = xdot[len(ARM_JOINTS):] if cfg.whole_body else None
-        return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, "reached" if reached else "moving",
-                         position_error, angle, tuple(c.name for c in active))
+        return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, mode, position_error, angle,
+                         tuple(c.name for c in active))
 
     def _follow(self, ref: PoseReference, arm_rad: np.ndarray, enabled: bool) -> ArmOutput:
         """Track a moving pose: feedforward plus feedback, under the same constraints. The turn
@@ -304,12 +310,7 @@ class ArmController:
                            np.clip([axis @ angular], -cfg.max_ee_rate_radps, cfg.max_ee_rate_radps)),
                       Task("orientation across the axis", across @ jacobian[3:],
                            _limit(across @ angular, cfg.max_ee_rate_radps))]
-        xdot, active, _ = solve_constrained(self.constraints(arm_rad), tasks, kin.n, cfg.kp_constraint,
-                                            cfg.damping, cfg.singular_value_threshold)
-        xdot = self._within_speed_limits(xdot)
-        vehicle = xdot[len(ARM_JOINTS):] if cfg.whole_body else None
-        return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, "moving", position_error, angle,
-                         tuple(c.name for c in active))
+        return self._solve(tasks, arm_rad, "moving", position_error, angle)
 
     def _within_speed_limits(self, xdot: np.ndarray) -> np.ndarray:
         """Scale the whole solution (its direction kept) so that no variable exceeds its limit."""

@@ -156,6 +156,9 @@ class Onboard:
         out.arm = ArmVelocityRef(a.joint_velocities_radps, gripper_mps)
         if self.tick % self.every == 0:
             ee_pose = arm.kinematics.pose(arm.kinematics.ee)
+            intervention_id, target, phase, reason, turned_rad, turn_goal_rad = (-1, "", "", "", 0.0, 0.0) \
+                if run is None else (run.goal.command_id, run.goal.target, run.phase, run.reason,
+                                     float(np.clip(run.turned_rad, -10.0, 10.0)), run.goal.turn_rad)
             out.telemetry = Telemetry(
                 position_m_world=position, yaw_rad=yaw, mode=v.mode, command_id=vehicle.command_id,
                 waypoint_index=v.waypoint_index, waypoints_total=v.waypoints_total,
@@ -168,9 +171,6 @@ class Onboard:
                 arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
                 failsafe_events=self.failsafe.events, sim_time_s=self.sim_time_s,
                 operator_mode=self.operator_mode, boot_id=self.boot_id,
-                gripper_opening_m=joints.gripper_opening_m, gripper_force_n=joints.gripper_force_n)
-            if run is not None:
-                out.telemetry = dataclasses.replace(
-                    out.telemetry, intervention_id=run.command_id, intervention_target=run.goal.target,
-                    intervention_phase=run.phase, intervention_reason=run.reason,
-                    turned_rad=float(np.clip(run.turned_rad, -10.0, 10.0)), turn_goal_rad=run.goal.turn_rad)
+                gripper_opening_m=joints.gripper_opening_m, gripper_force_n=joints.gripper_force_n,
+                intervention_id=intervention_id, intervention_target=target, intervention_phase=phase,
+                intervention_reason=reason, turned_rad=turned_rad, turn_goal_rad=turn_goal_rad)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from abyss.common.geometry import rotation_of, small_rotation_wxyz
+from abyss.common.geometry import rotation_about, rotation_of
 from abyss.common.messages import InterventionGoal
 from abyss.stations.onboard.arm_control import PoseReference
 
@@ -66,7 +66,6 @@ class InterventionRun:
 
     def __init__(self, goal: InterventionGoal) -> None:
         self.goal = goal
-        self.command_id = goal.command_id
         self.axis = np.asarray(goal.axis_world, float) / np.linalg.norm(goal.axis_world)
         self.pivot = np.asarray(goal.pivot_m_world, float)
         self.grasp_m = np.asarray(goal.grasp_m_world, float)
@@ -97,7 +96,7 @@ class InterventionRun:
     def pose_at(self, angle_rad: float, back_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The tool's pose with the part turned `angle_rad` from the grasp, `back_m` out along
         the approach: position [m, world] and rotation."""
-        turn = rotation_of(small_rotation_wxyz(self.axis * angle_rad))
+        turn = rotation_about(self.axis, angle_rad)
         rotation = turn @ self.grasp_rotation
         position = self.pivot + turn @ (self.grasp_m - self.pivot) - back_m * rotation[:, 0]
         return position, rotation

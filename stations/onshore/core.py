@@ -236,7 +236,9 @@ def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int =
     arm_done = arm.message is None or (t.arm_command_id == arm.message.command_id and t.arm_mode == "reached")
     current = intervene.message if intervene is not None else None
     on_it = current is not None and t.intervention_id == current.command_id
-    finished = index + (1 if on_it and t.intervention_phase == "done" else 0) if current is not None else 0
+    finished = 0
+    if current is not None:  # the ones before the one in hand are done; it, once onboard says so
+        finished = index + int(on_it and t.intervention_phase == "done")
     phase = t.intervention_phase if on_it else ""
     return MissionStatus(
         mode=t.mode, waypoint_index=offset + t.waypoint_index if flying else offset,

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from abyss.common.geometry import quat_wxyz_of, rotation_of, small_rotation_wxyz
+from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects
 from abyss.common.models import panel
 
@@ -41,7 +41,7 @@ def resolve(intent: Intervention, objects: RecognisedObjects | None,
     pose = objects.poses_world[objects.names.index("panel")]
     panel_rotation, panel_m_world = rotation_of(pose[3:]), pose[:3]
     pivot, axis, grasp = panel.part_geometry(intent.target)
-    turned = rotation_of(small_rotation_wxyz(axis * believed_rad))
+    turned = rotation_about(axis, believed_rad)
     grasp_rotation = panel.GRASP_ROTATION_PANEL
     if kind == "valve" and target_rad > 0:  # the fingers are symmetric: the grasp that ends the
         grasp_rotation = grasp_rotation @ FLIP_ABOUT_X  # turn with the tool rolled least

@@ -15,6 +15,7 @@ from abyss.common.messages import (
     ArmGoal,
     CommandAck,
     Heartbeat,
+    Intervention,
     Message,
     MissionStatus,
     OperatorMode,
@@ -186,3 +187,30 @@ def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig)
     assert out.status is not None
     assert (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
     assert not out.status.done
+
+
+def test_the_missions_interventions_go_one_after_the_other_and_end_it(mission: MissionConfig) -> None:
+    mission = dataclasses.replace(mission, arm_target=(),
+                                  interventions=(("valve_1", "90"), ("lever_0", "down")))
+    operator = Operator(mission)
+    first = commands(operator.step(OperatorInputs(telemetry=[telemetry()]), 0.0))["op/intervene"]
+    assert isinstance(first, Intervention) and first.target == "valve_1"
+    assert first.turn_rad == pytest.approx(np.pi / 2)
+    waypoints = operator.waypoints.message
+    assert isinstance(waypoints, Waypoints)
+    flown = {"command_id": waypoints.command_id, "mode": "reached", "waypoints_total": 3, "waypoint_index": 2}
+    turning = telemetry(**flown, intervention_id=first.command_id, intervention_phase="turn")
+    out = operator.step(OperatorInputs(telemetry=[turning]), 1.0)
+    assert out.status is not None and not out.status.done and out.status.interventions_done == 0
+    done = telemetry(**flown, intervention_id=first.command_id, intervention_phase="done")
+    out = operator.step(OperatorInputs(telemetry=[done]), 2.0)
+    second = commands(out)["op/intervene"]
+    assert isinstance(second, Intervention) and second.target == "lever_0" and second.to == "down"
+    assert out.status is not None and not out.status.done and out.status.interventions_done == 1
+    failed = telemetry(**flown, intervention_id=second.command_id, intervention_phase="failed",
+                       intervention_reason="lever_0 does not turn")
+    status = operator.step(OperatorInputs(telemetry=[failed]), 3.0).status
+    assert status is not None and not status.done and status.intervention_reason == "lever_0 does not turn"
+    thrown = telemetry(**flown, intervention_id=second.command_id, intervention_phase="done")
+    status = operator.step(OperatorInputs(telemetry=[thrown]), 4.0).status
+    assert status is not None and status.done and status.interventions_done == 2

@@ -6,6 +6,7 @@ the link, from shore's acknowledgements alone."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 
@@ -16,11 +17,15 @@ from abyss.common.config import VesselConfig
 from abyss.common.messages import (
     CommandAck,
     Heartbeat,
+    Intervention,
+    InterventionGoal,
     OperatorMode,
+    RecognisedObjects,
     SceneAck,
     SceneUpdate,
     encode,
 )
+from abyss.common.models import panel
 from abyss.common.scene import SceneModel, SceneReceiver
 from abyss.linkemu.link import Link, Offer
 from abyss.linkemu.profile import profile
@@ -147,3 +152,28 @@ def test_relay_forwards_commands_and_answers_and_beats_with_shore_silence() -> N
     assert ("telemetry", state) in relay.step(RelayInputs(telemetry=(5, state)), now_s)
     again = relay.step(RelayInputs(telemetry=(5, state)), now_s + cfg.telemetry_period_s)
     assert not any(t == "telemetry" for t, _ in again)  # the same telemetry is not sent twice
+
+
+def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_its_stops() -> None:
+    relay = Relay(VesselConfig(), now_s=0.0)
+    intent = Intervention(5, "valve_1", math.radians(90), "")
+    assert relay.step(RelayInputs(commands=[("op/intervene", intent)]), 0.0) == [
+        ("heartbeat", Heartbeat(0.0, True))]  # not recognised yet: it waits (shore resends)
+    seen = np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]])  # the panel recognised 6 cm low
+    objects = RecognisedObjects(("panel",), seen, np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "texture",
+                                1.0)
+    out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=objects), 1.0)
+    goal = next(m for t, m in out if t == "goal/intervene")
+    assert isinstance(goal, InterventionGoal) and goal.command_id == 5
+    assert goal.turn_rad == pytest.approx(math.pi / 2)
+    np.testing.assert_allclose(goal.pivot_m_world, [4.93, 0.0, -8.41])  # from the estimate, not the truth
+    done = dataclasses.replace(sample_telemetry(), intervention_id=5, intervention_phase="done",
+                               turned_rad=math.radians(88))
+    relay.step(RelayInputs(telemetry=(1, done)), 2.0)
+    again = Intervention(6, "valve_1", math.radians(45), "")  # from 88 deg: past the stop at 90
+    ack = next(m for t, m in relay.step(RelayInputs(commands=[("op/intervene", again)]), 3.0) if t == "ack")
+    assert isinstance(ack, CommandAck) and ack.command == "intervene"
+    assert "turns between -90 and 90" in ack.reason
+    lever = Intervention(7, "lever_0", math.radians(10), "")
+    ack = next(m for t, m in relay.step(RelayInputs(commands=[("op/intervene", lever)]), 4.0) if t == "ack")
+    assert isinstance(ack, CommandAck) and "is a lever" in ack.reason

@@ -1,0 +1,49 @@
+"""An intervention is judged on the simulation's truth of the panel, not on what onboard says;
+and an intent that does not parse is refused at the command line, before anything is sent."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+
+from abyss.common.config import MissionConfig
+from abyss.common.messages import PanelState
+from abyss.common.models import panel
+from abyss.launch.summary import interventions_summary, render_summary
+
+PARTS = (*panel.VALVES, *panel.LEVERS)
+
+
+def state(**angles_deg: float) -> PanelState:
+    return PanelState(PARTS, np.radians([angles_deg.get(p, 0.0) for p in PARTS]), np.zeros(len(PARTS)), 1.0)
+
+
+def test_each_intervention_is_judged_on_the_true_angle_against_its_target() -> None:
+    mission = MissionConfig(arm_target=(), interventions=(("valve_1", "90"), ("lever_0", "down"),
+                                                          ("valve_1", "-45")))
+    judged = interventions_summary(mission, state(), state(valve_1=43.0, lever_0=-44.0))
+    assert [(j["part"], j["target_deg"], j["success"]) for j in judged] == [
+        ("valve_1", 90.0, False), ("lever_0", -45.0, True), ("valve_1", 45.0, True)]  # 90 then -45
+    judged = interventions_summary(mission, state(), state(valve_1=84.0, lever_0=-40.0))
+    assert [j["success"] for j in judged] == [False, False, False]  # 6 deg short; 5 from the stop
+    unseen = interventions_summary(mission, None, None)  # no truth came
+    assert all(not j["success"] and j["truth_deg"] is None for j in unseen)
+    summary = {"system": "s", "verdict": "incomplete", "failure": "", "startup_s": 1.0, "wall_s": 9.0,
+               "stations": {}, "links": {}, "mission": None, "control": None, "scene": None,
+               "simulation": None, "interventions": judged}
+    assert "valve_1 at 84.0 deg, target 90 +- 5 deg: NOT DONE" in render_summary(summary)
+
+
+def test_a_wrong_intent_fails_at_the_command_line_with_what_is_allowed() -> None:
+    for args, expected in ((["valve", "lever_0", "--turn", "90"], "lever_0 is a lever, not a valve"),
+                           (["valve", "valve_1"], "turned by an angle in [-180, 180] deg"),
+                           (["valve", "valve_7", "--turn", "90"],
+                            "valve_0, valve_1, valve_2, lever_0, lever_1"),
+                           (["lever", "lever_1", "--to", "sideways"], "invalid choice: 'sideways'")):
+        done = subprocess.run([sys.executable, "-m", "abyss.cli", "op", *args, "--timeout", "1"],
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and expected in done.stderr, (args, done.stdout, done.stderr)
+    assert math.isclose(panel.intent("valve_2", "-30")[0], math.radians(-30))

@@ -117,7 +117,9 @@ def render_summary(summary: dict[str, Any]) -> str:
                 f"{int(st['losses']):>5} {int(st.get('retransmissions', 0)):>5}")
     m = summary["mission"]
     lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
-                                  f"done: {m['done']}" if m else "no status reached shore"))
+                                  f"done: {m['done']}" if m else "no status reached shore")
+                 + (f"; {m['intervention_target']} {m['intervention_phase']}: {m['intervention_reason']}"
+                    if m and m.get("intervention_reason") else ""))
     for i in summary.get("interventions", []):
         truth = "no truth" if i["truth_deg"] is None else f"{i['truth_deg']:.1f} deg"
         lines.append(f"  intervention (simulation's truth): {i['part']} at {truth}, target "

@@ -35,6 +35,10 @@ def test_each_intervention_is_judged_on_the_true_angle_against_its_target() -> N
                "stations": {}, "links": {}, "mission": None, "control": None, "scene": None,
                "simulation": None, "interventions": judged}
     assert "valve_1 at 84.0 deg, target 90 +- 5 deg: NOT DONE" in render_summary(summary)
+    summary["mission"] = {"mode": "reached", "waypoint_index": 3, "waypoints_total": 3, "done": False,
+                          "intervention_target": "valve_1", "intervention_phase": "failed",
+                          "intervention_reason": "valve_1 does not turn"}
+    assert "done: False; valve_1 failed: valve_1 does not turn" in render_summary(summary)
 
 
 def test_a_wrong_intent_fails_at_the_command_line_with_what_is_allowed() -> None:

@@ -339,6 +339,7 @@ COMMANDS = ("waypoints", "arm", "mode", "intervene")  # what an operator command
 LEVER_STOPS = ("up", "down")
 # an intervention's phases, in order; it ends done or failed (its reason says why); "" none yet
 INTERVENTION_PHASES = ("", "approach", "pre-grasp", "grasp", "turn", "release", "retreat", "done", "failed")
+REFINABLE_PHASES = ("approach", "pre-grasp")  # before the fingers close: a goal resent is a refinement
 
 
 @dataclass(frozen=True)

@@ -3,9 +3,11 @@ the panel's frame (x out of the back of the plate, y left, z up; origin at the p
 world.xml places the same panel; tests/test_model.py checks that the two agree, and that the
 face texture in `panel_face.png` is the one `face_texture()` draws.
 
-The face towards the vehicle (x = -PLATE_HALF_SIZE_M[0]) carries four ArUco markers
-(DICT_4X4_50, ids 0-3) in its corners, clear of the valves and levers, on a checkerboard that
-gives stereo matching texture to hold on to."""
+The face towards the vehicle (x = -PLATE_HALF_SIZE_M[0]) carries ArUco markers (DICT_4X4_50)
+clear of the valves and levers, on a checkerboard that gives stereo matching texture to hold on
+to: four large ones in its corners (ids 0-3), seen from metres away, and two small ones between
+the valves (ids 4, 5), which stay in the cameras' view from where the arm works the panel (the
+corners are then at the image's edges or beyond)."""
 
 from __future__ import annotations
 
@@ -20,15 +22,16 @@ PLATE_HALF_SIZE_M = (0.05, 0.8, 0.6)
 FACE_TEXTURE_FILE = MODELS_DIR / "panel_face.png"
 TEXTURE_PX_PER_M = 400
 MARKER_DICTIONARY = "DICT_4X4_50"
-MARKER_SIDE_M = 0.27  # the black square
-MARKER_MARGIN_M = 0.015  # white quiet zone around it
+MARKER_MARGIN_M = 0.015  # white quiet zone around each
 CHECKER_SQUARE_M = 0.2
-# marker id -> centre (y, z) on the face [m]
-MARKERS: dict[int, tuple[float, float]] = {
-    0: (0.635, 0.445),
-    1: (-0.635, 0.445),
-    2: (-0.635, -0.445),
-    3: (0.635, -0.445),
+# marker id -> centre (y, z) on the face and side of the black square [m]
+MARKERS: dict[int, tuple[float, float, float]] = {
+    0: (0.635, 0.445, 0.27),
+    1: (-0.635, 0.445, 0.27),
+    2: (-0.635, -0.445, 0.27),
+    3: (0.635, -0.445, 0.27),
+    4: (0.25, 0.47, 0.14),
+    5: (-0.25, 0.47, 0.14),
 }
 # the parts an operator works, their centres in the panel's frame [m]
 VALVES: dict[str, tuple[float, float, float]] = {
@@ -103,8 +106,8 @@ def part_geometry(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def marker_corners_m_panel(marker_id: int) -> np.ndarray:
     """The marker's four corners in ArUco's order (top left, top right, bottom right, bottom
     left, as seen facing the panel) in the panel's frame [m]."""
-    y, z = MARKERS[marker_id]
-    h = MARKER_SIDE_M / 2
+    y, z, side = MARKERS[marker_id]
+    h = side / 2
     x = -PLATE_HALF_SIZE_M[0]
     # facing the panel (looking along +x), image right is -y and image down is -z
     return np.array([[x, y + h, z + h], [x, y - h, z + h], [x, y - h, z - h], [x, y + h, z - h]])
@@ -120,9 +123,9 @@ def face_texture() -> np.ndarray:
     rows, cols = np.mgrid[0:height_px, 0:width_px]
     image = np.where((rows // square_px + cols // square_px) % 2 == 0, 235, 30).astype(np.uint8)
     dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, MARKER_DICTIONARY))
-    side_px = round(MARKER_SIDE_M * TEXTURE_PX_PER_M)
     margin_px = round(MARKER_MARGIN_M * TEXTURE_PX_PER_M)
-    for marker_id, (y, z) in MARKERS.items():
+    for marker_id, (y, z, side) in MARKERS.items():
+        side_px = round(side * TEXTURE_PX_PER_M)
         col = round((PLATE_HALF_SIZE_M[1] - y) * TEXTURE_PX_PER_M) - side_px // 2
         row = round((PLATE_HALF_SIZE_M[2] - z) * TEXTURE_PX_PER_M) - side_px // 2
         image[row - margin_px : row + side_px + margin_px, col - margin_px : col + side_px + margin_px] = 255

@@ -99,7 +99,10 @@ class Onboard:
         for command in inputs.commands:
             ack, taken = self.gate.answer(command, self._holding_at(), self._arm_busy())
             out.acks.append(ack)
-            if not taken:
+            if not taken and isinstance(command, InterventionGoal) and self.intervention is not None \
+                    and self.intervention.refine(command):
+                log.info("intervention %d refined", command.command_id)
+            elif not taken:
                 log.info("%s command %d not taken: %s", ack.command, ack.command_id, ack.reason or "a resend")
             elif isinstance(command, Waypoints):
                 self.vehicle.set_waypoints(command.command_id, command.waypoints)

@@ -28,7 +28,7 @@ import numpy as np
 import pinocchio as pin
 
 from abyss.common.geometry import rotation_about, rotation_of
-from abyss.common.messages import InterventionGoal
+from abyss.common.messages import REFINABLE_PHASES, InterventionGoal
 from abyss.stations.onboard.arm_control import PoseReference
 
 PRE_GRASP_M = 0.10
@@ -65,11 +65,7 @@ class InterventionRun:
     """One intervention, from its goal to done or failed."""
 
     def __init__(self, goal: InterventionGoal) -> None:
-        self.goal = goal
-        self.axis = np.asarray(goal.axis_world, float) / np.linalg.norm(goal.axis_world)
-        self.pivot = np.asarray(goal.pivot_m_world, float)
-        self.grasp_m = np.asarray(goal.grasp_m_world, float)
-        self.grasp_rotation = rotation_of(goal.grasp_orientation_wxyz_world)
+        self._take(goal)
         self.phase = "approach"
         self.reason = ""  # why it failed, once it will
         self.retry = ""  # why the grasp is tried again, while it is
@@ -83,6 +79,21 @@ class InterventionRun:
         self.slide_m = 0.0  # along the approach, in the slides
         self.openings: list[tuple[float, float]] = []  # (phase_s, opening) while closing
         self.hold_opening_m = 0.0  # where the fingers stopped on the handle
+
+    def _take(self, goal: InterventionGoal) -> None:
+        self.goal = goal
+        self.axis = np.asarray(goal.axis_world, float) / np.linalg.norm(goal.axis_world)
+        self.pivot = np.asarray(goal.pivot_m_world, float)
+        self.grasp_m = np.asarray(goal.grasp_m_world, float)
+        self.grasp_rotation = rotation_of(goal.grasp_orientation_wxyz_world)
+
+    def refine(self, goal: InterventionGoal) -> bool:
+        """The same intervention resolved again from a better estimate of the panel (the vessel's
+        recognition sharpens as the vehicle closes in): taken until the fingers close."""
+        if goal.command_id != self.goal.command_id or self.phase not in REFINABLE_PHASES:
+            return False
+        self._take(goal)
+        return True
 
     @property
     def active(self) -> bool:

@@ -6,19 +6,23 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from abyss.common.config import VesselConfig
 from abyss.common.images import downscale
 from abyss.common.messages import (
+    REFINABLE_PHASES,
     CommandAck,
     Heartbeat,
     Image,
     Intervention,
+    InterventionGoal,
     Message,
     RecognisedObjects,
     SceneAck,
     Telemetry,
 )
-from abyss.stations.vessel.intents import resolve
+from abyss.stations.vessel.intents import REFINE_M, resolve
 from abyss.stations.vessel.pacing import ScenePacer
 
 if TYPE_CHECKING:
@@ -42,8 +46,10 @@ class Relay:
     """Operator commands down as soon as they are seen, onboard's answers up, onboard's
     telemetry up at `telemetry_period_s`, and a heartbeat to onboard that says whether shore
     is heard. An intervention goes down resolved in the world frame (intents.resolve) once the
-    panel is recognised (shore resends it meanwhile), or is refused here with the reason; the
-    parts' angles are believed as the interventions onboard finished left them."""
+    panel is recognised (shore resends it meanwhile), or is refused here with the reason; as
+    recognition sharpens (the vehicle closing in), it goes down again resolved anew until the
+    fingers close (onboard takes it as a refinement); the parts' angles are believed as the
+    interventions onboard finished left them."""
 
     def __init__(self, cfg: VesselConfig, now_s: float) -> None:
         self.cfg = cfg
@@ -53,6 +59,7 @@ class Relay:
         self.objects: RecognisedObjects | None = None
         self.believed_rad: dict[str, float] = {}  # each part's angle, as the interventions left it
         self.resolved: dict[int, tuple[str, float]] = {}  # command id: the part, its angle then
+        self.refining: tuple[Intervention, InterventionGoal] | None = None  # the latest sent, till it ends
 
     def _intervention(self, intent: Intervention) -> tuple[str, Message] | None:
         believed = self.believed_rad.get(intent.target, 0.0)
@@ -60,8 +67,27 @@ class Relay:
         goal, reason = resolve(intent, self.objects, start_rad)
         if goal is not None:
             self.resolved[intent.command_id] = (intent.target, start_rad)
+            self.refining = intent, goal
             return "goal/intervene", goal
         return ("ack", CommandAck(intent.command_id, "intervene", reason)) if reason else None
+
+    def _refined(self, t: Telemetry | None) -> tuple[str, Message] | None:
+        """The intervention in hand resolved anew, when the panel's estimate has moved its grasp
+        by REFINE_M or more and onboard has not closed the fingers yet."""
+        if self.refining is None:
+            return None
+        intent, sent = self.refining
+        on_it = t is not None and t.intervention_id == intent.command_id
+        if on_it and t.intervention_phase in ("done", "failed"):
+            self.refining = None
+            return None
+        if on_it and t.intervention_phase not in REFINABLE_PHASES:
+            return None
+        goal, _ = resolve(intent, self.objects, self.resolved[intent.command_id][1])
+        if goal is None or np.linalg.norm(goal.grasp_m_world - sent.grasp_m_world) < REFINE_M:
+            return None
+        self.refining = intent, goal
+        return "goal/intervene", goal
 
     def _believe(self, t: Telemetry) -> None:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
@@ -69,11 +95,14 @@ class Relay:
             self.believed_rad[target] = start_rad + t.turned_rad
 
     def step(self, inputs: RelayInputs, now_s: float) -> Outgoing:
-        if inputs.objects is not None:
-            self.objects = inputs.objects
-        if inputs.telemetry is not None:
-            self._believe(inputs.telemetry[1])
         out: Outgoing = []
+        state = inputs.telemetry[1] if inputs.telemetry is not None else None
+        if state is not None:
+            self._believe(state)
+        if inputs.objects is not None and inputs.objects is not self.objects:
+            self.objects = inputs.objects
+            refined = self._refined(state)
+            out += [refined] if refined else []
         for topic, command in inputs.commands:
             if isinstance(command, Intervention):
                 resolved = self._intervention(command)

@@ -13,6 +13,7 @@ from abyss.common.messages import Intervention, InterventionGoal, RecognisedObje
 from abyss.common.models import panel
 
 ALREADY_RAD = math.radians(1.0)
+REFINE_M = 0.002  # a new estimate of the panel that moves a grasp this far is sent down again
 FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
 
 

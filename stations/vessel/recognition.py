@@ -1,15 +1,16 @@
 """Recognition of the valve panel, by texture and by shape, fused into one pose.
 
-- texture: the ArUco markers in the panel's corners found in the camera image, the panel's pose
-  from all their corners at once by PnP (OpenCV, iterative after IPPE), placed in the world with
-  the camera's pose; confidence from the reprojection error and the markers seen;
+- texture: the ArUco markers on the panel's face found in the camera image, the panel's pose
+  from all their corners at once by PnP (OpenCV's SQPnP, refined by Levenberg-Marquardt),
+  placed in the world with the camera's pose; confidence from the reprojection error, the
+  markers seen and their distance;
 - shape: the cloud near the expected panel cut to its dominant plane (Open3D RANSAC), then
   point-to-plane ICP of the panel model (points sampled on its face, valves and levers) against
   it, started from the texture pose, or the plane's if no marker was seen; confidence from
   ICP's fitness and residual;
 - fusion: each where it is strong: the plane's normal and distance from the shape, the position
-  in the plane and the rotation about the normal from the markers; then a running average over
-  frames, as the panel does not move.
+  in the plane and the rotation about the normal from the markers (or, with none in view, from
+  the estimate so far); then a running average over frames, as the panel does not move.
 The valves and levers follow from the panel's pose and the model (common/models/panel.py).
 """
 
@@ -27,6 +28,7 @@ from abyss.common.models import panel
 
 log = logging.getLogger(__name__)
 MIN_PLANE_POINTS = 200
+NEAR_M = 1.5  # [m] markers nearer than this are seen as well as it gets
 
 
 @dataclass(frozen=True)
@@ -73,7 +75,10 @@ def by_texture(rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world:
     camera_rotation = rotation_of(pose_camera_in_world[3:])
     rotation = camera_rotation @ rotation_in_camera
     position = camera_rotation @ tvec.ravel() + pose_camera_in_world[:3]
-    confidence = (len(seen) / len(panel.MARKERS)) / (1.0 + error_px)
+    # a pixel is 2 mm at arm's length and 8 mm from 3 m, and PnP's error along the view grows
+    # with the distance squared: frames weigh as an inverse variance, by the distance's 4th power
+    distance_m = float(np.linalg.norm(tvec))
+    confidence = min(1.0, len(seen) / 4) / (1.0 + error_px) * min(1.0, (NEAR_M / distance_m) ** 4)
     return Pose(rotation, position, float(np.clip(confidence, 0.0, 1.0)))
 
 
@@ -184,6 +189,7 @@ class PanelTracker:
                                          else expected_m_world)
         self.estimate: Pose | None = None
         self.weight = 0.0
+        self.anchored = False  # the estimate has seen markers: the shape alone slides along the face
         self.method = ""
 
     def update(
@@ -202,12 +208,17 @@ class PanelTracker:
             frame = fuse_texture_shape(texture, shape)
         elif texture is not None:
             frame = texture
+        elif shape is not None and self.estimate is not None:
+            # ICP slides along the face: the shape alone corrects the normal and the depth only
+            so_far = Pose(self.estimate.rotation, self.estimate.position_m_world, 0.0)
+            frame = fuse_texture_shape(so_far, shape)
         elif shape is not None:
             frame = shape
         else:
             return self.estimate
         self.method = "+".join(name for name, p in (("texture", texture), ("shape", shape)) if p is not None)
-        if self.estimate is None:
+        if self.estimate is None or (texture is not None and not self.anchored):
+            self.anchored = texture is not None
             self.estimate, self.weight = frame, frame.confidence
         else:
             total = self.weight + frame.confidence
@@ -228,12 +239,17 @@ class PanelTracker:
             return None
         pose = self.estimate
         names, poses, sizes = ["panel"], [pose.as_vector()], [panel.PLATE_HALF_SIZE_M]
-        for name, offset in (*panel.VALVES.items(), *panel.LEVERS.items()):
+        half_thickness_m = panel.HANDLE_THICKNESS_M / 2
+        for name, pivot in (*panel.VALVES.items(), *panel.LEVERS.items()):
+            # a valve's box holds its handle at any angle; a lever's is its shaft at rest
+            if panel.part_kind(name) == "valve":
+                centre, half_size = np.asarray(pivot), (0.04, 0.12, 0.12)
+            else:
+                centre = np.asarray(pivot) - (panel.LEVER_LENGTH_M / 2, 0.0, 0.0)
+                half_size = (panel.LEVER_LENGTH_M / 2 + half_thickness_m, half_thickness_m, half_thickness_m)
             names.append(name)
-            poses.append(
-                np.r_[pose.rotation @ np.asarray(offset) + pose.position_m_world, quat_wxyz_of(pose.rotation)]
-            )
-            sizes.append((0.04, 0.12, 0.12) if name.startswith("valve") else (0.075, 0.02, 0.075))
+            poses.append(np.r_[pose.rotation @ centre + pose.position_m_world, quat_wxyz_of(pose.rotation)])
+            sizes.append(half_size)
         return RecognisedObjects(
             names=tuple(names),
             poses_world=np.array(poses),

@@ -21,13 +21,14 @@ REPEATS = 2000
 
 
 def main() -> None:
-    config = load(None, ["simulation.low_level=kinematic",
-                         "simulation.start_position_m_world=[3.3, 0, -7.9]"])
+    config = load(None, ["simulation.low_level=kinematic", "mission.interventions=[]",
+                         "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]",  # the middle valve's handle
+                         "simulation.start_position_m_world=[3.2, 0, -8.0]"])
     arm = ArmController(config.onboard, config.mission)
     goal = config.mission.arm_goal()
     assert goal is not None
     arm.set_goal(1, *goal)
-    position, quat, q = np.array([3.3, 0.0, -7.9]), np.array([1.0, 0, 0, 0]), np.array(ARM_STOWED_RAD)
+    position, quat, q = np.array([3.2, 0.0, -8.0]), np.array([1.0, 0, 0, 0]), np.array(ARM_STOWED_RAD)
     rng = np.random.default_rng(0)
     samples = [q + rng.normal(0, 0.2, 6) for _ in range(REPEATS)]
 

@@ -280,21 +280,20 @@ Box = tuple[float, float, float, float, float, float]
 @dataclass(frozen=True)
 class MissionConfig:
     # rows of x, y, z [m, world] and yaw [rad]
+    # the last, 1.8 m off the panel's face and level with its middle: the arm reaches the
+    # valves above and the levers below without the vehicle moving
     waypoints: tuple[tuple[float, float, float, float], ...] = (
-        (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.3, 0.0, -7.9, 0.0))
+        (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.2, 0.0, -8.0, 0.0))
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
     # the end-effector's goal once the last waypoint is reached: x, y, z [m, world], roll, pitch,
-    # yaw [rad] (rotations about the world's x, y, z, in that order); empty: no arm goal. The
-    # default grips the handle of the middle valve (fingers across the handle bar).
-    arm_target: tuple[float, ...] = (4.86, 0.0, -8.35, 1.5707963267948966, 0.0, 0.0)
+    # yaw [rad] (rotations about the world's x, y, z, in that order); empty: no arm goal. E.g.
+    # [4.86, 0, -8.35, 1.5708, 0, 0]: the fingers either side of the middle valve's handle.
+    arm_target: tuple[float, ...] = ()
     # or the interventions, one after the other once the last waypoint is reached: rows of a part
     # of the panel and what to do with it: a valve and the angle to turn it by [deg], or a lever
-    # and the stop to throw it to (up, down); the success of each is judged on the simulation's truth.
-    # Not in the default mission yet: the recognised panel sits about 6 cm low, more than a grasp
-    # tolerates (issue #20), so e.g. --set mission.arm_target=[] with
-    # --set 'mission.interventions=[["valve_1", "90"], ["lever_0", "down"]]'
-    interventions: tuple[tuple[str, str], ...] = ()
+    # and the stop to throw it to (up, down); the success of each is judged on the simulation's truth
+    interventions: tuple[tuple[str, str], ...] = (("valve_1", "90"), ("lever_0", "down"))
     arm_position_tolerance_m: float = 0.005
     arm_orientation_tolerance_rad: float = 0.02
     arm_settle_s: float = 2.0  # [s] within both tolerances this long: the goal is reached

@@ -5,9 +5,14 @@ it as a new command through the onshore station, down the satellite and the teth
 same keys the autonomous side uses. A goal survives a lost or late packet (the onshore
 station resends it until onboard answers it); a velocity stream would not.
 
+Intents on the panel go down as one small command each, for the vessel to resolve from the
+panel it recognised and onboard to carry out; their answers are printed as they come.
+
 Keys (the vehicle's frame: forward, left, up): w/s forward/back, a/d left/right, r/f up/down,
 q/e turn left/right (vehicle) or yaw (end-effector), i/k pitch, u/o roll (end-effector),
 Tab switches vehicle/end-effector, Space resends, h help, x or Ctrl-C quits.
+Intents: 1/2/3 turn valve_0/1/2 by +90 deg, 4/5/6 by -90 deg; 7/8 throw lever_0 up/down,
+9/0 lever_1 up/down.
 """
 
 from __future__ import annotations
@@ -31,7 +36,8 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from abyss.common.messages import ArmGoal, Telemetry, Waypoints, encode, new_id
+from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, encode, new_id
+from abyss.common.models import panel
 
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
@@ -41,6 +47,12 @@ KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
     "q": ((0, 0, 0), (0, 0, 1)), "e": ((0, 0, 0), (0, 0, -1)),
     "i": ((0, 0, 0), (0, 1, 0)), "k": ((0, 0, 0), (0, -1, 0)),
     "u": ((0, 0, 0), (1, 0, 0)), "o": ((0, 0, 0), (-1, 0, 0)),
+}
+# key -> the intent: a part of the panel and its amount (`abyss op valve|lever`)
+INTENT_KEYS = {
+    "1": ("valve_0", "90"), "2": ("valve_1", "90"), "3": ("valve_2", "90"),
+    "4": ("valve_0", "-90"), "5": ("valve_1", "-90"), "6": ("valve_2", "-90"),
+    "7": ("lever_0", "up"), "8": ("lever_0", "down"), "9": ("lever_1", "up"), "0": ("lever_1", "down"),
 }
 JS_EVENT = struct.Struct("<IhBB")  # Linux joystick API: time [ms], value, type, number
 JS_BUTTON, JS_AXIS, JS_INIT = 0x01, 0x02, 0x80
@@ -91,7 +103,18 @@ class Teleop:
         self.session = open_session(client_config(endpoint), "abyss teleop")
         self.subscriber = self.session.declare_subscriber(
             keys.spec("vessel", "telemetry").key(system), self._on_telemetry)
+        self.acks = self.session.declare_subscriber(keys.operator_key(system, "ack"), self._on_ack)
+        self.intents: dict[int, str] = {}  # command id -> what was asked, till answered
         self.sent = 0
+
+    def _on_ack(self, sample: zenoh.Sample) -> None:
+        ack = message_of(sample, "CommandAck")
+        if not isinstance(ack, CommandAck):
+            return
+        with self.lock:
+            asked = self.intents.pop(ack.command_id, None)
+        if asked is not None:
+            self.say(f"{asked}: {'taken by onboard' if ack.accepted else 'refused: ' + ack.reason}")
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
         message = message_of(sample, "Telemetry")
@@ -117,6 +140,8 @@ class Teleop:
             self.say(f"driving the {'end-effector' if self.target == 'arm' else 'vehicle'}")
         elif key == "h":
             self.say(__doc__.split("\n\n")[-1].strip().replace("\n", "\r\n") if __doc__ else "")
+        elif key in INTENT_KEYS:
+            self.intend(*INTENT_KEYS[key])
         elif key in KEYMAP or key == " ":
             translation, rotation = KEYMAP.get(key, ((0, 0, 0), (0, 0, 0)))
             self.nudge(np.array(translation, float) * self.step_m, np.array(rotation, float) * self.step_rad)
@@ -140,7 +165,17 @@ class Teleop:
             x, y, z = command.position_m_world
             self.say(f"end-effector goal {x:.3f} {y:.3f} {z:.3f} m")
 
+    def intend(self, part: str, amount: str) -> None:
+        command = Intervention(new_id(), part, *panel.intent(part, amount))
+        asked = f"{part} {'turn ' + amount + ' deg' if panel.part_kind(part) == 'valve' else 'to ' + amount}"
+        with self.lock:
+            self.intents[command.command_id] = asked
+        self.session.put(keys.operator_key(self.system, "intervene"), encode(command, self.sent, time.time()))
+        self.sent += 1
+        self.say(f"intent {asked} sent")
+
     def close(self) -> None:
+        self.acks.undeclare()
         self.subscriber.undeclare()
         self.session.close()
 

@@ -208,6 +208,8 @@ class Up:
                     self._back(name)
         if isinstance(message, PanelState):
             self.panel = (self.panel[0] if self.panel else message, message)
+            if self.record is not None:
+                self.record.add(message)
         if isinstance(message, MissionStatus):
             self.mission = message
         elif isinstance(message, SimulationStatus):

@@ -1,9 +1,12 @@
 """`abyss plot RUN_DIR`: the four figures of the original paper from a run's control record:
 the vehicle's position error (x, y, z) and heading error over its waypoints, and the
-end-effector's position error (x, y, z) and orientation error for its constant target."""
+end-effector's position error (x, y, z) and orientation error for its constant target; and,
+for a run with interventions, a fifth: each worked part's true angle against its target, with
+the intervention's phases, over the grip's squeeze and the fingers' true contact force."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -14,10 +17,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from abyss.common.errors import ConfigError
-from abyss.launch.record import CONTROL_FILE, read_control
+from abyss.launch.record import CONTROL_FILE, read_control, read_panel
 
 AXES = ("x", "y", "z")
 FIGURES = ("vehicle_position_error", "vehicle_heading_error", "ee_position_error", "ee_orientation_error")
+INTERVENTION_FIGURE = "intervention"
 
 
 def _figure(time_s: np.ndarray, series: dict[str, np.ndarray], ylabel: str, title: str,
@@ -78,7 +82,56 @@ def plot_run(run_dir: Path) -> list[str]:
         lines.append("the arm never moved towards a goal in this run")
     lines.append(f"failsafe: {int(c['failsafe_events'][last])} events, "
                  f"{holds.mean():.0%} of the record holding")
-    return lines
+    return lines + _intervention_figure(run_dir, c)
+
+
+def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
+    """The parts the interventions worked: true angle against target, phases, grip and contact."""
+    panel = read_panel(run_dir)
+    worked = [p for p in dict.fromkeys(c["intervention_target"]) if p]
+    if panel is None or not worked or len(panel["sim_time_s"]) < 2:
+        return []
+    summary_path = run_dir / "summary.json"
+    judged = json.loads(summary_path.read_text()).get("interventions", []) if summary_path.is_file() else []
+    targets = {i["part"]: i for i in judged}
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6.5), dpi=100, sharex=True,
+                                      gridspec_kw={"height_ratios": [3, 2]})
+    t_panel, t = panel["sim_time_s"], c["sim_time_s"]
+    lines = []
+    for i, part in enumerate(worked):
+        color = f"C{i}"
+        top.plot(t_panel, np.degrees(panel[f"{part}_rad"]), color=color, linewidth=1.4,
+                 label=f"{part} (truth)")
+        bottom.plot(t_panel, panel[f"{part}_finger_force_n"], color=color, linewidth=1.0, alpha=0.7,
+                    label=f"fingers on {part} (truth)")
+        final_deg = math.degrees(panel[f"{part}_rad"][-1])
+        if part in targets:
+            target = targets[part]
+            top.axhline(target["target_deg"], color=color, linestyle="--", linewidth=1,
+                        label=f"{part} target +- {target['tolerance_deg']:g} deg")
+            lines.append(f"{part}: {final_deg:+.1f} deg, target {target['target_deg']:+.1f} deg "
+                         f"({'success' if target['success'] else 'NOT DONE'})")
+        else:
+            lines.append(f"{part}: {final_deg:+.1f} deg")
+    phase = np.char.add(np.char.add(c["intervention_target"], " "), c["intervention_phase"])
+    changes = np.flatnonzero(phase[1:] != phase[:-1]) + 1
+    for k in changes:
+        if c["intervention_phase"][k]:
+            top.axvline(t[k], color="0.6", linestyle=":", linewidth=1)
+            top.text(t[k], 1.0, c["intervention_phase"][k], rotation=90, fontsize=7, va="top", ha="right",
+                     transform=top.get_xaxis_transform(), color="0.35")
+    bottom.plot(t, c["gripper_force_n"], color="k", linewidth=1.2, label="grip squeeze (onboard)")
+    top.set_ylabel("angle [deg]")
+    top.set_title("Interventions: each part's angle against its target (dotted: the phases)")
+    bottom.set_ylabel("force [N]")
+    bottom.set_xlabel("simulated time [s]")
+    for ax in (top, bottom):
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(run_dir / f"{INTERVENTION_FIGURE}.png")
+    plt.close(fig)
+    return [f"wrote {INTERVENTION_FIGURE}.png: " + "; ".join(lines)]
 
 
 def _mm(values_mm: list[float]) -> str:

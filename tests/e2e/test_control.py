@@ -76,7 +76,7 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Flight]:
                          "--set", f"simulation.low_level={low_level}",
                          "--set", f"mission.position_tolerance_m={tolerance_m / 2}",
                          "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg / 2)}",
-                         "--set", "mission.arm_target=[]")
+                         "--set", "mission.interventions=[]")
            for low_level, (tolerance_m, tolerance_deg, profile) in FLIGHTS.items()}  # fmt: skip
     truths: dict[str, Truth] = {}
     try:

@@ -43,7 +43,7 @@ from abyss.recording.store import open_recording
 from abyss.stations.onshore import SCENE_FILE
 from abyss.stations.runtime import free_port
 
-LAST_WAYPOINT_M = np.array([3.3, 0.0, -7.9])  # the default mission's
+LAST_WAYPOINT_M = np.array([3.2, 0.0, -8.0])  # the default mission's
 UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each is sent
     "/abyss/onboard/cmd/vehicle_velocity": TwistStamped,
     "/abyss/onboard/cmd/arm_velocity": Float64MultiArray,
@@ -84,7 +84,8 @@ def _send_bad_samples(session: zenoh.Session, gid: bytes) -> int:
 def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     up = Up(tmp_path / "run", "--ros2", "onboard", "--set", f'ros2.listen=["{endpoint}"]',
-            "--set", "mission.arm_target=[]", "--duration", "120", "--viewer", "none", "--record", "control")
+            "--set", "mission.interventions=[]", "--duration", "120", "--viewer", "none",
+            "--record", "control")
     up.wait_for(r"onboard is a ROS 2 gateway .*connect/endpoints=\[\"" + endpoint)
     up_endpoint = up.wait_for(r"Zenoh endpoint (\S+)").group(1)
     up.wait_up()

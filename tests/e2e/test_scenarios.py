@@ -61,15 +61,19 @@ def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedPro
     # the scenario meant to fail failed on exactly the assertions it names, and the others held
     down = dict(assertion_outcomes(out / "report.md", "satellite-down"))
     assert down == {"mission_done within_s=20.0": "no", "commands_answered": "no", "stations": "yes"}
+    seized = dict(assertion_outcomes(out / "report.md", "valve-seized"))
+    assert seized.pop("mission_done within_s=60.0") == "no" and set(seized.values()) == {"yes"}, seized
+    assert words["valve-seized"] == "incomplete", words
     assert all(held == "yes" for _, held in assertion_outcomes(out / "report.md", "tether-outage"))
-    assert "failsafe from_s=8.0" in (out / "report.md").read_text()
+    assert "failsafe phase=turn from_s=1.0 to_s=7.0" in (out / "report.md").read_text()
     run_dirs = sorted((out / "runs").iterdir())
     assert len(run_dirs) == len(SELF_CONTAINED)
     for run in run_dirs:  # each its own system: its own id in its own summary, a recording, plots
         summary = (run / "summary.json").read_text()
         assert f'"system": "{run.name.split("-", 1)[1]}-' in summary
         assert (run / "onshore.rrd").stat().st_size > 0
-    assert next(r for r in run_dirs if r.name.endswith("-nominal")).joinpath("ee_position_error.png").exists()
+    nominal = next(r for r in run_dirs if r.name.endswith("-nominal"))
+    assert all(nominal.joinpath(f"{figure}.png").exists() for figure in ("ee_position_error", "intervention"))
     # a killed vessel was restarted and the system carried on
     crash = next(r for r in run_dirs if r.name.endswith("vessel-crash"))
     assert '"restarts": 1' in (crash / "summary.json").read_text()

@@ -18,7 +18,16 @@ from conftest import ROOT
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
-from abyss.common.messages import ArmGoal, Message, Telemetry, Waypoints, decode, encode
+from abyss.common.messages import (
+    ArmGoal,
+    CommandAck,
+    Intervention,
+    Message,
+    Telemetry,
+    Waypoints,
+    decode,
+    encode,
+)
 from abyss.console.teleop import JS_AXIS, JS_EVENT
 from abyss.stations.runtime import free_port
 
@@ -43,6 +52,8 @@ class Vessel:
 
     def _on_command(self, sample: object) -> None:
         message = decode(str(sample.key_expr), sample.payload.to_bytes()).message  # type: ignore[attr-defined]
+        if isinstance(message, CommandAck):  # its own answers, on the operator's ack key
+            return
         with self.lock:
             self.commands.append(message)
 
@@ -127,9 +138,19 @@ def test_keys_in_a_pseudo_terminal_move_the_goals(vessel: Vessel) -> None:
         np.testing.assert_allclose(arm.position_m_world, EE_POSITION + np.array([0, 0, 0.1]), atol=1e-9)
         os.write(master, b"z")
         expect("unknown key 'z'")
+        os.write(master, b"2")  # an intent: one small command, answered on shore's ack key
+        intent = vessel.wait_for(4)[-1]
+        assert isinstance(intent, Intervention) and intent.target == "valve_1"
+        assert intent.turn_rad == pytest.approx(np.radians(90)) and intent.to == ""
+        refusal = CommandAck(intent.command_id, "intervene", "valve_1 is at 90 deg already")
+        vessel.session.put(keys.operator_key(SYSTEM, "ack"), encode(refusal, 0, time.time()))
+        expect("valve_1 turn 90 deg: refused: valve_1 is at 90 deg already")
+        os.write(master, b"8")
+        lever = vessel.wait_for(5)[-1]
+        assert isinstance(lever, Intervention) and (lever.target, lever.to) == ("lever_0", "down")
         os.write(master, b"x")
         assert process.wait(timeout=15) == 0
-        expect("3 goals sent")
+        expect("5 goals sent")
     finally:
         if process.poll() is None:
             process.kill()

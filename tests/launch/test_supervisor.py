@@ -43,8 +43,11 @@ class System:
 
     def __init__(self, tmp_path: Path, external: Sequence[str] = ()) -> None:
         self.lines: list[str] = []
-        self.up = Up(Config(system="unit"), tmp_path / "run", port=0, echo=self.lines.append,
-                     external=external)
+        # a mission of waypoints and an arm goal: the interventions' truth is judged elsewhere
+        # (test_intervention_verdict.py)
+        config = Config(system="unit")
+        config = dataclasses.replace(config, mission=dataclasses.replace(config.mission, interventions=()))
+        self.up = Up(config, tmp_path / "run", port=0, echo=self.lines.append, external=external)
         self.up.out_dir.mkdir(parents=True)
         self.processes: list[subprocess.Popen[bytes]] = []
 

@@ -3,6 +3,7 @@ the field and what is allowed; assertions judge the figures a run leaves."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 
 from abyss.common.errors import ConfigError
 from abyss.common.messages import Telemetry
-from abyss.validation.scenario.checks import Run, judge
+from abyss.validation.scenario.checks import Run, arm_ranges_rad, judge
 from abyss.validation.scenario.spec import USES, Assertion, load_scenario, scenario_of
 
 LIBRARY = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
@@ -21,7 +22,7 @@ def test_the_library_loads_and_covers_the_five_uses_but_parallel() -> None:
     scenarios = [load_scenario(p) for p in LIBRARY]
     assert len(scenarios) >= 9
     assert {s.use for s in scenarios} == set(USES) - {"parallel"}  # parallel is how they run, not a file
-    assert [s.name for s in scenarios if s.expect_failed] == ["satellite-down"]
+    assert [s.name for s in scenarios if s.expect_failed] == ["satellite-down", "valve-seized"]
 
 
 @pytest.mark.parametrize(("change", "field", "allowed"), [
@@ -38,6 +39,11 @@ def test_the_library_loads_and_covers_the_five_uses_but_parallel() -> None:
     ({"expect_failed": ["scene"]}, "expect_failed", "stations"),
     ({"colour": "red"}, "scenario.colour", "duration_s"),
     ({"assert": []}, "assert", "at least one"),
+    ({"events": [{"at_s": 1, "phase": "twist", "action": "kill", "station": "vessel"}]}, "events[0].phase",
+     "turn"),
+    ({"assert": [{"kind": "intervention", "part": "valve_9"}]}, "assert[0].part", "valve_1"),
+    ({"assert": [{"kind": "intervention", "part": "valve_1", "outcome": "half"}]}, "assert[0].outcome",
+     "failed"),
 ])  # fmt: skip
 def test_a_bad_scenario_is_refused_naming_the_field(change: dict, field: str, allowed: str) -> None:
     with pytest.raises(ConfigError) as error:
@@ -80,3 +86,36 @@ def test_commands_and_links_are_judged_from_the_run() -> None:
         Assertion("link", {**delay, "min": 300.0})))  # fmt: skip
     assert [v.passed for v in verdicts] == [False, True, False]
     assert "unanswered: arm 3" in verdicts[0].detail
+
+
+def test_an_intervention_is_judged_on_what_onboard_said_and_on_the_truth() -> None:
+    def worked(phase: str, reason: str = "") -> Telemetry:
+        return dataclasses.replace(state(""), intervention_id=4, intervention_target="valve_1",
+                                   intervention_phase=phase, intervention_reason=reason)
+
+    turned = [(1.0, worked("turn")), (2.0, worked("done"))]
+    judged = {"part": "valve_1", "target_deg": 90.0}
+    on_target = {"interventions": [{**judged, "truth_deg": 88.0, "success": True}]}
+    short = {"interventions": [{**judged, "truth_deg": 9.0, "success": False}]}
+    done = Assertion("intervention", {"part": "valve_1", "outcome": "done"})
+    assert judge(Run(on_target, states=turned), (done,))[0].passed
+    believed = judge(Run(short, states=turned), (done,))[0]  # onboard says done; the truth does not
+    assert not believed.passed and "truth 9.0 deg" in believed.detail
+    stalled = [(1.0, worked("turn")),
+               (2.0, worked("failed", "valve_1 does not turn: stopped at 8 of 90 deg"))]
+    seized = Assertion("intervention", {"part": "valve_1", "outcome": "failed", "reason": "does not turn"})
+    assert judge(Run(short, states=stalled), (seized,))[0].passed
+    assert not judge(Run(short, states=stalled), (done,))[0].passed
+    unfinished = judge(Run(short, states=turned[:1]), (seized,))[0]
+    assert not unfinished.passed and "last phase: turn" in unfinished.detail
+
+
+def test_an_arm_joint_past_its_range_fails_the_limits() -> None:
+    elbow_high_rad = arm_ranges_rad()[1][2]
+    inside = state("")
+    bent_rad = np.r_[0.0, 0.0, elbow_high_rad + np.radians(3), 0.0, 0.0, 0.0]
+    past = dataclasses.replace(inside, arm_positions_rad=bent_rad)
+    limits = Assertion("arm_limits", {"margin_deg": 1.0})
+    assert judge(Run({}, states=[(0.0, inside)]), (limits,))[0].passed
+    verdict = judge(Run({}, states=[(0.0, inside), (1.0, past)]), (limits,))[0]
+    assert not verdict.passed and "elbow at +3.0 deg" in verdict.detail

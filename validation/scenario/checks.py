@@ -9,8 +9,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from abyss.common.messages import Telemetry
-from abyss.validation.scenario.spec import Assertion
+from abyss.common.models import ARM_JOINTS, WORLD_FILE
+from abyss.validation.scenario.spec import OUTCOMES, Assertion
 
 
 @dataclass
@@ -26,6 +29,13 @@ class Verdict:
     assertion: Assertion
     passed: bool
     detail: str
+
+
+def phase_began_s(states: list[tuple[float, Telemetry]], phase: str) -> float | None:
+    """When onboard first reported the intervention `phase` [s since all up]; 0 for no phase."""
+    if not phase:
+        return 0.0
+    return next((t for t, s in states if s.intervention_phase == phase), None)
 
 
 def mission_done(run: Run, within_s: float = math.inf) -> tuple[bool, str]:
@@ -58,9 +68,15 @@ def final_error(
 
 
 def failsafe(
-    run: Run, from_s: float, to_s: float, enter_within_s: float = 3.0, leave_within_s: float = 5.0
+    run: Run, from_s: float, to_s: float, enter_within_s: float = 3.0, leave_within_s: float = 5.0,
+    phase: str = "",
 ) -> tuple[bool, str]:
-    """Entered within `enter_within_s` of `from_s`, and left within `leave_within_s` of `to_s`."""
+    """Entered within `enter_within_s` of `from_s`, and left within `leave_within_s` of `to_s`;
+    both counted from when onboard first reported the intervention `phase`, if one is named."""
+    origin_s = phase_began_s(run.states, phase)
+    if origin_s is None:
+        return False, f"onboard never reported the intervention phase {phase}"
+    from_s, to_s = from_s + origin_s, to_s + origin_s
     entered = next((t for t, s in run.states if t >= from_s and s.failsafe), None)
     if entered is None or entered - from_s > enter_within_s:
         return False, f"not entered within {enter_within_s:g} s of t={from_s:g} s"
@@ -126,6 +142,49 @@ def stations(run: Run, max_restarts: float = 0, max_drift_m: float = math.inf) -
     )
 
 
+def intervention(run: Run, part: str, outcome: str = "done", reason: str = "") -> tuple[bool, str]:
+    """The intervention on `part` ended `outcome` as onboard reported it, with `reason` in its
+    reason (a failure's), and the simulation's truth agrees: the part at its target when done,
+    short of it when failed."""
+    ends = [s for _, s in run.states if s.intervention_target == part and s.intervention_phase in OUTCOMES]
+    if not ends:
+        seen = [s.intervention_phase for _, s in run.states if s.intervention_target == part]
+        return False, f"{part}: no end reported (last phase: {seen[-1] if seen else 'none'})"
+    end = ends[-1]
+    judged = next((i for i in run.summary.get("interventions", []) if i["part"] == part), None)
+    truth = ("no truth" if judged is None
+             else f"truth {judged['truth_deg']} deg, target {judged['target_deg']} deg")
+    on_target = judged is not None and judged["success"]
+    held = end.intervention_phase == outcome and reason in end.intervention_reason and on_target == (
+        outcome == "done")
+    said = f": {end.intervention_reason}" if end.intervention_reason else ""
+    return held, f"{part} {end.intervention_phase}{said}; {truth}"
+
+
+def arm_limits(run: Run, margin_deg: float = 1.0) -> tuple[bool, str]:
+    """No arm joint past its limit (the model's range, give or take `margin_deg`: MuJoCo's limits
+    are soft) in any of onboard's states."""
+    if not run.states:
+        return False, "no onboard state was recorded"
+    low_rad, high_rad = arm_ranges_rad()
+    margin_rad = math.radians(margin_deg)
+    q = np.array([s.arm_positions_rad for _, s in run.states])
+    past_rad = np.maximum(low_rad - q, q - high_rad).max(axis=0)
+    worst = int(np.argmax(past_rad))
+    return bool(past_rad.max() <= margin_rad), (
+        f"{len(q)} states; nearest a limit: {ARM_JOINTS[worst]} at {math.degrees(past_rad[worst]):+.1f} deg "
+        f"from it (allowed {margin_deg:g} deg past)")
+
+
+def arm_ranges_rad() -> tuple[np.ndarray, np.ndarray]:
+    """The arm's joint ranges [rad] as the world's model (MuJoCo) has them, lower and upper."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
+    ranges = np.array([model.jnt_range[model.joint(name).id] for name in ARM_JOINTS])
+    return ranges[:, 0], ranges[:, 1]
+
+
 def deadlines(run: Run, min_met: float) -> tuple[bool, str]:
     sim = run.summary.get("simulation") or {}
     met = sim.get("deadlines_met", 0.0)
@@ -141,6 +200,8 @@ CHECKS: dict[str, Callable[..., tuple[bool, str]]] = {
     "link": link,
     "stations": stations,
     "deadlines": deadlines,
+    "intervention": intervention,
+    "arm_limits": arm_limits,
 }
 
 

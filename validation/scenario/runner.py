@@ -27,7 +27,7 @@ from abyss.common.bus import message_of, open_session, zenoh_config
 from abyss.common.errors import AbyssError
 from abyss.common.messages import LinkControl, SimulationControl, Telemetry, encode
 from abyss.launch.state import RunState, wait_for_state
-from abyss.validation.scenario.checks import Run, Verdict, judge
+from abyss.validation.scenario.checks import Run, Verdict, judge, phase_began_s
 from abyss.validation.scenario.spec import Event, Scenario
 
 START_TIMEOUT_S = 60.0
@@ -179,12 +179,18 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
             session = open_session(zenoh_config(connect=[state.endpoint], mode="client"), "abyss scenario")
             subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), on_state)
             try:
-                for event in sorted(scenario.events, key=lambda e: e.at_s):
-                    while time.monotonic() - t_up[0] < event.at_s and up.process.poll() is None:
+                for event in scenario.events:
+                    while up.process.poll() is None:
+                        with lock:
+                            origin_s = phase_began_s(run.states, event.phase)
+                        if origin_s is not None and time.monotonic() - t_up[0] >= origin_s + event.at_s:
+                            break
                         time.sleep(0.05)
                     if up.process.poll() is not None:
+                        say(f"{event.when()}: not reached, {event.describe()} not done")
                         break
-                    say(f"t={event.at_s:g} s: {apply(event, session, system_id, up)}")
+                    now_s = time.monotonic() - t_up[0]
+                    say(f"{event.when()} (t={now_s:.1f} s): {apply(event, session, system_id, up)}")
                     run.killed += event.action == "kill"
                 up.process.wait(timeout=scenario.duration_s + 90.0)
             except subprocess.TimeoutExpired:

@@ -13,7 +13,8 @@ from typing import Any
 from abyss.common import keys
 from abyss.common.config import load
 from abyss.common.errors import ConfigError
-from abyss.common.messages import FAULTS
+from abyss.common.messages import FAULTS, INTERVENTION_PHASES
+from abyss.common.models import panel
 from abyss.linkemu.profile import load_profiles
 
 USES = ("distributed", "interface", "degradation", "parallel", "fault-recovery")
@@ -22,25 +23,33 @@ ACTIONS = ("link", "fault", "kill")
 ASSERTIONS: dict[str, dict[str, type]] = {
     "mission_done": {"within_s": float},
     "final_error": {"vehicle_m": float, "ee_m": float, "ee_deg": float},
-    "failsafe": {"from_s": float, "to_s": float, "enter_within_s": float, "leave_within_s": float},
+    "failsafe": {"from_s": float, "to_s": float, "enter_within_s": float, "leave_within_s": float,
+                 "phase": str},
     "commands_answered": {},
     "scene": {"min_occupied_cells": float, "objects": list},
     "link": {"hop": str, "direction": str, "stat": str, "max": float, "min": float},
     "stations": {"max_restarts": float, "max_drift_m": float},
     "deadlines": {"min_met": float},
+    "intervention": {"part": str, "outcome": str, "reason": str},
+    "arm_limits": {"margin_deg": float},
 }
+OUTCOMES = ("done", "failed")  # of an intervention
 
 
 @dataclass(frozen=True)
 class Event:
-    at_s: float  # after all stations are up [s]
+    at_s: float  # after all stations are up [s], or after onboard first reports `phase`
     action: str  # link | fault | kill
+    phase: str = ""  # an intervention's phase (messages.INTERVENTION_PHASES), e.g. turn
     hop: str = ""
     profile: str = ""
     fault: str = ""
     target: str = ""
     value: float = 0.0
     station: str = ""
+
+    def when(self) -> str:
+        return f"{self.at_s:g} s into {self.phase}" if self.phase else f"t={self.at_s:g} s"
 
     def describe(self) -> str:
         if self.action == "link":
@@ -104,22 +113,26 @@ def _event(table: dict[str, Any], where: str) -> Event:
     table = dict(table)
     at_s = _take(table, "at_s", float, where)
     action = _choice(_take(table, "action", str, where), ACTIONS, f"{where}.action")
+    phase = _take(table, "phase", str, where, "")
+    if phase:
+        _choice(phase, INTERVENTION_PHASES[1:], f"{where}.phase")
     if action == "link":
         hop = keys.check_hop(_take(table, "hop", str, where))
         name = _take(table, "profile", str, where)
         _choice(name, list(load_profiles()), f"{where}.profile")
-        event = Event(at_s, action, hop=hop, profile=name)
+        event = Event(at_s, action, phase, hop=hop, profile=name)
     elif action == "fault":
         fault = _choice(_take(table, "fault", str, where), FAULTS, f"{where}.fault")
         event = Event(
             at_s,
             action,
+            phase,
             fault=fault,
             target=_take(table, "target", str, where, ""),
             value=_take(table, "value", float, where, 0.0),
         )
     else:
-        event = Event(at_s, action, station=keys.check_station(_take(table, "station", str, where)))
+        event = Event(at_s, action, phase, station=keys.check_station(_take(table, "station", str, where)))
     _no_more(table, where, [f for f in Event.__dataclass_fields__ if f != "action"])
     return event
 
@@ -129,6 +142,17 @@ def _assertion(table: dict[str, Any], where: str) -> Assertion:
     kind = _choice(_take(table, "kind", str, where), list(ASSERTIONS), f"{where}.kind")
     fields = ASSERTIONS[kind]
     args = {name: _take(table, name, fields[name], where) for name in list(table) if name in fields}
+    if args.get("phase"):
+        _choice(args["phase"], INTERVENTION_PHASES[1:], f"{where}.phase")
+    if "outcome" in args:
+        _choice(args["outcome"], OUTCOMES, f"{where}.outcome")
+    if kind == "intervention":
+        if "part" not in args:
+            raise ConfigError(f"{where}.part", "is required")
+        try:
+            panel.part_kind(args["part"])
+        except ValueError as exc:
+            raise ConfigError(f"{where}.part", str(exc)) from None
     _no_more(table, where, list(fields))
     return Assertion(kind, args)
 

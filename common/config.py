@@ -182,6 +182,9 @@ class VesselConfig:
     scene_update_bytes: int = 16_000  # one update at most: telemetry waits behind no more than this
     satellite_capacity_bps: float = 1e6  # [bit/s] the first guess, before one is measured
     recognition_period_s: float = 2.0  # [s]
+    # [m, world] added to the recognised panel's position: a fault for scenarios, as a camera
+    # calibrated wrong or a marker misplaced on the panel would bias it
+    recognition_bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # the left camera's frame relayed to shore, within the scene's share of the satellite
     image_period_s: float = 5.0  # [s]
     image_scale: float = 0.5  # of the onboard frame's width and height
@@ -189,7 +192,10 @@ class VesselConfig:
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            _positive(f"vessel.{f.name}", getattr(self, f.name))
+            if f.name != "recognition_bias_m":
+                _positive(f"vessel.{f.name}", getattr(self, f.name))
+        if len(self.recognition_bias_m) != 3 or not all(abs(b) <= 1.0 for b in self.recognition_bias_m):
+            raise ConfigError("vessel.recognition_bias_m", "needs [x, y, z], each within [-1, 1] m")
         if self.image_scale > 1.0:
             raise ConfigError("vessel.image_scale", f"{self.image_scale} must lie in (0, 1]")
         if self.image_jpeg_quality > 100:

@@ -88,7 +88,7 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
 
     cfg = config.vessel
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)
-    tracker = PanelTracker()
+    tracker = PanelTracker(bias_m_world=cfg.recognition_bias_m)
     rate = Rate(POLL_PERIOD_S, bus.stop)
     last_recognition_s = -float("inf")
     points: np.ndarray | None = None

@@ -77,11 +77,8 @@ class Relay:
         if self.refining is None:
             return None
         intent, sent = self.refining
-        on_it = t is not None and t.intervention_id == intent.command_id
-        if on_it and t.intervention_phase in ("done", "failed"):
-            self.refining = None
-            return None
-        if on_it and t.intervention_phase not in REFINABLE_PHASES:
+        phase = t.intervention_phase if t is not None and t.intervention_id == intent.command_id else ""
+        if phase and phase not in REFINABLE_PHASES:
             return None
         goal, _ = resolve(intent, self.objects, self.resolved[intent.command_id][1])
         if goal is None or np.linalg.norm(goal.grasp_m_world - sent.grasp_m_world) < REFINE_M:
@@ -93,6 +90,8 @@ class Relay:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
             target, start_rad = self.resolved[t.intervention_id]
             self.believed_rad[target] = start_rad + t.turned_rad
+            if self.refining is not None and self.refining[0].command_id == t.intervention_id:
+                self.refining = None
 
     def step(self, inputs: RelayInputs, now_s: float) -> Outgoing:
         out: Outgoing = []

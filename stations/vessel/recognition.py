@@ -184,9 +184,11 @@ class PanelTracker:
     """The panel's pose over frames: each frame's fused estimate joins a running
     confidence-weighted average."""
 
-    def __init__(self, expected_m_world: np.ndarray | None = None) -> None:
+    def __init__(self, expected_m_world: np.ndarray | None = None,
+                 bias_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
         self.expected_m_world = np.array(panel.PANEL_POSITION_M_WORLD if expected_m_world is None
                                          else expected_m_world)
+        self.bias_m_world = np.asarray(bias_m_world, float)  # a fault: added to what is reported
         self.estimate: Pose | None = None
         self.weight = 0.0
         self.anchored = False  # the estimate has seen markers: the shape alone slides along the face
@@ -237,7 +239,8 @@ class PanelTracker:
         """The panel, its valves and its levers as recognised objects."""
         if self.estimate is None:
             return None
-        pose = self.estimate
+        pose = Pose(self.estimate.rotation, self.estimate.position_m_world + self.bias_m_world,
+                    self.estimate.confidence)
         names, poses, sizes = ["panel"], [pose.as_vector()], [panel.PLATE_HALF_SIZE_M]
         half_thickness_m = panel.HANDLE_THICKNESS_M / 2
         for name, pivot in (*panel.VALVES.items(), *panel.LEVERS.items()):

@@ -63,7 +63,9 @@ def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedPro
     assert down == {"mission_done within_s=20.0": "no", "commands_answered": "no", "stations": "yes"}
     seized = dict(assertion_outcomes(out / "report.md", "valve-seized"))
     assert seized.pop("mission_done within_s=60.0") == "no" and set(seized.values()) == {"yes"}, seized
-    assert words["valve-seized"] == "incomplete", words
+    assert words["valve-seized"] == words["recognition-biased"] == "incomplete", words
+    biased = dict(assertion_outcomes(out / "report.md", "recognition-biased"))
+    assert biased.pop("mission_done within_s=70.0") == "no" and set(biased.values()) == {"yes"}, biased
     assert all(held == "yes" for _, held in assertion_outcomes(out / "report.md", "tether-outage"))
     assert "failsafe phase=turn from_s=1.0 to_s=7.0" in (out / "report.md").read_text()
     run_dirs = sorted((out / "runs").iterdir())

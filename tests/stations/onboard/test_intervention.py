@@ -5,6 +5,7 @@ of the panel (the valve's and lever's joint angles), not on what onboard believe
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -132,3 +133,12 @@ def test_a_panel_recognised_off_ends_in_a_failed_grasp_not_a_forced_one() -> Non
     run, world, _ = work(goal_of("valve_1", "90", offset_m=(0.0, 0.0, 0.06)))  # 6 cm high
     assert run.phase == "failed" and "valve_1" in run.reason and "grasp" in run.reason, run.reason
     assert abs(truth_deg(world, "valve_1")) < 5.0
+
+
+def test_a_refined_goal_is_taken_until_the_fingers_close() -> None:
+    goal, moved = goal_of("valve_1", "90"), goal_of("valve_1", "90", (0.0, 0.0, 0.02))
+    run = InterventionRun(goal)
+    assert run.refine(moved) and np.allclose(run.grasp_m, moved.grasp_m_world)
+    assert not run.refine(dataclasses.replace(moved, command_id=4))  # another intervention's
+    run.phase = "turn"
+    assert not run.refine(goal) and np.allclose(run.grasp_m, moved.grasp_m_world)

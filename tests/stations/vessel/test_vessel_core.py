@@ -177,3 +177,31 @@ def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_
     lever = Intervention(7, "lever_0", math.radians(10), "")
     ack = next(m for t, m in relay.step(RelayInputs(commands=[("op/intervene", lever)]), 4.0) if t == "ack")
     assert isinstance(ack, CommandAck) and "is a lever" in ack.reason
+
+
+def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
+    relay = Relay(VesselConfig(), now_s=0.0)
+    intent = Intervention(5, "valve_1", math.radians(90), "")
+
+    def recognised(z_m: float) -> RecognisedObjects:
+        return RecognisedObjects(("panel",), np.array([[5.0, 0.0, z_m, 1.0, 0.0, 0.0, 0.0]]),
+                                 np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "texture", 1.0)
+
+    def goals(out: list) -> list[InterventionGoal]:
+        return [m for t, m in out if t == "goal/intervene"]
+
+    def phase(name: str) -> tuple[int, object]:
+        return 1, dataclasses.replace(sample_telemetry(), intervention_id=5, intervention_phase=name)
+
+    sent = RelayInputs(commands=[("op/intervene", intent)], objects=recognised(-8.66))
+    first = goals(relay.step(sent, 1.0))
+    assert len(first) == 1
+    # recognition sharpens by 1 mm: not worth a resend; by 5 cm: the same command, resolved anew
+    assert goals(relay.step(RelayInputs(objects=recognised(-8.659), telemetry=phase("approach")), 2.0)) == []
+    refined = goals(relay.step(RelayInputs(objects=recognised(-8.61), telemetry=phase("pre-grasp")), 3.0))
+    assert len(refined) == 1 and refined[0].command_id == 5
+    assert refined[0].grasp_m_world[2] - first[0].grasp_m_world[2] == pytest.approx(0.05)
+    # the fingers closed: the goal stays as it was taken, however the estimate moves
+    assert goals(relay.step(RelayInputs(objects=recognised(-8.55), telemetry=phase("grasp")), 4.0)) == []
+    relay.step(RelayInputs(telemetry=phase("done")), 5.0)
+    assert relay.refining is None

@@ -19,6 +19,10 @@ from hosts import Hosts, usable
 from abyss.launch.state import RunState, wait_for_state
 
 ROOT = Path(__file__).resolve().parents[2]
+# the mission before the interventions (done in about 30 s, not 60): waypoints, then the fingers
+# either side of the middle valve's handle; for the tests that need a mission to end, not to work
+ARM_MISSION = ("--set", "mission.interventions=[]",
+               "--set", "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]")
 
 
 @pytest.fixture
@@ -122,7 +126,7 @@ def no_leftover_systems() -> Iterator[None]:
 
 @pytest.fixture(scope="session")
 def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One default mission, recorded (`--record all`, the rerun recording saved), shared by the
+    """One mission (ARM_MISSION), recorded (`--record all`, the rerun recording saved), shared by the
     tests that read, export and replay a recording: its run directory. It runs on for 10 s past
     the mission's end (done at about 30 s) so that the scene stream has reached shore whole, with
     the cameras at half their rate: the live vessel drops clouds it cannot insert in time (a
@@ -131,7 +135,7 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("recorded") / "run"
     done = subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out),
                            "--viewer", "save", "--record", "all", "--keep-running", "--duration", "40",
-                           "--set", "simulation.camera_rate_hz=0.5"],
+                           "--set", "simulation.camera_rate_hz=0.5", *ARM_MISSION],
                           capture_output=True, text=True, cwd=out.parent, timeout=240)
     summary = json.loads((out / "summary.json").read_text())
     assert done.returncode == 0 and summary["verdict"] == "done", done.stdout + done.stderr

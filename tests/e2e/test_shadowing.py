@@ -14,14 +14,15 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import ARM_MISSION
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 
 # every top-level name abyss imports under, and the import package itself
 SHADOWS = ("abyss", "common", "stations", "linkemu", "launch", "cli", "console", "validation")
 BROKEN = 'raise RuntimeError("wrong {name} imported: the user\'s folder shadows abyss\'s")\n'
-# an upper bound: `abyss up` ends when shore sees the mission done (about 28 s of a 1.0 real-time
-# factor simulation, measured on a 2-core machine), so a generous one costs nothing
+# an upper bound: `abyss up` ends when shore sees the mission done (ARM_MISSION: about 28 s of a
+# 1.0 real-time factor simulation, measured on a 2-core machine), so a generous one costs nothing
 DURATION_S = 90
 
 
@@ -46,7 +47,7 @@ def test_up_flies_the_mission_beside_folders_that_shadow_abyss(tmp_path: Path) -
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONSAFEPATH")}
     process = subprocess.Popen(
         [console_script(), "up", "--duration", str(DURATION_S), "--port", "0", "--out", "run",
-         "--viewer", "none", "--system", "shadow"],
+         "--viewer", "none", "--system", "shadow", *ARM_MISSION],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path, env=env,
         start_new_session=True)
     try:

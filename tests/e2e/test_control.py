@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from conftest import Up, abyss
+from conftest import ARM_MISSION, Up, abyss
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
@@ -115,7 +115,7 @@ def test_three_waypoints_are_reached(flights: dict[str, Flight], low_level: str)
 def test_failsafe_holds_station_through_a_tether_outage_and_resumes(tmp_path: Path) -> None:
     system = "e2e-failsafe"
     up = Up(tmp_path / "run", "--system", system, "--duration", "120",
-            "--set", "simulation.low_level=kinematic")
+            "--set", "simulation.low_level=kinematic", *ARM_MISSION)
     truth = Truth(up.endpoint, system)
     link = ("--connect", up.endpoint, "--system", system)
     try:

@@ -13,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from conftest import ARM_MISSION
 from hosts import PORT, Hosts, usable
 
 from abyss.common import certs, keys
@@ -26,7 +27,7 @@ MISSION_TIMEOUT_S = 120.0
 def station_args(hosts: Hosts, station: str, run_dir: Path, *extra: str) -> list[str]:
     return ["-m", "abyss.cli", "station", station, "--system", SYSTEM,
             *hosts.endpoints(station, "tls"), "--tls", str(run_dir / "certs"),
-            "--status-file", str(run_dir / f"{station}.json"), *extra]
+            "--status-file", str(run_dir / f"{station}.json"), *ARM_MISSION, *extra]
 
 
 def stop(processes: dict[str, subprocess.Popen[bytes]]) -> None:

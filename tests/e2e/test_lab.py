@@ -16,7 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, abyss
+from conftest import ARM_MISSION, ROOT, abyss
 from hosts import Hosts, usable
 
 from abyss.common import keys
@@ -138,7 +138,7 @@ def test_abyss_lab_up_flies_the_mission_and_takes_a_link_change(tmp_path: Path) 
     name = f"t{os.getpid() % 100000}"
     out = tmp_path / "run"
     lab = subprocess.Popen([*ABYSS, "lab", "up", "--name", name, "--out", str(out), "--keep-running",
-                            "--duration", "150"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            "--duration", "150", *ARM_MISSION], cwd=tmp_path, stdout=subprocess.PIPE,
                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         lines = read_until(lab, "mission complete", 150.0)

@@ -6,7 +6,6 @@ the intervention's phases, over the grip's squeeze and the fingers' true contact
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from abyss.common.errors import ConfigError
 from abyss.launch.record import CONTROL_FILE, read_control, read_panel
+from abyss.launch.summary import read_json
 
 AXES = ("x", "y", "z")
 FIGURES = ("vehicle_position_error", "vehicle_heading_error", "ee_position_error", "ee_orientation_error")
@@ -91,9 +91,7 @@ def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
     worked = [p for p in dict.fromkeys(c["intervention_target"]) if p]
     if panel is None or not worked or len(panel["sim_time_s"]) < 2:
         return []
-    summary_path = run_dir / "summary.json"
-    judged = json.loads(summary_path.read_text()).get("interventions", []) if summary_path.is_file() else []
-    targets = {i["part"]: i for i in judged}
+    targets = {i["part"]: i for i in read_json(run_dir / "summary.json").get("interventions", [])}
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6.5), dpi=100, sharex=True,
                                       gridspec_kw={"height_ratios": [3, 2]})
     t_panel, t = panel["sim_time_s"], c["sim_time_s"]

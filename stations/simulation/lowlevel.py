@@ -3,7 +3,8 @@ reference for the vehicle (surge, sway, heave [m/s], yaw rate [rad/s]) and joint
 references for the arm [rad/s] and gripper [m/s].
 
 kinematic: applies the references as the velocities, instantly (validates the high level);
-dynamic: PID on the velocity error, through the thruster allocation and the joint motors."""
+dynamic: PID on the velocity error plus a feed-forward of the vehicle's damping, through the
+thruster allocation and the joint motors."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import mujoco
 import numpy as np
 
 from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
+from abyss.stations.simulation.hydrodynamics import VehicleModel
 from abyss.stations.simulation.thrusters import Thrusters
 
 
@@ -52,7 +54,7 @@ class Plant:
 class Kinematic:
     dynamics = False  # the world integrates positions from these velocities, no forces
 
-    def __init__(self, model: mujoco.MjModel, gains: object = None) -> None:
+    def __init__(self, model: mujoco.MjModel, gains: object = None, vehicle: object = None) -> None:
         self.plant = Plant(model)
 
     def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
@@ -79,9 +81,11 @@ class PidGains:
 class Dynamic:
     dynamics = True
 
-    def __init__(self, model: mujoco.MjModel, gains: PidGains) -> None:
+    def __init__(self, model: mujoco.MjModel, gains: PidGains, vehicle: VehicleModel) -> None:
         self.plant = Plant(model)
-        self.thrusters = Thrusters(model)
+        self.thrusters = Thrusters(model, vehicle.thrusters)
+        axes = [0, 1, 2, 5]  # surge, sway, heave, yaw
+        self._damping = (vehicle.linear_damping[axes], vehicle.quadratic_damping[axes])
         self.gains = gains
         self._vehicle_integral = np.zeros(4)
         self._vehicle_error = np.zeros(4)
@@ -98,7 +102,11 @@ class Dynamic:
         error = ref.vehicle_body - velocity
         derivative = (error - self._vehicle_error) / dt_s
         self._vehicle_error = error
-        wrench4 = np.array(g.vehicle_kp) * error + np.array(g.vehicle_kd) * derivative
+        # feed-forward of the vehicle file's damping at the reference: the integral is left only
+        # the model's error and the current to take up, not the whole drag (a slow pole otherwise)
+        linear, quadratic = self._damping
+        feed_forward = (linear + quadratic * np.abs(ref.vehicle_body)) * ref.vehicle_body
+        wrench4 = feed_forward + np.array(g.vehicle_kp) * error + np.array(g.vehicle_kd) * derivative
         candidate = self._vehicle_integral + error * dt_s
         wrench4 = wrench4 + np.array(g.vehicle_ki) * candidate
         wrench = np.zeros(6)
@@ -106,7 +114,7 @@ class Dynamic:
         thrust = self.thrusters.allocate(wrench)
         if np.allclose(self.thrusters.allocation[[0, 1, 2, 5]] @ thrust, wrench4, rtol=1e-6, atol=1e-6):
             self._vehicle_integral = candidate  # anti-windup: integrate only when not saturated
-        self.thrusters.apply(data, thrust)
+        self.thrusters.apply(data, thrust, dt_s)
         # arm: the proportional part is MuJoCo's implicit velocity servo (kv = arm_kp); the
         # integral part shifts its set point, so torque = kp e + ki integral(e)
         arm_error = ref.arm_radps - data.qvel[p.arm_dofs]

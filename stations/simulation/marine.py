@@ -1,5 +1,7 @@
-"""What MuJoCo's fluid model leaves out: buoyancy at each body's centre of volume, and a
-current as the water's velocity (MuJoCo's `wind`, which its drag and added mass use)."""
+"""What MuJoCo's fluid model leaves out: buoyancy at the centre of volume of each wet body (the
+arm's links; the hull's too under the ellipsoid model, hydrodynamics.py carries it under Fossen's),
+and the current: the water's velocity, which MuJoCo's drag uses as its `wind` and Fossen's model as
+the water the vehicle moves relative to."""
 
 from __future__ import annotations
 
@@ -26,15 +28,17 @@ def geom_volume_m3(kind: int, size: np.ndarray) -> float:
 
 class Buoyancy:
     """rho * g * V upwards at the centre of volume of every body with wet geoms (those
-    with MuJoCo's ellipsoid fluid model enabled)."""
+    with MuJoCo's ellipsoid fluid model enabled), but the `dry` bodies (whose buoyancy is
+    another model's)."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
+    def __init__(self, model: mujoco.MjModel, dry: tuple[str, ...] = ()) -> None:
         self.rho_kgpm3 = float(model.opt.density)
         self.g_mps2 = float(-model.opt.gravity[2])
         volumes = np.zeros(model.nbody)
         moments = np.zeros((model.nbody, 3))
+        dry_bodies = {model.body(name).id for name in dry}
         for g in range(model.ngeom):
-            if model.geom_fluid[g, 0] <= 0.0:  # not wet
+            if model.geom_fluid[g, 0] <= 0.0 or model.geom_bodyid[g] in dry_bodies:  # not wet
                 continue
             v = geom_volume_m3(model.geom_type[g], model.geom_size[g])
             b = model.geom_bodyid[g]
@@ -59,19 +63,28 @@ class Buoyancy:
 
 
 class Current:
-    """A constant current plus a slow sinusoidal variation in a seeded direction [m/s, world]."""
+    """The water's velocity [m/s, world]: a mean by depth (a profile of rows z, vx, vy, vz, linear
+    in between, held beyond its ends) plus a first-order Gauss-Markov process on each horizontal
+    component, x_dot = -x / T + w, stationary standard deviation sigma (seeded)."""
 
-    def __init__(self, mean_mps_world: tuple[float, float, float], variation_mps: float,
-                 period_s: float, rng: np.random.Generator) -> None:
-        self.mean = np.array(mean_mps_world)
-        direction = rng.normal(size=3)
-        direction[2] *= 0.2  # mostly horizontal
-        self.variation = variation_mps * direction / np.linalg.norm(direction)
-        self.period_s = period_s
-        self.phase = float(rng.uniform(0.0, 2.0 * math.pi))
+    def __init__(self, profile: tuple[tuple[float, float, float, float], ...], sigma_mps: float,
+                 time_constant_s: float, rng: np.random.Generator) -> None:
+        rows = np.array(sorted(profile) or [(0.0, 0.0, 0.0, 0.0)], dtype=float)
+        self.depths_m, self.mean_mps = rows[:, 0], rows[:, 1:]
+        self.sigma_mps = sigma_mps
+        self.time_constant_s = time_constant_s
+        self.rng = rng
+        self.gauss_markov_mps = rng.normal(0.0, sigma_mps, 2) if sigma_mps > 0 else np.zeros(2)
+        self._time_s = 0.0
 
-    def velocity_mps_world(self, t_s: float) -> np.ndarray:
-        return self.mean + self.variation * math.sin(2.0 * math.pi * t_s / self.period_s + self.phase)
+    def velocity_mps_world(self, z_m_world: float) -> np.ndarray:
+        mean = np.array([np.interp(z_m_world, self.depths_m, self.mean_mps[:, k]) for k in range(3)])
+        return mean + np.r_[self.gauss_markov_mps, 0.0]
 
-    def apply(self, model: mujoco.MjModel, t_s: float) -> None:
-        model.opt.wind[:] = self.velocity_mps_world(t_s)
+    def advance(self, t_s: float) -> None:
+        """Move the process on to time t_s [s] (exactly, for any step)."""
+        dt, self._time_s = t_s - self._time_s, t_s
+        if self.sigma_mps > 0 and dt > 0:
+            decay = math.exp(-dt / self.time_constant_s)
+            self.gauss_markov_mps = decay * self.gauss_markov_mps + self.rng.normal(
+                0.0, self.sigma_mps * math.sqrt(1.0 - decay * decay), 2)

@@ -1,11 +1,17 @@
-"""Thruster allocation: a body wrench to thrusts, with saturation, and thruster faults."""
+"""Thrusters: allocation of a body wrench to thrusts, and each thruster as a rotor.
+
+The rotor's speed n (a fraction of full, signed) follows its target with a first-order lag,
+tau n_dot = n* - n; the target is zero for commands within the dead band and rises from zero
+beyond it; thrust is quadratic in the speed, T = T_max n|n|, with T_max forward or reverse (a
+propeller pushes less in reverse). The allocation inverts that curve across the dead band, so
+the thrust asked for is the thrust delivered, once the rotor has spun up."""
 
 from __future__ import annotations
 
 import mujoco
 import numpy as np
 
-from abyss.common.models import THRUSTERS
+from abyss.stations.simulation.hydrodynamics import ThrusterSpec
 
 # The vehicle has thrust in surge, sway, heave and yaw; roll and pitch are left to its
 # hydrostatic restoring moment, as on the original vehicle.
@@ -13,13 +19,13 @@ ACTUATED = (0, 1, 2, 5)  # rows of the body wrench (fx, fy, fz, mx, my, mz)
 
 
 class Thrusters:
-    def __init__(self, model: mujoco.MjModel, body: str = "vehicle") -> None:
+    def __init__(self, model: mujoco.MjModel, spec: ThrusterSpec, body: str = "vehicle") -> None:
         b = model.body(body).id
         com = model.body_ipos[b]
-        self.actuators = [model.actuator(name).id for name in THRUSTERS]
-        self.max_thrust_n = np.array([model.actuator_ctrlrange[a, 1] for a in self.actuators])
+        self.spec = spec
+        self.actuators = [model.actuator(name).id for name in spec.names]
         columns = []
-        for name in THRUSTERS:
+        for name in spec.names:
             site = model.site(name)
             if site.bodyid[0] != b:
                 raise ValueError(f"thruster {name} is not on {body}")
@@ -29,15 +35,41 @@ class Thrusters:
             columns.append(np.r_[axis, np.cross(site.pos - com, axis)])
         self.allocation = np.array(columns).T  # 6 x n: wrench about the centre of mass per N
         self._pinv = np.linalg.pinv(self.allocation[list(ACTUATED)])
-        self.efficiency = np.ones(len(THRUSTERS))  # faults: 0 failed, <1 weakened
+        n = len(spec.names)
+        self.efficiency = np.ones(n)  # faults: 0 failed, <1 weakened
+        self.rotor_speed = np.zeros(n)  # fraction of full, signed
 
     def allocate(self, wrench_body: np.ndarray) -> np.ndarray:
         """Thrusts [N] for a body wrench [N, N m] (its actuated part), scaled down together
-        so that none exceeds its limit (the direction of the wrench is kept)."""
+        so that none exceeds its limit in its direction (the direction of the wrench is kept)."""
         thrust = self._pinv @ np.asarray(wrench_body)[list(ACTUATED)]
-        excess = np.max(np.abs(thrust) / self.max_thrust_n)
+        excess = np.max(np.abs(thrust) / self.max_thrust_n(thrust))
         return thrust / max(1.0, float(excess))
 
-    def apply(self, data: mujoco.MjData, thrust_n: np.ndarray) -> None:
-        """Command the thrusters; a failed or weakened one delivers only its share."""
-        data.ctrl[self.actuators] = thrust_n * self.efficiency
+    def max_thrust_n(self, thrust_n: np.ndarray) -> np.ndarray:
+        return np.where(thrust_n >= 0.0, self.spec.forward_max_n, self.spec.reverse_max_n)
+
+    def command(self, thrust_n: np.ndarray) -> np.ndarray:
+        """The commands in [-1, 1] that deliver `thrust_n` at steady state: the curve inverted,
+        the dead band stepped over."""
+        speed = np.sqrt(np.minimum(np.abs(thrust_n) / self.max_thrust_n(thrust_n), 1.0))
+        db = self.spec.deadband
+        return np.where(speed > 0.0, np.sign(thrust_n) * (db + (1.0 - db) * speed), 0.0)
+
+    def thrust_n(self) -> np.ndarray:
+        """What each thruster delivers now [N], faults included."""
+        n = self.rotor_speed
+        return self.max_thrust_n(n) * n * np.abs(n) * self.efficiency
+
+    def apply(self, data: mujoco.MjData, thrust_n: np.ndarray, dt_s: float) -> None:
+        """Command the thrusters for `thrust_n` over the next `dt_s` [s]: the rotors move towards
+        their targets (exactly, for a command held over dt_s), and what they push is applied."""
+        self.drive(data, self.command(thrust_n), dt_s)
+
+    def drive(self, data: mujoco.MjData, command: np.ndarray, dt_s: float) -> None:
+        """As `apply`, from raw commands in [-1, 1] (as an ESC takes them)."""
+        db = self.spec.deadband
+        command = np.clip(command, -1.0, 1.0)
+        target = np.sign(command) * np.maximum(np.abs(command) - db, 0.0) / (1.0 - db)
+        self.rotor_speed = target + (self.rotor_speed - target) * np.exp(-dt_s / self.spec.time_constant_s)
+        data.ctrl[self.actuators] = self.thrust_n()

@@ -1,0 +1,187 @@
+"""A vehicle's marine model in Fossen's form, applied to MuJoCo's rigid body:
+
+    (M_RB + M_A) nu_dot + C_RB(nu) nu + C_A(nu_r) nu_r + D(nu_r) nu_r + g(eta) = tau
+
+MuJoCo integrates the rigid body (M_RB, C_RB, its weight) as it does every body. This module adds
+the rest, relative to the water (nu_r = nu - nu_c, the current nu_c irrotational):
+- the added mass M_A into MuJoCo's joint-space inertia itself, between mj_step1 and mj_step2
+  (so it is implicit: stable whatever its ratio to the body's mass, exact in the coupling with
+  the arm and the contacts);
+- C_A(nu_r) nu_r (Coriolis and Munk moment of the added mass), the linear and quadratic damping
+  D(nu_r) nu_r and the buoyancy at the centre of buoyancy, as a generalised force.
+The coefficients come from a vehicle file beside the MJCF (common/models/robot.toml), about the
+body's origin, in its frame. Fossen 2021, "Handbook of Marine Craft Hydrodynamics and Motion
+Control", 2nd ed., eq. 6.44 (C_A), 6.57-6.60 (D), 4.6 (g)."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from abyss.common.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ThrusterSpec:
+    names: tuple[str, ...]  # the MJCF's thruster sites and motors, in allocation order
+    time_constant_s: float  # the rotor speed's first-order lag [s]
+    deadband: float  # no thrust for commands within this fraction of full command, either way
+    forward_max_n: float  # [N] at full forward command
+    reverse_max_n: float  # [N] at full reverse command
+
+
+@dataclass(frozen=True)
+class VehicleModel:
+    name: str
+    source: str
+    added_mass: np.ndarray  # M_A (6, 6) [kg, kg m, kg m^2], body frame about the origin
+    linear_damping: np.ndarray  # (6,) [N s/m, N m s/rad]
+    quadratic_damping: np.ndarray  # (6,) [N s^2/m^2, N m s^2/rad^2]
+    volume_m3: float  # displaced [m^3]
+    centre_of_buoyancy_m_body: np.ndarray  # (3,) [m]
+    thrusters: ThrusterSpec
+
+
+def load_vehicle(path: Path) -> VehicleModel:
+    """Read a vehicle file; a missing or bad field raises ConfigError naming the file and field."""
+    try:
+        doc = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError("simulation.vehicle_file", f"cannot read {path}: {exc}") from exc
+
+    def get(section: str, key: str) -> Any:
+        where = f"{section}.{key}" if section else key
+        try:
+            return (doc[section] if section else doc)[key]
+        except (KeyError, TypeError):
+            raise ConfigError(where, "missing", str(path)) from None
+
+    def numbers(section: str, key: str, sizes: tuple[int, ...], non_negative: bool) -> np.ndarray:
+        value = np.asarray(get(section, key), dtype=float) if _is_numbers(get(section, key)) else None
+        if value is None or value.size not in sizes or not np.all(np.isfinite(value)) \
+                or (non_negative and np.any(value < 0)):
+            sign = "non-negative " if non_negative else ""
+            raise ConfigError(f"{section}.{key}", f"needs {' or '.join(map(str, sizes))} {sign}numbers",
+                              str(path))
+        return value
+
+    mass = numbers("added_mass", "diagonal", (6, 36), True) if "diagonal" in doc.get("added_mass", {}) \
+        else numbers("added_mass", "matrix", (36,), False)
+    added_mass = np.diag(mass) if mass.size == 6 else mass.reshape(6, 6)
+    if not np.allclose(added_mass, added_mass.T) or np.min(np.linalg.eigvalsh(added_mass)) < 0:
+        raise ConfigError("added_mass", "must be symmetric and positive semi-definite", str(path))
+    names = get("thrusters", "names")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ConfigError("thrusters.names", "needs a list of the MJCF's thruster names", str(path))
+    thrusters = ThrusterSpec(
+        tuple(names), _positive(path, "thrusters", "time_constant_s", get("thrusters", "time_constant_s")),
+        _positive(path, "thrusters", "deadband", get("thrusters", "deadband"), upper=0.5, zero=True),
+        _positive(path, "thrusters", "forward_max_n", get("thrusters", "forward_max_n")),
+        _positive(path, "thrusters", "reverse_max_n", get("thrusters", "reverse_max_n")))
+    return VehicleModel(
+        name=str(get("", "name")), source=str(get("", "source")), added_mass=added_mass,
+        linear_damping=numbers("damping", "linear", (6,), True),
+        quadratic_damping=numbers("damping", "quadratic", (6,), True),
+        volume_m3=_positive(path, "buoyancy", "volume_m3", get("buoyancy", "volume_m3")),
+        centre_of_buoyancy_m_body=numbers("buoyancy", "centre_m_body", (3,), False),
+        thrusters=thrusters)
+
+
+def _is_numbers(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                           for v in value)
+
+
+def _positive(path: Path, section: str, key: str, value: Any, upper: float = float("inf"),
+              zero: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or not (0 <= value <= upper if zero else 0 < value <= upper):
+        bound = f"[0, {upper}]" if zero else (f"(0, {upper}]" if upper < float("inf") else "> 0")
+        raise ConfigError(f"{section}.{key}", f"{value!r}: needs a number {bound}", str(path))
+    return float(value)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+class Fossen:
+    """The marine forces on one free-floating body of a MuJoCo model (see the module's text)."""
+
+    def __init__(self, model: mujoco.MjModel, vehicle: VehicleModel, body: str = "vehicle") -> None:
+        self.vehicle = vehicle
+        self.body = model.body(body).id
+        joint = model.body_jntadr[self.body]
+        if joint < 0 or model.jnt_type[joint] != mujoco.mjtJoint.mjJNT_FREE:
+            raise ValueError(f"body {body!r} has no free joint")
+        self.dof = int(model.jnt_dofadr[joint])
+        # where each row's block entries sit in MuJoCo's sparse (CSR, lower) inertia matrix
+        entries, self._rows, self._columns = [], [], []
+        for i in range(6):
+            row, start = self.dof + i, model.M_rowadr[self.dof + i]
+            columns = list(model.M_colind[start:start + model.M_rownnz[row]])
+            wanted = range(self.dof, row + 1)
+            if not all(c in columns for c in wanted):
+                raise ValueError(f"body {body!r}: MuJoCo keeps its inertia diagonal (a 'simple' body); "
+                                 f"give it an offset centre of gravity or a child body")
+            entries += [start + columns.index(c) for c in wanted]
+            self._rows += [i] * len(wanted)
+            self._columns += [c - self.dof for c in wanted]
+        self._entries = np.array(entries)
+        self._centre_of_buoyancy = vehicle.centre_of_buoyancy_m_body.tolist()
+        self.buoyancy_n = float(model.opt.density * -model.opt.gravity[2] * vehicle.volume_m3)
+        # MuJoCo's own fluid forces kept off the body: a body with no ellipsoid geom falls back to
+        # MuJoCo's inertia-box drag, so its geoms keep the ellipsoid model with zero coefficients
+        hull = model.geom_bodyid == self.body
+        model.geom_fluid[hull, 0] = 1.0
+        model.geom_fluid[hull, 1:] = 0.0
+
+    def wrench_n_body(self, nu: np.ndarray, nu_current: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """-C_A(nu_r) nu_r - D(nu_r) nu_r + buoyancy, and the part of -M_A nu_r_dot that MuJoCo's
+        inertia does not hold [N, N m], body frame about the origin. nu: (u, v, w, p, q, r);
+        nu_current: the current's linear velocity in the body frame [m/s]; rotation: body to world.
+        (Written for speed: it runs at every physics step; numpy's cross is slow on 3-vectors.)"""
+        v = self.vehicle
+        u, vv, w, p, q, r = nu.tolist()
+        cu, cv, cw = nu_current.tolist()
+        ur, vr, wr = u - cu, vv - cv, w - cw
+        nu_r = np.array([ur, vr, wr, p, q, r])
+        a1u, a1v, a1w, a2p, a2q, a2r = (v.added_mass @ nu_r).tolist()
+        # C_A(nu_r) nu_r = (omega x a1, v_r x a1 + omega x a2), a = M_A nu_r (Fossen eq. 6.44)
+        coriolis = np.array([
+            q * a1w - r * a1v, r * a1u - p * a1w, p * a1v - q * a1u,
+            vr * a1w - wr * a1v + q * a2r - r * a2q,
+            wr * a1u - ur * a1w + r * a2p - p * a2r,
+            ur * a1v - vr * a1u + p * a2q - q * a2p])
+        damping = (v.linear_damping + v.quadratic_damping * np.abs(nu_r)) * nu_r
+        # M_A nu_r_dot: MuJoCo's inertia holds M_A T qacc, the rest of nu_r_dot is -(omega x v_r, 0)
+        # (the body frame turning under the free joint's world-frame velocity, and the current)
+        turning = v.added_mass[:, :3] @ np.array([q * wr - r * vr, r * ur - p * wr, p * vr - q * ur])
+        fx, fy, fz = (self.buoyancy_n * rotation[2]).tolist()  # R^T (0, 0, B)
+        bx, by, bz = self._centre_of_buoyancy
+        restoring = np.array([fx, fy, fz, by * fz - bz * fy, bz * fx - bx * fz, bx * fy - by * fx])
+        return restoring - coriolis - damping + turning
+
+    def apply(self, model: mujoco.MjModel, data: mujoco.MjData, current_mps_world: np.ndarray) -> None:
+        """Between mj_step1 and mj_step2: the generalised force and the added mass."""
+        d = self.dof
+        rotation = data.xmat[self.body].reshape(3, 3)
+        velocity = data.qvel[d:d + 6]  # free joint: linear in the world, angular in the body
+        nu = np.concatenate((rotation.T @ velocity[:3], velocity[3:]))
+        tau = self.wrench_n_body(nu, rotation.T @ current_mps_world, rotation)
+        data.qfrc_applied[d:d + 3] = rotation @ tau[:3]
+        data.qfrc_applied[d + 3:d + 6] = tau[3:]
+        # T^T M_A T with nu = T qvel, T = diag(R^T, I)
+        m = self.vehicle.added_mass
+        added = np.empty((6, 6))
+        added[:3, :3] = rotation @ m[:3, :3] @ rotation.T
+        added[:3, 3:] = rotation @ m[:3, 3:]
+        added[3:, :3] = added[:3, 3:].T
+        added[3:, 3:] = m[3:, 3:]
+        data.M[self._entries] += added[self._rows, self._columns]
+        mujoco.mj_factorM(model, data)

@@ -1,0 +1,242 @@
+"""The Fossen model against an independent integration of the same equations (SciPy), the
+thrusters' rotor model, the vehicle files and the current."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from abyss.common.errors import ConfigError
+from abyss.common.models import MODELS_DIR, VEHICLE_FILE
+from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
+from abyss.stations.simulation.marine import Current
+from abyss.stations.simulation.thrusters import Thrusters
+
+BLUEROV2 = MODELS_DIR / "bluerov2_heavy.xml"
+DT_S = 0.002
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def quat_to_rotation(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+class Reference:
+    """Fossen's equations for one rigid vehicle, written from the book (2021: eq. 3.44 M_RB,
+    3.64 C_RB, 6.44 C_A, 4.6 g) in the body frame (FLU, z up), state (p_world, q_wxyz, nu)."""
+
+    def __init__(self, model: mujoco.MjModel, vehicle: VehicleModel) -> None:
+        b = model.body("vehicle").id
+        self.m = float(model.body_mass[b])
+        self.r_g = model.body_ipos[b].copy()
+        inertia_cg = np.diag(model.body_inertia[b])  # the MJCF's principal axes are the body's here
+        assert np.allclose(model.body_iquat[b], [1, 0, 0, 0])
+        i_o = inertia_cg - self.m * skew(self.r_g) @ skew(self.r_g)
+        self.i_o = i_o
+        self.m_rb = np.block([[self.m * np.eye(3), -self.m * skew(self.r_g)],
+                              [self.m * skew(self.r_g), i_o]])
+        self.v = vehicle
+        self.g = -float(model.opt.gravity[2])
+        self.buoyancy_n = float(model.opt.density) * self.g * vehicle.volume_m3
+        self.mass_inv = np.linalg.inv(self.m_rb + vehicle.added_mass)
+
+    def derivative(self, _t: float, x: np.ndarray, tau_body: np.ndarray) -> np.ndarray:
+        q, nu = x[3:7], x[7:]
+        rotation = quat_to_rotation(q)
+        v1, w = nu[:3], nu[3:]
+        c_rb = np.block([[self.m * skew(w), -self.m * skew(w) @ skew(self.r_g)],
+                         [self.m * skew(self.r_g) @ skew(w), -skew(self.i_o @ w)]])
+        a = self.v.added_mass @ nu
+        c_a = np.block([[np.zeros((3, 3)), -skew(a[:3])], [-skew(a[:3]), -skew(a[3:])]])
+        d = np.diag(self.v.linear_damping + self.v.quadratic_damping * np.abs(nu))
+        weight = rotation.T @ np.array([0.0, 0.0, -self.m * self.g])
+        lift = rotation.T @ np.array([0.0, 0.0, self.buoyancy_n])
+        g_eta = np.r_[weight + lift, np.cross(self.r_g, weight)
+                      + np.cross(self.v.centre_of_buoyancy_m_body, lift)]
+        nu_dot = self.mass_inv @ (tau_body + g_eta - c_rb @ nu - c_a @ nu - d @ nu)
+        w_, x_, y_, z_ = q
+        q_dot = 0.5 * np.array([-x_ * w[0] - y_ * w[1] - z_ * w[2], w_ * w[0] + y_ * w[2] - z_ * w[1],
+                                w_ * w[1] + z_ * w[0] - x_ * w[2], w_ * w[2] + x_ * w[1] - y_ * w[0]])
+        return np.r_[rotation @ v1, q_dot, nu_dot]
+
+
+def simulate_mujoco(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
+    """The BlueROV2 in MuJoCo with the Fossen model and a body wrench [N, N m] about its origin:
+    (t, x, y, z, yaw, u, v, w, r) sampled every 0.1 s."""
+    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    data = mujoco.MjData(model)
+    fossen = Fossen(model, load_vehicle(MODELS_DIR / "bluerov2_heavy.toml"))
+    rows = []
+    steps = round(duration_s / DT_S)
+    for k in range(steps + 1):
+        if k % 50 == 0:
+            rows.append(_sample(data.time, data.qpos[:3], data.qpos[3:7], data.qvel[:6]))
+        mujoco.mj_step1(model, data)
+        fossen.apply(model, data, np.zeros(3))
+        rotation = data.xmat[1].reshape(3, 3)
+        data.qfrc_applied[:3] += rotation @ tau_body[:3]
+        data.qfrc_applied[3:6] += tau_body[3:]
+        mujoco.mj_step2(model, data)
+    return np.array(rows)
+
+
+def simulate_reference(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
+    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    reference = Reference(model, load_vehicle(MODELS_DIR / "bluerov2_heavy.toml"))
+    x0 = np.r_[0.0, 0.0, -5.0, 1.0, 0.0, 0.0, 0.0, np.zeros(6)]
+    times = np.arange(0.0, duration_s + 1e-9, 0.1)
+    solution = solve_ivp(reference.derivative, (0.0, duration_s), x0, t_eval=times, args=(tau_body,),
+                         rtol=1e-9, atol=1e-11, method="DOP853")
+    assert solution.success
+    return np.array([_sample(t, x[:3], x[3:7], np.r_[quat_to_rotation(x[3:7]) @ x[7:10], x[10:]])
+                     for t, x in zip(solution.t, solution.y.T, strict=True)])
+
+
+def _sample(t: float, position: np.ndarray, quat: np.ndarray, qvel: np.ndarray) -> list[float]:
+    """qvel as MuJoCo's free joint has it: linear in the world, angular in the body."""
+    rotation = quat_to_rotation(np.asarray(quat))
+    yaw = np.arctan2(rotation[1, 0], rotation[0, 0])
+    return [t, *position, yaw, *(rotation.T @ qvel[:3]), qvel[5]]
+
+
+MANOEUVRES = {  # body wrench [N, N m]: steps from rest, held 10 s
+    "surge": np.array([60.0, 0, 0, 0, 0, 0]),
+    "heave": np.array([0, 0, 40.0, 0, 0, 0]),
+    "yaw": np.array([0, 0, 0, 0, 0, 3.0]),
+    "combined": np.array([50.0, 15.0, -20.0, 0.3, -0.4, 2.0]),
+}
+
+
+@pytest.mark.parametrize("manoeuvre", MANOEUVRES)
+def test_fossen_in_mujoco_follows_the_equations_integrated_by_scipy(manoeuvre: str) -> None:
+    """Position, heading and velocities within 2 % of each one's range over the run."""
+    ours = simulate_mujoco(MANOEUVRES[manoeuvre], 10.0)
+    reference = simulate_reference(MANOEUVRES[manoeuvre], 10.0)
+    assert ours.shape == reference.shape
+    columns = ("x", "y", "z", "yaw", "u", "v", "w", "r")
+    moved = [c for c in range(1, 9) if np.ptp(reference[:, c]) > 0.05]
+    assert moved, "the manoeuvre should move the vehicle"
+    for c in moved:
+        error = np.max(np.abs(ours[:, c] - reference[:, c])) / np.ptp(reference[:, c])
+        assert error < 0.02, f"{manoeuvre}: {columns[c - 1]} off by {error:.1%} of its range"
+
+
+def test_terminal_surge_speed_at_full_thrust_is_the_published_vehicles() -> None:
+    """Full forward thrust on the four vectored T200s (published 51.5 N each) against the published
+    surge damping: X = 141 u|u| + 13.7 u solved for u. The vehicle is held level, as ArduSub holds
+    it with its vertical thrusters (a stiff PD on roll and pitch stands in for that here): its
+    centre of gravity is 1 cm below that of buoyancy, too little to hold the Munk moment at speed."""
+    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    data = mujoco.MjData(model)
+    vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
+    fossen, thrusters = Fossen(model, vehicle), Thrusters(model, vehicle.thrusters)
+    thrust = thrusters.allocate(np.array([1e4, 0, 0, 0, 0, 0]))  # more than it has: scaled to its limit
+    assert np.max(thrust) == pytest.approx(vehicle.thrusters.forward_max_n)
+    surge_n = float((thrusters.allocation @ thrust)[0])
+    for k in range(round(30.0 / DT_S)):
+        if k % 5 == 0:
+            thrusters.apply(data, thrust, 5 * DT_S)
+        mujoco.mj_step1(model, data)
+        fossen.apply(model, data, np.zeros(3))
+        w, x, y, _ = data.qpos[3:7]
+        roll, pitch = 2.0 * (w * x), 2.0 * (w * y)  # small angles
+        data.qfrc_applied[3:5] += -50.0 * np.array([roll, pitch]) - 10.0 * data.qvel[3:5]
+        mujoco.mj_step2(model, data)
+    u = float((data.xmat[1].reshape(3, 3).T @ data.qvel[:3])[0])
+    a, b = vehicle.quadratic_damping[0], vehicle.linear_damping[0]
+    expected = (-b + np.sqrt(b * b + 4 * a * surge_n)) / (2 * a)
+    assert surge_n == pytest.approx(4 * 51.5 / np.sqrt(2), rel=1e-3)
+    assert u == pytest.approx(expected, rel=0.02)
+
+
+def test_the_added_mass_is_in_the_inertia() -> None:
+    """A step of force from rest: the first acceleration is (M_RB + M_A)^-1 tau, about F / (m +
+    X_udot), not F / m."""
+    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    data = mujoco.MjData(model)
+    vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
+    fossen = Fossen(model, vehicle)
+    mujoco.mj_step1(model, data)
+    fossen.apply(model, data, np.zeros(3))
+    data.qfrc_applied[0] += 100.0
+    mujoco.mj_step2(model, data)
+    at_rest = np.r_[0.0, 0.0, -5.0, 1.0, np.zeros(9)]
+    expected = Reference(model, vehicle).derivative(0.0, at_rest, np.r_[100.0, np.zeros(5)])[7:]
+    assert data.qacc[:6] == pytest.approx(expected, rel=1e-6, abs=1e-9)
+    assert data.qacc[0] < 0.75 * 100.0 / 13.5
+
+
+def test_thruster_rotor_lag_dead_band_and_asymmetric_curve() -> None:
+    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    data = mujoco.MjData(model)
+    spec = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml").thrusters
+    thrusters = Thrusters(model, spec)
+    n = len(spec.names)
+    thrusters.drive(data, np.full(n, 0.9 * spec.deadband), 1.0)  # inside the dead band: nothing
+    assert np.all(data.ctrl[thrusters.actuators] == 0.0)
+    dt = 0.001
+    speeds = []
+    for _ in range(round(3 * spec.time_constant_s / dt)):
+        thrusters.drive(data, np.ones(n), dt)
+        speeds.append(thrusters.rotor_speed[0])
+    reached = np.argmax(np.array(speeds) >= 1.0 - np.exp(-1.0)) + 1  # 63 %
+    assert reached * dt == pytest.approx(spec.time_constant_s, abs=2 * dt)
+    for _ in range(round(20 * spec.time_constant_s / dt)):
+        thrusters.drive(data, np.r_[1.0, -1.0, np.zeros(n - 2)], dt)
+    assert data.ctrl[thrusters.actuators[0]] == pytest.approx(spec.forward_max_n, rel=1e-6)
+    assert data.ctrl[thrusters.actuators[1]] == pytest.approx(-spec.reverse_max_n, rel=1e-6)
+    # the allocation steps over the dead band: a small thrust asked for is delivered
+    for _ in range(round(20 * spec.time_constant_s / dt)):
+        thrusters.apply(data, np.full(n, 0.5), dt)
+    assert np.allclose(data.ctrl[thrusters.actuators], 0.5, rtol=1e-6)
+
+
+def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_path: Path) -> None:
+    text = VEHICLE_FILE.read_text()
+    for old, new, field in (("volume_m3 = 2.916", "volume_m3 = -1", "buoyancy.volume_m3"),
+                            ("deadband = 0.05", "deadband = 0.9", "thrusters.deadband"),
+                            ("linear = [86.6, ", "linear = [", "damping.linear"),
+                            ("time_constant_s = 0.2\n", "", "thrusters.time_constant_s")):
+        assert old in text
+        bad = tmp_path / "vehicle.toml"
+        bad.write_text(text.replace(old, new))
+        with pytest.raises(ConfigError) as error:
+            load_vehicle(bad)
+        assert error.value.field == field and str(bad) in str(error.value)
+
+
+def test_both_shipped_vehicle_files_load() -> None:
+    for name in ("robot.toml", "bluerov2_heavy.toml"):
+        vehicle = load_vehicle(MODELS_DIR / name)
+        assert vehicle.source and vehicle.added_mass.shape == (6, 6)
+
+
+def test_current_profile_and_gauss_markov_process() -> None:
+    profile = ((-10.0, 0.1, 0.0, 0.0), (0.0, 0.5, 0.2, 0.0))
+    still = Current(profile, 0.0, 60.0, np.random.default_rng(0))
+    assert np.allclose(still.velocity_mps_world(-5.0), [0.3, 0.1, 0.0])
+    assert np.allclose(still.velocity_mps_world(-20.0), [0.1, 0.0, 0.0])  # held beyond the ends
+    sigma, tau = 0.1, 5.0
+    current = Current((), sigma, tau, np.random.default_rng(1))
+    samples = []
+    for k in range(1, 20001):
+        current.advance(k * 0.5)
+        samples.append(current.velocity_mps_world(-8.0)[:2])
+    x = np.array(samples)
+    assert np.std(x[:, 0]) == pytest.approx(sigma, rel=0.15)
+    lag = round(tau / 0.5)  # correlation e^-1 at one time constant
+    correlation = np.corrcoef(x[:-lag, 0], x[lag:, 0])[0, 1]
+    assert correlation == pytest.approx(np.exp(-1.0), abs=0.08)
+    repeat = Current((), sigma, tau, np.random.default_rng(1))
+    repeat.advance(0.5)
+    assert np.allclose(repeat.velocity_mps_world(-8.0)[:2], x[0])

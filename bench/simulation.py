@@ -1,4 +1,5 @@
-"""Simulation figures: physics step time and real-time factor (headless, no cameras),
+"""Simulation figures: physics step time and real-time factor (headless, no cameras; the
+dynamic low level with Fossen's marine model and with MuJoCo's ellipsoids, in the same run),
 stereo + depth rendering time at 640x480 and the camera rate it allows, and the station loop
 with cameras at several rates, as the share of control deadlines met.
 Run: .venv/bin/python bench/simulation.py. Prints figures; asserts nothing."""
@@ -29,8 +30,9 @@ from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
 
 
-def physics(low_level: str, seconds: float = 20.0) -> None:
-    config = SimulationConfig(low_level=low_level)
+def physics(low_level: str, hydrodynamics: str = "fossen", seconds: float = 20.0) -> float:
+    """Wall time per physics step [s]."""
+    config = SimulationConfig(low_level=low_level, hydrodynamics=hydrodynamics)
     world = World(config, np.random.default_rng(0))
     refs = References(np.array([0.3, 0.1, 0.0, 0.1]), np.full(6, 0.05), 0.0)
     periods = round(seconds / config.control_period_s)
@@ -39,8 +41,11 @@ def physics(low_level: str, seconds: float = 20.0) -> None:
         world.step(refs, config.control_period_s)
     wall = time.perf_counter() - t0
     steps = periods * round(config.control_period_s / config.physics_step_s)
-    print(f"physics, {low_level:<9}: {wall / steps * 1e6:7.1f} us per {config.physics_step_s * 1e3:g} ms "
-          f"step, real-time factor {seconds / wall:6.1f} (headless, no cameras)")
+    marine = f", {hydrodynamics}" if low_level == "dynamic" else ""
+    print(f"physics, {low_level + marine:<18}: {wall / steps * 1e6:7.1f} us per "
+          f"{config.physics_step_s * 1e3:g} ms step, real-time factor {seconds / wall:6.1f} "
+          f"(headless, no cameras)")
+    return wall / steps
 
 
 def rendering(frames: int = 20) -> float:
@@ -94,7 +99,8 @@ def station_loop(camera_rate_hz: float, seconds: float = 15.0) -> None:
 
 
 if __name__ == "__main__":
-    physics("dynamic")
+    fossen, ellipsoid = physics("dynamic", "fossen"), physics("dynamic", "ellipsoid")
+    print(f"  Fossen's model costs {fossen / ellipsoid:.2f}x MuJoCo's ellipsoids per step")
     physics("kinematic")
     rendering()
     for rate in (0.0, 1.0, 2.0, 5.0):

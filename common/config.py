@@ -45,6 +45,8 @@ class LinksConfig:
 
 
 LOW_LEVELS = ("kinematic", "dynamic")
+WATER_TYPES = ("none", "I", "IA", "IB", "II", "III", "1C", "3C", "5C", "7C", "9C")  # optics.WATER_TYPES
+HYDRODYNAMICS = ("fossen", "ellipsoid")
 
 
 @dataclass(frozen=True)
@@ -58,23 +60,48 @@ class SimulationConfig:
     start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -7.0)
     start_yaw_rad: float = 0.0
     # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
-    vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 4000.0)
-    vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 1000.0)
+    # (with the added mass the vehicle is 4-5 t in translation: a bandwidth of about 2.5 rad/s,
+    # inside the thrusters' 0.2 s lag; the damping is fed forward from the vehicle file)
+    vehicle_kp: tuple[float, float, float, float] = (12000.0, 12000.0, 12000.0, 5000.0)
+    vehicle_ki: tuple[float, float, float, float] = (3000.0, 3000.0, 3000.0, 600.0)
     vehicle_kd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     arm_kp: float = 400.0  # [N m/(rad/s)]
     arm_ki: float = 200.0
     gripper_kp: float = 1000.0  # [N/(m/s)]
-    current_mps_world: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    current_variation_mps: float = 0.0  # amplitude of a slow sinusoid in a seeded direction
-    current_period_s: float = 120.0
-    usbl_sigma_m: float = 0.05
-    depth_sigma_m: float = 0.01
+    # the vehicle's marine model: "fossen" (the vehicle file's coefficients) or "ellipsoid"
+    # (MuJoCo's fluid model of its hull's geoms); the vehicle file also describes its thrusters
+    hydrodynamics: str = "fossen"
+    vehicle_file: str = ""  # "" is robot.xml's own, common/models/robot.toml
+    # the current: a profile of rows (z [m, world], vx, vy, vz [m/s, world]), linear in between and
+    # held beyond its ends, plus a first-order Gauss-Markov process on each horizontal component
+    current_profile: tuple[tuple[float, float, float, float], ...] = ()
+    current_sigma_mps: float = 0.0  # [m/s] the process's standard deviation
+    current_time_constant_s: float = 60.0  # [s] its correlation time
+    usbl_sigma_m: float = 0.02  # [m] a short-range USBL: 0.2 % of a 10 m slant range
     dvl_sigma_mps: float = 0.005
     imu_sigma_rad: float = 0.002
+    # navigation sensors as real ones are (stations/simulation/navigation.py)
+    pressure_sigma_pa: float = 100.0  # the depth sensor's noise [Pa]: 1 cm of sea water
+    usbl_rate_hz: float = 1.0  # fixes taken [Hz]
+    usbl_processing_s: float = 0.3  # [s] a fix is delivered this long after its ping came back
+    usbl_transceiver_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0)  # on the vessel, at the surface
+    usbl_outlier_probability: float = 0.02  # a fix this often lands usbl_outlier_m off
+    usbl_outlier_m: float = 3.0  # [m]
+    usbl_dropout_probability: float = 0.05  # a fix this often never comes
+    dvl_min_altitude_m: float = 0.3  # [m] bottom lock needs the seabed this far below
+    dvl_max_altitude_m: float = 30.0  # [m] ... and no farther
+    dvl_scale_error: float = 0.002  # velocity reads this fraction too high
+    dvl_offset_mps_body: tuple[float, float, float] = (0.0005, -0.0005, 0.0)  # [m/s] and is this off
+    gyro_bias_walk_radps: float = 1e-5  # [rad/s per sqrt(s)] the gyro's bias random walk
     camera_rate_hz: float = 1.0  # 0: no cameras
     camera_width_px: int = 640
     camera_height_px: int = 480
     jpeg_quality: int = 90
+    # underwater optics on the RGB frames (stations/simulation/optics.py): a Jerlov water type
+    # (WATER_TYPES, clearest first), or "none" for the plain render in MuJoCo's fog; marine snow
+    # is a multiple of the water type's own (0: none)
+    water: str = "none"
+    marine_snow: float = 1.0
     # where the physics state is kept (every state_period_s) and resumed from at start, so that
     # a restarted simulation goes on where the vehicle was; "" keeps none (`abyss up` sets it)
     state_file: str = ""
@@ -86,13 +113,29 @@ class SimulationConfig:
                               f"{self.low_level!r} not one of {', '.join(LOW_LEVELS)}")
         _positive("simulation.physics_step_s", self.physics_step_s)
         _positive("simulation.realtime_factor", self.realtime_factor)
-        _positive("simulation.current_period_s", self.current_period_s)
+        _positive("simulation.current_time_constant_s", self.current_time_constant_s)
+        if self.hydrodynamics not in HYDRODYNAMICS:
+            raise ConfigError("simulation.hydrodynamics",
+                              f"{self.hydrodynamics!r} not one of {', '.join(HYDRODYNAMICS)}")
+        for row in self.current_profile:
+            if len(row) != 4 or not all(math.isfinite(v) and abs(v) < 1e4 for v in row):
+                raise ConfigError("simulation.current_profile", f"{list(row)}: rows of [z_m, vx, vy, vz]")
         _positive("simulation.state_period_s", self.state_period_s)
         _positive("simulation.arm_kp", self.arm_kp)
         _positive("simulation.gripper_kp", self.gripper_kp)
-        for name in ("arm_ki", "current_variation_mps", "usbl_sigma_m",
-                     "depth_sigma_m", "dvl_sigma_mps", "imu_sigma_rad", "camera_rate_hz"):
+        for name in ("arm_ki", "current_sigma_mps", "usbl_sigma_m", "dvl_sigma_mps", "imu_sigma_rad",
+                     "camera_rate_hz", "pressure_sigma_pa", "usbl_processing_s", "usbl_outlier_m",
+                     "dvl_min_altitude_m", "dvl_scale_error", "gyro_bias_walk_radps"):
             _positive(f"simulation.{name}", getattr(self, name), allow_zero=True)
+        _positive("simulation.usbl_rate_hz", self.usbl_rate_hz)
+        for name in ("usbl_outlier_probability", "usbl_dropout_probability"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ConfigError(f"simulation.{name}", f"{getattr(self, name)} outside [0, 1)")
+        if not self.dvl_min_altitude_m < self.dvl_max_altitude_m:
+            raise ConfigError("simulation.dvl_max_altitude_m", f"{self.dvl_max_altitude_m} m must lie above "
+                              f"dvl_min_altitude_m = {self.dvl_min_altitude_m} m")
+        if any(abs(v) > 1.0 for v in self.dvl_offset_mps_body):
+            raise ConfigError("simulation.dvl_offset_mps_body", "each within [-1, 1] m/s")
         for name in ("vehicle_kp", "vehicle_ki", "vehicle_kd"):
             for value in getattr(self, name):
                 _positive(f"simulation.{name}", value, allow_zero=True)
@@ -100,6 +143,9 @@ class SimulationConfig:
             raise ConfigError("simulation.camera_width_px", "camera size must lie in [16, 4096] px")
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError("simulation.jpeg_quality", f"{self.jpeg_quality} outside [1, 100]")
+        if self.water not in WATER_TYPES:
+            raise ConfigError("simulation.water", f"{self.water!r} not one of {', '.join(WATER_TYPES)}")
+        _positive("simulation.marine_snow", self.marine_snow, allow_zero=True)
         for name, period, base, base_name in (
                 ("low_level_period_s", self.low_level_period_s, self.physics_step_s, "physics_step_s"),
                 ("control_period_s", self.control_period_s, self.physics_step_s, "physics_step_s"),
@@ -114,15 +160,26 @@ class SimulationConfig:
 class OnboardConfig:
     control_period_s: float = 0.05  # [s]
     telemetry_period_s: float = 0.1  # [s]
-    # vehicle: PI on position (world) and heading
+    # vehicle: proportional on position (world) and heading, the speed bounded by a deceleration
+    # limit, plus a feed-forward of the steady velocity offset (a current the low level does not
+    # reject) that an observer estimates from the pose's change against the commands, low-passed
+    # with offset_time_constant_s. Off by default: the simulation's dynamic low level rejects the
+    # current itself (PID on the velocity over ground), and its lag reads as a passing offset
+    # that stops the vehicle short or overshoots; 2 s suits a low level without that lag
     kp_position: float = 0.6  # [1/s]
-    ki_position: float = 0.05  # [1/s^2]
     kp_heading: float = 1.0  # [1/s]
-    ki_heading: float = 0.05  # [1/s^2]
+    max_accel_mps2: float = 0.2  # [m/s^2] on the approach, where kp_position would decelerate harder
+    offset_time_constant_s: float = 0.0  # [s]; 0: no feed-forward
     max_speed_mps: float = 0.5  # [m/s]
     max_yaw_rate_radps: float = 0.5  # [rad/s]
-    # navigation: DVL velocity integrated, pulled to the USBL/depth fix with this time constant
-    nav_time_constant_s: float = 5.0  # [s]; 0: use the fix as it comes
+    # navigation (stations/onboard/navigation.py): the DVL's velocity integrated, corrected by each
+    # USBL fix as a Kalman filter weighs them; depth and attitude pulled to the pressure sensor's
+    # and the IMU's with nav_time_constant_s
+    nav_time_constant_s: float = 5.0  # [s]; 0: use depth and attitude as they come
+    nav_usbl_sigma_m: float = 0.02  # [m] the fixes' noise, as the filter assumes it
+    nav_dvl_sigma_mps: float = 0.005  # [m/s] the DVL's noise, as the filter assumes it
+    nav_gate_sigmas: float = 5.0  # a fix farther off than this many standard deviations is rejected
+    nav_delay_compensation: bool = True  # a fix is compared with the estimate when it was taken
     # arm: task-priority inverse kinematics
     kp_ee_position: float = 1.0  # [1/s]
     kp_ee_orientation: float = 1.0  # [1/s]
@@ -161,8 +218,8 @@ class OnboardConfig:
             value = getattr(self, f.name)
             if not isinstance(value, (bool, tuple)):
                 _positive(f"onboard.{f.name}", value,
-                          allow_zero=f.name.startswith("ki") or f.name in ("nav_time_constant_s",
-                                                                             "image_rate_hz"))
+                          allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s",
+                                                "image_rate_hz"))
         if self.kp_constraint * self.control_period_s >= 1.0:
             raise ConfigError("onboard.kp_constraint",
                               f"kp_constraint * control_period_s must stay below 1 (got "
@@ -292,6 +349,10 @@ class MissionConfig:
         (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.2, 0.0, -8.0, 0.0))
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
+    # [s] a waypoint not reached within its leg flown at onboard's speed limits (its length over
+    # max_speed_mps, its turn over max_yaw_rate_radps) plus this is missed: onboard holds it and
+    # reports the mode "missed", and the mission is not done; 0: no limit
+    waypoint_timeout_s: float = 30.0
     # the end-effector's goal once the last waypoint is reached: x, y, z [m, world], roll, pitch,
     # yaw [rad] (rotations about the world's x, y, z, in that order); empty: no arm goal. E.g.
     # [4.86, 0, -8.35, 1.5708, 0, 0]: the fingers either side of the middle valve's handle.
@@ -326,6 +387,7 @@ class MissionConfig:
                 panel.intent(part, amount)
             except ValueError as exc:
                 raise ConfigError(f"mission.interventions[{i}]", str(exc)) from None
+        _positive("mission.waypoint_timeout_s", self.waypoint_timeout_s, allow_zero=True)
         for name in ("position_tolerance_m", "heading_tolerance_rad", "arm_position_tolerance_m",
                      "arm_orientation_tolerance_rad", "arm_settle_s", "resend_period_s",
                      "vehicle_clearance_m"):

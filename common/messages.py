@@ -138,13 +138,24 @@ class Message:
 
 @dataclass(frozen=True)
 class NavState(Message):
-    """Vehicle navigation state, simulation -> onboard."""
+    """Vehicle navigation state. The simulation's truth on its truth key; on `simulation/nav`
+    (simulation -> onboard), what the sensors last gave: the latest USBL fix delivered (taken at
+    `usbl_time_s`, delivered later; repeated until the next), the IMU's attitude and rates, the
+    DVL's velocity (meaningless without bottom lock: `dvl_valid`) and the pressure sensor's depth,
+    each as of `sim_time_s`."""
+
+    VERSION: ClassVar[int] = 2  # 2: usbl_time_s, depth_m, dvl_valid
 
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0, 1.0)
     velocity_mps_body: np.ndarray = array("f8", (3,), -100.0, 100.0)
     angular_velocity_radps_body: np.ndarray = array("f8", (3,), -100.0, 100.0)
     sim_time_s: float = scalar(0.0)
+    # when the position was measured [s, simulated]; -1: no fix yet (the position means nothing)
+    usbl_time_s: float = field(default=-1.0, metadata={"lo": -1.0, "hi": math.inf, "choices": ()})
+    # [m] below the surface, from the pressure
+    depth_m: float = field(default=0.0, metadata={"lo": -100.0, "hi": 11000.0, "choices": ()})
+    dvl_valid: bool = True  # the DVL has bottom lock
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -331,7 +342,7 @@ class SimulationStatus(Message):
     faults: dict[str, float] = field(default_factory=dict)
 
 
-MODES = ("idle", "moving", "reached", "hold")
+MODES = ("idle", "moving", "reached", "hold", "missed")  # missed: a waypoint not reached in its time
 # hold: the vehicle holds station and the arm holds still; auto: the goals are flown, the arm
 # once the vehicle holds its last waypoint; teleop: the goals are flown, the arm at once
 OPERATOR_MODES = ("hold", "auto", "teleop")

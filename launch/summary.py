@@ -64,6 +64,33 @@ def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
             "failsafe": t.failsafe, "failsafe_events": t.failsafe_events}
 
 
+class NavError:
+    """Onboard's navigation estimate (its telemetry's position) against the simulation's truth at
+    the same simulated time, over the run. Thread-safe enough for Zenoh's callbacks: each side
+    only appends, and a lookup misses at worst."""
+
+    def __init__(self, keep: int = 400) -> None:
+        self.truth: dict[float, np.ndarray] = {}  # sim time [s] -> position [m, world], the latest `keep`
+        self.errors_m: list[float] = []
+        self._keep = keep
+
+    def add_truth(self, sim_time_s: float, position_m_world: np.ndarray) -> None:
+        self.truth[round(sim_time_s, 6)] = position_m_world
+        if len(self.truth) > self._keep:
+            del self.truth[next(iter(self.truth))]
+
+    def add_estimate(self, t: Telemetry) -> None:
+        truth = self.truth.get(round(t.sim_time_s, 6))
+        if truth is not None:
+            self.errors_m.append(float(np.linalg.norm(t.position_m_world - truth)))
+
+    def summary(self) -> dict[str, Any] | None:
+        if not self.errors_m:
+            return None
+        return {"median_m": float(np.median(self.errors_m)), "max_m": max(self.errors_m),
+                "samples": len(self.errors_m)}
+
+
 def interventions_summary(mission: MissionConfig, start: PanelState | None,
                           last: PanelState | None) -> list[dict[str, Any]]:
     """Each of the mission's interventions judged on the simulation's truth: the part's angle
@@ -131,6 +158,10 @@ def render_summary(summary: dict[str, Any]) -> str:
                      f"{c['heading_error_deg']:.2f} deg; end-effector "
                      f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
                      f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}")
+    nav = summary.get("navigation")
+    if nav:
+        lines.append(f"  navigation error (onboard's estimate against the truth): median "
+                     f"{nav['median_m'] * 1e3:.1f} mm, max {nav['max_m'] * 1e3:.1f} mm over {nav['samples']}")
     scene = summary["scene"]
     if scene:
         lines.append(f"  scene on shore: {scene['occupied_cells']} occupied cells at "

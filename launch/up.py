@@ -38,6 +38,7 @@ from abyss.common.runfiles import CARRIED_OVER, EVENTS_FILE, read_json_list
 from abyss.launch.record import ControlRecorder
 from abyss.launch.state import RunState
 from abyss.launch.summary import (
+    NavError,
     control_summary,
     exit_code,
     exit_text,
@@ -165,6 +166,7 @@ class Up:
         self.restarts: list[Outage] = []
         self._down: dict[str, Outage] = {}  # restarts whose station is not back yet
         self.truth_m_world: np.ndarray | None = None  # the vehicle's position, from the simulation
+        self.nav_error = NavError()  # onboard's estimate against it
         self.panel: tuple[PanelState, PanelState] | None = None  # the panel's truth: the first, the latest
         self.up_s: float | None = None  # when all stations were first up (monotonic)
         self.interrupted = threading.Event()
@@ -202,6 +204,7 @@ class Up:
                         drift_m = float(np.linalg.norm(message.position_m_world - down.from_m_world))
                         down.drift_m = max(down.drift_m, drift_m)
                 self.truth_m_world = message.position_m_world
+                self.nav_error.add_truth(message.sim_time_s, message.position_m_world)
         with self._lock:
             for name, kind in HEARD_FROM.items():
                 if isinstance(message, kind) and name in self._down and self._down[name].alive:
@@ -214,8 +217,11 @@ class Up:
             self.mission = message
         elif isinstance(message, SimulationStatus):
             self.simulation = message
-        elif isinstance(message, Telemetry) and self.record is not None:
-            self.record.add(message)
+        elif isinstance(message, Telemetry):
+            with self._lock:
+                self.nav_error.add_estimate(message)
+            if self.record is not None:
+                self.record.add(message)
 
     def _put(self, key: str, message: ReplayStart) -> None:
         if self.session is not None:
@@ -486,6 +492,7 @@ class Up:
             "mission_done_s": self.mission_done_s,
             "external": list(self.external),
             "control": control_summary(self.record.last if self.record else None),
+            "navigation": self.nav_error.summary(),  # onboard's position error [m]
             "interventions": self._interventions(),
             "simulation": dataclasses.asdict(self.simulation) if self.simulation else None,
             "scene": read_json(self.out_dir / "scene.json"),

@@ -250,6 +250,10 @@ class Session:
 
 # -- the conversions: (abyss message, header of the topic's frame, session) -> ROS 2 message or None
 def odometry(nav: NavState, head: Any, session: Session) -> Any:
+    """On `simulation/nav` the pose is the latest USBL fix with the IMU's attitude, the twist the
+    DVL's and the gyro's. Odometry has no counterpart for the fix's measurement time
+    (`usbl_time_s`), the pressure sensor's depth (`depth_m`) nor the DVL's bottom lock
+    (`dvl_valid`): they do not cross to ROS 2."""
     zeros = np.zeros(36)  # covariance unknown
     return _T["nav_msgs/msg/Odometry"](
         header=head, child_frame_id=BASE_LINK,

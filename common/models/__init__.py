@@ -6,6 +6,7 @@ from pathlib import Path
 MODELS_DIR = Path(__file__).parent
 WORLD_FILE = MODELS_DIR / "world.xml"
 ROBOT_FILE = MODELS_DIR / "robot.xml"
+VEHICLE_FILE = MODELS_DIR / "robot.toml"  # robot.xml's vehicle: its marine model and thrusters
 SEABED_CLOUD_FILE = MODELS_DIR / "seabed_cloud.ply"
 ARM_JOINTS = ("shoulder_yaw", "shoulder_pitch", "elbow", "wrist_roll", "wrist_pitch", "tool_roll")
 # the arm folded under the bow, clear of the hull and the seabed, end-effector level [rad]

@@ -67,7 +67,7 @@ class Onboard:
         cfg = self.cfg = config.onboard
         self.vehicle = VehicleController(cfg, config.mission)
         self.arm = ArmController(cfg, config.mission)
-        self.nav_filter = NavFilter(cfg.nav_time_constant_s)
+        self.nav_filter = NavFilter(cfg)
         self.failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
         self.gate = CommandGate(config.mission, *self.arm.kinematics.reach())
         self.operator_mode = "auto"
@@ -116,10 +116,11 @@ class Onboard:
                 self.operator_mode = command.mode
         for beat in inputs.heartbeats:
             self.failsafe.heard(now_s, beat)
-        for fix in inputs.nav:
-            self.position_m_world, self.orientation_wxyz_world = self.nav_filter.update(fix)
-            self.sim_time_s = fix.sim_time_s
-            out.poses.append((fix.sim_time_s, self.position_m_world, self.orientation_wxyz_world))
+        for nav in inputs.nav:
+            self.position_m_world, self.orientation_wxyz_world = self.nav_filter.update(nav)
+            self.sim_time_s = nav.sim_time_s
+            if self.position_m_world is not None:
+                out.poses.append((nav.sim_time_s, self.position_m_world.copy(), self.orientation_wxyz_world))
         if self.position_m_world is None or inputs.joints is None:
             return out
         self._control(inputs.joints, now_s, out)

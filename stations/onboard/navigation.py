@@ -1,43 +1,157 @@
-"""The onboard navigation estimate, a complementary filter: the DVL's velocity integrated in
-the world frame and pulled towards the USBL/pressure fix, and the gyro's rates integrated and
-pulled towards the IMU's attitude, both with one time constant. The fix alone has the USBL's
-noise (5 cm by default) and the attitude's noise moves a tool 1.5 m away by millimetres; no
-controller holds a millimetre goal on those. The rates are precise but drift when integrated
-alone."""
+"""The onboard navigation estimate. Horizontally, the DVL's velocity is integrated in the world
+frame (dead reckoning) and each USBL fix corrects it as a Kalman filter weighs the two: the
+fix's noise against what the integration has gathered since. A fix arrives a fraction of a
+second after it was taken: it is compared with the estimate of that moment, kept in a short
+history, and the correction is applied now (`delay_compensation`; without it the fix is read
+as if taken now, and a moving vehicle's estimate trails by its speed times the delay). A fix
+too far off for the uncertainty (the innovation gate) is rejected and counted. Without bottom
+lock the DVL's last velocity fades out and the uncertainty grows (coasting). Depth is the
+pressure sensor's, and attitude the IMU's, each smoothed by integrating the DVL's heave and the
+gyro's rates with one time constant. A pure core: messages (with their simulated time) in,
+the estimate out."""
 
 from __future__ import annotations
 
+import logging
+import math
+from collections import deque
+
 import numpy as np
 
+from abyss.common.config import OnboardConfig
 from abyss.common.geometry import quat_multiply, rotation_of, small_rotation_wxyz
 from abyss.common.messages import NavState
 
-MAX_GAP_S = 1.0  # a longer gap in the fixes restarts the estimate from the next fix
+MAX_GAP_S = 1.0  # a longer gap between messages (a simulation restarted) starts the estimate afresh
+HISTORY_S = 5.0  # [s] of estimates kept, for fixes that come late
+COAST_FADE_S = 2.0  # [s] without bottom lock, the last velocity fades with this time constant
+COAST_SIGMA_MPS = 0.1  # [m/s per sqrt(s)] the position's uncertainty grows so while coasting
+BIAS_WALK_MPS = 1e-5  # [m/s per sqrt(s)] how fast the DVL's bias (in the world frame) may wander
+BIAS_SIGMA_MPS = 0.005  # [m/s] the DVL's bias, as first assumed
+RESET_AFTER_REJECTED = 5  # fixes rejected in a row: the estimate, not the fixes, is wrong; start afresh
+log = logging.getLogger(__name__)
 
 
 class NavFilter:
-    def __init__(self, time_constant_s: float) -> None:
-        self.time_constant_s = time_constant_s
+    """Horizontally a Kalman filter on position and the DVL's velocity bias (x and y alike, so
+    one 2 x 2 covariance serves both); depth and attitude complementary filters."""
+
+    def __init__(self, cfg: OnboardConfig) -> None:
+        self.time_constant_s = cfg.nav_time_constant_s
+        self.fix_variance_m2 = cfg.nav_usbl_sigma_m ** 2
+        self.dvl_sigma_mps = cfg.nav_dvl_sigma_mps
+        self.gate_sigmas = cfg.nav_gate_sigmas
+        self.delay_compensation = cfg.nav_delay_compensation
+        self.accepted = 0
+        self.rejected = 0
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget the estimate; the next fix starts it."""
         self.position_m_world: np.ndarray | None = None
         self.orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
-        self._stamp_s = 0.0
+        self.bias_mps_world = np.zeros(2)  # what the DVL reads over the truth, x and y
+        self.covariance = np.diag([math.inf, BIAS_SIGMA_MPS ** 2])  # position [m^2], bias [(m/s)^2]
+        self.velocity_mps_world = np.zeros(3)  # the latest used: the DVL's, or fading while coasting
+        self.history: deque[tuple[float, np.ndarray]] = deque()  # (sim time [s], x and y [m, world])
+        self._rejected_in_a_row = 0
+        self._fix_s = -1.0  # when the latest fix used was taken
+        self._stamp_s: float | None = None
 
-    def update(self, nav: NavState) -> tuple[np.ndarray, np.ndarray]:
-        """The estimate after one fix: position [m, world], orientation (w, x, y, z)."""
-        dt = nav.sim_time_s - self._stamp_s
+    def update(self, nav: NavState) -> tuple[np.ndarray | None, np.ndarray]:
+        """The estimate after one message: position [m, world] (None before the first fix),
+        orientation (w, x, y, z)."""
+        dt = 0.0 if self._stamp_s is None else nav.sim_time_s - self._stamp_s
+        if not 0.0 <= dt <= MAX_GAP_S:
+            log.info("navigation restarted: %.2f s between messages", dt)
+            self.restart()
+            dt = 0.0
+        if self._stamp_s is None:
+            self.orientation_wxyz_world = np.array(nav.orientation_wxyz_world)
         self._stamp_s = nav.sim_time_s
-        if self.position_m_world is None or self.time_constant_s == 0 or not 0 <= dt <= MAX_GAP_S:
-            self.position_m_world = np.array(nav.position_m_world, dtype=float)
-            self.orientation_wxyz_world = np.array(nav.orientation_wxyz_world, dtype=float)
-            return self.position_m_world, self.orientation_wxyz_world
-        gain = dt / (self.time_constant_s + dt)
-        velocity_mps_world = rotation_of(self.orientation_wxyz_world) @ nav.velocity_mps_body
-        predicted = self.position_m_world + velocity_mps_world * dt
-        self.position_m_world = predicted + gain * (nav.position_m_world - predicted)
+        self._attitude(nav, dt)
+        if self.position_m_world is not None:
+            self._dead_reckon(nav, dt)
+        if nav.usbl_time_s > self._fix_s:
+            self._fix_s = nav.usbl_time_s
+            self._fix(nav)
+        return self.position_m_world, self.orientation_wxyz_world
+
+    def _gain(self, dt: float) -> float:
+        return 1.0 if self.time_constant_s == 0 else dt / (self.time_constant_s + dt)
+
+    def _attitude(self, nav: NavState, dt: float) -> None:
         rotated = small_rotation_wxyz(nav.angular_velocity_radps_body * dt)  # body rates: right product
         turned = quat_multiply(self.orientation_wxyz_world, rotated)
-        self.orientation_wxyz_world = nlerp(turned, nav.orientation_wxyz_world, gain)
-        return self.position_m_world, self.orientation_wxyz_world
+        self.orientation_wxyz_world = nlerp(turned, nav.orientation_wxyz_world, self._gain(dt))
+
+    def _dead_reckon(self, nav: NavState, dt: float) -> None:
+        assert self.position_m_world is not None
+        if nav.dvl_valid:
+            self.velocity_mps_world = rotation_of(self.orientation_wxyz_world) @ nav.velocity_mps_body
+            self.velocity_mps_world[:2] -= self.bias_mps_world
+            noise_m2 = (self.dvl_sigma_mps * dt) ** 2
+        else:
+            self.velocity_mps_world = self.velocity_mps_world * math.exp(-dt / COAST_FADE_S)
+            noise_m2 = COAST_SIGMA_MPS ** 2 * dt
+        predicted = self.position_m_world + self.velocity_mps_world * dt
+        predicted[2] += self._gain(dt) * (-nav.depth_m - predicted[2])
+        self.position_m_world = predicted
+        moved = np.array([[1.0, -dt], [0.0, 1.0]]) if nav.dvl_valid else np.eye(2)
+        self.covariance = moved @ self.covariance @ moved.T + np.diag([noise_m2, BIAS_WALK_MPS ** 2 * dt])
+        self.history.append((nav.sim_time_s, predicted[:2].copy()))
+        while self.history and self.history[0][0] < nav.sim_time_s - HISTORY_S:
+            self.history.popleft()
+
+    def _fix(self, nav: NavState) -> None:
+        fix = np.asarray(nav.position_m_world[:2])
+        if self.position_m_world is None:
+            self._start(nav)
+            return
+        then = self._estimate_at(nav.usbl_time_s) if self.delay_compensation else None
+        innovation = fix - (self.position_m_world[:2] if then is None else then)
+        spread_m2 = float(self.covariance[0, 0]) + self.fix_variance_m2
+        if float(innovation @ innovation) > self.gate_sigmas ** 2 * spread_m2:
+            self.rejected += 1
+            self._rejected_in_a_row += 1
+            log.info("USBL fix taken at %.2f s rejected: %.2f m off the estimate (gate %.2f m); %d so far",
+                     nav.usbl_time_s, float(np.linalg.norm(innovation)),
+                     self.gate_sigmas * math.sqrt(spread_m2), self.rejected)
+            if self._rejected_in_a_row >= RESET_AFTER_REJECTED:
+                log.warning("%d USBL fixes rejected in a row: the estimate starts afresh from the fix",
+                            self._rejected_in_a_row)
+                self._start(nav)
+            return
+        self._rejected_in_a_row = 0
+        self.accepted += 1
+        gain = self.covariance[:, 0] / spread_m2  # position's, bias's
+        correction = gain[0] * innovation
+        self.position_m_world = np.r_[self.position_m_world[:2] + correction, self.position_m_world[2]]
+        self.bias_mps_world += gain[1] * innovation
+        self.covariance = self.covariance - np.outer(gain, self.covariance[0])
+        for t_s, xy in self.history:  # the estimates since the fix was taken, as corrected
+            if t_s >= nav.usbl_time_s:
+                xy += correction
+
+    def _estimate_at(self, t_s: float) -> np.ndarray | None:
+        """The horizontal estimate at `t_s` [s], interpolated in the history; None beyond it."""
+        if not self.history or t_s < self.history[0][0]:
+            return None
+        before = self.history[0]
+        for after in self.history:
+            if after[0] >= t_s:
+                span_s = after[0] - before[0]
+                fraction = 0.0 if span_s <= 0 else (t_s - before[0]) / span_s
+                return before[1] + fraction * (after[1] - before[1])
+            before = after
+        return None
+
+    def _start(self, nav: NavState) -> None:
+        self.position_m_world = np.r_[nav.position_m_world[:2], -nav.depth_m]
+        self.covariance = np.diag([self.fix_variance_m2, BIAS_SIGMA_MPS ** 2])
+        self.bias_mps_world = np.zeros(2)
+        self.history.clear()
+        self._rejected_in_a_row = 0
 
 
 def nlerp(a_wxyz: np.ndarray, b_wxyz: np.ndarray, fraction: float) -> np.ndarray:

@@ -102,7 +102,8 @@ def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, 
     sim = config.simulation
     model = world.model  # type: ignore[attr-defined]
     snapshot = mujoco.MjData(model)
-    cameras = Cameras(model, sim.camera_width_px, sim.camera_height_px)
+    cameras = Cameras(model, sim.camera_width_px, sim.camera_height_px, sim.water, sim.marine_snow,
+                      np.random.default_rng([config.seed, 1]))  # the optics' own stream: snow, noise
     cameras.blackout = blackout
     rate = Rate(1.0 / (sim.camera_rate_hz * sim.realtime_factor), bus.stop)
     try:

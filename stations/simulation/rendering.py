@@ -8,10 +8,14 @@ import os
 import subprocess
 import sys
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from abyss.common.errors import AbyssError
+
+if TYPE_CHECKING:
+    from abyss.stations.simulation.optics import Lamp, Optics
 
 BACKENDS = ("egl", "osmesa")
 _PROBE = ("import mujoco; r = mujoco.Renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 8, 8); "
@@ -63,9 +67,13 @@ class Intrinsics:
 
 
 class Cameras:
-    """RGB for the stereo pair, depth [m along the optical axis] for the depth camera."""
+    """RGB for the stereo pair, depth [m along the optical axis] for the depth camera. With a
+    `water` type (optics.WATER_TYPES), each RGB frame goes through the underwater optics, with
+    its range from a depth render of the same camera, instead of MuJoCo's fog; the depth camera
+    is a range sensor, which the water leaves alone."""
 
-    def __init__(self, model: object, width_px: int, height_px: int) -> None:
+    def __init__(self, model: object, width_px: int, height_px: int, water: str = "none",
+                 marine_snow: float = 1.0, rng: np.random.Generator | None = None) -> None:
         import mujoco
 
         self.model = model
@@ -73,10 +81,13 @@ class Cameras:
         self.depth_renderer = mujoco.Renderer(model, height_px, width_px)
         self.depth_renderer.enable_depth_rendering()
         for renderer in (self.renderer, self.depth_renderer):  # murky water: fog to the haze
-            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = True
-            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_HAZE] = True
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = water == "none"
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_HAZE] = water == "none"
         self.blackout: set[str] = set()
         self.scene_option = mujoco.MjvOption()
+        self.water, self.marine_snow = water, marine_snow
+        self.rng = rng if rng is not None else np.random.default_rng(0)
+        self._optics: dict[str, Optics] = {}
 
     def intrinsics(self, camera: str) -> Intrinsics:
         return Intrinsics.from_fovy(self.renderer.width, self.renderer.height,
@@ -93,11 +104,32 @@ class Cameras:
         mujoco.mju_mulQuat(quat, cam.quat, flip)
         return np.r_[cam.pos, quat]
 
+    def optics(self, camera: str) -> Optics | None:
+        """The camera's underwater optics, made on first use; None without a water type."""
+        from abyss.stations.simulation.optics import WATER_TYPES, Optics
+
+        if self.water == "none":
+            return None
+        if camera not in self._optics:
+            self._optics[camera] = Optics(WATER_TYPES[self.water], self.intrinsics(camera),
+                                          lamps_of(self.model, camera), self.marine_snow)
+        return self._optics[camera]
+
+    def plain_rgb(self, data: object, camera: str) -> np.ndarray:
+        """MuJoCo's render, lit by the scene's lights, in air (or MuJoCo's fog without a water type)."""
+        self.renderer.update_scene(data, camera=camera, scene_option=self.scene_option)
+        return self.renderer.render().copy()
+
     def rgb(self, data: object, camera: str) -> np.ndarray:
         if camera in self.blackout:
             return np.zeros((self.renderer.height, self.renderer.width, 3), np.uint8)
-        self.renderer.update_scene(data, camera=camera, scene_option=self.scene_option)
-        return self.renderer.render().copy()
+        optics = self.optics(camera)
+        if optics is None:
+            return self.plain_rgb(data, camera)
+        from abyss.stations.simulation.optics import range_of_depth
+
+        range_m = range_of_depth(self.depth_m(data, camera), self.intrinsics(camera))
+        return optics.image(self.plain_rgb(data, camera), range_m, self.rng)
 
     def depth_m(self, data: object, camera: str) -> np.ndarray:
         if camera in self.blackout:
@@ -108,3 +140,26 @@ class Cameras:
     def close(self) -> None:
         self.renderer.close()
         self.depth_renderer.close()
+
+
+def lamps_of(model: object, camera: str) -> tuple[Lamp, ...]:
+    """The spot lights on the camera's body, in the camera's frame (OpenCV axes)."""
+    import mujoco
+
+    from abyss.stations.simulation.optics import Lamp
+
+    m = model
+    cam = m.camera(camera)  # type: ignore[attr-defined]
+    quat = np.empty(4)
+    mujoco.mju_mulQuat(quat, cam.quat, np.array([0.0, 1.0, 0.0, 0.0]))  # as Cameras.pose_in_vehicle
+    flat = np.empty(9)
+    mujoco.mju_quat2Mat(flat, quat)
+    rotation = flat.reshape(3, 3)  # camera axes to body axes
+    lamps = []
+    for i in range(m.nlight):  # type: ignore[attr-defined]
+        if m.light_bodyid[i] != cam.bodyid[0] or m.light_type[i] != mujoco.mjtLightType.mjLIGHT_SPOT:  # type: ignore[attr-defined]
+            continue
+        lamps.append(Lamp(tuple((rotation.T @ (m.light_pos[i] - cam.pos)).tolist()),  # type: ignore[attr-defined]
+                          tuple((rotation.T @ m.light_dir[i]).tolist()),  # type: ignore[attr-defined]
+                          float(np.radians(m.light_cutoff[i])), float(m.light_exponent[i])))  # type: ignore[attr-defined]
+    return tuple(lamps)

@@ -10,6 +10,7 @@ import mujoco
 import numpy as np
 
 from abyss.common.config import SimulationConfig
+from abyss.common.errors import ConfigError
 from abyss.common.messages import (
     ArmVelocityRef,
     JointState,
@@ -24,14 +25,15 @@ from abyss.common.models import (
     CAMERAS,
     GRIPPER_JOINTS,
     NAV_SENSORS,
-    THRUSTERS,
+    VEHICLE_FILE,
     WORLD_FILE,
     panel,
 )
 from abyss.common.runfiles import write_whole
+from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import Buoyancy, Current
-from abyss.stations.simulation.navigation import Navigation, NoiseSigmas
+from abyss.stations.simulation.navigation import DvlBeams, Navigation
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
 SEIZED_PLAY_RAD = 0.005  # a seized valve or lever moves no further than this either way
@@ -55,13 +57,22 @@ class World:
         self.data = mujoco.MjData(self.model)
         gains = PidGains(config.vehicle_kp, config.vehicle_ki, config.vehicle_kd, config.arm_kp,
                          config.arm_ki, config.gripper_kp)
-        self.controller = LOW_LEVELS[config.low_level](self.model, gains)
+        self.vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else VEHICLE_FILE)
+        missing = [n for n in self.vehicle.thrusters.names
+                   if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0]
+        if missing:
+            raise ConfigError("simulation.vehicle_file", f"thrusters.names: {', '.join(missing)} not "
+                                                         f"motors of the MJCF")
+        self.controller = LOW_LEVELS[config.low_level](self.model, gains, self.vehicle)
         self.plant = self.controller.plant
-        self.buoyancy = Buoyancy(self.model)
-        self.current = Current(config.current_mps_world, config.current_variation_mps,
-                               config.current_period_s, rng)
-        self.navigation = Navigation(NoiseSigmas(config.usbl_sigma_m, config.depth_sigma_m,
-                                                 config.dvl_sigma_mps, config.imu_sigma_rad), rng)
+        self.hydrodynamics: Fossen | None = None
+        if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
+            self.hydrodynamics = Fossen(self.model, self.vehicle)
+        self.buoyancy = Buoyancy(self.model, dry=() if self.hydrodynamics is None else ("vehicle",))
+        self.current = Current(config.current_profile, config.current_sigma_mps,
+                               config.current_time_constant_s, rng)
+        self.water_mps_world = np.zeros(3)  # the current where the vehicle is
+        self.navigation = Navigation(config, rng)
         self.faults: dict[str, float] = {}
         self.parts = (*panel.VALVES, *panel.LEVERS)
         self._part_qpos = np.array([self.model.joint(n).qposadr[0] for n in self.parts])
@@ -79,6 +90,8 @@ class World:
         for name, angle_rad in zip(ARM_JOINTS, ARM_STOWED_RAD, strict=True):
             self.data.qpos[self.model.joint(name).qposadr[0]] = angle_rad
         mujoco.mj_forward(self.model, self.data)
+        self.dvl = DvlBeams(self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m,
+                            config.dvl_max_altitude_m)
 
     def step(self, refs: References, period_s: float) -> None:
         """Advance by `period_s` [s] (a whole number of physics steps)."""
@@ -88,9 +101,16 @@ class World:
             if i % every == 0:  # the low level runs at its own rate; its outputs hold between
                 self.controller.apply(self.data, refs, dt * every)
                 if self.controller.dynamics:
-                    self.current.apply(self.model, self.data.time)
+                    self.current.advance(self.data.time)
+                    depth_z_m = self.data.qpos[self.plant.qpos + 2]
+                    self.water_mps_world = self.current.velocity_mps_world(depth_z_m)
+                    self.model.opt.wind[:] = self.water_mps_world  # for the arm's drag
                     self.buoyancy.apply(self.data)
-            if self.controller.dynamics:
+            if self.hydrodynamics is not None and self.controller.dynamics:
+                mujoco.mj_step1(self.model, self.data)
+                self.hydrodynamics.apply(self.model, self.data, self.water_mps_world)
+                mujoco.mj_step2(self.model, self.data)
+            elif self.controller.dynamics:
                 mujoco.mj_step(self.model, self.data)
             else:  # kinematic: positions follow the velocities exactly; nothing else moves
                 self.data.qvel[self._passive_dofs] = 0.0
@@ -104,11 +124,13 @@ class World:
         p = self.plant.qpos
         quat = self.data.qpos[p + 3:p + 7] / np.linalg.norm(self.data.qpos[p + 3:p + 7])
         velocity = self.plant.vehicle_velocity_body(self.data)
-        return NavState(self.data.qpos[p:p + 3].copy(), quat, velocity[:3], velocity[3:],
-                        float(self.data.time))
+        position, t = self.data.qpos[p:p + 3].copy(), float(self.data.time)
+        return NavState(position, quat, velocity[:3], velocity[3:], t, usbl_time_s=t,
+                        depth_m=float(-position[2]))
 
     def nav(self) -> NavState:
-        return self.navigation.measure(self.truth())
+        """The sensors' readings now; once every control period (a USBL fix is due by the clock)."""
+        return self.navigation.measure(self.truth(), self.dvl.bottom_lock(self.data))
 
     def joints(self) -> JointState:
         d, p = self.data, self.plant
@@ -172,7 +194,7 @@ class World:
             if self.controller.dynamics:
                 self.controller.thrusters.efficiency[:] = 1.0
             return
-        allowed = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS,
+        allowed = {"thruster": self.vehicle.thrusters.names, "camera": CAMERAS, "noise": NAV_SENSORS,
                    "seize": self.parts}[fault.fault]
         if fault.target not in allowed:
             raise ValueError(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
@@ -180,7 +202,8 @@ class World:
             if fault.value > 1.0:
                 raise ValueError("thruster efficiency must lie in [0, 1]")
             if self.controller.dynamics:
-                self.controller.thrusters.efficiency[THRUSTERS.index(fault.target)] = fault.value
+                self.controller.thrusters.efficiency[self.vehicle.thrusters.names.index(fault.target)] = \
+                    fault.value
         elif fault.fault == "seize":  # stuck where it stands: its stops close in on it
             i = self.parts.index(fault.target)
             angle_rad = float(self.data.qpos[self._part_qpos[i]])

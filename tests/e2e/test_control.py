@@ -98,7 +98,8 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Flight]:
 
 @pytest.mark.parametrize("low_level", FLIGHTS)
 def test_three_waypoints_are_reached(flights: dict[str, Flight], low_level: str) -> None:
-    """Within 150 s (measured: 15-70 s kinematic, 18-40 s dynamic, on 2 loaded cores). The
+    """Within 150 s (measured: 27-29 s kinematic, 20-24 s dynamic, on 2 loaded cores; the former
+    PI took 69 s kinematic, its integral overshooting each waypoint and creeping back 30 s). The
     controller accepts a waypoint at half the bound; the true pose, scored on the truth key,
     must be within the bound."""
     tolerance_m, tolerance_deg, _ = FLIGHTS[low_level]

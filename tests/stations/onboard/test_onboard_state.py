@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from abyss.common.config import OnboardConfig
 from abyss.common.messages import Heartbeat, NavState
 from abyss.stations.onboard.failsafe import Failsafe
 from abyss.stations.onboard.navigation import NavFilter
@@ -27,14 +28,15 @@ def test_failsafe_enters_on_each_cause_counts_entries_and_resumes() -> None:
 
 def test_nav_filter_cuts_the_fix_noise_and_follows_motion() -> None:
     rng = np.random.default_rng(0)
-    nav_filter, raw, filtered = NavFilter(5.0), [], []
-    for i in range(2000):  # 100 s at 20 Hz, moving at 0.2 m/s forward
+    nav_filter, raw, filtered = NavFilter(OnboardConfig(nav_usbl_sigma_m=0.05)), [], []
+    for i in range(2000):  # 100 s at 20 Hz, moving at 0.2 m/s forward, a fix each time
         t_s = i * 0.05
         truth = np.array([0.2 * t_s, 0.0, -7.0])
         fix = truth + rng.normal(0, [0.05, 0.05, 0.01])
         state = NavState(fix, np.array([1.0, 0, 0, 0]), np.array([0.2, 0, 0]) + rng.normal(0, 0.005, 3),
-                         np.zeros(3), t_s)
+                         np.zeros(3), t_s, usbl_time_s=t_s, depth_m=7.0 + rng.normal(0, 0.01))
         position, orientation = nav_filter.update(state)
+        assert position is not None
         if t_s > 20:  # past the filter's settling
             raw.append(np.linalg.norm(fix - truth))
             filtered.append(np.linalg.norm(position - truth))

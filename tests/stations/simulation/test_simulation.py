@@ -32,6 +32,9 @@ def test_buoyancy_balances_weight_of_the_vehicle_and_arm() -> None:
     subtree = [b for b in range(w.model.nbody) if w.model.body_rootid[b] == vehicle]
     weight_n = sum(w.model.body_mass[b] for b in subtree) * 9.81
     buoyancy_n = sum(w.buoyancy.force_n(i) for i, b in enumerate(w.buoyancy.bodies) if b in subtree)
+    assert w.hydrodynamics is not None  # the hull's buoyancy is the vehicle file's, the arm's per link
+    assert vehicle not in w.buoyancy.bodies
+    buoyancy_n += w.hydrodynamics.buoyancy_n
     assert buoyancy_n == pytest.approx(weight_n, rel=1e-3)
 
 
@@ -94,11 +97,11 @@ def test_dynamic_arm_tracks_joint_velocity() -> None:
 
 def test_a_failed_thruster_slows_the_vehicle_and_clear_restores_it() -> None:
     def surge_after(w: World) -> float:
-        for _ in range(300):
+        for _ in range(500):  # 5 s: the rotors' lag and the added mass slow the start
             w.step(References(np.array([0.5, 0, 0, 0]), np.zeros(6), 0.0), DT_S)
         return float(body_velocity(w)[0])
 
-    assert surge_after(world()) == pytest.approx(0.5, abs=0.01)
+    assert surge_after(world()) == pytest.approx(0.5, abs=0.015)
     w = world()
     horizontal = ("thr_fl", "thr_fr", "thr_rl", "thr_rr")
     for thruster in horizontal:
@@ -113,11 +116,11 @@ def test_a_failed_thruster_slows_the_vehicle_and_clear_restores_it() -> None:
 
 def test_noise_fault_raises_navigation_noise() -> None:
     w = world()
-    truth = w.truth().position_m_world
-    nominal = np.std([w.nav().position_m_world[0] - truth[0] for _ in range(2000)])
-    w.apply_fault(SimulationControl("noise", "usbl", 10.0), set())
-    raised = np.std([w.nav().position_m_world[0] - truth[0] for _ in range(2000)])
-    assert nominal == pytest.approx(0.05, rel=0.1) and raised == pytest.approx(0.5, rel=0.1)
+    nominal = np.std([w.nav().angular_velocity_radps_body[0] for _ in range(2000)])
+    w.apply_fault(SimulationControl("noise", "imu", 10.0), set())
+    raised = np.std([w.nav().angular_velocity_radps_body[0] for _ in range(2000)])
+    assert nominal == pytest.approx(0.1 * w.config.imu_sigma_rad, rel=0.1)
+    assert raised == pytest.approx(10 * nominal, rel=0.1)
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +181,8 @@ def project(w: World, cams: Cameras, camera: str, point_world: np.ndarray) -> tu
 
 def test_a_seed_makes_a_run_repeatable() -> None:
     def run(seed: int) -> list[np.ndarray]:
-        w = World(SimulationConfig(current_variation_mps=0.2), np.random.default_rng(seed))
+        w = World(SimulationConfig(current_sigma_mps=0.2, current_time_constant_s=5.0),
+                  np.random.default_rng(seed))
         out = []
         for _ in range(50):
             w.step(References(np.array([0.2, 0.0, 0.0, 0.1]), np.zeros(6), 0.0), 0.05)

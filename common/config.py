@@ -60,10 +60,10 @@ class SimulationConfig:
     start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -7.0)
     start_yaw_rad: float = 0.0
     # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
-    # (with the added mass the vehicle is 4-5 t in translation: a bandwidth of about 2.5 rad/s,
-    # inside the thrusters' 0.2 s lag; the damping is fed forward from the vehicle file)
-    vehicle_kp: tuple[float, float, float, float] = (12000.0, 12000.0, 12000.0, 5000.0)
-    vehicle_ki: tuple[float, float, float, float] = (3000.0, 3000.0, 3000.0, 600.0)
+    # (the damping is fed forward from the vehicle file; stiffer translation, 12000/3000, holds
+    # the vehicle so hard against the arm's push that the fingers close on a valve's hub)
+    vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 5000.0)
+    vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 600.0)
     vehicle_kd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     arm_kp: float = 400.0  # [N m/(rad/s)]
     arm_ki: float = 200.0
@@ -156,6 +156,10 @@ class SimulationConfig:
                                   f"{period} s is not a whole multiple of {base_name} = {base} s")
 
 
+STEREO_SWITCHES = ("stereo_uniqueness_percent", "stereo_speckle_window_px", "stereo_lr_max_diff_px",
+                   "stereo_min_texture", "stereo_edge_step_px")  # 0: that filter off
+
+
 @dataclass(frozen=True)
 class OnboardConfig:
     control_period_s: float = 0.05  # [s]
@@ -202,6 +206,18 @@ class OnboardConfig:
     cloud_scale_m: float = 0.002  # [m] quantisation on the wire
     stereo_disparities: int = 64  # searched by the stereo matcher (a multiple of 16) [px]
     self_filter_radius_m: float = 0.15  # [m] points this close to the arm are the arm's
+    # the stereo matcher's filters (perception.StereoFilter), against points floating in open
+    # water (edges smeared by the block, sensor noise and marine snow matched at random); 0
+    # switches one off: a match beats the second best by this margin [%], patches of like
+    # disparity (within the range) smaller than the window dropped [px], the right-to-left
+    # disparity within this of the left-to-right one [px], a block's intensity spread (after a
+    # 5x5 blur) at least this [grey levels], no disparity step larger than this in a block [px]
+    stereo_uniqueness_percent: int = 15
+    stereo_speckle_window_px: int = 400
+    stereo_speckle_range_px: int = 2
+    stereo_lr_max_diff_px: float = 1.0
+    stereo_min_texture: float = 0.5
+    stereo_edge_step_px: float = 1.0
     image_rate_hz: float = 1.0  # the left camera's frames sent on to the vessel
     image_jpeg_quality: int = 70
 
@@ -219,7 +235,10 @@ class OnboardConfig:
             if not isinstance(value, (bool, tuple)):
                 _positive(f"onboard.{f.name}", value,
                           allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s",
-                                                "image_rate_hz"))
+                                                "image_rate_hz") or f.name in STEREO_SWITCHES)
+        if self.stereo_uniqueness_percent > 100:
+            raise ConfigError("onboard.stereo_uniqueness_percent",
+                              f"{self.stereo_uniqueness_percent} outside [0, 100]")
         if self.kp_constraint * self.control_period_s >= 1.0:
             raise ConfigError("onboard.kp_constraint",
                               f"kp_constraint * control_period_s must stay below 1 (got "

@@ -426,13 +426,13 @@ class Up:
                 self._restart(station)
             mission = self.mission
             elapsed = time.monotonic() - t0
-            if mission is not None and mission.done and not self._interventions_true():
-                mission = None  # shore believes it; the simulation's truth does not (yet)
-            if mission is not None and mission.done and self.mission_done_s is None:
+            # done when shore says so and the simulation's truth agrees
+            done = mission is not None and mission.done and self._interventions_true()
+            if done and self.mission_done_s is None:
                 self.mission_done_s = elapsed
                 self._change_state(mission_done=True)
                 self.echo(f"abyss: mission complete at t={elapsed:.1f} s")
-            if mission is not None and mission.done and not keep_running:
+            if done and not keep_running:
                 return ""
             if duration_s is not None and elapsed >= duration_s:
                 return ""
@@ -447,7 +447,9 @@ class Up:
                                 f"{mission.intervention_target} {mission.intervention_phase}"
                                 if mission.interventions_total else "")
                              + (f" ({mission.intervention_reason})" if mission.intervention_reason else "")
-                             + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else ""))
+                             + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else "")
+                             + ("; done on shore, not in the simulation's truth" if mission.done and not done
+                                else ""))
                 self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")

@@ -5,7 +5,8 @@ second after it was taken: it is compared with the estimate of that moment, kept
 history, and the correction is applied now (`delay_compensation`; without it the fix is read
 as if taken now, and a moving vehicle's estimate trails by its speed times the delay). A fix
 too far off for the uncertainty (the innovation gate) is rejected and counted. Without bottom
-lock the DVL's last velocity fades out and the uncertainty grows (coasting). Depth is the
+lock the DVL's last velocity fades out and the uncertainty grows (coasting). The output takes
+each correction up over a couple of seconds (BLEND_S) rather than in one step. Depth is the
 pressure sensor's, and attitude the IMU's, each smoothed by integrating the DVL's heave and the
 gyro's rates with one time constant. A pure core: messages (with their simulated time) in,
 the estimate out."""
@@ -29,6 +30,9 @@ COAST_SIGMA_MPS = 0.1  # [m/s per sqrt(s)] the position's uncertainty grows so w
 BIAS_WALK_MPS = 1e-5  # [m/s per sqrt(s)] how fast the DVL's bias (in the world frame) may wander
 BIAS_SIGMA_MPS = 0.005  # [m/s] the DVL's bias, as first assumed
 RESET_AFTER_REJECTED = 5  # fixes rejected in a row: the estimate, not the fixes, is wrong; start afresh
+# [s] each fix's correction reaches the output over this time constant, not in one step: an arm
+# holding a valve's handle through the output would be jerked by millimetres at every fix
+BLEND_S = 2.0
 log = logging.getLogger(__name__)
 
 
@@ -54,6 +58,7 @@ class NavFilter:
         self.covariance = np.diag([math.inf, BIAS_SIGMA_MPS ** 2])  # position [m^2], bias [(m/s)^2]
         self.velocity_mps_world = np.zeros(3)  # the latest used: the DVL's, or fading while coasting
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (sim time [s], x and y [m, world])
+        self.pending_m = np.zeros(2)  # of the corrections, what the output has not taken up yet
         self._rejected_in_a_row = 0
         self._fix_s = -1.0  # when the latest fix used was taken
         self._stamp_s: float | None = None
@@ -75,7 +80,11 @@ class NavFilter:
         if nav.usbl_time_s > self._fix_s:
             self._fix_s = nav.usbl_time_s
             self._fix(nav)
-        return self.position_m_world, self.orientation_wxyz_world
+        if self.position_m_world is None:
+            return None, self.orientation_wxyz_world
+        self.pending_m *= math.exp(-dt / BLEND_S)
+        return np.r_[self.position_m_world[:2] - self.pending_m, self.position_m_world[2]], \
+            self.orientation_wxyz_world
 
     def _gain(self, dt: float) -> float:
         return 1.0 if self.time_constant_s == 0 else dt / (self.time_constant_s + dt)
@@ -126,6 +135,7 @@ class NavFilter:
         self.accepted += 1
         gain = self.covariance[:, 0] / spread_m2  # position's, bias's
         correction = gain[0] * innovation
+        self.pending_m += correction
         self.position_m_world = np.r_[self.position_m_world[:2] + correction, self.position_m_world[2]]
         self.bias_mps_world += gain[1] * innovation
         self.covariance = self.covariance - np.outer(gain, self.covariance[0])
@@ -148,6 +158,7 @@ class NavFilter:
 
     def _start(self, nav: NavState) -> None:
         self.position_m_world = np.r_[nav.position_m_world[:2], -nav.depth_m]
+        self.pending_m = np.zeros(2)
         self.covariance = np.diag([self.fix_variance_m2, BIAS_SIGMA_MPS ** 2])
         self.bias_mps_world = np.zeros(2)
         self.history.clear()

@@ -9,6 +9,7 @@ import itertools
 import logging
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -18,6 +19,9 @@ from abyss.common.geometry import quat_wxyz_of, rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, PointCloud
 from abyss.stations.onboard.navigation import nlerp
+
+if TYPE_CHECKING:
+    from abyss.common.config import OnboardConfig
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +75,54 @@ def colors_at(points_m_camera: np.ndarray, camera: Camera, rgb: np.ndarray) -> t
     return colors, seen
 
 
+@dataclass(frozen=True)
+class StereoFilter:
+    """What the stereo matcher keeps, against points floating in open water: a disparity survives
+    only where the block has texture (sensor noise and marine snow do not count), the best match
+    beats the second by the uniqueness margin, matching right to left finds the same disparity
+    (left-right consistency), its connected patch of like disparities is large (speckle
+    filtering) and no disparity step lies within its block (an occlusion edge). 0 switches a
+    check off; the matcher before these filters was StereoFilter(10, 100, 2, 0, 0, 0).
+    bench/perception.py measures them over the default mission."""
+
+    uniqueness_ratio: int = 15  # [%] the best cost beats the second best by this margin
+    speckle_window_px: int = 400  # connected patches of like disparity smaller than this are dropped [px]
+    speckle_range_px: int = 2  # neighbours within this disparity are of one patch [px]
+    lr_max_diff_px: float = 1.0  # the right-to-left disparity may differ by this [px]
+    min_texture: float = 0.5  # the block's intensity spread below this: no disparity (texture_of) [grey]
+    # block matching smears a near surface's disparity over the far one beside it (half a block):
+    # points floating off an edge. A disparity step larger than this within a block drops the
+    # block's pixels [px]
+    edge_step_px: float = 1.0
+
+    @staticmethod
+    def of(cfg: OnboardConfig) -> StereoFilter:
+        return StereoFilter(cfg.stereo_uniqueness_percent, cfg.stereo_speckle_window_px,
+                            cfg.stereo_speckle_range_px, cfg.stereo_lr_max_diff_px, cfg.stereo_min_texture,
+                            cfg.stereo_edge_step_px)
+
+
+def texture_of(grey: np.ndarray, block_px: int) -> np.ndarray:
+    """The standard deviation of the intensity [grey levels] over the block around each pixel, of
+    the image smoothed over 5x5 px first: a sensor's pixel noise (independent from pixel to
+    pixel, which the matcher pairs at random) counts for a fifth of its own, the scene's texture
+    for most of its."""
+    image = cv2.GaussianBlur(grey.astype(np.float32), (5, 5), 0)
+    size = (block_px, block_px)
+    mean = cv2.boxFilter(image, -1, size, borderType=cv2.BORDER_REFLECT)
+    mean_of_squares = cv2.boxFilter(image * image, -1, size, borderType=cv2.BORDER_REFLECT)
+    return np.sqrt(np.maximum(mean_of_squares - mean * mean, 0.0))
+
+
+def disparity_edges(disparity_px: np.ndarray, valid: np.ndarray, block_px: int, step_px: float) -> np.ndarray:
+    """Pixels whose block holds valid disparities [px] more than `step_px` apart."""
+    kernel = np.ones((block_px, block_px), np.uint8)
+    none = np.float32(1e6)
+    highest = cv2.dilate(np.where(valid, disparity_px, np.float32(0.0)), kernel)
+    lowest = cv2.erode(np.where(valid, disparity_px, none), kernel)
+    return (highest - lowest > step_px) & (lowest < none)
+
+
 def stereo_depth(
     left_rgb: np.ndarray,
     right_rgb: np.ndarray,
@@ -78,27 +130,47 @@ def stereo_depth(
     baseline_m: float,
     disparities: int = 64,
     block_px: int = 9,
+    kept: StereoFilter = StereoFilter(),
 ) -> np.ndarray:
     """Depth [m] along the left camera's axis from a rectified pair by semi-global matching;
-    0 where no disparity was found. The full-pixel-pairs mode: the five-direction default
-    overestimated disparity here by 0.14 px on average (4.5 cm closer at 4 m)."""
-    matcher = cv2.StereoSGBM.create(
-        minDisparity=0,
-        numDisparities=disparities,
-        blockSize=block_px,
-        P1=8 * block_px**2,
-        P2=32 * block_px**2,
-        uniquenessRatio=10,
-        speckleWindowSize=100,
-        speckleRange=2,
-        disp12MaxDiff=1,
-        mode=cv2.STEREO_SGBM_MODE_HH,
-    )
+    0 where no disparity was found or `kept` rejects it. The full-pixel-pairs mode: the
+    five-direction default overestimated disparity here by 0.14 px on average (4.5 cm closer at
+    4 m). The left-right check matches the mirrored pair (the right image, mirrored, as the left)
+    with the same matcher, since this OpenCV has no cv2.ximgproc."""
+
+    def matcher() -> cv2.StereoSGBM:
+        return cv2.StereoSGBM.create(
+            minDisparity=0,
+            numDisparities=disparities,
+            blockSize=block_px,
+            P1=8 * block_px**2,
+            P2=32 * block_px**2,
+            uniquenessRatio=kept.uniqueness_ratio,
+            speckleWindowSize=kept.speckle_window_px,
+            speckleRange=kept.speckle_range_px,
+            disp12MaxDiff=1,
+            mode=cv2.STEREO_SGBM_MODE_HH,
+        )
+
     left = cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)
     right = cv2.cvtColor(right_rgb, cv2.COLOR_RGB2GRAY)
-    disparity_px = matcher.compute(left, right).astype(np.float32) / 16.0  # fixed point, 4 bits
-    depth_m = np.zeros_like(disparity_px)
+    disparity_px = matcher().compute(left, right).astype(np.float32) / 16.0  # fixed point, 4 bits
     valid = disparity_px > 0.5
+    if kept.min_texture > 0:
+        valid &= texture_of(left, block_px) >= kept.min_texture
+    if kept.lr_max_diff_px > 0:
+        # the right camera's disparity at each of its pixels: the mirrored right image matched
+        # against the mirrored left one, mirrored back
+        mirrored = matcher().compute(np.ascontiguousarray(right[:, ::-1]),
+                                     np.ascontiguousarray(left[:, ::-1]))
+        right_disparity_px = mirrored[:, ::-1].astype(np.float32) / 16.0
+        rows, cols = np.indices(disparity_px.shape)
+        target = np.clip(np.rint(cols - disparity_px).astype(np.int64), 0, disparity_px.shape[1] - 1)
+        back_px = right_disparity_px[rows, target]
+        valid &= (back_px > 0.5) & (np.abs(back_px - disparity_px) <= kept.lr_max_diff_px)
+    if kept.edge_step_px > 0:
+        valid &= ~disparity_edges(disparity_px, valid, block_px, kept.edge_step_px)
+    depth_m = np.zeros_like(disparity_px)
     depth_m[valid] = focal_px * baseline_m / disparity_px[valid]
     return depth_m
 
@@ -146,6 +218,7 @@ class CloudSettings:
     scale_m: float = 0.002  # quantisation step on the wire
     stereo_disparities: int = 64
     self_filter_radius_m: float = 0.15  # points this close to the arm are the arm's
+    stereo_filter: StereoFilter = StereoFilter()
 
 
 def world_cloud(
@@ -224,6 +297,7 @@ def clouds_of(
             float(left_camera.matrix[0, 0]),
             baseline_m,
             settings.stereo_disparities,
+            kept=settings.stereo_filter,
         )
         clouds.append(
             world_cloud(

@@ -1,0 +1,178 @@
+"""Stereo perception over a whole mission: precision and recall of the scene model's occupied
+cells against the world's geometry, and the stereo cloud's cost per frame, with the stereo
+filters (perception.StereoFilter) and without them (OpenCV's semi-global matcher as it was),
+in clear water (simulation.water "none": MuJoCo's fog) and in Jerlov's oceanic type I
+(attenuation, backscatter, marine snow and sensor noise).
+
+The vehicle flies the default mission's path (MissionConfig's waypoints from the start pose,
+yaw turning along each leg) at onboard's speed limit, a frame set at each camera period; each
+stereo cloud is made by the onboard core (clouds_of) from the true pose and integrated as the
+vessel does (SceneModel.insert at its resolution and range). The truth is the left camera's
+depth render at the same poses (MuJoCo's depth buffer: a ray cast through every pixel) within
+the clouds' range, as cells of the same octree grid. An occupied cell is right when a truth
+cell lies within one cell of it (stereo's depth error at 4 m is 4 cm, a cell is 10 cm);
+precision: the occupied cells that are right over all occupied cells; recall: the truth cells
+with an occupied cell within one cell of them over all truth cells. Strict figures (the same
+cell) are printed too.
+
+Run: .venv/bin/python bench/perception.py [frames]. Prints figures; asserts nothing. Also
+stereo_depth's cost alone on one pair (the left-right check matches twice).
+tests/stations/onboard/test_stereo_filter.py runs `measure` on a short path."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from abyss.stations.simulation.rendering import choose_gl_backend
+
+choose_gl_backend()
+
+import mujoco  # noqa: E402
+
+from abyss.common.clouds import unpack_cloud  # noqa: E402
+from abyss.common.config import MissionConfig, OnboardConfig, SimulationConfig, VesselConfig  # noqa: E402
+from abyss.common.geometry import rotation_of  # noqa: E402
+from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.common.scene import SceneModel, cell_keys, iterate_leaves, leaves_to_cells  # noqa: E402
+from abyss.stations.onboard.perception import (  # noqa: E402
+    Camera,
+    CloudSettings,
+    StereoFilter,
+    clouds_of,
+    depth_to_points,
+    stereo_depth,
+)
+from abyss.stations.simulation.encoding import encode_image  # noqa: E402
+from abyss.stations.simulation.rendering import Cameras  # noqa: E402
+from abyss.stations.simulation.world import World  # noqa: E402
+
+UNFILTERED = StereoFilter(uniqueness_ratio=10, speckle_window_px=100, speckle_range_px=2,
+                          lr_max_diff_px=0.0, min_texture=0.0, edge_step_px=0.0)  # before the filters
+NEIGHBOURS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3)
+
+
+def mission_poses(step_m: float) -> Iterator[tuple[np.ndarray, float]]:
+    """Positions [m, world] and yaws [rad] every `step_m` along the default mission's legs."""
+    position = np.array(SimulationConfig().start_position_m_world, float)
+    yaw_rad = SimulationConfig().start_yaw_rad
+    yield position, yaw_rad
+    for *goal, goal_yaw_rad in MissionConfig().waypoints:
+        length_m = float(np.linalg.norm(np.array(goal) - position))
+        steps = max(1, int(np.ceil(length_m / step_m)))
+        for i in range(1, steps + 1):
+            f = i / steps
+            yield position + f * (np.array(goal) - position), yaw_rad + f * (goal_yaw_rad - yaw_rad)
+        position, yaw_rad = np.array(goal, float), goal_yaw_rad
+
+
+@dataclass(frozen=True)
+class Figures:
+    frames: int
+    occupied: int  # cells of the scene model
+    truth: int  # cells the cameras' rays hit within range
+    precision: float  # occupied cells within one cell of a truth cell, over the occupied
+    recall: float  # truth cells within one cell of an occupied cell, over the truth
+    strict_precision: float  # the same cell
+    strict_recall: float
+    stereo_s: float  # [s] the stereo cloud per frame (clouds_of), mean
+
+    def __str__(self) -> str:
+        return (f"{self.frames} frames: {self.occupied} occupied cells, {self.truth} truth cells; "
+                f"precision {self.precision:.3f} (strict {self.strict_precision:.3f}), "
+                f"recall {self.recall:.3f} (strict {self.strict_recall:.3f}); "
+                f"stereo cloud {self.stereo_s * 1e3:.0f} ms per frame")
+
+
+def near(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
+    """Whether each cell of `keys` has a cell of `of` within one cell (26-neighbourhood)."""
+    axis = np.int64(1 << 16)
+    offsets = (NEIGHBOURS[:, 0] * axis + NEIGHBOURS[:, 1]) * axis + NEIGHBOURS[:, 2]
+    return np.isin(keys[:, None] + offsets[None, :], of).any(axis=1)
+
+
+def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, step_m: float | None = None,
+            seed: int = 0) -> Figures:
+    """The figures over the first `frames` frame sets (all: None) of the mission's path, a frame
+    set every `step_m` (None: onboard's speed limit over the camera period)."""
+    sim, onboard, vessel = SimulationConfig(water=water), OnboardConfig(), VesselConfig()
+    step_m = step_m if step_m is not None else onboard.max_speed_mps / sim.camera_rate_hz
+    world = World(sim, np.random.default_rng(seed))
+    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow,
+                      np.random.default_rng(seed))
+    settings = CloudSettings(onboard.cloud_voxel_m, onboard.cloud_max_range_m, onboard.cloud_scale_m,
+                             onboard.stereo_disparities, onboard.self_filter_radius_m, kept)
+    model = SceneModel(vessel.octree_resolution_m, vessel.octree_max_range_m)
+    truth: list[np.ndarray] = []
+    stereo_s = 0.0
+    p = world.plant.qpos
+    count = 0
+    try:
+        for position, yaw_rad in mission_poses(step_m):
+            if frames is not None and count >= frames:
+                break
+            count += 1
+            world.data.qpos[p:p + 3] = position
+            world.data.qpos[p + 3:p + 7] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
+            mujoco.mj_forward(world.model, world.data)
+            images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in CAMERAS}
+            pose = (position, np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]))
+            t0 = time.perf_counter()
+            cloud = clouds_of(images, pose, np.zeros((0, 3)), ("stereo",), settings)[0]
+            stereo_s += time.perf_counter() - t0
+            model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
+            left = Camera.of(images["cam_left"])
+            points, _ = depth_to_points(cameras.depth_m(world.data, "cam_left"), left, settings.max_range_m)
+            in_vehicle = points @ left.rotation_in_vehicle.T + left.position_m_vehicle
+            truth.append(cell_keys(in_vehicle @ rotation_of(pose[1]).T + position, model.resolution_m))
+    finally:
+        cameras.close()
+    centres, sizes, occupied, _ = iterate_leaves(model.tree)
+    occupied_keys = np.unique(leaves_to_cells(centres[occupied], sizes[occupied], model.resolution_m)[0])
+    truth_keys = np.unique(np.concatenate(truth))
+    return Figures(
+        count, len(occupied_keys), len(truth_keys),
+        float(near(occupied_keys, truth_keys).mean()) if len(occupied_keys) else 0.0,
+        float(near(truth_keys, occupied_keys).mean()),
+        float(np.isin(occupied_keys, truth_keys).mean()) if len(occupied_keys) else 0.0,
+        float(np.isin(truth_keys, occupied_keys).mean()),
+        stereo_s / max(count, 1),
+    )
+
+
+def stereo_cost_s(kept: StereoFilter, water: str, repeats: int = 10) -> float:
+    """[s] stereo_depth alone on the start pose's pair, mean of `repeats` after one."""
+    sim = SimulationConfig(water=water)
+    world = World(sim, np.random.default_rng(0))
+    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow)
+    try:
+        left, right = cameras.rgb(world.data, "cam_left"), cameras.rgb(world.data, "cam_right")
+        focal_px = cameras.intrinsics("cam_left").fx_px
+        baseline_m = float(np.linalg.norm(cameras.pose_in_vehicle("cam_right")[:3]
+                                          - cameras.pose_in_vehicle("cam_left")[:3]))
+    finally:
+        cameras.close()
+    disparities = OnboardConfig().stereo_disparities
+    stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept)
+    return (time.perf_counter() - t0) / repeats
+
+
+def main() -> None:
+    frames = int(sys.argv[1]) if len(sys.argv) > 1 else None
+    for water in ("none", "I"):
+        before, after = stereo_cost_s(UNFILTERED, water), stereo_cost_s(StereoFilter(), water)
+        print(f"water {water}: stereo_depth {before * 1e3:.0f} ms per pair unfiltered, {after * 1e3:.0f} ms "
+              f"filtered ({after / before:.2f}x)", flush=True)
+        for name, kept in (("unfiltered", UNFILTERED), ("filtered", StereoFilter())):
+            print(f"water {water}, {name}: {measure(kept, water, frames)}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

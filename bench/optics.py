@@ -4,7 +4,8 @@ mission's start pose (the panel 4 m off) and from its last waypoint (at arm's le
 - the render with the optics: the plain render, a depth render of the same camera for the range,
   and the optics (the formation model, marine snow, exposure and noise), for a clear oceanic
   type (I) and a turbid coastal one (9C), with the optics' share on its own;
-- the same through to the JPEG the station publishes (encoding.encode_image).
+- the same through to the JPEG the station publishes (encoding.encode_image);
+- the imaging sonar's image (stations/simulation/sonar.py), against the plain render.
 Run: .venv/bin/python bench/optics.py. Prints figures; asserts nothing."""
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from abyss.common.config import SimulationConfig  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.optics import range_of_depth  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
+from abyss.stations.simulation.sonar import ImagingSonar, SonarSpec  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
 
 REPEATS = 5  # as scene.timed takes them
@@ -36,6 +38,10 @@ def main() -> None:
         plain_s = timed(lambda: plain.rgb(world.data, CAMERA))  # noqa: B023
         jpeg_s = timed(lambda: encode_image(plain, world.data, CAMERA, sim.jpeg_quality))  # noqa: B023
         print(f"  {where}: plain render {plain_s * 1e3:.1f} ms, to JPEG {jpeg_s * 1e3:.1f} ms")
+        sonar, spec = ImagingSonar(world.model), SonarSpec()
+        sonar_s = timed(lambda: sonar.image(world.data, np.random.default_rng(0)))  # noqa: B023
+        print(f"    imaging sonar, {spec.beams} beams x {spec.rays_per_beam} rays, {spec.bins} bins: "
+              f"{sonar_s * 1e3:.1f} ms ({sonar_s / plain_s:.2f}x the plain render)")
         for water in ("I", "9C"):
             cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water,
                               rng=np.random.default_rng(0))

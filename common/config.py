@@ -60,8 +60,8 @@ class SimulationConfig:
     start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -7.0)
     start_yaw_rad: float = 0.0
     # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
-    # (the damping is fed forward from the vehicle file; stiffer translation, 12000/3000, holds
-    # the vehicle so hard against the arm's push that the fingers close on a valve's hub)
+    # (the damping is fed forward from the vehicle file; yaw's integral is slow so that the rotors'
+    # lag does not wind it up into an overshoot)
     vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 5000.0)
     vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 600.0)
     vehicle_kd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)

@@ -19,15 +19,20 @@ def world_at(position: tuple[float, float, float], yaw_rad: float) -> World:
     return World(config, np.random.default_rng(0))
 
 
-def truth_range_m(world: World, sonar: ImagingSonar, bearing_rad: float, elevation_rad: float = 0.0) -> float:
-    """One mj_ray from the sonar along a bearing, as the ground truth."""
+def truth_range_m(world: World, sonar: ImagingSonar, bearing_rad: float, elevation_rad: float = 0.0,
+                  body: str = "") -> float:
+    """One mj_ray from the sonar along a bearing, as the ground truth; with `body`, the ray must
+    end on that body's geoms."""
     d = world.data
     rotation = d.site_xmat[sonar.site].reshape(3, 3)
     local = np.array([math.cos(elevation_rad) * math.cos(bearing_rad),
                       math.cos(elevation_rad) * math.sin(bearing_rad), math.sin(elevation_rad)])
     geom = np.zeros(1, np.int32)
-    return float(mujoco.mj_ray(world.model, d, d.site_xpos[sonar.site].copy(), rotation @ local, None, True,
-                               sonar.body, geom))
+    origin = d.site_xpos[sonar.site].copy()
+    distance = float(mujoco.mj_ray(world.model, d, origin, rotation @ local, None, True, sonar.body, geom))
+    if body:
+        assert world.model.body(int(world.model.geom_bodyid[geom[0]])).name == body
+    return distance
 
 
 def strongest_range_m(image: np.ndarray, spec: SonarSpec, beam: int) -> float:
@@ -44,8 +49,7 @@ def test_the_panel_appears_at_its_ray_cast_range_and_bearing(yaw_deg: float) -> 
     image = sonar.image(world.data, np.random.default_rng(0))
     bearing = -math.radians(yaw_deg)
     beam = int(np.argmin(np.abs(spec.bearings_rad() - bearing)))
-    expected_m = truth_range_m(world, sonar, spec.bearings_rad()[beam])
-    assert 1.5 < expected_m < 3.5  # the panel, not the seabed
+    expected_m = truth_range_m(world, sonar, spec.bearings_rad()[beam], body="panel")
     assert strongest_range_m(image, spec, beam) == pytest.approx(expected_m, abs=2 * spec.bin_m())
     # the panel's columns are where its edges are: the strongest beam overall lies within the panel
     near, far = round((expected_m - 0.3) / spec.bin_m()), round((expected_m + 0.3) / spec.bin_m())
@@ -63,8 +67,9 @@ def test_the_seabed_appears_where_the_beams_meet_it() -> None:
     sonar = ImagingSonar(world.model, spec)
     image = sonar.image(world.data, np.random.default_rng(0))
     beam = spec.beams // 2
-    nearest_m = truth_range_m(world, sonar, spec.bearings_rad()[beam], -spec.vertical_aperture_rad / 2)
-    assert 0 < nearest_m < spec.range_max_m
+    nearest_m = truth_range_m(world, sonar, spec.bearings_rad()[beam], -spec.vertical_aperture_rad / 2,
+                              body="world")  # the seabed is a world geom
+    assert nearest_m < spec.range_max_m
     column = image[:, beam].astype(float)
     first_echo = int(np.argmax(column > 0.5 * column.max())) * spec.bin_m()
     assert first_echo == pytest.approx(nearest_m, abs=0.5)

@@ -114,6 +114,11 @@ class SimulationConfig:
         _positive("simulation.physics_step_s", self.physics_step_s)
         _positive("simulation.realtime_factor", self.realtime_factor)
         _positive("simulation.current_time_constant_s", self.current_time_constant_s)
+        if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
+            vehicle_file = Path(self.vehicle_file).expanduser()
+            if not vehicle_file.is_file():
+                raise ConfigError("simulation.vehicle_file", f"no such file: {vehicle_file.resolve()}")
+            object.__setattr__(self, "vehicle_file", str(vehicle_file.resolve()))
         if self.hydrodynamics not in HYDRODYNAMICS:
             raise ConfigError("simulation.hydrodynamics",
                               f"{self.hydrodynamics!r} not one of {', '.join(HYDRODYNAMICS)}")

@@ -49,11 +49,20 @@ def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
     ("ros2.domain=233", "ros2.domain"),
     ("ros2.namespace=abyss", "ros2.namespace"),
     ("ros2.listen=[]", "ros2.listen"),
+    ("simulation.vehicle_file=no-such-vehicle.toml", "simulation.vehicle_file"),
 ])
 def test_bad_config_names_the_field(override: str, field: str) -> None:
     with pytest.raises(ConfigError) as info:
         load(overrides=[override])
     assert info.value.field == field
+
+
+def test_a_vehicle_file_is_the_users_shells_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Relative to where the user typed it, not to the run directory the stations start in."""
+    (tmp_path / "mine.toml").write_text("")
+    monkeypatch.chdir(tmp_path)
+    config = load(overrides=["simulation.vehicle_file=mine.toml"])
+    assert config.simulation.vehicle_file == str(tmp_path.resolve() / "mine.toml")
 
 
 def test_config_file_error_names_the_file(tmp_path: Path) -> None:

@@ -102,6 +102,7 @@ class SimulationConfig:
     # is a multiple of the water type's own (0: none)
     water: str = "none"
     marine_snow: float = 1.0
+    sonar_rate_hz: float = 2.0  # the imaging sonar's frames (stations/simulation/sonar.py); 0: none
     # where the physics state is kept (every state_period_s) and resumed from at start, so that
     # a restarted simulation goes on where the vehicle was; "" keeps none (`abyss up` sets it)
     state_file: str = ""
@@ -129,8 +130,8 @@ class SimulationConfig:
         _positive("simulation.arm_kp", self.arm_kp)
         _positive("simulation.gripper_kp", self.gripper_kp)
         for name in ("arm_ki", "current_sigma_mps", "usbl_sigma_m", "dvl_sigma_mps", "imu_sigma_rad",
-                     "camera_rate_hz", "pressure_sigma_pa", "usbl_processing_s", "usbl_outlier_m",
-                     "dvl_min_altitude_m", "dvl_scale_error", "gyro_bias_walk_radps"):
+                     "camera_rate_hz", "sonar_rate_hz", "pressure_sigma_pa", "usbl_processing_s",
+                     "usbl_outlier_m", "dvl_min_altitude_m", "dvl_scale_error", "gyro_bias_walk_radps"):
             _positive(f"simulation.{name}", getattr(self, name), allow_zero=True)
         _positive("simulation.usbl_rate_hz", self.usbl_rate_hz)
         for name in ("usbl_outlier_probability", "usbl_dropout_probability"):
@@ -270,6 +271,12 @@ class VesselConfig:
     image_period_s: float = 5.0  # [s]
     image_scale: float = 0.5  # of the onboard frame's width and height
     image_jpeg_quality: int = 50
+    sonar_period_s: float = 5.0  # [s] the sonar's image relayed to shore, as JPEG, as the camera's
+    # the sonar's first echoes feed the scene model while the cameras' clouds bring no point for
+    # this long (murk, a failed camera); before that, the cameras' alone
+    sonar_fallback_s: float = 5.0  # [s]
+    perception_period_s: float = 2.0  # [s] what perception works with, to shore (PerceptionStatus)
+    perception_window_s: float = 10.0  # [s] ... counted over this long
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):

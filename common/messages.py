@@ -230,6 +230,38 @@ class Image(Message):
         _check_unit_quaternion(self.pose_camera[3:])
 
 
+SONAR_ENCODINGS = ("png8", "jpeg")
+
+
+@dataclass(frozen=True)
+class SonarImage(Message):
+    """An imaging sonar's polar image, as a sonar's driver sends it: rows are `bins` range bins
+    from 0 to `range_max_m` (nearest first), columns `beams` bearings evenly across
+    `horizontal_fov_rad` from port to starboard; a grey level is the echo's strength in decibels,
+    0 at the noise floor and 255 at `dynamic_range_db` above it. Each echo may come from anywhere
+    within `vertical_aperture_rad` about the middle beam: the image holds no elevation.
+    `pose_sonar`: the sonar's pose in `pose_frame`, x, y, z [m] and quaternion w, x, y, z, its axes
+    x along the middle beam, y to port, z up; the simulation sends it in the vehicle frame (the
+    mounting), onboard on in the world frame, as a camera's."""
+
+    sonar: str = scalar()
+    encoding: str = scalar(choices=SONAR_ENCODINGS)
+    pose_frame: str = scalar(choices=POSE_FRAMES)
+    beams: int = scalar(1, 4096)
+    bins: int = scalar(1, 8192)
+    range_max_m: float = scalar(0.1, 1000.0)
+    horizontal_fov_rad: float = scalar(1e-3, 2.0 * math.pi)
+    vertical_aperture_rad: float = scalar(1e-3, math.pi)
+    dynamic_range_db: float = scalar(1.0, 200.0)
+    pose_sonar: np.ndarray = array("f8", (7,), -1e5, 1e5)
+    data: bytes = blob(8 * 2**20)
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_unit_quaternion(self.pose_sonar[3:])
+
+
 CLOUD_SOURCES = ("depth", "stereo")
 CLOUD_POINT_BYTES = 9  # x, y, z as int16 and r, g, b as uint8
 
@@ -314,6 +346,33 @@ class RecognisedObjects(Message):
         super().__post_init__()
         if not len(self.names) == len(self.poses_world) == len(self.half_sizes_m) == len(self.confidences):
             raise ValueError("names, poses_world, half_sizes_m and confidences differ in length")
+
+
+PERCEPTION_SOURCES = (*CLOUD_SOURCES, "sonar")
+SCENE_SOURCES = ("", "cameras", "sonar")
+
+
+@dataclass(frozen=True)
+class PerceptionStatus(Message):
+    """What the vessel's perception has to work with, vessel -> onshore: per source (the
+    cameras' clouds, depth and stereo, and the sonar's echoes) the points it received over the
+    last `window_s` [points/s]; what the scene model maps from now (`scene_source`: "cameras",
+    or "sonar" while the cameras' clouds bring no point, "" before either); the recognised
+    panel's confidence now and what found it (RecognisedObjects.method; "" while not found)."""
+
+    points_per_s: dict[str, float]
+    window_s: float = scalar(0.1, 3600.0)
+    scene_source: str = scalar(choices=SCENE_SOURCES)
+    recognition_confidence: float = scalar(0.0, 1.0)
+    recognition_method: str = scalar()
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for source, rate in self.points_per_s.items():
+            if source not in PERCEPTION_SOURCES or not 0.0 <= rate <= 1e9:
+                raise ValueError(f"points_per_s: {source!r}: {rate} (sources "
+                                 f"{', '.join(PERCEPTION_SOURCES)}, rates in [0, 1e9])")
 
 
 FAULTS = ("thruster", "camera", "noise", "seize", "clear")

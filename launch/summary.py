@@ -168,6 +168,13 @@ def render_summary(summary: dict[str, Any]) -> str:
                      f"{scene['resolution_m']:g} m "
                      f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
                      f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}")
+        p = scene.get("perception")
+        if p:
+            rates = ", ".join(f"{source} {r['mean']:.0f}" for source, r in p["points_per_s"].items())
+            mapped = ", ".join(f"{source} {s:.0f} s" for source, s in p["scene_source_s"].items())
+            lines.append(f"  perception (the vessel's, told shore): points/s {rates}; the scene from "
+                         f"{mapped or 'nothing'}; panel confidence {p['recognition_confidence']['last']:.2f} "
+                         f"(at most {p['recognition_confidence']['max']:.2f})")
     sim = summary["simulation"]
     if sim:
         lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import struct
 import threading
 import time
 from collections import Counter
@@ -295,7 +296,7 @@ def read_file(path: Path) -> RecordingFile:
                     records.append(_record_of(channels[record.channel_id], record))
                 elif type(record).__name__ == "Footer":
                     complete = True
-        except (mcap.exceptions.McapError, EOFError, ValueError, KeyError, OSError) as exc:
+        except (mcap.exceptions.McapError, EOFError, ValueError, KeyError, OSError, struct.error) as exc:
             log.info("%s: read up to byte %d of %d (%s)", path, f.tell(), size, exc)
         read_bytes = f.tell()
     if not meta:

@@ -55,10 +55,12 @@ from abyss.common.messages import (
     MissionStatus,
     NavState,
     OperatorMode,
+    PerceptionStatus,
     PointCloud,
     RecognisedObjects,
     SceneUpdate,
     SimulationStatus,
+    SonarImage,
     Telemetry,
     VelocityRef,
     Waypoints,
@@ -324,6 +326,15 @@ def compressed_image(image: Image, head: Any, session: Session) -> Any | None:
                                                  format="jpeg", data=np.frombuffer(image.data, np.uint8))
 
 
+def sonar_image(sonar: SonarImage, head: Any, session: Session) -> Any:
+    """The polar image (rows range bins, columns beams port to starboard) as the sonar sent it,
+    PNG or JPEG, in the sonar's own frame; its geometry is in the abyss message (marine_acoustic_msgs,
+    which carries it, is in no message store rosbags has)."""
+    return _T["sensor_msgs/msg/CompressedImage"](header=header_of(head, sonar.sonar),
+                                                 format="png" if sonar.encoding == "png8" else "jpeg",
+                                                 data=np.frombuffer(sonar.data, np.uint8))
+
+
 def depth_image(image: Image, head: Any, session: Session) -> Any | None:
     """Depth as REP 118's 16UC1 in millimetres: abyss's PNG counts, unchanged."""
     if image.encoding != "png16":
@@ -466,6 +477,13 @@ def mission_diagnostics(m: MissionStatus, head: Any, session: Session) -> Any:
                             "ee_position_error_m": m.ee_position_error_m,
                             "ee_orientation_error_rad": m.ee_orientation_error_rad, "failsafe": m.failsafe,
                             "failsafe_events": m.failsafe_events, "done": m.done})
+
+
+def perception_diagnostics(p: PerceptionStatus, head: Any, session: Session) -> Any:
+    level = WARN if p.scene_source != "cameras" else OK
+    return _diagnostics(head, "abyss perception", level, f"scene from {p.scene_source or 'nothing yet'}", {
+        **{f"{source}_points_per_s": rate for source, rate in p.points_per_s.items()},
+        "recognition_confidence": p.recognition_confidence, "recognition_method": p.recognition_method})
 
 
 def link_diagnostics(stats: LinkStats, head: Any, session: Session) -> Any:
@@ -721,6 +739,9 @@ BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
     "RecognisedObjects": (RosTopic("{key}", "visualization_msgs/msg/MarkerArray", WORLD, objects),),
     "SimulationStatus": (RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS),
                          RosTopic("{key}", DIAGNOSTICS, "", status_diagnostics)),
+    "SonarImage": (RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", "<sonar>",
+                            sonar_image),),
+    "PerceptionStatus": (RosTopic("{key}", DIAGNOSTICS, "", perception_diagnostics),),
     "LinkStats": (RosTopic("{key}", DIAGNOSTICS, "", link_diagnostics),),
     "MissionStatus": (RosTopic("{key}", DIAGNOSTICS, "", mission_diagnostics),),
 }

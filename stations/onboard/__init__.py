@@ -3,7 +3,7 @@ end-effector goal come down from the vessel; body and joint velocity references 
 low level; the controllers' state goes up as telemetry. The control itself is `core.Onboard`,
 a plain step without Zenoh; `run` is its I/O shell. Perception runs in a thread of its own: the
 camera frames become coloured clouds in the world frame, and the left camera's frames go on to
-the vessel."""
+the vessel; so do the sonar's, each placed where the vehicle was when it pinged."""
 
 from __future__ import annotations
 
@@ -25,6 +25,7 @@ from abyss.common.messages import (
     JointState,
     NavState,
     OperatorMode,
+    SonarImage,
     Waypoints,
 )
 from abyss.common.models import CAMERAS
@@ -56,6 +57,7 @@ def run(config: Config, bus: Bus) -> None:
     shared = Shared()
     with Workers(bus.stop) as workers:
         workers.start("perception", _perception_loop, config, bus, shared)
+        workers.start("sonar", _sonar_loop, bus, shared)
         _control_loop(config, bus, core, shared)
 
 
@@ -139,3 +141,26 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
                 last_image_s = now_s
         except ValueError as exc:  # frames that do not decode, or a camera pose in the wrong frame
             bus.reject(key, str(exc))
+
+
+def _sonar_loop(bus: Bus, shared: Shared) -> None:
+    """The sonar's frames on to the vessel, its pose in the world as estimated when it pinged."""
+    from abyss.stations.onboard.perception import mount_in_world
+
+    frames = bus.subscribe("simulation", "sonar", maxlen=2)
+    rate = Rate(0.05, bus.stop)
+    while rate.sleep():
+        for received in frames.drain():
+            sonar = received.message
+            assert isinstance(sonar, SonarImage)
+            if sonar.pose_frame != "vehicle":
+                bus.reject(received.key, f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the "
+                                         "vehicle's")
+                continue
+            with shared.lock:
+                pose = shared.poses.at(sonar.sim_time_s)
+            if pose is None:
+                log.debug("no navigation estimate at %.2f s; sonar frame skipped", sonar.sim_time_s)
+                continue
+            bus.publish("sonar", dataclasses.replace(sonar, pose_frame="world",
+                                                     pose_sonar=mount_in_world(sonar.pose_sonar, pose)))

@@ -251,14 +251,19 @@ def world_cloud(
     return pack_cloud(source, world, colors, sensor, settings.scale_m, sim_time_s)
 
 
-def camera_in_world(image: Image, pose: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """The camera's pose in the world (x, y, z, w, qx, qy, qz) from the vehicle's."""
+def mount_in_world(pose_vehicle: np.ndarray, pose: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """A sensor's pose in the world (x, y, z, w, qx, qy, qz) from its mounting on the vehicle
+    (the same form) and the vehicle's position and orientation."""
     position, orientation = pose
     rotation = rotation_of(orientation)
-    camera = Camera.of(image)
-    return np.r_[
-        rotation @ camera.position_m_vehicle + position, quat_wxyz_of(rotation @ camera.rotation_in_vehicle)
-    ]
+    mount = rotation_of(pose_vehicle[3:])
+    return np.r_[rotation @ pose_vehicle[:3] + position, quat_wxyz_of(rotation @ mount)]
+
+
+def camera_in_world(image: Image, pose: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The camera's pose in the world from the vehicle's."""
+    Camera.of(image)  # the mounting must be in the vehicle frame
+    return mount_in_world(image.pose_camera, pose)
 
 
 def clouds_of(

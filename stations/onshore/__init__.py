@@ -4,7 +4,8 @@ each command over the lossy satellite link until onboard's answer comes back, ha
 to the tools, beats a heartbeat to the vessel, and publishes
 the mission status as the operator sees it. It keeps its copy of the scene from the vessel's
 octree stream (asking for a snapshot when it has none or missed an update) and the recognised
-objects; with `onshore.record_dir` it leaves them there when it stops. Everything it receives,
+objects, and what the vessel says its perception works with; with `onshore.record_dir` it
+leaves them there when it stops. Everything it receives,
 and every hop's link statistics, goes to the rerun viewer (`viewer.py`) at its sender's stamp."""
 
 from __future__ import annotations
@@ -24,11 +25,13 @@ from abyss.common.messages import (
     Image,
     LinkStats,
     Message,
+    PerceptionStatus,
     Received,
     RecognisedObjects,
     SceneAck,
     SceneRequest,
     SceneUpdate,
+    SonarImage,
     Telemetry,
     Waypoints,
     encode,
@@ -36,7 +39,7 @@ from abyss.common.messages import (
 from abyss.common.rate import Rate
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
 from abyss.common.scene import SceneReceiver
-from abyss.stations.onshore.core import Operator, OperatorInputs
+from abyss.stations.onshore.core import Operator, OperatorInputs, PerceptionSeen
 from abyss.stations.onshore.viewer import Sinks, Viewer
 
 PERIOD_S = 0.1
@@ -53,6 +56,7 @@ def run(config: Config, bus: Bus) -> None:
     telemetry = bus.subscribe("vessel", "telemetry", maxlen=8)
     acks = bus.subscribe("vessel", "ack")
     images = bus.subscribe("vessel", "image", maxlen=2)
+    sonar = bus.subscribe("vessel", "sonar", maxlen=2)
     link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), "LinkStats")
     sinks = Sinks(config.onshore, bus.system)
     viewer = Viewer(sinks.recording) if sinks.recording is not None else None
@@ -81,7 +85,7 @@ def run(config: Config, bus: Bus) -> None:
         if out.status is not None:
             bus.observe(keys.mission_key(bus.system), out.status)
         if viewer:
-            _show(viewer, out.first_sent, received, [*images.drain(), *link_stats.drain()])
+            _show(viewer, out.first_sent, received, [*images.drain(), *sonar.drain(), *link_stats.drain()])
         if record_dir and now_s - saved_s >= SAVE_PERIOD_S:
             saved, saved_s = _save(record_dir, operator, saved), now_s
     if record_dir:
@@ -120,6 +124,8 @@ def _show(viewer: Viewer, first_sent: list[Message], telemetry: list[Received],
     for r in others:
         if isinstance(r.message, Image):
             viewer.image(r.message, r.stamp_s)
+        elif isinstance(r.message, SonarImage):
+            viewer.sonar(r.message, r.stamp_s)
         elif isinstance(r.message, LinkStats):
             viewer.link_stats(r.message, r.stamp_s)
 
@@ -137,6 +143,8 @@ class Scene:
         self._shown_applied = 0
         self.updates = bus.subscribe("vessel", "scene", maxlen=256)
         self.objects_inbox = bus.subscribe("vessel", "objects", maxlen=4)
+        self.perception_inbox = bus.subscribe("vessel", "perception", maxlen=8)
+        self.perception = PerceptionSeen()
         self.receiver = SceneReceiver()
         self.objects: RecognisedObjects | None = None
         self.requests = 0
@@ -168,6 +176,11 @@ class Scene:
             self.objects = received.message
             if self.viewer:
                 self.viewer.objects(received.message, received.stamp_s)
+        for received in self.perception_inbox.drain():
+            assert isinstance(received.message, PerceptionStatus)
+            self.perception.add(received.message, received.stamp_s)
+            if self.viewer:
+                self.viewer.perception(received.message, received.stamp_s)
         self.show(now_s)
         if self.receiver.tree is None and now_s - self._last_request_s >= self.request_period_s:
             reason = "no map yet" if self.receiver.applied == 0 else "missed an update"
@@ -197,5 +210,6 @@ class Scene:
                              for name, pose, c in zip(self.objects.names, self.objects.poses_world,
                                                       self.objects.confidences, strict=True)}
                  if self.objects else {},
-                 "recognition_method": self.objects.method if self.objects else ""}
+                 "recognition_method": self.objects.method if self.objects else "",
+                 "perception": self.perception.summary()}
         (directory / "scene.json").write_text(json.dumps(stats, indent=2))

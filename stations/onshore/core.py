@@ -25,6 +25,7 @@ from abyss.common.messages import (
     Message,
     MissionStatus,
     OperatorMode,
+    PerceptionStatus,
     Telemetry,
     Waypoints,
     new_id,
@@ -250,3 +251,35 @@ def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int =
         interventions_done=finished, interventions_total=total,
         intervention_target=current.target if isinstance(current, Intervention) else "",
         intervention_phase=phase, intervention_reason=t.intervention_reason if on_it else "")
+
+
+class PerceptionSeen:
+    """What shore was told of the vessel's perception over the run (PerceptionStatus), summed up
+    for the summary: per source the points per second (mean, max and last report), how long
+    each source fed the scene model [s, by the vessel's clock], the recognition's confidence."""
+
+    def __init__(self) -> None:
+        self.reports: list[tuple[float, PerceptionStatus]] = []  # (sender's stamp, status)
+
+    def add(self, status: PerceptionStatus, stamp_s: float) -> None:
+        self.reports.append((stamp_s, status))
+
+    def summary(self) -> dict[str, object]:
+        if not self.reports:
+            return {}
+        statuses = [status for _, status in self.reports]
+        rates: dict[str, list[float]] = {}
+        for status in statuses:
+            for source, rate in status.points_per_s.items():
+                rates.setdefault(source, []).append(rate)
+        mapped_s: dict[str, float] = {}
+        for (t0, status), (t1, _) in zip(self.reports, self.reports[1:], strict=False):
+            if status.scene_source:
+                mapped_s[status.scene_source] = mapped_s.get(status.scene_source, 0.0) + max(0.0, t1 - t0)
+        confidence = [status.recognition_confidence for status in statuses]
+        return {"reports": len(statuses),
+                "points_per_s": {source: {"mean": float(np.mean(r)), "max": max(r), "last": r[-1]}
+                                 for source, r in rates.items()},
+                "scene_source_s": mapped_s, "scene_source": statuses[-1].scene_source,
+                "recognition_confidence": {"last": confidence[-1], "max": max(confidence)},
+                "recognition_method": statuses[-1].recognition_method}

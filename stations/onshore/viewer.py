@@ -21,7 +21,16 @@ import rerun.blueprint as rrb
 from abyss.common import keys
 from abyss.common.config import OnshoreConfig
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
+from abyss.common.messages import (
+    ArmGoal,
+    Image,
+    LinkStats,
+    PerceptionStatus,
+    RecognisedObjects,
+    SonarImage,
+    Telemetry,
+    Waypoints,
+)
 from abyss.common.models import ARM_JOINTS, ROBOT_FILE
 
 RECORDING_FILE = "onshore.rrd"
@@ -56,6 +65,12 @@ INTERVENTION_VIEWS = {
     "intervention/grasp/opening_mm": "Grasp: gripper opening [mm]",
     "intervention/grasp/force_n": "Grasp: grip force [N]",
 }
+# what perception works with: the group under `perception/` -> the view's name
+PERCEPTION_VIEWS = {
+    "points_per_s": "Points per source [points/s]",
+    "recognition_confidence": "Panel recognition confidence [0-1]",
+}
+SONAR_ARC_SPACING_M = 0.1  # the sonar's first echoes drawn as their arcs, a point this far apart
 CONFIDENT_RGB = np.array([60, 220, 120])  # a recognised object's box at confidence 1
 DOUBTFUL_RGB = np.array([230, 90, 60])  # ... and at confidence 0
 LABEL_POINT_M = 0.01  # radius of the point that carries an object's label [m]
@@ -63,7 +78,8 @@ LABEL_POINT_M = 0.01  # radius of the point that carries an object's label [m]
 
 def blueprint() -> rrb.Blueprint:
     """Two tabs. Operations: the 3D world large on the left; on the right the camera above the
-    controllers' errors and the intervention, a tab each. Links: per hop (a row each) its
+    controllers' errors, the intervention and perception (the sonar's fan, the points per source,
+    the recognition's confidence), a tab each. Links: per hop (a row each) its
     throughput, delay and counts. No plot mixes units."""
     controller = rrb.Vertical(
         *(rrb.TimeSeriesView(origin=f"errors/{group}", name=name) for group, name in ERROR_VIEWS.items()),
@@ -74,6 +90,13 @@ def blueprint() -> rrb.Blueprint:
         *(rrb.TimeSeriesView(origin=origin, name=name) for origin, name in INTERVENTION_VIEWS.items()),
         name="Intervention",
     )
+    perception = rrb.Vertical(
+        rrb.Spatial2DView(origin="sonar", name="Sonar (from above, middle beam up)"),
+        rrb.TextLogView(origin="status/perception", name="Perception"),
+        *(rrb.TimeSeriesView(origin=f"perception/{group}", name=name)
+          for group, name in PERCEPTION_VIEWS.items()),
+        row_shares=[3, 1, 2, 2], name="Perception",
+    )
     links = rrb.Grid(
         *(rrb.TimeSeriesView(origin=f"links/{hop}/{group}", name=f"{hop} {name}")
           for hop in keys.HOPS for group, name in LINK_VIEWS.items()),
@@ -83,7 +106,7 @@ def blueprint() -> rrb.Blueprint:
         rrb.Spatial3DView(origin="world", name="World"),
         rrb.Vertical(
             rrb.Spatial2DView(origin="world/camera", name="Camera"),
-            rrb.Tabs(controller, intervention),
+            rrb.Tabs(controller, intervention, perception),
             row_shares=[1, 3],
         ),
         column_shares=[3, 2], name="Operations",
@@ -332,6 +355,29 @@ class Viewer:
                              camera_xyz=rr.ViewCoordinates.RDF)  # fmt: skip  # OpenCV's axes, as Image's pose
         self.recording.log("world/camera", pose, pinhole)
         self.recording.log("world/camera/image", rr.EncodedImage(contents=img.data, media_type="image/jpeg"))
+
+    def sonar(self, frame: SonarImage, stamp_s: float) -> None:
+        """The sonar's fan seen from above, and its first echoes in the world as the arcs they may
+        lie on (the sonar measures no elevation); a frame that does not decode is not shown."""
+        from abyss.common.sonar import ECHO_RGB, decode_polar, echo_arcs, fan
+
+        try:
+            polar = decode_polar(frame)
+            echoes, _ = echo_arcs(frame, SONAR_ARC_SPACING_M)
+        except ValueError:
+            return
+        self._at(stamp_s, frame.sim_time_s)
+        self.recording.log("sonar/fan", rr.Image(fan(frame, polar), color_model="L"))
+        self.recording.log("world/sonar", rr.Points3D(echoes, radii=0.02, colors=[ECHO_RGB]))
+
+    def perception(self, p: PerceptionStatus, stamp_s: float) -> None:
+        """Points per source, the recognition's confidence, and a line when the scene model's
+        source changes (the sonar taking over from the cameras)."""
+        self._at(stamp_s, p.sim_time_s)
+        self._scalars("perception/points_per_s", p.points_per_s)
+        self._scalars("perception", {"recognition_confidence": p.recognition_confidence})
+        level = rr.TextLogLevel.INFO if p.scene_source == "cameras" else rr.TextLogLevel.WARN
+        self._status("perception", f"the scene is mapped from {p.scene_source or 'nothing yet'}", level)
 
     def link_stats(self, s: LinkStats, stamp_s: float) -> None:
         """Under `links/<hop>/`, per direction: the throughput [kbit/s] since the direction's

@@ -42,6 +42,8 @@ def run(config: Config, bus: Bus) -> None:
     with Workers(bus.stop) as workers:
         if sim.camera_rate_hz > 0:
             workers.start("cameras", _camera_loop, config, bus, world, lock, blackout)
+        if sim.sonar_rate_hz > 0:
+            workers.start("sonar", _sonar_loop, config, bus, world, lock)
         _physics_loop(config, bus, world, lock, blackout)
 
 
@@ -114,3 +116,20 @@ def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, 
                 bus.publish(f"camera/{camera}", encode_image(cameras, snapshot, camera, sim.jpeg_quality))
     finally:
         cameras.close()
+
+
+def _sonar_loop(config: Config, bus: Bus, world: World, lock: threading.Lock) -> None:
+    """Ping the imaging sonar at its rate from a copy of the physics state."""
+    import mujoco
+
+    from abyss.stations.simulation.sonar import ImagingSonar
+
+    sim = config.simulation
+    snapshot = mujoco.MjData(world.model)
+    sonar = ImagingSonar(world.model)
+    rng = np.random.default_rng([config.seed, 2])  # the sonar's own stream: speckle, noise
+    rate = Rate(1.0 / (sim.sonar_rate_hz * sim.realtime_factor), bus.stop)
+    while rate.sleep():
+        with lock:
+            mujoco.mj_copyData(snapshot, world.model, world.data)
+        bus.publish("sonar", sonar.message(snapshot, rng))

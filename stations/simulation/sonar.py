@@ -5,7 +5,8 @@ its beam's range bin, weighted by the beam pattern in elevation, the surface's i
 compensated (as a sonar's time-varied gain does). Rayleigh speckle multiplies the intensity and
 a noise floor adds to it, both seeded; the image is in decibels over a fixed dynamic range. It
 is polar: rows are range bins (nearest first), columns beams (port to starboard). A pure core:
-model, state and a generator in, image out. (Not yet published by the station: see issue #21.)"""
+model, state and a generator in, image out; `message` wraps it for the wire (messages.SonarImage),
+which the station publishes at simulation.sonar_rate_hz."""
 
 from __future__ import annotations
 
@@ -14,6 +15,9 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+
+from abyss.common.messages import SonarImage
+from abyss.common.sonar import encode_polar
 
 
 @dataclass(frozen=True)
@@ -84,3 +88,13 @@ class ImagingSonar:
         # shown in decibels, as sonars show it: the dynamic range maps onto the grey levels
         db = 10.0 * np.log10(intensity)
         return np.clip(255.0 * (db + s.dynamic_range_db) / s.dynamic_range_db, 0, 255).astype(np.uint8)
+
+    def message(self, data: mujoco.MjData, rng: np.random.Generator) -> SonarImage:
+        """The image as the sonar sends it: PNG, with its geometry and its mounting on the body
+        that carries it (the vehicle frame)."""
+        s, m = self.spec, self.model
+        return SonarImage(sonar=s.site, encoding="png8", pose_frame="vehicle", beams=s.beams, bins=s.bins,
+                          range_max_m=s.range_max_m, horizontal_fov_rad=s.horizontal_fov_rad,
+                          vertical_aperture_rad=s.vertical_aperture_rad, dynamic_range_db=s.dynamic_range_db,
+                          pose_sonar=np.r_[m.site_pos[self.site], m.site_quat[self.site]],
+                          data=encode_polar(self.image(data, rng), "png8"), sim_time_s=float(data.time))

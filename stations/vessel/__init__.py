@@ -1,9 +1,11 @@
 """The vessel station: relays telemetry to shore, downsampled for the satellite link, operator
 commands down to the vehicle and onboard's answers to them back up; beats a heartbeat to
 onboard that says whether shore is still heard. In a thread of its own it keeps the scene model
-(an octree from the onboard clouds), recognises the panel, and streams both, with a small camera
-frame now and then, to shore, paced by shore's acknowledgements. The relay and the stream are
-plain cores (`core.py`); this module is their I/O shell."""
+(an octree from the onboard clouds, or from the sonar's echoes while the cameras see nothing),
+recognises the panel, tells shore what perception works with, and streams the scene, with a
+small camera frame and a sonar frame now and then, to shore, paced by shore's acknowledgements.
+The relay, perception's bookkeeping and the stream are plain cores (`core.py`); this module is
+their I/O shell."""
 
 from __future__ import annotations
 
@@ -13,14 +15,24 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from abyss.common import keys
 from abyss.common.bus import Bus, Inbox, messages_of
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
 from abyss.common.images import decode_image
-from abyss.common.messages import CommandAck, Image, PointCloud, RecognisedObjects, SceneAck, Telemetry
+from abyss.common.messages import (
+    CommandAck,
+    Image,
+    PointCloud,
+    RecognisedObjects,
+    SceneAck,
+    SonarImage,
+    Telemetry,
+)
 from abyss.common.rate import Rate
+from abyss.common.sonar import ECHO_RGB, echo_arcs
 from abyss.common.workers import Workers
-from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs, SceneStream
+from abyss.stations.vessel.core import RELAYED_DOWN, Perception, Relay, RelayInputs, SceneStream
 
 if TYPE_CHECKING:
     from abyss.common.scene import SceneModel
@@ -40,6 +52,7 @@ def run(config: Config, bus: Bus) -> None:
     images = bus.subscribe("onboard", "image", maxlen=2)
     sim_time_s = [0.0]  # of the latest cloud, shared by the model and the stream
     objects: list[RecognisedObjects | None] = [None]  # recognition's latest, for the relay
+    sonar: list[SonarImage | None] = [None]  # the sonar's latest frame, for the stream
     gateway = None
     if config.ros2.station == "vessel":
         from abyss.ros2.gateway import Gateway
@@ -47,9 +60,9 @@ def run(config: Config, bus: Bus) -> None:
         gateway = Gateway(config, bus, on_up={"scene": lambda update: model.adopt(update.octree)})
     try:
         with Workers(bus.stop) as workers:
-            workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, objects,
+            workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, objects, sonar,
                           gateway is None)
-            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s)
+            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s, sonar)
             if gateway is not None:
                 workers.start("ros2 gateway", gateway.run)
             _relay_loop(config, bus, objects)
@@ -80,29 +93,49 @@ def _relay_loop(config: Config, bus: Bus, objects: list[RecognisedObjects | None
 
 
 def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float],
-                recognised: list[RecognisedObjects | None], insert: bool = True) -> None:
-    """Integrate the clouds (unless a ROS 2 node maps them: `insert` False) and recognise the
-    panel; another thread (`_send_loop`) streams the result, so that a slow insertion (a second
-    or more for a stereo cloud on a loaded machine) never holds the stream back."""
+                recognised: list[RecognisedObjects | None], sonar: list[SonarImage | None],
+                insert: bool = True) -> None:
+    """Integrate the clouds (unless a ROS 2 node maps them: `insert` False), or the sonar's
+    echoes while the cameras see nothing, recognise the panel, and tell shore what perception
+    works with; another thread (`_send_loop`) streams the result, so that a slow insertion (a
+    second or more for a stereo cloud on a loaded machine) never holds the stream back."""
     from abyss.stations.vessel.recognition import PanelTracker
 
     cfg = config.vessel
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)
+    pings = bus.subscribe("onboard", "sonar", maxlen=4)
     tracker = PanelTracker(bias_m_world=cfg.recognition_bias_m)
+    perception = Perception(cfg, time.monotonic())
     rate = Rate(POLL_PERIOD_S, bus.stop)
-    last_recognition_s = -float("inf")
+    last_recognition_s = last_status_s = -float("inf")
     points: np.ndarray | None = None
     while rate.sleep():
         for received in clouds.drain():
             assert isinstance(received.message, PointCloud)
             cloud = received.message
             cloud_points, colors = unpack_cloud(cloud)
+            perception.received(cloud.source, len(cloud_points), time.monotonic())
             if insert:
                 model.insert(cloud_points, colors, cloud.sensor_m_world)
             sim_time_s[0] = cloud.sim_time_s
             if cloud.source == "depth" or points is None:
                 points = cloud_points
+        for received in pings.drain():
+            assert isinstance(received.message, SonarImage)
+            sonar[0] = received.message
+            try:
+                echoes, origin = echo_arcs(received.message, cfg.octree_resolution_m)
+            except ValueError as exc:
+                bus.reject(received.key, str(exc))
+                continue
+            perception.received("sonar", len(echoes), time.monotonic())
+            if insert and perception.sonar_feeds(time.monotonic()) and len(echoes):
+                model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin)
+                sim_time_s[0] = max(sim_time_s[0], received.message.sim_time_s)
         now_s = time.monotonic()
+        if now_s - last_status_s >= cfg.perception_period_s:
+            last_status_s = now_s
+            bus.publish("perception", perception.status(now_s, recognised[0], sim_time_s[0]))
         image = images.latest()
         due = now_s - last_recognition_s >= cfg.recognition_period_s
         if due and (image is not None or points is not None):
@@ -124,8 +157,8 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
                 bus.publish("objects", objects)
 
 
-def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox,
-               sim_time_s: list[float]) -> None:
+def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float],
+               sonar: list[SonarImage | None]) -> None:
     """The I/O shell of the scene stream (`core.SceneStream`), paced by shore's acknowledgements."""
     requests = bus.subscribe("onshore", "scene_request")
     acks = bus.subscribe("onshore", "scene_ack", maxlen=256)
@@ -135,8 +168,8 @@ def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox,
         image = images.latest()
         frame = image.message if image and isinstance(image.message, Image) else None
         out = stream.step(time.monotonic(), sim_time_s[0], messages_of(acks.drain(), SceneAck),
-                          bool(requests.drain()), frame)
-        for reason in out.rejected:
-            bus.reject(image.key if image else "image", reason)
+                          bool(requests.drain()), frame, sonar[0])
+        for topic, reason in out.rejected:
+            bus.reject(keys.spec("onboard", topic).key(bus.system), reason)
         for topic, message in out.messages:
             bus.publish(topic, message)

@@ -1,8 +1,11 @@
-"""The vessel's cores, without Zenoh: the relay between onboard and shore, and the scene
-stream to shore. Each takes what came in and the time, and returns what to send."""
+"""The vessel's cores, without Zenoh: the relay between onboard and shore, what perception
+works with, and the scene stream to shore. Each takes what came in and the time, and returns
+what to send."""
 
 from __future__ import annotations
 
+import dataclasses
+from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -11,6 +14,8 @@ import numpy as np
 from abyss.common.config import VesselConfig
 from abyss.common.images import downscale
 from abyss.common.messages import (
+    CLOUD_SOURCES,
+    PERCEPTION_SOURCES,
     REFINABLE_PHASES,
     CommandAck,
     Heartbeat,
@@ -18,10 +23,13 @@ from abyss.common.messages import (
     Intervention,
     InterventionGoal,
     Message,
+    PerceptionStatus,
     RecognisedObjects,
     SceneAck,
+    SonarImage,
     Telemetry,
 )
+from abyss.common.sonar import decode_polar, encode_polar
 from abyss.stations.vessel.intents import REFINE_M, resolve
 from abyss.stations.vessel.pacing import ScenePacer
 
@@ -122,24 +130,85 @@ class Relay:
         return out
 
 
+class Perception:
+    """What perception works with: the points each source brought over the last `window_s`, and
+    which feeds the scene model. The cameras' clouds do; the sonar's echoes take over while the
+    cameras' clouds bring no point for `fallback_s` (murk, failed cameras; from the start too,
+    until the first cloud with points), and hand back at the first that does."""
+
+    def __init__(self, cfg: VesselConfig, now_s: float) -> None:
+        self.window_s, self.fallback_s = cfg.perception_window_s, cfg.sonar_fallback_s
+        self.started_s = now_s
+        self.cameras_seen_s = -float("inf")  # the last camera cloud with points
+        self.sonar_seen = False
+        self._points: deque[tuple[float, str, int]] = deque()  # (when, source, points)
+
+    def received(self, source: str, points: int, now_s: float) -> None:
+        self._points.append((now_s, source, points))
+        while self._points and self._points[0][0] < now_s - self.window_s:
+            self._points.popleft()
+        if source in CLOUD_SOURCES and points > 0:
+            self.cameras_seen_s = now_s
+        self.sonar_seen |= source == "sonar"
+
+    def sonar_feeds(self, now_s: float) -> bool:
+        return now_s - max(self.cameras_seen_s, self.started_s) >= self.fallback_s
+
+    def scene_source(self, now_s: float) -> str:
+        if self.sonar_feeds(now_s):
+            return "sonar" if self.sonar_seen else ""
+        return "cameras" if self.cameras_seen_s > -float("inf") else ""
+
+    def status(self, now_s: float, objects: RecognisedObjects | None, sim_time_s: float) -> PerceptionStatus:
+        window_s = min(self.window_s, max(now_s - self.started_s, 1e-3))
+        counts = dict.fromkeys(PERCEPTION_SOURCES, 0)
+        for when, source, points in self._points:
+            if when >= now_s - window_s:
+                counts[source] += points
+        confidence, method = 0.0, ""
+        if objects is not None and "panel" in objects.names:
+            confidence, method = float(objects.confidences[objects.names.index("panel")]), objects.method
+        return PerceptionStatus(
+            points_per_s={source: count / window_s for source, count in counts.items()},
+            window_s=max(window_s, 0.1), scene_source=self.scene_source(now_s),
+            recognition_confidence=confidence, recognition_method=method, sim_time_s=sim_time_s)
+
+
 @dataclass
 class StreamOutputs:
     messages: Outgoing = field(default_factory=list)
-    rejected: list[str] = field(default_factory=list)  # why an image could not be sent
+    rejected: list[tuple[str, str]] = field(default_factory=list)  # (topic, why) of a frame not sent
 
 
 class SceneStream:
-    """Scene updates, and now and then a small camera frame, paced by shore's acknowledgements
-    (`pacing.ScenePacer`)."""
+    """Scene updates, and now and then a small camera frame and a sonar frame, paced by shore's
+    acknowledgements (`pacing.ScenePacer`)."""
 
     def __init__(self, cfg: VesselConfig, model: SceneModel) -> None:
         self.cfg = cfg
         self.model = model
         self.pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
-        self.last_image_s = -float("inf")
+        self.last_frame_s = {"image": -float("inf"), "sonar": -float("inf")}
+
+    def _frame(self, now_s: float, image: Image | None, sonar: SonarImage | None,
+               out: StreamOutputs) -> tuple[str, Image | SonarImage] | None:
+        """The camera's frame, downscaled, or the sonar's, as JPEG, if one is due."""
+        periods = {"image": (image, self.cfg.image_period_s), "sonar": (sonar, self.cfg.sonar_period_s)}
+        for topic, (frame, period_s) in periods.items():
+            if frame is None or now_s - self.last_frame_s[topic] < period_s:
+                continue
+            self.last_frame_s[topic] = now_s
+            try:
+                if isinstance(frame, Image):
+                    return topic, downscale(frame, self.cfg.image_scale, self.cfg.image_jpeg_quality)
+                return topic, dataclasses.replace(frame, encoding="jpeg", data=encode_polar(
+                    decode_polar(frame), "jpeg", self.cfg.image_jpeg_quality))
+            except ValueError as exc:
+                out.rejected.append((topic, str(exc)))
+        return None
 
     def step(self, now_s: float, sim_time_s: float, acks: list[SceneAck], snapshot_asked: bool,
-             image: Image | None) -> StreamOutputs:
+             image: Image | None, sonar: SonarImage | None = None) -> StreamOutputs:
         out = StreamOutputs()
         for ack in acks:
             self.pacer.acknowledged(now_s, ack.scene_seq)
@@ -147,15 +216,10 @@ class SceneStream:
             self.model.request_snapshot()
         self.pacer.tick(now_s)
         while self.pacer.allows():
-            if image is not None and now_s - self.last_image_s >= self.cfg.image_period_s:
-                self.last_image_s = now_s
-                try:
-                    small = downscale(image, self.cfg.image_scale, self.cfg.image_jpeg_quality)
-                except ValueError as exc:
-                    out.rejected.append(str(exc))
-                    continue
-                out.messages.append(("image", small))
-                self.pacer.sent(now_s, len(small.data))
+            frame = self._frame(now_s, image, sonar, out)
+            if frame is not None:
+                out.messages.append(frame)
+                self.pacer.sent(now_s, len(frame[1].data))
                 continue
             update = self.model.next_update(sim_time_s, self.pacer.update_bytes())
             if update is None:

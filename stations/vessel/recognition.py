@@ -10,7 +10,8 @@
   ICP's fitness and residual;
 - fusion: each where it is strong: the plane's normal and distance from the shape, the position
   in the plane and the rotation about the normal from the markers (or, with none in view, from
-  the estimate so far); then a running average over frames, as the panel does not move.
+  the estimate so far); then a running average over frames, as the panel does not move, with
+  a confidence that follows the recent frames'.
 The valves and levers follow from the panel's pose and the model (common/models/panel.py).
 """
 
@@ -180,9 +181,13 @@ def fuse(poses: list[Pose]) -> Pose:
     return Pose(rotation_of(mean_quat / np.linalg.norm(mean_quat)), np.asarray(position), float(confidence))
 
 
+CONFIDENCE_GAIN = 0.3  # of each frame's confidence in the tracker's: the last few frames' say
+
+
 class PanelTracker:
     """The panel's pose over frames: each frame's fused estimate joins a running
-    confidence-weighted average."""
+    confidence-weighted average. Its confidence follows the recent frames' (an exponential
+    average), and fades while frames find nothing: what murk or a lost camera does shows."""
 
     def __init__(self, expected_m_world: np.ndarray | None = None,
                  bias_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
@@ -216,7 +221,10 @@ class PanelTracker:
             frame = fuse_texture_shape(so_far, shape)
         elif shape is not None:
             frame = shape
-        else:
+        else:  # nothing seen: the estimate stands, believed less
+            if self.estimate is not None:
+                self.estimate = Pose(self.estimate.rotation, self.estimate.position_m_world,
+                                     (1.0 - CONFIDENCE_GAIN) * self.estimate.confidence)
             return self.estimate
         self.method = "+".join(name for name, p in (("texture", texture), ("shape", shape)) if p is not None)
         if self.estimate is None or (texture is not None and not self.anchored):
@@ -230,7 +238,8 @@ class PanelTracker:
                     Pose(frame.rotation, frame.position_m_world, frame.confidence / total),
                 ]
             )
-            confidence = max(self.estimate.confidence, frame.confidence)
+            before = self.estimate.confidence
+            confidence = before + CONFIDENCE_GAIN * (frame.confidence - before)
             self.estimate = Pose(blended.rotation, blended.position_m_world, confidence)
             self.weight = min(total, 20.0)  # a bounded memory: a moved panel is found again
         return self.estimate

@@ -191,6 +191,39 @@ def deadlines(run: Run, min_met: float) -> tuple[bool, str]:
     return met >= min_met, f"simulation deadlines met {met:.1%} (at least {min_met:.0%})"
 
 
+def _perception(run: Run) -> dict[str, Any]:
+    """What shore was told of the vessel's perception (onshore.core.PerceptionSeen)."""
+    return dict((run.summary.get("scene") or {}).get("perception") or {})
+
+
+def perception(run: Run, source: str, min_points_per_s: float = -math.inf,
+               max_points_per_s: float = math.inf, min_mapped_s: float = 0.0) -> tuple[bool, str]:
+    """The points `source` brought (its mean rate over shore's reports) within the bounds, and
+    the scene mapped from it (the cameras', for depth and stereo) for at least `min_mapped_s`."""
+    p = _perception(run)
+    if not p:
+        return False, "shore was told nothing of the vessel's perception"
+    rate = p["points_per_s"].get(source, {}).get("mean")
+    mapped_s = p["scene_source_s"].get("sonar" if source == "sonar" else "cameras", 0.0)
+    if rate is None:
+        return False, f"no report of {source} ({p['reports']} reports)"
+    held = min_points_per_s <= rate <= max_points_per_s and mapped_s >= min_mapped_s
+    return held, (f"{source}: {rate:.0f} points/s on average (allowed [{min_points_per_s:g}, "
+                  f"{max_points_per_s:g}]), the scene mapped from it for {mapped_s:.0f} s (at least "
+                  f"{min_mapped_s:g}); {p['reports']} reports on shore")
+
+
+def recognition(run: Run, min_confidence: float = 0.0, max_confidence: float = 1.0) -> tuple[bool, str]:
+    """The panel's recognition confidence shore was last told within the bounds."""
+    p = _perception(run)
+    if not p:
+        return False, "shore was told nothing of the vessel's perception"
+    confidence = p["recognition_confidence"]
+    return min_confidence <= confidence["last"] <= max_confidence, (
+        f"panel confidence {confidence['last']:.2f} at the end (allowed [{min_confidence:g}, "
+        f"{max_confidence:g}]), {confidence['max']:.2f} at most, by {p['recognition_method'] or 'nothing'}")
+
+
 CHECKS: dict[str, Callable[..., tuple[bool, str]]] = {
     "mission_done": mission_done,
     "final_error": final_error,
@@ -202,6 +235,8 @@ CHECKS: dict[str, Callable[..., tuple[bool, str]]] = {
     "deadlines": deadlines,
     "intervention": intervention,
     "arm_limits": arm_limits,
+    "perception": perception,
+    "recognition": recognition,
 }
 
 

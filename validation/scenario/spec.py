@@ -13,7 +13,7 @@ from typing import Any
 from abyss.common import keys
 from abyss.common.config import load
 from abyss.common.errors import ConfigError
-from abyss.common.messages import FAULTS, INTERVENTION_PHASES
+from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES
 from abyss.common.models import panel
 from abyss.linkemu.profile import load_profiles
 
@@ -32,6 +32,9 @@ ASSERTIONS: dict[str, dict[str, type]] = {
     "deadlines": {"min_met": float},
     "intervention": {"part": str, "outcome": str, "reason": str},
     "arm_limits": {"margin_deg": float},
+    "perception": {"source": str, "min_points_per_s": float, "max_points_per_s": float,
+                   "min_mapped_s": float},
+    "recognition": {"min_confidence": float, "max_confidence": float},
 }
 OUTCOMES = ("done", "failed")  # of an intervention
 
@@ -146,6 +149,10 @@ def _assertion(table: dict[str, Any], where: str) -> Assertion:
         _choice(args["phase"], INTERVENTION_PHASES[1:], f"{where}.phase")
     if "outcome" in args:
         _choice(args["outcome"], OUTCOMES, f"{where}.outcome")
+    if kind == "perception":
+        if "source" not in args:
+            raise ConfigError(f"{where}.source", f"is required: one of {', '.join(PERCEPTION_SOURCES)}")
+        _choice(args["source"], PERCEPTION_SOURCES, f"{where}.source")
     if kind == "intervention":
         if "part" not in args:
             raise ConfigError(f"{where}.part", "is required")

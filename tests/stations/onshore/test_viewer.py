@@ -20,8 +20,18 @@ from rerun.chunk import RrdReader
 from abyss.common import keys
 from abyss.common.geometry import rotation_of
 from abyss.common.images import encode_jpeg
-from abyss.common.messages import ArmGoal, Image, LinkStats, RecognisedObjects, Telemetry, Waypoints
+from abyss.common.messages import (
+    ArmGoal,
+    Image,
+    LinkStats,
+    PerceptionStatus,
+    RecognisedObjects,
+    SonarImage,
+    Telemetry,
+    Waypoints,
+)
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
+from abyss.common.sonar import encode_polar
 from abyss.stations.onshore.viewer import Viewer, blueprint
 
 STAMP_S = 1.7e9  # a wall-clock stamp [s since the epoch]
@@ -33,7 +43,7 @@ DELAY_MS = "links/satellite/delay_ms/vessel_to_onshore"  # the satellite hop's d
 COUNT = "links/satellite/count/vessel_to_onshore"
 # a plot's unit, as its title gives it -> how the paths of its series say it
 UNIT_IN_PATH = {"m": "_m", "mm": "_mm", "deg": "_deg", "ms": "_ms", "kbit/s": "_kbps", "count": "count",
-                "N": "_n"}  # fmt: skip
+                "N": "_n", "points/s": "_per_s", "0-1": "confidence"}  # fmt: skip
 # the intervention, a call each: target, phase, reason, turned [deg], goal [deg], opening [mm], force [N]
 INTERVENTION = [
     ("valve_1", "approach", "", 0.0, 90.0, 80.0, 0.0),
@@ -124,6 +134,18 @@ def recording(tmp_path: Path) -> Recording:
     viewer.image(Image(camera="cam_left", encoding="jpeg", pose_frame="world", width_px=32, height_px=24,
                        fx_px=30.0, fy_px=30.0, cx_px=16.0, cy_px=12.0, pose_camera=pose_camera, data=jpeg,
                        sim_time_s=0.5), STAMP_S + 5)  # fmt: skip
+    polar = np.zeros((20, 9), np.uint8)
+    polar[10, 4] = 255  # an echo at 5 m dead ahead
+    sonar = SonarImage(sonar="sonar", encoding="png8", pose_frame="world", beams=9, bins=20, range_max_m=10.0,
+                       horizontal_fov_rad=1.0, vertical_aperture_rad=0.3, dynamic_range_db=40.0,
+                       pose_sonar=np.array([1.0, 0, -6, 1, 0, 0, 0]), data=encode_polar(polar, "png8"),
+                       sim_time_s=0.5)  # fmt: skip
+    viewer.sonar(sonar, STAMP_S + 5)
+    for i, source in enumerate(("cameras", "sonar")):
+        rates = {"depth": 100.0 * (1 - i), "stereo": 0.0, "sonar": 40.0}
+        viewer.perception(PerceptionStatus(points_per_s=rates, window_s=10.0, scene_source=source,
+                                           recognition_confidence=0.5 - 0.2 * i, recognition_method="shape",
+                                           sim_time_s=0.5 + i), STAMP_S + 5 + i)  # fmt: skip
     viewer.link_stats(link_stats(0.0), STAMP_S + 5)
     viewer.link_stats(link_stats(250_000.0), STAMP_S + 7)  # 2 Mbit in 2 s
     for i, (target, phase, reason, turned_deg, goal_deg, opening_mm, force_n) in enumerate(INTERVENTION):
@@ -145,7 +167,9 @@ def test_every_view_lands_at_its_entity_path(recording: Recording) -> None:
                 f"{DELAY_MS}/p99", f"{COUNT}/messages_lost", f"{COUNT}/retransmissions",
                 "links/satellite/throughput_kbps/vessel_to_onshore", "intervention/phase",
                 "intervention/angle_deg/valve_1/turned", "intervention/angle_deg/valve_1/goal",
-                "intervention/grasp/opening_mm", "intervention/grasp/force_n"]  # fmt: skip
+                "intervention/grasp/opening_mm", "intervention/grasp/force_n", "sonar/fan", "world/sonar",
+                "perception/points_per_s/sonar", "perception/recognition_confidence",
+                "status/perception"]  # fmt: skip
     missing = [p for p in expected if sum(b.num_rows for b in batches.get(p, [])) == 0]
     assert not missing, f"no rows at {missing}; logged: {sorted(batches)}"
     assert RrdReader(path).blueprints(), "no blueprint sent"
@@ -166,6 +190,19 @@ def test_values_read_back(recording: Recording) -> None:
     assert values(batches["status/failsafe"], "TextLog:text") == [["shore lost"], ["cleared"]]
     path_m_world = np.array(values(batches["world/path"], "LineStrips3D:strips")[-1][0])
     assert path_m_world == pytest.approx(np.array([[1.0, -2, -6], [2.0, -2, -6], [3.0, -2, -6]]))
+
+
+def test_the_sonar_and_what_perception_works_with(recording: Recording) -> None:
+    batches, _ = recording
+    fan_shape = values(batches["sonar/fan"], "Image:format")
+    assert fan_shape, "no fan"
+    echoes = np.array(values(batches["world/sonar"], "Points3D:positions")[0])
+    assert np.linalg.norm(echoes - [1.0, 0, -6], axis=1) == pytest.approx(np.full(len(echoes), 5.25))
+    assert scalars(batches["perception/points_per_s/depth"]) == pytest.approx([100.0, 0.0])
+    assert scalars(batches["perception/recognition_confidence"]) == pytest.approx([0.5, 0.3])
+    assert values(batches["status/perception"], "TextLog:text") == [["the scene is mapped from cameras"],
+                                                                   ["the scene is mapped from sonar"]]
+    assert values(batches["status/perception"], "TextLog:level") == [["INFO"], ["WARN"]]
 
 
 def test_objects_are_labelled_by_name_above_their_box(recording: Recording) -> None:
@@ -196,7 +233,8 @@ def test_each_plot_has_one_unit_named_in_its_title_and_its_paths() -> None:
     assert sorted(plots()) == sorted([
         "Vehicle position error [m]", "Heading error [deg]", "Tool position error [mm]",
         "Tool orientation error [deg]", "Valve and lever angles [deg]", "Grasp: gripper opening [mm]",
-        "Grasp: grip force [N]", *(f"{hop} {plot}" for hop in keys.HOPS for plot in link_plots)])  # fmt: skip
+        "Grasp: grip force [N]", "Points per source [points/s]", "Panel recognition confidence [0-1]",
+        *(f"{hop} {plot}" for hop in keys.HOPS for plot in link_plots)])  # fmt: skip
     for name, origin in plots().items():
         unit = name.rpartition("[")[2].rstrip("]")
         assert origin.endswith(UNIT_IN_PATH[unit]), (name, origin)
@@ -211,7 +249,8 @@ def test_every_scalar_logged_is_in_exactly_one_plot(recording: Recording) -> Non
     origins = plots().values()
     logged = [path for path, b in batches.items() if any("Scalars:scalars" in x.schema.names for x in b)]
     plots_of = {path: [o for o in origins if f"{path}/".startswith(f"{o}/")] for path in logged}
-    assert len(logged) == 14, logged  # 4 errors, 6 of the satellite's downlink, 4 of the intervention
+    # 4 errors, 6 of the satellite's downlink, 4 of the intervention, 3 sources and the confidence
+    assert len(logged) == 18, logged
     assert all(len(plots) == 1 for plots in plots_of.values()), plots_of
     empty = set(origins) - {plot for plots in plots_of.values() for plot in plots}
     groups = ("throughput_kbps", "delay_ms", "count")

@@ -32,7 +32,7 @@ from abyss.stations.onboard.perception import Camera, CloudSettings, camera_in_w
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
-from abyss.stations.vessel.recognition import PanelTracker, by_texture, rotation_error_rad
+from abyss.stations.vessel.recognition import CONFIDENCE_GAIN, PanelTracker, by_texture, rotation_error_rad
 
 FACE_X_M = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0] - 0.001  # the marker face's front
 
@@ -221,6 +221,14 @@ def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -
     # no markers in view (the camera blacked out): nothing found by texture
     black = np.zeros((480, 640, 3), np.uint8)
     assert by_texture(black, np.eye(3), image.pose_camera) is None
+    # frames that find nothing: the estimate stands, its confidence fades (not the best seen so far)
+    confident = pose.confidence
+    for k in (1, 2):
+        faded = tracker.update(black, image, None)
+        assert faded is not None and faded.confidence == pytest.approx(confident * (1 - CONFIDENCE_GAIN) ** k)
+        assert np.allclose(faded.position_m_world, pose.position_m_world)
+    again = tracker.update(decode_image(image), image, unpack_cloud(clouds[0])[0])
+    assert again is not None and faded.confidence < again.confidence < confident
 
 
 def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:

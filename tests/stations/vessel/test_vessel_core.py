@@ -29,7 +29,7 @@ from abyss.common.models import panel
 from abyss.common.scene import SceneModel, SceneReceiver
 from abyss.linkemu.link import Link, Offer
 from abyss.linkemu.profile import profile
-from abyss.stations.vessel.core import Relay, RelayInputs, SceneStream
+from abyss.stations.vessel.core import Perception, Relay, RelayInputs, SceneStream
 from abyss.stations.vessel.pacing import ScenePacer
 from abyss.validation.stress import sample_telemetry
 
@@ -205,3 +205,22 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
     assert goals(relay.step(RelayInputs(objects=recognised(-8.55), telemetry=phase("grasp")), 4.0)) == []
     relay.step(RelayInputs(telemetry=phase("done")), 5.0)
     assert relay.refining is None
+
+
+def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> None:
+    perception = Perception(VesselConfig(sonar_fallback_s=5.0, perception_window_s=10.0), now_s=100.0)
+    assert perception.scene_source(101.0) == "" and not perception.sonar_feeds(104.9)
+    assert perception.sonar_feeds(105.0)  # no camera cloud since the start
+    perception.received("depth", 1000, 101.0)
+    assert not perception.sonar_feeds(105.9) and perception.sonar_feeds(106.0)
+    perception.received("stereo", 0, 106.5)  # an empty cloud (murk, a blacked-out camera) is nothing
+    perception.received("sonar", 300, 107.0)
+    assert perception.sonar_feeds(107.0) and perception.scene_source(107.0) == "sonar"
+    status = perception.status(108.0, None, 7.0)
+    assert status.scene_source == "sonar" and status.window_s == pytest.approx(8.0)
+    assert status.points_per_s == pytest.approx({"depth": 125.0, "stereo": 0.0, "sonar": 37.5})
+    assert status.recognition_confidence == 0.0 and status.recognition_method == ""
+    perception.received("depth", 10, 109.0)  # the cameras see again
+    assert not perception.sonar_feeds(109.0) and perception.scene_source(109.0) == "cameras"
+    later = perception.status(116.0, None, 16.0)  # the window slides past the first cloud
+    assert later.points_per_s == pytest.approx({"depth": 1.0, "stereo": 0.0, "sonar": 30.0})

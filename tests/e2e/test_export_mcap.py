@@ -69,6 +69,10 @@ EXPECTED: dict[str, dict[str, str]] = {
     "onshore/op/mode": {"": "std_msgs/msg/String"},
     "onshore/heartbeat": {"": DIAGNOSTICS},
     "onshore/mission": {"": DIAGNOSTICS},
+    "simulation/sonar": {"image/compressed": "sensor_msgs/msg/CompressedImage"},
+    "onboard/sonar": {"image/compressed": "sensor_msgs/msg/CompressedImage"},
+    "vessel/sonar": {"image/compressed": "sensor_msgs/msg/CompressedImage"},
+    "vessel/perception": {"": DIAGNOSTICS},
 }
 
 

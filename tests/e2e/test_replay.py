@@ -109,11 +109,11 @@ def test_compare_names_the_keys_a_changed_gain_changes_and_nothing_else(
     differing = sorted(k for k, row in rows.items() if row["differs"])
     if name == "onboard-live":
         assert done.returncode == 0 and differing == [], done.stdout + done.stderr
-        assert "0 of 6 keys differ" in done.stdout
+        assert f"0 of {len(rows)} keys differ" in done.stdout
     else:
         assert done.returncode == 1 and differing == ["onboard/cmd/vehicle_velocity"], done.stdout
         assert rows["onboard/cmd/vehicle_velocity"]["fields"]["linear_mps_body"]["differs"]
-        assert "1 of 6 keys differ: onboard/cmd/vehicle_velocity" in done.stdout
+        assert f"1 of {len(rows)} keys differ: onboard/cmd/vehicle_velocity" in done.stdout
     assert all(row["paired"] > 0 for row in rows.values())
 
 

@@ -1,6 +1,6 @@
 """The scenario library as CI runs it: `abyss scenario run --parallel 2` passes every scenario
-(the one meant to fail fails on the assertions it names), JUnit XML and the report say so, two
-systems at once give the verdicts one at a time gives, and a scenario with an external
+(the one meant to fail fails on the assertions it names), JUnit XML and the report say so, each
+ends with the verdict it must (two systems at once as one alone), and a scenario with an external
 station passes with that station started by hand, through the pytest plugin's fixture, while
 `abyss check` tests the external station's interface."""
 
@@ -17,12 +17,19 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, abyss
 
+from abyss.common import keys
+
 pytestmark = [pytest.mark.e2e]
 LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))
 SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]
-# run again one at a time: the scenario whose assertions hang on timing (the failsafe's within a bound
-# of the outage), which load could change; satellite-down's outcome does not depend on timing
-COMPARED = ("tether-outage",)
+# the verdict each scenario must end with, two systems at once as one alone: a verdict that
+# load could change fails here (sensor-noise's arm may or may not settle to its 5 mm in time)
+VERDICTS: dict[str, set[str]] = {
+    "every-station-killed": {"done"}, "nominal": {"done"}, "recognition-biased": {"incomplete"},
+    "satellite-down": {"incomplete"}, "satellite-storm": {"done"}, "sensor-noise": {"done", "incomplete"},
+    "tether-degraded": {"done"}, "tether-outage": {"done"}, "thruster-failure": {"done"}, "turbid": {"done"},
+    "valve-seized": {"incomplete"}, "vessel-crash": {"done"},
+}
 
 
 def verdicts(junit: Path) -> dict[str, tuple[str, ...]]:
@@ -56,14 +63,13 @@ def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedPro
     assert set(verdicts(out / "junit.xml").values()) == {("passed",)}
     words = {c.get("name"): c.find("properties/property[@name='verdict']").get("value")  # type: ignore[union-attr]
              for c in ET.parse(out / "junit.xml").getroot().iter("testcase")}
-    assert words["nominal"] == words["tether-outage"] == words["every-station-killed"] == "done", words
-    assert words["satellite-down"] == "incomplete", words  # passes: it is meant to miss its mission
+    assert set(words) == set(VERDICTS), sorted(words)
+    assert all(words[name] in verdicts for name, verdicts in VERDICTS.items()), words
     # the scenario meant to fail failed on exactly the assertions it names, and the others held
     down = dict(assertion_outcomes(out / "report.md", "satellite-down"))
     assert down == {"mission_done within_s=20.0": "no", "commands_answered": "no", "stations": "yes"}
     seized = dict(assertion_outcomes(out / "report.md", "valve-seized"))
     assert seized.pop("mission_done within_s=60.0") == "no" and set(seized.values()) == {"yes"}, seized
-    assert words["valve-seized"] == words["recognition-biased"] == "incomplete", words
     biased = dict(assertion_outcomes(out / "report.md", "recognition-biased"))
     assert biased.pop("mission_done within_s=70.0") == "no" and set(biased.values()) == {"yes"}, biased
     assert all(held == "yes" for _, held in assertion_outcomes(out / "report.md", "tether-outage"))
@@ -88,18 +94,6 @@ def test_the_library_passes_at_parallel_2(library: tuple[subprocess.CompletedPro
     assert killed["verdict"] == "done" and killed["mission"]["done"]
 
 
-@pytest.mark.timeout(960)
-def test_one_at_a_time_gives_the_same_verdicts(library: tuple[subprocess.CompletedProcess[str], Path],
-                                               tmp_path: Path) -> None:  # fmt: skip
-    _, parallel = library
-    files = [str(ROOT / "scenarios" / f"{name}.toml") for name in COMPARED]
-    done = abyss("scenario", "run", *files, "--parallel", "1", "--report", str(tmp_path), timeout_s=600)
-    assert done.returncode == 0, done.stdout[-4000:]
-    for name in COMPARED:
-        one_at_a_time = assertion_outcomes(tmp_path / "report.md", name)
-        assert one_at_a_time == assertion_outcomes(parallel / "report.md", name)
-
-
 @pytest.mark.timeout(300)
 def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     system = abyss_system(ROOT / "scenarios" / "external-onboard.toml")
@@ -114,7 +108,8 @@ def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> No
         checked = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,
                         "--duration", "4")  # fmt: skip
         assert checked.returncode == 0, checked.stdout + checked.stderr
-        assert "abyss check: onboard: 6/6 keys pass" in checked.stdout
+        own_keys = sum(1 for s in keys.KEYS if s.station == "onboard")
+        assert f"abyss check: onboard: {own_keys}/{own_keys} keys pass" in checked.stdout
         result = system.result(timeout_s=240)
     finally:
         own.terminate()

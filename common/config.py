@@ -162,6 +162,7 @@ class SimulationConfig:
                                   f"{period} s is not a whole multiple of {base_name} = {base} s")
 
 
+STEREO_MODES = ("3way", "sgbm", "hh")  # onboard.stereo_mode: OpenCV's semi-global matcher's modes
 STEREO_SWITCHES = ("stereo_uniqueness_percent", "stereo_speckle_window_px", "stereo_lr_max_diff_px",
                    "stereo_min_texture", "stereo_edge_step_px")  # 0: that filter off
 
@@ -211,6 +212,10 @@ class OnboardConfig:
     cloud_max_range_m: float = 8.0  # [m] farther points are dropped (the water's murk)
     cloud_scale_m: float = 0.002  # [m] quantisation on the wire
     stereo_disparities: int = 64  # searched by the stereo matcher (a multiple of 16) [px]
+    # OpenCV's semi-global matcher: "hh" (eight directions, full: the most exact, 4.3 cm on the
+    # panel at 4 m), "sgbm" (five), "3way" (one pass, three: half hh's CPU, 5.3 cm on the panel,
+    # but 1.4 % of a textureless pair's pixels matched, against none)
+    stereo_mode: str = "hh"
     self_filter_radius_m: float = 0.15  # [m] points this close to the arm are the arm's
     # the stereo matcher's filters (perception.StereoFilter), against points floating in open
     # water (edges smeared by the block, sensor noise and marine snow matched at random); 0
@@ -231,6 +236,9 @@ class OnboardConfig:
         for name in self.cloud_sources:
             if name not in CLOUD_SOURCES:
                 raise ConfigError("onboard.cloud_sources", f"{name!r} not one of {', '.join(CLOUD_SOURCES)}")
+        if self.stereo_mode not in STEREO_MODES:
+            raise ConfigError("onboard.stereo_mode",
+                              f"{self.stereo_mode!r} not one of {', '.join(STEREO_MODES)}")
         if self.stereo_disparities % 16 or not 16 <= self.stereo_disparities <= 256:
             raise ConfigError("onboard.stereo_disparities",
                               f"{self.stereo_disparities}: a multiple of 16 in [16, 256]")
@@ -238,7 +246,7 @@ class OnboardConfig:
             raise ConfigError("onboard.image_jpeg_quality", f"{self.image_jpeg_quality} outside [1, 100]")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
-            if not isinstance(value, (bool, tuple)):
+            if not isinstance(value, (bool, tuple, str)):
                 _positive(f"onboard.{f.name}", value,
                           allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s",
                                                 "image_rate_hz") or f.name in STEREO_SWITCHES)
@@ -262,6 +270,7 @@ class VesselConfig:
     octree_max_range_m: float = 8.0  # [m] rays are cut here
     scene_share: float = 0.5  # of the satellite's measured capacity, at most, for scene updates
     scene_update_bytes: int = 16_000  # one update at most: telemetry waits behind no more than this
+    scene_track_period_s: float = 1.0  # [s] the octree's changes are looked for at most this often
     satellite_capacity_bps: float = 1e6  # [bit/s] the first guess, before one is measured
     recognition_period_s: float = 2.0  # [s]
     # [m, world] added to the recognised panel's position: a fault for scenarios, as a camera

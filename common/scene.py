@@ -19,6 +19,7 @@ import logging
 import os
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -160,8 +161,15 @@ class SceneModel:
     """The vessel's octree, what of it shore has, and what is queued to go. One thread may
     insert while another takes updates: the queue is guarded, the octree is the inserter's."""
 
-    def __init__(self, resolution_m: float, max_range_m: float, max_update_bytes: int = 16_000) -> None:
+    def __init__(self, resolution_m: float, max_range_m: float, max_update_bytes: int = 16_000,
+                 track_period_s: float = 0.0) -> None:
         self.resolution_m = resolution_m
+        # what changed is found by walking the leaves of the region the clouds touched (in Python,
+        # the vessel's dearest work): at most once per this period over the union of the regions
+        # since, not once per cloud; 0 walks after each cloud
+        self.track_period_s = track_period_s
+        self._dirty: tuple[np.ndarray, np.ndarray] | None = None  # the region touched since the last walk
+        self._walked_s = -float("inf")
         self.max_range_m = max_range_m
         self.max_update_bytes = max_update_bytes
         self.tree = pyoctomap.ColorOcTree(resolution_m)
@@ -187,7 +195,20 @@ class SceneModel:
         self.tree.updateInnerOccupancy()
         everything = np.vstack((points, sensor_m_world))
         margin = 2 * self.resolution_m
-        bbx = (everything.min(axis=0) - margin, everything.max(axis=0) + margin)
+        low, high = everything.min(axis=0) - margin, everything.max(axis=0) + margin
+        if self._dirty is not None:
+            low, high = np.minimum(low, self._dirty[0]), np.maximum(high, self._dirty[1])
+        self._dirty = (low, high)
+        self.track()
+
+    def track(self, now_s: float | None = None) -> None:
+        """Queue the cells whose state changed in the region the clouds touched, if
+        `track_period_s` has passed since the last walk (the inserter's thread calls it: the
+        octree is its own)."""
+        now_s = time.monotonic() if now_s is None else now_s
+        if self._dirty is None or now_s - self._walked_s < self.track_period_s:
+            return
+        bbx, self._dirty, self._walked_s = self._dirty, None, now_s
         self._queue_changes(*iterate_leaves(self.tree, bbx, colors=True))
 
     def adopt(self, octree: bytes) -> int:

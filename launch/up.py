@@ -474,7 +474,7 @@ class Up:
                               "stop_cut": status.get("stop_cut", False),
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
                               **{k: status.get(k, {})
-                                 for k in ("sent", "received", "rejected", "latency_ms")}}
+                                 for k in ("sent", "received", "rejected", "latency_ms", "cpu")}}
         for name in self.external:
             stations[name] = {"external": True, "alive_seen": name in self.alive_seen}
         if not failure and any(s.get("exit_code", 0) != 0 for s in stations.values()):

@@ -60,6 +60,7 @@ class Shell:
     def __init__(self, name: str, config: Config, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  link_mode: str = "emulated", mode: str = "peer", tls_dir: Path | None = None,
                  peers: dict[str, str] | None = None) -> None:
+        self.started_s, self.started_cpu_s = time.monotonic(), time.process_time()
         profiles = config.links.profiles()
         tls = CertFiles(tls_dir, name) if tls_dir else None
         slowest_bps = min(profiles[hop].rate_bps for hop in keys.hops_of(name))
@@ -83,6 +84,9 @@ class Shell:
         status["links"] = self.links.status()
         if self.recorder is not None:
             status["recording"] = self.recorder.status()
+        wall_s, cpu_s = time.monotonic() - self.started_s, time.process_time() - self.started_cpu_s
+        status["cpu"] = {"cpu_s": round(cpu_s, 3), "wall_s": round(wall_s, 3),
+                         "cores": round(cpu_s / wall_s, 4) if wall_s > 0 else 0.0}  # all its threads
         return status
 
     def close(self, drain_s: float = 0.0) -> None:

@@ -101,7 +101,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     cfg = config.onboard
     settings = CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,
                              cfg.stereo_disparities,
-                             cfg.self_filter_radius_m, StereoFilter.of(cfg))
+                             cfg.self_filter_radius_m, StereoFilter.of(cfg), cfg.stereo_mode)
     needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set()) | (
         {"cam_right"} if "stereo" in cfg.cloud_sources else set())
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}

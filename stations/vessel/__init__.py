@@ -48,7 +48,8 @@ def run(config: Config, bus: Bus) -> None:
     from abyss.common.scene import SceneModel
 
     cfg = config.vessel
-    model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
+    model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes,
+                       cfg.scene_track_period_s)
     images = bus.subscribe("onboard", "image", maxlen=2)
     sim_time_s = [0.0]  # of the latest cloud, shared by the model and the stream
     objects: list[RecognisedObjects | None] = [None]  # recognition's latest, for the relay
@@ -132,6 +133,8 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             if insert and perception.sonar_feeds(time.monotonic()) and len(echoes):
                 model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin)
                 sim_time_s[0] = max(sim_time_s[0], received.message.sim_time_s)
+        if insert:
+            model.track()  # what the last clouds changed, once its period has passed
         now_s = time.monotonic()
         if now_s - last_status_s >= cfg.perception_period_s:
             last_status_s = now_s

@@ -28,6 +28,7 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
     assert summary["verdict"] in ("done", "incomplete") and summary["keep_running"]
     for name, station in summary["stations"].items():
         assert station["exit_code"] == 0 and station["alive_seen"], name
+        assert 0.0 < station["cpu"]["cores"] < 2.0 and station["cpu"]["wall_s"] > 20.0, (name, station["cpu"])
     # every key carries traffic, so every hop in both directions does (but the arm goal's: the
     # default mission's arm works through its interventions; tests/e2e/test_operator sends one)
     for spec in keys.KEYS:

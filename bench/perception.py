@@ -105,7 +105,8 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
     cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow,
                       np.random.default_rng(seed))
     settings = CloudSettings(onboard.cloud_voxel_m, onboard.cloud_max_range_m, onboard.cloud_scale_m,
-                             onboard.stereo_disparities, onboard.self_filter_radius_m, kept)
+                             onboard.stereo_disparities, onboard.self_filter_radius_m, kept,
+                             onboard.stereo_mode)
     model = SceneModel(vessel.octree_resolution_m, vessel.octree_max_range_m)
     truth: list[np.ndarray] = []
     stereo_s = 0.0

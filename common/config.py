@@ -213,8 +213,9 @@ class OnboardConfig:
     cloud_scale_m: float = 0.002  # [m] quantisation on the wire
     stereo_disparities: int = 64  # searched by the stereo matcher (a multiple of 16) [px]
     # OpenCV's semi-global matcher: "hh" (eight directions, full: the most exact, 4.3 cm on the
-    # panel at 4 m), "sgbm" (five), "3way" (one pass, three: half hh's CPU, 5.3 cm on the panel,
-    # but 1.4 % of a textureless pair's pixels matched, against none)
+    # panel at 4 m), "sgbm" (five), "3way" (one pass, three: a third of hh's time per pair, but
+    # over the default mission's path the map's recall falls from 0.64 to 0.36 in clear water,
+    # bench/perception.py, and it matches 1.4 % of a textureless pair's pixels, against none)
     stereo_mode: str = "hh"
     self_filter_radius_m: float = 0.15  # [m] points this close to the arm are the arm's
     # the stereo matcher's filters (perception.StereoFilter), against points floating in open

@@ -291,7 +291,8 @@ class VesselConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name != "recognition_bias_m":
-                _positive(f"vessel.{f.name}", getattr(self, f.name))
+                _positive(f"vessel.{f.name}", getattr(self, f.name),
+                          allow_zero=f.name == "scene_track_period_s")  # 0: after each cloud
         if len(self.recognition_bias_m) != 3 or not all(abs(b) <= 1.0 for b in self.recognition_bias_m):
             raise ConfigError("vessel.recognition_bias_m", "needs [x, y, z], each within [-1, 1] m")
         if self.image_scale > 1.0:

@@ -1,16 +1,20 @@
 """Simulation figures: physics step time and real-time factor (headless, no cameras; the
-dynamic low level with Fossen's marine model and with MuJoCo's ellipsoids, in the same run),
-stereo + depth rendering time at 640x480 and the camera rate it allows, and the station loop
-with cameras at several rates, as the share of control deadlines met.
-Run: .venv/bin/python bench/simulation.py. Prints figures; asserts nothing."""
+dynamic low level with Fossen's marine model and with MuJoCo's ellipsoids, each against its
+floor, a bare mj_step of the same model, in the same run), stereo + depth rendering time at
+640x480 and the camera rate it allows, and the station loop with cameras at several rates, as the
+share of control deadlines met.
+Run: .venv/bin/python bench/simulation.py [--physics] (--physics: the physics figures alone).
+Prints figures; asserts nothing."""
 
 from __future__ import annotations
 
+import argparse
 import subprocess
 import sys
 import threading
 import time
 
+import mujoco
 import numpy as np
 import zenoh
 
@@ -30,22 +34,35 @@ from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
 
 
-def physics(low_level: str, hydrodynamics: str = "fossen", seconds: float = 20.0) -> float:
-    """Wall time per physics step [s]."""
+def physics(low_level: str, hydrodynamics: str = "fossen", seconds: float = 20.0, chunks: int = 10) -> float:
+    """Wall time per physics step [s]: the fastest of `chunks` slices of the run (the least disturbed
+    by other work), each followed by as many bare mj_step calls of the same model from the same
+    state (the dynamic low level's floor: MuJoCo alone, no Python per step)."""
     config = SimulationConfig(low_level=low_level, hydrodynamics=hydrodynamics)
     world = World(config, np.random.default_rng(0))
     refs = References(np.array([0.3, 0.1, 0.0, 0.1]), np.full(6, 0.05), 0.0)
-    periods = round(seconds / config.control_period_s)
-    t0 = time.perf_counter()
-    for _ in range(periods):
-        world.step(refs, config.control_period_s)
-    wall = time.perf_counter() - t0
+    periods = round(seconds / chunks / config.control_period_s)
     steps = periods * round(config.control_period_s / config.physics_step_s)
+    bare_data = mujoco.MjData(world.model)
+    step_s, bare_s = [], []
+    for _ in range(chunks):
+        t0 = time.perf_counter()
+        for _ in range(periods):
+            world.step(refs, config.control_period_s)
+        step_s.append((time.perf_counter() - t0) / steps)
+        mujoco.mj_copyData(bare_data, world.model, world.data)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_step(world.model, bare_data)
+        bare_s.append((time.perf_counter() - t0) / steps)
+    per_step, bare = min(step_s), min(bare_s)
     marine = f", {hydrodynamics}" if low_level == "dynamic" else ""
-    print(f"physics, {low_level + marine:<18}: {wall / steps * 1e6:7.1f} us per "
-          f"{config.physics_step_s * 1e3:g} ms step, real-time factor {seconds / wall:6.1f} "
-          f"(headless, no cameras)")
-    return wall / steps
+    floor = (f"; bare mj_step {bare * 1e6:.1f} us (real-time factor {config.physics_step_s / bare:.1f}), "
+             f"ratio {per_step / bare:.2f}x") if low_level == "dynamic" else ""
+    print(f"physics, {low_level + marine:<18}: {per_step * 1e6:7.1f} us per "
+          f"{config.physics_step_s * 1e3:g} ms step, real-time factor {config.physics_step_s / per_step:6.1f}"
+          f"{floor} (headless, no cameras)")
+    return per_step
 
 
 def rendering(frames: int = 20) -> float:
@@ -99,9 +116,14 @@ def station_loop(camera_rate_hz: float, seconds: float = 15.0) -> None:
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--physics", action="store_true", help="the physics figures alone")
+    args = parser.parse_args()
     fossen, ellipsoid = physics("dynamic", "fossen"), physics("dynamic", "ellipsoid")
     print(f"  Fossen's model costs {fossen / ellipsoid:.2f}x MuJoCo's ellipsoids per step")
     physics("kinematic")
+    if args.physics:
+        sys.exit(0)
     rendering()
     for rate in (0.0, 1.0, 2.0, 5.0):
         station_loop(rate)

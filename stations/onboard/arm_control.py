@@ -13,6 +13,7 @@ nothing while it is safe, and they rank above it when it is not.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -25,6 +26,7 @@ from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
 
 CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist, end-effector
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
+XYZW = [1, 2, 3, 0]  # Pinocchio's quaternion order, from w, x, y, z
 VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, heave, yaw rate
 
 
@@ -38,70 +40,85 @@ class Task:
     velocity: np.ndarray  # (m,)
 
 
-@dataclass(frozen=True, eq=False)  # identity: the solver asks which ones are active
-class Constraint:
-    """h(x) >= minimum, enforced as the velocity damper hdot >= -k (h - minimum)."""
+@dataclass(frozen=True)
+class Constraints:
+    """Rows h(x) >= minimum, each enforced as the velocity damper hdot >= -k (h - minimum)."""
 
-    name: str
-    gradient: np.ndarray  # (n,) dh/dx
-    value: float
-    minimum: float
+    names: tuple[str, ...]
+    gradients: np.ndarray  # (c, n) dh/dx
+    values: np.ndarray  # (c,)
+    minimums: np.ndarray  # (c,)
 
-    def rate(self, k: float) -> float:
-        return -k * (self.value - self.minimum)
-
-    def broken_by(self, xdot: np.ndarray, k: float) -> bool:
-        return float(self.gradient @ xdot) < self.rate(k) - 1e-12
-
-    def task(self, k: float) -> Task:
-        return Task(self.name, self.gradient[None, :], np.array([self.rate(k)]))
+    def rates(self, k: float) -> np.ndarray:
+        return -k * (self.values - self.minimums)
 
 
-def damped_pinv(jacobian: np.ndarray, damping: float, threshold: float) -> np.ndarray:
-    """Pseudo-inverse with damping that grows as the smallest singular value falls below
-    `threshold`, up to `damping` at a singularity (Nakamura and Hanafusa; Maciejewski)."""
-    u, s, vt = np.linalg.svd(jacobian, full_matrices=False)
+def damped_inverse(u: np.ndarray, s: np.ndarray, vt: np.ndarray, damping: float,
+                   threshold: float) -> np.ndarray:
+    """Pseudo-inverse, from a thin SVD, with damping that grows as the smallest singular value
+    falls below `threshold`, up to `damping` at a singularity (Nakamura and Hanafusa; Maciejewski)."""
     smallest = float(s[-1]) if s.size else 0.0
     damping2 = damping**2 * (1.0 - (smallest / threshold) ** 2) if smallest < threshold else 0.0
-    denominator = s**2 + damping2
+    denominator = s**2 + damping2  # descending, as s
+    if s.size and denominator[-1] > 1e-300:  # none is zero: no need to guard the division
+        return (vt.T * (s / denominator)) @ u.T
     inverse = np.divide(s, denominator, out=np.zeros_like(s), where=denominator > 1e-300)
     return (vt.T * inverse) @ u.T
 
 
-def null_projector(jacobian: np.ndarray) -> np.ndarray:
-    """The orthogonal projector onto the null space of `jacobian`."""
-    n = jacobian.shape[1]
-    return np.eye(n) - np.linalg.pinv(jacobian, rcond=1e-10) @ jacobian
+def damped_pinv(jacobian: np.ndarray, damping: float, threshold: float) -> np.ndarray:
+    """`damped_inverse` of `jacobian`."""
+    return damped_inverse(*np.linalg.svd(jacobian, full_matrices=False), damping, threshold)
+
+
+def null_projector(s: np.ndarray, vt: np.ndarray) -> np.ndarray:
+    """The orthogonal projector onto the null space of a matrix, from its thin SVD (singular values
+    descending); those up to 1e-10 times the largest count as zero (as numpy's pinv with that rcond)."""
+    kept = vt[:np.count_nonzero(s > 1e-10 * s[0])]
+    return np.eye(vt.shape[1]) - kept.T @ kept
 
 
 def solve(tasks: Sequence[Task], n: int, damping: float, threshold: float) -> list[np.ndarray]:
-    """Each task's contribution to xdot, in priority order; xdot is their sum."""
-    xdot, projector, above = np.zeros(n), np.eye(n), np.zeros((0, n))
-    contributions = []
-    for task in tasks:
-        inverse = damped_pinv(task.jacobian @ projector, damping, threshold)
+    """Each task's contribution to xdot, in priority order; xdot is their sum. The first task's
+    SVD serves twice: its pseudo-inverse and the null space the second task works in; the last
+    task's null space is never formed."""
+    if not tasks:
+        return []
+    u, s, vt = np.linalg.svd(tasks[0].jacobian, full_matrices=False)
+    xdot = damped_inverse(u, s, vt, damping, threshold) @ tasks[0].velocity
+    contributions = [xdot]
+    for i, task in enumerate(tasks[1:], start=1):
+        if i > 1:  # the augmented Jacobian of the tasks above
+            _, s, vt = np.linalg.svd(np.vstack([t.jacobian for t in tasks[:i]]), full_matrices=False)
+        projector = null_projector(s, vt)
+        u, s, vt = np.linalg.svd(task.jacobian @ projector, full_matrices=False)
+        inverse = damped_inverse(u, s, vt, damping, threshold)
         step = projector @ (inverse @ (task.velocity - task.jacobian @ xdot))
         xdot = xdot + step
         contributions.append(step)
-        above = np.vstack([above, task.jacobian])
-        projector = null_projector(above)
     return contributions
 
 
 def solve_constrained(
-        constraints: Sequence[Constraint], tasks: Sequence[Task], n: int, k: float, damping: float,
-        threshold: float) -> tuple[np.ndarray, list[Constraint], list[np.ndarray]]:
+        constraints: Constraints, tasks: Sequence[Task], n: int, k: float, damping: float,
+        threshold: float) -> tuple[np.ndarray, list[int], list[np.ndarray]]:
     """Set-based task priority: the constraints that the solution would break join the top
-    of the stack until none is broken. Returns xdot, the active constraints and every
-    task's contribution (the active constraints' first)."""
-    active: list[Constraint] = []
+    of the stack, the worst first, until none is broken. Returns xdot, the active constraints'
+    indices and every task's contribution (the active constraints' first)."""
+    rates = constraints.rates(k)
+    bound = rates - 1e-12  # broken below
+    active: list[int] = []
     while True:
-        contributions = solve([c.task(k) for c in active] + list(tasks), n, damping, threshold)
-        xdot = np.sum(contributions, axis=0) if contributions else np.zeros(n)
-        broken = [c for c in constraints if c not in active and c.broken_by(xdot, k)]
-        if not broken:
+        above = [Task(constraints.names[i], constraints.gradients[i:i + 1], rates[i:i + 1]) for i in active]
+        contributions = solve(above + list(tasks), n, damping, threshold)
+        xdot = sum(contributions, np.zeros(n))
+        along = constraints.gradients @ xdot
+        broken = along < bound
+        if active:
+            broken[active] = False
+        if not broken.any():
             return xdot, active, contributions
-        active.append(min(broken, key=lambda c: float(c.gradient @ xdot) - c.rate(k)))
+        active.append(int(np.argmin(np.where(broken, along - rates, np.inf))))
 
 
 # -- the arm on the vehicle -----------------------------------------------------------------
@@ -129,8 +146,7 @@ class ArmKinematics:
 
     def update(self, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray,
                arm_rad: np.ndarray) -> None:
-        w, x, y, z = orientation_wxyz_world
-        self.q[0:3], self.q[3:7] = position_m_world, (x, y, z, w)
+        self.q[0:3], self.q[3:7] = position_m_world, np.asarray(orientation_wxyz_world)[XYZW]
         self.q[self.arm_q] = arm_rad
         pin.computeJointJacobians(self.model, self.data, self.q)
         pin.updateFramePlacements(self.model, self.data)
@@ -157,22 +173,36 @@ class ArmKinematics:
     def jacobian(self, frame: int) -> np.ndarray:
         """(6, n): linear then angular velocity of the frame, world axes."""
         full = pin.getFrameJacobian(self.model, self.data, frame, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-        return full[:, self.columns]
+        return full.take(self.columns, axis=1)
+
+
+_AXES = np.eye(3)
+_AXES.flags.writeable = False
+
+
+def box_distances(points: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed distances [m] from points (p, 3) to world-aligned boxes (b, 6: centre, half sizes),
+    negative inside, (p, b), and their gradients with respect to the points, (p, b, 3)."""
+    local = points[:, None, :] - boxes[None, :, :3]
+    side = np.where(local >= 0, 1.0, -1.0)
+    outside = np.abs(local) - boxes[None, :, 3:]
+    clipped = np.maximum(outside, 0.0)
+    deepest = outside.max(axis=-1)
+    is_outside = deepest > 0
+    norm = np.where(is_outside, np.sqrt((clipped**2).sum(axis=-1)), 1.0)
+    if is_outside.all():  # the usual case
+        return norm, side * clipped / norm[..., None]
+    distance = np.where(is_outside, norm, deepest)
+    nearest_face = _AXES[outside.argmax(axis=-1)]  # inside
+    gradient = side * np.where(is_outside[..., None], clipped / norm[..., None], nearest_face)
+    return distance, gradient
 
 
 def box_distance(point: np.ndarray, box: Sequence[float]) -> tuple[float, np.ndarray]:
     """Signed distance [m] from a point to a world-aligned box (centre, half sizes), negative
     inside, and its gradient with respect to the point."""
-    local = point - np.asarray(box[:3])
-    outside = np.abs(local) - np.asarray(box[3:])
-    if np.any(outside > 0):
-        clipped = np.maximum(outside, 0.0)
-        distance = float(np.linalg.norm(clipped))
-        return distance, np.sign(local) * clipped / distance
-    axis = int(np.argmax(outside))
-    gradient = np.zeros(3)
-    gradient[axis] = 1.0 if local[axis] >= 0 else -1.0
-    return float(outside[axis]), gradient
+    distance, gradient = box_distances(np.asarray(point)[None], np.asarray(box, dtype=float)[None])
+    return float(distance[0, 0]), gradient[0, 0]
 
 
 @dataclass(frozen=True)
@@ -209,6 +239,24 @@ class ArmController:
         self.goal_position_m_world: np.ndarray | None = None
         self.goal_rotation = np.eye(3)
         self.within_s = 0.0  # how long both errors have been within tolerance
+        # the constraints' constant parts: each joint's lower then upper limit (h = +q, -q: linear in
+        # the joints), then each clearance point against each obstacle
+        kin, joints, margin_rad = self.kinematics, len(ARM_JOINTS), cfg.joint_limit_margin_rad
+        self.boxes = np.array(mission.obstacles, dtype=float).reshape(-1, 6)
+        clearances = [f"{point} clear of obstacle {j}"
+                      for point in CLEARANCE_POINTS for j in range(len(self.boxes))]
+        self.constraint_names = (*(f"{name} {side}" for name in ARM_JOINTS for side in ("lower", "upper")),
+                                 *clearances)
+        self.limit_gradients = np.zeros((2 * joints, kin.n))
+        self.limit_gradients[0::2, :joints] = np.eye(joints)
+        self.limit_gradients[1::2, :joints] = -np.eye(joints)
+        self.constraint_minimums = np.concatenate((
+            np.column_stack((kin.lower_rad + margin_rad, -kin.upper_rad + margin_rad)).ravel(),
+            np.full(len(clearances), cfg.clearance_m)))
+        self.speed_limits = np.r_[np.full(joints, cfg.max_joint_speed_radps), np.full(3, cfg.max_speed_mps),
+                                  cfg.max_yaw_rate_radps][:kin.n]
+        for constant in (self.boxes, self.limit_gradients, self.constraint_minimums, self.speed_limits):
+            constant.flags.writeable = False
 
     def set_goal(self, command_id: int, position_m_world: np.ndarray,
                  orientation_wxyz_world: np.ndarray) -> bool:
@@ -227,24 +275,15 @@ class ArmController:
         return (self.goal_position_m_world - pose.translation,
                 np.asarray(pin.log3(self.goal_rotation @ pose.rotation.T)))
 
-    def constraints(self, arm_rad: np.ndarray) -> list[Constraint]:
-        kin, cfg, n = self.kinematics, self.cfg, self.kinematics.n
-        found = []
-        for i, name in enumerate(ARM_JOINTS):
-            unit = np.zeros(n)
-            unit[i] = 1.0
-            found.append(Constraint(f"{name} lower", unit, float(arm_rad[i]),
-                                    float(kin.lower_rad[i]) + cfg.joint_limit_margin_rad))
-            found.append(Constraint(f"{name} upper", -unit, -float(arm_rad[i]),
-                                    -float(kin.upper_rad[i]) + cfg.joint_limit_margin_rad))
-        for point, frame in zip(CLEARANCE_POINTS, kin.points, strict=True):
-            position = kin.pose(frame).translation
-            linear = kin.jacobian(frame)[:3]
-            for j, box in enumerate(self.mission.obstacles):
-                distance, gradient = box_distance(position, box)
-                found.append(Constraint(f"{point} clear of obstacle {j}", gradient @ linear, distance,
-                                        cfg.clearance_m))
-        return found
+    def constraints(self, arm_rad: np.ndarray) -> Constraints:
+        kin = self.kinematics
+        points_m_world = np.array([kin.pose(frame).translation for frame in kin.points])
+        linear = np.array([kin.jacobian(frame)[:3] for frame in kin.points])  # (points, 3, n)
+        distances_m, gradients = box_distances(points_m_world, self.boxes)  # (points, boxes[, 3])
+        clearance_gradients = (gradients @ linear).reshape(-1, kin.n)
+        limits_rad = self.limit_gradients[:, :len(ARM_JOINTS)] @ arm_rad
+        return Constraints(self.constraint_names, np.vstack((self.limit_gradients, clearance_gradients)),
+                           np.concatenate((limits_rad, distances_m.ravel())), self.constraint_minimums)
 
     def step(self, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray, arm_rad: np.ndarray,
              enabled: bool, reference: PoseReference | None = None) -> ArmOutput:
@@ -257,11 +296,11 @@ class ArmController:
         if self.goal_position_m_world is None:
             return ArmOutput(zero, None, "idle", np.zeros(3), 0.0, ())
         position_error, rotation_error = self.errors()
-        angle = float(np.linalg.norm(rotation_error))
+        angle = _norm(rotation_error)
         # once settled, the goal stays reached within twice the tolerances, so that navigation
         # noise at the tolerance's edge does not make the status flicker
         scale = REACHED_HYSTERESIS if self.within_s >= self.mission.arm_settle_s else 1.0
-        within = (np.linalg.norm(position_error) < scale * self.mission.arm_position_tolerance_m
+        within = (_norm(position_error) < scale * self.mission.arm_position_tolerance_m
                   and angle < scale * self.mission.arm_orientation_tolerance_rad)
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         if not enabled:
@@ -283,7 +322,7 @@ class ArmController:
         xdot = self._within_speed_limits(xdot)
         vehicle = xdot[len(ARM_JOINTS):] if cfg.whole_body else None
         return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, mode, position_error, angle,
-                         tuple(c.name for c in active))
+                         tuple(self.constraint_names[i] for i in active))
 
     def _follow(self, ref: PoseReference, arm_rad: np.ndarray, enabled: bool) -> ArmOutput:
         """Track a moving pose: feedforward plus feedback, under the same constraints. The turn
@@ -293,7 +332,7 @@ class ArmController:
         pose = kin.pose(kin.ee)
         position_error = ref.position_m_world - pose.translation
         rotation_error = np.asarray(pin.log3(ref.rotation @ pose.rotation.T))
-        angle = float(np.linalg.norm(rotation_error))
+        angle = _norm(rotation_error)
         if not enabled:
             return ArmOutput(np.zeros(len(ARM_JOINTS)), None, "hold", position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
@@ -314,13 +353,16 @@ class ArmController:
 
     def _within_speed_limits(self, xdot: np.ndarray) -> np.ndarray:
         """Scale the whole solution (its direction kept) so that no variable exceeds its limit."""
-        cfg = self.cfg
-        limits = np.r_[np.full(len(ARM_JOINTS), cfg.max_joint_speed_radps),
-                       np.full(3, cfg.max_speed_mps), cfg.max_yaw_rate_radps][:len(xdot)]
-        worst = float(np.max(np.abs(xdot) / limits))
+        worst = float((np.abs(xdot) / self.speed_limits).max())
         return xdot / worst if worst > 1.0 else xdot
 
 
 def _limit(vector: np.ndarray, norm_max: float) -> np.ndarray:
-    norm = float(np.linalg.norm(vector))
+    norm = _norm(vector)
     return vector * (norm_max / norm) if norm > norm_max else vector
+
+
+def _norm(vector: np.ndarray) -> float:
+    """np.linalg.norm of a vector to the bit (the root of its dot product), without that function's
+    overhead."""
+    return math.sqrt(vector @ vector)

@@ -133,6 +133,10 @@ class Fossen:
             self._rows += [i] * len(wanted)
             self._columns += [c - self.dof for c in wanted]
         self._entries = np.array(entries)
+        self._flat = np.array(self._rows) * 6 + np.array(self._columns)  # the entries in a 6 x 6, flat
+        self._turn = np.eye(6)  # diag(R, I): body velocities to the free joint's (world linear, body angular)
+        self._added_mass_linear = vehicle.added_mass[:, :3].copy()
+        self._damping = vehicle.linear_damping.tolist(), vehicle.quadratic_damping.tolist()
         self._centre_of_buoyancy = vehicle.centre_of_buoyancy_m_body.tolist()
         self.buoyancy_n = float(model.opt.density * -model.opt.gravity[2] * vehicle.volume_m3)
         # MuJoCo's own fluid forces kept off the body: a body with no ellipsoid geom falls back to
@@ -145,43 +149,40 @@ class Fossen:
         """-C_A(nu_r) nu_r - D(nu_r) nu_r + buoyancy, and the part of -M_A nu_r_dot that MuJoCo's
         inertia does not hold [N, N m], body frame about the origin. nu: (u, v, w, p, q, r);
         nu_current: the current's linear velocity in the body frame [m/s]; rotation: body to world.
-        (Written for speed: it runs at every physics step; numpy's cross is slow on 3-vectors.)"""
-        v = self.vehicle
+        (Written for speed, in Python's floats: it runs at every physics step, and numpy's calls cost
+        more than their arithmetic on 3- and 6-vectors.)"""
         u, vv, w, p, q, r = nu.tolist()
         cu, cv, cw = nu_current.tolist()
         ur, vr, wr = u - cu, vv - cv, w - cw
-        nu_r = np.array([ur, vr, wr, p, q, r])
-        a1u, a1v, a1w, a2p, a2q, a2r = (v.added_mass @ nu_r).tolist()
+        nu_r = [ur, vr, wr, p, q, r]
+        a1u, a1v, a1w, a2p, a2q, a2r = (self.vehicle.added_mass @ nu_r).tolist()
         # C_A(nu_r) nu_r = (omega x a1, v_r x a1 + omega x a2), a = M_A nu_r (Fossen eq. 6.44)
-        coriolis = np.array([
+        coriolis = [
             q * a1w - r * a1v, r * a1u - p * a1w, p * a1v - q * a1u,
             vr * a1w - wr * a1v + q * a2r - r * a2q,
             wr * a1u - ur * a1w + r * a2p - p * a2r,
-            ur * a1v - vr * a1u + p * a2q - q * a2p])
-        damping = (v.linear_damping + v.quadratic_damping * np.abs(nu_r)) * nu_r
+            ur * a1v - vr * a1u + p * a2q - q * a2p]
+        linear, quadratic = self._damping
+        damping = [(dl + dq * abs(x)) * x for dl, dq, x in zip(linear, quadratic, nu_r, strict=True)]
         # M_A nu_r_dot: MuJoCo's inertia holds M_A T qacc, the rest of nu_r_dot is -(omega x v_r, 0)
         # (the body frame turning under the free joint's world-frame velocity, and the current)
-        turning = v.added_mass[:, :3] @ np.array([q * wr - r * vr, r * ur - p * wr, p * vr - q * ur])
-        fx, fy, fz = (self.buoyancy_n * rotation[2]).tolist()  # R^T (0, 0, B)
+        turning = (self._added_mass_linear @ [q * wr - r * vr, r * ur - p * wr, p * vr - q * ur]).tolist()
+        b = self.buoyancy_n
+        fx, fy, fz = (b * x for x in rotation[2].tolist())  # R^T (0, 0, B)
         bx, by, bz = self._centre_of_buoyancy
-        restoring = np.array([fx, fy, fz, by * fz - bz * fy, bz * fx - bx * fz, bx * fy - by * fx])
-        return restoring - coriolis - damping + turning
+        restoring = [fx, fy, fz, by * fz - bz * fy, bz * fx - bx * fz, bx * fy - by * fx]
+        terms = zip(restoring, coriolis, damping, turning, strict=True)
+        return np.array([g - c - d + t for g, c, d, t in terms])
 
     def apply(self, model: mujoco.MjModel, data: mujoco.MjData, current_mps_world: np.ndarray) -> None:
         """Between mj_step1 and mj_step2: the generalised force and the added mass."""
         d = self.dof
         rotation = data.xmat[self.body].reshape(3, 3)
-        velocity = data.qvel[d:d + 6]  # free joint: linear in the world, angular in the body
-        nu = np.concatenate((rotation.T @ velocity[:3], velocity[3:]))
+        turn = self._turn  # T^T, with nu = T qvel, T = diag(R^T, I)
+        turn[:3, :3] = rotation
+        nu = turn.T @ data.qvel[d:d + 6]  # free joint: linear in the world, angular in the body
         tau = self.wrench_n_body(nu, rotation.T @ current_mps_world, rotation)
-        data.qfrc_applied[d:d + 3] = rotation @ tau[:3]
-        data.qfrc_applied[d + 3:d + 6] = tau[3:]
-        # T^T M_A T with nu = T qvel, T = diag(R^T, I)
-        m = self.vehicle.added_mass
-        added = np.empty((6, 6))
-        added[:3, :3] = rotation @ m[:3, :3] @ rotation.T
-        added[:3, 3:] = rotation @ m[:3, 3:]
-        added[3:, :3] = added[:3, 3:].T
-        added[3:, 3:] = m[3:, 3:]
-        data.M[self._entries] += added[self._rows, self._columns]
+        data.qfrc_applied[d:d + 6] = turn @ tau
+        added = turn @ self.vehicle.added_mass @ turn.T  # T^T M_A T
+        data.M[self._entries] += added.take(self._flat)
         mujoco.mj_factorM(model, data)

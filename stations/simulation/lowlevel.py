@@ -15,7 +15,7 @@ import numpy as np
 
 from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
 from abyss.stations.simulation.hydrodynamics import VehicleModel
-from abyss.stations.simulation.thrusters import Thrusters
+from abyss.stations.simulation.thrusters import ACTUATED, Thrusters
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ class Plant:
     def vehicle_velocity_body(self, data: mujoco.MjData) -> np.ndarray:
         """(surge, sway, heave, roll rate, pitch rate, yaw rate) in the body frame."""
         linear = self.rotation(data).T @ data.qvel[self.qvel:self.qvel + 3]  # freejoint: world
-        return np.r_[linear, data.qvel[self.qvel + 3:self.qvel + 6]]  # angular: body frame
+        return np.concatenate((linear, data.qvel[self.qvel + 3:self.qvel + 6]))  # angular: body frame
 
 
 class Kinematic:
@@ -84,9 +84,10 @@ class Dynamic:
     def __init__(self, model: mujoco.MjModel, gains: PidGains, vehicle: VehicleModel) -> None:
         self.plant = Plant(model)
         self.thrusters = Thrusters(model, vehicle.thrusters)
-        axes = [0, 1, 2, 5]  # surge, sway, heave, yaw
-        self._damping = (vehicle.linear_damping[axes], vehicle.quadratic_damping[axes])
+        self._damping = (vehicle.linear_damping[ACTUATED], vehicle.quadratic_damping[ACTUATED])
         self.gains = gains
+        self._vehicle_kp, self._vehicle_ki, self._vehicle_kd = (
+            np.array(gains.vehicle_kp), np.array(gains.vehicle_ki), np.array(gains.vehicle_kd))
         self._vehicle_integral = np.zeros(4)
         self._vehicle_error = np.zeros(4)
         self._arm_integral = np.zeros(6)
@@ -98,7 +99,7 @@ class Dynamic:
 
     def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
         p, g = self.plant, self.gains
-        velocity = p.vehicle_velocity_body(data)[[0, 1, 2, 5]]
+        velocity = p.vehicle_velocity_body(data)[ACTUATED]
         error = ref.vehicle_body - velocity
         derivative = (error - self._vehicle_error) / dt_s
         self._vehicle_error = error
@@ -106,20 +107,19 @@ class Dynamic:
         # the model's error and the current to take up, not the whole drag (a slow pole otherwise)
         linear, quadratic = self._damping
         feed_forward = (linear + quadratic * np.abs(ref.vehicle_body)) * ref.vehicle_body
-        wrench4 = feed_forward + np.array(g.vehicle_kp) * error + np.array(g.vehicle_kd) * derivative
+        wrench4 = feed_forward + self._vehicle_kp * error + self._vehicle_kd * derivative
         candidate = self._vehicle_integral + error * dt_s
-        wrench4 = wrench4 + np.array(g.vehicle_ki) * candidate
-        wrench = np.zeros(6)
-        wrench[[0, 1, 2, 5]] = wrench4
-        thrust = self.thrusters.allocate(wrench)
-        if np.allclose(self.thrusters.allocation[[0, 1, 2, 5]] @ thrust, wrench4, rtol=1e-6, atol=1e-6):
+        wrench4 = wrench4 + self._vehicle_ki * candidate
+        thrust = self.thrusters.allocate_actuated(wrench4)
+        shortfall = np.abs(self.thrusters.actuated_allocation @ thrust - wrench4)
+        if (shortfall <= 1e-6 + 1e-6 * np.abs(wrench4)).all():  # np.allclose's test, rtol = atol = 1e-6
             self._vehicle_integral = candidate  # anti-windup: integrate only when not saturated
         self.thrusters.apply(data, thrust, dt_s)
         # arm: the proportional part is MuJoCo's implicit velocity servo (kv = arm_kp); the
         # integral part shifts its set point, so torque = kp e + ki integral(e)
         arm_error = ref.arm_radps - data.qvel[p.arm_dofs]
         candidate = self._arm_integral + arm_error * dt_s
-        if np.all(np.abs(g.arm_kp * arm_error + g.arm_ki * candidate) < self._arm_force_limit):
+        if (np.abs(g.arm_kp * arm_error + g.arm_ki * candidate) < self._arm_force_limit).all():
             self._arm_integral = candidate  # anti-windup
         data.ctrl[p.arm_motors] = ref.arm_radps + g.arm_ki / g.arm_kp * self._arm_integral
         data.ctrl[p.gripper_motors] = ref.gripper_mps

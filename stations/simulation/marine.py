@@ -47,19 +47,22 @@ class Buoyancy:
         self.bodies = np.flatnonzero(volumes)
         self.volume_m3 = volumes[self.bodies]
         self.centre_m_body = moments[self.bodies] / self.volume_m3[:, None]
+        self._wrench = np.zeros((len(self.bodies), 6))  # xfrc_applied's rows: the force is constant
+        self._wrench[:, 2] = self.rho_kgpm3 * self.g_mps2 * self.volume_m3
 
     def force_n(self, body_index: int) -> float:
         return self.rho_kgpm3 * self.g_mps2 * float(self.volume_m3[body_index])
 
     def apply(self, data: mujoco.MjData) -> None:
         """Set xfrc_applied of the wet bodies (world frame, about each body's centre of mass)."""
-        b = self.bodies
+        b, wrench = self.bodies, self._wrench
         centre_world = data.xpos[b] + np.einsum("bij,bj->bi", data.xmat[b].reshape(-1, 3, 3),
                                                 self.centre_m_body)
-        force = np.zeros((len(b), 3))
-        force[:, 2] = self.rho_kgpm3 * self.g_mps2 * self.volume_m3
-        data.xfrc_applied[b, :3] = force
-        data.xfrc_applied[b, 3:] = np.cross(centre_world - data.xipos[b], force)
+        lever_m = centre_world - data.xipos[b]
+        # lever x (0, 0, f): numpy's cross on these rows, to the bit, without its overhead
+        wrench[:, 3] = lever_m[:, 1] * wrench[:, 2]
+        wrench[:, 4] = -lever_m[:, 0] * wrench[:, 2]
+        data.xfrc_applied[b] = wrench
 
 
 class Current:
@@ -71,6 +74,7 @@ class Current:
                  time_constant_s: float, rng: np.random.Generator) -> None:
         rows = np.array(sorted(profile) or [(0.0, 0.0, 0.0, 0.0)], dtype=float)
         self.depths_m, self.mean_mps = rows[:, 0], rows[:, 1:]
+        self._mean_by_axis = [self.mean_mps[:, k].copy() for k in range(3)]
         self.sigma_mps = sigma_mps
         self.time_constant_s = time_constant_s
         self.rng = rng
@@ -78,8 +82,9 @@ class Current:
         self._time_s = 0.0
 
     def velocity_mps_world(self, z_m_world: float) -> np.ndarray:
-        mean = np.array([np.interp(z_m_world, self.depths_m, self.mean_mps[:, k]) for k in range(3)])
-        return mean + np.r_[self.gauss_markov_mps, 0.0]
+        velocity = np.array([np.interp(z_m_world, self.depths_m, mean) for mean in self._mean_by_axis])
+        velocity[:2] += self.gauss_markov_mps
+        return velocity
 
     def advance(self, t_s: float) -> None:
         """Move the process on to time t_s [s] (exactly, for any step)."""

@@ -15,7 +15,8 @@ from abyss.stations.simulation.hydrodynamics import ThrusterSpec
 
 # The vehicle has thrust in surge, sway, heave and yaw; roll and pitch are left to its
 # hydrostatic restoring moment, as on the original vehicle.
-ACTUATED = (0, 1, 2, 5)  # rows of the body wrench (fx, fy, fz, mx, my, mz)
+ACTUATED = np.array([0, 1, 2, 5])  # rows of the body wrench (fx, fy, fz, mx, my, mz)
+ACTUATED.flags.writeable = False
 
 
 class Thrusters:
@@ -23,7 +24,7 @@ class Thrusters:
         b = model.body(body).id
         com = model.body_ipos[b]
         self.spec = spec
-        self.actuators = [model.actuator(name).id for name in spec.names]
+        self.actuators = np.array([model.actuator(name).id for name in spec.names])
         columns = []
         for name in spec.names:
             site = model.site(name)
@@ -34,7 +35,8 @@ class Thrusters:
             axis = rotation.reshape(3, 3)[:, 2]
             columns.append(np.r_[axis, np.cross(site.pos - com, axis)])
         self.allocation = np.array(columns).T  # 6 x n: wrench about the centre of mass per N
-        self._pinv = np.linalg.pinv(self.allocation[list(ACTUATED)])
+        self.actuated_allocation = self.allocation[ACTUATED]  # 4 x n
+        self._pinv = np.linalg.pinv(self.actuated_allocation)
         n = len(spec.names)
         self.efficiency = np.ones(n)  # faults: 0 failed, <1 weakened
         self.rotor_speed = np.zeros(n)  # fraction of full, signed
@@ -42,8 +44,12 @@ class Thrusters:
     def allocate(self, wrench_body: np.ndarray) -> np.ndarray:
         """Thrusts [N] for a body wrench [N, N m] (its actuated part), scaled down together
         so that none exceeds its limit in its direction (the direction of the wrench is kept)."""
-        thrust = self._pinv @ np.asarray(wrench_body)[list(ACTUATED)]
-        excess = np.max(np.abs(thrust) / self.max_thrust_n(thrust))
+        return self.allocate_actuated(np.asarray(wrench_body)[ACTUATED])
+
+    def allocate_actuated(self, wrench_actuated: np.ndarray) -> np.ndarray:
+        """As `allocate`, from the actuated part of the wrench alone (surge, sway, heave, yaw)."""
+        thrust = self._pinv @ wrench_actuated
+        excess = (np.abs(thrust) / self.max_thrust_n(thrust)).max()
         return thrust / max(1.0, float(excess))
 
     def max_thrust_n(self, thrust_n: np.ndarray) -> np.ndarray:

@@ -1,15 +1,19 @@
 """Bus figures: common/bus.py against raw zenoh-python in the same run, and `abyss up`
-start-up time. Run: .venv/bin/python bench/bus.py. Prints figures; asserts nothing.
+start-up time. Run: .venv/bin/python bench/bus.py [--startup-runs N]. Prints figures; asserts nothing.
 
 Each case opens two Zenoh peer sessions in this process over loopback TCP. The bus side
 publishes through the hop's emulator with the `ideal` profile (the counted pass-through)
 and decodes and validates every message on receipt; the raw side puts the same encoded
-bytes (plus an 8-byte send time) and only counts them. Cases: a flood of small messages
-(capacity in messages/s), a flood of 32 KB messages (capacity in bit/s), and small
-messages paced at 500/s (latency without queueing)."""
+bytes (plus an 8-byte send time) and only counts them, once with Zenoh's default priority
+and no express (`raw`), once with the key's own priority and express, as the bus declares
+it (`raw/qos`). Cases: a flood of small messages (capacity in messages/s), a flood of 32 KB
+messages (capacity in bit/s), and small messages paced at 500/s (latency without queueing).
+A flood's capacity is what arrived over the time until the last arrival: with congestion
+control DROP, Zenoh drops some of a flood (`delivered` says how much arrived)."""
 
 from __future__ import annotations
 
+import argparse
 import re
 import subprocess
 import sys
@@ -22,13 +26,14 @@ import numpy as np
 import zenoh
 
 from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
+from abyss.common.bus import open_session, publisher_qos, zenoh_config
 from abyss.common.config import Config, LinksConfig
 from abyss.common.messages import Message, NavState, Waypoints, encode
 from abyss.common.samples import Samples
 from abyss.stations.runtime import Shell, free_port
 
 SYSTEM = "bench"
+QUIET_S = 0.5  # a flood is over when nothing more arrived for this long
 
 
 @dataclass(frozen=True)
@@ -47,6 +52,7 @@ class Result:
     bits_per_s: float
     latency_p50_us: float
     latency_p99_us: float
+    delivered: float  # the share of the messages sent that arrived
 
 
 CASES = (
@@ -72,13 +78,16 @@ def drive(case: Case, publish: Callable[[], object], received: Callable[[], int]
             time.sleep(max(0.0, t0 + i / case.rate_hz - time.perf_counter()))
         publish()
     deadline = time.perf_counter() + 20
-    while received() - start < case.count * 0.99 and time.perf_counter() < deadline:
+    n, last_arrival = received() - start, time.perf_counter()
+    while n < case.count and time.perf_counter() - last_arrival < QUIET_S and time.perf_counter() < deadline:
         time.sleep(0.005)
-    elapsed = time.perf_counter() - t0
-    n = received() - start
+        if received() - start > n:
+            n, last_arrival = received() - start, time.perf_counter()
+    elapsed = last_arrival - t0
     size = len(encode(case.message, 0, 0.0))
     lat = latency.percentiles("latency", 1e6, "us", (50, 99))
-    return Result(n / elapsed, n * size * 8 / elapsed, lat["latency_p50_us"], lat["latency_p99_us"])
+    return Result(n / elapsed, n * size * 8 / elapsed, lat["latency_p50_us"], lat["latency_p99_us"],
+                  n / case.count)
 
 
 def bench_bus(case: Case) -> Result:
@@ -99,7 +108,7 @@ def bench_bus(case: Case) -> Result:
     return result
 
 
-def bench_raw(case: Case) -> Result:
+def bench_raw(case: Case, key_qos: bool) -> Result:
     port = free_port()
     a = open_session(zenoh_config(listen=[f"tcp/127.0.0.1:{port}"]), "raw a")
     b = open_session(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]), "raw b")
@@ -111,10 +120,11 @@ def bench_raw(case: Case) -> Result:
         latency.add(time.time() - float(np.frombuffer(data[-8:], "<f8")[0]))
         count[0] += 1
 
-    reliable = keys.spec(case.publisher, case.topic).reliability == "reliable"
+    qos = publisher_qos(keys.spec(case.publisher, case.topic))
+    if not key_qos:
+        qos = {"congestion_control": qos["congestion_control"]}
     sub = b.declare_subscriber("abyss/bench/raw", on_sample)
-    pub = a.declare_publisher("abyss/bench/raw", congestion_control=zenoh.CongestionControl.BLOCK
-                              if reliable else zenoh.CongestionControl.DROP)
+    pub = a.declare_publisher("abyss/bench/raw", **qos)
     time.sleep(1.0)
     body = encode(case.message, 0, 0.0)
     result = drive(case, lambda: pub.put(body + np.float64(time.time()).tobytes()), lambda: count[0],
@@ -139,18 +149,30 @@ def bench_startup(runs: int = 3) -> list[float]:
 
 
 def show(label: str, r: Result) -> None:
-    print(f"  {label:<5} {r.messages_per_s:9.0f} msg/s {r.bits_per_s / 1e6:9.1f} Mbit/s   "
-          f"latency p50 {r.latency_p50_us:9.0f} us  p99 {r.latency_p99_us:9.0f} us")
+    print(f"  {label:<7} {r.messages_per_s:9.0f} msg/s {r.bits_per_s / 1e6:9.1f} Mbit/s   "
+          f"latency p50 {r.latency_p50_us:9.0f} us  p99 {r.latency_p99_us:9.0f} us   "
+          f"delivered {100 * r.delivered:5.1f} %")
+
+
+def compare(label: str, bus: Result, raw: Result) -> None:
+    extra_us = bus.latency_p50_us - raw.latency_p50_us
+    print(f"  bus/{label}: throughput {bus.messages_per_s / raw.messages_per_s:.2f}x, latency p50 "
+          f"{bus.latency_p50_us / raw.latency_p50_us:.2f}x ({extra_us:+.0f} us), "
+          f"p99 {bus.latency_p99_us / raw.latency_p99_us:.2f}x")
 
 
 if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--startup-runs", type=int, default=3, help="`abyss up` runs timed (0: none)")
+    args = parser.parse_args()
     for case in CASES:
-        raw, bus = bench_raw(case), bench_bus(case)
+        raw, raw_qos, bus = bench_raw(case, key_qos=False), bench_raw(case, key_qos=True), bench_bus(case)
         print(case.name)
         show("raw", raw)
+        show("raw/qos", raw_qos)
         show("bus", bus)
-        print(f"  bus/raw: throughput {bus.messages_per_s / raw.messages_per_s:.2f}x, latency p50 "
-              f"{bus.latency_p50_us / raw.latency_p50_us:.2f}x, "
-              f"p99 {bus.latency_p99_us / raw.latency_p99_us:.2f}x")
-    startup = bench_startup()
-    print(f"abyss up, command to all four stations alive: {', '.join(f'{t:.2f}' for t in startup)} s")
+        compare("raw", bus, raw)
+        compare("raw/qos", bus, raw_qos)
+    if args.startup_runs:
+        startup = bench_startup(args.startup_runs)
+        print(f"abyss up, command to all four stations alive: {', '.join(f'{t:.2f}' for t in startup)} s")

@@ -12,9 +12,9 @@ import logging
 import math
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter, defaultdict, deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Protocol, TypeVar
+from typing import Any, NamedTuple, Protocol, TypeVar
 
 import zenoh
 
@@ -22,6 +22,7 @@ from abyss.common import keys, security
 from abyss.common.certs import CertFiles
 from abyss.common.errors import BadMessage, BusError, ConfigError
 from abyss.common.messages import Message, Received, decode, encode
+from abyss.common.rate import Rate
 from abyss.common.samples import Samples
 
 log = logging.getLogger(__name__)
@@ -32,6 +33,14 @@ ZENOH_PRIORITY = {"control": zenoh.Priority.INTERACTIVE_HIGH, "telemetry": zenoh
 LARGE_MESSAGE_BYTES = 256 * 1024  # the largest message a slow hop must carry without dropping it
 ZENOH_DEFAULT_WAIT_BEFORE_DROP_S = 0.001
 ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S = 5.0
+
+
+def publisher_qos(spec: keys.KeySpec) -> dict[str, Any]:
+    """The Zenoh publisher options of a data key: congestion control by its reliability, priority, and
+    express (not batched) for control."""
+    return {"congestion_control": zenoh.CongestionControl.BLOCK if spec.reliability == "reliable"
+            else zenoh.CongestionControl.DROP,
+            "priority": ZENOH_PRIORITY[spec.priority], "express": spec.priority == "control"}
 
 
 def slow_link_tuning(rate_bps: float) -> dict[str, Any]:
@@ -106,9 +115,14 @@ class Inbox:
         self._items: deque[Received] = deque(maxlen=maxlen)
         self._lock = threading.Lock()
         self._latest_received_s = -float("inf")  # this station's monotonic clock
+        # a queue the station drains whose oldest messages newer ones pushed out before it came back:
+        # the station fell behind (an inbox read only for its latest message sheds nothing)
+        self.shed = 0
+        self._drained = False
 
     def put(self, item: Received) -> None:
         with self._lock:
+            self.shed += self._drained and len(self._items) == self._items.maxlen
             self._items.append(item)
             self._latest_received_s = time.monotonic()
 
@@ -126,12 +140,26 @@ class Inbox:
 
     def drain(self) -> list[Received]:
         with self._lock:
+            self._drained = True
             items = list(self._items)
             self._items.clear()
             return items
 
 
 Egress = Callable[[bytes, bool, str], bool]  # (payload, reliable, key) -> False if dropped on the way
+
+
+class Outgoing(NamedTuple):
+    """What publishing on one of a station's topics needs, worked out once."""
+
+    spec: keys.KeySpec
+    key: str
+    hop: str
+    reliable: bool
+
+    @classmethod
+    def of(cls, spec: keys.KeySpec, system: str) -> Outgoing:
+        return cls(spec, spec.key(system), spec.hop, spec.reliability == "reliable")
 
 
 class Tap(Protocol):
@@ -152,22 +180,19 @@ class Bus:
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
-        self.latency_s: dict[str, Samples] = {}  # per received key: sender stamp to receipt
+        self.latency_s: defaultdict[str, Samples] = defaultdict(Samples)  # per received key: stamp to receipt
         self._reasons_logged: set[tuple[str, str]] = set()
         self._seq: Counter[str] = Counter()
         self._lock = threading.Lock()  # the counters, sequence numbers and reasons
         self._subscribers: list[Any] = []
+        self._inboxes: list[tuple[str, Inbox]] = []
+        self._shed: Counter[str] = Counter()  # what the station let go unprocessed, by key
+        self._loops: dict[str, Rate] = {}
         self._egress: dict[str, Egress] = {}
         self.tap: Tap | None = None  # the testbed's recorder, where the run records
-        self._publishers = {
-            s.key(system): session.declare_publisher(
-                s.key(system),
-                congestion_control=zenoh.CongestionControl.BLOCK
-                if s.reliability == "reliable" else zenoh.CongestionControl.DROP,
-                priority=ZENOH_PRIORITY[s.priority], express=s.priority == "control",
-            )
-            for s in keys.KEYS if s.station == station
-        }
+        self._outgoing = {s.topic: Outgoing.of(s, system) for s in keys.KEYS if s.station == station}
+        self._publishers = {out.key: session.declare_publisher(out.key, **publisher_qos(out.spec))
+                            for out in self._outgoing.values()}
 
     def route(self, hop: str, egress: Egress) -> None:
         """Send what goes across `hop` through `egress` (the testbed's link emulator), which
@@ -178,21 +203,21 @@ class Bus:
     def publish(self, topic: str, message: Message) -> bool:
         """Send on `abyss/<system>/<this station>/<topic>` over its hop; False if the link
         dropped it (queue full, congestion control DROP)."""
-        spec = keys.spec(self.station, topic)
-        if spec.message != message.TYPE:
-            raise ConfigError(topic, f"carries {spec.message}, not {message.TYPE}")
-        key = spec.key(self.system)
+        out = self._outgoing.get(topic) or Outgoing.of(keys.spec(self.station, topic), self.system)
+        if out.spec.message != message.TYPE:
+            raise ConfigError(topic, f"carries {out.spec.message}, not {message.TYPE}")
+        key = out.key
         with self._lock:  # stations publish from more than one thread
             payload = encode(message, self._seq[key], time.time())
             self._seq[key] += 1
             self.sent[key] += 1
         if self.tap is not None:
             self.tap.add("sent", key, payload)
-        egress = self._egress.get(spec.hop)
+        egress = self._egress.get(out.hop)
         if egress is None:
             self.transmit(key, payload)
             return True
-        return egress(payload, spec.reliability == "reliable", key)
+        return egress(payload, out.reliable, key)
 
     def transmit(self, key: str, payload: bytes) -> None:
         """Put encoded bytes on the wire now (the egress's delivery)."""
@@ -208,6 +233,7 @@ class Bus:
     def subscribe_key(self, key: str, message: str, maxlen: int = 64) -> Inbox:
         """Receive `message`s on any key, a control key included; validated and counted."""
         inbox = Inbox(maxlen)
+        self._inboxes.append((key, inbox))
         self._subscribers.append(self.session.declare_subscriber(key, lambda sample: self._on_sample(
             str(sample.key_expr), message, sample.payload.to_bytes(), inbox)))
         return inbox
@@ -224,7 +250,7 @@ class Bus:
             self.tap.add("received", key, payload)
         with self._lock:
             self.received[key] += 1
-            self.latency_s.setdefault(key, Samples()).add(time.time() - received.stamp_s)
+            self.latency_s[key].add(time.time() - received.stamp_s)
         inbox.put(received)
 
     def reject(self, key: str, reason: str) -> None:
@@ -245,13 +271,29 @@ class Bus:
         self.session.put(key, payload)
 
     # -- life ----------------------------------------------------------------------------
+    def loop(self, name: str, period_s: float) -> Rate:
+        """The rate of one of the station's periodic loops; its deadlines met go in the status."""
+        rate = self._loops[name] = Rate(period_s, self.stop)
+        return rate
+
+    def shed(self, key: str, count: int = 1) -> None:
+        """The station let `count` messages of `key` go unprocessed, newer ones having come (load
+        shedding: a station that falls behind drops the oldest, and says so)."""
+        with self._lock:
+            self._shed[key] += count
+
     def status(self) -> dict[str, Any]:
-        """What this station sent, received and rejected, for summary.json."""
+        """What this station sent, received, rejected and shed, and its loops' deadlines met, for
+        summary.json."""
         with self._lock:
             latency = {key: samples.percentiles("latency", 1e3, "ms")
                        for key, samples in self.latency_s.items()}
+            shed = self._shed + Counter({key: inbox.shed for key, inbox in self._inboxes})
             return {"sent": dict(self.sent), "received": dict(self.received), "rejected": dict(self.rejected),
-                    "latency_ms": latency}
+                    "latency_ms": latency, "shed": {key: n for key, n in shed.items() if n},
+                    "loops": {name: {"period_s": rate.period_s, "ticks": rate.ticks,
+                                     "deadlines_met": round(rate.deadlines_met, 4)}
+                              for name, rate in self._loops.items()}}
 
     def close(self) -> None:
         """Undeclare the subscribers and publishers (the session is the caller's)."""

@@ -15,9 +15,9 @@ import math
 import secrets
 import typing
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import msgpack
 import numpy as np
@@ -25,6 +25,7 @@ import numpy as np
 from abyss.common.errors import BadMessage
 
 MESSAGES: dict[str, type[Message]] = {}
+SMALL_ARRAY_SIZE = 64  # an array up to this size is range-checked as Python numbers (numpy's calls cost more)
 
 
 def array(dtype: str, shape: tuple[int | None, ...], lo: float = -math.inf,
@@ -43,7 +44,7 @@ def blob(max_bytes: int) -> Any:
     return field(metadata={"max_bytes": max_bytes})
 
 
-def _check_number(name: str, value: Any, kind: type[int] | type[float], lo: float, hi: float) -> Any:
+def _check_number(name: str, kind: type[int] | type[float], lo: float, hi: float, value: Any) -> Any:
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         value = float(value)
     if not isinstance(value, kind) or isinstance(value, bool):
@@ -55,32 +56,62 @@ def _check_number(name: str, value: Any, kind: type[int] | type[float], lo: floa
     return value
 
 
-def _check_array(name: str, value: Any, meta: dict[str, Any]) -> np.ndarray:
+def _plainly_within(value: np.ndarray, lo: float, hi: float) -> bool:
+    """True if a small array's values are all finite and in [lo, hi], told without numpy's calls; False
+    for a large array or one in doubt (a NaN, an infinity, a sum that overflows), which the full checks
+    then judge."""
+    if value.size > SMALL_ARRAY_SIZE:
+        return False
+    values = (value if value.ndim == 1 else value.ravel()).tolist()
+    return not values or (math.isfinite(sum(values)) and lo <= min(values) and max(values) <= hi)
+
+
+def _check_array(name: str, meta: Mapping[str, Any], value: Any) -> np.ndarray:
     if not isinstance(value, np.ndarray):
         value = np.asarray(value, dtype=meta["dtype"])
     if value.dtype != meta["dtype"]:
         raise ValueError(f"{name}: dtype {value.dtype}, expected {meta['dtype']}")
     shape = meta["shape"]
-    if value.ndim != len(shape) or any(
+    if value.shape != shape and (value.ndim != len(shape) or any(
         want is not None and got != want for got, want in zip(value.shape, shape, strict=True)
-    ):
+    )):
         raise ValueError(f"{name}: shape {value.shape}, expected {shape} (None: any)")
     if value.ndim and value.shape[0] > meta["max_rows"]:
         raise ValueError(f"{name}: {value.shape[0]} rows, at most {meta['max_rows']}")
-    if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
-        raise ValueError(f"{name}: contains NaN or infinity")
-    if value.size and (value.min() < meta["lo"] or value.max() > meta["hi"]):
-        raise ValueError(f"{name}: values outside [{meta['lo']}, {meta['hi']}]")
+    if not _plainly_within(value, meta["lo"], meta["hi"]):
+        if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+            raise ValueError(f"{name}: contains NaN or infinity")
+        if value.size and (value.min() < meta["lo"] or value.max() > meta["hi"]):
+            raise ValueError(f"{name}: values outside [{meta['lo']}, {meta['hi']}]")
+    return _frozen(value)
+
+
+def _frozen(value: np.ndarray) -> np.ndarray:
+    """`value` itself if it is a view of bytes (as decoded: no one can change it), else a read-only copy."""
+    base = value.base
+    while isinstance(base, np.ndarray):
+        base = base.base
+    if isinstance(base, bytes):
+        return value
     value = np.array(value, copy=True)
     value.flags.writeable = False
     return value
 
 
-def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
+Check = Callable[[Any], Any]  # a field's value -> the value checked (an array: read-only); raises ValueError
+
+
+def _checker(name: str, kind: Any, meta: Mapping[str, Any]) -> Check:
+    """The check of field `name` of type `kind`, chosen once per message class."""
     if kind is np.ndarray:
-        return _check_array(name, value, meta)
+        return functools.partial(_check_array, name, meta)
     if kind in (float, int):
-        return _check_number(name, value, kind, meta.get("lo", -math.inf), meta.get("hi", math.inf))
+        lo, hi = meta.get("lo", -math.inf), meta.get("hi", math.inf)
+        return functools.partial(_check_number, name, kind, lo, hi)
+    return functools.partial(_check_field, name, kind, meta)
+
+
+def _check_field(name: str, kind: Any, meta: Mapping[str, Any], value: Any) -> Any:
     if kind is bytes:
         if not isinstance(value, bytes) or len(value) > meta.get("max_bytes", 16 * 2**20):
             raise ValueError(f"{name}: expected at most {meta.get('max_bytes', 16 * 2**20)} bytes")
@@ -98,23 +129,42 @@ def _check_field(name: str, kind: Any, value: Any, meta: Any) -> Any:
     if typing.get_origin(kind) is tuple:  # tuple[str, ...]
         if not isinstance(value, (list, tuple)) or len(value) > 256:
             raise ValueError(f"{name}: expected a list of at most 256 strings")
-        return tuple(_check_field(f"{name}[{i}]", str, v, {}) for i, v in enumerate(value))
+        return tuple(_check_field(f"{name}[{i}]", str, {}, v) for i, v in enumerate(value))
     if typing.get_origin(kind) is dict:
         value_kind = typing.get_args(kind)[1]
         if not isinstance(value, dict) or len(value) > 256:
             raise ValueError(f"{name}: expected a map of at most 256 entries")
-        return {
-            _check_field(f"{name} key", str, k, {}): _check_field(f"{name}[{k}]", value_kind, v, {})
-            for k, v in value.items()
-        }
+        return {_check_field(f"{name} key", str, {}, k): _checker(f"{name}[{k}]", value_kind, {})(v)
+                for k, v in value.items()}
     raise TypeError(f"{name}: unsupported field type {kind}")
+
+
+class _Schema(NamedTuple):
+    """What checking and coding a message class needs, read from its dataclass fields once."""
+
+    checks: tuple[tuple[str, Check], ...]  # each field's name and check, in order
+    names: frozenset[str]
+    arrays: dict[str, dict[str, Any]]  # the array fields' metadata, with how they travel (`_wire`)
+
+
+def _wire(meta: Mapping[str, Any]) -> dict[str, Any]:
+    """An array field's metadata, with its dtype as it travels (little-endian) and that dtype's name."""
+    wire_dtype = meta["dtype"].newbyteorder("<")
+    return {**meta, "wire_dtype": wire_dtype, "wire_str": wire_dtype.str}
+
+
+def _read_schema(cls: type) -> _Schema:
+    hints = typing.get_type_hints(cls)
+    fields = dataclasses.fields(cls)
+    return _Schema(tuple((f.name, _checker(f.name, hints[f.name], dict(f.metadata))) for f in fields),
+                   frozenset(f.name for f in fields),
+                   {f.name: _wire(f.metadata) for f in fields if hints[f.name] is np.ndarray})
 
 
 # Per message class, cached. Typed as taking any class: mypy holds a frozen dataclass's class
 # object unhashable (it reads the instances' __hash__), so functools.cache's Hashable arguments
 # would refuse type[Message].
-_hints: Callable[[type], dict[str, Any]] = functools.cache(typing.get_type_hints)
-_fields: Callable[[type], tuple[dataclasses.Field[Any], ...]] = functools.cache(dataclasses.fields)
+_schema: Callable[[type], _Schema] = functools.cache(_read_schema)
 
 
 @dataclass(frozen=True)
@@ -130,10 +180,8 @@ class Message:
         MESSAGES[cls.TYPE] = cls
 
     def __post_init__(self) -> None:
-        hints = _hints(type(self))
-        for f in _fields(type(self)):
-            checked = _check_field(f.name, hints[f.name], getattr(self, f.name), f.metadata)
-            object.__setattr__(self, f.name, checked)
+        for name, check in _schema(type(self)).checks:
+            object.__setattr__(self, name, check(getattr(self, name)))
 
 
 @dataclass(frozen=True)
@@ -163,7 +211,7 @@ class NavState(Message):
 
 
 def _check_unit_quaternion(quat_wxyz: np.ndarray) -> None:
-    norm = float(np.linalg.norm(quat_wxyz))
+    norm = math.hypot(*quat_wxyz.tolist())
     if abs(norm - 1.0) > 1e-3:
         raise ValueError(f"orientation_wxyz_world: not a unit quaternion (norm {norm:.4f})")
 
@@ -621,15 +669,18 @@ class ReplayStart(Message):
     start_s: float = scalar(0.0)
 
 
-def _pack(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        little = value.astype(value.dtype.newbyteorder("<"), copy=False)
-        return {"dtype": value.dtype.str, "shape": list(value.shape), "data": little.tobytes()}
-    return value
+def _pack(value: Any, array: Mapping[str, Any] | None) -> Any:
+    """A field's value as it travels; an array (`array`: its field's metadata) as its map, little-endian."""
+    if array is None:
+        return value
+    wire_dtype = array["wire_dtype"]
+    little = value if value.dtype == wire_dtype else value.astype(wire_dtype)
+    return {"dtype": array["wire_str"], "shape": list(value.shape), "data": little.tobytes()}
 
 
 def encode(message: Message, seq: int, stamp_s: float) -> bytes:
-    body = {f.name: _pack(getattr(message, f.name)) for f in _fields(type(message))}
+    schema = _schema(type(message))
+    body = {name: _pack(getattr(message, name), schema.arrays.get(name)) for name, _ in schema.checks}
     return msgpack.packb(
         {"type": message.TYPE, "version": message.VERSION, "seq": seq, "stamp_s": stamp_s,
          "body": body},
@@ -647,18 +698,24 @@ class Received:
     stamp_s: float
 
 
+ENVELOPE_KEYS = frozenset(("type", "version", "seq", "stamp_s", "body"))
+ARRAY_MAP_KEYS = frozenset(("dtype", "shape", "data"))
+
+
 def _unpack_array(name: str, raw: Any, meta: dict[str, Any]) -> np.ndarray:
-    if not isinstance(raw, dict) or set(raw) != {"dtype", "shape", "data"}:
+    """An array field's map as a read-only array over its bytes, which `_check_array` then checks."""
+    if not isinstance(raw, dict) or raw.keys() != ARRAY_MAP_KEYS:
         raise ValueError(f"{name}: expected an array map with dtype, shape and data")
-    dtype = np.dtype(meta["dtype"]).newbyteorder("<")
-    if raw["dtype"] != dtype.str:
-        raise ValueError(f"{name}: dtype {raw['dtype']!r}, expected {dtype.str!r}")
+    dtype = meta["wire_dtype"]
+    if raw["dtype"] != meta["wire_str"]:
+        raise ValueError(f"{name}: dtype {raw['dtype']!r}, expected {meta['wire_str']!r}")
     shape = raw["shape"]
     if not isinstance(shape, list) or not all(isinstance(n, int) and n >= 0 for n in shape):
         raise ValueError(f"{name}: bad shape {shape!r}")
     if not isinstance(raw["data"], bytes) or len(raw["data"]) != dtype.itemsize * math.prod(shape):
         raise ValueError(f"{name}: {len(raw['data'])} data bytes do not fill shape {shape}")
-    return np.frombuffer(raw["data"], dtype=dtype).reshape(shape).astype(meta["dtype"])
+    value = np.ndarray(shape, dtype, raw["data"])
+    return value if dtype == meta["dtype"] else value.astype(meta["dtype"])
 
 
 def decode(key: str, data: bytes, expected: str | None = None) -> Received:
@@ -667,7 +724,7 @@ def decode(key: str, data: bytes, expected: str | None = None) -> Received:
         envelope = msgpack.unpackb(data, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types on bad bytes
         raise BadMessage(key, f"not msgpack: {exc}") from None
-    if not isinstance(envelope, dict) or set(envelope) != {"type", "version", "seq", "stamp_s", "body"}:
+    if not isinstance(envelope, dict) or envelope.keys() != ENVELOPE_KEYS:
         raise BadMessage(key, "not a message envelope (type, version, seq, stamp_s, body)")
     name = envelope["type"]
     cls = MESSAGES.get(name) if isinstance(name, str) else None
@@ -682,15 +739,13 @@ def decode(key: str, data: bytes, expected: str | None = None) -> Received:
         raise BadMessage(key, f"bad sequence number {seq!r}")
     if not isinstance(stamp_s, float) or not math.isfinite(stamp_s):
         raise BadMessage(key, f"bad stamp {stamp_s!r}")
-    fields = {f.name: f for f in _fields(cls)}
-    if not isinstance(body, dict) or set(body) != set(fields):
+    schema = _schema(cls)
+    if not isinstance(body, dict) or body.keys() != schema.names:
         raise BadMessage(key, f"{name} fields {sorted(body) if isinstance(body, dict) else body!r}, "
-                              f"expected {sorted(fields)}")
+                              f"expected {sorted(schema.names)}")
     try:
-        values = {
-            n: _unpack_array(n, v, dict(fields[n].metadata)) if "dtype" in fields[n].metadata else v
-            for n, v in body.items()
-        }
+        arrays = schema.arrays
+        values = {n: _unpack_array(n, v, arrays[n]) if n in arrays else v for n, v in body.items()}
         message = cls(**values)
     except (ValueError, TypeError) as exc:
         raise BadMessage(key, f"{name}: {exc}") from None

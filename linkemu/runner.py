@@ -32,6 +32,7 @@ class LinkRunner:
         self.passthrough = passthrough
         self.stopping = stopping or threading.Event()
         self.link = Link(profile, rng)
+        self._direct = passthrough or profile.is_ideal  # follows the profile (reconfigure)
         self.late_s = Samples()  # actual - scheduled delivery time
         self._cond = threading.Condition()
         self._closed = False
@@ -47,14 +48,11 @@ class LinkRunner:
         with self._cond:
             return self.link.in_flight(tags)
 
-    def _direct(self) -> bool:
-        return self.passthrough or self.link.profile.is_ideal
-
     def send(self, payload: bytes, block: bool, tag: Any = None) -> bool:
         """Offer a message; False if the link dropped it (queue full with DROP).
         With `block`, wait for room in the queue as Zenoh's BLOCK does."""
         with self._cond:
-            if self._direct() and self.link.in_flight() == 0:
+            if self._direct and self.link.in_flight() == 0:
                 self.link.pass_through(len(payload))
                 direct = True
             else:
@@ -76,6 +74,7 @@ class LinkRunner:
     def reconfigure(self, profile: LinkProfile) -> None:
         with self._cond:
             self.link.reconfigure(profile)
+            self._direct = self.passthrough or profile.is_ideal
             self._cond.notify_all()
 
     def snapshot(self) -> dict[str, float]:

@@ -42,6 +42,12 @@ def config_args(p: argparse.ArgumentParser) -> None:
     )
 
 
+def cpu_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cpu", action="append", default=[], metavar="STATION=CORES",
+                   help="cap a station's CPU, e.g. onboard=0.5 (a cgroup quota: needs root or a delegated "
+                        "cgroup; the station sheds its oldest frames and the summary says how many)")
+
+
 def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
     """KEY=VALUE items of a repeated option."""
     pairs = []
@@ -55,7 +61,7 @@ def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
 
 def load_config(args: argparse.Namespace, default: Path | None = None) -> Config:
     """--config (else `default`, else the defaults), then --set, --system, --seed,
-    --realtime-factor and --profile on top."""
+    --realtime-factor, --profile and --cpu on top."""
     overrides = list(args.set)
     if args.system:
         overrides.append(f"system={args.system}")
@@ -65,6 +71,8 @@ def load_config(args: argparse.Namespace, default: Path | None = None) -> Config
         overrides.append(f"simulation.realtime_factor={args.realtime_factor}")
     for hop, name in pairs("--profile", args.profile):
         overrides.append(f"links.{keys.check_hop(hop)}={name}")
+    for station, cores in pairs("--cpu", getattr(args, "cpu", [])):
+        overrides.append(f"cpu.{keys.check_station(station)}={cores}")
     return load(args.config or default, overrides)
 
 

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from abyss.cli.args import config_args, load_config
+from abyss.cli.args import config_args, cpu_arg, load_config
 from abyss.common import keys
 from abyss.common.errors import LinkError
 from abyss.linkemu.control import LINK_MODES
@@ -71,6 +71,7 @@ def add_commands(sub: Any) -> None:
         dest="lab", required=True)
     p = lab.add_parser("up", help="namespaces, shaped hops, the mission; removed at the end")
     config_args(p)
+    cpu_arg(p)
     p.add_argument("--name", default="lab", help="lab name: namespaces abyss-NAME-STATION (default lab)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")

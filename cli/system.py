@@ -14,6 +14,7 @@ from abyss.cli.args import (
     client,
     config_args,
     connect_args,
+    cpu_arg,
     load_config,
     pairs,
 )
@@ -54,6 +55,7 @@ def up_config(args: argparse.Namespace, config: Config) -> Config:
 def run_args(p: argparse.ArgumentParser) -> None:
     """What `abyss up` and `abyss replay` share: configuration, duration, run directory, viewer, recording."""
     config_args(p)
+    cpu_arg(p)
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
     p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")

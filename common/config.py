@@ -232,6 +232,10 @@ class OnboardConfig:
     stereo_edge_step_px: float = 1.0
     image_rate_hz: float = 1.0  # the left camera's frames sent on to the vessel
     image_jpeg_quality: int = 70
+    # perception is busy this share of the wall time at most, resting after each frame set in
+    # proportion to its work: where the CPU is short (a capped onboard computer, a loaded host) it
+    # sheds frame sets, and the control loop in the same process keeps its deadlines
+    perception_max_busy: float = 0.5
 
     def __post_init__(self) -> None:
         for name in self.cloud_sources:
@@ -251,6 +255,8 @@ class OnboardConfig:
                 _positive(f"onboard.{f.name}", value,
                           allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s",
                                                 "image_rate_hz") or f.name in STEREO_SWITCHES)
+        if self.perception_max_busy > 1.0:
+            raise ConfigError("onboard.perception_max_busy", f"{self.perception_max_busy} outside (0, 1]")
         if self.stereo_uniqueness_percent > 100:
             raise ConfigError("onboard.stereo_uniqueness_percent",
                               f"{self.stereo_uniqueness_percent} outside [0, 100]")
@@ -347,6 +353,30 @@ class RecordConfig:
             raise ConfigError("record.level", f"{self.level!r} not one of {', '.join(RECORD_LEVELS)}")
         _positive("record.max_rate_hz", self.max_rate_hz)
         _positive("record.bulk_max_rate_hz", self.bulk_max_rate_hz)
+
+
+MIN_CPU_CORES = 0.05  # a cap below this leaves a station too little to stop within its bound
+
+
+@dataclass(frozen=True)
+class CpuConfig:
+    """A CPU cap per station [cores], the paper's processing power beside bandwidth, delay and
+    sensor noise (`abyss up --cpu STATION=CORES`): a cgroup quota on Linux, `cpus:` in compose.
+    0 leaves the station uncapped; a capped station sheds its oldest frames, and says so."""
+
+    simulation: float = 0.0
+    onboard: float = 0.0
+    vessel: float = 0.0
+    onshore: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, cores in dataclasses.asdict(self).items():
+            if cores != 0.0 and not MIN_CPU_CORES <= cores <= 1024:
+                raise ConfigError(f"cpu.{name}", f"{cores} cores: 0 (uncapped) or {MIN_CPU_CORES} to 1024")
+
+    def capped(self) -> dict[str, float]:
+        """The capped stations and their caps [cores]."""
+        return {name: cores for name, cores in dataclasses.asdict(self).items() if cores}
 
 
 ROS2_STATIONS = ("onboard", "vessel")  # the stations a ROS 2 node can stand for (ros2.gateway)
@@ -458,6 +488,7 @@ class Config:
     mission: MissionConfig = field(default_factory=MissionConfig)
     record: RecordConfig = field(default_factory=RecordConfig)
     ros2: Ros2Config = field(default_factory=Ros2Config)
+    cpu: CpuConfig = field(default_factory=CpuConfig)
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)

@@ -114,24 +114,38 @@ def interventions_summary(mission: MissionConfig, start: PanelState | None,
     return judged
 
 
+def deadlines_text(loops: dict[str, dict[str, Any]]) -> str:
+    """The share of deadlines met by a station's worst loop, and its name."""
+    if not loops:
+        return "-"
+    name, worst = min(loops.items(), key=lambda item: item[1]["deadlines_met"])
+    return f"{worst['deadlines_met']:.1%} {name}"
+
+
 def render_summary(summary: dict[str, Any]) -> str:
     lines = [f"abyss: {summary['system']}: {summary['verdict']}"
              + (f" ({summary['failure']})" if summary["failure"] else "")
              + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"]
-    lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9} {'cores':>6}")
+    lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9} {'cores':>6} "
+                 f"{'shed':>6} {'deadlines':>16}")
     for name, s in summary["stations"].items():
         if s.get("external"):
             lines.append(f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}")
             continue
         lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
                      f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9} "
-                     f"{s['cpu']['cores'] if s.get('cpu') else float('nan'):>6.2f}"
+                     f"{s['cpu']['cores'] if s.get('cpu') else float('nan'):>6.2f} "
+                     f"{sum(s.get('shed', {}).values()):>6} {deadlines_text(s.get('loops', {})):>16}"
+                     + (f"  capped at {s['cpu']['cap_cores']:g} core, throttled in "
+                        f"{s['cpu']['throttled_share']:.0%} of its periods"
+                        if "cap_cores" in s.get("cpu", {}) else "")
                      + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
                      + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else ""))
     cores = [s["cpu"]["cores"] for s in summary["stations"].values() if s.get("cpu")]
     if cores:
         lines.append(f"  the stations' CPU: {sum(cores):.2f} cores in all (each station's process time "
-                     "over its wall time)")
+                     "over its wall time); shed: frames let go unprocessed for newer ones; deadlines: "
+                     "the station's worst loop")
     for r in summary.get("restarts", []):
         back = f"down {r['down_s']:.1f} s" if r.get("down_s") is not None else "not back"
         lines.append(f"  restart: {r['station']} at t={r['t_s']:.1f} s (exit {exit_text(r['exit_code'])}), "

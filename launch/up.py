@@ -35,6 +35,7 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.common.runfiles import CARRIED_OVER, EVENTS_FILE, read_json_list
+from abyss.launch.cpu import CpuCaps
 from abyss.launch.record import ControlRecorder
 from abyss.launch.state import RunState
 from abyss.launch.summary import (
@@ -146,6 +147,11 @@ class Up:
             raise ConfigError("--ros2", f"{config.ros2.station} is --external too: the gateway stands for a "
                               "station that abyss up starts")
         self.restart = restart  # a station that dies is started again instead of failing the run
+        uncappable = sorted(set(config.cpu.capped()) & set(self.external))
+        if uncappable:
+            raise ConfigError("--cpu", f"{uncappable[0]} is --external: abyss up does not start it, so "
+                              "cannot cap its CPU")
+        self.cpu = CpuCaps(config.system, config.cpu.capped())  # fails here where no cgroup can be made
         self.mission_done_s: float | None = None  # since all stations were up
         self.out_dir = out_dir.resolve()  # the stations run there, whatever the caller's directory
         self.echo = echo or (lambda text: print(text, flush=True))
@@ -255,6 +261,7 @@ class Up:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, start_new_session=True, cwd=self.out_dir,
                                        env={**os.environ, SUPERVISOR_ENV: str(os.getpid())})
+        self.cpu.apply(name, process.pid)
         self._change_state(name, pid=process.pid)
         return Station(name, process, log_path, status_path)
 
@@ -374,6 +381,7 @@ class Up:
             self._change_state(phase="stopping")
             stuck = self._stop_all()  # always: every station is stopped, whatever failed
             failure = failure or stuck
+            self.cpu.close()
             for observer in observers:
                 observer.undeclare()
             session.close()
@@ -474,7 +482,11 @@ class Up:
                               "stop_cut": status.get("stop_cut", False),
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
                               **{k: status.get(k, {})
-                                 for k in ("sent", "received", "rejected", "latency_ms", "cpu")}}
+                                 for k in ("sent", "received", "rejected", "latency_ms", "cpu", "shed",
+                                           "loops")}}
+            if name in self.cpu.caps:
+                stations[name]["cpu"] = {**stations[name]["cpu"], "cap_cores": self.cpu.caps[name],
+                                         "throttled_share": round(self.cpu.throttled_share.get(name, 0.0), 4)}
         for name in self.external:
             stations[name] = {"external": True, "alive_seen": name in self.alive_seen}
         if not failure and any(s.get("exit_code", 0) != 0 for s in stations.values()):

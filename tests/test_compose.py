@@ -22,7 +22,8 @@ from abyss.linkemu.profile import load_profiles
 
 ROOT = Path(__file__).resolve().parents[1]
 OVERRIDES = {"ABYSS_TLS": "tls", "ABYSS_TLS_DIR": "/certs", "ABYSS_SATELLITE_PROFILE": "satellite-storm",
-             "ABYSS_TETHER_PROFILE": "tether-degraded", "ABYSS_SYSTEM": "field", "ABYSS_LINK": "emulated"}
+             "ABYSS_TETHER_PROFILE": "tether-degraded", "ABYSS_SYSTEM": "field", "ABYSS_LINK": "emulated",
+             "ABYSS_ONBOARD_CPUS": "0.3"}
 
 
 def resolved(env: dict[str, str]) -> dict[str, Any]:
@@ -55,6 +56,8 @@ def test_compose_agrees_with_the_code(env: dict[str, str]) -> None:
         assert args.system == env.get("ABYSS_SYSTEM", "compose")
         assert args.link == env.get("ABYSS_LINK", "auto")  # netem, else the TUN shaper, else emulated
         assert "NET_ADMIN" in service["cap_add"]  # tc/netem or a TUN device on its own interfaces
+        cpus = float(env.get(f"ABYSS_{station.upper()}_CPUS", 0))
+        assert float(service.get("cpus", 0)) == cpus, station  # --cpu's cap, or none
         assert "/dev/net/tun" in str(service["devices"])  # the TUN shaper's device
         scheme = env.get("ABYSS_TLS", "tcp")
         assert args.listen == [f"{scheme}/0.0.0.0:{DEFAULT_PORT}"]

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
+import sys
 import threading
 import time
 
@@ -35,6 +37,10 @@ from abyss.stations.onboard.core import Onboard, OnboardInputs
 from abyss.stations.onboard.perception import PoseHistory
 
 log = logging.getLogger(__name__)
+# a thread holding the GIL (perception's Python between native calls) gives it up after this
+# long: the control loop, woken at its tick, waits at most this, not CPython's 5 ms
+SWITCH_INTERVAL_S = 0.001
+PERCEPTION_NICE = 10
 
 
 class Shared:
@@ -55,6 +61,7 @@ def run(config: Config, bus: Bus) -> None:
         return gateway.run(config, bus)
     core = Onboard(config)
     shared = Shared()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     with Workers(bus.stop) as workers:
         workers.start("perception", _perception_loop, config, bus, shared)
         workers.start("sonar", _sonar_loop, bus, shared)
@@ -67,7 +74,7 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
     goals = [bus.subscribe("vessel", topic) for topic in ("goal/waypoints", "goal/arm", "goal/mode",
                                                               "goal/intervene")]
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
-    rate = Rate(config.onboard.control_period_s, bus.stop)
+    rate = bus.loop("control", config.onboard.control_period_s)
     while rate.sleep():
         latest_joints = messages_of([r for r in (joints.latest(),) if r is not None], JointState)
         commands = [r.message for inbox in goals for r in inbox.drain()]
@@ -99,6 +106,9 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     from abyss.stations.onboard.perception import CloudSettings, StereoFilter, camera_in_world, clouds_of
 
     cfg = config.onboard
+    # below the control loop for the kernel's scheduler too: where the CPU is capped, the quota
+    # goes to control first (a thread's nice value; raising it needs no privilege)
+    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), PERCEPTION_NICE)
     settings = CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,
                              cfg.stereo_disparities,
                              cfg.self_filter_radius_m, StereoFilter.of(cfg), cfg.stereo_mode)
@@ -107,13 +117,16 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}
     sets: dict[float, dict[str, Image]] = {}
     last_image_s = -float("inf")
-    key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad frames are counted
+    key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
     rate = Rate(0.05, bus.stop)
+    resting_until_s = -float("inf")
     while rate.sleep():
         for camera, inbox in inboxes.items():
             for received in inbox.drain():
                 assert isinstance(received.message, Image)
                 sets.setdefault(received.message.sim_time_s, {})[camera] = received.message
+        if time.monotonic() < resting_until_s:  # what comes meanwhile waits; the newest set is taken
+            continue
         complete = [t for t, frames in sets.items() if needed <= set(frames)]
         if not complete:
             for t in sorted(sets)[:-4]:  # a set that never completes (a frame lost) is let go
@@ -121,6 +134,8 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
             continue
         t = max(complete)
         frames = sets.pop(t)
+        if len(complete) > 1:  # complete sets not yet processed when a newer one came: shed, the oldest first
+            bus.shed(key, len(complete) - 1)
         for older in [s for s in sets if s < t]:
             del sets[older]
         with shared.lock:
@@ -129,6 +144,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
         if pose is None:
             log.debug("no navigation estimate at %.2f s; frames skipped", t)
             continue
+        started_s = time.monotonic()
         try:
             for cloud in clouds_of(frames, pose, arm_m_world, cfg.cloud_sources, settings):
                 bus.publish("cloud", cloud)
@@ -141,6 +157,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
                 last_image_s = now_s
         except ValueError as exc:  # frames that do not decode, or a camera pose in the wrong frame
             bus.reject(key, str(exc))
+        resting_until_s = started_s + (time.monotonic() - started_s) / cfg.perception_max_busy
 
 
 def _sonar_loop(bus: Bus, shared: Shared) -> None:

@@ -36,7 +36,6 @@ from abyss.common.messages import (
     Waypoints,
     encode,
 )
-from abyss.common.rate import Rate
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
 from abyss.common.scene import SceneReceiver
 from abyss.stations.onshore.core import Operator, OperatorInputs, PerceptionSeen
@@ -65,7 +64,7 @@ def run(config: Config, bus: Bus) -> None:
         for topic, message in (("mode", "OperatorMode"), ("waypoints", "Waypoints"), ("arm", "ArmGoal"),
                                ("intervene", "Intervention"))}
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)
-    rate = Rate(PERIOD_S, bus.stop)
+    rate = bus.loop("display", PERIOD_S)
     saved: tuple[str, str] = ("", "")
     saved_s = -float("inf")
     while rate.sleep():

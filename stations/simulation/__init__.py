@@ -15,7 +15,6 @@ from abyss.common import keys
 from abyss.common.bus import Bus
 from abyss.common.config import Config
 from abyss.common.messages import ArmVelocityRef, SimulationControl, SimulationStatus, VelocityRef
-from abyss.common.rate import Rate
 from abyss.common.workers import Workers
 
 if TYPE_CHECKING:
@@ -56,7 +55,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
     control_key = keys.simulation_control_key(bus.system)
     controls = bus.subscribe_key(control_key, "SimulationControl")
-    rate = Rate(sim.control_period_s / sim.realtime_factor, bus.stop)
+    rate = bus.loop("physics", sim.control_period_s / sim.realtime_factor)
     wall0, sim0 = time.monotonic(), world.data.time
     saved_s = -float("inf")  # simulated time of the state last kept
     while True:
@@ -107,7 +106,7 @@ def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, 
     cameras = Cameras(model, sim.camera_width_px, sim.camera_height_px, sim.water, sim.marine_snow,
                       np.random.default_rng([config.seed, 1]))  # the optics' own stream: snow, noise
     cameras.blackout = blackout
-    rate = Rate(1.0 / (sim.camera_rate_hz * sim.realtime_factor), bus.stop)
+    rate = bus.loop("cameras", 1.0 / (sim.camera_rate_hz * sim.realtime_factor))
     try:
         while rate.sleep():
             with lock:
@@ -128,7 +127,7 @@ def _sonar_loop(config: Config, bus: Bus, world: World, lock: threading.Lock) ->
     snapshot = mujoco.MjData(world.model)
     sonar = ImagingSonar(world.model)
     rng = np.random.default_rng([config.seed, 2])  # the sonar's own stream: speckle, noise
-    rate = Rate(1.0 / (sim.sonar_rate_hz * sim.realtime_factor), bus.stop)
+    rate = bus.loop("sonar", 1.0 / (sim.sonar_rate_hz * sim.realtime_factor))
     while rate.sleep():
         with lock:
             mujoco.mj_copyData(snapshot, world.model, world.data)

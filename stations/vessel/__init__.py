@@ -78,7 +78,7 @@ def _relay_loop(config: Config, bus: Bus, objects: list[RecognisedObjects | None
     operator = {topic: bus.subscribe("onshore", topic) for topic in RELAYED_DOWN}
     acks = bus.subscribe("onboard", "ack")
     shore_beats = bus.subscribe("onshore", "heartbeat", maxlen=4)
-    rate = Rate(POLL_PERIOD_S, bus.stop)
+    rate = bus.loop("relay", POLL_PERIOD_S)
     relay = Relay(config.vessel, time.monotonic())
     while True:
         latest = telemetry.latest()

@@ -28,7 +28,7 @@ VERDICTS: dict[str, set[str]] = {
     "every-station-killed": {"done"}, "nominal": {"done"}, "recognition-biased": {"incomplete"},
     "satellite-down": {"incomplete"}, "satellite-storm": {"done"}, "sensor-noise": {"done", "incomplete"},
     "tether-degraded": {"done"}, "tether-outage": {"done"}, "thruster-failure": {"done"}, "turbid": {"done"},
-    "valve-seized": {"incomplete"}, "vessel-crash": {"done"},
+    "valve-seized": {"incomplete"}, "vessel-crash": {"done"}, "onboard-starved": {"done"},
 }
 
 

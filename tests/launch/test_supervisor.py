@@ -354,7 +354,12 @@ def test_render_summary_of_every_section() -> None:
         "system": "demo", "verdict": "ok", "failure": "", "startup_s": 1.04, "wall_s": 30.4,
         "stations": {"simulation": {"exit_code": 0, "restarts": 2, "sent": {"a": 5, "b": 6},
                                     "received": {"c": 7}, "rejected": {},
-                                    "cpu": {"cpu_s": 5.5, "wall_s": 30.0, "cores": 0.1833}},
+                                    "cpu": {"cpu_s": 5.5, "wall_s": 30.0, "cores": 0.1833, "cap_cores": 0.3,
+                                            "throttled_share": 0.61},
+                                    "shed": {"k1": 3, "k2": 4},
+                                    "loops": {
+                                        "physics": {"period_s": 0.05, "ticks": 600, "deadlines_met": 0.987},
+                                        "cameras": {"period_s": 1.0, "ticks": 30, "deadlines_met": 1.0}}},
                      "onboard": {"external": True, "alive_seen": True}},
         "links": {"satellite": {"vessel->onshore": {"messages_delivered": 70.0, "messages_offered": 71.0,
                                                    "delay_p50_ms": 239.1, "delay_p99_ms": 1187.2,
@@ -370,10 +375,12 @@ def test_render_summary_of_every_section() -> None:
     }
     assert render_summary(summary).splitlines() == [
         "abyss: demo: ok; up in 1.0 s, ran 30 s",
-        "  station       exit     sent  received  rejected  cores",
-        "  simulation       0       11         7         0   0.18  restarted 2x",
+        "  station       exit     sent  received  rejected  cores   shed        deadlines",
+        "  simulation       0       11         7         0   0.18      7    98.7% physics  capped at 0.3 "
+        "core, throttled in 61% of its periods  restarted 2x",
         "  onboard     external, seen",
-        "  the stations' CPU: 0.18 cores in all (each station's process time over its wall time)",
+        "  the stations' CPU: 0.18 cores in all (each station's process time over its wall time); shed: "
+        "frames let go unprocessed for newer ones; deadlines: the station's worst loop",
         "  link                         mode         delivered  p50 ms  p99 ms  lost  retx",
         "  satellite vessel->onshore    emulated     70/71       239.1  1187.2     7    12",
         "  mission: no status reached shore",

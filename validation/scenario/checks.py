@@ -185,10 +185,22 @@ def arm_ranges_rad() -> tuple[np.ndarray, np.ndarray]:
     return ranges[:, 0], ranges[:, 1]
 
 
-def deadlines(run: Run, min_met: float) -> tuple[bool, str]:
-    sim = run.summary.get("simulation") or {}
-    met = sim.get("deadlines_met", 0.0)
-    return met >= min_met, f"simulation deadlines met {met:.1%} (at least {min_met:.0%})"
+def deadlines(run: Run, min_met: float, station: str = "simulation", loop: str = "") -> tuple[bool, str]:
+    """A station's `loop` (else its worst) kept at least `min_met` of its deadlines."""
+    loops = run.summary.get("stations", {}).get(station, {}).get("loops") or {}
+    if loop:
+        loops = {loop: loops[loop]} if loop in loops else {}
+    if not loops:
+        return False, f"{station} reported no loop {loop or ''}".rstrip()
+    name, worst = min(loops.items(), key=lambda item: item[1]["deadlines_met"])
+    met = worst["deadlines_met"]
+    return met >= min_met, f"{station} {name} deadlines met {met:.1%} (at least {min_met:.0%})"
+
+
+def shed(run: Run, station: str, min: float = 0, max: float = math.inf) -> tuple[bool, str]:
+    """The frames `station` let go unprocessed for newer ones, within [min, max]."""
+    count = sum((run.summary.get("stations", {}).get(station, {}).get("shed") or {}).values())
+    return min <= count <= max, f"{station} shed {count} frames (allowed [{min:g}, {max:g}])"
 
 
 def _perception(run: Run) -> dict[str, Any]:
@@ -233,6 +245,7 @@ CHECKS: dict[str, Callable[..., tuple[bool, str]]] = {
     "link": link,
     "stations": stations,
     "deadlines": deadlines,
+    "shed": shed,
     "intervention": intervention,
     "arm_limits": arm_limits,
     "perception": perception,

@@ -29,7 +29,8 @@ ASSERTIONS: dict[str, dict[str, type]] = {
     "scene": {"min_occupied_cells": float, "objects": list},
     "link": {"hop": str, "direction": str, "stat": str, "max": float, "min": float},
     "stations": {"max_restarts": float, "max_drift_m": float},
-    "deadlines": {"min_met": float},
+    "deadlines": {"min_met": float, "station": str, "loop": str},
+    "shed": {"station": str, "min": float, "max": float},
     "intervention": {"part": str, "outcome": str, "reason": str},
     "arm_limits": {"margin_deg": float},
     "perception": {"source": str, "min_points_per_s": float, "max_points_per_s": float,
@@ -149,6 +150,8 @@ def _assertion(table: dict[str, Any], where: str) -> Assertion:
         _choice(args["phase"], INTERVENTION_PHASES[1:], f"{where}.phase")
     if "outcome" in args:
         _choice(args["outcome"], OUTCOMES, f"{where}.outcome")
+    if "station" in args:
+        _choice(args["station"], keys.STATIONS, f"{where}.station")
     if kind == "perception":
         if "source" not in args:
             raise ConfigError(f"{where}.source", f"is required: one of {', '.join(PERCEPTION_SOURCES)}")

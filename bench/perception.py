@@ -132,7 +132,7 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
             truth.append(cell_keys(in_vehicle @ rotation_of(pose[1]).T + position, model.resolution_m))
     finally:
         cameras.close()
-    centres, sizes, occupied, _ = iterate_leaves(model.tree)
+    centres, sizes, occupied = iterate_leaves(model.tree)[:3]
     occupied_keys = np.unique(leaves_to_cells(centres[occupied], sizes[occupied], model.resolution_m)[0])
     truth_keys = np.unique(np.concatenate(truth))
     return Figures(

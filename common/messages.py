@@ -2,7 +2,10 @@
 
 A message on the wire is a msgpack map: `type` (name), `version` (schema version),
 `seq` (per-key sequence number), `stamp_s` (sender's wall clock [s]) and `body` (the
-fields). numpy arrays travel as `{dtype, shape, data}` with raw little-endian bytes.
+fields). numpy arrays travel as `{dtype, shape, data}` with raw little-endian bytes. A class
+with `COMPRESSED` (the scene stream, whose bytes go over the satellite) sends that map as one
+zstd frame (content size and checksum in its header); `decode` takes either form, a frame
+announcing more than `MAX_DECOMPRESSED_BYTES` refused before anything is allocated.
 `decode()` checks the type, the version, every field's type, dtype, shape, range and
 finiteness, and raises `BadMessage` with the reason; nothing malformed gets further.
 """
@@ -13,6 +16,7 @@ import dataclasses
 import functools
 import math
 import secrets
+import threading
 import typing
 import zlib
 from collections.abc import Callable, Mapping
@@ -21,10 +25,24 @@ from typing import Any, ClassVar, NamedTuple
 
 import msgpack
 import numpy as np
+import zstandard
 
 from abyss.common.errors import BadMessage
 
 MESSAGES: dict[str, type[Message]] = {}
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"  # a frame's first bytes; an envelope's first is a msgpack map's (0x85)
+ZSTD_LEVEL = 19  # the satellite's bytes are dearer than the vessel's milliseconds (a 16 kB update: ~10 ms)
+MAX_DECOMPRESSED_BYTES = 64 * 2**20
+_zstd = threading.local()  # a compressor and a decompressor per thread: zstd's contexts are not shared
+# What every compressed message repeats, given to zstd as a raw-content dictionary: the envelope's
+# and the scene update's names and OctoMap's binary header (an update of a few hundred bytes would
+# otherwise carry some 250 bytes of them). A constant, not built from a live tree: both ends must
+# hold the same bytes whatever their OctoMap.
+ZSTD_DICTIONARY = msgpack.packb(
+    ["type", "version", "seq", "stamp_s", "body", "SceneUpdate", "kind", "snapshot", "delta", "scene_seq",
+     "resolution_m", "octree", "colors", "dtype", "|u1", "shape", "data", "sim_time_s", "stream_id"]
+) + (b"# Octomap OcTree binary file\n# (feel free to add / change comments, but leave the first line as "
+     b"it is!)\n#\nid OcTree\nsize \nres 0.1\ndata\n")
 SMALL_ARRAY_SIZE = 64  # an array up to this size is range-checked as Python numbers (numpy's calls cost more)
 
 
@@ -173,6 +191,7 @@ class Message:
 
     TYPE: ClassVar[str] = ""
     VERSION: ClassVar[int] = 1
+    COMPRESSED: ClassVar[bool] = False  # sent as one zstd frame
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -350,7 +369,8 @@ class SceneUpdate(Message):
     in the order OctoMap's leaf iterator visits the tree that `octree` decodes to. `stream_id`
     is new with each scene model (a restarted vessel starts a new stream at `scene_seq` 0)."""
 
-    VERSION: ClassVar[int] = 2  # 2: stream_id
+    VERSION: ClassVar[int] = 3  # 2: stream_id; 3: sent as a zstd frame
+    COMPRESSED: ClassVar[bool] = True
 
     kind: str = scalar(choices=SCENE_KINDS)
     scene_seq: int = scalar(0, 2**53)
@@ -681,11 +701,46 @@ def _pack(value: Any, array: Mapping[str, Any] | None) -> Any:
 def encode(message: Message, seq: int, stamp_s: float) -> bytes:
     schema = _schema(type(message))
     body = {name: _pack(getattr(message, name), schema.arrays.get(name)) for name, _ in schema.checks}
-    return msgpack.packb(
+    packed = msgpack.packb(
         {"type": message.TYPE, "version": message.VERSION, "seq": seq, "stamp_s": stamp_s,
          "body": body},
         use_bin_type=True,
     )
+    if not message.COMPRESSED:
+        return packed  # type: ignore[no-any-return]
+    if not hasattr(_zstd, "compressor"):
+        _zstd.compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True,
+                                                    dict_data=_dictionary())
+    return _zstd.compressor.compress(packed)  # type: ignore[no-any-return]
+
+
+def wire_bytes(message: Message) -> int:
+    """What `message` takes on the wire, compressed where its class is (envelope included, give or
+    take the few bytes its sequence number and stamp take)."""
+    return len(encode(message, 0, 0.0))
+
+
+def _dictionary() -> zstandard.ZstdCompressionDict:
+    return zstandard.ZstdCompressionDict(ZSTD_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
+
+
+def unwrap(data: bytes) -> bytes:
+    """An encoded message's msgpack map: `data` itself, or the zstd frame's content. ValueError
+    on a frame that does not decompress, or announces more than MAX_DECOMPRESSED_BYTES."""
+    if not data.startswith(ZSTD_MAGIC):
+        return data
+    try:
+        size = zstandard.frame_content_size(data)
+    except zstandard.ZstdError as exc:
+        raise ValueError(f"not a zstd frame: {exc}") from None
+    if not 0 <= size <= MAX_DECOMPRESSED_BYTES:
+        raise ValueError(f"a zstd frame of {size} bytes (at most {MAX_DECOMPRESSED_BYTES}; -1: unsaid)")
+    if not hasattr(_zstd, "decompressor"):
+        _zstd.decompressor = zstandard.ZstdDecompressor(dict_data=_dictionary())
+    try:
+        return _zstd.decompressor.decompress(data)  # type: ignore[no-any-return]
+    except zstandard.ZstdError as exc:
+        raise ValueError(f"a zstd frame that does not decompress: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -720,6 +775,10 @@ def _unpack_array(name: str, raw: Any, meta: dict[str, Any]) -> np.ndarray:
 
 def decode(key: str, data: bytes, expected: str | None = None) -> Received:
     """Decode and validate; raises BadMessage(key, reason) on anything malformed."""
+    try:
+        data = unwrap(data)
+    except ValueError as exc:
+        raise BadMessage(key, str(exc)) from None
     try:
         envelope = msgpack.unpackb(data, raw=False, strict_map_key=True)
     except Exception as exc:  # msgpack raises several unrelated types on bad bytes

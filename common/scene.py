@@ -21,17 +21,23 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pyoctomap
 
 from abyss.common.clouds import voxel_downsample
-from abyss.common.messages import SceneUpdate, new_id
+from abyss.common.messages import SceneUpdate, new_id, wire_bytes
 
 log = logging.getLogger(__name__)
 KEY_OFFSET = 32768  # OctoMap's tree_max_val at depth 16
-GREY = 128  # the colour of a cell whose map gives none
+GREY = 136  # the colour of a cell whose map gives none (the middle of a COLOR_STEP)
 COLOR_TOLERANCE = 24  # a colour change larger than this in any channel is sent
+COLOR_STEP = 16  # colours go as the middle of steps this wide: 4 bits a channel, well inside the tolerance
+# a published cell is sent again only when its log-odds lie this far past the threshold on the
+# other side (about two hits of OctoMap's sensor model after a miss, five misses after a hit):
+# the cells that stereo noise flips back and forth stay as they were sent
+HYSTERESIS_LOG_ODDS = 1.0
 LOG_ODDS_SET = 100.0  # applied as an update, clamped: sets a cell occupied (+) or free (-)
 _AXIS = np.int64(1 << 16)
 
@@ -45,6 +51,21 @@ def cell_keys(coords_m: np.ndarray, resolution_m: float) -> np.ndarray:
 def cell_centres(keys: np.ndarray, resolution_m: float) -> np.ndarray:
     k = np.stack((keys // (_AXIS * _AXIS), (keys // _AXIS) % _AXIS, keys % _AXIS), axis=1)
     return (k - KEY_OFFSET + 0.5) * resolution_m
+
+
+def _spread_bits(axis: np.ndarray) -> np.ndarray:
+    """16-bit integers with two zero bits after each bit (the Morton code's part of one axis)."""
+    x = axis & 0xFFFF
+    for shift, mask in ((16, 0x0000FF0000FF), (8, 0x00F00F00F00F), (4, 0x0C30C30C30C3), (2, 0x249249249249)):
+        x = (x | (x << shift)) & mask
+    return x
+
+
+def morton(keys: np.ndarray) -> np.ndarray:
+    """The Z-order (Morton) code of packed keys: cells close in it share octree branches, so a run
+    of cells in this order writes as a compact subtree."""
+    x, y, z = keys // (_AXIS * _AXIS), (keys // _AXIS) % _AXIS, keys % _AXIS
+    return (_spread_bits(x) << 2) | (_spread_bits(y) << 1) | _spread_bits(z)
 
 
 def leaves_to_cells(
@@ -66,23 +87,37 @@ def leaves_to_cells(
     return np.concatenate(keys), np.concatenate(owners)
 
 
+class Leaves(NamedTuple):
+    """A tree's leaves in its iteration order."""
+
+    centres_m: np.ndarray
+    sizes_m: np.ndarray
+    occupied: np.ndarray
+    colors: np.ndarray  # RGB; empty unless asked for
+    log_odds: np.ndarray  # past the occupancy threshold: positive occupied
+
+
 def iterate_leaves(
     tree: object, bbx: tuple[np.ndarray, np.ndarray] | None = None, colors: bool = False
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Leaves of a tree (in its iteration order): centres [m], sizes [m], occupied, colours."""
-    centres, sizes, occupied, rgb = [], [], [], []
+) -> Leaves:
+    centres, sizes, log_odds, rgb = [], [], [], []
     iterator = tree.begin_leafs_bbx(*bbx) if bbx is not None else tree.begin_leafs()  # type: ignore[attr-defined]
     for leaf in iterator:
-        centres.append(leaf.getCoordinate())
+        centre = leaf.getCoordinate()
+        centres.append(centre)
         sizes.append(leaf.getSize())
-        occupied.append(tree.isNodeOccupied(leaf))  # type: ignore[attr-defined]
+        # the plain iterator has looked its node up already; the box's does not expose it
+        node = tree.search(centre) if bbx is not None else leaf.current_node  # type: ignore[attr-defined]
+        log_odds.append(node.getLogOdds())
         if colors:
             rgb.append(leaf.getColor())
-    return (
+    past_threshold = np.array(log_odds, float) - tree.getOccupancyThresLog()  # type: ignore[attr-defined]
+    return Leaves(
         np.array(centres, float).reshape(-1, 3),
         np.array(sizes, float),
-        np.array(occupied, bool),
+        past_threshold >= 0.0,  # OctoMap's isNodeOccupied
         np.array(rgb, np.uint8).reshape(-1, 3),
+        past_threshold,
     )
 
 
@@ -142,9 +177,9 @@ class CellSet:
         self.keys, self.occupied, self.colors = self.keys[keep], self.occupied[keep], self.colors[keep]
 
     def take(self, count: int) -> CellSet:
-        """`count` cells, occupied ones first (what the operator needs to see), each kind in key
-        order (a compact region per update)."""
-        chosen = np.sort(np.argsort(~self.occupied, kind="stable")[:count])
+        """`count` cells, occupied ones first (what the operator needs to see), each kind in Z order
+        (a compact region of the octree per update)."""
+        chosen = np.sort(np.lexsort((morton(self.keys), ~self.occupied))[:count])
         part = CellSet()
         part.keys, part.occupied, part.colors = self.keys[chosen], self.occupied[chosen], self.colors[chosen]
         return part
@@ -181,8 +216,10 @@ class SceneModel:
         self._bytes_per_cell = 0.05  # learnt from each update, to size the next
         self._lock = threading.Lock()  # over published, pending, seq, snapshot_due
 
-    def insert(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray) -> None:
-        """Integrate one cloud (rays from the sensor) and queue the cells whose state changed."""
+    def insert(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray,
+               now_s: float | None = None) -> None:
+        """Integrate one cloud (rays from the sensor) and queue the cells whose state changed
+        (`track`, at `now_s` on the caller's clock, else the monotonic one)."""
         if len(points_m_world) == 0:
             return
         points, colors = voxel_downsample(points_m_world, colors, self.resolution_m)
@@ -199,45 +236,47 @@ class SceneModel:
         if self._dirty is not None:
             low, high = np.minimum(low, self._dirty[0]), np.maximum(high, self._dirty[1])
         self._dirty = (low, high)
-        self.track()
+        self.track(now_s)
 
     def track(self, now_s: float | None = None) -> None:
         """Queue the cells whose state changed in the region the clouds touched, if
         `track_period_s` has passed since the last walk (the inserter's thread calls it: the
-        octree is its own)."""
+        octree is its own). The period also batches the stream: the cells a few clouds reveal
+        write as one compact delta, where a delta per cloud repeats the octree's branches."""
         now_s = time.monotonic() if now_s is None else now_s
         if self._dirty is None or now_s - self._walked_s < self.track_period_s:
             return
         bbx, self._dirty, self._walked_s = self._dirty, None, now_s
-        self._queue_changes(*iterate_leaves(self.tree, bbx, colors=True))
+        self._queue_changes(iterate_leaves(self.tree, bbx, colors=True))
 
     def adopt(self, octree: bytes) -> int:
         """Take a whole map made elsewhere (a ROS 2 node's, OctoMap's binary file) for the model's:
         the cells whose state differs from what shore holds are queued, grey (the binary form
         has no colours). Returns its leaves; ValueError when it is no tree of this resolution."""
-        tree = read_binary(octree, self.resolution_m)
-        centres, sizes, occupied, _ = iterate_leaves(tree)
-        self._queue_changes(centres, sizes, occupied, np.full((len(occupied), 3), GREY, np.uint8))
-        return len(occupied)
+        leaves = iterate_leaves(read_binary(octree, self.resolution_m))
+        self._queue_changes(leaves._replace(colors=np.full((len(leaves.occupied), 3), GREY, np.uint8)))
+        return len(leaves.occupied)
 
-    def _queue_changes(
-        self, centres: np.ndarray, sizes: np.ndarray, occupied: np.ndarray, colors: np.ndarray
-    ) -> None:
-        keys, owners = leaves_to_cells(centres, sizes, self.resolution_m)
+    def _queue_changes(self, leaves: Leaves) -> None:
+        keys, owners = leaves_to_cells(leaves.centres_m, leaves.sizes_m, self.resolution_m)
         keys, first = np.unique(keys, return_index=True)  # a leaf on the box's edge is listed once
         owners = owners[first]
-        state, rgb = occupied[owners], colors[owners]
+        rgb = leaves.colors[owners] // COLOR_STEP * COLOR_STEP + COLOR_STEP // 2
         with self._lock:
-            self._queue(keys, state, rgb)
+            self._queue(keys, leaves.log_odds[owners], rgb)
 
-    def _queue(self, keys: np.ndarray, state: np.ndarray, rgb: np.ndarray) -> None:
+    def _queue(self, keys: np.ndarray, log_odds: np.ndarray, rgb: np.ndarray) -> None:
+        """Queue the cells shore should see change: unknown to it, flipped past the hysteresis,
+        or occupied with a colour moved past the tolerance."""
+        state = log_odds >= 0.0
         where, known = self.published.find(keys)
         same = known  # all False while nothing is published
         if len(self.published):
-            color_moved = np.any(
-                np.abs(self.published.colors[where].astype(int) - rgb) > COLOR_TOLERANCE, axis=1
-            )
-            same &= (self.published.occupied[where] == state) & (~state | ~color_moved)
+            was_occupied = self.published.occupied[where]
+            flipped = np.where(was_occupied, log_odds < -HYSTERESIS_LOG_ODDS, log_odds > HYSTERESIS_LOG_ODDS)
+            color_moved = np.any(np.abs(self.published.colors[where].astype(int) - rgb) > COLOR_TOLERANCE,
+                                 axis=1)
+            same &= ~flipped & ~(was_occupied & state & color_moved)
         self.pending.remove(keys[same])  # changed back before it went
         self.pending.merge(keys[~same], state[~same], rgb[~same])
 
@@ -247,8 +286,8 @@ class SceneModel:
             self.snapshot_due = True
 
     def next_update(self, sim_time_s: float, max_bytes: int | None = None) -> SceneUpdate | None:
-        """The next update to send, at most `max_bytes` (else `max_update_bytes`) of octree and
-        colours; None if shore is up to date. Occupied cells go before free ones, each in key order."""
+        """The next update to send, at most `max_bytes` (else `max_update_bytes`) on the wire
+        (compressed); None if shore is up to date. Occupied cells go before free ones, each in key order."""
         with self._lock:
             return self._next_update(sim_time_s, max_bytes or self.max_update_bytes)
 
@@ -265,7 +304,7 @@ class SceneModel:
         while True:
             part = self.pending.take(count)
             update = self._update(kind, part, sim_time_s)
-            size = len(update.octree) + update.colors.nbytes
+            size = wire_bytes(update)
             self._bytes_per_cell = max(size / max(count, 1), 1e-3)
             if size <= max_bytes or count == 1:
                 break
@@ -330,7 +369,7 @@ class SceneReceiver:
             if update.scene_seq <= self.last_seq:
                 return "stale"
         delta = read_binary(update.octree, update.resolution_m)
-        centres, sizes, occupied, _ = iterate_leaves(delta)
+        centres, sizes, occupied = iterate_leaves(delta)[:3]
         if int(occupied.sum()) != len(update.colors):
             raise ValueError(f"{len(update.colors)} colours for {int(occupied.sum())} occupied leaves")
         if update.kind == "snapshot" and not merge:
@@ -394,7 +433,7 @@ def occupied_leaf_colors(
 ) -> np.ndarray:
     """The colours of a tree's occupied leaves in iteration order; a leaf larger than a cell
     takes the colour of its first cell."""
-    centres, sizes, occupied, _ = iterate_leaves(tree)
+    centres, sizes, occupied = iterate_leaves(tree)[:3]
     first = cell_keys(centres[occupied] - sizes[occupied, None] / 2 + resolution_m / 2, resolution_m)
     return np.array([color_of_cell[int(k)] for k in first], np.uint8).reshape(-1, 3)
 

@@ -36,7 +36,7 @@ from mcap.writer import Writer
 from abyss.common import keys
 from abyss.common.config import RECORD_LEVELS
 from abyss.common.errors import AbyssError, BadMessage, ConfigError
-from abyss.common.messages import MESSAGES, Message, Received, decode
+from abyss.common.messages import MESSAGES, Message, Received, decode, unwrap
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +226,7 @@ def envelope_of(payload: bytes) -> tuple[int, float]:
     """The sequence number and the sender's stamp [s] of an encoded message (0 and 0.0 if the bytes
     hold none)."""
     try:
-        envelope = msgpack.unpackb(payload, raw=False)
+        envelope = msgpack.unpackb(unwrap(payload), raw=False)
         return int(envelope["seq"]), float(envelope["stamp_s"])
     except Exception:  # bytes that decode to no envelope: a rejected message's own
         return 0, 0.0

@@ -83,7 +83,7 @@ def run_resolution(
     """One resolution: frames integrated once a second, updates and telemetry over the link."""
     cfg = config.vessel
     link = Link(profile(link_profile), np.random.default_rng(seed))
-    model = SceneModel(resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes)
+    model = SceneModel(resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s)
     pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
     acks: dict[int, float] = {}  # scene seq -> when shore's acknowledgement reaches the vessel [s]
     telemetry = encode(sample_telemetry(), 0, 0.0)
@@ -100,9 +100,10 @@ def run_resolution(
         if next_frame < len(frames) and now_s >= next_frame * frame_period_s:
             frame = frames[next_frame]
             t0 = time.perf_counter()
-            model.insert(frame.points_m_world, frame.colors, frame.sensor_m_world)
+            model.insert(frame.points_m_world, frame.colors, frame.sensor_m_world, now_s)
             integrate_s += time.perf_counter() - t0
             next_frame += 1
+        model.track(now_s)
         if now_s >= next_telemetry_s:
             offered["telemetry"] += 1
             link.offer(now_s, telemetry, tag="telemetry")
@@ -138,6 +139,7 @@ def run_resolution(
         "first_update_bytes": snapshot_bytes,
         "scene_bytes_sent": int(sum(update_bytes)),
         "map_bt_bytes": bt_bytes,
+        "sent_over_bt": sum(update_bytes) / bt_bytes if bt_bytes else 0.0,  # 1: the map sent once
         "pending_cells_at_end": len(model.pending),
         "throughput_bps": 8.0 * stats["bytes_delivered"] / duration_s,
         "link_rate_bps": link.profile.rate_bps,
@@ -180,14 +182,15 @@ def sample_telemetry() -> Telemetry:
 
 def table(results: list[dict[str, Any]], budget_ms: float) -> str:
     lines = [
-        f"{'res m':>6} {'updates':>8} {'B/update':>9} {'map .bt B':>10} {'sent B':>9} {'kbit/s':>8} "
+        f"{'res m':>6} {'updates':>8} {'B/update':>9} {'map .bt B':>10} {'sent B':>9} {'sent/.bt':>9} "
+        f"{'kbit/s':>8} "
         f"{'scene p50/p95 ms':>17} {'telem p50/p95 ms':>17} {'loss':>6}"
     ]
     for r in results:
         lines.append(
             f"{r['resolution_m']:>6g} {r['updates']:>8} {r['update_bytes_mean']:>9.0f} "
             f"{r['map_bt_bytes']:>10} "
-            f"{r['scene_bytes_sent']:>9} {r['throughput_bps'] / 1e3:>8.1f} "
+            f"{r['scene_bytes_sent']:>9} {r['sent_over_bt']:>9.2f} {r['throughput_bps'] / 1e3:>8.1f} "
             f"{r.get('scene_latency_p50_ms', 0):>8.0f}/{r.get('scene_latency_p95_ms', 0):<8.0f} "
             f"{r.get('telemetry_latency_p50_ms', 0):>8.0f}/{r.get('telemetry_latency_p95_ms', 0):<8.0f} "
             f"{r['loss_packets']:>6.1%}"

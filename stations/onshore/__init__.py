@@ -35,6 +35,7 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
     encode,
+    wire_bytes,
 )
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
 from abyss.common.scene import SceneReceiver
@@ -161,7 +162,7 @@ class Scene:
                 self.bus.reject(received.key, str(exc))
                 outcome = "gap"
             if outcome == "applied":
-                self.update_bytes += len(received.message.octree) + received.message.colors.nbytes
+                self.update_bytes += wire_bytes(received.message)
                 self.sim_time_s = received.message.sim_time_s
                 if self.viewer:
                     self.viewer.scene_update(self.receiver.latest_centres_m, self.receiver.latest_colors,

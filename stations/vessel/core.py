@@ -28,6 +28,7 @@ from abyss.common.messages import (
     SceneAck,
     SonarImage,
     Telemetry,
+    wire_bytes,
 )
 from abyss.common.sonar import decode_polar, encode_polar
 from abyss.stations.vessel.intents import REFINE_M, resolve
@@ -225,5 +226,5 @@ class SceneStream:
             if update is None:
                 break
             out.messages.append(("scene", update))
-            self.pacer.sent(now_s, len(update.octree) + update.colors.nbytes, update.scene_seq)
+            self.pacer.sent(now_s, wire_bytes(update), update.scene_seq)
         return out

@@ -7,11 +7,25 @@ import math
 import msgpack
 import numpy as np
 import pytest
+import zstandard
 from hypothesis import given
 from hypothesis import strategies as st
 
 from abyss.common.errors import BadMessage
-from abyss.common.messages import ArmGoal, NavState, Telemetry, VelocityRef, Waypoints, decode, encode
+from abyss.common.messages import (
+    ZSTD_DICTIONARY,
+    ZSTD_MAGIC,
+    ArmGoal,
+    NavState,
+    SceneUpdate,
+    Telemetry,
+    VelocityRef,
+    Waypoints,
+    decode,
+    encode,
+    unwrap,
+    wire_bytes,
+)
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 
@@ -81,6 +95,38 @@ GOOD = VelocityRef(np.zeros(3), 0.1)
 def test_malformed_messages_are_refused_with_their_reason(data: bytes, reason: str) -> None:
     with pytest.raises(BadMessage, match=reason):
         decode("abyss/x/onboard/cmd/vehicle_velocity", data)
+
+
+SCENE = SceneUpdate(kind="delta", scene_seq=3, resolution_m=0.1, octree=b"# Octomap OcTree binary\n" * 40,
+                    colors=np.full((50, 3), 136, np.uint8), sim_time_s=2.0, stream_id=7)
+# a frame header (single segment, an 8-byte content size) announcing 1 TiB, then an empty last block
+BOMB = ZSTD_MAGIC + b"\xe0" + (2**40).to_bytes(8, "little") + b"\x01\x00\x00"
+
+
+def _frame(content: bytes) -> bytes:
+    """A zstd frame of `content` with the codec's dictionary."""
+    return zstandard.ZstdCompressor(dict_data=zstandard.ZstdCompressionDict(
+        ZSTD_DICTIONARY, dict_type=zstandard.DICT_TYPE_RAWCONTENT)).compress(content)
+
+
+def test_the_scene_stream_goes_compressed_and_comes_back_whole() -> None:
+    wire = encode(SCENE, 3, 1.0)
+    assert wire.startswith(ZSTD_MAGIC) and len(wire) < 0.3 * len(msgpack.packb(msgpack.unpackb(unwrap(wire))))
+    back = decode("k", wire, "SceneUpdate").message
+    assert isinstance(back, SceneUpdate) and back.octree == SCENE.octree
+    assert np.array_equal(back.colors, SCENE.colors) and abs(wire_bytes(SCENE) - len(wire)) <= 8  # seq, stamp
+    assert not encode(GOOD, 0, 1.0).startswith(ZSTD_MAGIC)  # only the classes that say so
+
+
+@pytest.mark.parametrize(("data", "reason"), [
+    (ZSTD_MAGIC + b"\x00" * 3, "a zstd frame of -1 bytes"),  # no content size said: refused too
+    (encode(SCENE, 0, 1.0)[:-6], "does not decompress"),  # cut short
+    (BOMB, "a zstd frame of 1099511627776 bytes"),  # refused before anything is allocated
+    (_frame(b"\x85" + bytes(100)), "not a message envelope|not msgpack"),
+])
+def test_bad_frames_are_refused_with_their_reason(data: bytes, reason: str) -> None:
+    with pytest.raises(BadMessage, match=reason):
+        decode("abyss/x/vessel/scene", data)
 
 
 def test_wrong_type_on_a_key_is_refused() -> None:

@@ -167,7 +167,7 @@ def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
 
 
 def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
-    from abyss.common.scene import SceneModel, cell_keys, write_cells
+    from abyss.common.scene import GREY, SceneModel, cell_keys, write_cells
 
     keys_m = np.array([[4.05, 0.05, -8.45], [4.35, 0.05, -8.45], [4.05, 0.35, -8.05]])
     binary = write_cells(cell_keys(keys_m, 0.1), np.array([True, True, False]), 0.1)
@@ -181,7 +181,7 @@ def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
     model = SceneModel(0.1, 10.0)
     assert model.adopt(snapshot.octree) >= 2  # leaves: OctoMap prunes
     update = model.next_update(2.0)
-    assert update is not None and len(update.colors) == 2 and (update.colors == 128).all()
+    assert update is not None and len(update.colors) == 2 and (update.colors == GREY).all()
     with pytest.raises(ValueError, match="not OctoMap's binary stream"):
         types.octree_file(data[:-2], 0.1)
     with pytest.raises(ValueError, match=r"tree resolution 0\.05"):

@@ -110,23 +110,19 @@ def ray_distance(w: World, origin: np.ndarray, direction: np.ndarray) -> float:
     )
 
 
-def test_octree_matches_the_world_geometry_at_5_cm(start: View) -> None:
+def test_octree_and_shores_copy_match_the_world_geometry_at_5_cm(start: View) -> None:
     """Precision: occupied voxels whose centre MuJoCo's own ray cast (not the renderer) finds on
     a surface; recall: surface points hit by a grid of ray casts over the depth camera's view
-    that land in an occupied voxel."""
+    that land in an occupied voxel. The vessel's octree, and shore's copy of it from the stream
+    (through the codec, with the stream's hysteresis and colour steps)."""
     resolution_m = 0.05
-    model = SceneModel(resolution_m, 8.0)
+    model, receiver = SceneModel(resolution_m, 8.0), SceneReceiver()
     cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
     model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
+    stream(model, receiver)
     origin = cloud.sensor_m_world
-    centres, sizes, occupied, _ = iterate_leaves(model.tree)
-    keys, _ = leaves_to_cells(centres[occupied], sizes[occupied], resolution_m)
-    occupied_keys = set(keys.tolist())
-    on_surface = []
-    for c in cell_centres(keys, resolution_m):
-        hit = ray_distance(start.world, origin, c - origin)
-        on_surface.append(hit > 0 and abs(hit - np.linalg.norm(c - origin)) < 1.5 * resolution_m)
-    precision = float(np.mean(on_surface))
+    centres, sizes, occupied = iterate_leaves(model.tree)[:3]
+    vessel_keys, _ = leaves_to_cells(centres[occupied], sizes[occupied], resolution_m)
     depth_camera = Camera.of(start.frames["cam_depth"])
     rotation = rotation_of(start.pose[1]) @ depth_camera.rotation_in_vehicle
     hits = []
@@ -136,17 +132,23 @@ def test_octree_matches_the_world_geometry_at_5_cm(start: View) -> None:
             d = ray_distance(start.world, origin, direction)
             if 0 < d < 7.5:  # within the clouds' range (8 m along the axis)
                 hits.append(origin + d * direction / np.linalg.norm(direction))
+    assert len(hits) > 200
     hit_keys = cell_keys(np.array(hits), resolution_m)
     neighbours = np.array(
         [(dx * 65536 + dy) * 65536 + dz for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)]
     )
-    recalled = [any(int(k + n) in occupied_keys for n in neighbours) for k in hit_keys]
-    recall = float(np.mean(recalled))
-    assert len(hits) > 200
-    # measured: precision 0.99, recall 0.99
-    print(f"precision {precision:.3f} recall {recall:.3f} over {len(hits)} rays")
-    assert precision > 0.9, precision
-    assert recall > 0.9, recall
+    for name, keys in (("vessel", vessel_keys), ("shore", np.array(sorted(receiver.colors), np.int64))):
+        on_surface = []
+        for c in cell_centres(keys, resolution_m):
+            hit = ray_distance(start.world, origin, c - origin)
+            on_surface.append(hit > 0 and abs(hit - np.linalg.norm(c - origin)) < 1.5 * resolution_m)
+        precision = float(np.mean(on_surface))
+        occupied_keys = set(keys.tolist())
+        recall = float(np.mean([any(int(k + n) in occupied_keys for n in neighbours) for k in hit_keys]))
+        # measured: precision 0.99, recall 0.99 on both
+        print(f"{name}: precision {precision:.3f} recall {recall:.3f} over {len(hits)} rays")
+        assert precision > 0.9, (name, precision)
+        assert recall > 0.9, (name, recall)
 
 
 def stream(model: SceneModel, receiver: SceneReceiver, drop: int | None = None) -> list[str]:
@@ -162,7 +164,7 @@ def stream(model: SceneModel, receiver: SceneReceiver, drop: int | None = None) 
 def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for_a_resync(
     start: View,
 ) -> None:
-    model = SceneModel(0.1, 8.0, max_update_bytes=3000)
+    model = SceneModel(0.1, 8.0, max_update_bytes=1000)
     receiver = SceneReceiver()
     for position in ((0.0, 0.0, -7.0), (1.5, 0.0, -7.0), (2.5, 0.8, -7.6)):
         view = start if position == (0.0, 0.0, -7.0) else view_from(position)
@@ -179,7 +181,7 @@ def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for
             assert sent_occupied.any() and (sent_occupied.all() or not model.pending.occupied.any())
         assert set(stream(model, receiver)) == {"applied"}
         assert receiver.binary() == model.binary()  # byte for byte, OctoMap's binary format
-    assert receiver.gaps == 1 and model.seq > 5  # several updates each time: 3000 bytes at most
+    assert receiver.gaps == 1 and model.seq > 5  # several updates each time: 1000 bytes at most
     keys_on_shore = set(receiver.colors)
     assert keys_on_shore == set(model.published.keys[model.published.occupied].tolist())
 
@@ -194,7 +196,7 @@ def test_export_writes_a_bt_pyoctomap_reads_back_and_a_coloured_ply(start: View,
     cells = export(snapshot, tmp_path / "scene.bt", "bt")
     tree = pyoctomap.OcTree(0.1)
     assert tree.readBinary(str(tmp_path / "scene.bt"))
-    centres, sizes, occupied, _ = iterate_leaves(tree)
+    centres, sizes, occupied = iterate_leaves(tree)[:3]
     keys, _ = leaves_to_cells(centres[occupied], sizes[occupied], tree.getResolution())
     assert set(keys.tolist()) == set(receiver.colors) and cells == len(receiver.colors) > 100
     export(snapshot, tmp_path / "scene.ply", "ply")

@@ -1,13 +1,14 @@
 """Scene streams on shore (common.scene.SceneReceiver): a restarted vessel's new SceneModel starts
 a new stream whose updates go onto the map shore holds (what the vessel saw before stays), while a
-snapshot of the same stream after a gap replaces the map. Synthetic walls, no rendering."""
+snapshot of the same stream after a gap replaces the map. Synthetic walls, no rendering, each of
+one colour in the middle of a step of `COLOR_STEP` (what goes to shore)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from abyss.common.messages import SceneUpdate, decode, encode
-from abyss.common.scene import SceneModel, SceneReceiver
+from abyss.common.scene import HYSTERESIS_LOG_ODDS, SceneModel, SceneReceiver, iterate_leaves, leaves_to_cells
 
 RESOLUTION_M = 0.1
 SENSOR_M_WORLD = np.zeros(3)
@@ -22,7 +23,7 @@ def wall(x_m: float, color: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarra
 
 
 def model_of(x_m: float, color: tuple[int, int, int]) -> SceneModel:
-    model = SceneModel(RESOLUTION_M, 8.0, max_update_bytes=600)  # several updates per wall
+    model = SceneModel(RESOLUTION_M, 8.0, max_update_bytes=200)  # several updates per wall (compressed)
     model.insert(*wall(x_m, color), SENSOR_M_WORLD)
     return model
 
@@ -44,12 +45,12 @@ def occupied(model: SceneModel) -> set[int]:
 def test_each_scene_model_has_its_own_stream_id() -> None:
     first, second = SceneModel(RESOLUTION_M, 8.0), SceneModel(RESOLUTION_M, 8.0)
     assert first.stream_id != second.stream_id
-    first.insert(*wall(2.03, (200, 0, 0)), SENSOR_M_WORLD)
+    first.insert(*wall(2.03, (200, 8, 8)), SENSOR_M_WORLD)
     assert {u.stream_id for u in updates(first)} == {first.stream_id}
 
 
 def test_a_new_streams_updates_go_onto_the_map_shore_holds() -> None:
-    before, after = model_of(2.03, (200, 0, 0)), model_of(-2.03, (0, 0, 200))  # a restarted vessel
+    before, after = model_of(2.03, (200, 8, 8)), model_of(-2.03, (8, 8, 200))  # a restarted vessel
     receiver = SceneReceiver()
     assert {receiver.apply(u) for u in updates(before)} == {"applied"}
     cells_before = occupied(before)
@@ -64,13 +65,13 @@ def test_a_new_streams_updates_go_onto_the_map_shore_holds() -> None:
     assert [receiver.apply(u) for u in later] == ["applied"] * len(later)
     assert set(receiver.colors) == cells_before | occupied(after)
     assert not cells_before & occupied(after)  # two walls apart: the union is more than either
-    assert {receiver.colors[k] for k in cells_before} == {(200, 0, 0)}
-    assert {receiver.colors[k] for k in occupied(after)} == {(0, 0, 200)}
+    assert {receiver.colors[k] for k in cells_before} == {(200, 8, 8)}
+    assert {receiver.colors[k] for k in occupied(after)} == {(8, 8, 200)}
     assert receiver.gaps == 0 and receiver.new_streams == 1
 
 
 def test_a_snapshot_of_the_same_stream_after_a_gap_replaces_the_map() -> None:
-    before, after = model_of(2.03, (200, 0, 0)), model_of(-2.03, (0, 0, 200))
+    before, after = model_of(2.03, (200, 8, 8)), model_of(-2.03, (8, 8, 200))
     receiver = SceneReceiver()
     for update in updates(before):
         receiver.apply(update)
@@ -90,7 +91,7 @@ def test_a_snapshot_of_the_same_stream_after_a_gap_replaces_the_map() -> None:
 
 
 def test_a_new_stream_whose_first_update_was_lost_is_a_gap() -> None:
-    before, after = model_of(2.03, (200, 0, 0)), model_of(-2.03, (0, 0, 200))
+    before, after = model_of(2.03, (200, 8, 8)), model_of(-2.03, (8, 8, 200))
     receiver = SceneReceiver()
     for u in updates(before):
         receiver.apply(u)
@@ -98,3 +99,28 @@ def test_a_new_stream_whose_first_update_was_lost_is_a_gap() -> None:
     assert second.scene_seq == 1
     assert receiver.apply(second) == "gap"  # not taken as the stream's start: shore asks for a snapshot
     assert receiver.tree is None and receiver.new_streams == 0
+
+
+def test_a_published_cell_goes_again_only_once_its_log_odds_are_well_past_the_threshold() -> None:
+    """A wall seen three times, then seen through (rays to a wall beyond pass its middle, a miss
+    each): while a cell's log-odds lie in the hysteresis band, where OctoMap's maximum likelihood
+    already calls it free, shore keeps it as sent; once past the band it goes free."""
+    model = model_of(2.03, (200, 8, 8))
+    for _ in range(2):
+        model.insert(*wall(2.03, (200, 8, 8)), SENSOR_M_WORLD)
+    updates(model)
+    sent = occupied(model)
+    band_seen = False
+    for _ in range(12):
+        model.insert(*wall(4.03, (8, 200, 8)), SENSOR_M_WORLD)
+        updates(model)
+        leaves = iterate_leaves(model.tree, (np.array([1.95, -0.6, -0.6]), np.array([2.15, 0.6, 0.6])))
+        keys, owners = leaves_to_cells(leaves.centres_m, leaves.sizes_m, RESOLUTION_M)
+        log_odds = dict(zip(keys.tolist(), leaves.log_odds[owners], strict=True))
+        on_shore = occupied(model)
+        for key in sent:
+            past = log_odds[key] < -HYSTERESIS_LOG_ODDS
+            assert (key in on_shore) != past, (key, log_odds[key])
+            band_seen |= -HYSTERESIS_LOG_ODDS <= log_odds[key] < 0
+    assert band_seen  # some cell was free by the map and still occupied on shore
+    assert len(sent - occupied(model)) >= 25  # the middle of the wall, seen through

@@ -165,7 +165,8 @@ class Outgoing(NamedTuple):
 class Tap(Protocol):
     """The testbed's recorder of what a station sends and receives (abyss.recording.store)."""
 
-    def add(self, direction: str, key: str, payload: bytes, reason: str = "") -> None: ...
+    def add(self, direction: str, key: str, payload: bytes, reason: str = "",
+            envelope: tuple[int, float] | None = None) -> None: ...
 
 
 class Bus:
@@ -208,11 +209,12 @@ class Bus:
             raise ConfigError(topic, f"carries {out.spec.message}, not {message.TYPE}")
         key = out.key
         with self._lock:  # stations publish from more than one thread
-            payload = encode(message, self._seq[key], time.time())
+            seq, stamp_s = self._seq[key], time.time()
+            payload = encode(message, seq, stamp_s)
             self._seq[key] += 1
             self.sent[key] += 1
         if self.tap is not None:
-            self.tap.add("sent", key, payload)
+            self.tap.add("sent", key, payload, envelope=(seq, stamp_s))
         egress = self._egress.get(out.hop)
         if egress is None:
             self.transmit(key, payload)
@@ -247,7 +249,7 @@ class Bus:
                 self.tap.add("rejected", key, payload, exc.reason)
             return
         if self.tap is not None:
-            self.tap.add("received", key, payload)
+            self.tap.add("received", key, payload, envelope=(received.seq, received.stamp_s))
         with self._lock:
             self.received[key] += 1
             self.latency_s[key].add(time.time() - received.stamp_s)

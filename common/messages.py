@@ -707,11 +707,11 @@ def encode(message: Message, seq: int, stamp_s: float) -> bytes:
         use_bin_type=True,
     )
     if not message.COMPRESSED:
-        return packed  # type: ignore[no-any-return]
+        return packed
     if not hasattr(_zstd, "compressor"):
         _zstd.compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True,
                                                     dict_data=_dictionary())
-    return _zstd.compressor.compress(packed)  # type: ignore[no-any-return]
+    return _zstd.compressor.compress(packed)
 
 
 def wire_bytes(message: Message) -> int:
@@ -738,7 +738,7 @@ def unwrap(data: bytes) -> bytes:
     if not hasattr(_zstd, "decompressor"):
         _zstd.decompressor = zstandard.ZstdDecompressor(dict_data=_dictionary())
     try:
-        return _zstd.decompressor.decompress(data)  # type: ignore[no-any-return]
+        return _zstd.decompressor.decompress(data)
     except zstandard.ZstdError as exc:
         raise ValueError(f"a zstd frame that does not decompress: {exc}") from None
 

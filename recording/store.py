@@ -127,7 +127,7 @@ class Recorder:
         self.bytes_written = 0
         self.writer_cpu_s = 0.0  # the writer thread's CPU time, as of its latest flush
         self._buckets: dict[tuple[str, str], _Bucket] = {}
-        self._queue: queue.SimpleQueue[tuple[str, str, bytes, float, str] | None] = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[_Item | None] = queue.SimpleQueue()
         self._lock = threading.Lock()
         path.parent.mkdir(parents=True, exist_ok=True)
         self._file: IO[bytes] = path.open("wb")
@@ -146,8 +146,11 @@ class Recorder:
         spec = data_spec(key)
         return self.level != "none" and (spec is None or recorded(self.level, spec))
 
-    def add(self, direction: str, key: str, payload: bytes, reason: str = "") -> None:
-        """Queue one message as this station `direction` it, now; skipped over its key's cap."""
+    def add(self, direction: str, key: str, payload: bytes, reason: str = "",
+            envelope: tuple[int, float] | None = None) -> None:
+        """Queue one message as this station `direction` it, now; skipped over its key's cap.
+        `envelope`: its sequence number and stamp where the caller has them (the bus: the writer
+        then need not unpack a frame's megabyte to find them)."""
         if not self.wants(key):
             return
         with self._lock:
@@ -157,7 +160,7 @@ class Recorder:
             if not bucket.take():
                 self.skipped[f"{direction} {key}"] += 1
                 return
-        self._queue.put((direction, key, payload, time.time(), reason))
+        self._queue.put((direction, key, payload, time.time(), reason, envelope))
 
     def status(self) -> dict[str, Any]:
         with self._lock:
@@ -196,7 +199,7 @@ class Recorder:
             try:
                 item = self._queue.get(timeout=FLUSH_PERIOD_S)
             except queue.Empty:
-                item = ("", "", b"", 0.0, "")  # nothing came: only the flush is due
+                item = ("", "", b"", 0.0, "", None)  # nothing came: only the flush is due
             if item is None:
                 break
             if item[0]:
@@ -209,17 +212,22 @@ class Recorder:
         self._file.close()
         self.writer_cpu_s = time.thread_time()
 
-    def _write(self, direction: str, key: str, payload: bytes, recorded_s: float, reason: str) -> None:
+    def _write(self, direction: str, key: str, payload: bytes, recorded_s: float, reason: str,
+               envelope: tuple[int, float] | None) -> None:
         seq, sent_s = 0, recorded_s
         if direction == "rejected":
             payload = msgpack.packb({"reason": reason, "payload": payload}, use_bin_type=True)
         else:
-            seq, sent_s = envelope_of(payload)
+            seq, sent_s = envelope or envelope_of(payload)
         self._writer.add_message(self._channel(direction, key), log_time=round(recorded_s * 1e9),
                                  data=payload, publish_time=round(sent_s * 1e9), sequence=seq % 2**32)
         with self._lock:
             self.counts[direction] += 1
             self.bytes_written += len(payload)
+
+
+# direction, key, payload, when recorded [s], a rejection's reason, (seq, stamp [s]) if known
+_Item = tuple[str, str, bytes, float, str, tuple[int, float] | None]
 
 
 def envelope_of(payload: bytes) -> tuple[int, float]:

@@ -120,6 +120,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
     rate = Rate(0.05, bus.stop)
     resting_until_s = -float("inf")
+    sets_taken = 0
     while rate.sleep():
         for camera, inbox in inboxes.items():
             for received in inbox.drain():
@@ -146,7 +147,10 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
             continue
         started_s = time.monotonic()
         try:
-            for cloud in clouds_of(frames, pose, arm_m_world, cfg.cloud_sources, settings):
+            stereo_now = sets_taken % cfg.stereo_every == 0
+            sources = tuple(s for s in cfg.cloud_sources if s != "stereo" or stereo_now)
+            sets_taken += 1
+            for cloud in clouds_of(frames, pose, arm_m_world, sources, settings):
                 bus.publish("cloud", cloud)
             now_s = time.monotonic()
             if cfg.image_rate_hz > 0 and now_s - last_image_s >= 1.0 / cfg.image_rate_hz:

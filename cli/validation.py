@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 from typing import Any
@@ -18,15 +19,23 @@ from abyss.linkemu.profile import profile
 
 
 def cmd_scenario_run(args: argparse.Namespace) -> int:
+    from abyss.validation.scenario import capacity
     from abyss.validation.scenario.report import junit, markdown
     from abyss.validation.scenario.runner import run_all
     from abyss.validation.scenario.spec import load_scenario
 
-    if args.parallel < 1:
-        raise ConfigError("--parallel", f"{args.parallel}: at least 1")
     scenarios = [load_scenario(path) for path in args.files]  # every file checked before anything runs
+    if args.parallel == "auto":
+        parallel, why = capacity.auto_parallel(len(scenarios))
+        print(f"abyss: {why}", flush=True)
+    elif args.parallel.isdigit() and int(args.parallel) >= 1:
+        parallel = int(args.parallel)
+    else:
+        raise ConfigError("--parallel", f"{args.parallel!r}: a whole number, at least 1, or auto")
     report_dir = args.report or Path("runs") / f"scenarios-{time.strftime('%Y%m%d-%H%M%S')}"
-    results = run_all(scenarios, report_dir, args.parallel)
+    results = run_all(scenarios, report_dir, parallel)
+    capacity.record(json.loads(path.read_text()) for r in results
+                    if (path := r.out_dir / "summary.json").exists())
     if args.junit:
         junit(results, args.junit)
     print(
@@ -85,7 +94,9 @@ def add_commands(sub: Any) -> None:
     )
     p = scenario.add_parser("run", help="run scenario files, each as a whole isolated system, and judge them")
     p.add_argument("files", nargs="+", type=Path, metavar="FILE")
-    p.add_argument("--parallel", type=int, default=1, metavar="N", help="systems at once (default 1)")
+    p.add_argument("--parallel", default="1", metavar="N|auto",
+                   help="systems at once (default 1); auto: as many as this machine runs in real time, from "
+                        "what a system measured here costs (it says how many and why)")
     p.add_argument("--junit", type=Path, metavar="PATH", help="write JUnit XML here")
     p.add_argument(
         "--report",

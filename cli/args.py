@@ -9,14 +9,16 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
-from abyss.common.config import Config, load
+from abyss.common.config import TIME_MODES, Config, load
 from abyss.common.errors import ConfigError
 from abyss.linkemu.profile import FIELDS
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
-def config_args(p: argparse.ArgumentParser) -> None:
+def config_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
+    """The configuration's options; `speed`: with --speed for simulated time (a command whose
+    --speed scales a replay has none)."""
     p.add_argument("--config", type=Path, help="TOML configuration file")
     p.add_argument(
         "--set",
@@ -34,12 +36,13 @@ def config_args(p: argparse.ArgumentParser) -> None:
         help=f"link profile of a hop ({', '.join(keys.HOPS)})",
     )
     p.add_argument("--seed", type=int)
-    p.add_argument(
-        "--realtime-factor",
-        type=float,
-        metavar="X",
-        help="simulated seconds per wall-clock second (default 1)",
-    )
+    p.add_argument("--time", choices=TIME_MODES,
+                   help="the system's time source: real (the wall clock, the default) or sim (the "
+                        "simulation's clock drives every station and emulated link)")
+    if speed:
+        p.add_argument("--speed", dest="time_speed", metavar="X|max",
+                       help="with --time sim: simulated seconds per wall second (default 1), or max: as "
+                            "fast as the slowest station allows")
 
 
 def cpu_arg(p: argparse.ArgumentParser) -> None:
@@ -61,14 +64,16 @@ def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
 
 def load_config(args: argparse.Namespace, default: Path | None = None) -> Config:
     """--config (else `default`, else the defaults), then --set, --system, --seed,
-    --realtime-factor, --profile and --cpu on top."""
+    --time, --speed, --profile and --cpu on top."""
     overrides = list(args.set)
     if args.system:
         overrides.append(f"system={args.system}")
     if args.seed is not None:
         overrides.append(f"seed={args.seed}")
-    if args.realtime_factor is not None:
-        overrides.append(f"simulation.realtime_factor={args.realtime_factor}")
+    if args.time is not None:
+        overrides.append(f"time.mode={args.time}")
+    if getattr(args, "time_speed", None) is not None:
+        overrides.append(f"time.speed={args.time_speed}")
     for hop, name in pairs("--profile", args.profile):
         overrides.append(f"links.{keys.check_hop(hop)}={name}")
     for station, cores in pairs("--cpu", getattr(args, "cpu", [])):

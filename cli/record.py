@@ -88,7 +88,7 @@ def add_commands(sub: Any) -> None:
                    "if one differs")
     p.add_argument("--tolerance", type=float, default=0.1, metavar="FRACTION",
                    help="with --compare: a field differs past this share of its recorded spread")
-    run_args(p)
+    run_args(p, speed=False)  # a replay runs in real time, --speed scales the recording
     web_port_arg(p)
     p.set_defaults(func=cmd_replay)
 

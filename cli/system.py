@@ -52,9 +52,10 @@ def up_config(args: argparse.Namespace, config: Config) -> Config:
     return config
 
 
-def run_args(p: argparse.ArgumentParser) -> None:
-    """What `abyss up` and `abyss replay` share: configuration, duration, run directory, viewer, recording."""
-    config_args(p)
+def run_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
+    """What `abyss up` and `abyss replay` share: configuration, duration, run directory, viewer,
+    recording (`speed`: config_args's)."""
+    config_args(p, speed)
     cpu_arg(p)
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
@@ -168,7 +169,7 @@ def add_commands(sub: Any) -> None:
 
     p = sub.add_parser("station", help="run one station, e.g. on its own host")
     p.add_argument("name", choices=keys.STATIONS)
-    config_args(p)
+    config_args(p, speed=False)  # --speed scales a replay here; simulated time's: --set time.speed=X
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--status-file", type=Path, help="write counters here on exit")

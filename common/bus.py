@@ -11,7 +11,6 @@ import json
 import logging
 import math
 import threading
-import time
 from collections import Counter, defaultdict, deque
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, NamedTuple, Protocol, TypeVar
@@ -20,6 +19,7 @@ import zenoh
 
 from abyss.common import keys, security
 from abyss.common.certs import CertFiles
+from abyss.common.clock import WALL, Clock
 from abyss.common.errors import BadMessage, BusError, ConfigError
 from abyss.common.messages import Message, Received, decode, encode
 from abyss.common.rate import Rate
@@ -111,10 +111,11 @@ def messages_of(items: Iterable[Received], kind: type[M]) -> list[M]:
 class Inbox:
     """Messages received on one key, newest last; bounded."""
 
-    def __init__(self, maxlen: int) -> None:
+    def __init__(self, maxlen: int, clock: Clock = WALL) -> None:
         self._items: deque[Received] = deque(maxlen=maxlen)
         self._lock = threading.Lock()
-        self._latest_received_s = -float("inf")  # this station's monotonic clock
+        self._clock = clock
+        self._latest_received_s = -float("inf")  # this station's clock
         # a queue the station drains whose oldest messages newer ones pushed out before it came back:
         # the station fell behind (an inbox read only for its latest message sheds nothing)
         self.shed = 0
@@ -124,7 +125,7 @@ class Inbox:
         with self._lock:
             self.shed += self._drained and len(self._items) == self._items.maxlen
             self._items.append(item)
-            self._latest_received_s = time.monotonic()
+            self._latest_received_s = self._clock.now_s()
 
     def latest(self) -> Received | None:
         with self._lock:
@@ -134,7 +135,7 @@ class Inbox:
         """The latest message if it arrived less than `max_age_s` ago by this station's
         clock (a sender's clock on another host may be off)."""
         with self._lock:
-            if not self._items or time.monotonic() - self._latest_received_s > max_age_s:
+            if not self._items or self._clock.now_s() - self._latest_received_s > max_age_s:
                 return None
             return self._items[-1]
 
@@ -171,12 +172,14 @@ class Tap(Protocol):
 
 class Bus:
     """Publish and subscribe for one station of one system. Counters are guarded: Zenoh's
-    callback threads and the station's threads touch them at once."""
+    callback threads and the station's threads touch them at once. `clock`: the system's time
+    (common.clock), for the station's loops, ages and stamps."""
 
-    def __init__(self, system: str, station: str, session: zenoh.Session) -> None:
+    def __init__(self, system: str, station: str, session: zenoh.Session, clock: Clock = WALL) -> None:
         self.system = keys.check_system_id(system)
         self.station = keys.check_station(station)
         self.session = session
+        self.clock = clock
         self.stop = threading.Event()  # set when the station is asked to stop
         self.sent: Counter[str] = Counter()
         self.received: Counter[str] = Counter()
@@ -209,7 +212,7 @@ class Bus:
             raise ConfigError(topic, f"carries {out.spec.message}, not {message.TYPE}")
         key = out.key
         with self._lock:  # stations publish from more than one thread
-            seq, stamp_s = self._seq[key], time.time()
+            seq, stamp_s = self._seq[key], self.clock.stamp_s()
             payload = encode(message, seq, stamp_s)
             self._seq[key] += 1
             self.sent[key] += 1
@@ -234,7 +237,7 @@ class Bus:
 
     def subscribe_key(self, key: str, message: str, maxlen: int = 64) -> Inbox:
         """Receive `message`s on any key, a control key included; validated and counted."""
-        inbox = Inbox(maxlen)
+        inbox = Inbox(maxlen, self.clock)
         self._inboxes.append((key, inbox))
         self._subscribers.append(self.session.declare_subscriber(key, lambda sample: self._on_sample(
             str(sample.key_expr), message, sample.payload.to_bytes(), inbox)))
@@ -252,7 +255,7 @@ class Bus:
             self.tap.add("received", key, payload, envelope=(received.seq, received.stamp_s))
         with self._lock:
             self.received[key] += 1
-            self.latency_s[key].add(time.time() - received.stamp_s)
+            self.latency_s[key].add(self.clock.stamp_s() - received.stamp_s)
         inbox.put(received)
 
     def reject(self, key: str, reason: str) -> None:
@@ -268,14 +271,15 @@ class Bus:
     def observe(self, key: str, message: Message) -> None:
         """Publish on an observation key (scoring, status), outside the links."""
         with self._lock:
-            payload = encode(message, self._seq[key], time.time())
+            payload = encode(message, self._seq[key], self.clock.stamp_s())
             self._seq[key] += 1
         self.session.put(key, payload)
 
     # -- life ----------------------------------------------------------------------------
-    def loop(self, name: str, period_s: float) -> Rate:
-        """The rate of one of the station's periodic loops; its deadlines met go in the status."""
-        rate = self._loops[name] = Rate(period_s, self.stop)
+    def loop(self, name: str, period_s: float, clock: Clock | None = None) -> Rate:
+        """The rate of one of the station's periodic loops, on the station's clock (or `clock`);
+        its deadlines met go in the status."""
+        rate = self._loops[name] = Rate(period_s, self.stop, clock or self.clock, name)
         return rate
 
     def shed(self, key: str, count: int = 1) -> None:

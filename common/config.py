@@ -56,7 +56,6 @@ class SimulationConfig:
     low_level_period_s: float = 0.01  # [s] the low-level controllers' (and buoyancy's) update
     control_period_s: float = 0.05  # [s] rate of nav output and command intake
     command_timeout_s: float = 0.5  # [s] older commands make the low level hold still
-    realtime_factor: float = 1.0
     start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -7.0)
     start_yaw_rad: float = 0.0
     # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
@@ -113,7 +112,6 @@ class SimulationConfig:
             raise ConfigError("simulation.low_level",
                               f"{self.low_level!r} not one of {', '.join(LOW_LEVELS)}")
         _positive("simulation.physics_step_s", self.physics_step_s)
-        _positive("simulation.realtime_factor", self.realtime_factor)
         _positive("simulation.current_time_constant_s", self.current_time_constant_s)
         if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
             vehicle_file = Path(self.vehicle_file).expanduser()
@@ -163,6 +161,7 @@ class SimulationConfig:
 
 
 STEREO_MODES = ("3way", "sgbm", "hh")  # onboard.stereo_mode: OpenCV's semi-global matcher's modes
+STEREO_SCALES = (1, 2)  # onboard.stereo_scale: full or half resolution
 STEREO_SWITCHES = ("stereo_uniqueness_percent", "stereo_speckle_window_px", "stereo_lr_max_diff_px",
                    "stereo_min_texture", "stereo_edge_step_px")  # 0: that filter off
 
@@ -221,6 +220,9 @@ class OnboardConfig:
     # over the default mission's path the map's recall falls from 0.64 to 0.36 in clear water,
     # bench/perception.py, and it matches 1.4 % of a textureless pair's pixels, against none)
     stereo_mode: str = "hh"
+    # the pair is matched at full resolution (1) or at half (2: shrunk by area averaging, the
+    # disparities, blocks and filter windows scaled with it, the points at half resolution)
+    stereo_scale: int = 1
     self_filter_radius_m: float = 0.15  # [m] points this close to the arm are the arm's
     # the stereo matcher's filters (perception.StereoFilter), against points floating in open
     # water (edges smeared by the block, sensor noise and marine snow matched at random); 0
@@ -248,6 +250,9 @@ class OnboardConfig:
         if self.stereo_mode not in STEREO_MODES:
             raise ConfigError("onboard.stereo_mode",
                               f"{self.stereo_mode!r} not one of {', '.join(STEREO_MODES)}")
+        if self.stereo_scale not in STEREO_SCALES:
+            raise ConfigError("onboard.stereo_scale",
+                              f"{self.stereo_scale} not one of {', '.join(map(str, STEREO_SCALES))}")
         if self.stereo_disparities % 16 or not 16 <= self.stereo_disparities <= 256:
             raise ConfigError("onboard.stereo_disparities",
                               f"{self.stereo_disparities}: a multiple of 16 in [16, 256]")
@@ -386,6 +391,49 @@ class CpuConfig:
         return {name: cores for name, cores in dataclasses.asdict(self).items() if cores}
 
 
+TIME_MODES = ("real", "sim")
+
+
+@dataclass(frozen=True)
+class TimeConfig:
+    """The system's time source (common.clock): `real` (the wall clock; the only mode with a real
+    component, real links or an operator in the loop) or `sim` (the simulation's clock drives every
+    station's rates and timers and every emulated link, `speed` simulated seconds per wall
+    second, or `max`: as fast as the slowest station allows)."""
+
+    mode: str = "real"
+    speed: str = "1"  # a positive number, or "max"
+    max_lag_s: float = 0.1  # [simulated s] how far a station's loops may be behind the simulation
+    # the stations whose progress the simulation waits for, with `sim`
+    stations: tuple[str, ...] = ("onboard", "vessel", "onshore")
+
+    def __post_init__(self) -> None:
+        if self.mode not in TIME_MODES:
+            raise ConfigError("time.mode", f"{self.mode!r} not one of {', '.join(TIME_MODES)}")
+        if self.speed != "max":
+            try:
+                speed = float(self.speed)
+            except ValueError:
+                speed = math.nan
+            if not math.isfinite(speed) or not 0.01 <= speed <= 1000:
+                raise ConfigError("time.speed", f"{self.speed!r}: a number from 0.01 to 1000, or max")
+        if self.mode == "real" and self.speed_factor != 1.0:
+            raise ConfigError("time.speed", f"{self.speed}: only with time.mode sim (real time runs at 1)")
+        _positive("time.max_lag_s", self.max_lag_s, allow_zero=True)
+        for station in self.stations:
+            if station not in keys.STATIONS or station == "simulation":
+                raise ConfigError("time.stations", f"{station!r}: not one of onboard, vessel, onshore")
+
+    @property
+    def speed_factor(self) -> float:
+        """Simulated seconds per wall second asked for (inf: max)."""
+        return math.inf if self.speed == "max" else float(self.speed)
+
+    @property
+    def simulated(self) -> bool:
+        return self.mode == "sim"
+
+
 ROS2_STATIONS = ("onboard", "vessel")  # the stations a ROS 2 node can stand for (ros2.gateway)
 _ROS_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
 
@@ -496,9 +544,13 @@ class Config:
     record: RecordConfig = field(default_factory=RecordConfig)
     ros2: Ros2Config = field(default_factory=Ros2Config)
     cpu: CpuConfig = field(default_factory=CpuConfig)
+    time: TimeConfig = field(default_factory=TimeConfig)
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)
+        if self.time.simulated and self.ros2.station:
+            raise ConfigError("time.mode", "sim: a ROS 2 node (ros2.station, --ros2) runs on the wall clock; "
+                              "use --time real with it")
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2)

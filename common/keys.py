@@ -160,6 +160,17 @@ def simulation_status_key(system: str) -> str:
     return key(system, "simulation", "status")
 
 
+def clock_key(system: str) -> str:
+    """The simulation's clock, with `--time sim` (common.clock)."""
+    return key(system, "clock")
+
+
+def progress_key(system: str, station: str) -> str:
+    """How far a station's loops are done in simulated time, with `--time sim`: the
+    simulation waits for the slowest (common.clock.Holdback)."""
+    return key(system, station, "progress")
+
+
 def operator_key(system: str, topic: str) -> str:
     """Commands of an operator's tool (`abyss teleop`, `abyss op`) to the onshore station, on
     shore's own network; the onshore station sends them down the satellite as op/<topic>, and
@@ -203,6 +214,9 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ("abyss/<system>/simulation/control", "SimulationControl", "event",
      "faults: thruster, camera, noise, seize, clear"),
     ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
+    ("abyss/<system>/clock", "SimTime", "20 Hz simulated", "the simulation's clock, with --time sim"),
+    ("abyss/<system>/<station>/progress", "SimTime", "event",
+     "how far the station's loops are done in simulated time; the simulation waits for the slowest"),
     ("abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
      "Waypoints, ArmGoal, OperatorMode, Intervention", "event",
      "operator tools to the onshore station, which sends them down"),

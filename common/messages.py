@@ -461,12 +461,23 @@ class SimulationControl(Message):
 
 @dataclass(frozen=True)
 class SimulationStatus(Message):
-    """The simulation's clock against the wall clock, and the active faults."""
+    """The simulation's clock against the wall clock, and the active faults; with simulated time,
+    the wall seconds it waited on each station (`held_s`: the one that limited the speed)."""
 
+    VERSION: ClassVar[int] = 2  # 2: held_s
     sim_time_s: float = scalar(0.0)
     realtime_factor: float = scalar(0.0, 1e6)
     deadlines_met: float = scalar(0.0, 1.0)  # share of control periods that kept their deadline
     faults: dict[str, float] = field(default_factory=dict)
+    held_s: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SimTime(Message):
+    """Simulated time (common.clock): the simulation's clock on `abyss/<system>/clock`, a
+    station's progress (how far its loops are done) on `abyss/<system>/<station>/progress`."""
+
+    sim_time_s: float = scalar(0.0)
 
 
 MODES = ("idle", "moving", "reached", "hold", "missed")  # missed: a waypoint not reached in its time

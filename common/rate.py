@@ -1,30 +1,41 @@
-"""Keep a loop's period without drifting; a stop event interrupts the wait."""
+"""Keep a loop's period without drifting, on the system's clock; a stop event interrupts the wait."""
 
 from __future__ import annotations
 
 import threading
-import time
+
+from abyss.common.clock import WALL, Clock
 
 
 class Rate:
-    def __init__(self, period_s: float, stop: threading.Event) -> None:
+    """A loop's ticks every `period_s` of `clock` (the wall clock, or simulated time). A loop with a
+    `name` tells its clock, each time it waits, the time of its next tick: it needs nothing before
+    then (with simulated time, the simulation waits for the slowest loop)."""
+
+    def __init__(self, period_s: float, stop: threading.Event, clock: Clock = WALL, name: str = "") -> None:
         self.period_s = period_s
         self.stop = stop
+        self.clock = clock
+        self.name = name
         self.ticks = 0
         self.missed = 0  # ticks whose work overran the deadline
-        self._next_s = time.monotonic()
+        self._next_s = clock.now_s()
+        if name:
+            clock.done(name, self._next_s)
 
     def sleep(self) -> bool:
         """Wait for the next tick; False once the stop event is set. A loop that fell
         behind by more than a period starts afresh instead of bursting to catch up."""
         self._next_s += self.period_s
-        now_s = time.monotonic()
+        now_s = self.clock.now_s()
         self.ticks += 1
-        if now_s > self._next_s:
+        if now_s > self._next_s and self.period_s > 0:
             self.missed += 1
         if self._next_s < now_s - self.period_s:
             self._next_s = now_s
-        return not self.stop.wait(max(0.0, self._next_s - now_s))
+        if self.name:
+            self.clock.done(self.name, self._next_s)
+        return not self.clock.wait(self.stop, self._next_s - now_s)
 
     @property
     def deadlines_met(self) -> float:

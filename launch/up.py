@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import shutil
 import signal
@@ -22,6 +23,8 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
+from abyss.common.clock import SimClock
+from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config, OnshoreConfig, Ros2Config
 from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import (
@@ -151,8 +154,22 @@ class Up:
         if uncappable:
             raise ConfigError("--cpu", f"{uncappable[0]} is --external: abyss up does not start it, so "
                               "cannot cap its CPU")
-        self.cpu = CpuCaps(config.system, config.cpu.capped())  # fails here where no cgroup can be made
-        self.mission_done_s: float | None = None  # since all stations were up
+        self.time = config.time
+        if self.time.simulated:
+            for refused, what in (("--external", self.external), ("--replay", replayed)):
+                if what:
+                    raise ConfigError(refused, "a real component or a replay runs on the wall clock, which "
+                                      "--time sim cannot speed up; use --time real with it")
+            if config.cpu.capped() and not math.isfinite(self.time.speed_factor):
+                raise ConfigError("--cpu", "a CPU cap is a share of wall time: it needs a set --speed, "
+                                  "not max")
+        self.cpu = CpuCaps(config.system, self.wall_caps(config))  # fails here where no cgroup can be made
+        # with simulated time, the run's time is the simulation's (its duration, the mission's)
+        self.sim_clock = SimClock(config.simulation.control_period_s, self.time.speed_factor) \
+            if self.time.simulated else None
+        self.mission_done_s: float | None = None  # since all stations were up (the run's time)
+        self.mission_done_wall_s: float | None = None
+        self.watch_from: tuple[float, float] | None = None  # (the run's time, monotonic) when watched from
         self.out_dir = out_dir.resolve()  # the stations run there, whatever the caller's directory
         self.echo = echo or (lambda text: print(text, flush=True))
         if port is None:
@@ -180,6 +197,13 @@ class Up:
         self._lock = threading.Lock()
         self.state = RunState(config.system, self.endpoint, os.getpid())
         self._state_lock = threading.Lock()
+
+    @staticmethod
+    def wall_caps(config: Config) -> dict[str, float]:
+        """The CPU caps in cores of wall time: with simulated time at speed X a station gets X times
+        its cap, the same CPU per simulated second as in real time."""
+        speed = config.time.speed_factor if config.time.simulated else 1.0
+        return {station: cores * speed for station, cores in config.cpu.capped().items()}
 
     # -- zenoh observers -----------------------------------------------------------------
     def _on_alive(self, sample: zenoh.Sample) -> None:
@@ -350,6 +374,7 @@ class Up:
             session.declare_subscriber(keys.onboard_state_key(system), self._on_status),
             session.declare_subscriber(keys.truth_key(system), self._on_status),
             session.declare_subscriber(keys.panel_truth_key(system), self._on_status),
+            *([clock_follow(session, system, self.sim_clock)] if self.sim_clock is not None else []),
         ]
         previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
                     for s in (signal.SIGINT, signal.SIGTERM)}
@@ -416,9 +441,14 @@ class Up:
         missing = sorted(set(keys.STATIONS) - shown)
         return f"not up after {timeout_s:g} s: {', '.join(missing)}"
 
+    def _now_s(self) -> float:
+        """The run's time: the wall clock's, or the simulation's with simulated time."""
+        return self.sim_clock.now_s() if self.sim_clock is not None else time.monotonic()
+
     def _watch(self, duration_s: float | None, keep_running: bool) -> str:
-        t0 = time.monotonic()
-        last_report = next_start_s = t0
+        t0, wall0 = self._now_s(), time.monotonic()
+        self.watch_from = (t0, wall0)
+        last_report = next_start_s = wall0
         if self.replayed is not None:
             self.replay_start = ReplayStart(time.time() + REPLAY_DELAY_S)
             self.echo(f"abyss: replaying {', '.join(self.replayed.stations)} of {self.replayed.run_dir} "
@@ -433,13 +463,16 @@ class Up:
                     return f"{station.name} died"
                 self._restart(station)
             mission = self.mission
-            elapsed = time.monotonic() - t0
+            elapsed = self._now_s() - t0
             # done when shore says so and the simulation's truth agrees
             done = mission is not None and mission.done and self._interventions_true()
             if done and self.mission_done_s is None:
                 self.mission_done_s = elapsed
+                self.mission_done_wall_s = time.monotonic() - wall0
                 self._change_state(mission_done=True)
-                self.echo(f"abyss: mission complete at t={elapsed:.1f} s")
+                self.echo(f"abyss: mission complete at t={elapsed:.1f} s"
+                          + (f" simulated, {self.mission_done_wall_s:.1f} s of wall time"
+                             if self.sim_clock is not None else ""))
             if done and not keep_running:
                 return ""
             if duration_s is not None and elapsed >= duration_s:
@@ -458,10 +491,33 @@ class Up:
                              + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else "")
                              + ("; done on shore, not in the simulation's truth" if mission.done and not done
                                 else ""))
-                self.echo(f"abyss: t={elapsed:5.0f} s  mission: {state}")
+                self.echo(f"abyss: t={elapsed:5.0f} s{self._speed_note(wall0)}  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")
                 return ""  # the verdict says interrupted unless the mission was already done
+
+    def _speed_note(self, wall0: float) -> str:
+        """With simulated time: the speed so far, e.g. ` (x3.8)`."""
+        if self.sim_clock is None or self.watch_from is None or time.monotonic() <= wall0:
+            return ""
+        return f" (x{(self._now_s() - self.watch_from[0]) / (time.monotonic() - wall0):.1f})"
+
+    def time_summary(self) -> dict[str, Any]:
+        """The run's time source and, with simulated time, the speed achieved and the station that
+        held the simulation back the longest (`held_s`: wall seconds the simulation waited on each)."""
+        summary: dict[str, Any] = {"mode": self.time.mode, "speed": self.time.speed}
+        if self.sim_clock is None or self.watch_from is None:
+            return summary
+        sim_s, wall_s = self._now_s() - self.watch_from[0], time.monotonic() - self.watch_from[1]
+        held = dict(self.simulation.held_s) if self.simulation else {}
+        speed = sim_s / wall_s if wall_s > 0 else 0.0
+        if speed >= 0.95 * self.time.speed_factor:
+            limited_by = "speed asked"
+        else:  # the station it waited on the longest; else its own physics and rendering
+            limited_by = max(held, key=lambda s: held[s]) if held and max(held.values()) > 0 else "simulation"
+        return {**summary, "sim_s": round(sim_s, 3), "wall_s": round(wall_s, 3),
+                "achieved_speed": round(speed, 3),
+                "held_s": held, "limited_by": limited_by}
 
     def _interventions(self) -> list[dict[str, Any]]:
         start, last = self.panel if self.panel else (None, None)
@@ -504,6 +560,8 @@ class Up:
             "links": links,
             "mission": dataclasses.asdict(self.mission) if self.mission else None,
             "mission_done_s": self.mission_done_s,
+            "mission_done_wall_s": self.mission_done_wall_s,
+            "time": self.time_summary(),
             "external": list(self.external),
             "control": control_summary(self.record.last if self.record else None),
             "navigation": self.nav_error.summary(),  # onboard's position error [m]

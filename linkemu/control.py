@@ -20,6 +20,7 @@ import numpy as np
 import zenoh
 
 from abyss.common import keys
+from abyss.common.clock import WALL, Clock
 from abyss.common.errors import AbyssError, BadMessage, LinkError
 from abyss.common.messages import LinkControl, LinkStats, decode, encode
 from abyss.linkemu.netem import NetemShaper
@@ -56,13 +57,17 @@ class StationLinks:
 
     def __init__(self, session: zenoh.Session, system: str, station: str, profiles: dict[str, LinkProfile],
                  deliver: Callable[[str, bytes], None], *, seed: int = 0, link_mode: str = "emulated",
-                 peers: dict[str, str] | None = None, stopping: threading.Event | None = None) -> None:
+                 peers: dict[str, str] | None = None, stopping: threading.Event | None = None,
+                 clock: Clock = WALL) -> None:
         """`deliver(key, payload)` puts a message on the wire when its link delivers it;
         `peers[hop]`: the neighbour whose route a shaper takes (a name or an address; default:
         the neighbour's station name); `stopping`: set when the station is asked to stop, from
-        when on no send waits for room on a link."""
+        when on no send waits for room on a link; `clock`: the time the emulators run on."""
         if link_mode not in LINK_MODES:
             raise LinkError(f"link mode {link_mode!r}: allowed {', '.join(LINK_MODES)}")
+        if clock.mode != "real" and link_mode != "emulated":
+            raise LinkError(f"link mode {link_mode}: shapes real packets on the wall clock, which --time "
+                            f"{clock.mode} cannot run faster; use --link emulated, or --time real")
         self.session = session
         self.system = system
         self.station = station
@@ -75,7 +80,7 @@ class StationLinks:
         for hop, neighbour in keys.hops_of(station).items():
             self.runners[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
                                            deliver, link_rng(seed, station, hop),
-                                           passthrough=hop in self.shapers, stopping=stopping)
+                                           passthrough=hop in self.shapers, stopping=stopping, clock=clock)
             self._entities.append(session.declare_subscriber(
                 keys.link_key(system, hop), functools.partial(self._on_control_sample, hop)))
             self._entities.append(session.declare_queryable(

@@ -1,5 +1,6 @@
-"""The link core on the wall clock: a thread per link direction that hands each message
-to `deliver` at the time the emulated link delivers it."""
+"""The link core on the system's clock (the wall clock, or simulated time: common.clock): a
+thread per link direction that hands each message to `deliver` at the time the emulated link
+delivers it."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from abyss.common.clock import WALL, Clock
 from abyss.common.samples import Samples
 from abyss.linkemu.link import Delivery, Link, Offer
 from abyss.linkemu.profile import LinkProfile
@@ -26,8 +28,9 @@ class LinkRunner:
 
     def __init__(self, name: str, profile: LinkProfile, deliver: Callable[[Any, bytes], None],
                  rng: np.random.Generator, passthrough: bool = False,
-                 stopping: threading.Event | None = None) -> None:
+                 stopping: threading.Event | None = None, clock: Clock = WALL) -> None:
         self.name = name
+        self.clock = clock
         self.deliver = deliver
         self.passthrough = passthrough
         self.stopping = stopping or threading.Event()
@@ -61,7 +64,7 @@ class LinkRunner:
                     if self._closed or self.stopping.is_set():
                         self.link.counters["refused_at_stop"] += 1
                         return False
-                    result = self.link.offer(time.monotonic(), payload, block, tag)
+                    result = self.link.offer(self.clock.now_s(), payload, block, tag)
                     if result is not Offer.FULL:
                         break
                     self._cond.wait(0.05)
@@ -104,7 +107,7 @@ class LinkRunner:
             with self._cond:
                 if self._closed:
                     return
-                now_s = time.monotonic()
+                now_s = self.clock.now_s()
                 ready: list[Delivery] = self.link.advance(now_s)
                 for d in ready:
                     self.late_s.add(now_s - d.delivered_s)
@@ -112,7 +115,7 @@ class LinkRunner:
                     self._cond.notify_all()  # room in the queue for blocked senders
                 next_s = self.link.next_event_s()
                 if not ready:
-                    self._cond.wait(None if next_s is None else max(0.0, next_s - now_s))
+                    self._cond.wait(None if next_s is None else self.clock.wall_timeout_s(next_s - now_s))
             for d in ready:
                 try:
                     self.deliver(d.tag, d.payload)

@@ -17,9 +17,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import zenoh
+
 from abyss.common import keys, security
 from abyss.common.bus import Bus, open_session, zenoh_config
 from abyss.common.certs import CertFiles
+from abyss.common.clock import WALL, Clock, ProgressReport, SimClock
+from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
@@ -68,9 +72,11 @@ class Shell:
                              slowest_rate_bps=slowest_bps)  # bad endpoints or certificates fail here
         self.refusals = security.refusal_log() if tls is not None else None
         self.session = open_session(settings, f"station {name}")
-        self.bus = Bus(config.system, name, self.session)
+        self.clock, self._clock_closers = station_clock(self.session, config, name)
+        self.bus = Bus(config.system, name, self.session, self.clock)
         self.links = StationLinks(self.session, config.system, name, profiles, self.bus.transmit,
-                                  seed=config.seed, link_mode=link_mode, peers=peers, stopping=self.bus.stop)
+                                  seed=config.seed, link_mode=link_mode, peers=peers, stopping=self.bus.stop,
+                                  clock=self.clock)
         for hop in self.links.runners:
             self.bus.route(hop, self.links.egress(hop))
         self.recorder = station_recorder(config, name)
@@ -95,10 +101,26 @@ class Shell:
         self.bus.stop.set()
         self.links.close(drain_s)
         self._token.undeclare()
+        for close in self._clock_closers:
+            close()
         self.bus.close()
         if self.recorder is not None:
             self.recorder.close()
         self.session.close()
+
+
+def station_clock(session: zenoh.Session, config: Config,
+                  name: str) -> tuple[Clock, list[Callable[[], None]]]:
+    """The station's clock: the wall clock, or (`time.mode` sim) the simulation's time, which the
+    simulation ticks itself and every other station follows, telling how far its loops are done;
+    and what closes it with the station."""
+    if not config.time.simulated:
+        return WALL, []
+    clock = SimClock(config.simulation.control_period_s, config.time.speed_factor)
+    if name == "simulation":
+        return clock, []
+    ticks = clock_follow(session, config.system, clock)
+    return clock, [ticks.undeclare, ProgressReport(session, config.system, name, clock).close]
 
 
 def station_recorder(config: Config, name: str) -> Recorder | None:

@@ -12,7 +12,6 @@ import logging
 import os
 import sys
 import threading
-import time
 
 import numpy as np
 
@@ -83,7 +82,7 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
                       if isinstance(c, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))],
             heartbeats=messages_of(heartbeats.drain(), Heartbeat), nav=messages_of(nav.drain(), NavState),
             joints=latest_joints[-1] if latest_joints else None)
-        out = core.step(inputs, time.monotonic())
+        out = core.step(inputs, bus.clock.now_s())
         with shared.lock:
             for pose in out.poses:
                 shared.poses.add(*pose)
@@ -118,7 +117,8 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     sets: dict[float, dict[str, Image]] = {}
     last_image_s = -float("inf")
     key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
-    rate = Rate(0.05, bus.stop)
+    # with simulated time, a frame set being worked on holds the simulation (common.clock)
+    rate = Rate(0.05, bus.stop, bus.clock, "perception")
     resting_until_s = -float("inf")
     sets_taken = 0
     while rate.sleep():
@@ -126,7 +126,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
             for received in inbox.drain():
                 assert isinstance(received.message, Image)
                 sets.setdefault(received.message.sim_time_s, {})[camera] = received.message
-        if time.monotonic() < resting_until_s:  # what comes meanwhile waits; the newest set is taken
+        if bus.clock.now_s() < resting_until_s:  # what comes meanwhile waits; the newest set is taken
             continue
         complete = [t for t, frames in sets.items() if needed <= set(frames)]
         if not complete:
@@ -145,14 +145,14 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
         if pose is None:
             log.debug("no navigation estimate at %.2f s; frames skipped", t)
             continue
-        started_s = time.monotonic()
+        started_s = bus.clock.now_s()
         try:
             stereo_now = sets_taken % cfg.stereo_every == 0
             sources = tuple(s for s in cfg.cloud_sources if s != "stereo" or stereo_now)
             sets_taken += 1
             for cloud in clouds_of(frames, pose, arm_m_world, sources, settings):
                 bus.publish("cloud", cloud)
-            now_s = time.monotonic()
+            now_s = bus.clock.now_s()
             if cfg.image_rate_hz > 0 and now_s - last_image_s >= 1.0 / cfg.image_rate_hz:
                 left = frames["cam_left"]
                 bus.publish("image", dataclasses.replace(
@@ -161,7 +161,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
                 last_image_s = now_s
         except ValueError as exc:  # frames that do not decode, or a camera pose in the wrong frame
             bus.reject(key, str(exc))
-        resting_until_s = started_s + (time.monotonic() - started_s) / cfg.perception_max_busy
+        resting_until_s = started_s + (bus.clock.now_s() - started_s) / cfg.perception_max_busy
 
 
 def _sonar_loop(bus: Bus, shared: Shared) -> None:
@@ -169,7 +169,7 @@ def _sonar_loop(bus: Bus, shared: Shared) -> None:
     from abyss.stations.onboard.perception import mount_in_world
 
     frames = bus.subscribe("simulation", "sonar", maxlen=2)
-    rate = Rate(0.05, bus.stop)
+    rate = Rate(0.05, bus.stop, bus.clock, "sonar")
     while rate.sleep():
         for received in frames.drain():
             sonar = received.message

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import time
 from pathlib import Path
 
 from abyss.common import keys
@@ -69,7 +68,7 @@ def run(config: Config, bus: Bus) -> None:
     saved: tuple[str, str] = ("", "")
     saved_s = -float("inf")
     while rate.sleep():
-        now_s = time.monotonic()
+        now_s = bus.clock.now_s()
         streams = scene.receiver.new_streams
         scene.step(now_s)
         if scene.receiver.new_streams > streams:
@@ -85,13 +84,14 @@ def run(config: Config, bus: Bus) -> None:
         if out.status is not None:
             bus.observe(keys.mission_key(bus.system), out.status)
         if viewer:
-            _show(viewer, out.first_sent, received, [*images.drain(), *sonar.drain(), *link_stats.drain()])
+            _show(viewer, bus.clock.stamp_s(), out.first_sent, received,
+                  [*images.drain(), *sonar.drain(), *link_stats.drain()])
         if record_dir and now_s - saved_s >= SAVE_PERIOD_S:
             saved, saved_s = _save(record_dir, operator, saved), now_s
     if record_dir:
         scene.save(record_dir)
         _save(record_dir, operator, saved)
-    scene.show(time.monotonic(), final=True)
+    scene.show(bus.clock.now_s(), final=True)
     sinks.close()
 
 
@@ -104,14 +104,14 @@ def _save(record_dir: Path, operator: Operator, saved: tuple[str, str]) -> tuple
     return texts
 
 
-def _show(viewer: Viewer, first_sent: list[Message], telemetry: list[Received],
+def _show(viewer: Viewer, stamp_s: float, first_sent: list[Message], telemetry: list[Received],
           others: list[Received]) -> None:
-    """What came in, at its sender's stamp, and each command when it is first sent."""
+    """What came in, at its sender's stamp, and each command when it is first sent (`stamp_s`)."""
     for command in first_sent:
         if isinstance(command, Waypoints):
-            viewer.waypoints(command, time.time())
+            viewer.waypoints(command, stamp_s)
         elif isinstance(command, ArmGoal):
-            viewer.arm_goal(command, time.time())
+            viewer.arm_goal(command, stamp_s)
     for r in telemetry:
         if isinstance(r.message, Telemetry):
             t = r.message
@@ -192,8 +192,8 @@ class Scene:
         """The whole scene to the viewer, when it changed, at most every `viewer_period_s`."""
         changed = self.receiver.applied != self._shown_applied
         if self.viewer and changed and (final or now_s - self._shown_s >= self.viewer_period_s):
-            self.viewer.scene(*self.receiver.occupied_cells(), self.receiver.resolution_m, time.time(),
-                              self.sim_time_s)
+            self.viewer.scene(*self.receiver.occupied_cells(), self.receiver.resolution_m,
+                              self.bus.clock.stamp_s(), self.sim_time_s)
             self._shown_s, self._shown_applied = now_s, self.receiver.applied
 
     def save(self, directory: Path) -> None:
@@ -201,7 +201,7 @@ class Scene:
         directory.mkdir(parents=True, exist_ok=True)
         snapshot = self.receiver.snapshot(self.sim_time_s)
         if snapshot is not None:
-            (directory / SCENE_FILE).write_bytes(encode(snapshot, 0, time.time()))
+            (directory / SCENE_FILE).write_bytes(encode(snapshot, 0, self.bus.clock.stamp_s()))
         stats = {"updates_applied": self.receiver.applied, "gaps": self.receiver.gaps,
                  "snapshot_requests": self.requests, "update_bytes": self.update_bytes,
                  "resolution_m": self.receiver.resolution_m,

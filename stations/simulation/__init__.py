@@ -1,5 +1,7 @@
 """The simulation station: the vehicle, its arm, the panel and the seabed in MuJoCo, paced to
-real time (or `simulation.realtime_factor` of it), with cameras rendered in their own thread."""
+real time, or with simulated time (`time.mode` sim) the system's clock: `time.speed` times real
+time, as far as every station keeps up (common.clock). Cameras and sonar render in their own
+threads on the simulation's clock."""
 
 from __future__ import annotations
 
@@ -13,8 +15,9 @@ import numpy as np
 
 from abyss.common import keys
 from abyss.common.bus import Bus
+from abyss.common.clock import WALL, Holdback, SimClock
 from abyss.common.config import Config
-from abyss.common.messages import ArmVelocityRef, SimulationControl, SimulationStatus, VelocityRef
+from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
 from abyss.common.workers import Workers
 
 if TYPE_CHECKING:
@@ -55,7 +58,11 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
     control_key = keys.simulation_control_key(bus.system)
     controls = bus.subscribe_key(control_key, "SimulationControl")
-    rate = bus.loop("physics", sim.control_period_s / sim.realtime_factor)
+    # the wall clock paces the physics, at time.speed (max: as fast as the stations keep up)
+    rate = bus.loop("physics", sim.control_period_s / config.time.speed_factor, clock=WALL)
+    clock = bus.clock if isinstance(bus.clock, SimClock) else None
+    holdback = (Holdback(bus.session, bus.system, config.time.stations, config.time.max_lag_s)
+                if clock is not None else None)
     wall0, sim0 = time.monotonic(), world.data.time
     saved_s = -float("inf")  # simulated time of the state last kept
     while True:
@@ -69,10 +76,15 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
         refs = references(v.message if v and isinstance(v.message, VelocityRef) else None,
                           a.message if a and isinstance(a.message, ArmVelocityRef) else None)
+        if holdback is not None and clock is not None:
+            holdback.hold(world.data.time, bus.stop, clock)
         with lock:
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
             panel = world.panel() if rate.ticks % PANEL_EVERY == 0 else None
+        if clock is not None:
+            clock.tick(truth.sim_time_s)
+            bus.observe(keys.clock_key(bus.system), SimTime(sim_time_s=truth.sim_time_s))
         bus.publish("nav", world.nav())
         bus.publish("joints", joints)
         bus.observe(keys.truth_key(bus.system), truth)
@@ -86,10 +98,13 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         if wall - wall0 >= STATUS_PERIOD_S:
             bus.observe(keys.simulation_status_key(bus.system), SimulationStatus(
                 sim_time_s=truth.sim_time_s, realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
-                deadlines_met=rate.deadlines_met, faults=dict(world.faults)))
+                deadlines_met=rate.deadlines_met, faults=dict(world.faults),
+                held_s=holdback.status() if holdback is not None else {}))
             wall0, sim0 = wall, truth.sim_time_s
         if not rate.sleep():
             break
+    if holdback is not None:
+        holdback.close()
 
 
 def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:
@@ -106,7 +121,7 @@ def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, 
     cameras = Cameras(model, sim.camera_width_px, sim.camera_height_px, sim.water, sim.marine_snow,
                       np.random.default_rng([config.seed, 1]))  # the optics' own stream: snow, noise
     cameras.blackout = blackout
-    rate = bus.loop("cameras", 1.0 / (sim.camera_rate_hz * sim.realtime_factor))
+    rate = bus.loop("cameras", 1.0 / sim.camera_rate_hz)
     try:
         while rate.sleep():
             with lock:
@@ -127,7 +142,7 @@ def _sonar_loop(config: Config, bus: Bus, world: World, lock: threading.Lock) ->
     snapshot = mujoco.MjData(world.model)
     sonar = ImagingSonar(world.model)
     rng = np.random.default_rng([config.seed, 2])  # the sonar's own stream: speckle, noise
-    rate = bus.loop("sonar", 1.0 / (sim.sonar_rate_hz * sim.realtime_factor))
+    rate = bus.loop("sonar", 1.0 / sim.sonar_rate_hz)
     while rate.sleep():
         with lock:
             mujoco.mj_copyData(snapshot, world.model, world.data)

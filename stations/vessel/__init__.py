@@ -10,7 +10,6 @@ their I/O shell."""
 from __future__ import annotations
 
 import logging
-import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -79,7 +78,7 @@ def _relay_loop(config: Config, bus: Bus, objects: list[RecognisedObjects | None
     acks = bus.subscribe("onboard", "ack")
     shore_beats = bus.subscribe("onshore", "heartbeat", maxlen=4)
     rate = bus.loop("relay", POLL_PERIOD_S)
-    relay = Relay(config.vessel, time.monotonic())
+    relay = Relay(config.vessel, bus.clock.now_s())
     while True:
         latest = telemetry.latest()
         onboard_state = latest.message if latest and isinstance(latest.message, Telemetry) else None
@@ -87,7 +86,7 @@ def _relay_loop(config: Config, bus: Bus, objects: list[RecognisedObjects | None
             commands=[(topic, r.message) for topic, inbox in operator.items() for r in inbox.drain()],
             acks=messages_of(acks.drain(), CommandAck), shore_heard=bool(shore_beats.drain()),
             telemetry=(latest.seq, onboard_state) if latest and onboard_state else None, objects=objects[0])
-        for topic, message in relay.step(inputs, time.monotonic()):
+        for topic, message in relay.step(inputs, bus.clock.now_s()):
             bus.publish(topic, message)
         if not rate.sleep():
             break
@@ -106,8 +105,8 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)
     pings = bus.subscribe("onboard", "sonar", maxlen=4)
     tracker = PanelTracker(bias_m_world=cfg.recognition_bias_m)
-    perception = Perception(cfg, time.monotonic())
-    rate = Rate(POLL_PERIOD_S, bus.stop)
+    perception = Perception(cfg, bus.clock.now_s())
+    rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene")  # with simulated time, an insertion holds it
     last_recognition_s = last_status_s = -float("inf")
     points: np.ndarray | None = None
     while rate.sleep():
@@ -115,7 +114,7 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             assert isinstance(received.message, PointCloud)
             cloud = received.message
             cloud_points, colors = unpack_cloud(cloud)
-            perception.received(cloud.source, len(cloud_points), time.monotonic())
+            perception.received(cloud.source, len(cloud_points), bus.clock.now_s())
             if insert:
                 model.insert(cloud_points, colors, cloud.sensor_m_world)
             sim_time_s[0] = cloud.sim_time_s
@@ -129,13 +128,13 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             except ValueError as exc:
                 bus.reject(received.key, str(exc))
                 continue
-            perception.received("sonar", len(echoes), time.monotonic())
-            if insert and perception.sonar_feeds(time.monotonic()) and len(echoes):
+            perception.received("sonar", len(echoes), bus.clock.now_s())
+            if insert and perception.sonar_feeds(bus.clock.now_s()) and len(echoes):
                 model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin)
                 sim_time_s[0] = max(sim_time_s[0], received.message.sim_time_s)
         if insert:
-            model.track()  # what the last clouds changed, once its period has passed
-        now_s = time.monotonic()
+            model.track(bus.clock.now_s())  # what the last clouds changed, once its period has passed
+        now_s = bus.clock.now_s()
         if now_s - last_status_s >= cfg.perception_period_s:
             last_status_s = now_s
             bus.publish("perception", perception.status(now_s, recognised[0], sim_time_s[0]))
@@ -166,11 +165,11 @@ def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_t
     requests = bus.subscribe("onshore", "scene_request")
     acks = bus.subscribe("onshore", "scene_ack", maxlen=256)
     stream = SceneStream(config.vessel, model)
-    rate = Rate(POLL_PERIOD_S, bus.stop)
+    rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock)
     while rate.sleep():
         image = images.latest()
         frame = image.message if image and isinstance(image.message, Image) else None
-        out = stream.step(time.monotonic(), sim_time_s[0], messages_of(acks.drain(), SceneAck),
+        out = stream.step(bus.clock.now_s(), sim_time_s[0], messages_of(acks.drain(), SceneAck),
                           bool(requests.drain()), frame, sonar[0])
         for topic, reason in out.rejected:
             bus.reject(keys.spec("onboard", topic).key(bus.system), reason)

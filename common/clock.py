@@ -1,0 +1,254 @@
+"""One time source per system (DESIGN.md, Time).
+
+`real`: every station keeps time by its own monotonic clock and stamps with the wall clock, as
+stations on separate hosts do. `sim`: the simulation is the clock. It publishes its time after
+each control period on `abyss/<system>/clock` (a `SimTime`, outside the links), every other
+station's `SimClock` follows it, and every rate, timeout, heartbeat, failsafe timer and emulated
+link delay runs on it. A station's periodic loops say how far in simulated time they are done
+(`SimClock.done`: a loop waiting for its next tick needs nothing before it); the shell
+publishes the slowest on `abyss/<system>/<station>/progress`, and
+the simulation steps past t only once every station is done with t minus `time.max_lag_s`
+(`Holdback`): a station that needs more CPU than the speed leaves it slows the whole system
+down instead of falling behind it, so a run at speed 4 sees what one at speed 1 sees.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable, Iterable
+
+import zenoh
+
+from abyss.common import keys
+from abyss.common.errors import BadMessage
+from abyss.common.messages import SimTime, decode, encode
+
+log = logging.getLogger(__name__)
+POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this often [wall s]
+SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
+
+
+class Clock:
+    """The wall clock: `time.monotonic()` for periods and timeouts, `time.time()` for stamps."""
+
+    mode = "real"
+
+    def now_s(self) -> float:
+        """Seconds on this clock, for periods, ages and timeouts (no fixed origin)."""
+        return time.monotonic()
+
+    def stamp_s(self) -> float:
+        """A message's stamp: when it was sent, comparable across the system's stations."""
+        return time.time()
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        """Wait `timeout_s` of this clock's seconds, or until `event` is set: whether it is."""
+        return event.wait(max(0.0, timeout_s))
+
+    def wall_timeout_s(self, timeout_s: float) -> float:
+        """How long to block on the wall clock (a `Condition.wait`) before looking at this clock
+        again, to wait `timeout_s` of its seconds."""
+        return max(0.0, timeout_s)
+
+    def done(self, loop: str, t_s: float) -> None:
+        """`loop` has nothing to do before `t_s` (with `sim`, the simulation waits for it)."""
+
+
+WALL = Clock()
+
+
+class SimClock(Clock):
+    """The simulation's time, from its ticks, extrapolated between two ticks at the speed seen so
+    far but never past `horizon_s` after the latest (one control period: never past the next
+    tick), so that it never runs ahead of the simulation nor goes back. Before the first tick it
+    stands at 0: the stations' loops wait for the simulation to start."""
+
+    mode = "sim"
+
+    def __init__(self, horizon_s: float, speed: float = 1.0) -> None:
+        self.horizon_s = horizon_s
+        self.speed = speed if math.isfinite(speed) else 1.0  # simulated seconds per wall second, as seen
+        self._fixed_speed = math.isfinite(speed)
+        self._tick_s = 0.0
+        self._tick_wall_s: float | None = None
+        self._latest_s = 0.0
+        self._lock = threading.Lock()
+        self._loops: dict[str, float] = {}  # done up to, per loop [sim s]
+        self.on_progress: Callable[[float], None] | None = None  # the slowest loop moved on
+
+    def tick(self, sim_time_s: float) -> None:
+        wall_s = time.monotonic()
+        with self._lock:
+            if sim_time_s <= self._tick_s and self._tick_wall_s is not None:
+                return  # late or repeated
+            if not self._fixed_speed and self._tick_wall_s is not None and wall_s > self._tick_wall_s:
+                seen = (sim_time_s - self._tick_s) / (wall_s - self._tick_wall_s)
+                self.speed += SPEED_SMOOTHING * (seen - self.speed)
+            self._tick_s, self._tick_wall_s = sim_time_s, wall_s
+
+    def now_s(self) -> float:
+        with self._lock:
+            if self._tick_wall_s is not None:
+                ahead_s = min((time.monotonic() - self._tick_wall_s) * self.speed, self.horizon_s)
+                self._latest_s = max(self._latest_s, self._tick_s + ahead_s)
+            return self._latest_s
+
+    def stamp_s(self) -> float:
+        return self.now_s()
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        deadline_s = self.now_s() + timeout_s
+        while (remaining_s := deadline_s - self.now_s()) > 0:
+            if event.wait(self.wall_timeout_s(remaining_s)):
+                return True
+        return event.is_set()
+
+    def wall_timeout_s(self, timeout_s: float) -> float:
+        return min(max(0.0, timeout_s) / max(self.speed, 1e-3), POLL_WALL_S)
+
+    def progress_s(self) -> float:
+        """How far every loop on this clock is done (the slowest's next tick)."""
+        with self._lock:
+            return min(self._loops.values(), default=math.inf)
+
+    def done(self, loop: str, t_s: float) -> None:
+        with self._lock:
+            before = min(self._loops.values(), default=-math.inf)
+            self._loops[loop] = t_s
+            after = min(self._loops.values())
+        if after > before and self.on_progress is not None:
+            self.on_progress(after)
+
+
+def follow(session: zenoh.Session, system: str, clock: SimClock) -> zenoh.Subscriber:
+    """Tick `clock` with the simulation's time (a malformed tick is dropped and logged once)."""
+    key = keys.clock_key(system)
+    logged: list[str] = []
+
+    def on_tick(sample: zenoh.Sample) -> None:
+        try:
+            message = decode(key, sample.payload.to_bytes(), "SimTime").message
+        except BadMessage as exc:
+            if not logged:
+                logged.append(exc.reason)
+                log.warning("dropped a clock tick: %s", exc.reason)
+            return
+        assert isinstance(message, SimTime)
+        clock.tick(message.sim_time_s)
+
+    return session.declare_subscriber(key, on_tick)
+
+
+class ProgressReport:
+    """Publishes how far a station's loops are done each time the slowest moves on, and again
+    every `REPEAT_WALL_S` (a simulation that starts later hears it; a silent station is dead)."""
+
+    REPEAT_WALL_S = 0.5
+
+    def __init__(self, session: zenoh.Session, system: str, station: str, clock: SimClock) -> None:
+        self._publisher = session.declare_publisher(keys.progress_key(system, station),
+                                                    congestion_control=zenoh.CongestionControl.BLOCK,
+                                                    express=True)
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._latest_s = 0.0
+        self._stop = threading.Event()
+        clock.on_progress = self.publish
+        self._thread = threading.Thread(target=self._repeat, name="progress", daemon=True)
+        self._thread.start()
+
+    def publish(self, t_s: float) -> None:
+        with self._lock:
+            self._latest_s = max(0.0, t_s)
+            self._publisher.put(encode(SimTime(sim_time_s=self._latest_s), self._seq, time.time()))
+            self._seq += 1
+
+    def _repeat(self) -> None:
+        while not self._stop.wait(self.REPEAT_WALL_S):
+            self.publish(self._latest_s)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self._publisher.undeclare()
+
+
+class Holdback:
+    """What the simulation waits for before it steps past t: every station of `stations` done with
+    t - `max_lag_s` (each reports on its progress key). A station not heard from yet is waited for
+    up to `start_wall_s` (it is starting); one silent for `silent_wall_s` after that is let go, with
+    a warning, so that a dead station stalls nothing. `held_wall_s`: the wall time the simulation
+    waited on each, the station that limited the speed."""
+
+    def __init__(self, session: zenoh.Session, system: str, stations: Iterable[str], max_lag_s: float,
+                 start_wall_s: float = 60.0, silent_wall_s: float = 5.0) -> None:
+        self.max_lag_s = max_lag_s
+        self.start_wall_s, self.silent_wall_s = start_wall_s, silent_wall_s
+        self.stations = set(stations)
+        self.progress_s: dict[str, float] = {}
+        self.heard_wall_s: dict[str, float] = {}
+        self.held_wall_s: dict[str, float] = dict.fromkeys(["simulation", *sorted(self.stations)], 0.0)
+        self.let_go: set[str] = set()
+        self.rejected = 0
+        self._started_wall_s = time.monotonic()
+        self._cond = threading.Condition()
+        self._subscriber = session.declare_subscriber(keys.progress_key(system, "*"), self._on_progress)
+
+    def _on_progress(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        station = key.split("/")[2]
+        try:
+            message = decode(key, sample.payload.to_bytes(), "SimTime").message
+        except BadMessage as exc:
+            with self._cond:
+                self.rejected += 1
+            log.warning("dropped a progress report on %s: %s", key, exc.reason)
+            return
+        assert isinstance(message, SimTime)
+        with self._cond:
+            if station not in self.stations:
+                return
+            self.progress_s[station] = max(self.progress_s.get(station, -math.inf), message.sim_time_s)
+            self.heard_wall_s[station] = time.monotonic()
+            if station in self.let_go:
+                self.let_go.discard(station)
+                log.info("%s reports its progress again; the simulation waits for it again", station)
+            self._cond.notify_all()
+
+    def _laggard(self, t_s: float, now_wall_s: float, own: SimClock) -> str | None:
+        """The station furthest behind t - max_lag_s (the simulation: its own cameras and sonar),
+        letting go of the silent ones."""
+        if own.progress_s() < t_s - self.max_lag_s:
+            return "simulation"
+        behind = [s for s in self.stations - self.let_go
+                  if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s]
+        for station in behind:
+            heard_s = self.heard_wall_s.get(station)
+            silent_s = now_wall_s - (heard_s if heard_s is not None else self._started_wall_s)
+            if silent_s > (self.silent_wall_s if heard_s is not None else self.start_wall_s):
+                self.let_go.add(station)
+                log.warning("%s silent for %.1f s: the simulation no longer waits for it", station, silent_s)
+        behind = [s for s in behind if s not in self.let_go]
+        return min(behind, key=lambda s: self.progress_s.get(s, -math.inf)) if behind else None
+
+    def hold(self, t_s: float, stop: threading.Event, own: SimClock) -> None:
+        """Block until every station, and every loop of the simulation's `own` clock, is done with
+        `t_s` - max_lag_s (or `stop`)."""
+        with self._cond:
+            while not stop.is_set():
+                now_wall_s = time.monotonic()
+                laggard = self._laggard(t_s, now_wall_s, own)
+                if laggard is None:
+                    return
+                self._cond.wait(POLL_WALL_S)
+                self.held_wall_s[laggard] += time.monotonic() - now_wall_s
+
+    def status(self) -> dict[str, float]:
+        with self._cond:
+            return {s: round(held, 3) for s, held in self.held_wall_s.items()}
+
+    def close(self) -> None:
+        self._subscriber.undeclare()

@@ -6,7 +6,7 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from abyss.cli.args import (
     config_args,
@@ -14,8 +14,12 @@ from abyss.cli.args import (
     load_config,
 )
 from abyss.common import keys
+from abyss.common.config import TIME_MODES
 from abyss.common.errors import ConfigError
 from abyss.linkemu.profile import profile
+
+if TYPE_CHECKING:
+    from abyss.validation.scenario.spec import Scenario
 
 
 def cmd_scenario_run(args: argparse.Namespace) -> int:
@@ -25,8 +29,11 @@ def cmd_scenario_run(args: argparse.Namespace) -> int:
     from abyss.validation.scenario.spec import load_scenario
 
     scenarios = [load_scenario(path) for path in args.files]  # every file checked before anything runs
+    if args.time is not None or args.time_speed is not None:
+        scenarios = [on_time(s, args.time or "sim", args.time_speed) for s in scenarios]
+    speeds = {s.time.speed_factor if s.time.simulated else 1.0 for s in scenarios}
     if args.parallel == "auto":
-        parallel, why = capacity.auto_parallel(len(scenarios))
+        parallel, why = capacity.auto_parallel(len(scenarios), max(speeds))
         print(f"abyss: {why}", flush=True)
     elif args.parallel.isdigit() and int(args.parallel) >= 1:
         parallel = int(args.parallel)
@@ -43,6 +50,14 @@ def cmd_scenario_run(args: argparse.Namespace) -> int:
         f"{markdown(results, report_dir)}" + (f", JUnit {args.junit}" if args.junit else "")
     )
     return 0 if all(r.passed for r in results) else 1
+
+
+def on_time(scenario: Scenario, mode: str, speed: str | None) -> Scenario:
+    """The scenario on the time source asked for, or said why not."""
+    timed, why = scenario.on_time(mode, speed)
+    if why:
+        print(f"abyss: {scenario.name} {why}", flush=True)
+    return timed
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -97,6 +112,12 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--parallel", default="1", metavar="N|auto",
                    help="systems at once (default 1); auto: as many as this machine runs in real time, from "
                         "what a system measured here costs (it says how many and why)")
+    p.add_argument("--time", choices=TIME_MODES,
+                   help="every scenario's time source (default: each one's own, real unless it says): "
+                        "sim runs faster than real time where the CPU allows (a scenario with an external "
+                        "station stays real, and says so)")
+    p.add_argument("--speed", dest="time_speed", metavar="X|max",
+                   help="with --time sim: simulated seconds per wall second, or max")
     p.add_argument("--junit", type=Path, metavar="PATH", help="write JUnit XML here")
     p.add_argument(
         "--report",

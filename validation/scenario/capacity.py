@@ -65,9 +65,10 @@ def measured_cores() -> tuple[float, str]:
 
 
 def record(summaries: Iterable[dict[str, Any]]) -> None:
-    """Keep the cost of each system that ran (its stations' cores summed)."""
+    """Keep the cost of each system that ran (its stations' cores summed), per simulated second
+    (a system at speed X takes X times its real-time cores)."""
     new = [sum(s["cpu"]["cores"] for s in summary.get("stations", {}).values() if s.get("cpu"))
-           for summary in summaries]
+           / max(summary.get("time", {}).get("achieved_speed", 1.0), 1e-3) for summary in summaries]
     new = [c for c in new if c > 0]
     if not new:
         return
@@ -80,10 +81,13 @@ def record(summaries: Iterable[dict[str, Any]]) -> None:
     path.write_text(json.dumps({"cores": [*old, *new][-KEPT:]}))
 
 
-def auto_parallel(scenarios: int) -> tuple[int, str]:
-    """How many systems at once, and the sentence that says why."""
+def auto_parallel(scenarios: int, speed: float = 1.0) -> tuple[int, str]:
+    """How many systems at once at `speed` (simulated seconds per wall second; inf: as fast as
+    each can, a core each), and the sentence that says why."""
     cores = available_cores()
     per_system, source = measured_cores()
-    count = max(1, min(scenarios, math.floor(HEADROOM * cores / per_system)))
-    return count, (f"--parallel auto: {count} systems at once ({cores:g} cores here, {HEADROOM:.0%} of them "
-                   f"for the systems; a system takes {per_system:.2f} cores, {source})")
+    per_system_at_speed = per_system * speed if math.isfinite(speed) else 1.0
+    count = max(1, min(scenarios, math.floor(HEADROOM * cores / per_system_at_speed)))
+    at = "" if speed == 1.0 else f" at speed {speed:g}" if math.isfinite(speed) else " at speed max"
+    return count, (f"--parallel auto: {count} systems at once{at} ({cores:g} cores here, {HEADROOM:.0%} of "
+                   f"them for the systems; a system takes {per_system_at_speed:.2f} cores{at}, {source})")

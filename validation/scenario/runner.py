@@ -24,6 +24,8 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import message_of, open_session, zenoh_config
+from abyss.common.clock import SimClock
+from abyss.common.clock import follow as clock_follow
 from abyss.common.errors import AbyssError
 from abyss.common.messages import LinkControl, SimulationControl, Telemetry, encode
 from abyss.launch.state import RunState, wait_for_state
@@ -31,6 +33,7 @@ from abyss.validation.scenario.checks import Run, Verdict, judge, phase_began_s
 from abyss.validation.scenario.spec import Event, Scenario
 
 START_TIMEOUT_S = 60.0
+SIM_CLOCK_HORIZON_S = 0.05  # the simulation's control period: its ticks' spacing
 EXTERNAL_TIMEOUT_S = 180.0
 SHOWN = ("waiting for external station", "died with exit code", "restarted")  # abyss up's lines passed on
 
@@ -159,12 +162,17 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
     run = Run({})
     lock = threading.Lock()
     t_up = [0.0]
+    timing = scenario.time  # events and onboard's states are timed on the system's clock
+    clock = SimClock(SIM_CLOCK_HORIZON_S, timing.speed_factor) if timing.simulated else None
+
+    def now_s() -> float:
+        return clock.now_s() if clock is not None else time.monotonic()
 
     def on_state(sample: zenoh.Sample) -> None:
         state = message_of(sample, "Telemetry")
         if isinstance(state, Telemetry):
             with lock:
-                run.states.append((time.monotonic() - t_up[0], state))
+                run.states.append((now_s() - t_up[0], state))
 
     error = ""
     try:
@@ -174,23 +182,24 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
             error = "the system did not come up:\n" + "\n".join(up.lines[-20:])
             up.kill()
         else:
-            t_up[0] = time.monotonic()
             say(f"up in {time.monotonic() - t0:.1f} s")
             session = open_session(zenoh_config(connect=[state.endpoint], mode="client"), "abyss scenario")
+            ticks = clock_follow(session, system_id, clock) if clock is not None else None
+            t_up[0] = now_s()
             subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), on_state)
             try:
                 for event in scenario.events:
                     while up.process.poll() is None:
                         with lock:
                             origin_s = phase_began_s(run.states, event.phase)
-                        if origin_s is not None and time.monotonic() - t_up[0] >= origin_s + event.at_s:
+                        if origin_s is not None and now_s() - t_up[0] >= origin_s + event.at_s:
                             break
                         time.sleep(0.05)
                     if up.process.poll() is not None:
                         say(f"{event.when()}: not reached, {event.describe()} not done")
                         break
-                    now_s = time.monotonic() - t_up[0]
-                    say(f"{event.when()} (t={now_s:.1f} s): {apply(event, session, system_id, up)}")
+                    at_s = now_s() - t_up[0]
+                    say(f"{event.when()} (t={at_s:.1f} s): {apply(event, session, system_id, up)}")
                     run.killed += event.action == "kill"
                 up.process.wait(timeout=scenario.duration_s + 90.0)
             except subprocess.TimeoutExpired:
@@ -198,6 +207,8 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
                 up.kill()
             finally:
                 subscriber.undeclare()
+                if ticks is not None:
+                    ticks.undeclare()
                 session.close()
     finally:
         up.process.wait()

@@ -5,13 +5,14 @@ field and what is allowed."""
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from abyss.common import keys
-from abyss.common.config import load
+from abyss.common.config import TimeConfig, load
 from abyss.common.errors import ConfigError
 from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES
 from abyss.common.models import panel
@@ -87,6 +88,22 @@ class Scenario:
     events: tuple[Event, ...]
     assertions: tuple[Assertion, ...]
     expect_failed: tuple[str, ...] = field(default=())  # assertion kinds that must fail
+
+    @property
+    def time(self) -> TimeConfig:
+        """The run's time source, from its configuration (`time.mode`, `time.speed`)."""
+        return load(None, list(self.config)).time
+
+    def on_time(self, mode: str, speed: str | None) -> tuple[Scenario, str]:
+        """This scenario on the time source `abyss scenario run --time` asks for, and why not where
+        it cannot follow it (an external station, a real component, runs on the wall clock)."""
+        if mode == "sim" and self.external:
+            return self, f"runs in real time: external {', '.join(self.external)} keeps the wall clock"
+        items = [f"time.mode={mode}", *([f"time.speed={speed}"] if speed is not None else [])]
+        if mode == "real":
+            items.append("time.speed=1")
+        kept = tuple(c for c in self.config if not c.startswith(("time.mode=", "time.speed=")))
+        return dataclasses.replace(self, config=(*kept, *items)), ""
 
 
 def _take(table: dict[str, Any], name: str, kind: type, where: str, default: Any = None) -> Any:

@@ -1,0 +1,186 @@
+"""Simulated time (common.clock): the clock the stations follow, the loops on it, the emulated
+links on it, and what the simulation waits for. Real threads and real Zenoh sessions; a thread
+stands for the simulation and ticks the clock."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from abyss.common.bus import open_session, zenoh_config
+from abyss.common.clock import Holdback, ProgressReport, SimClock
+from abyss.common.config import ConfigError, load
+from abyss.common.rate import Rate
+from abyss.linkemu.profile import profile
+from abyss.linkemu.runner import LinkRunner
+from abyss.stations.runtime import free_port
+
+PERIOD_S = 0.05  # the simulation's control period: its ticks' spacing
+
+
+class Ticker:
+    """The simulation's part: ticks `clock` every PERIOD_S simulated seconds at `speed`."""
+
+    def __init__(self, clock: SimClock, speed: float) -> None:
+        self.clock, self.speed = clock, speed
+        self.stop = threading.Event()
+        self.sim_s = 0.0
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.wait(PERIOD_S / self.speed):
+            self.sim_s += PERIOD_S
+            self.clock.tick(self.sim_s)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+
+
+@pytest.fixture
+def ticking() -> Iterator[tuple[SimClock, Ticker]]:
+    clock = SimClock(PERIOD_S, speed=4.0)
+    ticker = Ticker(clock, 4.0)
+    yield clock, ticker
+    ticker.close()
+
+
+def test_the_clock_stands_until_the_first_tick_then_never_runs_past_the_next() -> None:
+    clock = SimClock(PERIOD_S, speed=4.0)
+    assert clock.now_s() == 0.0
+    time.sleep(0.05)
+    assert clock.now_s() == 0.0  # no simulation yet: the stations' loops wait
+    clock.tick(1.0)
+    time.sleep(0.1)  # at speed 4, 0.4 s would have passed; the horizon is one period
+    assert clock.now_s() == pytest.approx(1.0 + PERIOD_S)
+    clock.tick(0.5)  # a late tick never takes the clock back
+    assert clock.now_s() >= 1.0 + PERIOD_S
+    clock.tick(1.05)
+    assert 1.05 <= clock.now_s() <= 1.1
+
+
+def test_a_wait_on_simulated_time_lasts_its_share_of_wall_time(ticking: tuple[SimClock, Ticker]) -> None:
+    clock, _ = ticking
+    stop = threading.Event()
+    start_s, wall0 = clock.now_s(), time.monotonic()
+    assert not clock.wait(stop, 1.0)
+    waited_wall_s = time.monotonic() - wall0
+    assert clock.now_s() - start_s >= 1.0
+    assert 0.2 <= waited_wall_s < 0.6  # 1 simulated s at speed 4, give or take a tick
+    threading.Timer(0.05, stop.set).start()
+    wall0 = time.monotonic()
+    assert clock.wait(stop, 100.0)  # a set event ends the wait at once
+    assert time.monotonic() - wall0 < 1.0
+
+
+def test_a_named_loop_on_simulated_time_keeps_its_period_and_says_how_far_it_is(
+        ticking: tuple[SimClock, Ticker]) -> None:
+    clock, _ = ticking
+    stop = threading.Event()
+    reported: list[float] = []
+    clock.on_progress = reported.append
+    rate = Rate(0.1, stop, clock, "control")
+    ticks_at_s = []
+    wall0 = time.monotonic()
+    for _ in range(10):
+        assert rate.sleep()
+        ticks_at_s.append(clock.now_s())
+    wall_s = time.monotonic() - wall0
+    assert np.diff(ticks_at_s) == pytest.approx([0.1] * 9, abs=0.03)  # simulated seconds
+    assert wall_s < 0.6  # 1 simulated s at speed 4
+    assert clock.progress_s() == pytest.approx(reported[-1])
+    # each time it waits, the tick it waits for: the last one, the tick it then woke at
+    assert reported == sorted(reported) and reported[-1] == pytest.approx(1.0)
+    assert reported[-1] <= ticks_at_s[-1] < reported[-1] + 0.1
+
+
+def test_an_emulated_link_on_simulated_time_delays_by_its_profile_in_simulated_time(
+        ticking: tuple[SimClock, Ticker]) -> None:
+    """The tether (100 ms +- 10 ms) at speed 4: the delays, measured in simulated time, are the
+    profile's; on the wall clock they last a quarter of that."""
+    clock, _ = ticking
+    delivered: list[tuple[float, float]] = []  # (sent, delivered) on the wall clock
+    sent_wall_s: dict[int, float] = {}
+    tether = profile("tether")
+    runner = LinkRunner("tether", tether, lambda tag, _payload: delivered.append(
+        (sent_wall_s[tag], time.monotonic())), np.random.default_rng(1), clock=clock)
+    try:
+        for i in range(40):
+            sent_wall_s[i] = time.monotonic()
+            assert runner.send(b"x" * 100, block=False, tag=i)
+            time.sleep(0.01)
+        deadline = time.monotonic() + 5.0
+        while len(delivered) < 40 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        stats = runner.snapshot()
+    finally:
+        runner.close()
+    assert len(delivered) == 40
+    assert 85 <= stats["delay_p50_ms"] <= 125, stats  # simulated time, the link's own
+    wall_ms = np.median([(d - s) * 1e3 for s, d in delivered])
+    assert 15 <= wall_ms <= 60, wall_ms  # about 100 ms / 4
+
+
+@pytest.fixture
+def sessions() -> Iterator[tuple[object, object]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    simulation = open_session(zenoh_config([endpoint], mode="router"), "simulation")
+    station = open_session(zenoh_config([], [endpoint], mode="peer"), "station")
+    yield simulation, station
+    station.close()
+    simulation.close()
+
+
+def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(sessions) -> None:  # type: ignore[no-untyped-def]
+    simulation, station = sessions
+    own = SimClock(PERIOD_S)  # the simulation's own loops (none here)
+    holdback = Holdback(simulation, "sys", ["onboard", "vessel"], max_lag_s=0.1, start_wall_s=0.5,
+                        silent_wall_s=0.5)
+    onboard_clock = SimClock(PERIOD_S)
+    report = ProgressReport(station, "sys", "onboard", onboard_clock)
+    stop = threading.Event()
+    try:
+        onboard_clock.done("control", 1.0)
+        wall0 = time.monotonic()
+        holdback.hold(1.0, stop, own)  # onboard is at 1.0; vessel never speaks: let go after 0.5 s
+        assert 0.4 <= time.monotonic() - wall0 < 3.0
+        assert holdback.let_go == {"vessel"}
+        released = threading.Event()
+
+        def hold_then_say() -> None:
+            holdback.hold(2.0, stop, own)  # onboard is behind 2.0 - 0.1
+            released.set()
+
+        threading.Thread(target=hold_then_say, daemon=True).start()
+        assert not released.wait(0.3)
+        onboard_clock.done("control", 1.95)
+        assert released.wait(2.0)
+        assert holdback.status()["onboard"] >= 0.25  # the wall time it held the simulation
+    finally:
+        stop.set()
+        report.close()
+        holdback.close()
+
+
+@pytest.mark.parametrize(("items", "field", "reason"), [
+    (["time.mode=fast"], "time.mode", "not one of real, sim"),
+    (["time.mode=sim", "time.speed=0"], "time.speed", "a number from 0.01 to 1000, or max"),
+    (["time.mode=sim", "time.speed=quick"], "time.speed", "or max"),
+    (["time.speed=4"], "time.speed", "only with time.mode sim"),
+    (["time.mode=sim", "time.stations=[\"simulation\"]"], "time.stations", "not one of"),
+    (["time.mode=sim", "ros2.station=onboard"], "time.mode", "runs on the wall clock"),
+])
+def test_a_bad_time_source_fails_at_start_naming_the_field(items: list[str], field: str, reason: str) -> None:
+    with pytest.raises(ConfigError) as caught:
+        load(None, items)
+    assert caught.value.field == field and reason in caught.value.reason
+
+
+def test_speed_max_is_infinite_and_real_time_is_one() -> None:
+    assert load(None, ["time.mode=sim", "time.speed=max"]).time.speed_factor == float("inf")
+    assert load(None, []).time.speed_factor == 1.0

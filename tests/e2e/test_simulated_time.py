@@ -1,0 +1,77 @@
+"""Whole systems on simulated time (`--time sim`): the simulation's clock drives every station
+and every emulated link, the summary says how fast it went and what held it back, a failsafe
+scenario keeps its bounds in simulated time, and what cannot follow simulated time is refused
+at start."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, Up, abyss
+
+from abyss.common import keys
+
+pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+
+
+def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:
+    up = Up(tmp_path / "run", "--time", "sim", "--speed", "4", "--keep-running", "--duration", "20",
+            "--system", "e2e-sim", "--viewer", "none", "--record", "none")
+    assert up.wait(180) == 0, up.output()
+    summary = up.summary()
+    timing = summary["time"]
+    assert timing["mode"] == "sim" and timing["speed"] == "4"
+    assert timing["sim_s"] >= 20.0 and timing["wall_s"] > 0  # the duration is simulated seconds
+    assert timing["achieved_speed"] == pytest.approx(timing["sim_s"] / timing["wall_s"], rel=1e-2)
+    assert set(timing["held_s"]) == {"simulation", "onboard", "vessel", "onshore"}
+    assert timing["limited_by"] in {"speed asked", *timing["held_s"]}
+    assert "simulated" in up.output() or "(x" in up.output()  # the progress lines give the speed
+    for name, station in summary["stations"].items():
+        assert station["exit_code"] == 0 and station["alive_seen"], name
+    # the links delay by their profiles in simulated time, as the receiver's stamps show too
+    tether = summary["links"]["tether"]["onboard->vessel"]
+    assert 90 < tether["delay_p50_ms"] < 130, tether  # the tether's 100 ms +/- 10 ms
+    telemetry = keys.spec("onboard", "telemetry").key("e2e-sim")
+    assert 90 < summary["stations"]["vessel"]["latency_ms"][telemetry]["latency_p50_ms"] < 140
+    satellite = summary["links"]["satellite"]["vessel->onshore"]
+    assert 100 < satellite["delay_p50_ms"] < 400, satellite  # 150 ms +/- 75 ms, queued behind the scene
+    # the mission was flown as in real time: 20 simulated seconds reach the second waypoint
+    assert summary["mission"]["waypoint_index"] >= 1, summary["mission"]
+    control = summary["stations"]["onboard"]["loops"]["control"]
+    assert control["ticks"] >= 0.9 * 20 / control["period_s"], control  # its rate in simulated time
+    assert summary["simulation"]["sim_time_s"] >= 19.0
+
+
+@pytest.mark.timeout(300)
+def test_the_tether_outage_failsafe_keeps_its_bounds_at_speed_4(tmp_path: Path) -> None:
+    done = abyss("scenario", "run", str(ROOT / "scenarios" / "tether-outage.toml"), "--time", "sim",
+                 "--speed", "4", "--report", str(tmp_path / "rep"), timeout_s=280)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr
+    assert "ok   failsafe phase=turn from_s=1.0 to_s=7.0" in done.stdout
+    summary = json.loads(next((tmp_path / "rep" / "runs").glob("*/summary.json")).read_text())
+    assert summary["time"]["mode"] == "sim" and summary["verdict"] == "done"
+    assert summary["mission_done_s"] <= 145  # simulated seconds, the scenario's bound
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (("up", "--time", "sim", "--external", "onboard"), "--external: a real component or a replay runs on "
+                                                       "the wall clock"),
+    (("up", "--speed", "4"), "time.speed: 4: only with time.mode sim"),
+    (("up", "--time", "sim", "--speed", "fast"), "time.speed: 'fast': a number from 0.01 to 1000, or max"),
+    (("up", "--time", "sim", "--speed", "max", "--cpu", "onboard=0.3"), "--cpu: a CPU cap is a share of "
+                                                                        "wall time"),
+    (("up", "--time", "sim", "--ros2", "onboard"), "time.mode: sim: a ROS 2 node"),
+])
+def test_what_cannot_follow_simulated_time_is_refused_at_start(tmp_path: Path, args: tuple[str, ...],
+                                                               said: str) -> None:
+    done = abyss(*args, "--out", str(tmp_path / "run"), "--port", "0", timeout_s=60)
+    assert done.returncode == 2 and said in done.stderr, done.stdout + done.stderr
+
+
+def test_a_station_on_real_links_refuses_simulated_time(tmp_path: Path) -> None:
+    done = abyss("station", "onboard", "--time", "sim", "--link", "tun", "--listen", "tcp/127.0.0.1:0",
+                 "--status-file", str(tmp_path / "status.json"), timeout_s=60)
+    assert done.returncode != 0
+    assert "link mode tun: shapes real packets on the wall clock" in done.stderr, done.stderr[-3000:]

@@ -1,8 +1,11 @@
 """The scenario library on this machine: its wall time at --parallel 1 and 2 (the ratio is the
 speed-up), and how many whole systems run at once before the simulation's real-time deadlines
 slip (the nominal scenario N times at --parallel N, N = 1, 2, 3, ...: the share of deadlines met
-and whether the missions still end).
-Run: .venv/bin/python bench/scenarios.py [--max-systems N] [--skip-library]. Prints figures."""
+and whether the missions still end). With --times: the library (or --scenarios) on each time
+source, real and simulated at each speed, its wall time as a ratio to real time's, each run's
+achieved speed and what held it back, and whether every verdict is real time's.
+Run: .venv/bin/python bench/scenarios.py [--max-systems N] [--skip-library]
+     [--times real,2,4,max [--parallel N] [--scenarios NAME,...]]. Prints figures."""
 
 from __future__ import annotations
 
@@ -19,19 +22,56 @@ LIBRARY = [p for p in sorted((ROOT / "scenarios").glob("*.toml")) if p.stem != "
 SLIPPED = 0.95  # a simulation that keeps fewer of its deadlines than this has slipped
 
 
-def run(files: list[Path], parallel: int, out: Path) -> tuple[float, str]:
+def run(files: list[Path], parallel: int, out: Path, speed: str = "") -> tuple[float, str]:
+    """The scenarios' wall time and the runner's last line; `speed`: on simulated time at it."""
     t0 = time.monotonic()
     command = [sys.executable, "-m", "abyss.cli", "scenario", "run", *map(str, files)]
     command += ["--parallel", str(parallel), "--report", str(out)]
+    command += ["--time", "sim", "--speed", speed] if speed else []
     done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     return time.monotonic() - t0, done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr
+
+
+def times(files: list[Path], speeds: list[str], parallel: int, tmp: Path) -> None:
+    """The scenarios on each time source: wall time against real time's, speed, verdicts."""
+    walls: dict[str, float] = {}
+    words: dict[str, dict[str, str]] = {}
+    for speed in speeds:
+        sim = "" if speed == "real" else speed
+        out = tmp / f"times-{speed}"
+        print(f"{len(files)} scenarios at --parallel {parallel}, "
+              f"{'real time' if not sim else f'--time sim --speed {sim}'} ...", flush=True)
+        walls[speed], verdict = run(files, parallel, out, sim)
+        summaries = {p.parent.name.split("-", 1)[1]: json.loads(p.read_text())
+                     for p in sorted(out.glob("runs/*/summary.json"))}
+        words[speed] = {name: s["verdict"] for name, s in summaries.items()}
+        timing = [s.get("time", {}) for s in summaries.values()]
+        achieved = [t["achieved_speed"] for t in timing if "achieved_speed" in t]
+        limits = sorted({t["limited_by"] for t in timing if "limited_by" in t})
+        print(f"  {walls[speed]:.0f} s ({walls[speed] / walls.get('real', walls[speed]):.2f}x real time's"
+              f"{'' if 'real' in walls else ', no real-time run to compare'}): {verdict}"
+              + (f"; achieved speed {min(achieved):.2f}-{max(achieved):.2f}, held back by "
+                 f"{', '.join(limits)}" if achieved else ""), flush=True)
+        if "real" in words and speed != "real":
+            real = words["real"]
+            differ = {n: (real.get(n), w) for n, w in words[speed].items() if real.get(n) != w}
+            print(f"  verdicts {'as in real time' if not differ else f'differ from real time: {differ}'}")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--max-systems", type=int, default=4)
     parser.add_argument("--skip-library", action="store_true")
+    parser.add_argument("--times", metavar="real,X,...,max", help="the time sources to compare")
+    parser.add_argument("--parallel", type=int, default=1, help="with --times: systems at once")
+    parser.add_argument("--scenarios", metavar="NAME,...", help="with --times: these, not the library")
     args = parser.parse_args()
+    if args.times:
+        chosen = args.scenarios.split(",") if args.scenarios else None
+        files = [p for p in LIBRARY if chosen is None or p.stem in chosen]
+        with tempfile.TemporaryDirectory() as tmp:
+            times(files, args.times.split(","), args.parallel, Path(tmp))
+        return
     with tempfile.TemporaryDirectory() as tmp:
         if not args.skip_library:
             walls = {}

@@ -179,8 +179,9 @@ class ProgressReport:
 class Holdback:
     """What the simulation waits for before it steps past t: every station of `stations` done with
     t - `max_lag_s` (each reports on its progress key). A station not heard from yet is waited for
-    up to `start_wall_s` (it is starting); one silent for `silent_wall_s` after that is let go, with
-    a warning, so that a dead station stalls nothing. `held_wall_s`: the wall time the simulation
+    up to `start_wall_s` (it is starting); one whose liveliness token goes (its process died) is let
+    go at once, one silent for `silent_wall_s` too, with a warning, so that a dead station stalls
+    nothing; it is waited for again from its next report. `held_wall_s`: the wall time the simulation
     waited on each, the station that limited the speed."""
 
     def __init__(self, session: zenoh.Session, system: str, stations: Iterable[str], max_lag_s: float,
@@ -196,6 +197,17 @@ class Holdback:
         self._started_wall_s = time.monotonic()
         self._cond = threading.Condition()
         self._subscriber = session.declare_subscriber(keys.progress_key(system, "*"), self._on_progress)
+        self._alive = session.liveliness().declare_subscriber(keys.alive_key(system, "*"), self._on_alive)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        station = str(sample.key_expr).split("/")[2]
+        if sample.kind != zenoh.SampleKind.DELETE or station not in self.stations:
+            return
+        with self._cond:
+            self.let_go.add(station)
+            self.progress_s.pop(station, None)  # a restarted station reports afresh
+            self._cond.notify_all()
+        log.warning("%s is gone: the simulation no longer waits for it", station)
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -234,15 +246,21 @@ class Holdback:
         behind = [s for s in behind if s not in self.let_go]
         return min(behind, key=lambda s: self.progress_s.get(s, -math.inf)) if behind else None
 
-    def hold(self, t_s: float, stop: threading.Event, own: SimClock) -> None:
+    def hold(self, t_s: float, stop: threading.Event, own: SimClock,
+             waiting: Callable[[], None] = lambda: None) -> None:
         """Block until every station, and every loop of the simulation's `own` clock, is done with
-        `t_s` - max_lag_s (or `stop`)."""
+        `t_s` - max_lag_s (or `stop`); `waiting` is called every REPEAT_WALL_S meanwhile (the
+        simulation tells its time again, for a station that joins while it waits)."""
+        repeat_s = time.monotonic() + ProgressReport.REPEAT_WALL_S
         with self._cond:
             while not stop.is_set():
                 now_wall_s = time.monotonic()
                 laggard = self._laggard(t_s, now_wall_s, own)
                 if laggard is None:
                     return
+                if now_wall_s >= repeat_s:
+                    waiting()
+                    repeat_s = now_wall_s + ProgressReport.REPEAT_WALL_S
                 self._cond.wait(POLL_WALL_S)
                 self.held_wall_s[laggard] += time.monotonic() - now_wall_s
 
@@ -252,3 +270,4 @@ class Holdback:
 
     def close(self) -> None:
         self._subscriber.undeclare()
+        self._alive.undeclare()

@@ -64,6 +64,16 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     holdback = (Holdback(bus.session, bus.system, config.time.stations, config.time.max_lag_s)
                 if clock is not None else None)
     wall0, sim0 = time.monotonic(), world.data.time
+
+    def tell_time(sim_time_s: float) -> None:
+        """The simulation's time to its own loops (cameras, sonar) and to every station."""
+        assert clock is not None
+        clock.tick(sim_time_s)
+        bus.observe(keys.clock_key(bus.system), SimTime(sim_time_s=sim_time_s))
+
+    if clock is not None:
+        tell_time(world.data.time)  # a resumed simulation starts where it was
+
     saved_s = -float("inf")  # simulated time of the state last kept
     while True:
         for control in controls.drain():
@@ -77,14 +87,13 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         refs = references(v.message if v and isinstance(v.message, VelocityRef) else None,
                           a.message if a and isinstance(a.message, ArmVelocityRef) else None)
         if holdback is not None and clock is not None:
-            holdback.hold(world.data.time, bus.stop, clock)
+            holdback.hold(world.data.time, bus.stop, clock, lambda: tell_time(world.data.time))
         with lock:
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
             panel = world.panel() if rate.ticks % PANEL_EVERY == 0 else None
         if clock is not None:
-            clock.tick(truth.sim_time_s)
-            bus.observe(keys.clock_key(bus.system), SimTime(sim_time_s=truth.sim_time_s))
+            tell_time(truth.sim_time_s)
         bus.publish("nav", world.nav())
         bus.publish("joints", joints)
         bus.observe(keys.truth_key(bus.system), truth)

@@ -15,12 +15,15 @@ precision: the occupied cells that are right over all occupied cells; recall: th
 with an occupied cell within one cell of them over all truth cells. Strict figures (the same
 cell) are printed too.
 
-Run: .venv/bin/python bench/perception.py [frames]. Prints figures; asserts nothing. Also
-stereo_depth's cost alone on one pair (the left-right check matches twice).
+Run: .venv/bin/python bench/perception.py [frames] [variant ...] (VARIANTS: the filters, the pair
+at half resolution, matching on every second frame set; by default unfiltered, filtered, half).
+Prints figures; asserts nothing. Also stereo_depth's cost alone on one pair (the left-right
+check matches twice).
 tests/stations/onboard/test_stereo_filter.py runs `measure` on a short path."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 from collections.abc import Iterator
@@ -79,13 +82,13 @@ class Figures:
     recall: float  # truth cells within one cell of an occupied cell, over the truth
     strict_precision: float  # the same cell
     strict_recall: float
-    stereo_s: float  # [s] the stereo cloud per frame (clouds_of), mean
+    stereo_s: float  # [s] the stereo cloud per matched frame set (clouds_of), mean
 
     def __str__(self) -> str:
         return (f"{self.frames} frames: {self.occupied} occupied cells, {self.truth} truth cells; "
                 f"precision {self.precision:.3f} (strict {self.strict_precision:.3f}), "
                 f"recall {self.recall:.3f} (strict {self.strict_recall:.3f}); "
-                f"stereo cloud {self.stereo_s * 1e3:.0f} ms per frame")
+                f"stereo cloud {self.stereo_s * 1e3:.0f} ms per matched set")
 
 
 def near(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
@@ -96,22 +99,21 @@ def near(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
 
 
 def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, step_m: float | None = None,
-            seed: int = 0) -> Figures:
+            seed: int = 0, scale: int = 1, every: int = 1) -> Figures:
     """The figures over the first `frames` frame sets (all: None) of the mission's path, a frame
-    set every `step_m` (None: onboard's speed limit over the camera period)."""
+    set every `step_m` (None: onboard's speed limit over the camera period), the pair matched
+    `scale` times smaller (onboard.stereo_scale) on every `every`-th set (onboard.stereo_every)."""
     sim, onboard, vessel = SimulationConfig(water=water), OnboardConfig(), VesselConfig()
     step_m = step_m if step_m is not None else onboard.max_speed_mps / sim.camera_rate_hz
     world = World(sim, np.random.default_rng(seed))
     cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow,
                       np.random.default_rng(seed))
-    settings = CloudSettings(onboard.cloud_voxel_m, onboard.cloud_max_range_m, onboard.cloud_scale_m,
-                             onboard.stereo_disparities, onboard.self_filter_radius_m, kept,
-                             onboard.stereo_mode)
+    settings = dataclasses.replace(CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale)
     model = SceneModel(vessel.octree_resolution_m, vessel.octree_max_range_m)
     truth: list[np.ndarray] = []
     stereo_s = 0.0
     p = world.plant.qpos
-    count = 0
+    count = matched = 0
     try:
         for position, yaw_rad in mission_poses(step_m):
             if frames is not None and count >= frames:
@@ -122,10 +124,12 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
             mujoco.mj_forward(world.model, world.data)
             images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in CAMERAS}
             pose = (position, np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]))
-            t0 = time.perf_counter()
-            cloud = clouds_of(images, pose, np.zeros((0, 3)), ("stereo",), settings)[0]
-            stereo_s += time.perf_counter() - t0
-            model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
+            if (count - 1) % every == 0:
+                t0 = time.perf_counter()
+                cloud = clouds_of(images, pose, np.zeros((0, 3)), ("stereo",), settings)[0]
+                stereo_s += time.perf_counter() - t0
+                matched += 1
+                model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
             left = Camera.of(images["cam_left"])
             points, _ = depth_to_points(cameras.depth_m(world.data, "cam_left"), left, settings.max_range_m)
             in_vehicle = points @ left.rotation_in_vehicle.T + left.position_m_vehicle
@@ -141,11 +145,11 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
         float(near(truth_keys, occupied_keys).mean()),
         float(np.isin(occupied_keys, truth_keys).mean()) if len(occupied_keys) else 0.0,
         float(np.isin(truth_keys, occupied_keys).mean()),
-        stereo_s / max(count, 1),
+        stereo_s / max(matched, 1),
     )
 
 
-def stereo_cost_s(kept: StereoFilter, water: str, repeats: int = 10) -> float:
+def stereo_cost_s(kept: StereoFilter, water: str, scale: int = 1, repeats: int = 10) -> float:
     """[s] stereo_depth alone on the start pose's pair, mean of `repeats` after one."""
     sim = SimulationConfig(water=water)
     world = World(sim, np.random.default_rng(0))
@@ -158,21 +162,41 @@ def stereo_cost_s(kept: StereoFilter, water: str, repeats: int = 10) -> float:
     finally:
         cameras.close()
     disparities = OnboardConfig().stereo_disparities
-    stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept)
+    stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept, scale=scale)
     t0 = time.perf_counter()
     for _ in range(repeats):
-        stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept)
+        stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept, scale=scale)
     return (time.perf_counter() - t0) / repeats
 
 
+@dataclass(frozen=True)
+class Variant:
+    kept: StereoFilter
+    scale: int = 1  # onboard.stereo_scale
+    every: int = 1  # onboard.stereo_every
+
+
+VARIANTS = {
+    "unfiltered": Variant(UNFILTERED),
+    "filtered": Variant(StereoFilter()),
+    "half": Variant(StereoFilter(), scale=2),  # the pair matched at half resolution
+    "filtered/2": Variant(StereoFilter(), every=2),  # on every second frame set
+    "half/2": Variant(StereoFilter(), scale=2, every=2),
+}
+
+
 def main() -> None:
-    frames = int(sys.argv[1]) if len(sys.argv) > 1 else None
+    args = sys.argv[1:]
+    frames = int(args.pop(0)) if args and args[0].isdigit() else None
+    names = args or ["unfiltered", "filtered", "half"]
     for water in ("none", "I"):
-        before, after = stereo_cost_s(UNFILTERED, water), stereo_cost_s(StereoFilter(), water)
-        print(f"water {water}: stereo_depth {before * 1e3:.0f} ms per pair unfiltered, {after * 1e3:.0f} ms "
-              f"filtered ({after / before:.2f}x)", flush=True)
-        for name, kept in (("unfiltered", UNFILTERED), ("filtered", StereoFilter())):
-            print(f"water {water}, {name}: {measure(kept, water, frames)}", flush=True)
+        costs = {name: stereo_cost_s(VARIANTS[name].kept, water, VARIANTS[name].scale) for name in names}
+        listed = ", ".join(f"{name} {cost_s * 1e3:.0f} ms" for name, cost_s in costs.items())
+        print(f"water {water}: stereo_depth per pair: {listed}", flush=True)
+        for name in names:
+            v = VARIANTS[name]
+            print(f"water {water}, {name}: {measure(v.kept, water, frames, scale=v.scale, every=v.every)}",
+                  flush=True)
 
 
 if __name__ == "__main__":

@@ -102,15 +102,13 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     """Clouds from each complete set of frames (taken at one instant), placed with the pose
     estimated for that instant; the left frame re-encoded to the vessel at its own rate."""
     from abyss.common.images import decode_image, encode_jpeg
-    from abyss.stations.onboard.perception import CloudSettings, StereoFilter, camera_in_world, clouds_of
+    from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
     cfg = config.onboard
     # below the control loop for the kernel's scheduler too: where the CPU is capped, the quota
     # goes to control first (a thread's nice value; raising it needs no privilege)
     os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), PERCEPTION_NICE)
-    settings = CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,
-                             cfg.stereo_disparities,
-                             cfg.self_filter_radius_m, StereoFilter.of(cfg), cfg.stereo_mode)
+    settings = CloudSettings.of(cfg)
     needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set()) | (
         {"cam_right"} if "stereo" in cfg.cloud_sources else set())
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}

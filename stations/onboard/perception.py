@@ -5,6 +5,7 @@ downsampled and packed for the tether. A pure core: frames and poses in, message
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 from collections import deque
@@ -48,6 +49,17 @@ class Camera:
             rotation_of(image.pose_camera[3:]),
             np.array(image.pose_camera[:3]),
         )
+
+    def scaled(self, scale: int) -> Camera:
+        """This camera's images shrunk `scale` times by area averaging (cv2.INTER_AREA): a pixel
+        is the mean of a `scale` x `scale` block, its centre at the block's."""
+        if scale == 1:
+            return self
+        fx, fy, cx, cy = self.matrix[0, 0], self.matrix[1, 1], self.matrix[0, 2], self.matrix[1, 2]
+        matrix = np.array([[fx / scale, 0.0, (cx + 0.5) / scale - 0.5],
+                           [0.0, fy / scale, (cy + 0.5) / scale - 0.5], [0.0, 0.0, 1.0]])
+        return Camera(matrix, self.width_px // scale, self.height_px // scale, self.rotation_in_vehicle,
+                      self.position_m_vehicle)
 
 
 def depth_to_points(depth_m: np.ndarray, camera: Camera, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -105,13 +117,28 @@ class StereoFilter:
                             cfg.stereo_speckle_range_px, cfg.stereo_lr_max_diff_px, cfg.stereo_min_texture,
                             cfg.stereo_edge_step_px)
 
+    def scaled(self, scale: int) -> StereoFilter:
+        """The same filter for images `scale` times smaller: windows in pixels shrunk by the
+        area, disparities [px] by `scale` (a depth step or mismatch stays the same in metres)."""
+        if scale == 1:
+            return self
+        return dataclasses.replace(
+            self,
+            speckle_window_px=-(-self.speckle_window_px // scale**2),
+            speckle_range_px=max(1, round(self.speckle_range_px / scale)),
+            lr_max_diff_px=self.lr_max_diff_px / scale,
+            edge_step_px=self.edge_step_px / scale,
+        )
 
-def texture_of(grey: np.ndarray, block_px: int) -> np.ndarray:
+
+def texture_of(grey: np.ndarray, block_px: int, smoothing_px: int = 5) -> np.ndarray:
     """The standard deviation of the intensity [grey levels] over the block around each pixel, of
     the image smoothed over 5x5 px first: a sensor's pixel noise (independent from pixel to
     pixel, which the matcher pairs at random) counts for a fifth of its own, the scene's texture
-    for most of its."""
-    image = cv2.GaussianBlur(grey.astype(np.float32), (5, 5), 0)
+    for most of its. An image shrunk by area averaging (shrunk) is smoothed already: 1, none."""
+    image = grey.astype(np.float32)
+    if smoothing_px > 1:
+        image = cv2.GaussianBlur(image, (smoothing_px, smoothing_px), 0)
     size = (block_px, block_px)
     mean = cv2.boxFilter(image, -1, size, borderType=cv2.BORDER_REFLECT)
     mean_of_squares = cv2.boxFilter(image * image, -1, size, borderType=cv2.BORDER_REFLECT)
@@ -127,6 +154,14 @@ def disparity_edges(disparity_px: np.ndarray, valid: np.ndarray, block_px: int, 
     return (highest - lowest > step_px) & (lowest < none)
 
 
+def shrunk(image: np.ndarray, scale: int) -> np.ndarray:
+    """`image` `scale` times smaller, each pixel the mean of its block (cv2.INTER_AREA)."""
+    if scale == 1:
+        return image
+    height_px, width_px = image.shape[:2]
+    return cv2.resize(image, (width_px // scale, height_px // scale), interpolation=cv2.INTER_AREA)
+
+
 def stereo_depth(
     left_rgb: np.ndarray,
     right_rgb: np.ndarray,
@@ -136,14 +171,23 @@ def stereo_depth(
     block_px: int = 9,
     kept: StereoFilter = StereoFilter(),
     mode: str = "hh",
+    scale: int = 1,
 ) -> np.ndarray:
     """Depth [m] along the left camera's axis from a rectified pair by semi-global matching;
-    0 where no disparity was found or `kept` rejects it. `mode` (SGBM_MODES): the full
-    eight-direction pass by default, the most exact (4.3 cm median on the panel's face at 4 m);
-    "3way" takes half its CPU for 5.3 cm, but matches 1.4 % of a textureless pair's pixels. The
+    0 where no disparity was found or `kept` rejects it. `scale`: the pair is matched shrunk
+    this many times (shrunk) and the depth is of that size (Camera.scaled); `focal_px`,
+    `disparities`, `block_px` and `kept` are of the full size (2: a tenth of the time, 13.3 cm
+    on the panel's face at 4 m, the sub-pixel disparity snapped to whole pixels). `mode`
+    (SGBM_MODES): the full eight-direction pass by default, the most exact (4.3 cm median on the
+    panel's face at 4 m); "3way" takes half its CPU for 5.3 cm, but matches 1.4 % of a
+    textureless pair's pixels. The
     five-direction "sgbm" overestimated disparity here by 0.14 px on average. The left-right
     check matches the mirrored pair (the right image, mirrored, as the left) with the same
     matcher, since this OpenCV has no cv2.ximgproc."""
+    focal_px /= scale
+    disparities = 16 * -(-disparities // (16 * scale))  # a multiple of 16, as OpenCV's matcher needs
+    block_px = max(3, round(block_px / scale) | 1)  # odd
+    kept = kept.scaled(scale)
 
     def matcher() -> cv2.StereoSGBM:
         return cv2.StereoSGBM.create(
@@ -159,12 +203,11 @@ def stereo_depth(
             mode=SGBM_MODES[mode],
         )
 
-    left = cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)
-    right = cv2.cvtColor(right_rgb, cv2.COLOR_RGB2GRAY)
+    left, right = (shrunk(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY), scale) for rgb in (left_rgb, right_rgb))
     disparity_px = matcher().compute(left, right).astype(np.float32) / 16.0  # fixed point, 4 bits
     valid = disparity_px > 0.5
     if kept.min_texture > 0:
-        valid &= texture_of(left, block_px) >= kept.min_texture
+        valid &= texture_of(left, block_px, 5 if scale == 1 else 1) >= kept.min_texture
     if kept.lr_max_diff_px > 0:
         # the right camera's disparity at each of its pixels: the mirrored right image matched
         # against the mirrored left one, mirrored back
@@ -227,6 +270,13 @@ class CloudSettings:
     self_filter_radius_m: float = 0.15  # points this close to the arm are the arm's
     stereo_filter: StereoFilter = StereoFilter()
     stereo_mode: str = "hh"  # SGBM_MODES
+    stereo_scale: int = 1  # the pair is matched this many times smaller (stereo_depth)
+
+    @staticmethod
+    def of(cfg: OnboardConfig) -> CloudSettings:
+        return CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,
+                             cfg.stereo_disparities, cfg.self_filter_radius_m, StereoFilter.of(cfg),
+                             cfg.stereo_mode, cfg.stereo_scale)
 
 
 def world_cloud(
@@ -313,10 +363,10 @@ def clouds_of(
             settings.stereo_disparities,
             kept=settings.stereo_filter,
             mode=settings.stereo_mode,
+            scale=settings.stereo_scale,
         )
         clouds.append(
-            world_cloud(
-                "stereo", depth, left_camera, left, left_camera, pose, arm_m_world, settings, sim_time_s
-            )
+            world_cloud("stereo", depth, left_camera.scaled(settings.stereo_scale), left, left_camera, pose,
+                        arm_m_world, settings, sim_time_s)
         )
     return clouds

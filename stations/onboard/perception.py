@@ -136,7 +136,7 @@ def texture_of(grey: np.ndarray, block_px: int, smoothing_px: int = 5) -> np.nda
     the image smoothed over 5x5 px first: a sensor's pixel noise (independent from pixel to
     pixel, which the matcher pairs at random) counts for a fifth of its own, the scene's texture
     for most of its. An image shrunk by area averaging (shrunk) is smoothed already: 1, none."""
-    image = grey.astype(np.float32)
+    image: np.ndarray = grey.astype(np.float32)
     if smoothing_px > 1:
         image = cv2.GaussianBlur(image, (smoothing_px, smoothing_px), 0)
     size = (block_px, block_px)

@@ -34,6 +34,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import Writer
 
 from abyss.common import keys
+from abyss.common.clock import WALL, Clock
 from abyss.common.config import RECORD_LEVELS
 from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import MESSAGES, Message, Received, decode, unwrap
@@ -72,14 +73,15 @@ def recorded(level: str, spec: keys.KeySpec) -> bool:
 
 class _Bucket:
     """A token bucket of `rate_hz` with two seconds of burst: a key's messages beyond its cap are
-    skipped, never those of a key at its cap whose messages come in bursts (a camera's clouds)."""
+    skipped, never those of a key at its cap whose messages come in bursts (a camera's clouds).
+    On the station's clock: with simulated time, the cap is per simulated second."""
 
-    def __init__(self, rate_hz: float) -> None:
-        self.rate_hz, self.capacity = rate_hz, max(2.0, 2.0 * rate_hz)
-        self.tokens, self.t_s = self.capacity, time.monotonic()
+    def __init__(self, rate_hz: float, clock: Clock = WALL) -> None:
+        self.rate_hz, self.capacity, self.clock = rate_hz, max(2.0, 2.0 * rate_hz), clock
+        self.tokens, self.t_s = self.capacity, clock.now_s()
 
     def take(self) -> bool:
-        now_s = time.monotonic()
+        now_s = self.clock.now_s()
         self.tokens = min(self.capacity, self.tokens + (now_s - self.t_s) * self.rate_hz)
         self.t_s = now_s
         if self.tokens < 1.0:
@@ -118,7 +120,9 @@ class Recorder:
     """Writes one station's (or the testbed's) recording from any thread: the callers only queue,
     a writer thread encodes and flushes."""
 
-    def __init__(self, path: Path, station: str, system: str, level: str, caps: Caps = Caps()) -> None:
+    def __init__(self, path: Path, station: str, system: str, level: str, caps: Caps = Caps(),
+                 clock: Clock = WALL) -> None:
+        self.clock = clock
         if level not in RECORD_LEVELS:
             raise ConfigError("record.level", f"{level!r} not one of {', '.join(RECORD_LEVELS)}")
         self.path, self.station, self.level, self.caps = path, station, level, caps
@@ -156,7 +160,7 @@ class Recorder:
         with self._lock:
             bucket = self._buckets.get((key, direction))
             if bucket is None:
-                bucket = self._buckets[(key, direction)] = _Bucket(self.caps.of(key))
+                bucket = self._buckets[(key, direction)] = _Bucket(self.caps.of(key), self.clock)
             if not bucket.take():
                 self.skipped[f"{direction} {key}"] += 1
                 return

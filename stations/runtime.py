@@ -79,7 +79,7 @@ class Shell:
                                   clock=self.clock)
         for hop in self.links.runners:
             self.bus.route(hop, self.links.egress(hop))
-        self.recorder = station_recorder(config, name)
+        self.recorder = station_recorder(config, name, self.clock)
         self.bus.tap = self.recorder
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
 
@@ -123,13 +123,13 @@ def station_clock(session: zenoh.Session, config: Config,
     return clock, [ticks.undeclare, ProgressReport(session, config.system, name, clock).close]
 
 
-def station_recorder(config: Config, name: str) -> Recorder | None:
+def station_recorder(config: Config, name: str, clock: Clock = WALL) -> Recorder | None:
     """The recorder of `name`'s bus, where the run records (`record.directory`, `record.level`)."""
     record = config.record
     if not record.directory or record.level == "none":
         return None
     return Recorder(free_recording_path(Path(record.directory), name), name, config.system, record.level,
-                    Caps(record.max_rate_hz, record.bulk_max_rate_hz))
+                    Caps(record.max_rate_hz, record.bulk_max_rate_hz), clock)
 
 
 def run_station(name: str, config: Config, listen: Sequence[str], connect: Sequence[str],

@@ -44,6 +44,18 @@ def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:
     assert summary["simulation"]["sim_time_s"] >= 19.0
 
 
+def test_speed_max_runs_as_fast_as_the_slowest_station_and_names_it(tmp_path: Path) -> None:
+    up = Up(tmp_path / "run", "--time", "sim", "--speed", "max", "--keep-running", "--duration", "10",
+            "--system", "e2e-max", "--viewer", "none", "--record", "none")
+    assert up.wait(150) == 0, up.output()
+    timing = up.summary()["time"]
+    assert timing["speed"] == "max" and timing["sim_s"] >= 10.0
+    assert timing["achieved_speed"] > 0 and timing["limited_by"] in timing["held_s"], timing
+    assert timing["limited_by"] != "speed asked"  # nothing asked: a station or the simulation limits it
+    summary = up.summary()
+    assert summary["links"]["tether"]["onboard->vessel"]["delay_p50_ms"] < 130  # still the profile's
+
+
 @pytest.mark.timeout(300)
 def test_the_tether_outage_failsafe_keeps_its_bounds_at_speed_4(tmp_path: Path) -> None:
     done = abyss("scenario", "run", str(ROOT / "scenarios" / "tether-outage.toml"), "--time", "sim",

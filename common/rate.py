@@ -37,6 +37,11 @@ class Rate:
             self.clock.done(self.name, self._next_s)
         return not self.clock.wait(self.stop, self._next_s - now_s)
 
+    def forgive(self) -> None:
+        """What the loop waited for since its tick (the simulation held back for a station) is not
+        its lateness: its next tick counts from now."""
+        self._next_s = max(self._next_s, self.clock.now_s())
+
     @property
     def deadlines_met(self) -> float:
         """Share of ticks whose work finished within the period."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import shutil
 import signal
@@ -160,10 +159,10 @@ class Up:
                 if what:
                     raise ConfigError(refused, "a real component or a replay runs on the wall clock, which "
                                       "--time sim cannot speed up; use --time real with it")
-            if config.cpu.capped() and not math.isfinite(self.time.speed_factor):
-                raise ConfigError("--cpu", "a CPU cap is a share of wall time: it needs a set --speed, "
-                                  "not max")
-        self.cpu = CpuCaps(config.system, self.wall_caps(config))  # fails here where no cgroup can be made
+            if config.cpu.capped():
+                raise ConfigError("--cpu", "a CPU cap is a share of wall time, and with --time sim the "
+                                  "simulation waits for a station that needs more: use --time real with it")
+        self.cpu = CpuCaps(config.system, config.cpu.capped())  # fails here where no cgroup can be made
         # with simulated time, the run's time is the simulation's (its duration, the mission's)
         self.sim_clock = SimClock(config.simulation.control_period_s, self.time.speed_factor) \
             if self.time.simulated else None
@@ -197,13 +196,6 @@ class Up:
         self._lock = threading.Lock()
         self.state = RunState(config.system, self.endpoint, os.getpid())
         self._state_lock = threading.Lock()
-
-    @staticmethod
-    def wall_caps(config: Config) -> dict[str, float]:
-        """The CPU caps in cores of wall time: with simulated time at speed X a station gets X times
-        its cap, the same CPU per simulated second as in real time."""
-        speed = config.time.speed_factor if config.time.simulated else 1.0
-        return {station: cores * speed for station, cores in config.cpu.capped().items()}
 
     # -- zenoh observers -----------------------------------------------------------------
     def _on_alive(self, sample: zenoh.Sample) -> None:

@@ -88,6 +88,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
                           a.message if a and isinstance(a.message, ArmVelocityRef) else None)
         if holdback is not None and clock is not None:
             holdback.hold(world.data.time, bus.stop, clock, lambda: tell_time(world.data.time))
+            rate.forgive()  # its deadlines: keeping the speed asked while it is not held back
         with lock:
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()

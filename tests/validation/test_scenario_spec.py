@@ -120,3 +120,16 @@ def test_an_arm_joint_past_its_range_fails_the_limits() -> None:
     assert judge(Run({}, states=[(0.0, inside)]), (limits,))[0].passed
     verdict = judge(Run({}, states=[(0.0, inside), (1.0, past)]), (limits,))[0]
     assert not verdict.passed and "elbow at +3.0 deg" in verdict.detail
+
+
+def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> None:
+    root = Path(__file__).resolve().parents[2] / "scenarios"
+    nominal, why = load_scenario(root / "nominal.toml").on_time("sim", "4")
+    assert not why and nominal.time.simulated and nominal.time.speed_factor == 4.0
+    back, _ = nominal.on_time("real", None)
+    assert not back.time.simulated and back.time.speed_factor == 1.0
+    for name, said in (("external-onboard", "external onboard keeps the wall clock"),
+                       ("onboard-starved", "a CPU cap is a share of wall time")):
+        scenario = load_scenario(root / f"{name}.toml")
+        kept, why = scenario.on_time("sim", "4")
+        assert kept is scenario and not kept.time.simulated and said in why, why

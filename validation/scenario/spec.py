@@ -99,6 +99,8 @@ class Scenario:
         it cannot follow it (an external station, a real component, runs on the wall clock)."""
         if mode == "sim" and self.external:
             return self, f"runs in real time: external {', '.join(self.external)} keeps the wall clock"
+        if mode == "sim" and any(c.startswith("cpu.") for c in self.config):
+            return self, "runs in real time: a CPU cap is a share of wall time"
         items = [f"time.mode={mode}", *([f"time.speed={speed}"] if speed is not None else [])]
         if mode == "real":
             items.append("time.speed=1")

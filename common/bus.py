@@ -35,10 +35,11 @@ ZENOH_DEFAULT_WAIT_BEFORE_DROP_S = 0.001
 ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S = 5.0
 
 
-def publisher_qos(spec: keys.KeySpec) -> dict[str, Any]:
-    """The Zenoh publisher options of a data key: congestion control by its reliability, priority, and
-    express (not batched) for control."""
-    return {"congestion_control": zenoh.CongestionControl.BLOCK if spec.reliability == "reliable"
+def publisher_qos(spec: keys.KeySpec, lockstep: bool = False) -> dict[str, Any]:
+    """The Zenoh publisher options of a data key: congestion control by its reliability (in
+    lockstep always BLOCK: a station waits for every message its neighbours' links delivered),
+    priority, and express (not batched) for control."""
+    return {"congestion_control": zenoh.CongestionControl.BLOCK if spec.reliability == "reliable" or lockstep
             else zenoh.CongestionControl.DROP,
             "priority": ZENOH_PRIORITY[spec.priority], "express": spec.priority == "control"}
 
@@ -190,13 +191,17 @@ class Bus:
         self._lock = threading.Lock()  # the counters, sequence numbers and reasons
         self._subscribers: list[Any] = []
         self._inboxes: list[tuple[str, Inbox]] = []
+        self._data_keys: set[str] = set()
         self._shed: Counter[str] = Counter()  # what the station let go unprocessed, by key
         self._loops: dict[str, Rate] = {}
         self._egress: dict[str, Egress] = {}
         self.tap: Tap | None = None  # the testbed's recorder, where the run records
         self._outgoing = {s.topic: Outgoing.of(s, system) for s in keys.KEYS if s.station == station}
-        self._publishers = {out.key: session.declare_publisher(out.key, **publisher_qos(out.spec))
-                            for out in self._outgoing.values()}
+        self._publishers = {out.key: session.declare_publisher(
+            out.key, **publisher_qos(out.spec, clock.mode == "lockstep")) for out in self._outgoing.values()}
+        self.arrived: Counter[str] = Counter()  # what reached a neighbour's key's inbox, decoded or not
+        self.on_arrival: Callable[[], None] = lambda: None
+        self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
 
     def route(self, hop: str, egress: Egress) -> None:
         """Send what goes across `hop` through `egress` (the testbed's link emulator), which
@@ -233,17 +238,40 @@ class Bus:
         spec = keys.spec(station, topic)
         if spec.to != self.station:
             raise ConfigError(f"{station}/{topic}", f"is sent to {spec.to}, not to {self.station}")
-        return self.subscribe_key(spec.key(self.system), spec.message, maxlen)
+        return self.subscribe_key(spec.key(self.system), spec.message, maxlen, data=True)
 
-    def subscribe_key(self, key: str, message: str, maxlen: int = 64) -> Inbox:
-        """Receive `message`s on any key, a control key included; validated and counted."""
+    def subscribe_key(self, key: str, message: str, maxlen: int = 64, data: bool = False) -> Inbox:
+        """Receive `message`s on any key, a control key included; validated and counted (`data`:
+        a neighbour's key, whose arrivals are counted for lockstep whether they decode or not)."""
         inbox = Inbox(maxlen, self.clock)
         self._inboxes.append((key, inbox))
+        if data:
+            with self._lock:
+                self._data_keys.add(key)
         self._subscribers.append(self.session.declare_subscriber(key, lambda sample: self._on_sample(
-            str(sample.key_expr), message, sample.payload.to_bytes(), inbox)))
+            str(sample.key_expr), message, sample.payload.to_bytes(), inbox, data)))
         return inbox
 
-    def _on_sample(self, key: str, expected: str, payload: bytes, inbox: Inbox) -> None:
+    def data_keys(self) -> set[str]:
+        """The neighbours' keys this station subscribes to."""
+        with self._lock:
+            return set(self._data_keys)
+
+    def arrivals(self) -> Counter[str]:
+        """What reached each neighbour's key's inbox so far, decoded or not."""
+        with self._lock:
+            return Counter(self.arrived)
+
+    def _on_sample(self, key: str, expected: str, payload: bytes, inbox: Inbox, data: bool = False) -> None:
+        try:
+            self._take(key, expected, payload, inbox)
+        finally:
+            if data:
+                with self._lock:
+                    self.arrived[key] += 1
+                self.on_arrival()
+
+    def _take(self, key: str, expected: str, payload: bytes, inbox: Inbox) -> None:
         try:
             received = decode(key, payload, expected)
         except BadMessage as exc:

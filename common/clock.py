@@ -56,6 +56,15 @@ class Clock:
     def done(self, loop: str, t_s: float) -> None:
         """`loop` has nothing to do before `t_s` (with `sim`, the simulation waits for it)."""
 
+    def enter(self, loop: str, t_s: float, stop: threading.Event) -> None:
+        """`loop` starts, its first tick at `t_s` (in lockstep it waits for its turn)."""
+        self.done(loop, t_s)
+
+    def sleep_until(self, loop: str, t_s: float, stop: threading.Event) -> bool:
+        """`loop` waits for its tick at `t_s`: False once `stop` is set."""
+        self.done(loop, t_s)
+        return not self.wait(stop, t_s - self.now_s())
+
 
 WALL = Clock()
 

@@ -161,7 +161,7 @@ class SimulationConfig:
 
 
 STEREO_MODES = ("3way", "sgbm", "hh")  # onboard.stereo_mode: OpenCV's semi-global matcher's modes
-STEREO_SCALES = (1, 2)  # onboard.stereo_scale: full or half resolution
+STEREO_SCALES = (1, 2)  # onboard.stereo_scale and stereo_lr_scale: full or half resolution
 STEREO_SWITCHES = ("stereo_uniqueness_percent", "stereo_speckle_window_px", "stereo_lr_max_diff_px",
                    "stereo_min_texture", "stereo_edge_step_px")  # 0: that filter off
 
@@ -222,10 +222,11 @@ class OnboardConfig:
     stereo_mode: str = "hh"
     # the pair is matched at full resolution (1) or at half (2: shrunk by area averaging, the
     # disparities, blocks and filter windows scaled with it, the points at half resolution): 2 is
-    # a tenth of the time per pair (19 vs 195 ms; onboard 0.23 vs 0.37 cores over a 40 s run),
-    # but SGBM's sub-pixel disparity snaps to whole pixels there, half as fine: 13.3 cm on the
-    # panel's face at 4 m against 4.6, and over the default mission's path (bench/perception.py)
-    # the map's precision falls from 0.95 to 0.88 in clear water, 0.56 to 0.35 in Jerlov I
+    # a tenth of the time per pair (19 vs 195 ms, 110 with stereo_lr_scale 2; onboard 0.23 vs 0.37
+    # cores over a 40 s run, with 1), but SGBM's sub-pixel disparity snaps to whole pixels there,
+    # half as fine: 13.3 cm on the panel's face at 4 m against 4.6, and over the default
+    # mission's path (bench/perception.py) the map's precision falls from 0.95 to 0.88 in clear
+    # water, 0.56 to 0.35 in Jerlov I
     stereo_scale: int = 1
     self_filter_radius_m: float = 0.15  # [m] points this close to the arm are the arm's
     # the stereo matcher's filters (perception.StereoFilter), against points floating in open
@@ -240,6 +241,12 @@ class OnboardConfig:
     stereo_lr_max_diff_px: float = 1.0
     stereo_min_texture: float = 0.5
     stereo_edge_step_px: float = 1.0
+    # the left-right check's right-to-left match at full resolution (1) or at half (2; as
+    # stereo_scale where that is coarser), its disparity looked up at the left one's pixel: 2 takes
+    # 110 ms per pair against 183 (bench/perception.py), the map's precision and recall over the
+    # default mission's path as with 1 (clear water 0.951/0.636 vs 0.951/0.639, Jerlov I
+    # 0.563/0.243 vs 0.559/0.250; seed 1: 0.550/0.250 vs 0.534/0.245)
+    stereo_lr_scale: int = 2
     image_rate_hz: float = 1.0  # the left camera's frames sent on to the vessel
     image_jpeg_quality: int = 70
     # perception is busy this share of the wall time at most, resting after each frame set in
@@ -254,9 +261,10 @@ class OnboardConfig:
         if self.stereo_mode not in STEREO_MODES:
             raise ConfigError("onboard.stereo_mode",
                               f"{self.stereo_mode!r} not one of {', '.join(STEREO_MODES)}")
-        if self.stereo_scale not in STEREO_SCALES:
-            raise ConfigError("onboard.stereo_scale",
-                              f"{self.stereo_scale} not one of {', '.join(map(str, STEREO_SCALES))}")
+        for name in ("stereo_scale", "stereo_lr_scale"):
+            if getattr(self, name) not in STEREO_SCALES:
+                raise ConfigError(f"onboard.{name}",
+                                  f"{getattr(self, name)} not one of {', '.join(map(str, STEREO_SCALES))}")
         if self.stereo_disparities % 16 or not 16 <= self.stereo_disparities <= 256:
             raise ConfigError("onboard.stereo_disparities",
                               f"{self.stereo_disparities}: a multiple of 16 in [16, 256]")
@@ -395,21 +403,26 @@ class CpuConfig:
         return {name: cores for name, cores in dataclasses.asdict(self).items() if cores}
 
 
-TIME_MODES = ("real", "sim")
+TIME_MODES = ("real", "sim", "lockstep")
 
 
 @dataclass(frozen=True)
 class TimeConfig:
     """The system's time source (common.clock): `real` (the wall clock; the only mode with a real
-    component, real links or an operator in the loop) or `sim` (the simulation's clock drives every
+    component, real links or an operator in the loop), `sim` (the simulation's clock drives every
     station's rates and timers and every emulated link, `speed` simulated seconds per wall
-    second, or `max`: as fast as the slowest station allows)."""
+    second, or `max`: as fast as the slowest station allows) or `lockstep` (the same, one control
+    period at a time, each station's loops one at a time: a run repeats bit for bit,
+    common.lockstep)."""
 
     mode: str = "real"
     speed: str = "1"  # a positive number, or "max"
     max_lag_s: float = 0.1  # [simulated s] how far a station's loops may be behind the simulation
     # the stations whose progress the simulation waits for, with `sim`
     stations: tuple[str, ...] = ("onboard", "vessel", "onshore")
+    # lockstep: the simulation stops advancing at this simulated time (abyss up's --duration), so
+    # that a run ends on the same period whenever it is stopped; 0: never
+    end_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.mode not in TIME_MODES:
@@ -421,8 +434,10 @@ class TimeConfig:
                 speed = math.nan
             if not math.isfinite(speed) or not 0.01 <= speed <= 1000:
                 raise ConfigError("time.speed", f"{self.speed!r}: a number from 0.01 to 1000, or max")
-        if self.mode == "real" and self.speed_factor != 1.0:
-            raise ConfigError("time.speed", f"{self.speed}: only with time.mode sim (real time runs at 1)")
+        if self.mode != "sim" and self.speed_factor != 1.0:
+            raise ConfigError("time.speed", f"{self.speed}: only with time.mode sim ({self.mode} runs at "
+                              f"{'1' if self.mode == 'real' else 'the speed its slowest station allows'})")
+        _positive("time.end_s", self.end_s, allow_zero=True)
         _positive("time.max_lag_s", self.max_lag_s, allow_zero=True)
         for station in self.stations:
             if station not in keys.STATIONS or station == "simulation":
@@ -435,7 +450,8 @@ class TimeConfig:
 
     @property
     def simulated(self) -> bool:
-        return self.mode == "sim"
+        """On the simulation's clock: `sim` or `lockstep`."""
+        return self.mode != "real"
 
 
 ROS2_STATIONS = ("onboard", "vessel")  # the stations a ROS 2 node can stand for (ros2.gateway)

@@ -171,6 +171,11 @@ def progress_key(system: str, station: str) -> str:
     return key(system, station, "progress")
 
 
+def lockstep_key(system: str, station: str) -> str:
+    """A station's progress through each period, with `--time lockstep` (common.lockstep)."""
+    return key(system, station, "lockstep")
+
+
 def operator_key(system: str, topic: str) -> str:
     """Commands of an operator's tool (`abyss teleop`, `abyss op`) to the onshore station, on
     shore's own network; the onshore station sends them down the satellite as op/<topic>, and
@@ -217,6 +222,8 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ("abyss/<system>/clock", "SimTime", "20 Hz simulated", "the simulation's clock, with --time sim"),
     ("abyss/<system>/<station>/progress", "SimTime", "event",
      "how far the station's loops are done in simulated time; the simulation waits for the slowest"),
+    ("abyss/<system>/<station>/lockstep", "LockstepReport", "2 per period",
+     "a station's links delivered what was due, then it is done (--time lockstep)"),
     ("abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
      "Waypoints, ArmGoal, OperatorMode, Intervention", "event",
      "operator tools to the onshore station, which sends them down"),

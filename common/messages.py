@@ -19,7 +19,7 @@ import secrets
 import threading
 import typing
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple
 
@@ -480,6 +480,19 @@ class SimTime(Message):
     sim_time_s: float = scalar(0.0)
 
 
+LOCKSTEP_PHASES = ("delivered", "done")
+
+
+@dataclass(frozen=True)
+class LockstepReport(Message):
+    """A station's progress through a lockstep period (common.lockstep) at `sim_time_s`: its links
+    delivered what was due (`delivered`: messages per key so far), or it is done with the period."""
+
+    sim_time_s: float = scalar(0.0)
+    phase: str = scalar(choices=LOCKSTEP_PHASES)
+    delivered: dict[str, float] = field(default_factory=dict)
+
+
 MODES = ("idle", "moving", "reached", "hold", "missed")  # missed: a waypoint not reached in its time
 # hold: the vehicle holds station and the arm holds still; auto: the goals are flown, the arm
 # once the vehicle holds its last waypoint; teleop: the goals are flown, the arm at once
@@ -616,7 +629,21 @@ def new_id() -> int:
     """An id that no other of its kind has (a command, a station's boot, a scene stream): 53
     random bits (the ids' range). Ids from the clock (milliseconds) collided when two tools
     sent in the same one."""
+    return _ids[0]()
+
+
+def _random_id() -> int:
     return secrets.randbelow(2**53 - 1) + 1
+
+
+_ids: list[Callable[[], int]] = [_random_id]
+
+
+def repeatable_ids(seed: Sequence[int]) -> None:
+    """This process's ids from a stream of `seed` from now on (lockstep: a run repeats, its ids
+    too; the seed holds the station and its boot, so that a restart still differs)."""
+    rng = np.random.default_rng(list(seed))
+    _ids[0] = lambda: int(rng.integers(1, 2**53))
 
 
 @dataclass(frozen=True)

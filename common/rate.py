@@ -21,7 +21,7 @@ class Rate:
         self.missed = 0  # ticks whose work overran the deadline
         self._next_s = clock.now_s()
         if name:
-            clock.done(name, self._next_s)
+            clock.enter(name, self._next_s, stop)
 
     def sleep(self) -> bool:
         """Wait for the next tick; False once the stop event is set. A loop that fell
@@ -34,7 +34,7 @@ class Rate:
         if self._next_s < now_s - self.period_s:
             self._next_s = now_s
         if self.name:
-            self.clock.done(self.name, self._next_s)
+            return self.clock.sleep_until(self.name, self._next_s, self.stop)
         return not self.clock.wait(self.stop, self._next_s - now_s)
 
     def forgive(self) -> None:

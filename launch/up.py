@@ -51,7 +51,7 @@ from abyss.launch.summary import (
     verdict_of,
 )
 from abyss.recording.store import RECORD_DIR, TESTBED, Recorder
-from abyss.stations.runtime import SUPERVISOR_ENV, free_port, station_recorder
+from abyss.stations.runtime import BOOT_ENV, SUPERVISOR_ENV, free_port, station_recorder
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
@@ -130,6 +130,11 @@ class Replayed:
 
     def args(self, station: str) -> list[str]:
         return ["--replay", str(self.run_dir), "--speed", str(self.speed)] if station in self.stations else []
+
+
+# lockstep: native libraries' own thread pools (OpenMP in Open3D's ICP, OpenBLAS) add floating-point
+# sums in whatever order their threads finish, a last-bit difference that a run carries on
+SINGLE_THREADED = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
 
 
 class Up:
@@ -265,7 +270,7 @@ class Up:
                 self.state.write(self.out_dir)
 
     # -- processes -----------------------------------------------------------------------
-    def _start(self, name: str, config_path: Path) -> Station:
+    def _start(self, name: str, config_path: Path, boot: int = 0) -> Station:
         log_path = self.out_dir / f"{name}.log"
         status_path = self.out_dir / f"{name}.json"
         # -P: the stations' own directory (the run directory) never shadows abyss's modules
@@ -276,7 +281,9 @@ class Up:
         with log_path.open("wb") as log:
             process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                        stdin=subprocess.DEVNULL, start_new_session=True, cwd=self.out_dir,
-                                       env={**os.environ, SUPERVISOR_ENV: str(os.getpid())})
+                                       env={**os.environ, SUPERVISOR_ENV: str(os.getpid()),
+                                            BOOT_ENV: str(boot),
+                                            **(SINGLE_THREADED if self.time.mode == "lockstep" else {})})
         self.cpu.apply(name, process.pid)
         self._change_state(name, pid=process.pid)
         return Station(name, process, log_path, status_path)
@@ -296,7 +303,7 @@ class Up:
         return dead
 
     def _restart(self, station: Station) -> None:
-        restarted = self._start(station.name, self.out_dir / CONFIG_FILE)
+        restarted = self._start(station.name, self.out_dir / CONFIG_FILE, station.restarts + 1)
         restarted.restarts = station.restarts + 1
         self.stations[station.name] = restarted
         self._change_state(station.name, restarts=restarted.restarts)
@@ -346,6 +353,9 @@ class Up:
                                         viewer_grpc_port=grpc_port),
             simulation=dataclasses.replace(self.config.simulation,
                                            state_file=str(self.out_dir / SIMULATION_STATE_FILE)),
+            # lockstep ends on the same period however late the stop comes
+            time=dataclasses.replace(self.config.time, end_s=duration_s or 0.0)
+            if self.time.mode == "lockstep" else self.config.time,
             record=dataclasses.replace(self.config.record, directory=str(self.out_dir / RECORD_DIR)))
         shutil.rmtree(self.out_dir / RECORD_DIR, ignore_errors=True)  # an earlier run's
         for name in (SIMULATION_STATE_FILE, *CARRIED_OVER):  # an earlier run's: restarts read them
@@ -438,7 +448,8 @@ class Up:
         return self.sim_clock.now_s() if self.sim_clock is not None else time.monotonic()
 
     def _watch(self, duration_s: float | None, keep_running: bool) -> str:
-        t0, wall0 = self._now_s(), time.monotonic()
+        # simulated time counts from the simulation's start, which waits for every station
+        t0, wall0 = 0.0 if self.sim_clock is not None else self._now_s(), time.monotonic()
         self.watch_from = (t0, wall0)
         last_report = next_start_s = wall0
         if self.replayed is not None:

@@ -75,6 +75,7 @@ class StationLinks:
         self.received: Counter[str] = Counter()  # link control messages taken
         self.rejected: Counter[str] = Counter()
         self.runners: dict[str, LinkRunner] = {}
+        self.delivered: Counter[str] = Counter()  # per key, in lockstep (deliver_due)
         self._entities: list[zenoh.Subscriber | zenoh.Queryable] = []
         self.mode, self.shapers = self._shapers(link_mode, profiles, peers or {}, seed)
         for hop, neighbour in keys.hops_of(station).items():
@@ -87,6 +88,13 @@ class StationLinks:
                 keys.link_key(system, hop), functools.partial(self._on_query, hop)))
         self._stats_thread = threading.Thread(target=self._publish_stats, name="linkstats", daemon=True)
         self._stats_thread.start()
+
+    def deliver_due(self, now_s: float) -> Counter[str]:
+        """Lockstep's delivery phase: each hop's messages due by `now_s` delivered; the messages
+        delivered on each key so far."""
+        for runner in self.runners.values():
+            self.delivered.update(runner.deliver_due(now_s))
+        return Counter(self.delivered)
 
     def egress(self, hop: str) -> Callable[[bytes, bool, str], bool]:
         """What the station's bus sends `hop`'s messages through."""

@@ -24,23 +24,27 @@ class LinkRunner:
     """Thread-safe wrapper of a `Link`. The ideal profile is a pass-through on the caller's
     thread, still counted; `passthrough=True` (the netem backend) forces that. Once `stopping`
     is set (the station is asked to stop), no sender waits for room any more: what it offers
-    to a full queue is refused and counted (`refused_at_stop`)."""
+    to a full queue is refused and counted (`refused_at_stop`). On a lockstep clock the runner has
+    no thread: `deliver_due` is the period's delivery phase (common.lockstep), nothing is passed
+    through at once, and a sender never waits for room."""
 
     def __init__(self, name: str, profile: LinkProfile, deliver: Callable[[Any, bytes], None],
                  rng: np.random.Generator, passthrough: bool = False,
                  stopping: threading.Event | None = None, clock: Clock = WALL) -> None:
         self.name = name
         self.clock = clock
+        self.driven = clock.mode == "lockstep"
         self.deliver = deliver
         self.passthrough = passthrough
         self.stopping = stopping or threading.Event()
         self.link = Link(profile, rng)
-        self._direct = passthrough or profile.is_ideal  # follows the profile (reconfigure)
+        self._direct = not self.driven and (passthrough or profile.is_ideal)  # follows the profile
         self.late_s = Samples()  # actual - scheduled delivery time
         self._cond = threading.Condition()
         self._closed = False
         self._thread = threading.Thread(target=self._loop, name=f"link-{name}", daemon=True)
-        self._thread.start()
+        if not self.driven:
+            self._thread.start()
 
     @property
     def profile(self) -> LinkProfile:
@@ -64,7 +68,7 @@ class LinkRunner:
                     if self._closed or self.stopping.is_set():
                         self.link.counters["refused_at_stop"] += 1
                         return False
-                    result = self.link.offer(self.clock.now_s(), payload, block, tag)
+                    result = self.link.offer(self.clock.now_s(), payload, block and not self.driven, tag)
                     if result is not Offer.FULL:
                         break
                     self._cond.wait(0.05)
@@ -77,7 +81,7 @@ class LinkRunner:
     def reconfigure(self, profile: LinkProfile) -> None:
         with self._cond:
             self.link.reconfigure(profile)
-            self._direct = self.passthrough or profile.is_ideal
+            self._direct = not self.driven and (self.passthrough or profile.is_ideal)
             self._cond.notify_all()
 
     def snapshot(self) -> dict[str, float]:
@@ -99,8 +103,21 @@ class LinkRunner:
 
     def join(self, timeout_s: float) -> bool:
         """Wait up to `timeout_s` for the delivery thread to end; whether it did."""
+        if self.driven:
+            return True
         self._thread.join(timeout=max(0.0, timeout_s))
         return not self._thread.is_alive()
+
+    def deliver_due(self, now_s: float) -> list[Any]:
+        """Deliver what the link delivers by `now_s`, here, now (lockstep); the tags delivered."""
+        with self._cond:
+            ready = [] if self._closed else self.link.advance(now_s)
+        for d in ready:
+            try:
+                self.deliver(d.tag, d.payload)
+            except Exception:  # a failing subscriber must not stop the link
+                log.exception("link %s: delivery failed", self.name)
+        return [d.tag for d in ready]
 
     def _loop(self) -> None:
         while True:

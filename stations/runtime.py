@@ -25,11 +25,14 @@ from abyss.common.certs import CertFiles
 from abyss.common.clock import WALL, Clock, ProgressReport, SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
+from abyss.common.lockstep import Lockstep, LockstepClock
+from abyss.common.messages import repeatable_ids
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
 
 log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
+BOOT_ENV = "ABYSS_BOOT"  # how many times `abyss up` started this station before (restarts)
 PR_SET_PDEATHSIG = 1
 STOP_BOUND_S = 4.5  # a station stops within 5 s of SIGINT/SIGTERM (this, and exiting)
 
@@ -81,6 +84,13 @@ class Shell:
             self.bus.route(hop, self.links.egress(hop))
         self.recorder = station_recorder(config, name, self.clock)
         self.bus.tap = self.recorder
+        if isinstance(self.clock, LockstepClock):
+            repeatable_ids([config.seed, keys.STATIONS.index(name), int(os.environ.get(BOOT_ENV, "0"))])
+            self.bus.lockstep = station_lockstep(self.session, config, name, self.clock, self.bus, self.links)
+            self._clock_closers.append(self.bus.lockstep.close)
+            if name != "simulation":  # the simulation's physics is lockstep's master, and runs its own
+                threading.Thread(target=self.bus.lockstep.run, args=(config.time.end_s,), name="lockstep",
+                                 daemon=True).start()
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
 
     def status(self) -> dict[str, Any]:
@@ -116,11 +126,30 @@ def station_clock(session: zenoh.Session, config: Config,
     and what closes it with the station."""
     if not config.time.simulated:
         return WALL, []
-    clock = SimClock(config.simulation.control_period_s, config.time.speed_factor)
+    clock = (LockstepClock() if config.time.mode == "lockstep" else
+             SimClock(config.simulation.control_period_s, config.time.speed_factor))
     if name == "simulation":
         return clock, []
     ticks = clock_follow(session, config.system, clock)
+    if isinstance(clock, LockstepClock):
+        return clock, [ticks.undeclare]
     return clock, [ticks.undeclare, ProgressReport(session, config.system, name, clock).close]
+
+
+def station_lockstep(session: zenoh.Session, config: Config, name: str, clock: LockstepClock, bus: Bus,
+                     links: StationLinks) -> Lockstep:
+    """A station's periods in lockstep: its links' deliveries, its neighbours', its loops."""
+
+    def expects() -> dict[str, set[str]]:
+        listened = bus.data_keys()
+        return {neighbour: {s.key(config.system) for s in keys.KEYS
+                            if s.station == neighbour and s.to == name} & listened
+                for neighbour in keys.hops_of(name).values()}
+
+    lockstep = Lockstep(session, config.system, name, clock, links.deliver_due, bus.arrivals, expects,
+                        importlib.import_module(f"abyss.stations.{name}").loops(config), bus.stop)
+    bus.on_arrival = lockstep.notify
+    return lockstep
 
 
 def station_recorder(config: Config, name: str, clock: Clock = WALL) -> Recorder | None:

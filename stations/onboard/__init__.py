@@ -51,6 +51,11 @@ class Shared:
         self.arm_m_world = np.zeros((0, 3))
 
 
+def loops(config: Config) -> tuple[str, ...]:
+    """The station's named loops (lockstep runs no period before they are all there)."""
+    return ("control", "perception", "sonar")
+
+
 def run(config: Config, bus: Bus) -> None:
     """The I/O shell: read what came in, step the core, publish what it returns, keep the rate.
     With `ros2.station = "onboard"`, a ROS 2 node stands for all of it (abyss.ros2.gateway)."""

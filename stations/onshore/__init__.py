@@ -47,6 +47,11 @@ SCENE_FILE = "scene.msgpack"  # the final scene, a snapshot SceneUpdate; `abyss 
 log = logging.getLogger(__name__)
 
 
+def loops(config: Config) -> tuple[str, ...]:
+    """The station's named loops (lockstep runs no period before they are all there)."""
+    return ("display",)
+
+
 def run(config: Config, bus: Bus) -> None:
     """The I/O shell of `core.Operator`, the scene (`Scene`) and the viewer."""
     record_dir = Path(config.onshore.record_dir) if config.onshore.record_dir else None

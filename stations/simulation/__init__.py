@@ -5,6 +5,7 @@ threads on the simulation's clock."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
@@ -17,6 +18,7 @@ from abyss.common import keys
 from abyss.common.bus import Bus
 from abyss.common.clock import WALL, Holdback, SimClock
 from abyss.common.config import Config
+from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
 from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
 from abyss.common.workers import Workers
 
@@ -26,6 +28,13 @@ if TYPE_CHECKING:
 STATUS_PERIOD_S = 1.0
 PANEL_EVERY = 2  # control periods: the panel's truth at 10 Hz
 log = logging.getLogger(__name__)
+
+
+def loops(config: Config) -> tuple[str, ...]:
+    """The station's named loops besides the physics (lockstep runs no period before they are all
+    there; the physics is lockstep's master)."""
+    sim = config.simulation
+    return (*(("cameras",) if sim.camera_rate_hz > 0 else ()), *(("sonar",) if sim.sonar_rate_hz > 0 else ()))
 
 
 def run(config: Config, bus: Bus) -> None:
@@ -58,24 +67,13 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
     control_key = keys.simulation_control_key(bus.system)
     controls = bus.subscribe_key(control_key, "SimulationControl")
-    # the wall clock paces the physics, at time.speed (max: as fast as the stations keep up)
-    rate = bus.loop("physics", sim.control_period_s / config.time.speed_factor, clock=WALL)
-    clock = bus.clock if isinstance(bus.clock, SimClock) else None
-    holdback = (Holdback(bus.session, bus.system, config.time.stations, config.time.max_lag_s)
-                if clock is not None else None)
+    keeper = Timekeeper(config, bus, world.data.time)
+    rate = keeper.rate
     wall0, sim0 = time.monotonic(), world.data.time
-
-    def tell_time(sim_time_s: float) -> None:
-        """The simulation's time to its own loops (cameras, sonar) and to every station."""
-        assert clock is not None
-        clock.tick(sim_time_s)
-        bus.observe(keys.clock_key(bus.system), SimTime(sim_time_s=sim_time_s))
-
-    if clock is not None:
-        tell_time(world.data.time)  # a resumed simulation starts where it was
-
     saved_s = -float("inf")  # simulated time of the state last kept
-    while True:
+    for step in itertools.count():
+        if not keeper.before_step(world.data.time):
+            break
         for control in controls.drain():
             assert isinstance(control.message, SimulationControl)
             try:
@@ -86,15 +84,11 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
         refs = references(v.message if v and isinstance(v.message, VelocityRef) else None,
                           a.message if a and isinstance(a.message, ArmVelocityRef) else None)
-        if holdback is not None and clock is not None:
-            holdback.hold(world.data.time, bus.stop, clock, lambda: tell_time(world.data.time))
-            rate.forgive()  # its deadlines: keeping the speed asked while it is not held back
+        stepped_from_s = world.data.time
         with lock:
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
-            panel = world.panel() if rate.ticks % PANEL_EVERY == 0 else None
-        if clock is not None:
-            tell_time(truth.sim_time_s)
+            panel = world.panel() if step % PANEL_EVERY == 0 else None
         bus.publish("nav", world.nav())
         bus.publish("joints", joints)
         bus.observe(keys.truth_key(bus.system), truth)
@@ -109,12 +103,75 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
             bus.observe(keys.simulation_status_key(bus.system), SimulationStatus(
                 sim_time_s=truth.sim_time_s, realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
                 deadlines_met=rate.deadlines_met, faults=dict(world.faults),
-                held_s=holdback.status() if holdback is not None else {}))
+                held_s=keeper.held_s()))
             wall0, sim0 = wall, truth.sim_time_s
-        if not rate.sleep():
+        if not keeper.after_step(stepped_from_s, truth.sim_time_s):
             break
-    if holdback is not None:
-        holdback.close()
+    keeper.close()
+
+
+class Timekeeper:
+    """How the physics loop keeps time. Real time: its rate, on the wall clock. Simulated time: the
+    wall clock paces it at time.speed (max: not at all), it tells every station its time after
+    each step, and waits before a step for the slowest station (Holdback). Lockstep: each period
+    is run by common.lockstep (links, neighbours, the cameras' and sonar's turns) before the step,
+    and every station is done with it before the next; at time.end_s it stops advancing."""
+
+    def __init__(self, config: Config, bus: Bus, start_s: float) -> None:
+        self.bus, self.time = bus, config.time
+        period_s = config.simulation.control_period_s
+        self.lockstep: Lockstep | None = bus.lockstep
+        self.rate = bus.loop("physics", 0.0 if self.lockstep else period_s / self.time.speed_factor, WALL)
+        self.clock = bus.clock if isinstance(bus.clock, SimClock) and self.lockstep is None else None
+        self.holdback = (Holdback(bus.session, bus.system, self.time.stations, self.time.max_lag_s)
+                         if self.clock is not None else None)
+        self.waited_wall_s = 0.0  # lockstep: for the stations to finish their periods
+        if self.time.simulated:
+            self.tell(start_s)  # a resumed simulation starts where it was
+
+    def tell(self, sim_time_s: float) -> None:
+        """The simulation's time to its own loops (cameras, sonar) and to every station."""
+        if self.clock is not None:
+            self.clock.tick(sim_time_s)
+        self.bus.observe(keys.clock_key(self.bus.system), SimTime(sim_time_s=sim_time_s))
+
+    def before_step(self, t_s: float) -> bool:
+        """Wait until the physics may step from `t_s`; False once the station stops."""
+        if self.lockstep is not None:
+            while self.time.end_s and t_s >= self.time.end_s - TICK_TOLERANCE_S:
+                if self.bus.stop.wait(0.5):  # the run's end: it holds still, telling its time
+                    return False
+                self.tell(t_s)
+            self.tell(t_s)
+            return self.lockstep.period(t_s, lambda: self.tell(t_s))
+        if self.holdback is not None and self.clock is not None:
+            self.holdback.hold(t_s, self.bus.stop, self.clock, lambda: self.tell(t_s))
+            self.rate.forgive()  # its deadlines: keeping the speed asked while it is not held back
+        return not self.bus.stop.is_set()
+
+    def after_step(self, from_s: float, to_s: float) -> bool:
+        """The step from `from_s` to `to_s` is done: tell, or wait until every station is done with
+        the period; False once the station stops."""
+        if self.lockstep is not None:
+            lockstep, wall0 = self.lockstep, time.monotonic()
+            done = lockstep.wait_for(f"every station done at t={from_s:.2f} s", lambda: all(
+                lockstep.reported(station, "done")[0] >= from_s - TICK_TOLERANCE_S
+                for station in self.time.stations), lambda: self.tell(from_s))
+            self.waited_wall_s += time.monotonic() - wall0
+            return done
+        if self.clock is not None:
+            self.tell(to_s)
+        return self.rate.sleep()
+
+    def held_s(self) -> dict[str, float]:
+        """Wall seconds the simulation waited on each station (lockstep: on them all)."""
+        if self.holdback is not None:
+            return self.holdback.status()
+        return {"stations": round(self.waited_wall_s, 3)} if self.lockstep is not None else {}
+
+    def close(self) -> None:
+        if self.holdback is not None:
+            self.holdback.close()
 
 
 def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:

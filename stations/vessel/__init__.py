@@ -40,6 +40,11 @@ POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
 log = logging.getLogger(__name__)
 
 
+def loops(config: Config) -> tuple[str, ...]:
+    """The station's named loops (lockstep runs no period before they are all there)."""
+    return ("relay", "scene", "scene send")
+
+
 def run(config: Config, bus: Bus) -> None:
     """The relay in the main thread; the scene model and its stream in threads of their own.
     With `ros2.station = "vessel"`, a ROS 2 node is the scene model: the ROS 2 gateway hands it
@@ -165,7 +170,7 @@ def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_t
     requests = bus.subscribe("onshore", "scene_request")
     acks = bus.subscribe("onshore", "scene_ack", maxlen=256)
     stream = SceneStream(config.vessel, model)
-    rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock)
+    rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene send")
     while rate.sleep():
         image = images.latest()
         frame = image.message if image and isinstance(image.message, Image) else None

@@ -96,6 +96,9 @@ def model_points(spacing_m: float = 0.02) -> np.ndarray:
     return np.vstack(parts)
 
 
+ICP_DIGITS = 9  # the pose ICP finds, rounded (by_shape)
+
+
 def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose | None:
     """The panel's pose from a cloud near the guess: plane segmentation, then ICP of the model."""
     import open3d as o3d
@@ -138,8 +141,11 @@ def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose
     )
     if result.fitness < 0.2:
         return None
-    confidence = result.fitness / (1.0 + result.inlier_rmse / 0.01)
-    transform = np.asarray(result.transformation)
+    # Open3D's threads (their own pool, not OpenMP's) sum in whatever order they finish: the pose
+    # differs from run to run in its last bits. Rounded to a nanometre and a nanoradian, far below
+    # what recognition resolves, a run repeats (lockstep); both fits the same way
+    confidence = round(result.fitness / (1.0 + result.inlier_rmse / 0.01), ICP_DIGITS)
+    transform = np.round(np.asarray(result.transformation), ICP_DIGITS)
     return Pose(transform[:3, :3].copy(), transform[:3, 3].copy(), float(np.clip(confidence, 0.0, 1.0)))
 
 

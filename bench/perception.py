@@ -16,9 +16,10 @@ with an occupied cell within one cell of them over all truth cells. Strict figur
 cell) are printed too.
 
 Run: .venv/bin/python bench/perception.py [frames] [variant ...] (VARIANTS: the filters, the pair
-at half resolution, matching on every second frame set; by default unfiltered, filtered, half).
-Prints figures; asserts nothing. Also stereo_depth's cost alone on one pair (the left-right
-check matches twice).
+at half resolution or its left-right check's match at full, matching on every second frame set;
+by default unfiltered, filtered, full-lr, half). Prints figures; asserts nothing. Also
+stereo_depth's cost alone on one pair (the left-right check matches a second time, at half
+resolution by default).
 tests/stations/onboard/test_stereo_filter.py runs `measure` on a short path."""
 
 from __future__ import annotations
@@ -179,6 +180,7 @@ class Variant:
 VARIANTS = {
     "unfiltered": Variant(UNFILTERED),
     "filtered": Variant(StereoFilter()),
+    "full-lr": Variant(StereoFilter(lr_scale=1)),  # the left-right check's match at full resolution
     "half": Variant(StereoFilter(), scale=2),  # the pair matched at half resolution
     "filtered/2": Variant(StereoFilter(), every=2),  # on every second frame set
     "half/2": Variant(StereoFilter(), scale=2, every=2),
@@ -188,7 +190,7 @@ VARIANTS = {
 def main() -> None:
     args = sys.argv[1:]
     frames = int(args.pop(0)) if args and args[0].isdigit() else None
-    names = args or ["unfiltered", "filtered", "half"]
+    names = args or ["unfiltered", "filtered", "full-lr", "half"]
     for water in ("none", "I"):
         costs = {name: stereo_cost_s(VARIANTS[name].kept, water, VARIANTS[name].scale) for name in names}
         listed = ", ".join(f"{name} {cost_s * 1e3:.0f} ms" for name, cost_s in costs.items())

@@ -121,7 +121,7 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             cloud_points, colors = unpack_cloud(cloud)
             perception.received(cloud.source, len(cloud_points), bus.clock.now_s())
             if insert:
-                model.insert(cloud_points, colors, cloud.sensor_m_world)
+                model.insert(cloud_points, colors, cloud.sensor_m_world, bus.clock.now_s())
             sim_time_s[0] = cloud.sim_time_s
             if cloud.source == "depth" or points is None:
                 points = cloud_points
@@ -135,7 +135,8 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
                 continue
             perception.received("sonar", len(echoes), bus.clock.now_s())
             if insert and perception.sonar_feeds(bus.clock.now_s()) and len(echoes):
-                model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin)
+                model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin,
+                             bus.clock.now_s())
                 sim_time_s[0] = max(sim_time_s[0], received.message.sim_time_s)
         if insert:
             model.track(bus.clock.now_s())  # what the last clouds changed, once its period has passed

@@ -106,6 +106,9 @@ def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose
     near = np.linalg.norm(points_m_world - guess.position_m_world, axis=1) < 1.2
     if near.sum() < MIN_PLANE_POINTS:
         return None
+    # one thread: Open3D's RANSAC draws per thread (a seed repeats nothing across two), and its
+    # threads' sums end in any order; the fit is a few milliseconds (lockstep repeats bit for bit)
+    o3d.utility.set_max_threads(1)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m_world[near])).voxel_down_sample(0.03)
     o3d.utility.random.seed(rng_seed)
     plane, inliers = cloud.segment_plane(distance_threshold=0.03, ransac_n=3, num_iterations=200)
@@ -141,9 +144,8 @@ def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose
     )
     if result.fitness < 0.2:
         return None
-    # Open3D's threads (their own pool, not OpenMP's) sum in whatever order they finish: the pose
-    # differs from run to run in its last bits. Rounded to a nanometre and a nanoradian, far below
-    # what recognition resolves, a run repeats (lockstep); both fits the same way
+    # rounded to a nanometre and a nanoradian, far below what recognition resolves: a last bit
+    # that a native library's sums could still change does not reach the mission
     confidence = round(result.fitness / (1.0 + result.inlier_rmse / 0.01), ICP_DIGITS)
     transform = np.round(np.asarray(result.transformation), ICP_DIGITS)
     return Pose(transform[:3, :3].copy(), transform[:3, 3].copy(), float(np.clip(confidence, 0.0, 1.0)))

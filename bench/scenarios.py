@@ -27,7 +27,8 @@ def run(files: list[Path], parallel: int, out: Path, speed: str = "") -> tuple[f
     t0 = time.monotonic()
     command = [sys.executable, "-m", "abyss.cli", "scenario", "run", *map(str, files)]
     command += ["--parallel", str(parallel), "--report", str(out)]
-    command += ["--time", "sim", "--speed", speed] if speed else []
+    command += (["--time", "lockstep"] if speed == "lockstep" else
+                ["--time", "sim", "--speed", speed] if speed else [])
     done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     return time.monotonic() - t0, done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr
 
@@ -40,7 +41,8 @@ def times(files: list[Path], speeds: list[str], parallel: int, tmp: Path) -> Non
         sim = "" if speed == "real" else speed
         out = tmp / f"times-{speed}"
         print(f"{len(files)} scenarios at --parallel {parallel}, "
-              f"{'real time' if not sim else f'--time sim --speed {sim}'} ...", flush=True)
+              f"{'real time' if not sim else sim if sim == 'lockstep' else f'--time sim --speed {sim}'} ...",
+              flush=True)
         walls[speed], verdict = run(files, parallel, out, sim)
         summaries = {p.parent.name.split("-", 1)[1]: json.loads(p.read_text())
                      for p in sorted(out.glob("runs/*/summary.json"))}
@@ -62,7 +64,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--max-systems", type=int, default=4)
     parser.add_argument("--skip-library", action="store_true")
-    parser.add_argument("--times", metavar="real,X,...,max", help="the time sources to compare")
+    parser.add_argument("--times", metavar="real,X,...,max,lockstep", help="the time sources to compare")
     parser.add_argument("--parallel", type=int, default=1, help="with --times: systems at once")
     parser.add_argument("--scenarios", metavar="NAME,...", help="with --times: these, not the library")
     args = parser.parse_args()

@@ -99,10 +99,13 @@ class LockstepClock(SimClock):
 
     def run_loops(self, t_s: float, stop: threading.Event) -> None:
         """Each loop due by `t_s`, one at a time in the order of their names, each until it waits
-        again."""
+        again (a loop that starts in the period runs its first tick in it too)."""
         with self._turns:
-            due = sorted(loop for loop, at_s in self._due_s.items() if at_s <= t_s + TICK_TOLERANCE_S)
-            for loop in due:
+            while not stop.is_set():
+                due = sorted(loop for loop, at_s in self._due_s.items() if at_s <= t_s + TICK_TOLERANCE_S)
+                if not due:
+                    return
+                loop = due[0]
                 self._turn = loop
                 self._turns.notify_all()
                 while self._turn == loop and not stop.is_set():

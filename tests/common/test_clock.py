@@ -14,6 +14,7 @@ import pytest
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import Holdback, ProgressReport, SimClock
 from abyss.common.config import ConfigError, load
+from abyss.common.lockstep import LockstepClock
 from abyss.common.rate import Rate
 from abyss.linkemu.profile import profile
 from abyss.linkemu.runner import LinkRunner
@@ -184,3 +185,33 @@ def test_a_bad_time_source_fails_at_start_naming_the_field(items: list[str], fie
 def test_speed_max_is_infinite_and_real_time_is_one() -> None:
     assert load(None, ["time.mode=sim", "time.speed=max"]).time.speed_factor == float("inf")
     assert load(None, []).time.speed_factor == 1.0
+
+
+def test_lockstep_runs_the_loops_due_one_at_a_time_in_name_order() -> None:
+    clock = LockstepClock()
+    stop = threading.Event()
+    ran: list[tuple[str, float]] = []
+    inside = [0]
+
+    def loop(name: str, period_s: float) -> None:
+        rate = Rate(period_s, stop, clock, name)
+        while rate.sleep():
+            inside[0] += 1
+            assert inside[0] == 1  # alone
+            ran.append((name, clock.now_s()))
+            time.sleep(0.01)  # a thread left to itself would overlap the next loop here
+            inside[0] -= 1
+
+    threads = [threading.Thread(target=loop, args=args, daemon=True)
+               for args in (("sonar", 0.1), ("control", 0.05), ("perception", 0.05))]
+    for thread in threads:
+        thread.start()
+    while clock.loops() != {"sonar", "control", "perception"}:
+        time.sleep(0.01)
+    for period in range(1, 5):
+        clock.set_period(period * 0.05)
+        clock.run_loops(period * 0.05, stop)
+    stop.set()
+    assert [name for name, _ in ran] == ["control", "perception", "control", "perception", "sonar",
+                                         "control", "perception", "control", "perception", "sonar"]
+    assert [t for name, t in ran if name == "sonar"] == pytest.approx([0.1, 0.2])

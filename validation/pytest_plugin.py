@@ -9,6 +9,8 @@ while it runs and gets the summary and the verdicts when it ends.
         start_my_driver(system.endpoint, system.system_id)
         result = system.result(timeout_s=120)
         assert result.passed, result.verdicts
+
+    system = abyss_system("scenarios/nominal.toml", time="sim", speed="4")  # faster than real time
 """
 
 from __future__ import annotations
@@ -92,8 +94,15 @@ def abyss_system(tmp_path: Path) -> Iterator[Any]:
 
     running: list[RunningSystem] = []
 
-    def start(scenario: str | Path | dict[str, Any]) -> RunningSystem:
+    def start(scenario: str | Path | dict[str, Any], time: str | None = None,
+              speed: str | None = None) -> RunningSystem:
+        """`time`: real, sim or lockstep (default: the scenario's own), `speed` with sim; a scenario
+        that cannot follow simulated time (an external station, a CPU cap) fails to start then."""
         spec = scenario_of(scenario) if isinstance(scenario, dict) else load_scenario(Path(scenario))
+        if time is not None or speed is not None:
+            spec, why = spec.on_time(time or "sim", speed)
+            if why:
+                raise pytest.UsageError(f"{spec.name} {why}: it cannot run with time={time}")
         system = RunningSystem(spec, tmp_path / f"abyss-{spec.name}-{len(running)}")
         running.append(system)
         return system

@@ -24,11 +24,23 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.errors import BadMessage
-from abyss.common.messages import SimTime, decode, encode
+from abyss.common.messages import Message, SimTime, decode, encode
 
 log = logging.getLogger(__name__)
 POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this often [wall s]
 SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
+
+
+def station_message(sample: zenoh.Sample, expected: str) -> tuple[str, Message] | None:
+    """The station a testbed sample comes from and the `expected` message it carries; None,
+    logged with the reason, if it does not decode."""
+    key = str(sample.key_expr)
+    try:
+        message = decode(key, sample.payload.to_bytes(), expected).message
+    except BadMessage as exc:
+        log.warning("dropped a %s on %s: %s", expected, key, exc.reason)
+        return None
+    return key.split("/")[2], message
 
 
 class Clock:
@@ -219,15 +231,12 @@ class Holdback:
         log.warning("%s is gone: the simulation no longer waits for it", station)
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        station = key.split("/")[2]
-        try:
-            message = decode(key, sample.payload.to_bytes(), "SimTime").message
-        except BadMessage as exc:
+        got = station_message(sample, "SimTime")
+        if got is None:
             with self._cond:
                 self.rejected += 1
-            log.warning("dropped a progress report on %s: %s", key, exc.reason)
             return
+        station, message = got
         assert isinstance(message, SimTime)
         with self._cond:
             if station not in self.stations:

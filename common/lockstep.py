@@ -32,9 +32,8 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from abyss.common import keys
-from abyss.common.clock import POLL_WALL_S, SimClock
-from abyss.common.errors import BadMessage
-from abyss.common.messages import LockstepReport, decode, encode
+from abyss.common.clock import POLL_WALL_S, SimClock, station_message
+from abyss.common.messages import LockstepReport, encode
 
 log = logging.getLogger(__name__)
 TICK_TOLERANCE_S = 1e-6  # a loop due at T + this runs in period T (sums of periods in floats)
@@ -155,16 +154,13 @@ class Lockstep:
 
     # -- reports -------------------------------------------------------------------------
     def _on_report(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        try:
-            report = decode(key, sample.payload.to_bytes(), "LockstepReport").message
-        except BadMessage as exc:
+        got = station_message(sample, "LockstepReport")
+        if got is None:
             with self._cond:
                 self.rejected += 1
-            log.warning("dropped a lockstep report on %s: %s", key, exc.reason)
             return
+        station, report = got
         assert isinstance(report, LockstepReport)
-        station = key.split("/")[2]
         with self._cond:
             before = self._reports.get((station, report.phase))
             if before is None or report.sim_time_s >= before[0]:

@@ -199,4 +199,10 @@ def render_summary(summary: dict[str, Any]) -> str:
         lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
                      f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
                      + (f", faults {sim['faults']}" if sim["faults"] else ""))
+    timing = summary.get("time", {})
+    if "achieved_speed" in timing:
+        asked = f" at speed {timing['speed']}" if timing["mode"] == "sim" else ""
+        lines.append(f"  time: {timing['mode']}{asked}: {timing['sim_s']:.1f} s simulated in "
+                     f"{timing['wall_s']:.1f} s of wall time (x{timing['achieved_speed']:.2f}), limited by "
+                     f"{timing['limited_by']}")
     return "\n".join(lines)

@@ -164,6 +164,9 @@ class Up:
                 if what:
                     raise ConfigError(refused, "a real component or a replay runs on the wall clock, which "
                                       "--time sim cannot speed up; use --time real with it")
+            if self.time.mode == "lockstep" and restart:
+                raise ConfigError("--restart", "a station restarted mid-period leaves lockstep's counted "
+                                  "periods behind: use --time sim or real with it")
             if config.cpu.capped():
                 raise ConfigError("--cpu", "a CPU cap is a share of wall time, and with --time sim the "
                                   "simulation waits for a station that needs more: use --time real with it")
@@ -514,7 +517,9 @@ class Up:
         sim_s, wall_s = self._now_s() - self.watch_from[0], time.monotonic() - self.watch_from[1]
         held = dict(self.simulation.held_s) if self.simulation else {}
         speed = sim_s / wall_s if wall_s > 0 else 0.0
-        if speed >= 0.95 * self.time.speed_factor:
+        if self.time.mode == "lockstep":
+            limited_by = "each period's slowest station"  # the periods follow each other at once
+        elif speed >= 0.95 * self.time.speed_factor:
             limited_by = "speed asked"
         else:  # the station it waited on the longest; else its own physics and rendering
             limited_by = max(held, key=lambda s: held[s]) if held and max(held.values()) > 0 else "simulation"

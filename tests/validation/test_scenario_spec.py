@@ -128,8 +128,9 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
     assert not why and nominal.time.simulated and nominal.time.speed_factor == 4.0
     back, _ = nominal.on_time("real", None)
     assert not back.time.simulated and back.time.speed_factor == 1.0
-    for name, said in (("external-onboard", "external onboard keeps the wall clock"),
-                       ("onboard-starved", "a CPU cap is a share of wall time")):
+    for name, mode, said in (("external-onboard", "sim", "external onboard keeps the wall clock"),
+                             ("onboard-starved", "lockstep", "a CPU cap is a share of wall time"),
+                             ("vessel-crash", "lockstep", "a station killed mid-period")):
         scenario = load_scenario(root / f"{name}.toml")
-        kept, why = scenario.on_time("sim", "4")
+        kept, why = scenario.on_time(mode, "4" if mode == "sim" else None)
         assert kept is scenario and not kept.time.simulated and said in why, why

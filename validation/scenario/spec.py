@@ -97,10 +97,12 @@ class Scenario:
     def on_time(self, mode: str, speed: str | None) -> tuple[Scenario, str]:
         """This scenario on the time source `abyss scenario run --time` asks for, and why not where
         it cannot follow it (an external station, a real component, runs on the wall clock)."""
-        if mode == "sim" and self.external:
+        if mode != "real" and self.external:
             return self, f"runs in real time: external {', '.join(self.external)} keeps the wall clock"
-        if mode == "sim" and any(c.startswith("cpu.") for c in self.config):
+        if mode != "real" and any(c.startswith("cpu.") for c in self.config):
             return self, "runs in real time: a CPU cap is a share of wall time"
+        if mode == "lockstep" and (self.restart or any(e.action == "kill" for e in self.events)):
+            return self, "runs in real time: a station killed mid-period leaves lockstep's counts behind"
         items = [f"time.mode={mode}", *([f"time.speed={speed}"] if speed is not None else [])]
         if mode == "real":
             items.append("time.speed=1")

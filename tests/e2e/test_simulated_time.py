@@ -43,7 +43,7 @@ def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:
     assert summary["mission"]["waypoint_index"] >= 1, summary["mission"]
     control = summary["stations"]["onboard"]["loops"]["control"]
     assert control["ticks"] >= 0.9 * 20 / control["period_s"], control  # its rate in simulated time
-    assert summary["simulation"]["sim_time_s"] >= 19.0
+    assert summary["simulation"]["sim_time_s"] >= 15.0  # its status comes once a wall second
 
 
 def test_speed_max_runs_as_fast_as_the_slowest_station_and_names_it(tmp_path: Path) -> None:

@@ -51,7 +51,7 @@ from abyss.launch.summary import (
     verdict_of,
 )
 from abyss.recording.store import RECORD_DIR, TESTBED, Recorder
-from abyss.stations.runtime import BOOT_ENV, SUPERVISOR_ENV, free_port, station_recorder
+from abyss.stations.runtime import BOOT_ENV, NATIVE_POOLS, SUPERVISOR_ENV, free_port, station_recorder
 
 DEFAULT_PORT = 7447
 STARTUP_TIMEOUT_S = 60.0
@@ -132,9 +132,9 @@ class Replayed:
         return ["--replay", str(self.run_dir), "--speed", str(self.speed)] if station in self.stations else []
 
 
-# lockstep: native libraries' own thread pools (OpenMP in Open3D's ICP, OpenBLAS) add floating-point
-# sums in whatever order their threads finish, a last-bit difference that a run carries on
-SINGLE_THREADED = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+# lockstep: one thread in every native pool whatever the user's environment says (a station's own
+# default otherwise, single_threaded_native_pools), the order of floating-point sums fixed
+SINGLE_THREADED = dict.fromkeys(NATIVE_POOLS, "1")
 
 
 class Up:

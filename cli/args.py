@@ -66,19 +66,25 @@ def load_config(args: argparse.Namespace, default: Path | None = None) -> Config
     """--config (else `default`, else the defaults), then --set, --system, --seed,
     --time, --speed, --profile and --cpu on top."""
     overrides = list(args.set)
+    options: dict[str, str] = {}  # a field -> the option that set it, for its error
+
+    def option(name: str, field: str, value: object) -> None:
+        overrides.append(f"{field}={value}")
+        options[field] = name
+
     if args.system:
-        overrides.append(f"system={args.system}")
+        option("--system", "system", args.system)
     if args.seed is not None:
-        overrides.append(f"seed={args.seed}")
+        option("--seed", "seed", args.seed)
     if args.time is not None:
-        overrides.append(f"time.mode={args.time}")
+        option("--time", "time.mode", args.time)
     if getattr(args, "time_speed", None) is not None:
-        overrides.append(f"time.speed={args.time_speed}")
+        option("--speed", "time.speed", args.time_speed)
     for hop, name in pairs("--profile", args.profile):
-        overrides.append(f"links.{keys.check_hop(hop)}={name}")
+        option("--profile", f"links.{keys.check_hop(hop)}", name)
     for station, cores in pairs("--cpu", getattr(args, "cpu", [])):
-        overrides.append(f"cpu.{keys.check_station(station)}={cores}")
-    return load(args.config or default, overrides)
+        option("--cpu", f"cpu.{keys.check_station(station)}", cores)
+    return load(args.config or default, overrides, options=options)
 
 
 def profile_args(p: argparse.ArgumentParser) -> None:

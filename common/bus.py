@@ -199,7 +199,7 @@ class Bus:
         self._outgoing = {s.topic: Outgoing.of(s, system) for s in keys.KEYS if s.station == station}
         self._publishers = {out.key: session.declare_publisher(
             out.key, **publisher_qos(out.spec, clock.mode == "lockstep")) for out in self._outgoing.values()}
-        self.arrived: Counter[str] = Counter()  # what reached a neighbour's key's inbox, decoded or not
+        self._arrived: Counter[str] = Counter()  # what reached a neighbour's key's inbox, decoded or not
         self.on_arrival: Callable[[], None] = lambda: None
         self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
 
@@ -260,7 +260,7 @@ class Bus:
     def arrivals(self) -> Counter[str]:
         """What reached each neighbour's key's inbox so far, decoded or not."""
         with self._lock:
-            return Counter(self.arrived)
+            return Counter(self._arrived)
 
     def _on_sample(self, key: str, expected: str, payload: bytes, inbox: Inbox, data: bool = False) -> None:
         try:
@@ -268,7 +268,7 @@ class Bus:
         finally:
             if data:
                 with self._lock:
-                    self.arrived[key] += 1
+                    self._arrived[key] += 1
                 self.on_arrival()
 
     def _take(self, key: str, expected: str, payload: bytes, inbox: Inbox) -> None:

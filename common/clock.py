@@ -31,14 +31,17 @@ POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this 
 SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
 
 
-def station_message(sample: zenoh.Sample, expected: str) -> tuple[str, Message] | None:
+Reject = Callable[[str, str], None]  # a malformed input's key and reason, counted (Bus.reject)
+
+
+def station_message(sample: zenoh.Sample, expected: str, reject: Reject) -> tuple[str, Message] | None:
     """The station a testbed sample comes from and the `expected` message it carries; None,
-    logged with the reason, if it does not decode."""
+    rejected with the reason, if it does not decode."""
     key = str(sample.key_expr)
     try:
         message = decode(key, sample.payload.to_bytes(), expected).message
     except BadMessage as exc:
-        log.warning("dropped a %s on %s: %s", expected, key, exc.reason)
+        reject(key, exc.reason)
         return None
     return key.split("/")[2], message
 
@@ -206,7 +209,7 @@ class Holdback:
     waited on each, the station that limited the speed."""
 
     def __init__(self, session: zenoh.Session, system: str, stations: Iterable[str], max_lag_s: float,
-                 start_wall_s: float = 60.0, silent_wall_s: float = 5.0) -> None:
+                 reject: Reject, start_wall_s: float = 60.0, silent_wall_s: float = 5.0) -> None:
         self.max_lag_s = max_lag_s
         self.start_wall_s, self.silent_wall_s = start_wall_s, silent_wall_s
         self.stations = set(stations)
@@ -214,7 +217,7 @@ class Holdback:
         self.heard_wall_s: dict[str, float] = {}
         self.held_wall_s: dict[str, float] = dict.fromkeys(["simulation", *sorted(self.stations)], 0.0)
         self.let_go: set[str] = set()
-        self.rejected = 0
+        self.reject = reject
         self._started_wall_s = time.monotonic()
         self._cond = threading.Condition()
         self._subscriber = session.declare_subscriber(keys.progress_key(system, "*"), self._on_progress)
@@ -231,10 +234,8 @@ class Holdback:
         log.warning("%s is gone: the simulation no longer waits for it", station)
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
-        got = station_message(sample, "SimTime")
+        got = station_message(sample, "SimTime", self.reject)
         if got is None:
-            with self._cond:
-                self.rejected += 1
             return
         station, message = got
         assert isinstance(message, SimTime)

@@ -160,7 +160,7 @@ class SimulationConfig:
                                   f"{period} s is not a whole multiple of {base_name} = {base} s")
 
 
-STEREO_MODES = ("3way", "sgbm", "hh")  # onboard.stereo_mode: OpenCV's semi-global matcher's modes
+STEREO_MODES = ("3way", "sgbm", "hh", "hh4")  # onboard.stereo_mode: OpenCV's semi-global matcher's modes
 STEREO_SCALES = (1, 2)  # onboard.stereo_scale and stereo_lr_scale: full or half resolution
 STEREO_SWITCHES = ("stereo_uniqueness_percent", "stereo_speckle_window_px", "stereo_lr_max_diff_px",
                    "stereo_min_texture", "stereo_edge_step_px")  # 0: that filter off
@@ -638,10 +638,13 @@ def _build(cls: Any, table: Any, prefix: str = "") -> Any:
 
 
 def load(path: Path | None = None, overrides: typing.Sequence[str] = (),
-         base: dict[str, Any] | None = None) -> Config:
-    """Defaults, then the file (TOML or JSON), then `section.field=value` overrides."""
+         base: dict[str, Any] | None = None, options: dict[str, str] | None = None) -> Config:
+    """Defaults, then the file (TOML or JSON), then `section.field=value` overrides. An error
+    names where its field's value came from: the option in `options` (field -> the option the
+    user typed, e.g. "time.speed" -> "--speed"), else --set, else the file."""
     table: dict[str, Any] = dict(base or {})
     source = str(path) if path else "--set"
+    overridden: dict[str, str] = {}
     if path is not None:
         try:
             text = path.read_text()
@@ -659,10 +662,11 @@ def load(path: Path | None = None, overrides: typing.Sequence[str] = (),
             if not isinstance(node, dict):
                 raise ConfigError(name, "is not a section")
         node[leaf] = value
+        overridden[name] = (options or {}).get(name, "--set")
     try:
         return typing.cast(Config, _build(Config, table))
     except ConfigError as exc:
-        raise ConfigError(exc.field, exc.reason, source) from None
+        raise ConfigError(exc.field, exc.reason, overridden.get(exc.field, source)) from None
     except json.JSONDecodeError as exc:
         raise ConfigError("config", f"bad list value: {exc}", source) from None
 

@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from abyss.common import keys
-from abyss.common.clock import POLL_WALL_S, SimClock, station_message
+from abyss.common.clock import POLL_WALL_S, Reject, SimClock, station_message
 from abyss.common.messages import LockstepReport, encode
 
 log = logging.getLogger(__name__)
@@ -131,14 +131,14 @@ class Lockstep:
     def __init__(self, session: zenoh.Session, system: str, station: str, clock: LockstepClock,
                  deliver_due: Callable[[float], Counter[str]], arrived: Callable[[], Counter[str]],
                  expects: Callable[[], dict[str, set[str]]], loops: Iterable[str],
-                 stop: threading.Event) -> None:
+                 stop: threading.Event, reject: Reject) -> None:
         self.system, self.station, self.clock, self.stop = system, station, clock, stop
         self.deliver_due, self.arrived, self.expects = deliver_due, arrived, expects
         self.loops = set(loops)
         self._cond = threading.Condition()
         self._reports: dict[tuple[str, str], tuple[float, dict[str, float]]] = {}  # (station, phase)
         self._seq = 0
-        self.rejected = 0
+        self.reject = reject
         self._publisher = session.declare_publisher(keys.lockstep_key(system, station),
                                                     congestion_control=zenoh.CongestionControl.BLOCK,
                                                     express=True)
@@ -154,10 +154,8 @@ class Lockstep:
 
     # -- reports -------------------------------------------------------------------------
     def _on_report(self, sample: zenoh.Sample) -> None:
-        got = station_message(sample, "LockstepReport")
+        got = station_message(sample, "LockstepReport", self.reject)
         if got is None:
-            with self._cond:
-                self.rejected += 1
             return
         station, report = got
         assert isinstance(report, LockstepReport)

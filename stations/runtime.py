@@ -28,6 +28,7 @@ from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
 from abyss.common.lockstep import Lockstep, LockstepClock
 from abyss.common.messages import repeatable_ids
+from abyss.common.workers import loops_first
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
 
@@ -148,7 +149,7 @@ def station_lockstep(session: zenoh.Session, config: Config, name: str, clock: L
                 for neighbour in keys.hops_of(name).values()}
 
     lockstep = Lockstep(session, config.system, name, clock, links.deliver_due, bus.arrivals, expects,
-                        importlib.import_module(f"abyss.stations.{name}").loops(config), bus.stop)
+                        importlib.import_module(f"abyss.stations.{name}").loops(config), bus.stop, bus.reject)
     bus.on_arrival = lockstep.notify
     return lockstep
 
@@ -185,6 +186,7 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     close, write the status file."""
     entry = entry or station_entry(name)
     single_threaded_native_pools()
+    loops_first()
     asked_s: list[float] = []  # when the stop was asked for (this process's monotonic clock)
     stopped = threading.Event()
     outcome: dict[str, Any] = {"exit_code": 0}  # what the watchdog writes if it has to cut the stop

@@ -52,9 +52,9 @@ def run(config: Config, bus: Bus) -> None:
     blackout: set[str] = set()
     with Workers(bus.stop) as workers:
         if sim.camera_rate_hz > 0:
-            workers.start("cameras", _camera_loop, config, bus, world, lock, blackout)
+            workers.start("cameras", _camera_loop, config, bus, world, lock, blackout, background=True)
         if sim.sonar_rate_hz > 0:
-            workers.start("sonar", _sonar_loop, config, bus, world, lock)
+            workers.start("sonar", _sonar_loop, config, bus, world, lock, background=True)
         _physics_loop(config, bus, world, lock, blackout)
 
 
@@ -123,8 +123,8 @@ class Timekeeper:
         self.lockstep: Lockstep | None = bus.lockstep
         self.rate = bus.loop("physics", 0.0 if self.lockstep else period_s / self.time.speed_factor, WALL)
         self.clock = bus.clock if isinstance(bus.clock, SimClock) and self.lockstep is None else None
-        self.holdback = (Holdback(bus.session, bus.system, self.time.stations, self.time.max_lag_s)
-                         if self.clock is not None else None)
+        self.holdback = (Holdback(bus.session, bus.system, self.time.stations, self.time.max_lag_s,
+                                  bus.reject) if self.clock is not None else None)
         self.waited_wall_s = 0.0  # lockstep: for the stations to finish their periods
         if self.time.simulated:
             self.tell(start_s)  # a resumed simulation starts where it was

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import Holdback, ProgressReport, SimClock
 from abyss.common.config import ConfigError, load
@@ -140,8 +141,11 @@ def sessions() -> Iterator[tuple[object, object]]:
 def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(sessions) -> None:  # type: ignore[no-untyped-def]
     simulation, station = sessions
     own = SimClock(PERIOD_S)  # the simulation's own loops (none here)
-    holdback = Holdback(simulation, "sys", ["onboard", "vessel"], max_lag_s=0.1, start_wall_s=0.5,
-                        silent_wall_s=0.5)
+    rejected: list[tuple[str, str]] = []
+    got_bad = threading.Event()
+    holdback = Holdback(simulation, "sys", ["onboard", "vessel"], max_lag_s=0.1,
+                        reject=lambda key, reason: (rejected.append((key, reason)), got_bad.set()),
+                        start_wall_s=0.5, silent_wall_s=0.5)
     onboard_clock = SimClock(PERIOD_S)
     report = ProgressReport(station, "sys", "onboard", onboard_clock)
     stop = threading.Event()
@@ -162,6 +166,10 @@ def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(s
         onboard_clock.done("control", 1.95)
         assert released.wait(2.0)
         assert holdback.status()["onboard"] >= 0.25  # the wall time it held the simulation
+        station.put(keys.progress_key("sys", "onboard"), b"\x00garbage")  # counted as the bus counts
+        assert got_bad.wait(5.0)
+        assert rejected[0][0] == keys.progress_key("sys", "onboard") and rejected[0][1]
+        assert holdback.progress_s["onboard"] >= 1.95  # and nothing it knew is lost
     finally:
         stop.set()
         report.close()

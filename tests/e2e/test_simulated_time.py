@@ -72,11 +72,12 @@ def test_the_tether_outage_failsafe_keeps_its_bounds_at_speed_4(tmp_path: Path) 
 @pytest.mark.parametrize(("args", "said"), [
     (("up", "--time", "sim", "--external", "onboard"), "--external: a real component or a replay runs on "
                                                        "the wall clock"),
-    (("up", "--speed", "4"), "time.speed: 4: only with time.mode sim"),
-    (("up", "--time", "sim", "--speed", "fast"), "time.speed: 'fast': a number from 0.01 to 1000, or max"),
+    (("up", "--speed", "4"), "--speed: time.speed: 4: only with time.mode sim"),
+    (("up", "--time", "sim", "--speed", "fast"), "--speed: time.speed: 'fast': a number from 0.01 to 1000, "
+                                                 "or max"),
     (("up", "--time", "sim", "--speed", "4", "--cpu", "onboard=0.3"), "--cpu: a CPU cap is a share of "
                                                                         "wall time"),
-    (("up", "--time", "sim", "--ros2", "onboard"), "time.mode: sim: a ROS 2 node"),
+    (("up", "--time", "sim", "--ros2", "onboard"), "--time: time.mode: sim: a ROS 2 node"),
     (("up", "--time", "lockstep", "--restart"), "--restart: a station restarted mid-period"),
 ])
 def test_what_cannot_follow_simulated_time_is_refused_at_start(tmp_path: Path, args: tuple[str, ...],

@@ -100,7 +100,7 @@ def near(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
 
 
 def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, step_m: float | None = None,
-            seed: int = 0, scale: int = 1, every: int = 1) -> Figures:
+            seed: int = 0, scale: int = 1, every: int = 1, mode: str = "hh") -> Figures:
     """The figures over the first `frames` frame sets (all: None) of the mission's path, a frame
     set every `step_m` (None: onboard's speed limit over the camera period), the pair matched
     `scale` times smaller (onboard.stereo_scale) on every `every`-th set (onboard.stereo_every)."""
@@ -109,7 +109,8 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
     world = World(sim, np.random.default_rng(seed))
     cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow,
                       np.random.default_rng(seed))
-    settings = dataclasses.replace(CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale)
+    settings = dataclasses.replace(CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale,
+                                   stereo_mode=mode)
     model = SceneModel(vessel.octree_resolution_m, vessel.octree_max_range_m)
     truth: list[np.ndarray] = []
     stereo_s = 0.0
@@ -150,7 +151,8 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
     )
 
 
-def stereo_cost_s(kept: StereoFilter, water: str, scale: int = 1, repeats: int = 10) -> float:
+def stereo_cost_s(kept: StereoFilter, water: str, scale: int = 1, mode: str = "hh",
+                  repeats: int = 10) -> float:
     """[s] stereo_depth alone on the start pose's pair, mean of `repeats` after one."""
     sim = SimulationConfig(water=water)
     world = World(sim, np.random.default_rng(0))
@@ -163,10 +165,10 @@ def stereo_cost_s(kept: StereoFilter, water: str, scale: int = 1, repeats: int =
     finally:
         cameras.close()
     disparities = OnboardConfig().stereo_disparities
-    stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept, scale=scale)
+    stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept, scale=scale, mode=mode)
     t0 = time.perf_counter()
     for _ in range(repeats):
-        stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept, scale=scale)
+        stereo_depth(left, right, focal_px, baseline_m, disparities, kept=kept, scale=scale, mode=mode)
     return (time.perf_counter() - t0) / repeats
 
 
@@ -175,6 +177,7 @@ class Variant:
     kept: StereoFilter
     scale: int = 1  # onboard.stereo_scale
     every: int = 1  # onboard.stereo_every
+    mode: str = "hh"  # onboard.stereo_mode
 
 
 VARIANTS = {
@@ -184,6 +187,8 @@ VARIANTS = {
     "half": Variant(StereoFilter(), scale=2),  # the pair matched at half resolution
     "filtered/2": Variant(StereoFilter(), every=2),  # on every second frame set
     "half/2": Variant(StereoFilter(), scale=2, every=2),
+    "hh4": Variant(StereoFilter(), mode="hh4"),  # four directions, not eight
+    "sgbm": Variant(StereoFilter(), mode="sgbm"),
 }
 
 
@@ -192,13 +197,14 @@ def main() -> None:
     frames = int(args.pop(0)) if args and args[0].isdigit() else None
     names = args or ["unfiltered", "filtered", "full-lr", "half"]
     for water in ("none", "I"):
-        costs = {name: stereo_cost_s(VARIANTS[name].kept, water, VARIANTS[name].scale) for name in names}
+        costs = {name: stereo_cost_s(VARIANTS[name].kept, water, VARIANTS[name].scale, VARIANTS[name].mode)
+                 for name in names}
         listed = ", ".join(f"{name} {cost_s * 1e3:.0f} ms" for name, cost_s in costs.items())
         print(f"water {water}: stereo_depth per pair: {listed}", flush=True)
         for name in names:
             v = VARIANTS[name]
-            print(f"water {water}, {name}: {measure(v.kept, water, frames, scale=v.scale, every=v.every)}",
-                  flush=True)
+            figures = measure(v.kept, water, frames, scale=v.scale, every=v.every, mode=v.mode)
+            print(f"water {water}, {name}: {figures}", flush=True)
 
 
 if __name__ == "__main__":

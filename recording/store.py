@@ -38,6 +38,7 @@ from abyss.common.clock import WALL, Clock
 from abyss.common.config import RECORD_LEVELS
 from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import MESSAGES, Message, Received, decode, unwrap
+from abyss.common.workers import in_background
 
 log = logging.getLogger(__name__)
 
@@ -198,6 +199,7 @@ class Recorder:
         return channel
 
     def _write_loop(self) -> None:
+        in_background()
         next_flush_s = time.monotonic() + FLUSH_PERIOD_S
         while True:
             try:

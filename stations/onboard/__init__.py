@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
-import sys
 import threading
 
 import numpy as np
@@ -36,10 +34,6 @@ from abyss.stations.onboard.core import Onboard, OnboardInputs
 from abyss.stations.onboard.perception import PoseHistory
 
 log = logging.getLogger(__name__)
-# a thread holding the GIL (perception's Python between native calls) gives it up after this
-# long: the control loop, woken at its tick, waits at most this, not CPython's 5 ms
-SWITCH_INTERVAL_S = 0.001
-PERCEPTION_NICE = 10
 
 
 class Shared:
@@ -65,9 +59,8 @@ def run(config: Config, bus: Bus) -> None:
         return gateway.run(config, bus)
     core = Onboard(config)
     shared = Shared()
-    sys.setswitchinterval(SWITCH_INTERVAL_S)
     with Workers(bus.stop) as workers:
-        workers.start("perception", _perception_loop, config, bus, shared)
+        workers.start("perception", _perception_loop, config, bus, shared, background=True)
         workers.start("sonar", _sonar_loop, bus, shared)
         _control_loop(config, bus, core, shared)
 
@@ -110,9 +103,6 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
     cfg = config.onboard
-    # below the control loop for the kernel's scheduler too: where the CPU is capped, the quota
-    # goes to control first (a thread's nice value; raising it needs no privilege)
-    os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), PERCEPTION_NICE)
     settings = CloudSettings.of(cfg)
     needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set()) | (
         {"cam_right"} if "stereo" in cfg.cloud_sources else set())

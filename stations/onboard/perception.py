@@ -87,8 +87,9 @@ def colors_at(points_m_camera: np.ndarray, camera: Camera, rgb: np.ndarray) -> t
     return colors, seen
 
 
+# onboard.stereo_mode (config.STEREO_MODES) -> OpenCV's
 SGBM_MODES = {"3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
-              "hh": cv2.STEREO_SGBM_MODE_HH}  # onboard.stereo_mode (config.STEREO_MODES) -> OpenCV's
+              "hh": cv2.STEREO_SGBM_MODE_HH, "hh4": cv2.STEREO_SGBM_MODE_HH4}
 
 
 @dataclass(frozen=True)

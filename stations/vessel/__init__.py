@@ -66,8 +66,9 @@ def run(config: Config, bus: Bus) -> None:
     try:
         with Workers(bus.stop) as workers:
             workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, objects, sonar,
-                          gateway is None)
-            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s, sonar)
+                          gateway is None, background=True)
+            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s, sonar,
+                          background=True)
             if gateway is not None:
                 workers.start("ros2 gateway", gateway.run)
             _relay_loop(config, bus, objects)

@@ -1,15 +1,17 @@
 """A station's worker group (common.workers): a worker's failure stops the others and reaches
 the exit as WorkerFailed, the body's own exception wins, a worker that ignores stop is let go
-after join_s and named, and workers that end normally leave nothing behind."""
+after join_s and named, workers that end normally leave nothing behind, and a background worker
+runs below the periodic loops."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
 import pytest
 
-from abyss.common.workers import WorkerFailed, Workers
+from abyss.common.workers import BACKGROUND_NICE, WorkerFailed, Workers
 
 WAIT_S = 5.0  # a bound on waits that should end at once, never reached when the code works
 
@@ -77,3 +79,17 @@ def test_workers_that_end_normally_leave_no_failure_and_none_abandoned() -> None
     assert sorted(done) == ["loop", "short"]  # both ran to their end before the group closed
     assert workers.abandoned == [] and workers.failures == []
     assert stop.is_set()
+
+
+def test_a_background_worker_runs_below_the_loops_and_the_others_do_not() -> None:
+    nice: dict[str, int] = {}
+
+    def record(name: str) -> None:
+        nice[name] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+    own = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    with Workers(threading.Event()) as workers:
+        workers.start("render", record, "render", background=True)
+        workers.start("control", record, "control")
+    assert nice == {"render": max(BACKGROUND_NICE, own), "control": own}
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == own  # per thread, not the process

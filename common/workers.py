@@ -20,8 +20,7 @@ JOIN_S = 3.0  # the part of a station's 5 s stop bound its threads may take
 # Bulk work (rendering, perception, the scene, the recording) runs below a station's periodic
 # loops (physics every 2 ms, control every 50 ms) for the kernel's scheduler: on a loaded machine a
 # loop woken at its tick preempts it, and where a CPU quota caps the station the quota goes to the
-# loops first. Three whole systems on two cores kept 94.4-96.8 % of the physics' deadlines with
-# only onboard's perception below, 99 %+ with all of it (bench/scenarios.py).
+# loops first.
 BACKGROUND_NICE = 10
 # a thread holding the GIL (Python between native calls) gives it up after this long: a loop woken
 # at its tick waits at most this, not CPython's 5 ms

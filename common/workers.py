@@ -17,14 +17,32 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 JOIN_S = 3.0  # the part of a station's 5 s stop bound its threads may take
-# Bulk work (rendering, perception, the scene, the recording) runs below a station's periodic
-# loops (physics every 2 ms, control every 50 ms) for the kernel's scheduler: on a loaded machine a
-# loop woken at its tick preempts it, and where a CPU quota caps the station the quota goes to the
-# loops first.
+# Bulk work (onboard's perception, the simulation's sensor processes) runs below a station's
+# periodic loops (physics and control every 50 ms) for the kernel's scheduler: on a loaded machine
+# a loop woken at its tick preempts it, and where a CPU quota caps the station the quota goes to
+# the loops first. Only where the GIL is not shared with a loop, or its holder gives it up within
+# the switch interval (OpenCV's matcher releases it): a thread the kernel holds back while it holds
+# the GIL holds the loop back with it.
 BACKGROUND_NICE = 10
 # a thread holding the GIL (Python between native calls) gives it up after this long: a loop woken
 # at its tick waits at most this, not CPython's 5 ms
 SWITCH_INTERVAL_S = 0.001
+
+
+_children_cpu_s: dict[str, float] = {}  # a station's child processes: the CPU each last reported
+_children_lock = threading.Lock()
+
+
+def child_cpu(name: str, cpu_s: float) -> None:
+    """A child process of this station (stations.simulation.offload) has used `cpu_s` so far."""
+    with _children_lock:
+        _children_cpu_s[name] = cpu_s
+
+
+def children_cpu_s() -> float:
+    """The CPU this station's child processes have used, for its own figure."""
+    with _children_lock:
+        return sum(_children_cpu_s.values())
 
 
 def loops_first() -> None:

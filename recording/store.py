@@ -38,7 +38,6 @@ from abyss.common.clock import WALL, Clock
 from abyss.common.config import RECORD_LEVELS
 from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import MESSAGES, Message, Received, decode, unwrap
-from abyss.common.workers import in_background
 
 log = logging.getLogger(__name__)
 
@@ -199,7 +198,6 @@ class Recorder:
         return channel
 
     def _write_loop(self) -> None:
-        in_background()
         next_flush_s = time.monotonic() + FLUSH_PERIOD_S
         while True:
             try:

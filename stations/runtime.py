@@ -28,7 +28,7 @@ from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
 from abyss.common.lockstep import Lockstep, LockstepClock
 from abyss.common.messages import repeatable_ids
-from abyss.common.workers import loops_first
+from abyss.common.workers import children_cpu_s, loops_first
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
 
@@ -69,7 +69,7 @@ class Shell:
     def __init__(self, name: str, config: Config, listen: Sequence[str] = (), connect: Sequence[str] = (),
                  link_mode: str = "emulated", mode: str = "peer", tls_dir: Path | None = None,
                  peers: dict[str, str] | None = None) -> None:
-        self.started_s, self.started_cpu_s = time.monotonic(), time.process_time()
+        self.started_s, self.started_cpu_s = time.monotonic(), time.process_time() + children_cpu_s()
         profiles = config.links.profiles()
         tls = CertFiles(tls_dir, name) if tls_dir else None
         slowest_bps = min(profiles[hop].rate_bps for hop in keys.hops_of(name))
@@ -102,7 +102,8 @@ class Shell:
         status["links"] = self.links.status()
         if self.recorder is not None:
             status["recording"] = self.recorder.status()
-        wall_s, cpu_s = time.monotonic() - self.started_s, time.process_time() - self.started_cpu_s
+        wall_s = time.monotonic() - self.started_s
+        cpu_s = time.process_time() + children_cpu_s() - self.started_cpu_s  # its sensor processes too
         status["cpu"] = {"cpu_s": round(cpu_s, 3), "wall_s": round(wall_s, 3),
                          "cores": round(cpu_s / wall_s, 4) if wall_s > 0 else 0.0}  # all its threads
         return status

@@ -52,9 +52,9 @@ def run(config: Config, bus: Bus) -> None:
     blackout: set[str] = set()
     with Workers(bus.stop) as workers:
         if sim.camera_rate_hz > 0:
-            workers.start("cameras", _camera_loop, config, bus, world, lock, blackout, background=True)
+            workers.start("cameras", _camera_loop, config, bus, world, lock, blackout)
         if sim.sonar_rate_hz > 0:
-            workers.start("sonar", _sonar_loop, config, bus, world, lock, background=True)
+            workers.start("sonar", _sonar_loop, config, bus, world, lock)
         _physics_loop(config, bus, world, lock, blackout)
 
 
@@ -174,43 +174,33 @@ class Timekeeper:
             self.holdback.close()
 
 
-def _camera_loop(config: Config, bus: Bus, world: object, lock: threading.Lock, blackout: set[str]) -> None:
-    """Render every camera at the camera rate from a copy of the physics state."""
-    import mujoco
+def _camera_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str]) -> None:
+    """Render every camera at the camera rate from a copy of the physics state, in a process of
+    its own (stations.simulation.offload)."""
+    from abyss.stations.simulation.offload import Offloaded, state_of
 
-    from abyss.common.models import CAMERAS
-    from abyss.stations.simulation.encoding import encode_image
-    from abyss.stations.simulation.rendering import Cameras
-
-    sim = config.simulation
-    model = world.model  # type: ignore[attr-defined]
-    snapshot = mujoco.MjData(model)
-    cameras = Cameras(model, sim.camera_width_px, sim.camera_height_px, sim.water, sim.marine_snow,
-                      np.random.default_rng([config.seed, 1]))  # the optics' own stream: snow, noise
-    cameras.blackout = blackout
-    rate = bus.loop("cameras", 1.0 / sim.camera_rate_hz)
+    cameras = Offloaded("cameras", world.model, config.simulation, [config.seed, 1])  # its own stream
+    rate = bus.loop("cameras", 1.0 / config.simulation.camera_rate_hz)
     try:
         while rate.sleep():
             with lock:
-                mujoco.mj_copyData(snapshot, model, world.data)  # type: ignore[attr-defined]
-            for camera in CAMERAS:
-                bus.publish(f"camera/{camera}", encode_image(cameras, snapshot, camera, sim.jpeg_quality))
+                state = state_of(world.data)
+            for image in cameras.frames(state, blackout):
+                bus.publish(f"camera/{image.camera}", image)
     finally:
         cameras.close()
 
 
 def _sonar_loop(config: Config, bus: Bus, world: World, lock: threading.Lock) -> None:
-    """Ping the imaging sonar at its rate from a copy of the physics state."""
-    import mujoco
+    """Ping the imaging sonar at its rate from a copy of the physics state, in a process of its own."""
+    from abyss.stations.simulation.offload import Offloaded, state_of
 
-    from abyss.stations.simulation.sonar import ImagingSonar
-
-    sim = config.simulation
-    snapshot = mujoco.MjData(world.model)
-    sonar = ImagingSonar(world.model)
-    rng = np.random.default_rng([config.seed, 2])  # the sonar's own stream: speckle, noise
-    rate = bus.loop("sonar", 1.0 / sim.sonar_rate_hz)
-    while rate.sleep():
-        with lock:
-            mujoco.mj_copyData(snapshot, world.model, world.data)
-        bus.publish("sonar", sonar.message(snapshot, rng))
+    sonar = Offloaded("sonar", world.model, config.simulation, [config.seed, 2])  # speckle, noise
+    rate = bus.loop("sonar", 1.0 / config.simulation.sonar_rate_hz)
+    try:
+        while rate.sleep():
+            with lock:
+                state = state_of(world.data)
+            bus.publish("sonar", sonar.ping(state))
+    finally:
+        sonar.close()

@@ -66,9 +66,8 @@ def run(config: Config, bus: Bus) -> None:
     try:
         with Workers(bus.stop) as workers:
             workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, objects, sonar,
-                          gateway is None, background=True)
-            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s, sonar,
-                          background=True)
+                          gateway is None)
+            workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s, sonar)
             if gateway is not None:
                 workers.start("ros2 gateway", gateway.run)
             _relay_loop(config, bus, objects)

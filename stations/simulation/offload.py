@@ -1,0 +1,165 @@
+"""The simulation's sensors rendered in processes of their own. MuJoCo's Python bindings hold the
+GIL through a render and a ray cast (up to 16-19 ms at a time here, with the station's 1 ms switch
+interval), so in the physics' process every frame set delayed the physics loop; on a loaded
+machine by more than its period (three systems on two cores: 3-7 % of its deadlines missed, each
+late tick's work 50-110 ms of wall time instead of 3). Each sensor loop keeps its thread, rate and
+lockstep turn in the simulation; it hands a copy of the physics state to its own child process,
+which renders and encodes the message, and waits on the pipe without the GIL.
+
+The child is this module (`python -m`), started with the station's environment, at a lower
+priority than the physics (workers.BACKGROUND_NICE), fed length-prefixed pickles over its stdin
+and stdout by the process that started it and by nothing else."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import struct
+import subprocess
+import sys
+import time
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from abyss.common.workers import child_cpu, in_background
+
+STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the sensors' kinematics come from
+HEADER = struct.Struct("<Q")
+CLOSE_S = 2.0  # a child that has not gone this long after its stdin closed is killed
+
+
+class OffloadFailed(RuntimeError):
+    """The sensor's process died or failed on a request."""
+
+
+def state_of(data: Any) -> dict[str, Any]:
+    """A copy of the physics state the sensors need (take it under the physics' lock)."""
+    return {"time": float(data.time), **{name: np.array(getattr(data, name)) for name in STATE}}
+
+
+def _write(stream: BinaryIO, item: object) -> None:
+    payload = pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(HEADER.pack(len(payload)) + payload)
+    stream.flush()
+
+
+def _read(stream: BinaryIO) -> Any:
+    header = stream.read(HEADER.size)
+    if len(header) < HEADER.size:
+        raise EOFError
+    (size,) = HEADER.unpack(header)
+    return pickle.loads(stream.read(size))
+
+
+class Offloaded:
+    """A sensor in a child process: `kind` "cameras" (every camera's Image, rendered and encoded
+    as simulation.encoding does) or "sonar" (a SonarImage), of `model` with the simulation's
+    config and the sensor's own random stream `seed`."""
+
+    def __init__(self, kind: str, model: Any, config: Any, seed: list[int]) -> None:
+        self.kind = kind
+        self.process = subprocess.Popen([sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE)
+        self._call("init", kind, model, config, seed)
+
+    def _call(self, *request: object) -> Any:
+        assert self.process.stdin is not None and self.process.stdout is not None
+        try:
+            _write(self.process.stdin, request)
+            status, result, cpu_s = _read(self.process.stdout)
+        except (EOFError, OSError, pickle.UnpicklingError) as exc:
+            raise OffloadFailed(f"the {self.kind} process ended (exit {self.process.poll()}): {exc!r}"
+                                ) from None
+        child_cpu(f"{self.kind} {self.process.pid}", cpu_s)
+        if status != "ok":
+            raise OffloadFailed(f"the {self.kind} process failed: {result}")
+        return result
+
+    def frames(self, state: dict[str, Any], blackout: set[str]) -> Any:
+        """The cameras' Image messages at `state` (cameras in `blackout` dark)."""
+        return self._call("frames", state, set(blackout))
+
+    def ping(self, state: dict[str, Any]) -> Any:
+        """The sonar's SonarImage at `state`."""
+        return self._call("ping", state)
+
+    def close(self) -> None:
+        assert self.process.stdin is not None and self.process.stdout is not None
+        try:
+            self.process.stdin.close()
+            self.process.wait(CLOSE_S)
+        except (OSError, subprocess.TimeoutExpired):
+            self.process.kill()
+            self.process.wait()
+        self.process.stdout.close()
+
+
+class _Sensor:
+    """The child's side: the sensor, and a scratch MjData the state is put into."""
+
+    def __init__(self, kind: str, model: Any, config: Any, seed: list[int]) -> None:
+        from abyss.stations.simulation.rendering import choose_gl_backend
+
+        choose_gl_backend()
+        import mujoco
+
+        self.mujoco, self.model, self.config = mujoco, model, config
+        self.data = mujoco.MjData(model)
+        rng = np.random.default_rng(seed)
+        if kind == "cameras":
+            from abyss.stations.simulation.rendering import Cameras
+
+            self.cameras = Cameras(model, config.camera_width_px, config.camera_height_px, config.water,
+                                   config.marine_snow, rng)
+        else:
+            from abyss.stations.simulation.sonar import ImagingSonar
+
+            self.sonar, self.rng = ImagingSonar(model), rng
+
+    def _at(self, state: dict[str, Any]) -> Any:
+        self.data.time = state["time"]
+        for name in STATE:
+            getattr(self.data, name)[:] = state[name]
+        self.mujoco.mj_forward(self.model, self.data)
+        return self.data
+
+    def frames(self, state: dict[str, Any], blackout: set[str]) -> list[Any]:
+        from abyss.common.models import CAMERAS
+        from abyss.stations.simulation.encoding import encode_image
+
+        self.cameras.blackout = blackout
+        data = self._at(state)
+        return [encode_image(self.cameras, data, camera, self.config.jpeg_quality) for camera in CAMERAS]
+
+    def ping(self, state: dict[str, Any]) -> Any:
+        return self.sonar.message(self._at(state), self.rng)
+
+
+def serve(requests: BinaryIO, replies: BinaryIO) -> None:
+    """Answer requests until the parent closes the pipe."""
+    in_background()  # and the threads it starts (Mesa's), which inherit it
+    sensor: _Sensor | None = None
+    while True:
+        try:
+            method, *args = _read(requests)
+        except EOFError:
+            break
+        try:
+            if method == "init":
+                sensor, result = _Sensor(*args), None
+            else:
+                assert sensor is not None, "not initialised"
+                result = getattr(sensor, method)(*args)
+            _write(replies, ("ok", result, time.process_time()))
+        except Exception as exc:  # the parent raises it, naming the sensor
+            _write(replies, ("error", f"{type(exc).__name__}: {exc}", time.process_time()))
+    if sensor is not None and hasattr(sensor, "cameras"):
+        sensor.cameras.close()
+
+
+if __name__ == "__main__":
+    # the replies keep the pipe; anything a library prints goes to the station's log instead
+    replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    serve(sys.stdin.buffer, replies)

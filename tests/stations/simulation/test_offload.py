@@ -1,10 +1,12 @@
 """The simulation's sensors in processes of their own (stations.simulation.offload): the child's
 frames and pings are the ones the same state gives in this process, byte for byte; its CPU counts
-in the station's; a child that dies fails the loop naming the sensor instead of hanging it."""
+in the station's; a Ctrl-C to the station's process group leaves it to its station; a child that
+dies fails the loop naming the sensor instead of hanging it."""
 
 from __future__ import annotations
 
 import dataclasses
+import signal
 
 import mujoco
 import numpy as np
@@ -55,6 +57,7 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
     sonar = Offloaded("sonar", world.model, config, [7, 2])
     try:
         there = offloaded.frames(state, set())
+        sonar.process.send_signal(signal.SIGINT)  # a Ctrl-C in the station's terminal: its station ends it
         ping_there = sonar.ping(state)
         dark = offloaded.frames(state, {"cam_left"})
     finally:

@@ -77,7 +77,7 @@ def test_the_tether_outage_failsafe_keeps_its_bounds_at_speed_4(tmp_path: Path) 
                                                  "or max"),
     (("up", "--time", "sim", "--speed", "4", "--cpu", "onboard=0.3"), "--cpu: a CPU cap is a share of "
                                                                         "wall time"),
-    (("up", "--time", "sim", "--ros2", "onboard"), "--time: time.mode: sim: a ROS 2 node"),
+    (("up", "--time", "sim", "--ros2", "onboard"), "time.mode: sim: a ROS 2 node (ros2.station, --ros2)"),
     (("up", "--time", "lockstep", "--restart"), "--restart: a station restarted mid-period"),
 ])
 def test_what_cannot_follow_simulated_time_is_refused_at_start(tmp_path: Path, args: tuple[str, ...],

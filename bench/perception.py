@@ -32,9 +32,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from abyss.stations.runtime import single_threaded_native_pools
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
+single_threaded_native_pools()  # as a station runs them
 
 import mujoco  # noqa: E402
 

@@ -14,9 +14,11 @@ import time
 import numpy as np
 import pyoctomap
 
+from abyss.stations.runtime import single_threaded_native_pools
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
+single_threaded_native_pools()  # as a station runs them
 
 from abyss.common.clouds import unpack_cloud, voxel_downsample  # noqa: E402
 from abyss.common.config import SimulationConfig, VesselConfig  # noqa: E402

@@ -13,7 +13,7 @@ import pyoctomap
 import pytest
 
 from abyss.common.clouds import unpack_cloud
-from abyss.common.config import SimulationConfig
+from abyss.common.config import STEREO_MODES, SimulationConfig
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import BadMessage, PointCloud, SceneUpdate, decode, encode
@@ -89,6 +89,14 @@ def test_clouds_from_depth_and_stereo_lie_on_the_panel_face(start: View) -> None
     assert np.median(stereo) < 0.08, np.median(stereo)
     _points, colors = unpack_cloud(clouds["depth"])
     assert colors.std() > 10  # coloured from the RGB camera, not one flat colour
+
+
+@pytest.mark.parametrize("mode", [m for m in STEREO_MODES if m != "hh"])  # hh: the test above
+def test_every_stereo_mode_offered_keeps_the_bound_on_the_panel_face(start: View, mode: str) -> None:
+    settings = dataclasses.replace(CloudSettings(), stereo_mode=mode)
+    stereo = face_distances(clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("stereo",), settings)[0])
+    assert len(stereo) > 1000
+    assert np.median(stereo) < 0.08, np.median(stereo)  # measured: 5.1-5.4 cm (hh 4.4)
 
 
 def test_the_arm_is_cut_out_of_the_clouds(start: View) -> None:

@@ -20,7 +20,7 @@ import struct
 import subprocess
 import sys
 import time
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 import numpy as np
 
@@ -40,13 +40,13 @@ def state_of(data: Any) -> dict[str, Any]:
     return {"time": float(data.time), **{name: np.array(getattr(data, name)) for name in STATE}}
 
 
-def _write(stream: BinaryIO, item: object) -> None:
+def _write(stream: IO[bytes], item: object) -> None:
     payload = pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
     stream.write(HEADER.pack(len(payload)) + payload)
     stream.flush()
 
 
-def _read(stream: BinaryIO) -> Any:
+def _read(stream: IO[bytes]) -> Any:
     header = stream.read(HEADER.size)
     if len(header) < HEADER.size:
         raise EOFError
@@ -138,7 +138,7 @@ class _Sensor:
         return self.sonar.message(self._at(state), self.rng)
 
 
-def serve(requests: BinaryIO, replies: BinaryIO) -> None:
+def serve(requests: IO[bytes], replies: IO[bytes]) -> None:
     """Answer requests until the parent closes the pipe."""
     in_background()  # and the threads it starts (Mesa's), which inherit it
     sensor: _Sensor | None = None

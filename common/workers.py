@@ -50,20 +50,6 @@ def loops_first() -> None:
     sys.setswitchinterval(SWITCH_INTERVAL_S)
 
 
-def group_in_background() -> None:
-    """This process (a new session's leader: `start_new_session`) in a scheduling group below the
-    stations' (Linux's autogroup, one per session, shares the CPU fairly between groups whatever
-    the nice of the threads inside them; raising a group's nice needs no privilege). Where the
-    kernel has no autogroup, nothing. Rendering in the simulation's own group took the physics'
-    share: three systems on two cores kept 94.5-96.4 % of the physics' deadlines with the sensor
-    processes there, 98.7-99.1 % with them in a group of their own at this nice."""
-    try:
-        with open("/proc/self/autogroup", "w") as group:
-            group.write(str(BACKGROUND_NICE))
-    except OSError:
-        pass
-
-
 def in_background() -> None:
     """The calling thread below the station's periodic loops (a thread's nice value: raising it
     needs no privilege)."""

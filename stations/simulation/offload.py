@@ -7,10 +7,9 @@ loop keeps its thread, rate and lockstep turn in the simulation; it hands a copy
 state to its own child process, which renders and encodes the message, and waits on the pipe
 without the GIL.
 
-The child is this module (`python -m`), started with the station's environment in a session and
-scheduling group of its own, at a lower priority than the physics (workers.BACKGROUND_NICE), fed
-length-prefixed pickles over its stdin and stdout by the process that started it and by nothing
-else."""
+The child is this module (`python -m`), started with the station's environment, at a lower
+priority than the physics (workers.BACKGROUND_NICE), fed length-prefixed pickles over its stdin
+and stdout by the process that started it and by nothing else."""
 
 from __future__ import annotations
 
@@ -25,7 +24,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from abyss.common.workers import child_cpu, group_in_background, in_background
+from abyss.common.workers import child_cpu, in_background
 
 STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the sensors' kinematics come from
 HEADER = struct.Struct("<Q")
@@ -63,7 +62,7 @@ class Offloaded:
     def __init__(self, kind: str, model: Any, config: Any, seed: list[int]) -> None:
         self.kind = kind
         self.process = subprocess.Popen([sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, start_new_session=True)
+                                        stdout=subprocess.PIPE)
         self._call("init", kind, model, config, seed)
 
     def _call(self, *request: object) -> Any:
@@ -142,7 +141,6 @@ class _Sensor:
 def serve(requests: IO[bytes], replies: IO[bytes]) -> None:
     """Answer requests until the parent closes the pipe."""
     in_background()  # and the threads it starts (Mesa's), which inherit it
-    group_in_background()  # and its CPU not taken from the physics' share
     sensor: _Sensor | None = None
     while True:
         try:
@@ -163,7 +161,8 @@ def serve(requests: IO[bytes], replies: IO[bytes]) -> None:
 
 
 if __name__ == "__main__":
-    # its station ends it (closing the pipe, or going), not a signal meant for the station
+    # its station ends it (closing the pipe, or going): a Ctrl-C in the station's terminal reaches
+    # the whole process group, and the station stops in its own order
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # the replies keep the pipe; anything a library prints goes to the station's log instead
     replies = os.fdopen(os.dup(sys.stdout.fileno()), "wb")

@@ -51,10 +51,9 @@ def run(config: Config, bus: Bus) -> None:
     lock = threading.Lock()
     blackout: set[str] = set()
     with Workers(bus.stop) as workers:
-        if sim.camera_rate_hz > 0:
-            workers.start("cameras", _camera_loop, config, bus, world, lock, blackout)
-        if sim.sonar_rate_hz > 0:
-            workers.start("sonar", _sonar_loop, config, bus, world, lock)
+        for kind, rate_hz in (("cameras", sim.camera_rate_hz), ("sonar", sim.sonar_rate_hz)):
+            if rate_hz > 0:
+                workers.start(kind, _sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
         _physics_loop(config, bus, world, lock, blackout)
 
 
@@ -174,33 +173,20 @@ class Timekeeper:
             self.holdback.close()
 
 
-def _camera_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str]) -> None:
-    """Render every camera at the camera rate from a copy of the physics state, in a process of
-    its own (stations.simulation.offload)."""
+def _sensor_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str],
+                 kind: str, rate_hz: float) -> None:
+    """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics
+    state, in a process of its own (stations.simulation.offload)."""
     from abyss.stations.simulation.offload import Offloaded, state_of
 
-    cameras = Offloaded("cameras", world.model, config.simulation, [config.seed, 1])  # its own stream
-    rate = bus.loop("cameras", 1.0 / config.simulation.camera_rate_hz)
+    stream = {"cameras": 1, "sonar": 2}[kind]  # the sensor's own random stream: snow, speckle, noise
+    sensor = Offloaded(kind, world.model, config.simulation, [config.seed, stream])
+    rate = bus.loop(kind, 1.0 / rate_hz)
     try:
         while rate.sleep():
             with lock:
                 state = state_of(world.data)
-            for image in cameras.frames(state, blackout):
-                bus.publish(f"camera/{image.camera}", image)
+            for topic, message in sensor.messages(state, blackout):
+                bus.publish(topic, message)
     finally:
-        cameras.close()
-
-
-def _sonar_loop(config: Config, bus: Bus, world: World, lock: threading.Lock) -> None:
-    """Ping the imaging sonar at its rate from a copy of the physics state, in a process of its own."""
-    from abyss.stations.simulation.offload import Offloaded, state_of
-
-    sonar = Offloaded("sonar", world.model, config.simulation, [config.seed, 2])  # speckle, noise
-    rate = bus.loop("sonar", 1.0 / config.simulation.sonar_rate_hz)
-    try:
-        while rate.sleep():
-            with lock:
-                state = state_of(world.data)
-            bus.publish("sonar", sonar.ping(state))
-    finally:
-        sonar.close()
+        sensor.close()

@@ -86,6 +86,12 @@ class Offloaded:
         """The sonar's SonarImage at `state`."""
         return self._call("ping", state)
 
+    def messages(self, state: dict[str, Any], blackout: set[str]) -> list[tuple[str, Any]]:
+        """The sensor's messages at `state`, each with the topic it goes out on."""
+        if self.kind == "cameras":
+            return [(f"camera/{image.camera}", image) for image in self.frames(state, blackout)]
+        return [("sonar", self.ping(state))]
+
     def close(self) -> None:
         assert self.process.stdin is not None and self.process.stdout is not None
         try:

@@ -24,6 +24,7 @@ from abyss.common.errors import BadMessage, BusError, ConfigError
 from abyss.common.messages import Message, Received, decode, encode
 from abyss.common.rate import Rate
 from abyss.common.samples import Samples
+from abyss.common.workers import Realtime
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +203,7 @@ class Bus:
         self._arrived: Counter[str] = Counter()  # what reached a neighbour's key's inbox, decoded or not
         self.on_arrival: Callable[[], None] = lambda: None
         self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
+        self.realtime = Realtime(0)  # the station's scheduling (the simulation's physics asks for more)
 
     def route(self, hop: str, egress: Egress) -> None:
         """Send what goes across `hop` through `egress` (the testbed's link emulator), which
@@ -317,8 +319,8 @@ class Bus:
             self._shed[key] += count
 
     def status(self) -> dict[str, Any]:
-        """What this station sent, received, rejected and shed, and its loops' deadlines met, for
-        summary.json."""
+        """What this station sent, received, rejected and shed, its loops' deadlines met and the
+        scheduler they run on, for summary.json."""
         with self._lock:
             latency = {key: samples.percentiles("latency", 1e3, "ms")
                        for key, samples in self.latency_s.items()}
@@ -327,7 +329,8 @@ class Bus:
                     "latency_ms": latency, "shed": {key: n for key, n in shed.items() if n},
                     "loops": {name: {"period_s": rate.period_s, "ticks": rate.ticks,
                                      "deadlines_met": round(rate.deadlines_met, 4)}
-                              for name, rate in self._loops.items()}}
+                              for name, rate in self._loops.items()},
+                    "scheduler": self.realtime.scheduler}
 
     def close(self) -> None:
         """Undeclare the subscribers and publishers (the session is the caller's)."""

@@ -106,6 +106,10 @@ class SimulationConfig:
     # a restarted simulation goes on where the vehicle was; "" keeps none (`abyss up` sets it)
     state_file: str = ""
     state_period_s: float = 0.5
+    # in real time, the station's threads at this SCHED_FIFO priority (1-99) where the system
+    # allows it, so that the physics keeps its deadlines on a loaded machine (common.workers.Realtime);
+    # 0: the normal scheduler
+    realtime_priority: int = 10
 
     def __post_init__(self) -> None:
         if self.low_level not in LOW_LEVELS:
@@ -125,6 +129,9 @@ class SimulationConfig:
             if len(row) != 4 or not all(math.isfinite(v) and abs(v) < 1e4 for v in row):
                 raise ConfigError("simulation.current_profile", f"{list(row)}: rows of [z_m, vx, vy, vz]")
         _positive("simulation.state_period_s", self.state_period_s)
+        if not 0 <= self.realtime_priority <= 99:
+            raise ConfigError("simulation.realtime_priority", f"{self.realtime_priority}: 0 (the normal "
+                              "scheduler) or a SCHED_FIFO priority from 1 to 99")
         _positive("simulation.arm_kp", self.arm_kp)
         _positive("simulation.gripper_kp", self.gripper_kp)
         for name in ("arm_ki", "current_sigma_mps", "usbl_sigma_m", "dvl_sigma_mps", "imu_sigma_rad",

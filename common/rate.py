@@ -19,6 +19,7 @@ class Rate:
         self.name = name
         self.ticks = 0
         self.missed = 0  # ticks whose work overran the deadline
+        self.late = False  # the last one did
         self._next_s = clock.now_s()
         if name:
             clock.enter(name, self._next_s, stop)
@@ -29,8 +30,8 @@ class Rate:
         self._next_s += self.period_s
         now_s = self.clock.now_s()
         self.ticks += 1
-        if now_s > self._next_s and self.period_s > 0:
-            self.missed += 1
+        self.late = now_s > self._next_s and self.period_s > 0
+        self.missed += self.late
         if self._next_s < now_s - self.period_s:
             self._next_s = now_s
         if self.name:

@@ -6,6 +6,7 @@ octree insertion, a render) is let go and named, not waited for."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import sys
@@ -50,11 +51,70 @@ def loops_first() -> None:
     sys.setswitchinterval(SWITCH_INTERVAL_S)
 
 
-def in_background() -> None:
-    """The calling thread below the station's periodic loops (a thread's nice value: raising it
-    needs no privilege)."""
-    thread = threading.get_native_id()
-    os.setpriority(os.PRIO_PROCESS, thread, max(BACKGROUND_NICE, os.getpriority(os.PRIO_PROCESS, thread)))
+def in_background(thread: int = 0) -> None:
+    """The calling thread (or thread id `thread`: a child process just started, before it starts
+    threads of its own) below the station's periodic loops: the normal scheduler, even in a
+    process at real-time priority (Realtime), at a nice value raising which needs no privilege."""
+    thread = thread or threading.get_native_id()
+    with contextlib.suppress(ProcessLookupError):  # a child that has already gone
+        if os.sched_getscheduler(thread) != os.SCHED_OTHER:
+            os.sched_setscheduler(thread, os.SCHED_OTHER, os.sched_param(0))
+        os.setpriority(os.PRIO_PROCESS, thread, max(BACKGROUND_NICE, os.getpriority(os.PRIO_PROCESS, thread)))
+
+
+# A loop late this many ticks in a row at real-time priority cannot keep its period whatever the
+# priority: it gives the priority up rather than hold a core from every other process.
+REALTIME_LATE_TICKS = 20
+
+
+class Realtime:
+    """Every thread of this process, and those it starts later (they inherit it), at SCHED_FIFO
+    `priority` (1-99), as ros2_control runs its controller manager: a loop woken at its tick runs
+    at once, whatever else the machine runs, and no thread of its own process holds the GIL while
+    the kernel holds it back. Where the system does not allow it (no CAP_SYS_NICE or RLIMIT_RTPRIO,
+    a cgroup with no real-time share), it stays on the normal scheduler and says why. The kernel
+    keeps 5 % of each second for other processes (sched_rt_runtime_us); beyond that, a loop that
+    runs late REALTIME_LATE_TICKS ticks in a row gives the priority up (`tick`)."""
+
+    def __init__(self, priority: int, why_not: str = "") -> None:
+        self.priority = 0
+        self.why_not = why_not or "not asked for"
+        self._late = 0
+        if priority <= 0 or why_not:
+            return
+        try:
+            _schedule_all(os.SCHED_FIFO, priority)
+        except OSError as exc:
+            _schedule_all(os.SCHED_OTHER, 0)
+            self.why_not = f"not permitted here ({exc.strerror})"
+            log.info("real-time priority %d %s: the normal scheduler", priority, self.why_not)
+            return
+        self.priority = priority
+
+    def tick(self, late: bool) -> None:
+        """The loop's last tick was `late`, or not."""
+        if not self.priority:
+            return
+        self._late = self._late + 1 if late else 0
+        if self._late >= REALTIME_LATE_TICKS:
+            _schedule_all(os.SCHED_OTHER, 0)
+            log.warning("%d ticks late in a row at real-time priority %d: the loop cannot keep its "
+                        "period, back to the normal scheduler", self._late, self.priority)
+            self.priority, self.why_not = 0, f"given up after {self._late} ticks late in a row"
+
+    @property
+    def scheduler(self) -> str:
+        """For the station's status: "fifo <priority>", or "normal (<why>)"."""
+        return f"fifo {self.priority}" if self.priority else f"normal ({self.why_not})"
+
+
+def _schedule_all(policy: int, priority: int) -> None:
+    """Every thread of this process (threads below the loops stay as they are)."""
+    for name in os.listdir("/proc/self/task"):
+        thread = int(name)
+        with contextlib.suppress(ProcessLookupError):  # it ended meanwhile
+            if os.getpriority(os.PRIO_PROCESS, thread) < BACKGROUND_NICE:
+                os.sched_setscheduler(thread, policy, os.sched_param(priority))
 
 
 class WorkerFailed(RuntimeError):

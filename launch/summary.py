@@ -198,6 +198,8 @@ def render_summary(summary: dict[str, Any]) -> str:
     if sim:
         lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
                      f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
+                     + (f" (scheduler: {scheduler})"
+                        if (scheduler := summary["stations"].get("simulation", {}).get("scheduler")) else "")
                      + (f", faults {sim['faults']}" if sim["faults"] else ""))
     timing = summary.get("time", {})
     if "achieved_speed" in timing:

@@ -547,7 +547,8 @@ class Up:
                               "alive_seen": name in self.alive_seen, "log": str(station.log_path),
                               **{k: status.get(k, {})
                                  for k in ("sent", "received", "rejected", "latency_ms", "cpu", "shed",
-                                           "loops")}}
+                                           "loops")},
+                              "scheduler": status.get("scheduler", "")}
             if name in self.cpu.caps:
                 stations[name]["cpu"] = {**stations[name]["cpu"], "cap_cores": self.cpu.caps[name],
                                          "throttled_share": round(self.cpu.throttled_share.get(name, 0.0), 4)}

@@ -20,7 +20,7 @@ from abyss.common.clock import WALL, Holdback, SimClock
 from abyss.common.config import Config
 from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
 from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
-from abyss.common.workers import Workers
+from abyss.common.workers import Realtime, Workers
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.world import World
@@ -50,11 +50,21 @@ def run(config: Config, bus: Bus) -> None:
         log.info("resumed at t=%.2f s from %s (a restart)", world.data.time, sim.state_file)
     lock = threading.Lock()
     blackout: set[str] = set()
+    bus.realtime = Realtime(sim.realtime_priority, why_not=_no_realtime(config))
     with Workers(bus.stop) as workers:
         for kind, rate_hz in (("cameras", sim.camera_rate_hz), ("sonar", sim.sonar_rate_hz)):
             if rate_hz > 0:
                 workers.start(kind, _sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
         _physics_loop(config, bus, world, lock, blackout)
+
+
+def _no_realtime(config: Config) -> str:
+    """Why the physics must not run at real-time priority here, if it must not."""
+    if config.time.mode != "real":
+        return f"time.mode {config.time.mode}: the stations' progress paces the physics, not deadlines"
+    if config.cpu.simulation:
+        return f"cpu.simulation {config.cpu.simulation} core: the real-time scheduler would pass the cap by"
+    return ""
 
 
 def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str]) -> None:
@@ -106,6 +116,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
             wall0, sim0 = wall, truth.sim_time_s
         if not keeper.after_step(stepped_from_s, truth.sim_time_s):
             break
+        bus.realtime.tick(rate.late)
     keeper.close()
 
 

@@ -7,8 +7,8 @@ loop keeps its thread, rate and lockstep turn in the simulation; it hands a copy
 state to its own child process, which renders and encodes the message, and waits on the pipe
 without the GIL.
 
-The child is this module (`python -m`), started with the station's environment, at a lower
-priority than the physics (workers.BACKGROUND_NICE), fed length-prefixed pickles over its stdin
+The child is this module (`python -m`), started with the station's environment, below the
+physics (workers.in_background: the normal scheduler, nice 10), fed length-prefixed pickles over its stdin
 and stdout by the process that started it and by nothing else."""
 
 from __future__ import annotations
@@ -63,6 +63,7 @@ class Offloaded:
         self.kind = kind
         self.process = subprocess.Popen([sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE,
                                         stdout=subprocess.PIPE)
+        in_background(self.process.pid)  # before it starts threads, which inherit it
         self._call("init", kind, model, config, seed)
 
     def _call(self, *request: object) -> Any:
@@ -146,7 +147,6 @@ class _Sensor:
 
 def serve(requests: IO[bytes], replies: IO[bytes]) -> None:
     """Answer requests until the parent closes the pipe."""
-    in_background()  # and the threads it starts (Mesa's), which inherit it
     sensor: _Sensor | None = None
     while True:
         try:

@@ -4,6 +4,7 @@ team would drive it with their own onboard software."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -29,10 +30,23 @@ from abyss.common.messages import (
     decode,
     encode,
 )
+from abyss.common.workers import BACKGROUND_NICE
 from abyss.stations.runtime import free_port
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
 SYSTEM = "e2e-sim"
+REALTIME_ALLOWED = os.geteuid() == 0  # CAP_SYS_NICE; CI runs as root
+
+
+def schedulers(pid: int) -> dict[int, int]:
+    """Each thread of process `pid`: its scheduling policy."""
+    return {int(thread): os.sched_getscheduler(int(thread)) for thread in os.listdir(f"/proc/{pid}/task")}
+
+
+def children(pid: int) -> list[int]:
+    """The processes that process `pid`'s threads started."""
+    return [int(child) for thread in os.listdir(f"/proc/{pid}/task")
+            for child in Path(f"/proc/{pid}/task/{thread}/children").read_text().split()]
 
 
 class Observed:
@@ -106,6 +120,14 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
         depth = decode_image(images["cam_depth"][-1])
         assert rgb.shape == (480, 640, 3) and rgb.std() > 20
         assert depth.shape == (480, 640) and 1.0 < float(np.median(depth)) < 30.0
+        if REALTIME_ALLOWED:  # the physics' process at real-time priority, its sensors' below it
+            assert set(schedulers(station.pid).values()) == {os.SCHED_FIFO}
+            sensors = children(station.pid)
+            assert len(sensors) == 2  # the cameras' and the sonar's
+            for sensor in sensors:
+                # the normal scheduler (Mesa puts its shader compiler's threads in its batch class)
+                assert set(schedulers(sensor).values()) <= {os.SCHED_OTHER, os.SCHED_BATCH, os.SCHED_IDLE}
+                assert os.getpriority(os.PRIO_PROCESS, sensor) == BACKGROUND_NICE
     finally:
         for s in subscribers:
             s.undeclare()
@@ -116,4 +138,6 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
     counts = json.loads(status_file.read_text())
     assert counts["rejected"][command_key] == 3
     assert counts["rejected"][keys.simulation_control_key(SYSTEM)] == 1
+    assert counts["scheduler"] == ("fifo 10" if REALTIME_ALLOWED else
+                                   "normal (not permitted here (Operation not permitted))")
     assert "thr_nope" in output and "not one of" in output

@@ -1,7 +1,9 @@
 """The operator's core on shore, without Zenoh: the mission's commands (auto mode, waypoints,
 then an end-effector goal) and whatever the operator's tools hand in, each resent over the
-lossy satellite until onboard's answer comes back; every command's fate; a heartbeat to the
-vessel; the mission status as the operator sees it.
+lossy satellite until onboard's answer comes back (an arm goal or an intervention after the
+waypoints' answer: onboard judges it where the vehicle will hold, and links reorder what is sent
+together); every command's fate; a heartbeat to the vessel; the mission status as the operator
+sees it.
 
 Shore joins the mission it finds: it sends the mission's commands once onboard's first telemetry
 shows onboard has none (or after `JOIN_WAIT_S` without telemetry); a restarted shore that finds
@@ -195,10 +197,14 @@ class Operator:
             self._telemetry(t, now_s)
         if not self.joined and now_s - self.first_step_s >= JOIN_WAIT_S:
             self.joined = True  # no telemetry: send the mission anyway, resent until answered
-        # the satellite loses packets: resend each command until onboard's answer comes back
+        # the satellite loses packets: resend each command until onboard's answer comes back. Onboard
+        # judges an arm goal or an intervention where the vehicle will hold, so each waits for
+        # the waypoints' answer: sent together, the links may hand it over first
+        waypoints_pending = self.waypoints.message is not None and self.waypoints.answer is None
         for command in self.commands.values() if self.joined else ():
             due = now_s - command.sent_s > self.mission.resend_period_s
-            if command.message is not None and command.answer is None and due:
+            held = waypoints_pending and command in (self.arm, self.intervene)
+            if command.message is not None and command.answer is None and due and not held:
                 entry = self.history.setdefault((command.topic, command.message.command_id), {
                     "command": command.topic.removeprefix("op/"), "command_id": command.message.command_id,
                     "sends": 0, "answered": False, "accepted": False, "reason": ""})

@@ -1,7 +1,9 @@
 """Shore's operator core (stations.onshore.core.Operator), without Zenoh: when it sends the
 mission's commands (onboard's first telemetry, or JOIN_WAIT_S without any), how a restarted
-shore takes the commands onboard already flies instead of starting over, and how it hands the
-goals in force again to a rebooted onboard, the waypoints from the one not yet reached."""
+shore takes the commands onboard already flies instead of starting over, how it hands the
+goals in force again to a rebooted onboard, the waypoints from the one not yet reached, and
+that an arm goal or intervention follows the waypoints' answer (onboard judges it where the
+vehicle will hold)."""
 
 from __future__ import annotations
 
@@ -68,6 +70,14 @@ def command_id(message: Message) -> int:
     return message.command_id
 
 
+def waypoints_taken(operator: Operator, now_s: float) -> dict[str, Message]:
+    """Onboard takes the waypoints sent: what shore sends at `now_s` on hearing it."""
+    waypoints = operator.waypoints.message
+    assert isinstance(waypoints, Waypoints)
+    return commands(operator.step(OperatorInputs(acks=[CommandAck(waypoints.command_id, "waypoints", "")]),
+                                  now_s))
+
+
 def assert_mission_commands(sent: dict[str, Message], mission: MissionConfig) -> None:
     assert set(sent) == OP_TOPICS
     mode, waypoints, arm = sent["op/mode"], sent["op/waypoints"], sent["op/arm"]
@@ -95,19 +105,24 @@ def test_a_fresh_onboards_first_telemetry_releases_the_mission(mission: MissionC
     assert commands(operator.step(OperatorInputs(), 0.0)) == {}
     out = operator.step(OperatorInputs(telemetry=[telemetry(command_id=-1)]), 0.1)
     sent = commands(out)
-    assert_mission_commands(sent, mission)
-    assert sorted(type(m).__name__ for m in out.first_sent) == ["ArmGoal", "OperatorMode", "Waypoints"]
+    # onboard judges the arm goal where the vehicle will hold: it waits for the waypoints' answer
+    assert set(sent) == {"op/mode", "op/waypoints"}
+    assert sorted(type(m).__name__ for m in out.first_sent) == ["OperatorMode", "Waypoints"]
     assert operator.events == []  # a fresh start is no event
-    # unanswered, each is resent after the resend period, with its own id
+    # unanswered, each is resent after the resend period, with its own id; the arm goal still waits
     again = commands(operator.step(OperatorInputs(), 0.1 + mission.resend_period_s + 0.1))
     assert {t: command_id(m) for t, m in again.items()} == {t: command_id(m) for t, m in sent.items()}
+    arm = waypoints_taken(operator, 0.1 + mission.resend_period_s + 0.2)
+    assert_mission_commands({**sent, **arm}, mission)
+    assert set(arm) == {"op/arm"}
 
 
 def test_without_telemetry_the_mission_goes_out_after_the_join_wait(mission: MissionConfig) -> None:
     operator = Operator(mission)
     assert commands(operator.step(OperatorInputs(), 0.0)) == {}
     assert commands(operator.step(OperatorInputs(), JOIN_WAIT_S - 0.1)) == {}
-    assert_mission_commands(commands(operator.step(OperatorInputs(), JOIN_WAIT_S + 0.1)), mission)
+    sent = commands(operator.step(OperatorInputs(), JOIN_WAIT_S + 0.1))
+    assert_mission_commands({**sent, **waypoints_taken(operator, JOIN_WAIT_S + 0.2)}, mission)
 
 
 def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfig) -> None:
@@ -152,6 +167,7 @@ def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig)
     operator = Operator(mission)
     now_s = 0.0
     sent = commands(operator.step(OperatorInputs(telemetry=[telemetry(boot_id=1)]), now_s))
+    sent.update(waypoints_taken(operator, now_s))
     assert set(sent) == OP_TOPICS
     ids = {topic: command_id(m) for topic, m in sent.items()}
     acks = [CommandAck(ids[f"op/{c}"], c, "") for c in ("waypoints", "arm", "mode")]
@@ -170,6 +186,8 @@ def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig)
     now_s += STATUS_PERIOD_S + 0.01
     out = operator.step(OperatorInputs(telemetry=[boot_b]), now_s)
     again = commands(out)
+    assert set(again) == {"op/mode", "op/waypoints"}  # the arm goal once the waypoints are taken
+    again.update(waypoints_taken(operator, now_s))
     assert set(again) == OP_TOPICS
     waypoints = again["op/waypoints"]
     assert isinstance(waypoints, Waypoints) and waypoints.command_id != ids["op/waypoints"]
@@ -193,7 +211,8 @@ def test_the_missions_interventions_go_one_after_the_other_and_end_it(mission: M
     mission = dataclasses.replace(mission, arm_target=(),
                                   interventions=(("valve_1", "90"), ("lever_0", "down")))
     operator = Operator(mission)
-    first = commands(operator.step(OperatorInputs(telemetry=[telemetry()]), 0.0))["op/intervene"]
+    assert "op/intervene" not in commands(operator.step(OperatorInputs(telemetry=[telemetry()]), 0.0))
+    first = waypoints_taken(operator, 0.0)["op/intervene"]
     assert isinstance(first, Intervention) and first.target == "valve_1"
     assert first.turn_rad == pytest.approx(np.pi / 2)
     waypoints = operator.waypoints.message

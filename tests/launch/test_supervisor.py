@@ -283,7 +283,8 @@ def status_file(name: str, system_id: str = "unit") -> dict[str, object]:
             "rejected": {key: 1}, "latency_ms": {key: {"latency_p50_ms": 1.0}}, "refused": {},
             "links": {hop: {"direction": f"{name}->{other}", "profile": hop, "messages_offered": 10.0,
                             "messages_delivered": 9.0, "losses": 1.0, "retransmissions": 2.0,
-                            "delay_p50_ms": 100.0, "delay_p99_ms": 150.0}}}
+                            "delay_p50_ms": 100.0, "delay_p99_ms": 150.0}},
+            "scheduler": "fifo 10" if name == "simulation" else "normal (not asked for)"}
 
 
 def test_summary_of_a_station_that_died_without_its_status_file_is_failed(
@@ -346,7 +347,9 @@ def test_summary_of_a_clean_run_is_done(system: Callable[..., System]) -> None:
     text = render_summary(summary)
     assert text.splitlines()[0] == "abyss: unit: done; up in 1.2 s, ran 31 s"
     assert "  mission: reached, 3/3 waypoints, done: True" in text
-    assert "  simulation: 29.5 s simulated, real-time factor 0.98, deadlines met 99.5%" in text
+    assert ("  simulation: 29.5 s simulated, real-time factor 0.98, deadlines met 99.5% "
+            "(scheduler: fifo 10)") in text
+    assert summary["stations"]["simulation"]["scheduler"] == "fifo 10"
 
 
 def test_render_summary_of_every_section() -> None:

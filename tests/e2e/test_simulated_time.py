@@ -32,6 +32,8 @@ def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:
     assert f"time: sim at speed 4: {timing['sim_s']:.1f} s simulated" in up.output()
     for name, station in summary["stations"].items():
         assert station["exit_code"] == 0 and station["alive_seen"], name
+    # the stations' progress paces the physics, not deadlines: no real-time priority
+    assert summary["stations"]["simulation"]["scheduler"].startswith("normal (time.mode sim: ")
     # the links delay by their profiles in simulated time, as the receiver's stamps show too
     tether = summary["links"]["tether"]["onboard->vessel"]
     assert 90 < tether["delay_p50_ms"] < 130, tether  # the tether's 100 ms +/- 10 ms

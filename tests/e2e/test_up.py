@@ -29,6 +29,9 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
     for name, station in summary["stations"].items():
         assert station["exit_code"] == 0 and station["alive_seen"], name
         assert 0.0 < station["cpu"]["cores"] < 2.0 and station["cpu"]["wall_s"] > 20.0, (name, station["cpu"])
+    if os.geteuid() == 0:  # CAP_SYS_NICE: the physics at real-time priority, said in the summary
+        assert summary["stations"]["simulation"]["scheduler"] == "fifo 10"
+        assert "(scheduler: fifo 10)" in up.output()
     # every key carries traffic, so every hop in both directions does (but the arm goal's: the
     # default mission's arm works through its interventions; tests/e2e/test_operator sends one)
     for spec in keys.KEYS:

@@ -88,8 +88,9 @@ def main() -> None:
             )
         nominal = ROOT / "scenarios" / "nominal.toml"
         normal = Path(tmp) / "nominal-normal-scheduler.toml"  # the same, physics without real-time priority
-        normal.write_text(nominal.read_text().replace(
-            "[[assert]]", '[config]\n"simulation.realtime_priority" = 0\n\n[[assert]]', 1))
+        text = nominal.read_text()
+        assert "[config]" not in text, "nominal.toml has a [config] table: add the priority to it"
+        normal.write_text(f'{text}\n[config]\n"simulation.realtime_priority" = 0\n')
         for n in range(1, args.max_systems + 1):
             worst = 1.0
             for scheduler, scenario in (("normal", normal), ("real-time", nominal)):

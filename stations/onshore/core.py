@@ -48,6 +48,11 @@ class Command:
     message: Waypoints | ArmGoal | OperatorMode | Intervention | None = None
     answer: CommandAck | None = None
     sent_s: float = -float("inf")
+    after: Command | None = None  # a command it waits for the answer to before it goes
+
+    def waiting(self) -> bool:
+        """It waits for `after`'s answer (links reorder what is sent together)."""
+        return self.after is not None and self.after.message is not None and self.after.answer is None
 
     def replace(self, message: Message) -> None:
         assert isinstance(message, (Waypoints, ArmGoal, OperatorMode, Intervention))
@@ -89,11 +94,12 @@ class Operator:
         self.mission = mission
         self.mode = Command("op/mode", OperatorMode(new_id(), "auto"))
         self.waypoints = Command("op/waypoints", Waypoints(new_id(), np.array(mission.waypoints)))
-        self.arm = Command("op/arm")
+        # onboard judges an arm goal or an intervention where the vehicle will hold: the waypoints first
+        self.arm = Command("op/arm", after=self.waypoints)
         goal = mission.arm_goal()
         if goal is not None:
             self.arm.replace(ArmGoal(new_id(), *goal))
-        self.intervene = Command("op/intervene")
+        self.intervene = Command("op/intervene", after=self.waypoints)
         self.intervention_index = 0  # of the mission's interventions, the one in hand
         if mission.interventions:
             self.intervene.replace(mission_intervention(mission, 0))
@@ -197,14 +203,10 @@ class Operator:
             self._telemetry(t, now_s)
         if not self.joined and now_s - self.first_step_s >= JOIN_WAIT_S:
             self.joined = True  # no telemetry: send the mission anyway, resent until answered
-        # the satellite loses packets: resend each command until onboard's answer comes back. Onboard
-        # judges an arm goal or an intervention where the vehicle will hold, so each waits for
-        # the waypoints' answer: sent together, the links may hand it over first
-        waypoints_pending = self.waypoints.message is not None and self.waypoints.answer is None
+        # the satellite loses packets: resend each command until onboard's answer comes back
         for command in self.commands.values() if self.joined else ():
             due = now_s - command.sent_s > self.mission.resend_period_s
-            held = waypoints_pending and command in (self.arm, self.intervene)
-            if command.message is not None and command.answer is None and due and not held:
+            if command.message is not None and command.answer is None and due and not command.waiting():
                 entry = self.history.setdefault((command.topic, command.message.command_id), {
                     "command": command.topic.removeprefix("op/"), "command_id": command.message.command_id,
                     "sends": 0, "answered": False, "accepted": False, "reason": ""})

@@ -191,3 +191,12 @@ def test_a_seed_makes_a_run_repeatable() -> None:
 
     np.testing.assert_array_equal(run(4), run(4))
     assert not np.allclose(run(4), run(5))
+
+
+def test_real_time_priority_is_asked_for_in_real_time_only_and_never_past_a_cpu_cap() -> None:
+    from abyss.common.config import load
+    from abyss.stations.simulation import _no_realtime
+
+    assert _no_realtime(load(None, [])) == ""
+    assert _no_realtime(load(None, ["time.mode=lockstep"])).startswith("time.mode lockstep: ")
+    assert _no_realtime(load(None, ["cpu.simulation=0.5"])).startswith("cpu.simulation 0.5 core: ")

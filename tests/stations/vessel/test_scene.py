@@ -159,6 +159,47 @@ def test_octree_and_shores_copy_match_the_world_geometry_at_5_cm(start: View) ->
         assert recall > 0.9, (name, recall)
 
 
+def pyoctomap_leaves(tree: object, bbx: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, ...]:
+    """The leaves as pyoctomap's own iterators give them, leaf by leaf: centres, edge lengths,
+    log-odds, RGB (what iterate_leaves reads from the tree's serialisation instead)."""
+    rows = []
+    for leaf in tree.begin_leafs_bbx(*bbx) if bbx is not None else tree.begin_leafs():  # type: ignore[attr-defined]
+        centre = leaf.getCoordinate()
+        rows.append((*centre, leaf.getSize(), tree.search(centre).getLogOdds(), *leaf.getColor()))  # type: ignore[attr-defined]
+    table = np.array(rows, float).reshape(-1, 8)
+    return table[:, :3], table[:, 3], table[:, 4], table[:, 5:].astype(np.uint8)
+
+
+def test_the_leaves_read_from_the_octree_are_pyoctomaps_own(start: View) -> None:
+    """Two clouds at 5 cm and 0.2 m: every leaf, the whole tree's and a box's (the vessel's walk
+    over the region the clouds touched), with its size, log-odds and colour, in OctoMap's order;
+    and a tree without colours, as shore reads an update."""
+    later = view_from((1.5, 0.4, -7.2), yaw_rad=0.3)
+    for resolution_m in (0.05, 0.2):
+        model = SceneModel(resolution_m, 8.0)
+        for view in (start, later):
+            cloud = clouds_of(view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+            model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
+        threshold = model.tree.getOccupancyThresLog()
+        for bbx in (None, (np.array([3.0, -1.5, -9.2]), np.array([5.3, 0.7, -6.9]))):
+            centres, sizes, log_odds, rgb = pyoctomap_leaves(model.tree, bbx)
+            leaves = iterate_leaves(model.tree, bbx, colors=True)
+            assert 300 < len(leaves.sizes_m) == len(sizes), (resolution_m, bbx)
+            np.testing.assert_allclose(leaves.centres_m, centres, atol=1e-6)
+            np.testing.assert_allclose(leaves.sizes_m, sizes, atol=1e-9)
+            np.testing.assert_array_equal(leaves.log_odds, log_odds - threshold)
+            np.testing.assert_array_equal(leaves.colors, rgb)
+            assert leaves.occupied.any() and not leaves.occupied.all()
+        while model.next_update(0.0) is not None:  # all published: binary() is what shore holds
+            pass
+        shores = read_binary(model.binary(), resolution_m)
+        centres, sizes, log_odds, _ = pyoctomap_leaves(shores, None)
+        leaves = iterate_leaves(shores)
+        np.testing.assert_allclose(leaves.centres_m, centres, atol=1e-6)
+        np.testing.assert_array_equal(leaves.log_odds, log_odds - threshold)
+        assert leaves.colors.shape == (0, 3) and len(leaves.sizes_m) == len(sizes)
+
+
 def stream(model: SceneModel, receiver: SceneReceiver, drop: int | None = None) -> list[str]:
     outcomes = []
     while (update := model.next_update(0.0)) is not None:

@@ -7,10 +7,11 @@ Change tracking works on cells (voxels of the finest depth) identified by OctoMa
 (16 bits per axis) packed into an int64. The vessel keeps the max-likelihood state of every
 cell it has published; at most once per track period it compares the cells in the bounding box
 of the clouds inserted since (read from the tree's serialisation: iterate_leaves), queues those
-that changed (occupancy flipped, or colour moved by more than COLOR_TOLERANCE), and publishes the queue in updates of at most `max_update_bytes`, each a
-small octree written with `OcTree::writeBinary` (which prunes), so that a snapshot too is a
-first update and then deltas, and telemetry interleaves. Shore applies each update's leaves to
-its own tree in sequence and asks for a snapshot after a gap.
+that changed (occupancy flipped, or colour moved by more than COLOR_TOLERANCE), and publishes
+the queue in updates of at most `max_update_bytes`, each a small octree written with
+`OcTree::writeBinary` (which prunes), so that a snapshot too is a first update and then deltas,
+and telemetry interleaves. Shore applies each update's leaves to its own tree in sequence and
+asks for a snapshot after a gap.
 """
 
 from __future__ import annotations

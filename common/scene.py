@@ -124,7 +124,7 @@ def iterate_leaves(
     nodes = np.frombuffer(body, node, count=int(fields["size"]))
     centres_m, sizes_m, chosen = _leaf_boxes(nodes["children"], tree.getResolution(), bbx)  # type: ignore[attr-defined]
     past_threshold = nodes["log_odds"][chosen].astype(float) - tree.getOccupancyThresLog()  # type: ignore[attr-defined]
-    rgb = nodes["rgb"][chosen] if colors and "rgb" in node.names else np.zeros((0, 3), np.uint8)
+    rgb = nodes["rgb"][chosen] if colors and "rgb" in (node.names or ()) else np.zeros((0, 3), np.uint8)
     return Leaves(centres_m, sizes_m, past_threshold >= 0.0, rgb, past_threshold)  # >= 0: isNodeOccupied
 
 

@@ -55,10 +55,10 @@ class Relay:
     """Operator commands down as soon as they are seen, onboard's answers up, onboard's
     telemetry up at `telemetry_period_s`, and a heartbeat to onboard that says whether shore
     is heard. An intervention goes down resolved in the world frame (intents.resolve) once the
-    panel is recognised (shore resends it meanwhile), or is refused here with the reason; as
-    recognition sharpens (the vehicle closing in), it goes down again resolved anew until the
-    fingers close (onboard takes it as a refinement); the parts' angles are believed as the
-    interventions onboard finished left them."""
+    panel is recognised by its markers (shore resends it meanwhile), or is refused here with the
+    reason; as recognition sharpens (the vehicle closing in), it goes down again resolved anew
+    until the fingers close (onboard takes it as a refinement); the parts' angles are believed as
+    the interventions onboard finished left them."""
 
     def __init__(self, cfg: VesselConfig, now_s: float) -> None:
         self.cfg = cfg
@@ -73,7 +73,12 @@ class Relay:
     def _intervention(self, intent: Intervention) -> tuple[str, Message] | None:
         believed = self.believed_rad.get(intent.target, 0.0)
         start_rad = self.resolved.get(intent.command_id, (intent.target, believed))[1]
-        goal, reason = resolve(intent, self.objects, start_rad)
+        # the markers place the parts along the panel's face (the shape alone slides along it, and a
+        # first fit from the cloud alone can lie half a metre off): a goal waits for an estimate
+        # from a frame that saw them, which onboard would otherwise judge, and refuse for good;
+        # its refinements then follow whatever sharpens the estimate
+        placed = self.objects if self.objects is not None and "texture" in self.objects.method else None
+        goal, reason = resolve(intent, placed, start_rad)
         if goal is not None:
             self.resolved[intent.command_id] = (intent.target, start_rad)
             self.refining = intent, goal

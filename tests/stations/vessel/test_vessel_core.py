@@ -160,8 +160,11 @@ def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_
     assert relay.step(RelayInputs(commands=[("op/intervene", intent)]), 0.0) == [
         ("heartbeat", Heartbeat(0.0, True))]  # not recognised yet: it waits (shore resends)
     seen = np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]])  # the panel recognised 6 cm low
-    objects = RecognisedObjects(("panel",), seen, np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "texture",
-                                1.0)
+    by_shape = RecognisedObjects(("panel",), seen, np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "shape",
+                                 0.5)
+    out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=by_shape), 0.5)
+    assert [t for t, _ in out] == ["heartbeat"]  # no markers seen: it waits
+    objects = dataclasses.replace(by_shape, method="texture+shape", sim_time_s=1.0)
     out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=objects), 1.0)
     goal = next(m for t, m in out if t == "goal/intervene")
     assert isinstance(goal, InterventionGoal) and goal.command_id == 5

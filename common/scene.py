@@ -116,7 +116,7 @@ def iterate_leaves(
     """The leaves of an OcTree or ColorOcTree in OctoMap's iteration order (depth first), or of
     those that overlap `bbx` (low and high corners [m], as OctoMap's box iterator takes them).
     Read from the tree's full serialisation in numpy rather than leaf by leaf through pyoctomap's
-    iterators, whose calls (five per leaf) cost 4-9x as much as this; `colors`: RGB (ColorOcTree)."""
+    iterators, whose calls cost 4-7x as much as this (bench/scene.py); `colors`: RGB (ColorOcTree)."""
     data = bytes(tree.write())  # type: ignore[attr-defined]
     header, _, body = data.partition(b"\ndata\n")
     fields = dict(line.split(" ", 1) for line in header.decode().splitlines() if line and line[0] != "#")

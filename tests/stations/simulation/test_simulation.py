@@ -6,9 +6,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config import SimulationConfig
+from abyss.common.config import SimulationConfig, load
 from abyss.common.images import decode_image
 from abyss.common.messages import SimulationControl
+from abyss.stations.simulation import _no_realtime
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.rendering import Cameras
@@ -194,9 +195,6 @@ def test_a_seed_makes_a_run_repeatable() -> None:
 
 
 def test_real_time_priority_is_asked_for_in_real_time_only_and_never_past_a_cpu_cap() -> None:
-    from abyss.common.config import load
-    from abyss.stations.simulation import _no_realtime
-
     assert _no_realtime(load(None, [])) == ""
     assert _no_realtime(load(None, ["time.mode=lockstep"])).startswith("time.mode lockstep: ")
     assert _no_realtime(load(None, ["cpu.simulation=0.5"])).startswith("cpu.simulation 0.5 core: ")

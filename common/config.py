@@ -587,7 +587,8 @@ class Config:
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> None:
     if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        raise ConfigError(name, f"{value} must be a positive number")
+        allowed = "zero or a positive number" if allow_zero else "a positive number"
+        raise ConfigError(name, f"{value} must be {allowed}")
 
 
 def _coerce(name: str, kind: Any, value: Any) -> Any:

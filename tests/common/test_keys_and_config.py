@@ -57,6 +57,13 @@ def test_bad_config_names_the_field(override: str, field: str) -> None:
     assert info.value.field == field
 
 
+def test_a_bound_says_whether_zero_is_allowed() -> None:
+    with pytest.raises(ConfigError, match=r"-1\.0 must be zero or a positive number"):
+        load(overrides=["vessel.scene_track_period_s=-1"])
+    with pytest.raises(ConfigError, match=r"0\.0 must be a positive number"):
+        load(overrides=["onboard.kp_position=0"])
+
+
 def test_a_vehicle_file_is_the_users_shells_path(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Relative to where the user typed it, not to the run directory the stations start in."""
     (tmp_path / "mine.toml").write_text("")

@@ -49,6 +49,9 @@ def cmd_scenario_run(args: argparse.Namespace) -> int:
         f"abyss: {sum(r.passed for r in results)}/{len(results)} scenarios passed; report "
         f"{markdown(results, report_dir)}" + (f", JUnit {args.junit}" if args.junit else "")
     )
+    for r in results:  # last, where a CI log's tail shows them
+        if not r.passed:
+            print(f"abyss: FAIL {r.scenario.name} ({r.out_dir}): {r.why_failed}")
     return 0 if all(r.passed for r in results) else 1
 
 

@@ -25,7 +25,7 @@ PARALLEL = 3  # whole systems at once on this 2-core machine (four overload it: 
 LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))
 SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]
 # the verdict each scenario must end with, three systems at once as one alone: a verdict that
-# load could change fails here (sensor-noise's arm may or may not settle to its 5 mm in time)
+# load could change fails here (sensor-noise's arm settles to its 5 mm in 33-39 s, and need not)
 VERDICTS: dict[str, set[str]] = {
     "every-station-killed": {"done"}, "nominal": {"done"}, "recognition-biased": {"incomplete"},
     "satellite-down": {"incomplete"}, "satellite-storm": {"done"}, "sensor-noise": {"done", "incomplete"},

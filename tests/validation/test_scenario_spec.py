@@ -11,7 +11,9 @@ import pytest
 
 from abyss.common.errors import ConfigError
 from abyss.common.messages import Telemetry
-from abyss.validation.scenario.checks import Run, arm_ranges_rad, judge
+from abyss.validation.scenario.checks import Run, Verdict, arm_ranges_rad, judge
+from abyss.validation.scenario.report import junit
+from abyss.validation.scenario.runner import Result
 from abyss.validation.scenario.spec import USES, Assertion, load_scenario, scenario_of
 
 LIBRARY = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
@@ -134,3 +136,27 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
         scenario = load_scenario(root / f"{name}.toml")
         kept, why = scenario.on_time(mode, "4" if mode == "sim" else None)
         assert kept is scenario and not kept.time.simulated and said in why, why
+
+
+def test_a_failed_scenario_says_which_assertions_came_out_wrong(tmp_path: Path) -> None:
+    """The line the CLI prints last, and JUnit's failure message: the assertions that did not come
+    out as the scenario expects, with their figures, not those that did."""
+    table = {**MINIMAL, "assert": [{"kind": "stations"}, {"kind": "mission_done", "within_s": 20},
+                                   {"kind": "commands_answered"}], "expect_failed": ["mission_done"]}
+    scenario = scenario_of(table)
+    stations, done, answered = scenario.assertions
+    as_expected = [Verdict(stations, True, "0 restarts"), Verdict(done, False, "not done")]
+    assert Result(scenario, tmp_path, [*as_expected, Verdict(answered, True, "all answered")], True,
+                  1.0).why_failed == ""
+    result = Result(scenario, tmp_path, [*as_expected, Verdict(answered, False, "unanswered: mode 7")],
+                    False, 1.0)
+    assert result.why_failed == "commands_answered failed: unanswered: mode 7"
+    held = Result(scenario, tmp_path, [as_expected[0], Verdict(done, True, "done at 12 s"),
+                                       Verdict(answered, True, "all answered")], False, 1.0)
+    assert held.why_failed == "mission_done within_s=20.0 held: done at 12 s"
+    broken = Result(scenario, tmp_path, [], False, 1.0, error="no summary.json:\nlast lines")
+    assert broken.why_failed == "no summary.json:"
+    junit([result, held, broken], tmp_path / "junit.xml")
+    text = (tmp_path / "junit.xml").read_text()
+    assert 'message="commands_answered failed: unanswered: mode 7"' in text
+    assert 'message="mission_done within_s=20.0 held: done at 12 s"' in text

@@ -31,12 +31,9 @@ def junit(results: list[Result], path: Path) -> None:
         properties = ET.SubElement(case, "properties")
         ET.SubElement(properties, "property", name="verdict", value=r.outcome)
         if r.error:
-            ET.SubElement(case, "error", message=r.error.splitlines()[0]).text = r.error
+            ET.SubElement(case, "error", message=r.why_failed).text = r.error
         elif not r.passed:
-            wrong = [v for v in r.verdicts if v.passed == (v.assertion.kind in r.scenario.expect_failed)]
-            failure = ET.SubElement(
-                case, "failure", message="; ".join(f"{v.assertion.kind}: {v.detail}" for v in wrong)
-            )
+            failure = ET.SubElement(case, "failure", message=r.why_failed)
             failure.text = "\n".join(
                 f"{'held' if v.passed else 'failed'}: {v.assertion.describe()}: {v.detail}"
                 for v in r.verdicts

@@ -54,6 +54,22 @@ class Result:
         expects or the run did not complete, else abyss up's verdict."""
         return self.run_verdict if self.passed and self.run_verdict else "failed"
 
+    @property
+    def wrong(self) -> list[Verdict]:
+        """The assertions that did not come out as the scenario expects: failed, or held where
+        it names them in `expect_failed`."""
+        return [v for v in self.verdicts if v.passed == (v.assertion.kind in self.scenario.expect_failed)]
+
+    @property
+    def why_failed(self) -> str:
+        """One line: the run's error, or each wrong assertion with its figure; '' when passed."""
+        if self.passed:
+            return ""
+        if self.error:
+            return self.error.splitlines()[0]
+        return "; ".join(f"{v.assertion.describe()} {'held' if v.passed else 'failed'}: {v.detail}"
+                         for v in self.wrong)
+
 
 class System:
     """One `abyss up` for a scenario, its output read line by line."""

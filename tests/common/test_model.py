@@ -8,7 +8,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
+from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
 
 
 @pytest.fixture(scope="module")
@@ -79,3 +79,20 @@ def test_the_panel_recognition_knows_is_the_panel_in_the_world(models: tuple[muj
     drawn = cv2.imread(str(tmp_path / "face.png"), cv2.IMREAD_GRAYSCALE)
     shipped = cv2.imread(str(panel.FACE_TEXTURE_FILE), cv2.IMREAD_GRAYSCALE)
     assert drawn is not None and shipped is not None and np.array_equal(drawn, shipped)
+
+
+def test_the_arm_touches_nothing_of_the_robot_straight_or_stowed(
+        models: tuple[mujoco.MjModel, pin.Model]) -> None:
+    """No contact at all with the arm straight or stowed and the vehicle in open water: a contact
+    between two of the robot's own bodies there would press on the joints in every step."""
+    mj, _ = models
+    md = mujoco.MjData(mj)
+    for pose_rad in (np.zeros(len(ARM_JOINTS)), np.array(ARM_STOWED_RAD)):
+        md.qpos[:] = mj.qpos0
+        md.qpos[0:3] = (0.0, 0.0, -5.0)  # in open water, 5 m above the seabed
+        for name, value in zip(ARM_JOINTS, pose_rad, strict=True):
+            md.qpos[mj.joint(name).qposadr[0]] = value
+        mujoco.mj_forward(mj, md)
+        touching = [(mj.body(mj.geom_bodyid[c.geom[0]]).name, mj.body(mj.geom_bodyid[c.geom[1]]).name,
+                     round(float(c.dist), 4)) for c in md.contact[:md.ncon]]
+        assert touching == [], (pose_rad, touching)

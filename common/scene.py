@@ -201,6 +201,22 @@ def read_binary(data: bytes, resolution_m: float) -> object:
     return tree
 
 
+class Lookup(NamedTuple):
+    """Cells looked up in a CellSet: whether each is there, its state and colour."""
+
+    found: np.ndarray
+    occupied: np.ndarray
+    colors: np.ndarray
+
+    def of(self, chosen: np.ndarray) -> Lookup:
+        return Lookup(self.found[chosen], self.occupied[chosen], self.colors[chosen])
+
+
+def _moved(a_rgb: np.ndarray, b_rgb: np.ndarray) -> np.ndarray:
+    """Whether two colours differ past the tolerance, in any channel."""
+    return np.any(np.abs(a_rgb.astype(int) - b_rgb) > COLOR_TOLERANCE, axis=1)
+
+
 class CellSet:
     """Cells by packed key (sorted, unique), each occupied or free, with a colour."""
 
@@ -225,6 +241,13 @@ class CellSet:
         self.occupied = np.concatenate((occupied, self.occupied))[first]
         self.colors = np.concatenate((colors, self.colors))[first]
         self.keys = merged
+
+    def lookup(self, keys: np.ndarray) -> Lookup:
+        """Each key's state and colour here (free and grey where it is not)."""
+        where, found = self.find(keys)
+        if not len(self.keys):
+            return Lookup(found, found.copy(), np.full((len(keys), 3), GREY, np.uint8))
+        return Lookup(found, self.occupied[where] & found, np.where(found[:, None], self.colors[where], GREY))
 
     def remove(self, keys: np.ndarray) -> None:
         keep = ~np.isin(self.keys, keys, assume_unique=True)
@@ -255,10 +278,11 @@ class SceneModel:
         self.resolution_m = resolution_m
         # what changed is found by walking the leaves of the region the clouds touched (in Python,
         # the vessel's dearest work): at most once per this period over the union of the regions
-        # since, not once per cloud; 0 walks after each cloud
+        # since, not once per cloud; 0 walks after each cloud. The period runs on the clouds' own
+        # stamps, so that the same clouds make the same updates however late they arrive
         self.track_period_s = track_period_s
         self._dirty: tuple[np.ndarray, np.ndarray] | None = None  # the region touched since the last walk
-        self._walked_s = -float("inf")
+        self._walked_s = -float("inf")  # the stamp of the last walk
         self.max_range_m = max_range_m
         self.max_update_bytes = max_update_bytes
         self.tree = pyoctomap.ColorOcTree(resolution_m)
@@ -271,9 +295,9 @@ class SceneModel:
         self._lock = threading.Lock()  # over published, pending, seq, snapshot_due
 
     def insert(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray,
-               now_s: float | None = None) -> None:
+               stamp_s: float | None = None) -> None:
         """Integrate one cloud (rays from the sensor) and queue the cells whose state changed
-        (`track`, at `now_s` on the caller's clock, else the monotonic one)."""
+        (`track`, at the cloud's `stamp_s`: its simulated time; else the monotonic clock's now)."""
         if len(points_m_world) == 0:
             return
         points, colors = voxel_downsample(points_m_world, colors, self.resolution_m)
@@ -292,17 +316,27 @@ class SceneModel:
         if self._dirty is not None:
             low, high = np.minimum(low, self._dirty[0]), np.maximum(high, self._dirty[1])
         self._dirty = (low, high)
-        self.track(now_s)
+        self.track(stamp_s)
 
-    def track(self, now_s: float | None = None) -> None:
+    def track(self, stamp_s: float | None = None) -> None:
         """Queue the cells whose state changed in the region the clouds touched, if
-        `track_period_s` has passed since the last walk (the inserter's thread calls it: the
-        octree is its own). The period also batches the stream: the cells a few clouds reveal
-        write as one compact delta, where a delta per cloud repeats the octree's branches."""
-        now_s = time.monotonic() if now_s is None else now_s
-        if self._dirty is None or now_s - self._walked_s < self.track_period_s:
-            return
-        bbx, self._dirty, self._walked_s = self._dirty, None, now_s
+        `track_period_s` has passed since the last walk by the clouds' stamps (the inserter's
+        thread calls it: the octree is its own). The period also batches the stream: the cells a
+        few clouds reveal write as one compact delta, where a delta per cloud repeats the
+        octree's branches."""
+        stamp_s = time.monotonic() if stamp_s is None else stamp_s
+        since_s = stamp_s - self._walked_s  # negative: the stamps started again (a new simulation)
+        if self._dirty is not None and not 0.0 <= since_s < self.track_period_s:
+            self._walk(stamp_s)
+
+    def flush(self) -> None:
+        """Queue what the clouds since the last walk changed, now (the last clouds, once no
+        more come)."""
+        if self._dirty is not None:
+            self._walk(self._walked_s)
+
+    def _walk(self, stamp_s: float) -> None:
+        bbx, self._dirty, self._walked_s = self._dirty, None, stamp_s
         # the inner nodes updated and like children merged once for the clouds since the last walk:
         # the same leaves and log-odds as pyoctomap's plain insertion of each (bench/scene.py
         # checks it); a merged leaf's colour is its children's mean, where the plain call's leaf
@@ -327,18 +361,22 @@ class SceneModel:
 
     def _queue(self, keys: np.ndarray, log_odds: np.ndarray, rgb: np.ndarray) -> None:
         """Queue the cells shore should see change: unknown to it, flipped past the hysteresis,
-        or occupied with a colour moved past the tolerance."""
+        or occupied with a colour moved past the tolerance. Each is judged against the state last
+        decided for it, queued or sent, so that when an update went out changes nothing (a cell
+        sent free after one miss, then hit once before the next walk, stays free however the
+        link paced the updates); one decided back to what shore holds leaves the queue."""
         state = log_odds >= 0.0
-        where, known = self.published.find(keys)
-        same = known  # all False while nothing is published
-        if len(self.published):
-            was_occupied = self.published.occupied[where]
-            flipped = np.where(was_occupied, log_odds < -HYSTERESIS_LOG_ODDS, log_odds > HYSTERESIS_LOG_ODDS)
-            color_moved = np.any(np.abs(self.published.colors[where].astype(int) - rgb) > COLOR_TOLERANCE,
-                                 axis=1)
-            same &= ~flipped & ~(was_occupied & state & color_moved)
-        self.pending.remove(keys[same])  # changed back before it went
-        self.pending.merge(keys[~same], state[~same], rgb[~same])
+        queued, sent = self.pending.lookup(keys), self.published.lookup(keys)
+        known = queued.found | sent.found
+        was_occupied = np.where(queued.found, queued.occupied, sent.occupied)
+        was_rgb = np.where(queued.found[:, None], queued.colors, sent.colors)
+        flipped = np.where(was_occupied, log_odds < -HYSTERESIS_LOG_ODDS, log_odds > HYSTERESIS_LOG_ODDS)
+        changed = ~known | flipped | (was_occupied & state & _moved(was_rgb, rgb))
+        keys, state, rgb = keys[changed], state[changed], rgb[changed]
+        sent = sent.of(changed)
+        as_sent = sent.found & (sent.occupied == state) & ~(state & _moved(sent.colors, rgb))
+        self.pending.remove(keys[as_sent])
+        self.pending.merge(keys[~as_sent], state[~as_sent], rgb[~as_sent])
 
     def request_snapshot(self) -> None:
         """Shore lost track: send everything again, starting with a snapshot."""

@@ -110,9 +110,10 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
     clouds = bus.subscribe("onboard", "cloud", maxlen=4)
     pings = bus.subscribe("onboard", "sonar", maxlen=4)
     tracker = PanelTracker(bias_m_world=cfg.recognition_bias_m)
-    perception = Perception(cfg, bus.clock.now_s())
+    perception = Perception(cfg)
     rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene")  # with simulated time, an insertion holds it
     last_recognition_s = last_status_s = -float("inf")
+    inserted_s = bus.clock.now_s()  # when the model last took a cloud or echoes
     points: np.ndarray | None = None
     while rate.sleep():
         for received in clouds.drain():
@@ -121,7 +122,8 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             cloud_points, colors = unpack_cloud(cloud)
             perception.received(cloud.source, len(cloud_points), bus.clock.now_s())
             if insert:
-                model.insert(cloud_points, colors, cloud.sensor_m_world, bus.clock.now_s())
+                model.insert(cloud_points, colors, cloud.sensor_m_world, cloud.sim_time_s)
+                inserted_s = bus.clock.now_s()
             sim_time_s[0] = cloud.sim_time_s
             if cloud.source == "depth" or points is None:
                 points = cloud_points
@@ -136,11 +138,12 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
             perception.received("sonar", len(echoes), bus.clock.now_s())
             if insert and perception.sonar_feeds(bus.clock.now_s()) and len(echoes):
                 model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin,
-                             bus.clock.now_s())
+                             received.message.sim_time_s)
+                inserted_s = bus.clock.now_s()
                 sim_time_s[0] = max(sim_time_s[0], received.message.sim_time_s)
-        if insert:
-            model.track(bus.clock.now_s())  # what the last clouds changed, once its period has passed
         now_s = bus.clock.now_s()
+        if insert and now_s - inserted_s >= cfg.scene_track_period_s:
+            model.flush()  # what the last clouds changed, once no more came for a period
         if now_s - last_status_s >= cfg.perception_period_s:
             last_status_s = now_s
             bus.publish("perception", perception.status(now_s, recognised[0], sim_time_s[0]))

@@ -139,17 +139,21 @@ class Relay:
 class Perception:
     """What perception works with: the points each source brought over the last `window_s`, and
     which feeds the scene model. The cameras' clouds do; the sonar's echoes take over while the
-    cameras' clouds bring no point for `fallback_s` (murk, failed cameras; from the start too,
-    until the first cloud with points), and hand back at the first that does."""
+    cameras' clouds bring no point for `fallback_s` (murk, failed cameras; from the first
+    message of any source too, until the first cloud with points), and hand back at the first
+    that does. Counted from the first message, not from the vessel's start: a vessel started
+    long before the vehicle (a replay, a station started by hand) must not map from the first
+    pings what the cameras would have."""
 
-    def __init__(self, cfg: VesselConfig, now_s: float) -> None:
+    def __init__(self, cfg: VesselConfig) -> None:
         self.window_s, self.fallback_s = cfg.perception_window_s, cfg.sonar_fallback_s
-        self.started_s = now_s
+        self.started_s: float | None = None  # when the first message came
         self.cameras_seen_s = -float("inf")  # the last camera cloud with points
         self.sonar_seen = False
         self._points: deque[tuple[float, str, int]] = deque()  # (when, source, points)
 
     def received(self, source: str, points: int, now_s: float) -> None:
+        self.started_s = now_s if self.started_s is None else self.started_s
         self._points.append((now_s, source, points))
         while self._points and self._points[0][0] < now_s - self.window_s:
             self._points.popleft()
@@ -157,8 +161,11 @@ class Perception:
             self.cameras_seen_s = now_s
         self.sonar_seen |= source == "sonar"
 
+    def _started(self, now_s: float) -> float:
+        return now_s if self.started_s is None else self.started_s
+
     def sonar_feeds(self, now_s: float) -> bool:
-        return now_s - max(self.cameras_seen_s, self.started_s) >= self.fallback_s
+        return now_s - max(self.cameras_seen_s, self._started(now_s)) >= self.fallback_s
 
     def scene_source(self, now_s: float) -> str:
         if self.sonar_feeds(now_s):
@@ -166,7 +173,7 @@ class Perception:
         return "cameras" if self.cameras_seen_s > -float("inf") else ""
 
     def status(self, now_s: float, objects: RecognisedObjects | None, sim_time_s: float) -> PerceptionStatus:
-        window_s = min(self.window_s, max(now_s - self.started_s, 1e-3))
+        window_s = min(self.window_s, max(now_s - self._started(now_s), 1e-3))
         counts = dict.fromkeys(PERCEPTION_SOURCES, 0)
         for when, source, points in self._points:
             if when >= now_s - window_s:

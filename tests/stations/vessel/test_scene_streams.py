@@ -8,7 +8,14 @@ from __future__ import annotations
 import numpy as np
 
 from abyss.common.messages import SceneUpdate, decode, encode
-from abyss.common.scene import HYSTERESIS_LOG_ODDS, SceneModel, SceneReceiver, iterate_leaves, leaves_to_cells
+from abyss.common.scene import (
+    HYSTERESIS_LOG_ODDS,
+    SceneModel,
+    SceneReceiver,
+    cell_keys,
+    iterate_leaves,
+    leaves_to_cells,
+)
 
 RESOLUTION_M = 0.1
 SENSOR_M_WORLD = np.zeros(3)
@@ -124,3 +131,28 @@ def test_a_published_cell_goes_again_only_once_its_log_odds_are_well_past_the_th
             band_seen |= -HYSTERESIS_LOG_ODDS <= log_odds[key] < 0
     assert band_seen  # some cell was free by the map and still occupied on shore
     assert len(sent - occupied(model)) >= 25  # the middle of the wall, seen through
+
+
+def test_when_the_updates_go_out_does_not_change_what_shore_ends_with() -> None:
+    """A wall seen through (a miss on each of its cells), then seen (a hit: log-odds 0.44, inside
+    the hysteresis band): whether the updates go out after each cloud or only at the end, each
+    cell is judged against the state decided for it first, queued or sent, so shore ends with
+    the same map: the wall's cells as first decided, free (the link's pacing once decided it)."""
+    shores = []
+    for send_each in (True, False):
+        model = SceneModel(RESOLUTION_M, 8.0, max_update_bytes=200)
+        receiver = SceneReceiver()
+        for x_m in (4.03, 2.03):
+            model.insert(*wall(x_m, (200, 8, 8)), SENSOR_M_WORLD)
+            for update in updates(model) if send_each else ():
+                receiver.apply(update)
+        for update in updates(model):
+            receiver.apply(update)
+        shores.append((occupied(model), set(model.published.keys.tolist())))
+    assert shores[0] == shores[1]
+    points = wall(2.03, (0, 0, 0))[0]
+    seen_through = points[np.abs(points[:, 1:]).max(axis=1) < 0.2]  # within the rays to the far wall
+    near = set(cell_keys(seen_through, RESOLUTION_M).tolist())
+    occupied_cells, known_cells = shores[0]
+    assert len(near) >= 9 and near <= known_cells and not near & occupied_cells  # sent, free
+    assert len(occupied_cells) >= 100  # the far wall

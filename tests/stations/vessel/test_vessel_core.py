@@ -211,9 +211,11 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
 
 
 def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> None:
-    perception = Perception(VesselConfig(sonar_fallback_s=5.0, perception_window_s=10.0), now_s=100.0)
+    perception = Perception(VesselConfig(sonar_fallback_s=5.0, perception_window_s=10.0))
+    assert not perception.sonar_feeds(1000.0)  # nothing came yet: the fallback counts from the first message
+    perception.received("sonar", 0, 100.0)
     assert perception.scene_source(101.0) == "" and not perception.sonar_feeds(104.9)
-    assert perception.sonar_feeds(105.0)  # no camera cloud since the start
+    assert perception.sonar_feeds(105.0)  # no camera cloud since the first message
     perception.received("depth", 1000, 101.0)
     assert not perception.sonar_feeds(105.9) and perception.sonar_feeds(106.0)
     perception.received("stereo", 0, 106.5)  # an empty cloud (murk, a blacked-out camera) is nothing

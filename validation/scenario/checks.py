@@ -30,6 +30,10 @@ class Verdict:
     passed: bool
     detail: str
 
+    def __str__(self) -> str:
+        """The assertion, whether it held, and its figure."""
+        return f"{self.assertion.describe()} {'held' if self.passed else 'failed'}: {self.detail}"
+
 
 def phase_began_s(states: list[tuple[float, Telemetry]], phase: str) -> float | None:
     """When onboard first reported the intervention `phase` [s since all up]; 0 for no phase."""

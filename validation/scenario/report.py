@@ -34,10 +34,7 @@ def junit(results: list[Result], path: Path) -> None:
             ET.SubElement(case, "error", message=r.why_failed).text = r.error
         elif not r.passed:
             failure = ET.SubElement(case, "failure", message=r.why_failed)
-            failure.text = "\n".join(
-                f"{'held' if v.passed else 'failed'}: {v.assertion.describe()}: {v.detail}"
-                for v in r.verdicts
-            )
+            failure.text = "\n".join(map(str, r.verdicts))
         ET.SubElement(case, "system-out").text = f"verdict: {r.outcome}\nrun directory: {r.out_dir}"
     path.parent.mkdir(parents=True, exist_ok=True)
     ET.ElementTree(suite).write(path, encoding="utf-8", xml_declaration=True)

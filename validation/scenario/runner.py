@@ -67,8 +67,7 @@ class Result:
             return ""
         if self.error:
             return self.error.splitlines()[0]
-        return "; ".join(f"{v.assertion.describe()} {'held' if v.passed else 'failed'}: {v.detail}"
-                         for v in self.wrong)
+        return "; ".join(map(str, self.wrong))
 
 
 class System:

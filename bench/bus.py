@@ -56,17 +56,27 @@ class Result:
 
 
 CASES = (
-    Case("flood, NavState", "simulation", "nav",
-         NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0), 20000, None),
-    Case("flood, Waypoints 32 KB", "vessel", "goal/waypoints",
-         Waypoints(1, np.zeros((1000, 4))), 2000, None),
-    Case("paced 500/s, NavState", "simulation", "nav",
-         NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0), 3000, 500.0),
+    Case(
+        "flood, NavState",
+        "simulation",
+        "nav",
+        NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0),
+        20000,
+        None,
+    ),
+    Case("flood, Waypoints 32 KB", "vessel", "goal/waypoints", Waypoints(1, np.zeros((1000, 4))), 2000, None),
+    Case(
+        "paced 500/s, NavState",
+        "simulation",
+        "nav",
+        NavState(np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), 0.0),
+        3000,
+        500.0,
+    ),
 )
 
 
-def drive(case: Case, publish: Callable[[], object], received: Callable[[], int],
-          latency: Samples) -> Result:
+def drive(case: Case, publish: Callable[[], object], received: Callable[[], int], latency: Samples) -> Result:
     for _ in range(100):  # warm up
         publish()
     time.sleep(0.5)
@@ -86,8 +96,9 @@ def drive(case: Case, publish: Callable[[], object], received: Callable[[], int]
     elapsed = last_arrival - t0
     size = len(encode(case.message, 0, 0.0))
     lat = latency.percentiles("latency", 1e6, "us", (50, 99))
-    return Result(n / elapsed, n * size * 8 / elapsed, lat["latency_p50_us"], lat["latency_p99_us"],
-                  n / case.count)
+    return Result(
+        n / elapsed, n * size * 8 / elapsed, lat["latency_p50_us"], lat["latency_p99_us"], n / case.count
+    )
 
 
 def bench_bus(case: Case) -> Result:
@@ -101,8 +112,9 @@ def bench_bus(case: Case) -> Result:
     key = spec.key(SYSTEM)
     receiver.latency_s[key] = latency = Samples()
     time.sleep(1.0)
-    result = drive(case, lambda: sender.publish(case.topic, case.message), lambda: receiver.received[key],
-                   latency)
+    result = drive(
+        case, lambda: sender.publish(case.topic, case.message), lambda: receiver.received[key], latency
+    )
     sending.close()
     receiving.close()
     return result
@@ -127,8 +139,7 @@ def bench_raw(case: Case, key_qos: bool) -> Result:
     pub = a.declare_publisher("abyss/bench/raw", **qos)
     time.sleep(1.0)
     body = encode(case.message, 0, 0.0)
-    result = drive(case, lambda: pub.put(body + np.float64(time.time()).tobytes()), lambda: count[0],
-                   latency)
+    result = drive(case, lambda: pub.put(body + np.float64(time.time()).tobytes()), lambda: count[0], latency)
     sub.undeclare()
     pub.undeclare()
     a.close()
@@ -140,8 +151,24 @@ def bench_startup(runs: int = 3) -> list[float]:
     times = []
     for i in range(runs):
         out = Path("runs") / f"bench-startup-{i}"
-        done = subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--duration", "1", "--port", "0",
-                               "--out", str(out), "--system", f"bench{i}"], capture_output=True, text=True)
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "abyss.cli",
+                "up",
+                "--duration",
+                "1",
+                "--port",
+                "0",
+                "--out",
+                str(out),
+                "--system",
+                f"bench{i}",
+            ],
+            capture_output=True,
+            text=True,
+        )
         m = re.search(r"all 4 stations up in ([0-9.]+) s", done.stdout)
         if m:
             times.append(float(m.group(1)))
@@ -149,16 +176,20 @@ def bench_startup(runs: int = 3) -> list[float]:
 
 
 def show(label: str, r: Result) -> None:
-    print(f"  {label:<7} {r.messages_per_s:9.0f} msg/s {r.bits_per_s / 1e6:9.1f} Mbit/s   "
-          f"latency p50 {r.latency_p50_us:9.0f} us  p99 {r.latency_p99_us:9.0f} us   "
-          f"delivered {100 * r.delivered:5.1f} %")
+    print(
+        f"  {label:<7} {r.messages_per_s:9.0f} msg/s {r.bits_per_s / 1e6:9.1f} Mbit/s   "
+        f"latency p50 {r.latency_p50_us:9.0f} us  p99 {r.latency_p99_us:9.0f} us   "
+        f"delivered {100 * r.delivered:5.1f} %"
+    )
 
 
 def compare(label: str, bus: Result, raw: Result) -> None:
     extra_us = bus.latency_p50_us - raw.latency_p50_us
-    print(f"  bus/{label}: throughput {bus.messages_per_s / raw.messages_per_s:.2f}x, latency p50 "
-          f"{bus.latency_p50_us / raw.latency_p50_us:.2f}x ({extra_us:+.0f} us), "
-          f"p99 {bus.latency_p99_us / raw.latency_p99_us:.2f}x")
+    print(
+        f"  bus/{label}: throughput {bus.messages_per_s / raw.messages_per_s:.2f}x, latency p50 "
+        f"{bus.latency_p50_us / raw.latency_p50_us:.2f}x ({extra_us:+.0f} us), "
+        f"p99 {bus.latency_p99_us / raw.latency_p99_us:.2f}x"
+    )
 
 
 if __name__ == "__main__":

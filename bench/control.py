@@ -30,9 +30,15 @@ def seconds(run: Callable[[], None]) -> float:
 
 
 def main() -> None:
-    config = load(None, ["simulation.low_level=kinematic", "mission.interventions=[]",
-                         "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]",  # the middle valve's handle
-                         "simulation.start_position_m_world=[3.2, 0, -8.0]"])
+    config = load(
+        None,
+        [
+            "simulation.low_level=kinematic",
+            "mission.interventions=[]",
+            "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]",  # the middle valve's handle
+            "simulation.start_position_m_world=[3.2, 0, -8.0]",
+        ],
+    )
     arm = ArmController(config.onboard, config.mission)
     goal = config.mission.arm_goal()
     assert goal is not None
@@ -59,8 +65,9 @@ def main() -> None:
     full_us, floor_us = min(full_s) / REPEATS * 1e6, min(floor_s) / REPEATS * 1e6  # the least disturbed
     period_us = config.onboard.control_period_s * 1e6
     print(f"arm step, task priority + limits + clearance: {full_us:7.0f} us")
-    print(f"floor, one damped pseudo-inverse:             {floor_us:7.0f} us  "
-          f"(ratio {full_us / floor_us:.2f}x)")
+    print(
+        f"floor, one damped pseudo-inverse:             {floor_us:7.0f} us  (ratio {full_us / floor_us:.2f}x)"
+    )
     print(f"share of the {period_us / 1e3:.0f} ms control period: {full_us / period_us:.1%}")
 
     world = World(config.simulation, np.random.default_rng(0))
@@ -76,9 +83,11 @@ def main() -> None:
         rotation = world.data.site_xmat[site].reshape(3, 3)
         angle_deg = np.degrees(np.arccos(np.clip((np.trace(arm.goal_rotation.T @ rotation) - 1) / 2, -1, 1)))
         if error_m < 1e-3 and angle_deg < 0.5:
-            print(f"closed loop, stowed -> valve handle: within 1 mm and 0.5 deg after "
-                  f"{step * config.onboard.control_period_s:.2f} s (true site: {error_m * 1e3:.2f} mm, "
-                  f"{angle_deg:.2f} deg)")
+            print(
+                f"closed loop, stowed -> valve handle: within 1 mm and 0.5 deg after "
+                f"{step * config.onboard.control_period_s:.2f} s (true site: {error_m * 1e3:.2f} mm, "
+                f"{angle_deg:.2f} deg)"
+            )
             return
     print("closed loop: not within 1 mm and 0.5 deg in 30 s")
 

@@ -45,8 +45,9 @@ def apt_packages() -> list[str]:
 
 
 def apt_show(names: list[str]) -> dict[str, dict[str, str]]:
-    out = subprocess.run(["apt-cache", "show", "--no-all-versions", *names], capture_output=True,
-                         text=True, check=False).stdout
+    out = subprocess.run(
+        ["apt-cache", "show", "--no-all-versions", *names], capture_output=True, text=True, check=False
+    ).stdout
     info: dict[str, dict[str, str]] = {}
     for block in out.split("\n\n"):
         fields = dict(re.findall(r"^([\w-]+): (.*)$", block, re.M))
@@ -70,14 +71,18 @@ def apt_layer() -> tuple[float, int, list[tuple[str, float]]]:
                 dep = clause.split("|")[0].strip().split(" ")[0].split(":")[0]
                 if dep and dep not in seen:
                     todo.append(dep)
-    added = {n: float(f.get("Installed-Size", "0")) * 1024 / MB for n, f in seen.items()
-             if f.get("Priority") not in ("required", "important")}
+    added = {
+        n: float(f.get("Installed-Size", "0")) * 1024 / MB
+        for n, f in seen.items()
+        if f.get("Priority") not in ("required", "important")
+    }
     largest = sorted(added.items(), key=lambda item: -item[1])[:5]
     return sum(added.values()), len(added), largest
 
 
 def pip_layer() -> tuple[float, int, list[tuple[str, float]]]:
     """(MB, distributions, largest) of abyss's runtime requirement closure."""
+
     def name_of(requirement: str) -> str:
         return re.split(r"[ ;<>=!\[~]", requirement, maxsplit=1)[0].lower().replace("_", "-")
 
@@ -136,11 +141,39 @@ def startup() -> tuple[float, float]:
     try:
         station, floor = [], []
         for _ in range(3):
-            station.append(seconds_until_alive(
-                [sys.executable, "-m", "abyss.cli", "station", "simulation", "--system", "bench-start",
-                 "--connect", endpoint, "--zenoh-mode", "peer"], "bench-start", endpoint))
-            floor.append(seconds_until_alive([sys.executable, "-c", BARE_ZENOH, "peer", endpoint,
-                                              keys.alive_key("floor", "simulation")], "floor", endpoint))
+            station.append(
+                seconds_until_alive(
+                    [
+                        sys.executable,
+                        "-m",
+                        "abyss.cli",
+                        "station",
+                        "simulation",
+                        "--system",
+                        "bench-start",
+                        "--connect",
+                        endpoint,
+                        "--zenoh-mode",
+                        "peer",
+                    ],
+                    "bench-start",
+                    endpoint,
+                )
+            )
+            floor.append(
+                seconds_until_alive(
+                    [
+                        sys.executable,
+                        "-c",
+                        BARE_ZENOH,
+                        "peer",
+                        endpoint,
+                        keys.alive_key("floor", "simulation"),
+                    ],
+                    "floor",
+                    endpoint,
+                )
+            )
         return sorted(station)[1], sorted(floor)[1]
     finally:
         router.terminate()
@@ -173,11 +206,16 @@ def images(cold: bool) -> None:
     layers = [line.split("\t", 1) for line in history.stdout.splitlines()]
     size, step = max((int(size), step) for size, step in layers)
     print("images:")
-    print(f"  {engine.BASE_IMAGE}: " + (f"made in {base_s:.0f} s" if base_s else "there already")
-          + f", {engine.image_size_bytes(engine.BASE_IMAGE) / MB:.0f} MB")
-    print(f"  {engine.IMAGE}: {engine.image_size_bytes(engine.IMAGE) / MB:.0f} MB; build "
-          + (f"{'cold' if cold else 'first'} {cold_s:.0f} s, " if cold_s is not None else "")
-          + f"warm {warm_s or 0:.1f} s (nothing changed), {code_s or 0:.1f} s (one source file changed)")
+    print(
+        f"  {engine.BASE_IMAGE}: "
+        + (f"made in {base_s:.0f} s" if base_s else "there already")
+        + f", {engine.image_size_bytes(engine.BASE_IMAGE) / MB:.0f} MB"
+    )
+    print(
+        f"  {engine.IMAGE}: {engine.image_size_bytes(engine.IMAGE) / MB:.0f} MB; build "
+        + (f"{'cold' if cold else 'first'} {cold_s:.0f} s, " if cold_s is not None else "")
+        + f"warm {warm_s or 0:.1f} s (nothing changed), {code_s or 0:.1f} s (one source file changed)"
+    )
     print(f"  largest layer {size / MB:.0f} MB: {step[:90]}")
 
 
@@ -198,8 +236,10 @@ def compose_up(link: str | None) -> None:
         finally:
             compose("down", "-v", "--remove-orphans", "-t", "10")
     elapsed_s = time.monotonic() - start
-    print(f"compose (--link {link or 'default'}): up -d to all four healthy {healthy_s:.1f} s, "
-          f"to the mission done {done_s:.1f} s (with down -v: {elapsed_s:.1f} s)")
+    print(
+        f"compose (--link {link or 'default'}): up -d to all four healthy {healthy_s:.1f} s, "
+        f"to the mission done {done_s:.1f} s (with down -v: {elapsed_s:.1f} s)"
+    )
 
 
 def main() -> None:
@@ -211,14 +251,20 @@ def main() -> None:
     pip_mb, pip_n, pip_top = pip_layer()
     total = apt_mb + pip_mb
     print("image layers beyond python:3.11-slim (computed from the Dockerfile's package set):")
-    print(f"  apt: {apt_mb:7.1f} MB in {apt_n} packages ({apt_mb / total:.0%}); largest: "
-          + ", ".join(f"{n} {s:.1f}" for n, s in apt_top))
-    print(f"  pip: {pip_mb:7.1f} MB in {pip_n} distributions ({pip_mb / total:.0%}); largest: "
-          + ", ".join(f"{n} {s:.1f}" for n, s in pip_top))
+    print(
+        f"  apt: {apt_mb:7.1f} MB in {apt_n} packages ({apt_mb / total:.0%}); largest: "
+        + ", ".join(f"{n} {s:.1f}" for n, s in apt_top)
+    )
+    print(
+        f"  pip: {pip_mb:7.1f} MB in {pip_n} distributions ({pip_mb / total:.0%}); largest: "
+        + ", ".join(f"{n} {s:.1f}" for n, s in pip_top)
+    )
     print(f"  total {total:.1f} MB")
     station_s, floor_s = startup()
-    print(f"start-up to liveliness: simulation station {station_s:.2f} s, bare zenoh session {floor_s:.2f} s "
-          f"({station_s / floor_s:.1f}x the floor)")
+    print(
+        f"start-up to liveliness: simulation station {station_s:.2f} s, bare zenoh session {floor_s:.2f} s "
+        f"({station_s / floor_s:.1f}x the floor)"
+    )
     reason = engine.unusable() or engine.start_engine()
     if reason:
         print(f"images and compose: not measured: {reason}")

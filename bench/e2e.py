@@ -23,8 +23,25 @@ MESSAGE_BYTES = {"nav": 330, "telemetry": 330}  # approximate encoded sizes
 def main(seconds: float) -> None:
     system = "bench-e2e"
     out = Path("runs") / system
-    subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--keep-running", "--duration", str(seconds),
-                    "--port", "0", "--out", str(out), "--system", system], check=True, capture_output=True)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "up",
+            "--keep-running",
+            "--duration",
+            str(seconds),
+            "--port",
+            "0",
+            "--out",
+            str(out),
+            "--system",
+            system,
+        ],
+        check=True,
+        capture_output=True,
+    )
     summary = json.loads((out / "summary.json").read_text())
     profiles = Config().links.profiles()
     total_p50_ms = total_floor_ms = 0.0
@@ -36,12 +53,16 @@ def main(seconds: float) -> None:
         latency = summary["stations"][spec.to]["latency_ms"][spec.key(system)]
         total_p50_ms += latency["latency_p50_ms"]
         total_floor_ms += floor_ms
-        print(f"{spec.hop:<9} {station}/{topic:<10} p50 {latency['latency_p50_ms']:8.2f} ms  "
-              f"p99 {latency['latency_p99_ms']:8.2f} ms  floor {floor_ms:7.2f} ms  "
-              f"p50/floor {latency['latency_p50_ms'] / floor_ms if floor_ms else float('nan'):.3f}")
-    print(f"simulation -> onshore, sum of hop p50 {total_p50_ms:.2f} ms against the floor "
-          f"{total_floor_ms:.2f} ms: ratio {total_p50_ms / total_floor_ms:.3f} (relay waits excluded: "
-          f"onboard and vessel forward at their own periods)")
+        print(
+            f"{spec.hop:<9} {station}/{topic:<10} p50 {latency['latency_p50_ms']:8.2f} ms  "
+            f"p99 {latency['latency_p99_ms']:8.2f} ms  floor {floor_ms:7.2f} ms  "
+            f"p50/floor {latency['latency_p50_ms'] / floor_ms if floor_ms else float('nan'):.3f}"
+        )
+    print(
+        f"simulation -> onshore, sum of hop p50 {total_p50_ms:.2f} ms against the floor "
+        f"{total_floor_ms:.2f} ms: ratio {total_p50_ms / total_floor_ms:.3f} (relay waits excluded: "
+        f"onboard and vessel forward at their own periods)"
+    )
 
 
 if __name__ == "__main__":

@@ -18,9 +18,27 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def record_run(out: Path) -> None:
     print("recording the default mission (abyss up --record all) ...", flush=True)
-    done = subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--port", "0", "--viewer", "none",
-                           "--record", "all", "--duration", "120", "--out", str(out)],
-                          capture_output=True, text=True, cwd=ROOT)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "up",
+            "--port",
+            "0",
+            "--viewer",
+            "none",
+            "--record",
+            "all",
+            "--duration",
+            "120",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     if done.returncode != 0:
         raise SystemExit("abyss up failed:\n" + done.stdout + done.stderr)
 
@@ -39,8 +57,9 @@ def bench(run_dir: Path, repeats: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("run_dir", type=Path, nargs="?", metavar="RUN_DIR",
-                        help="a recorded run (default: record one)")
+    parser.add_argument(
+        "run_dir", type=Path, nargs="?", metavar="RUN_DIR", help="a recorded run (default: record one)"
+    )
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
     if args.run_dir is not None:

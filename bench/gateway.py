@@ -29,11 +29,18 @@ from abyss.ros2 import rmw, types
 from abyss.stations.runtime import free_port
 
 FLOOD, PACED, PACE_S = 2000, 300, 0.005
-NAV = NavState(np.array([1.0, 0.2, -7.0]), np.array([0.99, 0.0, 0.0, 0.141]), np.full(3, 0.1),
-               np.full(3, 0.01), 3.5)
+NAV = NavState(
+    np.array([1.0, 0.2, -7.0]), np.array([0.99, 0.0, 0.0, 0.141]), np.full(3, 0.1), np.full(3, 0.01), 3.5
+)
 JOINTS = JointState(np.linspace(-0.5, 0.5, 6), np.zeros(6), 0.03, 3.5)
-CLOUD = pack_cloud("stereo", np.random.default_rng(0).uniform(-1, 1, (8000, 3)) + np.array([4.0, 0.0, -8.5]),
-                   np.full((8000, 3), 128, np.uint8), np.array([1.0, 0.0, -7.0]), 0.002, 3.5)
+CLOUD = pack_cloud(
+    "stereo",
+    np.random.default_rng(0).uniform(-1, 1, (8000, 3)) + np.array([4.0, 0.0, -8.5]),
+    np.full((8000, 3), 128, np.uint8),
+    np.array([1.0, 0.0, -7.0]),
+    0.002,
+    3.5,
+)
 Sample = tuple[str, bytes, bytes | None]  # key, payload, attachment
 
 
@@ -95,8 +102,13 @@ class GatewayDown:
         samples = []
         for t in self.mapping.topics:
             converted = t.convert(message, types.header(stamp_s, t.frame_id), self.session)
-            samples.append((self.keys[t.name], types.serialize(converted),
-                            rmw.attachment(self.seq, time.time_ns(), self.gids[t.name])))
+            samples.append(
+                (
+                    self.keys[t.name],
+                    types.serialize(converted),
+                    rmw.attachment(self.seq, time.time_ns(), self.gids[t.name]),
+                )
+            )
         clock = types.clock(None, types.header(stamp_s, ""), self.session)
         stamp = rmw.attachment(self.seq, time.time_ns(), bytes(16))
         samples.append((self.clock_key, types.serialize(clock), stamp))
@@ -104,8 +116,9 @@ class GatewayDown:
 
 
 def twist_cdr() -> bytes:
-    twist = types.twist(VelocityRef(np.array([0.2, 0.0, -0.1]), 0.1), types.header(3.5, types.BASE_LINK),
-                        types.Session())
+    twist = types.twist(
+        VelocityRef(np.array([0.2, 0.0, -0.1]), 0.1), types.header(3.5, types.BASE_LINK), types.Session()
+    )
     return types.serialize(twist)
 
 
@@ -150,22 +163,35 @@ def main() -> None:
     session = types.Session()
     cases: list[tuple[str, Callable[[], list[Sample]], Callable[[], list[Sample]]]] = [
         ("down NavState (Odometry, /tf, /clock)", lambda: abyss_down(NAV), lambda: nav_down(NAV)),
-        ("down JointState (JointState, /tf by FK, /clock)", lambda: abyss_down(JOINTS),
-         lambda: joints_down(JOINTS)),
-        ("down PointCloud 8000 points (PointCloud2, /clock)", lambda: abyss_down(CLOUD),
-         lambda: cloud_down(CLOUD)),
-        ("up TwistStamped -> VelocityRef", lambda: abyss_up(abyss_twist),
-         lambda: gateway_up(ros_twist, attachment, session)),
+        (
+            "down JointState (JointState, /tf by FK, /clock)",
+            lambda: abyss_down(JOINTS),
+            lambda: joints_down(JOINTS),
+        ),
+        (
+            "down PointCloud 8000 points (PointCloud2, /clock)",
+            lambda: abyss_down(CLOUD),
+            lambda: cloud_down(CLOUD),
+        ),
+        (
+            "up TwistStamped -> VelocityRef",
+            lambda: abyss_up(abyss_twist),
+            lambda: gateway_up(ros_twist, attachment, session),
+        ),
     ]
-    print(f"{'case':<50} {'abyss CPU us':>12} {'gateway CPU us':>15} {'ratio':>6}  "
-          f"{'abyss p50/p95 us':>17} {'gateway p50/p95 us':>19}")
+    print(
+        f"{'case':<50} {'abyss CPU us':>12} {'gateway CPU us':>15} {'ratio':>6}  "
+        f"{'abyss p50/p95 us':>17} {'gateway p50/p95 us':>19}"
+    )
     try:
         for name, abyss_path, gateway_path in cases:
             abyss_cpu, abyss_latency = measure(wire, abyss_path)
             gateway_cpu, gateway_latency = measure(wire, gateway_path)
             a, g = (s.percentiles("l", 1e6, "us") for s in (abyss_latency, gateway_latency))
-            print(f"{name:<50} {abyss_cpu:>12.0f} {gateway_cpu:>15.0f} {gateway_cpu / abyss_cpu:>5.1f}x  "
-                  f"{a['l_p50_us']:>8.0f}/{a['l_p95_us']:<8.0f} {g['l_p50_us']:>9.0f}/{g['l_p95_us']:<9.0f}")
+            print(
+                f"{name:<50} {abyss_cpu:>12.0f} {gateway_cpu:>15.0f} {gateway_cpu / abyss_cpu:>5.1f}x  "
+                f"{a['l_p50_us']:>8.0f}/{a['l_p95_us']:<8.0f} {g['l_p50_us']:>9.0f}/{g['l_p95_us']:<9.0f}"
+            )
     finally:
         wire.close()
 

@@ -108,14 +108,16 @@ def one_turn(session: zenoh.Session, watch: Watch, turn_deg: float) -> tuple[flo
     command = Intervention(new_id(), PART, *panel.intent(PART, f"{turn_deg:g}"))
     t0 = time.monotonic()
     session.put(keys.operator_key(SYSTEM, "intervene"), encode(command, 0, t0))  # the shore resends
-    at_target = watch.wait(lambda w: abs(w.angle_deg - target_deg) <= TOLERANCE_DEG
-                           or command.command_id in w.refused, 120.0)
+    at_target = watch.wait(
+        lambda w: abs(w.angle_deg - target_deg) <= TOLERANCE_DEG or command.command_id in w.refused, 120.0
+    )
     t_target = time.monotonic()
     if command.command_id in watch.refused:
         print(f"refused: {watch.refused[command.command_id]}")
         return None
-    ended = watch.wait(lambda w: any(i == command.command_id and p in ("done", "failed")
-                                     for _, i, p in w.phases), 60.0)
+    ended = watch.wait(
+        lambda w: any(i == command.command_id and p in ("done", "failed") for _, i, p in w.phases), 60.0
+    )
     if not at_target or not ended:
         return None
     with watch.lock:
@@ -130,10 +132,31 @@ def one_turn(session: zenoh.Session, watch: Watch, turn_deg: float) -> tuple[flo
 
 def main(repeats: int) -> None:
     out = Path("runs") / SYSTEM
-    up = subprocess.Popen([sys.executable, "-m", "abyss.cli", "up", "--keep-running", "--duration", "1200",
-                           "--port", "0", "--out", str(out), "--system", SYSTEM, "--viewer", "none",
-                           "--record", "none", "--set", "mission.interventions=[]"],
-                          stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    up = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "up",
+            "--keep-running",
+            "--duration",
+            "1200",
+            "--port",
+            "0",
+            "--out",
+            str(out),
+            "--system",
+            SYSTEM,
+            "--viewer",
+            "none",
+            "--record",
+            "none",
+            "--set",
+            "mission.interventions=[]",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.STDOUT,
+    )
     try:
         state = wait_for_state(out, lambda s: s.phase == "up", 120.0, lambda: up.poll() is None)
         assert state is not None, "abyss up did not come up"
@@ -141,8 +164,11 @@ def main(repeats: int) -> None:
         watch = Watch(session)
         assert watch.wait(lambda w: w.done, 120.0), "the waypoints were not reached"
         profiles = Config().links.profiles()
-        floor_s = (math.radians(TURN_DEG) / TURN_RATE_RADPS + profiles["satellite"].delay_s
-                   + profiles["tether"].delay_s)
+        floor_s = (
+            math.radians(TURN_DEG) / TURN_RATE_RADPS
+            + profiles["satellite"].delay_s
+            + profiles["tether"].delay_s
+        )
         results: dict[str, list[tuple[float, dict[str, float]]]] = {}
         sent = 0
         for profile in ("satellite", "satellite-storm"):
@@ -151,8 +177,11 @@ def main(repeats: int) -> None:
             for k in range(repeats):
                 turn_deg = TURN_DEG if (k + sent) % 2 == 0 else -TURN_DEG  # back and forth throughout
                 got = one_turn(session, watch, turn_deg)
-                print(f"{profile}: turn {k + 1}/{repeats}: "
-                      + (f"{got[0]:.1f} s to the target" if got else "did not reach the target"), flush=True)
+                print(
+                    f"{profile}: turn {k + 1}/{repeats}: "
+                    + (f"{got[0]:.1f} s to the target" if got else "did not reach the target"),
+                    flush=True,
+                )
                 if got:
                     results[profile].append(got)
             sent += repeats
@@ -160,11 +189,13 @@ def main(repeats: int) -> None:
             if not runs:
                 continue
             total = statistics.median(r[0] for r in runs)
-            print(f"\n{profile}: intent to {PART} at target (truth, +-{TOLERANCE_DEG:g} deg): "
-                  f"median {total:.1f} s "
-                  f"over {len(runs)} (min {min(r[0] for r in runs):.1f}, max {max(r[0] for r in runs):.1f}); "
-                  f"{total / floor_s:.2f}x the floor of {floor_s:.1f} s (the turn at the primitive's rate "
-                  "and the one-way delays down)")
+            print(
+                f"\n{profile}: intent to {PART} at target (truth, +-{TOLERANCE_DEG:g} deg): "
+                f"median {total:.1f} s "
+                f"over {len(runs)} (min {min(r[0] for r in runs):.1f}, max {max(r[0] for r in runs):.1f}); "
+                f"{total / floor_s:.2f}x the floor of {floor_s:.1f} s (the turn at the primitive's rate "
+                "and the one-way delays down)"
+            )
             for phase in runs[0][1]:
                 median_s = statistics.median(r[1][phase] for r in runs)
                 print(f"  {phase:<36} median {median_s:5.1f} s  ({median_s / total:5.1%})")

@@ -15,16 +15,19 @@ from abyss.linkemu.runner import LinkRunner
 
 def timing_accuracy() -> None:
     """|actual - scheduled| delivery time on the wall clock, tether profile, 500 msg/s."""
-    runner = LinkRunner("bench", profile("tether", {"transport": "udp"}), lambda *_: None,
-                        np.random.default_rng(1))
+    runner = LinkRunner(
+        "bench", profile("tether", {"transport": "udp"}), lambda *_: None, np.random.default_rng(1)
+    )
     for _ in range(3000):
         runner.send(bytes(200), block=False)
         time.sleep(0.002)
     time.sleep(0.5)
     stats = runner.snapshot()  # late = actual - scheduled >= 0: the runner never delivers early
     runner.close()
-    print(f"timing accuracy (tether, 500 msg/s, {len(runner.late_s)} deliveries): "
-          f"actual - scheduled p50 {stats['late_p50_us']:.0f} us, p99 {stats['late_p99_us']:.0f} us")
+    print(
+        f"timing accuracy (tether, 500 msg/s, {len(runner.late_s)} deliveries): "
+        f"actual - scheduled p50 {stats['late_p50_us']:.0f} us, p99 {stats['late_p99_us']:.0f} us"
+    )
 
 
 def rate_accuracy(rate: str, seconds: float = 3.0, size: int = 1400) -> None:
@@ -46,8 +49,10 @@ def rate_accuracy(rate: str, seconds: float = 3.0, size: int = 1400) -> None:
     window = times[(times > t0 + 0.5)]  # after the queue has filled
     wire_bits = (size + 28) * 8 * (len(window) - 1)
     achieved = wire_bits / (window[-1] - window[0])
-    print(f"rate accuracy at {rate:>7}: {achieved / 1e6:8.3f} Mbit/s on the wire, "
-          f"ratio to configured {achieved / p.rate_bps:.3f}")
+    print(
+        f"rate accuracy at {rate:>7}: {achieved / 1e6:8.3f} Mbit/s on the wire, "
+        f"ratio to configured {achieved / p.rate_bps:.3f}"
+    )
 
 
 def end_to_end_floor(n: int = 100) -> None:
@@ -57,10 +62,15 @@ def end_to_end_floor(n: int = 100) -> None:
     satellite = profile("satellite", {"jitter": "0ms", "loss": "0%", "corrupt": "0%"})
     size = 300
     arrivals: dict[int, float] = {}
-    rx = LinkRunner("satellite", satellite,
-                    lambda tag, _p: arrivals.__setitem__(tag, time.monotonic()), np.random.default_rng(3))
-    tx = LinkRunner("tether", tether, lambda tag, p: rx.send(p, block=True, tag=tag),
-                    np.random.default_rng(4))
+    rx = LinkRunner(
+        "satellite",
+        satellite,
+        lambda tag, _p: arrivals.__setitem__(tag, time.monotonic()),
+        np.random.default_rng(3),
+    )
+    tx = LinkRunner(
+        "tether", tether, lambda tag, p: rx.send(p, block=True, tag=tag), np.random.default_rng(4)
+    )
     sent: dict[int, float] = {}
     for i in range(n):
         sent[i] = time.monotonic()
@@ -69,11 +79,17 @@ def end_to_end_floor(n: int = 100) -> None:
     time.sleep(1.0)
     tx.close()
     rx.close()
-    floor_s = (tether.delay_s + satellite.delay_s + (size + 40) * 8 / tether.rate_bps
-               + (size + 40) * 8 / satellite.rate_bps)
+    floor_s = (
+        tether.delay_s
+        + satellite.delay_s
+        + (size + 40) * 8 / tether.rate_bps
+        + (size + 40) * 8 / satellite.rate_bps
+    )
     latency = np.array([arrivals[i] - sent[i] for i in sent if i in arrivals])
-    print(f"end to end tether+satellite ({len(latency)} messages): p50 {np.median(latency) * 1e3:.2f} ms, "
-          f"floor {floor_s * 1e3:.2f} ms, ratio {np.median(latency) / floor_s:.4f}")
+    print(
+        f"end to end tether+satellite ({len(latency)} messages): p50 {np.median(latency) * 1e3:.2f} ms, "
+        f"floor {floor_s * 1e3:.2f} ms, ratio {np.median(latency) / floor_s:.4f}"
+    )
 
 
 if __name__ == "__main__":

@@ -40,11 +40,14 @@ def main() -> None:
         print(f"  {where}: plain render {plain_s * 1e3:.1f} ms, to JPEG {jpeg_s * 1e3:.1f} ms")
         sonar, spec = ImagingSonar(world.model), SonarSpec()
         sonar_s = timed(lambda: sonar.image(world.data, np.random.default_rng(0)))  # noqa: B023
-        print(f"    imaging sonar, {spec.beams} beams x {spec.rays_per_beam} rays, {spec.bins} bins: "
-              f"{sonar_s * 1e3:.1f} ms ({sonar_s / plain_s:.2f}x the plain render)")
+        print(
+            f"    imaging sonar, {spec.beams} beams x {spec.rays_per_beam} rays, {spec.bins} bins: "
+            f"{sonar_s * 1e3:.1f} ms ({sonar_s / plain_s:.2f}x the plain render)"
+        )
         for water in ("I", "9C"):
-            cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water,
-                              rng=np.random.default_rng(0))
+            cameras = Cameras(
+                world.model, sim.camera_width_px, sim.camera_height_px, water, rng=np.random.default_rng(0)
+            )
             optics = cameras.optics(CAMERA)
             assert optics is not None
             rgb = cameras.plain_rgb(world.data, CAMERA)
@@ -52,12 +55,21 @@ def main() -> None:
             total_s = timed(lambda: cameras.rgb(world.data, CAMERA))  # noqa: B023
             optics_s = timed(lambda: optics.image(rgb, range_m, cameras.rng))  # noqa: B023
             encoded_s = timed(lambda: encode_image(cameras, world.data, CAMERA, sim.jpeg_quality))  # noqa: B023
-            made_s = timed(lambda: Cameras(world.model, sim.camera_width_px,  # noqa: B023
-                                           sim.camera_height_px, water).optics(CAMERA), 1)  # noqa: B023
-            print(f"    water {water}: render + depth + optics {total_s * 1e3:.1f} ms "
-                  f"({total_s / plain_s:.1f}x the plain render; the optics alone {optics_s * 1e3:.1f} ms), "
-                  f"to JPEG {encoded_s * 1e3:.1f} ms ({encoded_s / jpeg_s:.1f}x); "
-                  f"set up once per camera {made_s * 1e3:.0f} ms")
+            made_s = timed(
+                lambda: Cameras(
+                    world.model,  # noqa: B023
+                    sim.camera_width_px,
+                    sim.camera_height_px,
+                    water,  # noqa: B023
+                ).optics(CAMERA),
+                1,
+            )
+            print(
+                f"    water {water}: render + depth + optics {total_s * 1e3:.1f} ms "
+                f"({total_s / plain_s:.1f}x the plain render; the optics alone {optics_s * 1e3:.1f} ms), "
+                f"to JPEG {encoded_s * 1e3:.1f} ms ({encoded_s / jpeg_s:.1f}x); "
+                f"set up once per camera {made_s * 1e3:.0f} ms"
+            )
             cameras.close()
         plain.close()
 

@@ -57,8 +57,14 @@ from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
 
-UNFILTERED = StereoFilter(uniqueness_ratio=10, speckle_window_px=100, speckle_range_px=2,
-                          lr_max_diff_px=0.0, min_texture=0.0, edge_step_px=0.0)  # before the filters
+UNFILTERED = StereoFilter(
+    uniqueness_ratio=10,
+    speckle_window_px=100,
+    speckle_range_px=2,
+    lr_max_diff_px=0.0,
+    min_texture=0.0,
+    edge_step_px=0.0,
+)  # before the filters
 NEIGHBOURS = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3)
 
 
@@ -88,10 +94,12 @@ class Figures:
     stereo_s: float  # [s] the stereo cloud per matched frame set (clouds_of), mean
 
     def __str__(self) -> str:
-        return (f"{self.frames} frames: {self.occupied} occupied cells, {self.truth} truth cells; "
-                f"precision {self.precision:.3f} (strict {self.strict_precision:.3f}), "
-                f"recall {self.recall:.3f} (strict {self.strict_recall:.3f}); "
-                f"stereo cloud {self.stereo_s * 1e3:.0f} ms per matched set")
+        return (
+            f"{self.frames} frames: {self.occupied} occupied cells, {self.truth} truth cells; "
+            f"precision {self.precision:.3f} (strict {self.strict_precision:.3f}), "
+            f"recall {self.recall:.3f} (strict {self.strict_recall:.3f}); "
+            f"stereo cloud {self.stereo_s * 1e3:.0f} ms per matched set"
+        )
 
 
 def near(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
@@ -101,18 +109,33 @@ def near(keys: np.ndarray, of: np.ndarray) -> np.ndarray:
     return np.isin(keys[:, None] + offsets[None, :], of).any(axis=1)
 
 
-def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, step_m: float | None = None,
-            seed: int = 0, scale: int = 1, every: int = 1, mode: str = "hh") -> Figures:
+def measure(
+    kept: StereoFilter,
+    water: str = "none",
+    frames: int | None = None,
+    step_m: float | None = None,
+    seed: int = 0,
+    scale: int = 1,
+    every: int = 1,
+    mode: str = "hh",
+) -> Figures:
     """The figures over the first `frames` frame sets (all: None) of the mission's path, a frame
     set every `step_m` (None: onboard's speed limit over the camera period), the pair matched
     `scale` times smaller (onboard.stereo_scale) on every `every`-th set (onboard.stereo_every)."""
     sim, onboard, vessel = SimulationConfig(water=water), OnboardConfig(), VesselConfig()
     step_m = step_m if step_m is not None else onboard.max_speed_mps / sim.camera_rate_hz
     world = World(sim, np.random.default_rng(seed))
-    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow,
-                      np.random.default_rng(seed))
-    settings = dataclasses.replace(CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale,
-                                   stereo_mode=mode)
+    cameras = Cameras(
+        world.model,
+        sim.camera_width_px,
+        sim.camera_height_px,
+        water,
+        sim.marine_snow,
+        np.random.default_rng(seed),
+    )
+    settings = dataclasses.replace(
+        CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale, stereo_mode=mode
+    )
     model = SceneModel(vessel.octree_resolution_m, vessel.octree_max_range_m)
     truth: list[np.ndarray] = []
     stereo_s = 0.0
@@ -123,8 +146,8 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
             if frames is not None and count >= frames:
                 break
             count += 1
-            world.data.qpos[p:p + 3] = position
-            world.data.qpos[p + 3:p + 7] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
+            world.data.qpos[p : p + 3] = position
+            world.data.qpos[p + 3 : p + 7] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
             mujoco.mj_forward(world.model, world.data)
             images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in CAMERAS}
             pose = (position, np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]))
@@ -144,7 +167,9 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
     occupied_keys = np.unique(leaves_to_cells(centres[occupied], sizes[occupied], model.resolution_m)[0])
     truth_keys = np.unique(np.concatenate(truth))
     return Figures(
-        count, len(occupied_keys), len(truth_keys),
+        count,
+        len(occupied_keys),
+        len(truth_keys),
         float(near(occupied_keys, truth_keys).mean()) if len(occupied_keys) else 0.0,
         float(near(truth_keys, occupied_keys).mean()),
         float(np.isin(occupied_keys, truth_keys).mean()) if len(occupied_keys) else 0.0,
@@ -153,8 +178,9 @@ def measure(kept: StereoFilter, water: str = "none", frames: int | None = None, 
     )
 
 
-def stereo_cost_s(kept: StereoFilter, water: str, scale: int = 1, mode: str = "hh",
-                  repeats: int = 10) -> float:
+def stereo_cost_s(
+    kept: StereoFilter, water: str, scale: int = 1, mode: str = "hh", repeats: int = 10
+) -> float:
     """[s] stereo_depth alone on the start pose's pair, mean of `repeats` after one."""
     sim = SimulationConfig(water=water)
     world = World(sim, np.random.default_rng(0))
@@ -162,8 +188,9 @@ def stereo_cost_s(kept: StereoFilter, water: str, scale: int = 1, mode: str = "h
     try:
         left, right = cameras.rgb(world.data, "cam_left"), cameras.rgb(world.data, "cam_right")
         focal_px = cameras.intrinsics("cam_left").fx_px
-        baseline_m = float(np.linalg.norm(cameras.pose_in_vehicle("cam_right")[:3]
-                                          - cameras.pose_in_vehicle("cam_left")[:3]))
+        baseline_m = float(
+            np.linalg.norm(cameras.pose_in_vehicle("cam_right")[:3] - cameras.pose_in_vehicle("cam_left")[:3])
+        )
     finally:
         cameras.close()
     disparities = OnboardConfig().stereo_disparities
@@ -199,8 +226,10 @@ def main() -> None:
     frames = int(args.pop(0)) if args and args[0].isdigit() else None
     names = args or ["unfiltered", "filtered", "full-lr", "half"]
     for water in ("none", "I"):
-        costs = {name: stereo_cost_s(VARIANTS[name].kept, water, VARIANTS[name].scale, VARIANTS[name].mode)
-                 for name in names}
+        costs = {
+            name: stereo_cost_s(VARIANTS[name].kept, water, VARIANTS[name].scale, VARIANTS[name].mode)
+            for name in names
+        }
         listed = ", ".join(f"{name} {cost_s * 1e3:.0f} ms" for name, cost_s in costs.items())
         print(f"water {water}: stereo_depth per pair: {listed}", flush=True)
         for name in names:

@@ -36,9 +36,29 @@ def run(level: str, seconds: float, out: Path) -> tuple[float, float, float, int
     messages recorded) of one run of `seconds`."""
     c0, t0 = children_cpu_s(), time.monotonic()
     done = subprocess.run(
-        [sys.executable, "-m", "abyss.cli", "up", "--port", "0", "--keep-running", "--duration", str(seconds),
-         "--viewer", "none", "--record", level, "--out", str(out), "--system", f"bench-{level}"],
-        capture_output=True, text=True, cwd=ROOT)
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "up",
+            "--port",
+            "0",
+            "--keep-running",
+            "--duration",
+            str(seconds),
+            "--viewer",
+            "none",
+            "--record",
+            level,
+            "--out",
+            str(out),
+            "--system",
+            f"bench-{level}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
     if done.returncode != 0:
         raise SystemExit(f"abyss up failed:\n{done.stdout}{done.stderr}")
     wall_s, cpu = time.monotonic() - t0, children_cpu_s() - c0
@@ -71,19 +91,25 @@ def main() -> None:
         per_add_s = queue_cost_s(Path(tmp))
         for i in range(args.repeat):
             for level in LEVELS:
-                print(f"run {i + 1}/{args.repeat}: abyss up --record {level} for {args.seconds:.0f} s ...",
-                      flush=True)
+                print(
+                    f"run {i + 1}/{args.repeat}: abyss up --record {level} for {args.seconds:.0f} s ...",
+                    flush=True,
+                )
                 figures[level].append(run(level, args.seconds, Path(tmp) / f"{level}-{i}"))
     bare = statistics.median(f[0] for f in figures["none"])
     print(f"queuing one message costs the caller {per_add_s * 1e6:.1f} us of CPU")
-    print(f"{'level':8} {'run CPU s/s':>12} {'vs none':>8} {'recorder CPU s/s':>17} {'share':>6} "
-          f"{'msgs/s':>7} {'MB/min':>7}")
+    print(
+        f"{'level':8} {'run CPU s/s':>12} {'vs none':>8} {'recorder CPU s/s':>17} {'share':>6} "
+        f"{'msgs/s':>7} {'MB/min':>7}"
+    )
     for level in LEVELS:
         cpu = statistics.median(f[0] for f in figures[level])
         recorded_per_s = statistics.median(f[3] for f in figures[level]) / args.seconds
         recorder = statistics.median(f[2] for f in figures[level]) + recorded_per_s * per_add_s
-        print(f"{level:8} {cpu:12.3f} {cpu / bare:7.2f}x {recorder:17.4f} {recorder / cpu:6.1%} "
-              f"{recorded_per_s:7.0f} {statistics.median(f[1] for f in figures[level]) / 1e6:7.1f}")
+        print(
+            f"{level:8} {cpu:12.3f} {cpu / bare:7.2f}x {recorder:17.4f} {recorder / cpu:6.1%} "
+            f"{recorded_per_s:7.0f} {statistics.median(f[1] for f in figures[level]) / 1e6:7.1f}"
+        )
 
 
 if __name__ == "__main__":

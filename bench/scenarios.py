@@ -28,8 +28,13 @@ def run(files: list[Path], parallel: int, out: Path, speed: str = "") -> tuple[f
     t0 = time.monotonic()
     command = [sys.executable, "-m", "abyss.cli", "scenario", "run", *map(str, files)]
     command += ["--parallel", str(parallel), "--report", str(out)]
-    command += (["--time", "lockstep"] if speed == "lockstep" else
-                ["--time", "sim", "--speed", speed] if speed else [])
+    command += (
+        ["--time", "lockstep"]
+        if speed == "lockstep"
+        else ["--time", "sim", "--speed", speed]
+        if speed
+        else []
+    )
     done = subprocess.run(command, capture_output=True, text=True, cwd=ROOT)
     return time.monotonic() - t0, done.stdout.strip().splitlines()[-1] if done.stdout.strip() else done.stderr
 
@@ -41,20 +46,30 @@ def times(files: list[Path], speeds: list[str], parallel: int, tmp: Path) -> Non
     for speed in speeds:
         sim = "" if speed == "real" else speed
         out = tmp / f"times-{speed}"
-        print(f"{len(files)} scenarios at --parallel {parallel}, "
-              f"{'real time' if not sim else sim if sim == 'lockstep' else f'--time sim --speed {sim}'} ...",
-              flush=True)
+        print(
+            f"{len(files)} scenarios at --parallel {parallel}, "
+            f"{'real time' if not sim else sim if sim == 'lockstep' else f'--time sim --speed {sim}'} ...",
+            flush=True,
+        )
         walls[speed], verdict = run(files, parallel, out, sim)
-        summaries = {p.parent.name.split("-", 1)[1]: json.loads(p.read_text())
-                     for p in sorted(out.glob("runs/*/summary.json"))}
+        summaries = {
+            p.parent.name.split("-", 1)[1]: json.loads(p.read_text())
+            for p in sorted(out.glob("runs/*/summary.json"))
+        }
         words[speed] = {name: s["verdict"] for name, s in summaries.items()}
         timing = [s.get("time", {}) for s in summaries.values()]
         achieved = [t["achieved_speed"] for t in timing if "achieved_speed" in t]
         limits = sorted({t["limited_by"] for t in timing if "limited_by" in t})
-        print(f"  {walls[speed]:.0f} s ({walls[speed] / walls.get('real', walls[speed]):.2f}x real time's"
-              f"{'' if 'real' in walls else ', no real-time run to compare'}): {verdict}"
-              + (f"; achieved speed {min(achieved):.2f}-{max(achieved):.2f}, held back by "
-                 f"{', '.join(limits)}" if achieved else ""), flush=True)
+        print(
+            f"  {walls[speed]:.0f} s ({walls[speed] / walls.get('real', walls[speed]):.2f}x real time's"
+            f"{'' if 'real' in walls else ', no real-time run to compare'}): {verdict}"
+            + (
+                f"; achieved speed {min(achieved):.2f}-{max(achieved):.2f}, held back by {', '.join(limits)}"
+                if achieved
+                else ""
+            ),
+            flush=True,
+        )
         if "real" in words and speed != "real":
             real = words["real"]
             differ = {n: (real.get(n), w) for n, w in words[speed].items() if real.get(n) != w}
@@ -98,9 +113,12 @@ def main() -> None:
                 wall_s, verdict = run([scenario] * n, n, out)
                 summaries = [json.loads(p.read_text()) for p in sorted(out.glob("runs/*/summary.json"))]
                 met = [s["simulation"]["deadlines_met"] for s in summaries if s.get("simulation")]
-                loops = [(f"{station}.{name}", loop["deadlines_met"]) for s in summaries
-                         for station, st in s["stations"].items()
-                         for name, loop in st.get("loops", {}).items()]
+                loops = [
+                    (f"{station}.{name}", loop["deadlines_met"])
+                    for s in summaries
+                    for station, st in s["stations"].items()
+                    for name, loop in st.get("loops", {}).items()
+                ]
                 others = min((m for name, m in loops if name != "simulation.physics"), default=0)
                 done = [s.get("mission_done_s") for s in summaries]
                 schedulers = sorted({s["stations"]["simulation"].get("scheduler", "?") for s in summaries})

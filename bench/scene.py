@@ -75,12 +75,14 @@ def main() -> None:
         clouds = [(*unpack_cloud(c), c.sensor_m_world) for c in (first, second) * 3][:5]
         downsampled = [(*voxel_downsample(p, c, resolution_m), s) for p, c, s in clouds]
 
-        def bare(count: int, resolution_m: float = resolution_m,
-                 downsampled: list = downsampled) -> pyoctomap.ColorOcTree:
+        def bare(
+            count: int, resolution_m: float = resolution_m, downsampled: list = downsampled
+        ) -> pyoctomap.ColorOcTree:
             tree = pyoctomap.ColorOcTree(resolution_m)
             for ds_points, ds_colors, sensor in downsampled[:count]:
-                tree.insertPointCloud(np.ascontiguousarray(ds_points), sensor, max_range=8.0,
-                                      colors=ds_colors / 255.0)
+                tree.insertPointCloud(
+                    np.ascontiguousarray(ds_points), sensor, max_range=8.0, colors=ds_colors / 255.0
+                )
             return tree
 
         model = SceneModel(resolution_m, 8.0)
@@ -98,10 +100,16 @@ def main() -> None:
         amortised_s = (time.perf_counter() - t0) / (len(clouds) - 1)
         # the vessel's tree against pyoctomap's plain insertion of the same clouds
         ours, plain = iterate_leaves(vessel.tree, colors=True), iterate_leaves(bare(len(clouds)), colors=True)
-        same = len(ours.occupied) == len(plain.occupied) and np.array_equal(ours.centres_m, plain.centres_m) \
+        same = (
+            len(ours.occupied) == len(plain.occupied)
+            and np.array_equal(ours.centres_m, plain.centres_m)
             and np.array_equal(ours.log_odds, plain.log_odds)
-        recoloured = np.any(ours.colors[ours.occupied] != plain.colors[plain.occupied], axis=1).mean() \
-            if same else float("nan")
+        )
+        recoloured = (
+            np.any(ours.colors[ours.occupied] != plain.colors[plain.occupied], axis=1).mean()
+            if same
+            else float("nan")
+        )
         full = []
         while (u := model.next_update(0.0)) is not None:
             full.append(len(encode(u, 0, 0.0)))
@@ -122,14 +130,18 @@ def main() -> None:
         )
         walk_s = timed(functools.partial(walk_leaves, vessel.tree), 2)
         read_s = timed(functools.partial(iterate_leaves, vessel.tree), 2)
-        print(f"  its {len(ours.sizes_m)} leaves read: pyoctomap's leaf iterator {walk_s * 1e3:.0f} ms, "
-              f"from the serialisation {read_s * 1e3:.0f} ms ({read_s / walk_s:.2f}x)")
+        print(
+            f"  its {len(ours.sizes_m)} leaves read: pyoctomap's leaf iterator {walk_s * 1e3:.0f} ms, "
+            f"from the serialisation {read_s * 1e3:.0f} ms ({read_s / walk_s:.2f}x)"
+        )
 
 
 def walk_leaves(tree: pyoctomap.ColorOcTree) -> list[tuple]:
     """The leaves through pyoctomap's iterator, leaf by leaf (what iterate_leaves does instead)."""
-    return [(leaf.getCoordinate(), leaf.getSize(), leaf.current_node.getLogOdds(), leaf.getColor())
-            for leaf in tree.begin_leafs()]
+    return [
+        (leaf.getCoordinate(), leaf.getSize(), leaf.current_node.getLogOdds(), leaf.getColor())
+        for leaf in tree.begin_leafs()
+    ]
 
 
 if __name__ == "__main__":

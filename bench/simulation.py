@@ -57,11 +57,19 @@ def physics(low_level: str, hydrodynamics: str = "fossen", seconds: float = 20.0
         bare_s.append((time.perf_counter() - t0) / steps)
     per_step, bare = min(step_s), min(bare_s)
     marine = f", {hydrodynamics}" if low_level == "dynamic" else ""
-    floor = (f"; bare mj_step {bare * 1e6:.1f} us (real-time factor {config.physics_step_s / bare:.1f}), "
-             f"ratio {per_step / bare:.2f}x") if low_level == "dynamic" else ""
-    print(f"physics, {low_level + marine:<18}: {per_step * 1e6:7.1f} us per "
-          f"{config.physics_step_s * 1e3:g} ms step, real-time factor {config.physics_step_s / per_step:6.1f}"
-          f"{floor} (headless, no cameras)")
+    floor = (
+        (
+            f"; bare mj_step {bare * 1e6:.1f} us (real-time factor {config.physics_step_s / bare:.1f}), "
+            f"ratio {per_step / bare:.2f}x"
+        )
+        if low_level == "dynamic"
+        else ""
+    )
+    print(
+        f"physics, {low_level + marine:<18}: {per_step * 1e6:7.1f} us per "
+        f"{config.physics_step_s * 1e3:g} ms step, real-time factor {config.physics_step_s / per_step:6.1f}"
+        f"{floor} (headless, no cameras)"
+    )
     return per_step
 
 
@@ -77,8 +85,11 @@ def rendering(frames: int = 20) -> float:
         per_camera[camera] = (time.perf_counter() - t0) / frames
     cameras.close()
     total = sum(per_camera.values())
-    print("rendering 640x480 + encoding: " + ", ".join(f"{c} {t * 1e3:.0f} ms" for c, t in per_camera.items())
-          + f"; a stereo + depth set {total * 1e3:.0f} ms: at most {1 / total:.1f} sets/s on one core")
+    print(
+        "rendering 640x480 + encoding: "
+        + ", ".join(f"{c} {t * 1e3:.0f} ms" for c, t in per_camera.items())
+        + f"; a stereo + depth set {total * 1e3:.0f} ms: at most {1 / total:.1f} sets/s on one core"
+    )
     return total
 
 
@@ -86,9 +97,22 @@ def station_loop(camera_rate_hz: float, seconds: float = 15.0) -> None:
     port = free_port()
     system = f"bench-sim-{int(camera_rate_hz * 10)}"
     station = subprocess.Popen(
-        [sys.executable, "-m", "abyss.cli", "station", "simulation", "--system", system,
-         "--listen", f"tcp/127.0.0.1:{port}", "--set", f"simulation.camera_rate_hz={camera_rate_hz}"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "station",
+            "simulation",
+            "--system",
+            system,
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+            "--set",
+            f"simulation.camera_rate_hz={camera_rate_hz}",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     session = open_session(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]), "bench")  # peer: retries
     latest: list[SimulationStatus] = []
     lock = threading.Lock()
@@ -111,8 +135,10 @@ def station_loop(camera_rate_hz: float, seconds: float = 15.0) -> None:
             return
         s = latest[-1]
         rtf = np.mean([m.realtime_factor for m in latest[2:]] or [s.realtime_factor])
-    print(f"station loop, cameras at {camera_rate_hz:g} Hz: real-time factor {rtf:.3f}, "
-          f"control deadlines met {s.deadlines_met:.1%} over {s.sim_time_s:.0f} s")
+    print(
+        f"station loop, cameras at {camera_rate_hz:g} Hz: real-time factor {rtf:.3f}, "
+        f"control deadlines met {s.deadlines_met:.1%} over {s.sim_time_s:.0f} s"
+    )
 
 
 if __name__ == "__main__":

@@ -25,14 +25,36 @@ def stop_times(extra: list[str], runs: int, duration_s: float, out: Path) -> dic
     times: dict[str, list[float]] = {}
     for i in range(runs):
         run_dir = out / f"run-{i}"
-        subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--viewer", "none",
-                        "--keep-running", "--duration", f"{duration_s:g}", "--out", str(run_dir), *extra],
-                       capture_output=True, cwd=out, check=False)
+        subprocess.run(
+            [
+                sys.executable,
+                "-P",
+                "-m",
+                "abyss.cli",
+                "up",
+                "--port",
+                "0",
+                "--viewer",
+                "none",
+                "--keep-running",
+                "--duration",
+                f"{duration_s:g}",
+                "--out",
+                str(run_dir),
+                *extra,
+            ],
+            capture_output=True,
+            cwd=out,
+            check=False,
+        )
         summary = json.loads((run_dir / "summary.json").read_text())
         for name, station in summary["stations"].items():
             times.setdefault(name, []).append(station["stop_s"])
-        print(f"  run {i + 1}/{runs}: " + ", ".join(f"{n} {s['stop_s']:.2f} s"
-                                                    for n, s in summary["stations"].items()), flush=True)
+        print(
+            f"  run {i + 1}/{runs}: "
+            + ", ".join(f"{n} {s['stop_s']:.2f} s" for n, s in summary["stations"].items()),
+            flush=True,
+        )
     return times
 
 
@@ -49,8 +71,10 @@ def main() -> None:
             out.mkdir()
             for name, times in stop_times(extra, args.runs, args.duration, out).items():
                 p50, worst = float(np.median(times)), max(times)
-                rows.append(f"| {name} | {condition} | {len(times)} | {p50:.3f} | {worst:.3f} | "
-                            f"{worst / BOUND_S:.1%} |")
+                rows.append(
+                    f"| {name} | {condition} | {len(times)} | {p50:.3f} | {worst:.3f} | "
+                    f"{worst / BOUND_S:.1%} |"
+                )
     print("\n| station | condition | stops | p50 s | max s | max / 5 s bound |")
     print("| --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))

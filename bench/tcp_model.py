@@ -38,22 +38,37 @@ from abyss.linkemu.tcpcheck import (
 
 METRICS = {"bulk": ("goodput_bps", "retrans_per_packet", "timeouts_per_packet")}
 LATENCY = ("latency_p50_s", "latency_p95_s")
-UNITS = {"goodput_bps": (1e-3, "kbit/s"), "latency_p50_s": (1e3, "ms"), "latency_p95_s": (1e3, "ms"),
-         "retrans_per_packet": (1e2, "%"), "timeouts_per_packet": (1e2, "%")}
+UNITS = {
+    "goodput_bps": (1e-3, "kbit/s"),
+    "latency_p50_s": (1e3, "ms"),
+    "latency_p95_s": (1e3, "ms"),
+    "retrans_per_packet": (1e2, "%"),
+    "timeouts_per_packet": (1e2, "%"),
+}
 
 
 def record(job: Job, run: Run) -> dict[str, Any]:
     """A run as tcp_model.json keeps it: the job, its figures and its counters."""
-    return {"way": job.way, "case": job.case, "phase": job.phase, "seed": job.seed, **run.metrics(),
-            "retransmissions": run.retransmissions, "timeouts": run.timeouts, **run.extra}
+    return {
+        "way": job.way,
+        "case": job.case,
+        "phase": job.phase,
+        "seed": job.seed,
+        **run.metrics(),
+        "retransmissions": run.retransmissions,
+        "timeouts": run.timeouts,
+        **run.extra,
+    }
 
 
 def rows(records: list[dict[str, Any]], variants: list[str]) -> list[dict[str, Any]]:
     """One row per case, phase and metric: the mean of each way and model / kernel per variant."""
     table: list[dict[str, Any]] = []
     for case, phase in dict.fromkeys((r["case"], r["phase"]) for r in records):
-        of = {way: [r for r in records if (r["way"], r["case"], r["phase"]) == (way, case, phase)]
-              for way in ["model", *variants]}
+        of = {
+            way: [r for r in records if (r["way"], r["case"], r["phase"]) == (way, case, phase)]
+            for way in ["model", *variants]
+        }
         for metric in METRICS.get(phase, LATENCY):
             row: dict[str, Any] = {"case": case, "phase": phase, "metric": metric}
             for way, way_runs in of.items():
@@ -71,10 +86,12 @@ def print_table(table: list[dict[str, Any]], variants: list[str]) -> None:
     print(head + "".join(f"{'model/' + v:>20}" for v in variants))
     for row in table:
         scale, unit = UNITS[str(row["metric"])]
-        figures = "".join(f"{float(str(row[w])) * scale:>{15 if w != 'model' else 10}.4g}"
-                          for w in ["model", *variants])
-        ratios = "".join(f"{float(str(row['model/' + v])):>19.2f}{' ' if row['agrees/' + v] else '*'}"
-                         for v in variants)
+        figures = "".join(
+            f"{float(str(row[w])) * scale:>{15 if w != 'model' else 10}.4g}" for w in ["model", *variants]
+        )
+        ratios = "".join(
+            f"{float(str(row['model/' + v])):>19.2f}{' ' if row['agrees/' + v] else '*'}" for v in variants
+        )
         label = f"{row['metric']} [{unit}]"
         print(f"{row['case']:<13}{row['phase']:<7}{label:<22}{figures}{ratios}")
     print(f"* the model and that kernel differ by more than {TOLERANCE:.0%} plus twice their standard error")
@@ -88,13 +105,18 @@ def plot(table: list[dict[str, Any]], variants: list[str], path: Path) -> None:
         x = np.arange(len(mine))
         for i, variant in enumerate(variants):
             ratios = [min(max(float(str(r[f"model/{variant}"])), 1e-2), 1e2) for r in mine]
-            ax.bar(x + (i - (len(variants) - 1) / 2) * 0.8 / len(variants), ratios, 0.8 / len(variants),
-                   label=variant)
+            ax.bar(
+                x + (i - (len(variants) - 1) / 2) * 0.8 / len(variants),
+                ratios,
+                0.8 / len(variants),
+                label=variant,
+            )
         ax.axhspan(1 - TOLERANCE, 1 + TOLERANCE, color="0.85", zorder=0)
         ax.axhline(1.0, color="k", lw=0.8)
         ax.set_yscale("log")
-        ax.set_xticks(x, [f"{r['phase']}\n{str(r['metric']).replace('_per_packet', '/pkt')}" for r in mine],
-                      fontsize=7)
+        ax.set_xticks(
+            x, [f"{r['phase']}\n{str(r['metric']).replace('_per_packet', '/pkt')}" for r in mine], fontsize=7
+        )
         ax.set_ylabel("model / kernel")
         ax.set_title(case)
         ax.legend(fontsize=7, ncol=len(variants))
@@ -111,22 +133,36 @@ def main() -> int:
     parser.add_argument("--phase", action="append", dest="phases", help="bulk, 1kB, 10kB, 100kB")
     parser.add_argument("--kernel-seeds", type=int, default=5)
     parser.add_argument("--model-seeds", type=int, default=10)
-    parser.add_argument("--kernel-from", type=Path, metavar="JSON",
-                        help="the kernel's runs from an earlier tcp_model.json: run only the model")
+    parser.add_argument(
+        "--kernel-from",
+        type=Path,
+        metavar="JSON",
+        help="the kernel's runs from an earlier tcp_model.json: run only the model",
+    )
     args = parser.parse_args()
     cases, variants = args.cases or list(CASES), args.variants or list(VARIANTS)
-    wanted = [(case, phase) for case in cases for phase in CASES[case].phases
-              if not args.phases or phase in args.phases]
+    wanted = [
+        (case, phase)
+        for case in cases
+        for phase in CASES[case].phases
+        if not args.phases or phase in args.phases
+    ]
     earlier: list[dict[str, Any]] = []
     if args.kernel_from:
-        earlier = [r for r in json.loads(args.kernel_from.read_text())["runs"]
-                   if r["way"] in variants and (r["case"], r["phase"]) in wanted]
+        earlier = [
+            r
+            for r in json.loads(args.kernel_from.read_text())["runs"]
+            if r["way"] in variants and (r["case"], r["phase"]) in wanted
+        ]
     elif reason := kernel_unusable():
         print(f"bench/tcp_model.py: {reason}", file=sys.stderr)
         return 2
-    jobs = [Job(way, case, phase, seed) for case, phase in wanted
-            for way in ["model", *([] if args.kernel_from else variants)]
-            for seed in range(args.model_seeds if way == "model" else args.kernel_seeds)]
+    jobs = [
+        Job(way, case, phase, seed)
+        for case, phase in wanted
+        for way in ["model", *([] if args.kernel_from else variants)]
+        for seed in range(args.model_seeds if way == "model" else args.kernel_seeds)
+    ]
     started_s = time.monotonic()
     runs = run_all(jobs, echo=lambda line: print(line, flush=True))
     print(f"{len(jobs)} runs in {time.monotonic() - started_s:.0f} s\n")

@@ -34,24 +34,58 @@ CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def rtts_ms(lab: Lab, count: int = 400) -> np.ndarray:
-    done = subprocess.run([*lab.prefix("simulation"), "ping", "-n", "-c", str(count), "-i", "0.01",
-                           lab.address("onboard", "rov")], capture_output=True, text=True, check=True)
+    done = subprocess.run(
+        [
+            *lab.prefix("simulation"),
+            "ping",
+            "-n",
+            "-c",
+            str(count),
+            "-i",
+            "0.01",
+            lab.address("onboard", "rov"),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return np.array([float(m) for m in re.findall(r"time=([\d.]+) ms", done.stdout)])
 
 
 def flow(lab: Lab, rate_mbps: float, ip_bytes: int, seconds: float) -> dict[str, float]:
     """A UDP flow across the rov hop: what was sent and what arrived."""
     address = lab.address("onboard", "rov")
-    receiver = subprocess.Popen([*lab.prefix("onboard"), *FLOW, "receive", address, str(PORT), str(seconds)],
-                                stdout=subprocess.PIPE, text=True)
+    receiver = subprocess.Popen(
+        [*lab.prefix("onboard"), *FLOW, "receive", address, str(PORT), str(seconds)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     time.sleep(0.3)  # bound before the first datagram
-    sent = json.loads(subprocess.run(
-        [*lab.prefix("simulation"), *FLOW, "send", address, str(PORT), str(rate_mbps * 1e6), str(seconds),
-         str(ip_bytes - 28)], capture_output=True, text=True, check=True).stdout)
+    sent = json.loads(
+        subprocess.run(
+            [
+                *lab.prefix("simulation"),
+                *FLOW,
+                "send",
+                address,
+                str(PORT),
+                str(rate_mbps * 1e6),
+                str(seconds),
+                str(ip_bytes - 28),
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+    )
     got = json.loads(receiver.communicate(timeout=60)[0])
     span_s = max(got["last_s"] - got["first_s"], 1e-9)
-    return {"sent": sent["sent"], "received": got["packets"], "mbps": got["ip_bytes"] * 8 / span_s / 1e6,
-            "pps": got["packets"] / span_s}
+    return {
+        "sent": sent["sent"],
+        "received": got["packets"],
+        "mbps": got["ip_bytes"] * 8 / span_s / 1e6,
+        "pps": got["packets"] / span_s,
+    }
 
 
 def cpu_s(pid: int) -> float:
@@ -65,8 +99,12 @@ class Shaper:
     def __init__(self, lab: Lab, log: Path) -> None:
         self.log = log
         with log.open("w") as out:
-            self.process = subprocess.Popen(lab.shape("simulation", "rov", "ideal", "--every", "3600"),
-                                            stdout=out, stderr=subprocess.STDOUT, text=True)
+            self.process = subprocess.Popen(
+                lab.shape("simulation", "rov", "ideal", "--every", "3600"),
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                text=True,
+            )
         deadline = time.monotonic() + 30.0
         while "abyss: shaping packets" not in log.read_text():
             if self.process.poll() is not None or time.monotonic() > deadline:
@@ -96,12 +134,18 @@ def measure(lab: Lab, shaper: Shaper | None, seconds: float) -> dict[str, Any]:
             f["cpu_us_per_packet"] = spent_s / max(f["received"], 1) * 1e6
             f.update(ip_bytes=ip_bytes, offered_mbps=rate)
             lost = 1.0 - f["received"] / max(f["sent"], 1)
-            print(f"  {ip_bytes:>4} B at {rate:>3} Mbit/s offered: {f['mbps']:6.1f} Mbit/s, "
-                  f"{f['pps'] / 1e3:6.1f} kpps delivered, {lost:6.1%} lost"
-                  + (f", shaper {f['cpu_us_per_packet']:.1f} us CPU/packet" if shaper else ""), flush=True)
+            print(
+                f"  {ip_bytes:>4} B at {rate:>3} Mbit/s offered: {f['mbps']:6.1f} Mbit/s, "
+                f"{f['pps'] / 1e3:6.1f} kpps delivered, {lost:6.1%} lost"
+                + (f", shaper {f['cpu_us_per_packet']:.1f} us CPU/packet" if shaper else ""),
+                flush=True,
+            )
             flows.append(f)
-    return {"rtt_p50_ms": float(np.percentile(rtt, 50)), "rtt_p99_ms": float(np.percentile(rtt, 99)),
-            "flows": flows}
+    return {
+        "rtt_p50_ms": float(np.percentile(rtt, 50)),
+        "rtt_p99_ms": float(np.percentile(rtt, 99)),
+        "flows": flows,
+    }
 
 
 def main() -> int:
@@ -125,13 +169,19 @@ def main() -> int:
             stats = shaper.stop()
     finally:
         lab.remove()
-    print(f"added RTT: p50 {shaped['rtt_p50_ms'] - plain['rtt_p50_ms']:+.3f} ms, "
-          f"p99 {shaped['rtt_p99_ms'] - plain['rtt_p99_ms']:+.3f} ms")
+    print(
+        f"added RTT: p50 {shaped['rtt_p50_ms'] - plain['rtt_p50_ms']:+.3f} ms, "
+        f"p99 {shaped['rtt_p99_ms'] - plain['rtt_p99_ms']:+.3f} ms"
+    )
     for ip_bytes in RATES_MBPS:
-        best = {name: max(f["mbps"] for f in run["flows"] if f["ip_bytes"] == ip_bytes)
-                for name, run in (("plain", plain), ("shaped", shaped))}
-        print(f"{ip_bytes} B packets: the shaper delivered up to {best['shaped']:.1f} Mbit/s, "
-              f"{best['shaped'] / best['plain']:.2f}x the plain veth's {best['plain']:.1f} in the same run")
+        best = {
+            name: max(f["mbps"] for f in run["flows"] if f["ip_bytes"] == ip_bytes)
+            for name, run in (("plain", plain), ("shaped", shaped))
+        }
+        print(
+            f"{ip_bytes} B packets: the shaper delivered up to {best['shaped']:.1f} Mbit/s, "
+            f"{best['shaped'] / best['plain']:.2f}x the plain veth's {best['plain']:.1f} in the same run"
+        )
     print(f"shaper counters: {json.dumps({k: stats[k] for k in sorted(stats) if not k.startswith('delay')})}")
     results = {"plain": plain, "shaped": shaped, "shaper": stats}
     (args.out / "tun.json").write_text(json.dumps(results, indent=1))

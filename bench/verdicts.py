@@ -24,11 +24,30 @@ NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
 
 def one_run(out: Path) -> tuple[dict[str, str], dict[tuple[str, str], tuple[str, list[float]]]]:
     """Each scenario's verdict word, and each assertion's outcome with the figures in its detail."""
-    subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "scenario", "run", *map(str, LIBRARY),
-                    "--parallel", "2", "--report", str(out), "--junit", str(out / "junit.xml")],
-                   capture_output=True, cwd=out.parent, check=False)
-    words = {c.get("name", ""): c.find("properties/property[@name='verdict']").get("value", "")  # type: ignore[union-attr]
-             for c in ET.parse(out / "junit.xml").getroot().iter("testcase")}
+    subprocess.run(
+        [
+            sys.executable,
+            "-P",
+            "-m",
+            "abyss.cli",
+            "scenario",
+            "run",
+            *map(str, LIBRARY),
+            "--parallel",
+            "2",
+            "--report",
+            str(out),
+            "--junit",
+            str(out / "junit.xml"),
+        ],
+        capture_output=True,
+        cwd=out.parent,
+        check=False,
+    )
+    words = {
+        c.get("name", ""): c.find("properties/property[@name='verdict']").get("value", "")  # type: ignore[union-attr]
+        for c in ET.parse(out / "junit.xml").getroot().iter("testcase")
+    }
     outcomes = {}
     report = (out / "report.md").read_text()
     for section in report.split("\n## ")[1:]:
@@ -56,14 +75,17 @@ def main() -> None:
                 figures[key].append(numbers)
     same_words = all(w == words[0] for w in words)
     unstable = sorted(k for k, h in held.items() if len(h) > 1)
-    print(f"\nverdicts identical over {args.times} runs: {same_words}; assertions that changed outcome: "
-          f"{unstable or 'none'}")
+    print(
+        f"\nverdicts identical over {args.times} runs: {same_words}; assertions that changed outcome: "
+        f"{unstable or 'none'}"
+    )
     print("\n| scenario | assertion | held | figures min / median / max |\n| --- | --- | --- | --- |")
     for (name, assertion), runs in sorted(figures.items()):
         width = min(len(r) for r in runs)
         spread = "; ".join(
             f"{min(col):g} / {float(np.median(col)):g} / {max(col):g}"
-            for col in ([r[j] for r in runs] for j in range(width)))
+            for col in ([r[j] for r in runs] for j in range(width))
+        )
         print(f"| {name} | `{assertion}` | {'/'.join(sorted(held[name, assertion]))} | {spread} |")
 
 

@@ -30,9 +30,28 @@ def cpu_s(pid: int) -> float:
 def run(viewer: str, seconds: float, out: Path) -> tuple[float, float]:
     """(onshore CPU share, recording bytes per minute) of one run."""
     process = subprocess.Popen(
-        [sys.executable, "-m", "abyss.cli", "up", "--port", "0", "--keep-running", "--duration",
-         str(seconds + 10), "--viewer", viewer, "--out", str(out), "--system", f"bench-{viewer}"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "up",
+            "--port",
+            "0",
+            "--keep-running",
+            "--duration",
+            str(seconds + 10),
+            "--viewer",
+            viewer,
+            "--out",
+            str(out),
+            "--system",
+            f"bench-{viewer}",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=ROOT,
+    )
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(process.stdout or ()), daemon=True).start()
     state = wait_for_state(out, lambda s: s.phase == "up", 120.0, lambda: process.poll() is None)
@@ -60,8 +79,10 @@ def main() -> None:
             results[viewer] = run(viewer, args.seconds, Path(tmp) / viewer)
     (bare, _), (logging_share, per_minute) = results["none"], results["save"]
     print(f"onshore CPU share without a viewer : {bare:6.1%} of one core")
-    print(f"onshore CPU share logging to rerun : {logging_share:6.1%} of one core "
-          f"({logging_share / max(bare, 1e-9):.1f}x the station without it)")
+    print(
+        f"onshore CPU share logging to rerun : {logging_share:6.1%} of one core "
+        f"({logging_share / max(bare, 1e-9):.1f}x the station without it)"
+    )
     print(f"recording size                     : {per_minute / 1e6:6.1f} MB per minute")
 
 

@@ -36,19 +36,31 @@ def config_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
         help=f"link profile of a hop ({', '.join(keys.HOPS)})",
     )
     p.add_argument("--seed", type=int)
-    p.add_argument("--time", choices=TIME_MODES,
-                   help="the system's time source: real (the wall clock, the default) or sim (the "
-                        "simulation's clock drives every station and emulated link)")
+    p.add_argument(
+        "--time",
+        choices=TIME_MODES,
+        help="the system's time source: real (the wall clock, the default) or sim (the "
+        "simulation's clock drives every station and emulated link)",
+    )
     if speed:
-        p.add_argument("--speed", dest="time_speed", metavar="X|max",
-                       help="with --time sim: simulated seconds per wall second (default 1), or max: as "
-                            "fast as the slowest station allows")
+        p.add_argument(
+            "--speed",
+            dest="time_speed",
+            metavar="X|max",
+            help="with --time sim: simulated seconds per wall second (default 1), or max: as "
+            "fast as the slowest station allows",
+        )
 
 
 def cpu_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--cpu", action="append", default=[], metavar="STATION=CORES",
-                   help="cap a station's CPU, e.g. onboard=0.5 (a cgroup quota: needs root or a delegated "
-                        "cgroup; the station sheds its oldest frames and the summary says how many)")
+    p.add_argument(
+        "--cpu",
+        action="append",
+        default=[],
+        metavar="STATION=CORES",
+        help="cap a station's CPU, e.g. onboard=0.5 (a cgroup quota: needs root or a delegated "
+        "cgroup; the station sheds its oldest frames and the summary says how many)",
+    )
 
 
 def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:

@@ -27,15 +27,19 @@ def cmd_lab_up(args: argparse.Namespace) -> int:
     placement = LabPlacement(lab, args.link)
     shapers: list[subprocess.Popen[bytes]] = []
     try:
-        print(f"abyss: lab {lab.name!r}: namespaces {', '.join(lab.netns(s) for s in keys.STATIONS)}; "
-              f"a command on a station's host: abyss lab exec STATION -- CMD", flush=True)
+        print(
+            f"abyss: lab {lab.name!r}: namespaces {', '.join(lab.netns(s) for s in keys.STATIONS)}; "
+            f"a command on a station's host: abyss lab exec STATION -- CMD",
+            flush=True,
+        )
         profiles = {hop: getattr(config.links, hop) for hop in keys.HOPS}
         for station in args.external:
             for command in placement.shape_for(station, profiles):
                 shapers.append(subprocess.Popen(command, stdin=subprocess.DEVNULL))
         lab.enter("onshore")  # the supervisor watches from shore's host, as an operator would
-        return run_up(config, args.out, args.duration, args.keep_running, 0, args.external,
-                      args.restart, placement)
+        return run_up(
+            config, args.out, args.duration, args.keep_running, 0, args.external, args.restart, placement
+        )
     finally:
         for shaper in shapers:
             shaper.terminate()
@@ -68,7 +72,8 @@ def cmd_lab_down(args: argparse.Namespace) -> int:
 
 def add_commands(sub: Any) -> None:
     lab = sub.add_parser("lab", help="the whole system as four network namespaces (root)").add_subparsers(
-        dest="lab", required=True)
+        dest="lab", required=True
+    )
     p = lab.add_parser("up", help="namespaces, shaped hops, the mission; removed at the end")
     config_args(p)
     cpu_arg(p)
@@ -76,11 +81,21 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--keep-running", action="store_true", help="stay up after the mission ends")
     p.add_argument("--out", type=Path, help="run directory (default runs/<system>-<time>)")
-    p.add_argument("--link", choices=LINK_MODES, default="auto",
-                   help="how each station shapes its hops (default auto: netem, else tun)")
-    p.add_argument("--external", action="append", default=[], choices=keys.STATIONS, metavar="STATION",
-                   help="do not start this station: run yours in its namespace (abyss lab exec); "
-                        "its hops are shaped by `abyss link shape` there")
+    p.add_argument(
+        "--link",
+        choices=LINK_MODES,
+        default="auto",
+        help="how each station shapes its hops (default auto: netem, else tun)",
+    )
+    p.add_argument(
+        "--external",
+        action="append",
+        default=[],
+        choices=keys.STATIONS,
+        metavar="STATION",
+        help="do not start this station: run yours in its namespace (abyss lab exec); "
+        "its hops are shaped by `abyss link shape` there",
+    )
     p.add_argument("--restart", action="store_true", help="start a station that dies again")
     p.set_defaults(func=cmd_lab_up)
     p = lab.add_parser("exec", help="run a command on a station's host (its namespace)")

@@ -77,17 +77,25 @@ def cmd_link_show(args: argparse.Namespace) -> int:
             f"{s.hop} {s.direction}: profile {s.profile}: rate {f['rate']} delay {f['delay']} "
             f"jitter {f['jitter']} loss {f['loss']} corrupt {f['corrupt']} transport {f['transport']}"
         )
-        delays = (f"delay p50/p95/p99 {st.get('delay_p50_ms', 0):.1f}/{st.get('delay_p95_ms', 0):.1f}/"
-                  f"{st.get('delay_p99_ms', 0):.1f} ms")
-        print(f"    delivered {st['messages_delivered']:.0f}/{st['messages_offered']:.0f} messages, "
-              f"{st['bytes_delivered']:.0f} B")
+        delays = (
+            f"delay p50/p95/p99 {st.get('delay_p50_ms', 0):.1f}/{st.get('delay_p95_ms', 0):.1f}/"
+            f"{st.get('delay_p99_ms', 0):.1f} ms"
+        )
+        print(
+            f"    delivered {st['messages_delivered']:.0f}/{st['messages_offered']:.0f} messages, "
+            f"{st['bytes_delivered']:.0f} B"
+        )
         if "packets_forwarded" in st:  # the TUN shaper: packets, and the kernel's TCP retransmits
-            print(f"    TUN shaper: {st['packets_forwarded']:.0f}/{st['packets_sent']:.0f} packets out; "
-                  f"queue drops {st['queue_drops']:.0f}, losses {st['losses']:.0f}, corrupted "
-                  f"{st['packets_corrupted']:.0f}, dropped at the TUN {st['tun_tx_dropped']:.0f}; {delays}")
+            print(
+                f"    TUN shaper: {st['packets_forwarded']:.0f}/{st['packets_sent']:.0f} packets out; "
+                f"queue drops {st['queue_drops']:.0f}, losses {st['losses']:.0f}, corrupted "
+                f"{st['packets_corrupted']:.0f}, dropped at the TUN {st['tun_tx_dropped']:.0f}; {delays}"
+            )
         else:
-            print(f"    queue drops {st.get('queue_drops', 0):.0f}, losses {st.get('losses', 0):.0f}, "
-                  f"retransmissions {st.get('retransmissions', 0):.0f}; {delays}")
+            print(
+                f"    queue drops {st.get('queue_drops', 0):.0f}, losses {st.get('losses', 0):.0f}, "
+                f"retransmissions {st.get('retransmissions', 0):.0f}; {delays}"
+            )
     return 0
 
 
@@ -164,8 +172,11 @@ def add_commands(sub: Any) -> None:
     mode.add_argument("--apply", action="store_true")
     mode.add_argument("--clear", action="store_true")
     p.set_defaults(func=cmd_link_netem)
-    p = link.add_parser("shape", help="shape this host's packets to a neighbour with the TUN shaper "
-                        "(for a host without a station: your own component)")
+    p = link.add_parser(
+        "shape",
+        help="shape this host's packets to a neighbour with the TUN shaper "
+        "(for a host without a station: your own component)",
+    )
     p.add_argument("hop", choices=keys.HOPS)
     p.add_argument("--peer", required=True, metavar="HOST", help="the neighbour across HOP (name or address)")
     p.add_argument("--profile", dest="profile_name", metavar="NAME")
@@ -197,15 +208,30 @@ def cmd_link_shape(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for s in (signal.SIGINT, signal.SIGTERM):
         signal.signal(s, lambda *_: stop.set())
-    print(f"abyss: shaping packets to {route.address} ({args.hop}, profile {p.name}) through "
-          f"{shaper.device}, then {route.device}; Ctrl-C to stop", flush=True)
+    print(
+        f"abyss: shaping packets to {route.address} ({args.hop}, profile {p.name}) through "
+        f"{shaper.device}, then {route.device}; Ctrl-C to stop",
+        flush=True,
+    )
     t0 = time.monotonic()
     try:
         while not stop.wait(args.every):
             stats = shaper.snapshot()
-            print(f"abyss: t={time.monotonic() - t0:5.0f} s  " + " ".join(
-                f"{k}={stats[k]:g}" for k in ("packets_sent", "packets_forwarded", "queue_drops", "losses",
-                                               "packets_corrupted", "tun_tx_dropped")), flush=True)
+            print(
+                f"abyss: t={time.monotonic() - t0:5.0f} s  "
+                + " ".join(
+                    f"{k}={stats[k]:g}"
+                    for k in (
+                        "packets_sent",
+                        "packets_forwarded",
+                        "queue_drops",
+                        "losses",
+                        "packets_corrupted",
+                        "tun_tx_dropped",
+                    )
+                ),
+                flush=True,
+            )
             if args.duration is not None and time.monotonic() - t0 >= args.duration:
                 break
     finally:

@@ -25,9 +25,11 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     if not args.as_station and not args.compare:  # what `abyss replay` was before recordings
-        print(f"abyss: `abyss replay RUN_DIR` opening the rerun recording is now "
-              f"`abyss view {args.run_dir}`; `abyss replay RUN_DIR --as STATION` plays stations back",
-              file=sys.stderr)
+        print(
+            f"abyss: `abyss replay RUN_DIR` opening the rerun recording is now "
+            f"`abyss view {args.run_dir}`; `abyss replay RUN_DIR --as STATION` plays stations back",
+            file=sys.stderr,
+        )
         return cmd_view(args)
     from abyss.launch.up import CONFIG_FILE, Replayed, run_up
     from abyss.recording.compare import compare, differing, render
@@ -35,8 +37,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from abyss.recording.store import open_recording
 
     if not args.as_station:
-        raise ConfigError("--compare", "needs the stations to replay: --as STATION (the others run live "
-                          "and are compared)")
+        raise ConfigError(
+            "--compare", "needs the stations to replay: --as STATION (the others run live and are compared)"
+        )
     check_speed(args.speed)
     run_dir = args.run_dir.resolve()
     recording = open_recording(run_dir)
@@ -53,8 +56,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         duration_s = (max(stamps) - min(stamps)) / args.speed + (2.0 if "onshore" in stations else 15.0)
     # with shore replayed, no live shore judges the mission: the run is the recording's length
     keep_running = args.keep_running or "onshore" in stations
-    code = run_up(config, out, duration_s, keep_running, args.port,
-                  replayed=Replayed(run_dir, stations, args.speed))
+    code = run_up(
+        config, out, duration_s, keep_running, args.port, replayed=Replayed(run_dir, stations, args.speed)
+    )
     if not args.compare:
         return code
     live = [s for s in keys.STATIONS if s not in stations]
@@ -63,8 +67,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     print(render(diffs))
     (out / COMPARE_FILE).write_text(json.dumps([d.row() for d in diffs], indent=2))
     changed = differing(diffs)
-    print(f"abyss: {len(changed)} of {len(diffs)} keys differ{': ' + ', '.join(changed) if changed else ''} "
-          f"(tolerance {args.tolerance:g} of each field's recorded spread; {out / COMPARE_FILE})")
+    print(
+        f"abyss: {len(changed)} of {len(diffs)} keys differ{': ' + ', '.join(changed) if changed else ''} "
+        f"(tolerance {args.tolerance:g} of each field's recorded spread; {out / COMPARE_FILE})"
+    )
     return 1 if changed else code
 
 
@@ -80,19 +86,37 @@ def add_commands(sub: Any) -> None:
         "how the live stations' outputs differ from the recording",
     )
     p.add_argument("run_dir", type=Path, metavar="RUN_DIR")
-    p.add_argument("--as", dest="as_station", action="append", default=[], choices=keys.STATIONS,
-                   metavar="STATION", help="a station to play back from the recording (repeatable)")
+    p.add_argument(
+        "--as",
+        dest="as_station",
+        action="append",
+        default=[],
+        choices=keys.STATIONS,
+        metavar="STATION",
+        help="a station to play back from the recording (repeatable)",
+    )
     p.add_argument("--speed", type=float, default=1.0, metavar="X", help="recorded time scale (default 1)")
-    p.add_argument("--compare", action="store_true",
-                   help="then compare the live stations' outputs with the recording, per key; exit 1 "
-                   "if one differs")
-    p.add_argument("--tolerance", type=float, default=0.1, metavar="FRACTION",
-                   help="with --compare: a field differs past this share of its recorded spread")
+    p.add_argument(
+        "--compare",
+        action="store_true",
+        help="then compare the live stations' outputs with the recording, per key; exit 1 if one differs",
+    )
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=0.1,
+        metavar="FRACTION",
+        help="with --compare: a field differs past this share of its recorded spread",
+    )
     run_args(p, speed=False)  # a replay runs in real time, --speed scales the recording
     web_port_arg(p)
     p.set_defaults(func=cmd_replay)
 
 
 def web_port_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--web-port", type=int, metavar="PORT",
-                   help="serve rerun's web viewer on this port instead of opening the native viewer")
+    p.add_argument(
+        "--web-port",
+        type=int,
+        metavar="PORT",
+        help="serve rerun's web viewer on this port instead of opening the native viewer",
+    )

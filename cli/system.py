@@ -41,10 +41,15 @@ def up_config(args: argparse.Namespace, config: Config) -> Config:
         config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))
     if args.record is not None:
         config = dataclasses.replace(config, record=dataclasses.replace(config.record, level=args.record))
-    ros2 = {name: value for name, value in (("station", getattr(args, "ros2", None)),
-                                           ("domain", getattr(args, "ros_domain", None)),
-                                           ("namespace", getattr(args, "ros_namespace", None)))
-            if value is not None}
+    ros2 = {
+        name: value
+        for name, value in (
+            ("station", getattr(args, "ros2", None)),
+            ("domain", getattr(args, "ros_domain", None)),
+            ("namespace", getattr(args, "ros_namespace", None)),
+        )
+        if value is not None
+    }
     if ros2:
         if "station" not in ros2 and not config.ros2.station:
             raise ConfigError("--ros-domain/--ros-namespace", "need --ros2 STATION")
@@ -159,12 +164,17 @@ def add_commands(sub: Any) -> None:
         help="do not start this station: wait for yours (a real component) on its keys",
     )
     p.add_argument("--restart", action="store_true", help="start a station that dies again")
-    p.add_argument("--ros2", choices=ROS2_STATIONS, metavar="STATION",
-                   help="a ROS 2 node takes this station's place: a gateway speaks rmw_zenoh to it "
-                        f"(choices: {', '.join(ROS2_STATIONS)}; README: ROS 2 nodes)")
+    p.add_argument(
+        "--ros2",
+        choices=ROS2_STATIONS,
+        metavar="STATION",
+        help="a ROS 2 node takes this station's place: a gateway speaks rmw_zenoh to it "
+        f"(choices: {', '.join(ROS2_STATIONS)}; README: ROS 2 nodes)",
+    )
     p.add_argument("--ros-domain", type=int, metavar="N", help="with --ros2: ROS_DOMAIN_ID (default 0)")
-    p.add_argument("--ros-namespace", metavar="NS",
-                   help="with --ros2: the topics' namespace (default /abyss)")
+    p.add_argument(
+        "--ros-namespace", metavar="NS", help="with --ros2: the topics' namespace (default /abyss)"
+    )
     p.set_defaults(func=cmd_up)
 
     p = sub.add_parser("station", help="run one station, e.g. on its own host")
@@ -206,8 +216,12 @@ def add_commands(sub: Any) -> None:
         help="with --link tun|netem|auto: the neighbour across HOP, whose route is shaped "
         "(default: the neighbour's station name)",
     )
-    p.add_argument("--replay", type=Path, metavar="RUN_DIR",
-                   help="play this station's messages of a recorded run back instead of running it")
+    p.add_argument(
+        "--replay",
+        type=Path,
+        metavar="RUN_DIR",
+        help="play this station's messages of a recorded run back instead of running it",
+    )
     p.add_argument("--speed", type=float, default=1.0, metavar="X", help="with --replay: time scale")
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_station)

@@ -41,8 +41,9 @@ def cmd_scenario_run(args: argparse.Namespace) -> int:
         raise ConfigError("--parallel", f"{args.parallel!r}: a whole number, at least 1, or auto")
     report_dir = args.report or Path("runs") / f"scenarios-{time.strftime('%Y%m%d-%H%M%S')}"
     results = run_all(scenarios, report_dir, parallel)
-    capacity.record(json.loads(path.read_text()) for r in results
-                    if (path := r.out_dir / "summary.json").exists())
+    capacity.record(
+        json.loads(path.read_text()) for r in results if (path := r.out_dir / "summary.json").exists()
+    )
     if args.junit:
         junit(results, args.junit)
     print(
@@ -112,15 +113,26 @@ def add_commands(sub: Any) -> None:
     )
     p = scenario.add_parser("run", help="run scenario files, each as a whole isolated system, and judge them")
     p.add_argument("files", nargs="+", type=Path, metavar="FILE")
-    p.add_argument("--parallel", default="1", metavar="N|auto",
-                   help="systems at once (default 1); auto: as many as this machine runs in real time, from "
-                        "what a system measured here costs (it says how many and why)")
-    p.add_argument("--time", choices=TIME_MODES,
-                   help="every scenario's time source (default: each one's own, real unless it says): "
-                        "sim runs faster than real time where the CPU allows (a scenario with an external "
-                        "station stays real, and says so)")
-    p.add_argument("--speed", dest="time_speed", metavar="X|max",
-                   help="with --time sim: simulated seconds per wall second, or max")
+    p.add_argument(
+        "--parallel",
+        default="1",
+        metavar="N|auto",
+        help="systems at once (default 1); auto: as many as this machine runs in real time, from "
+        "what a system measured here costs (it says how many and why)",
+    )
+    p.add_argument(
+        "--time",
+        choices=TIME_MODES,
+        help="every scenario's time source (default: each one's own, real unless it says): "
+        "sim runs faster than real time where the CPU allows (a scenario with an external "
+        "station stays real, and says so)",
+    )
+    p.add_argument(
+        "--speed",
+        dest="time_speed",
+        metavar="X|max",
+        help="with --time sim: simulated seconds per wall second, or max",
+    )
     p.add_argument("--junit", type=Path, metavar="PATH", help="write JUnit XML here")
     p.add_argument(
         "--report",

@@ -29,8 +29,11 @@ from abyss.common.workers import Realtime
 log = logging.getLogger(__name__)
 
 
-ZENOH_PRIORITY = {"control": zenoh.Priority.INTERACTIVE_HIGH, "telemetry": zenoh.Priority.DATA_HIGH,
-                  "bulk": zenoh.Priority.DATA_LOW}
+ZENOH_PRIORITY = {
+    "control": zenoh.Priority.INTERACTIVE_HIGH,
+    "telemetry": zenoh.Priority.DATA_HIGH,
+    "bulk": zenoh.Priority.DATA_LOW,
+}
 LARGE_MESSAGE_BYTES = 256 * 1024  # the largest message a slow hop must carry without dropping it
 ZENOH_DEFAULT_WAIT_BEFORE_DROP_S = 0.001
 ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S = 5.0
@@ -40,9 +43,13 @@ def publisher_qos(spec: keys.KeySpec, lockstep: bool = False) -> dict[str, Any]:
     """The Zenoh publisher options of a data key: congestion control by its reliability (in
     lockstep always BLOCK: a station waits for every message its neighbours' links delivered),
     priority, and express (not batched) for control."""
-    return {"congestion_control": zenoh.CongestionControl.BLOCK if spec.reliability == "reliable" or lockstep
-            else zenoh.CongestionControl.DROP,
-            "priority": ZENOH_PRIORITY[spec.priority], "express": spec.priority == "control"}
+    return {
+        "congestion_control": zenoh.CongestionControl.BLOCK
+        if spec.reliability == "reliable" or lockstep
+        else zenoh.CongestionControl.DROP,
+        "priority": ZENOH_PRIORITY[spec.priority],
+        "express": spec.priority == "control",
+    }
 
 
 def slow_link_tuning(rate_bps: float) -> dict[str, Any]:
@@ -53,13 +60,21 @@ def slow_link_tuning(rate_bps: float) -> dict[str, Any]:
     serialise_s = 0.0 if math.isinf(rate_bps) else LARGE_MESSAGE_BYTES * 8.0 / rate_bps
     drop_us = round(1e6 * min(max(ZENOH_DEFAULT_WAIT_BEFORE_DROP_S, serialise_s), 5.0))
     close_us = round(1e6 * max(ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S, 10.0 * serialise_s))
-    return {"drop": {"wait_before_drop": drop_us, "max_wait_before_drop_fragments": max(drop_us, 50_000)},
-            "block": {"wait_before_close": close_us}}
+    return {
+        "drop": {"wait_before_drop": drop_us, "max_wait_before_drop_fragments": max(drop_us, 50_000)},
+        "block": {"wait_before_close": close_us},
+    }
 
 
-def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), mode: str = "peer", *,
-                 tls: CertFiles | None = None, acl_station: str | None = None,
-                 slowest_rate_bps: float = math.inf) -> zenoh.Config:
+def zenoh_config(
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    mode: str = "peer",
+    *,
+    tls: CertFiles | None = None,
+    acl_station: str | None = None,
+    slowest_rate_bps: float = math.inf,
+) -> zenoh.Config:
     """Explicit endpoints, multicast scouting off: stations find each other only where told.
     With `tls` (its files checked here, at start), every endpoint is tls/ and both ends show
     certificates; with `acl_station`, that
@@ -70,8 +85,9 @@ def zenoh_config(listen: Sequence[str] = (), connect: Sequence[str] = (), mode: 
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     config.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    config.insert_json5("transport/link/tx/queue/congestion_control",
-                        json.dumps(slow_link_tuning(slowest_rate_bps)))
+    config.insert_json5(
+        "transport/link/tx/queue/congestion_control", json.dumps(slow_link_tuning(slowest_rate_bps))
+    )
     if tls is not None:
         config.insert_json5("transport/link/tls", json.dumps(security.tls_settings(tls.check())))
     if acl_station is not None:
@@ -98,8 +114,10 @@ def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
     try:
         return zenoh.open(config)
     except zenoh.ZError as exc:
-        raise BusError(f"{what}: cannot open the Zenoh session ({exc}); check that the listen "
-                       "endpoints are free and of the form tcp/HOST:PORT") from None
+        raise BusError(
+            f"{what}: cannot open the Zenoh session ({exc}); check that the listen "
+            "endpoints are free and of the form tcp/HOST:PORT"
+        ) from None
 
 
 M = TypeVar("M", bound=Message)
@@ -168,8 +186,14 @@ class Outgoing(NamedTuple):
 class Tap(Protocol):
     """The testbed's recorder of what a station sends and receives (abyss.recording.store)."""
 
-    def add(self, direction: str, key: str, payload: bytes, reason: str = "",
-            envelope: tuple[int, float] | None = None) -> None: ...
+    def add(
+        self,
+        direction: str,
+        key: str,
+        payload: bytes,
+        reason: str = "",
+        envelope: tuple[int, float] | None = None,
+    ) -> None: ...
 
 
 class Bus:
@@ -198,8 +222,10 @@ class Bus:
         self._egress: dict[str, Egress] = {}
         self.tap: Tap | None = None  # the testbed's recorder, where the run records
         self._outgoing = {s.topic: Outgoing.of(s, system) for s in keys.KEYS if s.station == station}
-        self._publishers = {out.key: session.declare_publisher(
-            out.key, **publisher_qos(out.spec, clock.mode == "lockstep")) for out in self._outgoing.values()}
+        self._publishers = {
+            out.key: session.declare_publisher(out.key, **publisher_qos(out.spec, clock.mode == "lockstep"))
+            for out in self._outgoing.values()
+        }
         self._arrived: Counter[str] = Counter()  # what reached a neighbour's key's inbox, decoded or not
         self.on_arrival: Callable[[], None] = lambda: None
         self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
@@ -250,8 +276,14 @@ class Bus:
         if data:
             with self._lock:
                 self._data_keys.add(key)
-        self._subscribers.append(self.session.declare_subscriber(key, lambda sample: self._on_sample(
-            str(sample.key_expr), message, sample.payload.to_bytes(), inbox, data)))
+        self._subscribers.append(
+            self.session.declare_subscriber(
+                key,
+                lambda sample: self._on_sample(
+                    str(sample.key_expr), message, sample.payload.to_bytes(), inbox, data
+                ),
+            )
+        )
         return inbox
 
     def data_keys(self) -> set[str]:
@@ -322,15 +354,26 @@ class Bus:
         """What this station sent, received, rejected and shed, its loops' deadlines met and the
         scheduler they run on, for summary.json."""
         with self._lock:
-            latency = {key: samples.percentiles("latency", 1e3, "ms")
-                       for key, samples in self.latency_s.items()}
+            latency = {
+                key: samples.percentiles("latency", 1e3, "ms") for key, samples in self.latency_s.items()
+            }
             shed = self._shed + Counter({key: inbox.shed for key, inbox in self._inboxes})
-            return {"sent": dict(self.sent), "received": dict(self.received), "rejected": dict(self.rejected),
-                    "latency_ms": latency, "shed": {key: n for key, n in shed.items() if n},
-                    "loops": {name: {"period_s": rate.period_s, "ticks": rate.ticks,
-                                     "deadlines_met": round(rate.deadlines_met, 4)}
-                              for name, rate in self._loops.items()},
-                    "scheduler": self.realtime.scheduler}
+            return {
+                "sent": dict(self.sent),
+                "received": dict(self.received),
+                "rejected": dict(self.rejected),
+                "latency_ms": latency,
+                "shed": {key: n for key, n in shed.items() if n},
+                "loops": {
+                    name: {
+                        "period_s": rate.period_s,
+                        "ticks": rate.ticks,
+                        "deadlines_met": round(rate.deadlines_met, 4),
+                    }
+                    for name, rate in self._loops.items()
+                },
+                "scheduler": self.realtime.scheduler,
+            }
 
     def close(self) -> None:
         """Undeclare the subscribers and publishers (the session is the caller's)."""

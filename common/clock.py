@@ -173,9 +173,9 @@ class ProgressReport:
     REPEAT_WALL_S = 0.5
 
     def __init__(self, session: zenoh.Session, system: str, station: str, clock: SimClock) -> None:
-        self._publisher = session.declare_publisher(keys.progress_key(system, station),
-                                                    congestion_control=zenoh.CongestionControl.BLOCK,
-                                                    express=True)
+        self._publisher = session.declare_publisher(
+            keys.progress_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
         self._lock = threading.Lock()
         self._seq = 0
         self._latest_s = 0.0
@@ -208,8 +208,16 @@ class Holdback:
     nothing; it is waited for again from its next report. `held_wall_s`: the wall time the simulation
     waited on each, the station that limited the speed."""
 
-    def __init__(self, session: zenoh.Session, system: str, stations: Iterable[str], max_lag_s: float,
-                 reject: Reject, start_wall_s: float = 60.0, silent_wall_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        system: str,
+        stations: Iterable[str],
+        max_lag_s: float,
+        reject: Reject,
+        start_wall_s: float = 60.0,
+        silent_wall_s: float = 5.0,
+    ) -> None:
         self.max_lag_s = max_lag_s
         self.start_wall_s, self.silent_wall_s = start_wall_s, silent_wall_s
         self.stations = set(stations)
@@ -254,8 +262,9 @@ class Holdback:
         letting go of the silent ones."""
         if own.progress_s() < t_s - self.max_lag_s:
             return "simulation"
-        behind = [s for s in self.stations - self.let_go
-                  if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s]
+        behind = [
+            s for s in self.stations - self.let_go if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s
+        ]
         for station in behind:
             heard_s = self.heard_wall_s.get(station)
             silent_s = now_wall_s - (heard_s if heard_s is not None else self._started_wall_s)
@@ -265,8 +274,9 @@ class Holdback:
         behind = [s for s in behind if s not in self.let_go]
         return min(behind, key=lambda s: self.progress_s.get(s, -math.inf)) if behind else None
 
-    def hold(self, t_s: float, stop: threading.Event, own: SimClock,
-             waiting: Callable[[], None] = lambda: None) -> None:
+    def hold(
+        self, t_s: float, stop: threading.Event, own: SimClock, waiting: Callable[[], None] = lambda: None
+    ) -> None:
         """Block until every station, and every loop of the simulation's `own` clock, is done with
         `t_s` - max_lag_s (or `stop`); `waiting` is called every REPEAT_WALL_S meanwhile (the
         simulation tells its time again, for a station that joins while it waits)."""

@@ -37,8 +37,9 @@ class LinksConfig:
         for hop in keys.HOPS:
             name = getattr(self, hop)
             if name not in available:
-                raise ConfigError(f"links.{hop}", f"unknown profile {name!r}; allowed: "
-                                                  f"{', '.join(sorted(available))}")
+                raise ConfigError(
+                    f"links.{hop}", f"unknown profile {name!r}; allowed: {', '.join(sorted(available))}"
+                )
 
     def profiles(self) -> dict[str, LinkProfile]:
         return {hop: profile(getattr(self, hop)) for hop in keys.HOPS}
@@ -113,8 +114,9 @@ class SimulationConfig:
 
     def __post_init__(self) -> None:
         if self.low_level not in LOW_LEVELS:
-            raise ConfigError("simulation.low_level",
-                              f"{self.low_level!r} not one of {', '.join(LOW_LEVELS)}")
+            raise ConfigError(
+                "simulation.low_level", f"{self.low_level!r} not one of {', '.join(LOW_LEVELS)}"
+            )
         _positive("simulation.physics_step_s", self.physics_step_s)
         _positive("simulation.current_time_constant_s", self.current_time_constant_s)
         if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
@@ -123,28 +125,46 @@ class SimulationConfig:
                 raise ConfigError("simulation.vehicle_file", f"no such file: {vehicle_file.resolve()}")
             object.__setattr__(self, "vehicle_file", str(vehicle_file.resolve()))
         if self.hydrodynamics not in HYDRODYNAMICS:
-            raise ConfigError("simulation.hydrodynamics",
-                              f"{self.hydrodynamics!r} not one of {', '.join(HYDRODYNAMICS)}")
+            raise ConfigError(
+                "simulation.hydrodynamics", f"{self.hydrodynamics!r} not one of {', '.join(HYDRODYNAMICS)}"
+            )
         for row in self.current_profile:
             if len(row) != 4 or not all(math.isfinite(v) and abs(v) < 1e4 for v in row):
                 raise ConfigError("simulation.current_profile", f"{list(row)}: rows of [z_m, vx, vy, vz]")
         _positive("simulation.state_period_s", self.state_period_s)
         if not 0 <= self.realtime_priority <= 99:
-            raise ConfigError("simulation.realtime_priority", f"{self.realtime_priority}: 0 (the normal "
-                              "scheduler) or a SCHED_FIFO priority from 1 to 99")
+            raise ConfigError(
+                "simulation.realtime_priority",
+                f"{self.realtime_priority}: 0 (the normal scheduler) or a SCHED_FIFO priority from 1 to 99",
+            )
         _positive("simulation.arm_kp", self.arm_kp)
         _positive("simulation.gripper_kp", self.gripper_kp)
-        for name in ("arm_ki", "current_sigma_mps", "usbl_sigma_m", "dvl_sigma_mps", "imu_sigma_rad",
-                     "camera_rate_hz", "sonar_rate_hz", "pressure_sigma_pa", "usbl_processing_s",
-                     "usbl_outlier_m", "dvl_min_altitude_m", "dvl_scale_error", "gyro_bias_walk_radps"):
+        for name in (
+            "arm_ki",
+            "current_sigma_mps",
+            "usbl_sigma_m",
+            "dvl_sigma_mps",
+            "imu_sigma_rad",
+            "camera_rate_hz",
+            "sonar_rate_hz",
+            "pressure_sigma_pa",
+            "usbl_processing_s",
+            "usbl_outlier_m",
+            "dvl_min_altitude_m",
+            "dvl_scale_error",
+            "gyro_bias_walk_radps",
+        ):
             _positive(f"simulation.{name}", getattr(self, name), allow_zero=True)
         _positive("simulation.usbl_rate_hz", self.usbl_rate_hz)
         for name in ("usbl_outlier_probability", "usbl_dropout_probability"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ConfigError(f"simulation.{name}", f"{getattr(self, name)} outside [0, 1)")
         if not self.dvl_min_altitude_m < self.dvl_max_altitude_m:
-            raise ConfigError("simulation.dvl_max_altitude_m", f"{self.dvl_max_altitude_m} m must lie above "
-                              f"dvl_min_altitude_m = {self.dvl_min_altitude_m} m")
+            raise ConfigError(
+                "simulation.dvl_max_altitude_m",
+                f"{self.dvl_max_altitude_m} m must lie above "
+                f"dvl_min_altitude_m = {self.dvl_min_altitude_m} m",
+            )
         if any(abs(v) > 1.0 for v in self.dvl_offset_mps_body):
             raise ConfigError("simulation.dvl_offset_mps_body", "each within [-1, 1] m/s")
         for name in ("vehicle_kp", "vehicle_ki", "vehicle_kd"):
@@ -158,19 +178,26 @@ class SimulationConfig:
             raise ConfigError("simulation.water", f"{self.water!r} not one of {', '.join(WATER_TYPES)}")
         _positive("simulation.marine_snow", self.marine_snow, allow_zero=True)
         for name, period, base, base_name in (
-                ("low_level_period_s", self.low_level_period_s, self.physics_step_s, "physics_step_s"),
-                ("control_period_s", self.control_period_s, self.physics_step_s, "physics_step_s"),
-                ("control_period_s", self.control_period_s, self.low_level_period_s, "low_level_period_s")):
+            ("low_level_period_s", self.low_level_period_s, self.physics_step_s, "physics_step_s"),
+            ("control_period_s", self.control_period_s, self.physics_step_s, "physics_step_s"),
+            ("control_period_s", self.control_period_s, self.low_level_period_s, "low_level_period_s"),
+        ):
             ratio = period / base
             if ratio < 1 - 1e-9 or not math.isclose(ratio, round(ratio), rel_tol=0, abs_tol=1e-9):
-                raise ConfigError(f"simulation.{name}",
-                                  f"{period} s is not a whole multiple of {base_name} = {base} s")
+                raise ConfigError(
+                    f"simulation.{name}", f"{period} s is not a whole multiple of {base_name} = {base} s"
+                )
 
 
 STEREO_MODES = ("3way", "sgbm", "hh", "hh4")  # onboard.stereo_mode: OpenCV's semi-global matcher's modes
 STEREO_SCALES = (1, 2)  # onboard.stereo_scale and stereo_lr_scale: full or half resolution
-STEREO_SWITCHES = ("stereo_uniqueness_percent", "stereo_speckle_window_px", "stereo_lr_max_diff_px",
-                   "stereo_min_texture", "stereo_edge_step_px")  # 0: that filter off
+STEREO_SWITCHES = (
+    "stereo_uniqueness_percent",
+    "stereo_speckle_window_px",
+    "stereo_lr_max_diff_px",
+    "stereo_min_texture",
+    "stereo_edge_step_px",
+)  # 0: that filter off
 
 
 @dataclass(frozen=True)
@@ -268,33 +295,43 @@ class OnboardConfig:
             if name not in CLOUD_SOURCES:
                 raise ConfigError("onboard.cloud_sources", f"{name!r} not one of {', '.join(CLOUD_SOURCES)}")
         if self.stereo_mode not in STEREO_MODES:
-            raise ConfigError("onboard.stereo_mode",
-                              f"{self.stereo_mode!r} not one of {', '.join(STEREO_MODES)}")
+            raise ConfigError(
+                "onboard.stereo_mode", f"{self.stereo_mode!r} not one of {', '.join(STEREO_MODES)}"
+            )
         for name in ("stereo_scale", "stereo_lr_scale"):
             if getattr(self, name) not in STEREO_SCALES:
-                raise ConfigError(f"onboard.{name}",
-                                  f"{getattr(self, name)} not one of {', '.join(map(str, STEREO_SCALES))}")
+                raise ConfigError(
+                    f"onboard.{name}",
+                    f"{getattr(self, name)} not one of {', '.join(map(str, STEREO_SCALES))}",
+                )
         if self.stereo_disparities % 16 or not 16 <= self.stereo_disparities <= 256:
-            raise ConfigError("onboard.stereo_disparities",
-                              f"{self.stereo_disparities}: a multiple of 16 in [16, 256]")
+            raise ConfigError(
+                "onboard.stereo_disparities", f"{self.stereo_disparities}: a multiple of 16 in [16, 256]"
+            )
         if not 1 <= self.image_jpeg_quality <= 100:
             raise ConfigError("onboard.image_jpeg_quality", f"{self.image_jpeg_quality} outside [1, 100]")
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if not isinstance(value, (bool, tuple, str)):
-                _positive(f"onboard.{f.name}", value,
-                          allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s",
-                                                "image_rate_hz") or f.name in STEREO_SWITCHES)
+                _positive(
+                    f"onboard.{f.name}",
+                    value,
+                    allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s", "image_rate_hz")
+                    or f.name in STEREO_SWITCHES,
+                )
         if self.perception_max_busy > 1.0:
             raise ConfigError("onboard.perception_max_busy", f"{self.perception_max_busy} outside (0, 1]")
         if self.stereo_uniqueness_percent > 100:
-            raise ConfigError("onboard.stereo_uniqueness_percent",
-                              f"{self.stereo_uniqueness_percent} outside [0, 100]")
+            raise ConfigError(
+                "onboard.stereo_uniqueness_percent", f"{self.stereo_uniqueness_percent} outside [0, 100]"
+            )
         if self.kp_constraint * self.control_period_s >= 1.0:
-            raise ConfigError("onboard.kp_constraint",
-                              f"kp_constraint * control_period_s must stay below 1 (got "
-                              f"{self.kp_constraint * self.control_period_s:.2f}), or a limit can be "
-                              f"crossed within one period")
+            raise ConfigError(
+                "onboard.kp_constraint",
+                f"kp_constraint * control_period_s must stay below 1 (got "
+                f"{self.kp_constraint * self.control_period_s:.2f}), or a limit can be "
+                f"crossed within one period",
+            )
 
 
 @dataclass(frozen=True)
@@ -330,8 +367,9 @@ class VesselConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name != "recognition_bias_m":
-                _positive(f"vessel.{f.name}", getattr(self, f.name),
-                          allow_zero=f.name == "scene_track_period_s")  # 0: after each cloud
+                _positive(
+                    f"vessel.{f.name}", getattr(self, f.name), allow_zero=f.name == "scene_track_period_s"
+                )  # 0: after each cloud
         if len(self.recognition_bias_m) != 3 or not all(abs(b) <= 1.0 for b in self.recognition_bias_m):
             raise ConfigError("vessel.recognition_bias_m", "needs [x, y, z], each within [-1, 1] m")
         if self.image_scale > 1.0:
@@ -444,8 +482,11 @@ class TimeConfig:
             if not math.isfinite(speed) or not 0.01 <= speed <= 1000:
                 raise ConfigError("time.speed", f"{self.speed!r}: a number from 0.01 to 1000, or max")
         if self.mode != "sim" and self.speed_factor != 1.0:
-            raise ConfigError("time.speed", f"{self.speed}: only with time.mode sim ({self.mode} runs at "
-                              f"{'1' if self.mode == 'real' else 'the speed its slowest station allows'})")
+            raise ConfigError(
+                "time.speed",
+                f"{self.speed}: only with time.mode sim ({self.mode} runs at "
+                f"{'1' if self.mode == 'real' else 'the speed its slowest station allows'})",
+            )
         _positive("time.end_s", self.end_s, allow_zero=True)
         _positive("time.max_lag_s", self.max_lag_s, allow_zero=True)
         for station in self.stations:
@@ -481,16 +522,20 @@ class Ros2Config:
 
     def __post_init__(self) -> None:
         if self.station not in ("", *ROS2_STATIONS):
-            raise ConfigError("ros2.station", f"{self.station!r}: a ROS 2 node can stand for "
-                              f"{', '.join(ROS2_STATIONS)}")
+            raise ConfigError(
+                "ros2.station", f"{self.station!r}: a ROS 2 node can stand for {', '.join(ROS2_STATIONS)}"
+            )
         if not 0 <= self.domain <= 232:
             raise ConfigError("ros2.domain", f"{self.domain}: a ROS domain id is 0 to 232")
         if not _ROS_NAMESPACE.match(self.namespace):
-            raise ConfigError("ros2.namespace", f"{self.namespace!r} is not an absolute ROS 2 namespace "
-                              "such as /abyss or /team/rov1")
+            raise ConfigError(
+                "ros2.namespace",
+                f"{self.namespace!r} is not an absolute ROS 2 namespace such as /abyss or /team/rov1",
+            )
         if not self.listen and not self.connect:
-            raise ConfigError("ros2.listen", "empty, and so is ros2.connect: the ROS 2 nodes would have "
-                              "no router")
+            raise ConfigError(
+                "ros2.listen", "empty, and so is ros2.connect: the ROS 2 nodes would have no router"
+            )
 
 
 Box = tuple[float, float, float, float, float, float]
@@ -502,7 +547,10 @@ class MissionConfig:
     # the last, 1.8 m off the panel's face and level with its middle: the arm reaches the
     # valves above and the levers below without the vehicle moving
     waypoints: tuple[tuple[float, float, float, float], ...] = (
-        (1.5, 0.0, -7.0, 0.0), (2.5, 0.8, -7.6, 0.3), (3.2, 0.0, -8.0, 0.0))
+        (1.5, 0.0, -7.0, 0.0),
+        (2.5, 0.8, -7.6, 0.3),
+        (3.2, 0.0, -8.0, 0.0),
+    )
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
     # [s] a waypoint not reached within its leg flown at onboard's speed limits (its length over
@@ -536,17 +584,25 @@ class MissionConfig:
         if len(self.arm_target) not in (0, 6):
             raise ConfigError("mission.arm_target", "needs [x, y, z, roll, pitch, yaw], or [] for none")
         if self.arm_target and self.interventions:
-            raise ConfigError("mission.interventions", "an arm goal (mission.arm_target) or interventions, "
-                              "not both: set the other to []")
+            raise ConfigError(
+                "mission.interventions",
+                "an arm goal (mission.arm_target) or interventions, not both: set the other to []",
+            )
         for i, (part, amount) in enumerate(self.interventions):
             try:
                 panel.intent(part, amount)
             except ValueError as exc:
                 raise ConfigError(f"mission.interventions[{i}]", str(exc)) from None
         _positive("mission.waypoint_timeout_s", self.waypoint_timeout_s, allow_zero=True)
-        for name in ("position_tolerance_m", "heading_tolerance_rad", "arm_position_tolerance_m",
-                     "arm_orientation_tolerance_rad", "arm_settle_s", "resend_period_s",
-                     "vehicle_clearance_m"):
+        for name in (
+            "position_tolerance_m",
+            "heading_tolerance_rad",
+            "arm_position_tolerance_m",
+            "arm_orientation_tolerance_rad",
+            "arm_settle_s",
+            "resend_period_s",
+            "vehicle_clearance_m",
+        ):
             _positive(f"mission.{name}", getattr(self, name))
         for i, box in enumerate(self.obstacles):
             for size in box[3:]:
@@ -578,8 +634,10 @@ class Config:
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)
         if self.time.simulated and self.ros2.station:
-            raise ConfigError("time.mode", "sim: a ROS 2 node (ros2.station, --ros2) runs on the wall clock; "
-                              "use --time real with it")
+            raise ConfigError(
+                "time.mode",
+                "sim: a ROS 2 node (ros2.station, --ros2) runs on the wall clock; use --time real with it",
+            )
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2)
@@ -641,14 +699,20 @@ def _build(cls: Any, table: Any, prefix: str = "") -> Any:
     allowed = {f.name for f in dataclasses.fields(cls)}
     unknown = set(table) - allowed
     if unknown:
-        raise ConfigError(f"{prefix}{'.' if prefix else ''}{sorted(unknown)[0]}",
-                          f"unknown field; allowed: {', '.join(sorted(allowed))}")
+        raise ConfigError(
+            f"{prefix}{'.' if prefix else ''}{sorted(unknown)[0]}",
+            f"unknown field; allowed: {', '.join(sorted(allowed))}",
+        )
     values = {n: _coerce(f"{prefix}{'.' if prefix else ''}{n}", hints[n], v) for n, v in table.items()}
     return cls(**values)
 
 
-def load(path: Path | None = None, overrides: typing.Sequence[str] = (),
-         base: dict[str, Any] | None = None, options: dict[str, str] | None = None) -> Config:
+def load(
+    path: Path | None = None,
+    overrides: typing.Sequence[str] = (),
+    base: dict[str, Any] | None = None,
+    options: dict[str, str] | None = None,
+) -> Config:
     """Defaults, then the file (TOML or JSON), then `section.field=value` overrides. An error
     names where its field's value came from: the option in `options` (field -> the option the
     user typed, e.g. "time.speed" -> "--speed"), else --set, else the file."""
@@ -679,4 +743,3 @@ def load(path: Path | None = None, overrides: typing.Sequence[str] = (),
         raise ConfigError(exc.field, exc.reason, overridden.get(exc.field, source)) from None
     except json.JSONDecodeError as exc:
         raise ConfigError("config", f"bad list value: {exc}", source) from None
-

@@ -45,6 +45,13 @@ def downscale(image: Image, scale: float, quality: int) -> Image:
     small = cv2.resize(rgb, (width_px, height_px), interpolation=cv2.INTER_AREA)
     sx, sy = width_px / image.width_px, height_px / image.height_px
     return dataclasses.replace(
-        image, encoding="jpeg", width_px=width_px, height_px=height_px, fx_px=image.fx_px * sx,
-        fy_px=image.fy_px * sy, cx_px=image.cx_px * sx, cy_px=image.cy_px * sy,
-        data=encode_jpeg(small, quality))
+        image,
+        encoding="jpeg",
+        width_px=width_px,
+        height_px=height_px,
+        fx_px=image.fx_px * sx,
+        fy_px=image.fy_px * sy,
+        cx_px=image.cx_px * sx,
+        cy_px=image.cy_px * sy,
+        data=encode_jpeg(small, quality),
+    )

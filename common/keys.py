@@ -201,34 +201,69 @@ def replay_key(system: str) -> str:
 
 def observation_keys(system: str) -> tuple[str, ...]:
     """The testbed's keys that `abyss up` records beside the stations' data (as key expressions)."""
-    return (truth_key(system), panel_truth_key(system), simulation_status_key(system),
-            onboard_state_key(system), mission_key(system),
-            key(system, "*", "linkstats", "*"), operator_key(system, "*"), simulation_control_key(system),
-            key(system, "link", "*"), replay_key(system))
+    return (
+        truth_key(system),
+        panel_truth_key(system),
+        simulation_status_key(system),
+        onboard_state_key(system),
+        mission_key(system),
+        key(system, "*", "linkstats", "*"),
+        operator_key(system, "*"),
+        simulation_control_key(system),
+        key(system, "link", "*"),
+        replay_key(system),
+    )
 
 
 CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     # (key pattern, message, rate, note)
-    ("abyss/<system>/link/<hop>", "LinkControl", "event",
-     "put: change a hop's profile; get: profiles and stats"),
+    (
+        "abyss/<system>/link/<hop>",
+        "LinkControl",
+        "event",
+        "put: change a hop's profile; get: profiles and stats",
+    ),
     ("abyss/<system>/<station>/linkstats/<hop>", "LinkStats", "1 Hz", "what each emulator measured"),
     ("abyss/<system>/<station>/alive", "liveliness", "-", "token held while the station runs"),
     ("abyss/<system>/simulation/truth", "NavState", "20 Hz", "true vehicle state, for scoring only"),
-    ("abyss/<system>/simulation/truth/panel", "PanelState", "10 Hz",
-     "true valve and lever angles and finger forces, for scoring only"),
-    ("abyss/<system>/simulation/control", "SimulationControl", "event",
-     "faults: thruster, camera, noise, seize, clear"),
+    (
+        "abyss/<system>/simulation/truth/panel",
+        "PanelState",
+        "10 Hz",
+        "true valve and lever angles and finger forces, for scoring only",
+    ),
+    (
+        "abyss/<system>/simulation/control",
+        "SimulationControl",
+        "event",
+        "faults: thruster, camera, noise, seize, clear",
+    ),
     ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
     ("abyss/<system>/clock", "SimTime", "20 Hz simulated", "the simulation's clock, with --time sim"),
-    ("abyss/<system>/<station>/progress", "SimTime", "event",
-     "how far the station's loops are done in simulated time; the simulation waits for the slowest"),
-    ("abyss/<system>/<station>/lockstep", "LockstepReport", "2 per period",
-     "a station's links delivered what was due, then it is done (--time lockstep)"),
-    ("abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
-     "Waypoints, ArmGoal, OperatorMode, Intervention", "event",
-     "operator tools to the onshore station, which sends them down"),
-    ("abyss/<system>/onshore/operator/ack", "CommandAck", "event",
-     "onboard's answers to operator commands, handed back to the tools"),
+    (
+        "abyss/<system>/<station>/progress",
+        "SimTime",
+        "event",
+        "how far the station's loops are done in simulated time; the simulation waits for the slowest",
+    ),
+    (
+        "abyss/<system>/<station>/lockstep",
+        "LockstepReport",
+        "2 per period",
+        "a station's links delivered what was due, then it is done (--time lockstep)",
+    ),
+    (
+        "abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
+        "Waypoints, ArmGoal, OperatorMode, Intervention",
+        "event",
+        "operator tools to the onshore station, which sends them down",
+    ),
+    (
+        "abyss/<system>/onshore/operator/ack",
+        "CommandAck",
+        "event",
+        "onboard's answers to operator commands, handed back to the tools",
+    ),
     ("abyss/<system>/onboard/state", "Telemetry", "10 Hz", "onboard's state at the source, for scoring only"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
     ("abyss/<system>/replay", "ReplayStart", "1 Hz", "when replayed stations begin (`abyss replay`)"),

@@ -128,10 +128,19 @@ class Lockstep:
     `loops`: the loops the station will have (it runs no period before all of them are there,
     whatever their start-up takes)."""
 
-    def __init__(self, session: zenoh.Session, system: str, station: str, clock: LockstepClock,
-                 deliver_due: Callable[[float], Counter[str]], arrived: Callable[[], Counter[str]],
-                 expects: Callable[[], dict[str, set[str]]], loops: Iterable[str],
-                 stop: threading.Event, reject: Reject) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        system: str,
+        station: str,
+        clock: LockstepClock,
+        deliver_due: Callable[[float], Counter[str]],
+        arrived: Callable[[], Counter[str]],
+        expects: Callable[[], dict[str, set[str]]],
+        loops: Iterable[str],
+        stop: threading.Event,
+        reject: Reject,
+    ) -> None:
         self.system, self.station, self.clock, self.stop = system, station, clock, stop
         self.deliver_due, self.arrived, self.expects = deliver_due, arrived, expects
         self.loops = set(loops)
@@ -139,9 +148,9 @@ class Lockstep:
         self._reports: dict[tuple[str, str], tuple[float, dict[str, float]]] = {}  # (station, phase)
         self._seq = 0
         self.reject = reject
-        self._publisher = session.declare_publisher(keys.lockstep_key(system, station),
-                                                    congestion_control=zenoh.CongestionControl.BLOCK,
-                                                    express=True)
+        self._publisher = session.declare_publisher(
+            keys.lockstep_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
         self._subscriber = session.declare_subscriber(keys.lockstep_key(system, "*"), self._on_report)
         self._last: dict[str, tuple[float, dict[str, float]]] = {}  # per phase: the latest report
         self._repeater = threading.Thread(target=self._repeat, name="lockstep reports", daemon=True)
@@ -172,8 +181,9 @@ class Lockstep:
 
     def _send(self, phase: str) -> None:
         t_s, delivered = self._last[phase]
-        self._publisher.put(encode(LockstepReport(sim_time_s=t_s, phase=phase, delivered=delivered),
-                                   self._seq, time.time()))
+        self._publisher.put(
+            encode(LockstepReport(sim_time_s=t_s, phase=phase, delivered=delivered), self._seq, time.time())
+        )
         self._seq += 1
 
     def _repeat(self) -> None:
@@ -188,8 +198,9 @@ class Lockstep:
         with self._cond:
             return self._reports.get((station, phase), (-math.inf, {}))
 
-    def wait_for(self, what: str, ready: Callable[[], bool],
-                 waiting: Callable[[], None] = lambda: None) -> bool:
+    def wait_for(
+        self, what: str, ready: Callable[[], bool], waiting: Callable[[], None] = lambda: None
+    ) -> bool:
         """Block until `ready()` (checked on every report and every POLL_WALL_S), calling `waiting`
         every REPEAT_WALL_S; False once `stop` is set. A long wait is logged once."""
         started_s = time.monotonic()
@@ -212,8 +223,11 @@ class Lockstep:
     def period(self, t_s: float, waiting: Callable[[], None] = lambda: None) -> bool:
         """Phases 1-3 of period `t_s` (without the report that it is done: the simulation's
         physics comes after its loops); False once `stop` is set."""
-        if not self.wait_for(f"its loops {sorted(self.loops - self.clock.loops())}",
-                             lambda: self.loops <= self.clock.loops(), waiting):
+        if not self.wait_for(
+            f"its loops {sorted(self.loops - self.clock.loops())}",
+            lambda: self.loops <= self.clock.loops(),
+            waiting,
+        ):
             return False
         self.clock.set_period(t_s)
         delivered = self.deliver_due(t_s)
@@ -231,8 +245,9 @@ class Lockstep:
                     return False
             return True
 
-        if not self.wait_for(f"the deliveries of {', '.join(sorted(expects))} at t={t_s:.2f} s",
-                             all_arrived, waiting):
+        if not self.wait_for(
+            f"the deliveries of {', '.join(sorted(expects))} at t={t_s:.2f} s", all_arrived, waiting
+        ):
             return False
         self.clock.run_loops(t_s, self.stop)
         return not self.stop.is_set()

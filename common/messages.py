@@ -39,18 +39,45 @@ _zstd = threading.local()  # a compressor and a decompressor per thread: zstd's 
 # otherwise carry some 250 bytes of them). A constant, not built from a live tree: both ends must
 # hold the same bytes whatever their OctoMap.
 ZSTD_DICTIONARY = msgpack.packb(
-    ["type", "version", "seq", "stamp_s", "body", "SceneUpdate", "kind", "snapshot", "delta", "scene_seq",
-     "resolution_m", "octree", "colors", "dtype", "|u1", "shape", "data", "sim_time_s", "stream_id"]
-) + (b"# Octomap OcTree binary file\n# (feel free to add / change comments, but leave the first line as "
-     b"it is!)\n#\nid OcTree\nsize \nres 0.1\ndata\n")
+    [
+        "type",
+        "version",
+        "seq",
+        "stamp_s",
+        "body",
+        "SceneUpdate",
+        "kind",
+        "snapshot",
+        "delta",
+        "scene_seq",
+        "resolution_m",
+        "octree",
+        "colors",
+        "dtype",
+        "|u1",
+        "shape",
+        "data",
+        "sim_time_s",
+        "stream_id",
+    ]
+) + (
+    b"# Octomap OcTree binary file\n# (feel free to add / change comments, but leave the first line as "
+    b"it is!)\n#\nid OcTree\nsize \nres 0.1\ndata\n"
+)
 SMALL_ARRAY_SIZE = 64  # an array up to this size is range-checked as Python numbers (numpy's calls cost more)
 
 
-def array(dtype: str, shape: tuple[int | None, ...], lo: float = -math.inf,
-          hi: float = math.inf, max_rows: int = 100_000) -> Any:
+def array(
+    dtype: str,
+    shape: tuple[int | None, ...],
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    max_rows: int = 100_000,
+) -> Any:
     """A numpy array field: fixed dtype, shape (None: any length up to max_rows), range."""
-    return field(metadata={"dtype": np.dtype(dtype), "shape": shape, "lo": lo, "hi": hi,
-                           "max_rows": max_rows})
+    return field(
+        metadata={"dtype": np.dtype(dtype), "shape": shape, "lo": lo, "hi": hi, "max_rows": max_rows}
+    )
 
 
 def scalar(lo: float = -math.inf, hi: float = math.inf, choices: tuple[str, ...] = ()) -> Any:
@@ -90,9 +117,10 @@ def _check_array(name: str, meta: Mapping[str, Any], value: Any) -> np.ndarray:
     if value.dtype != meta["dtype"]:
         raise ValueError(f"{name}: dtype {value.dtype}, expected {meta['dtype']}")
     shape = meta["shape"]
-    if value.shape != shape and (value.ndim != len(shape) or any(
-        want is not None and got != want for got, want in zip(value.shape, shape, strict=True)
-    )):
+    if value.shape != shape and (
+        value.ndim != len(shape)
+        or any(want is not None and got != want for got, want in zip(value.shape, shape, strict=True))
+    ):
         raise ValueError(f"{name}: shape {value.shape}, expected {shape} (None: any)")
     if value.ndim and value.shape[0] > meta["max_rows"]:
         raise ValueError(f"{name}: {value.shape[0]} rows, at most {meta['max_rows']}")
@@ -152,8 +180,10 @@ def _check_field(name: str, kind: Any, meta: Mapping[str, Any], value: Any) -> A
         value_kind = typing.get_args(kind)[1]
         if not isinstance(value, dict) or len(value) > 256:
             raise ValueError(f"{name}: expected a map of at most 256 entries")
-        return {_check_field(f"{name} key", str, {}, k): _checker(f"{name}[{k}]", value_kind, {})(v)
-                for k, v in value.items()}
+        return {
+            _check_field(f"{name} key", str, {}, k): _checker(f"{name}[{k}]", value_kind, {})(v)
+            for k, v in value.items()
+        }
     raise TypeError(f"{name}: unsupported field type {kind}")
 
 
@@ -174,9 +204,11 @@ def _wire(meta: Mapping[str, Any]) -> dict[str, Any]:
 def _read_schema(cls: type) -> _Schema:
     hints = typing.get_type_hints(cls)
     fields = dataclasses.fields(cls)
-    return _Schema(tuple((f.name, _checker(f.name, hints[f.name], dict(f.metadata))) for f in fields),
-                   frozenset(f.name for f in fields),
-                   {f.name: _wire(f.metadata) for f in fields if hints[f.name] is np.ndarray})
+    return _Schema(
+        tuple((f.name, _checker(f.name, hints[f.name], dict(f.metadata))) for f in fields),
+        frozenset(f.name for f in fields),
+        {f.name: _wire(f.metadata) for f in fields if hints[f.name] is np.ndarray},
+    )
 
 
 # Per message class, cached. Typed as taking any class: mypy holds a frozen dataclass's class
@@ -439,8 +471,10 @@ class PerceptionStatus(Message):
         super().__post_init__()
         for source, rate in self.points_per_s.items():
             if source not in PERCEPTION_SOURCES or not 0.0 <= rate <= 1e9:
-                raise ValueError(f"points_per_s: {source!r}: {rate} (sources "
-                                 f"{', '.join(PERCEPTION_SOURCES)}, rates in [0, 1e9])")
+                raise ValueError(
+                    f"points_per_s: {source!r}: {rate} (sources "
+                    f"{', '.join(PERCEPTION_SOURCES)}, rates in [0, 1e9])"
+                )
 
 
 FAULTS = ("thruster", "camera", "noise", "seize", "clear")
@@ -740,15 +774,15 @@ def encode(message: Message, seq: int, stamp_s: float) -> bytes:
     schema = _schema(type(message))
     body = {name: _pack(getattr(message, name), schema.arrays.get(name)) for name, _ in schema.checks}
     packed = msgpack.packb(
-        {"type": message.TYPE, "version": message.VERSION, "seq": seq, "stamp_s": stamp_s,
-         "body": body},
+        {"type": message.TYPE, "version": message.VERSION, "seq": seq, "stamp_s": stamp_s, "body": body},
         use_bin_type=True,
     )
     if not message.COMPRESSED:
         return packed
     if not hasattr(_zstd, "compressor"):
-        _zstd.compressor = zstandard.ZstdCompressor(level=ZSTD_LEVEL, write_checksum=True,
-                                                    dict_data=_dictionary())
+        _zstd.compressor = zstandard.ZstdCompressor(
+            level=ZSTD_LEVEL, write_checksum=True, dict_data=_dictionary()
+        )
     return _zstd.compressor.compress(packed)
 
 
@@ -838,8 +872,11 @@ def decode(key: str, data: bytes, expected: str | None = None) -> Received:
         raise BadMessage(key, f"bad stamp {stamp_s!r}")
     schema = _schema(cls)
     if not isinstance(body, dict) or body.keys() != schema.names:
-        raise BadMessage(key, f"{name} fields {sorted(body) if isinstance(body, dict) else body!r}, "
-                              f"expected {sorted(schema.names)}")
+        raise BadMessage(
+            key,
+            f"{name} fields {sorted(body) if isinstance(body, dict) else body!r}, "
+            f"expected {sorted(schema.names)}",
+        )
     try:
         arrays = schema.arrays
         values = {n: _unpack_array(n, v, arrays[n]) if n in arrays else v for n, v in body.items()}

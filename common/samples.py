@@ -17,8 +17,9 @@ class Samples:
     def __len__(self) -> int:
         return len(self._values)
 
-    def percentiles(self, prefix: str, scale: float = 1.0, unit: str = "",
-                    qs: tuple[int, ...] = (50, 95, 99)) -> dict[str, float]:
+    def percentiles(
+        self, prefix: str, scale: float = 1.0, unit: str = "", qs: tuple[int, ...] = (50, 95, 99)
+    ) -> dict[str, float]:
         """`{prefix}_p50_{unit}` ... of the values times `scale`; empty when there are none."""
         if not self._values:
             return {}

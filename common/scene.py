@@ -128,8 +128,11 @@ def iterate_leaves(
     return Leaves(centres_m, sizes_m, past_threshold >= 0.0, rgb, past_threshold)  # >= 0: isNodeOccupied
 
 
-def _leaf_boxes(children: np.ndarray, resolution_m: float, bbx: tuple[np.ndarray, np.ndarray] | None,
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _leaf_boxes(
+    children: np.ndarray,
+    resolution_m: float,
+    bbx: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The centres and edge lengths [m] of the leaves of a tree given as each node's children in
     depth-first order, and the nodes they are (those overlapping `bbx`)."""
     count = len(children)
@@ -141,8 +144,11 @@ def _leaf_boxes(children: np.ndarray, resolution_m: float, bbx: tuple[np.ndarray
     pending = np.zeros(count + 1, np.int64)
     np.cumsum(_CHILD_COUNT[children] - 1, out=pending[1:])
     by_pending = np.argsort(pending, kind="stable")
-    ends = by_pending[np.searchsorted(pending[by_pending] * (count + 1) + by_pending,
-                                      (pending[:count] - 1) * (count + 1) + order + 1)]
+    ends = by_pending[
+        np.searchsorted(
+            pending[by_pending] * (count + 1) + by_pending, (pending[:count] - 1) * (count + 1) + order + 1
+        )
+    ]
     depth = order - np.searchsorted(np.sort(ends), order, "right")  # the subtrees it lies in
     # a node's parent: the last node before it one level up; its rank among its siblings
     by_depth = np.argsort(depth, kind="stable")
@@ -157,14 +163,17 @@ def _leaf_boxes(children: np.ndarray, resolution_m: float, bbx: tuple[np.ndarray
     corner = np.zeros((count, 3), np.int64)
     levels = np.searchsorted(depth[by_depth], np.arange(_TREE_DEPTH + 2))
     for level in range(1, _TREE_DEPTH + 1):
-        at = by_depth[levels[level]:levels[level + 1]]
+        at = by_depth[levels[level] : levels[level + 1]]
         corner[at] = corner[parent[at]] + _CHILD_CORNER[child[at]] * (1 << (_TREE_DEPTH - level))
     chosen = np.nonzero(children == 0)[0]
     side = 1 << (_TREE_DEPTH - depth[chosen])  # [cells]
     if bbx is not None:
         # OctoMap's keys of the corners: single-precision coordinates times 1 / resolution, floored
-        low, high = (np.floor(np.asarray(b, np.float32).astype(float) * (1.0 / resolution_m)).astype(np.int64)
-                     + KEY_OFFSET for b in bbx)
+        low, high = (
+            np.floor(np.asarray(b, np.float32).astype(float) * (1.0 / resolution_m)).astype(np.int64)
+            + KEY_OFFSET
+            for b in bbx
+        )
         leaf_corner = corner[chosen]
         # as OctoMap's box iterator tests a node (its centre key +/- half its side): a leaf larger
         # than a cell reaches one cell past its high side
@@ -273,8 +282,13 @@ class SceneModel:
     """The vessel's octree, what of it shore has, and what is queued to go. One thread may
     insert while another takes updates: the queue is guarded, the octree is the inserter's."""
 
-    def __init__(self, resolution_m: float, max_range_m: float, max_update_bytes: int = 16_000,
-                 track_period_s: float = 0.0) -> None:
+    def __init__(
+        self,
+        resolution_m: float,
+        max_range_m: float,
+        max_update_bytes: int = 16_000,
+        track_period_s: float = 0.0,
+    ) -> None:
         self.resolution_m = resolution_m
         # what changed is found by walking the leaves of the region the clouds touched (in Python,
         # the vessel's dearest work): at most once per this period over the union of the regions
@@ -294,8 +308,13 @@ class SceneModel:
         self._bytes_per_cell = 0.05  # learnt from each update, to size the next
         self._lock = threading.Lock()  # over published, pending, seq, snapshot_due
 
-    def insert(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray,
-               stamp_s: float | None = None) -> None:
+    def insert(
+        self,
+        points_m_world: np.ndarray,
+        colors: np.ndarray,
+        sensor_m_world: np.ndarray,
+        stamp_s: float | None = None,
+    ) -> None:
         """Integrate one cloud (rays from the sensor) and queue the cells whose state changed
         (`track`, at the cloud's `stamp_s`: its simulated time; else the monotonic clock's now)."""
         if len(points_m_world) == 0:

@@ -27,8 +27,17 @@ from abyss.common.errors import ConfigError
 
 log = logging.getLogger(__name__)
 TLS_DIR_ENV = "ABYSS_TLS_DIR"  # the certificates' directory for tools that connect to tls/ endpoints
-ALL_MESSAGES = ("put", "delete", "query", "reply", "declare_subscriber", "declare_queryable",
-                "liveliness_token", "liveliness_query", "declare_liveliness_subscriber")
+ALL_MESSAGES = (
+    "put",
+    "delete",
+    "query",
+    "reply",
+    "declare_subscriber",
+    "declare_queryable",
+    "liveliness_token",
+    "liveliness_query",
+    "declare_liveliness_subscriber",
+)
 
 
 def check_endpoints(endpoints: Sequence[str], tls: CertFiles | None) -> None:
@@ -37,8 +46,11 @@ def check_endpoints(endpoints: Sequence[str], tls: CertFiles | None) -> None:
         if tls is not None and not endpoint.startswith("tls/"):
             raise ConfigError("endpoint", f"{endpoint!r}: with --tls every endpoint must be tls/HOST:PORT")
         if tls is None and endpoint.startswith("tls/"):
-            raise ConfigError("endpoint", f"{endpoint!r} needs certificates: --tls DIR or {TLS_DIR_ENV}=DIR "
-                                          "(make them with `abyss certs make DIR`)")
+            raise ConfigError(
+                "endpoint",
+                f"{endpoint!r} needs certificates: --tls DIR or {TLS_DIR_ENV}=DIR "
+                "(make them with `abyss certs make DIR`)",
+            )
 
 
 def tool_certificates(endpoint: str) -> CertFiles | None:
@@ -47,8 +59,11 @@ def tool_certificates(endpoint: str) -> CertFiles | None:
         return None
     directory = os.environ.get(TLS_DIR_ENV)
     if not directory:
-        raise ConfigError(TLS_DIR_ENV, f"is not set; {endpoint} needs the directory of "
-                                       "`abyss certs make DIR` (the operator's certificate)")
+        raise ConfigError(
+            TLS_DIR_ENV,
+            f"is not set; {endpoint} needs the directory of "
+            "`abyss certs make DIR` (the operator's certificate)",
+        )
     return CertFiles(Path(directory), OPERATOR)
 
 
@@ -58,9 +73,12 @@ def tls_settings(files: CertFiles) -> dict[str, Any]:
     network move between addresses), so the name check on connect is off."""
     return {
         "root_ca_certificate": str(files.ca),
-        "listen_certificate": str(files.certificate), "listen_private_key": str(files.private_key),
-        "connect_certificate": str(files.certificate), "connect_private_key": str(files.private_key),
-        "enable_mtls": True, "verify_name_on_connect": False,
+        "listen_certificate": str(files.certificate),
+        "listen_private_key": str(files.private_key),
+        "connect_certificate": str(files.certificate),
+        "connect_private_key": str(files.private_key),
+        "enable_mtls": True,
+        "verify_name_on_connect": False,
     }
 
 
@@ -70,25 +88,48 @@ def access_control(station: str) -> dict[str, Any]:
     publisher. A holder not in `certs.HOLDERS` matches no subject and is denied everything."""
     received = [s for s in keys.KEYS if s.to == keys.check_station(station)]
     publishers = sorted({s.station for s in received})
-    rules: list[dict[str, Any]] = [{"id": "testbed", "permission": "allow", "flows": ["ingress", "egress"],
-                                    "messages": list(ALL_MESSAGES), "key_exprs": [f"{keys.PREFIX}/**"]}]
+    rules: list[dict[str, Any]] = [
+        {
+            "id": "testbed",
+            "permission": "allow",
+            "flows": ["ingress", "egress"],
+            "messages": list(ALL_MESSAGES),
+            "key_exprs": [f"{keys.PREFIX}/**"],
+        }
+    ]
     for publisher in publishers:
-        rules.append({"id": f"only-{publisher}", "permission": "deny", "flows": ["ingress"],
-                      "messages": ["put", "delete"],
-                      "key_exprs": [f"{keys.PREFIX}/*/{s.station}/{s.topic}" for s in received
-                                    if s.station == publisher]})
+        rules.append(
+            {
+                "id": f"only-{publisher}",
+                "permission": "deny",
+                "flows": ["ingress"],
+                "messages": ["put", "delete"],
+                "key_exprs": [
+                    f"{keys.PREFIX}/*/{s.station}/{s.topic}" for s in received if s.station == publisher
+                ],
+            }
+        )
     return {
-        "enabled": True, "default_permission": "deny", "rules": rules,
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
         "subjects": [{"id": holder, "cert_common_names": [holder]} for holder in HOLDERS],
-        "policies": [{"id": f"as-{holder}", "subjects": [holder],
-                      "rules": ["testbed", *(f"only-{p}" for p in publishers if p != holder)]}
-                     for holder in HOLDERS],
+        "policies": [
+            {
+                "id": f"as-{holder}",
+                "subjects": [holder],
+                "rules": ["testbed", *(f"only-{p}" for p in publishers if p != holder)],
+            }
+            for holder in HOLDERS
+        ],
     }
 
 
 # Zenoh's log lines that say it refused a peer or a message.
-_DENIED = re.compile(r"on (?P<subject>\S+) is unauthorized to (?P<action>[\w ]+?) \((?P<flow>\w+)\) "
-                     r"on (?P<key>\S+)")
+_DENIED = re.compile(
+    r"on (?P<subject>\S+) is unauthorized to (?P<action>[\w ]+?) \((?P<flow>\w+)\) "
+    r"on (?P<key>\S+)"
+)
 _HANDSHAKE = re.compile(r"zenoh_link_tls::unicast: (?P<reason>.*?)(?:\. Hint:.*)?$")
 # per message, per declared key, or by design (tls_settings): not worth a line of the station's log
 _QUIET = re.compile(r"is authorized to|caching permissions|Skipping name verification")

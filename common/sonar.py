@@ -35,8 +35,9 @@ def decode_polar(sonar: SonarImage) -> np.ndarray:
     polar = cv2.imdecode(buffer, cv2.IMREAD_GRAYSCALE) if len(buffer) else None
     if polar is None or polar.shape != (sonar.bins, sonar.beams):
         got = "nothing" if polar is None else f"{polar.shape}"
-        raise ValueError(f"{sonar.sonar}: {sonar.encoding} data decodes to {got}, expected "
-                         f"({sonar.bins}, {sonar.beams})")
+        raise ValueError(
+            f"{sonar.sonar}: {sonar.encoding} data decodes to {got}, expected ({sonar.bins}, {sonar.beams})"
+        )
     return polar
 
 
@@ -60,8 +61,9 @@ def first_echoes(sonar: SonarImage, polar: np.ndarray, min_db: float) -> tuple[n
     return (bins + 0.5) * sonar.range_max_m / sonar.bins, bearings_rad(sonar)[beams]
 
 
-def arc_points(sonar: SonarImage, range_m: np.ndarray, bearing_rad: np.ndarray,
-               spacing_m: float) -> tuple[np.ndarray, np.ndarray]:
+def arc_points(
+    sonar: SonarImage, range_m: np.ndarray, bearing_rad: np.ndarray, spacing_m: float
+) -> tuple[np.ndarray, np.ndarray]:
     """The arcs the echoes may lie on, points `spacing_m` apart across the vertical aperture, in
     the sonar's pose frame; with the sonar's position there (where every ray begins)."""
     half = sonar.vertical_aperture_rad / 2
@@ -69,15 +71,24 @@ def arc_points(sonar: SonarImage, range_m: np.ndarray, bearing_rad: np.ndarray,
     for r, bearing in zip(range_m, bearing_rad, strict=True):
         count = max(2, math.ceil(r * sonar.vertical_aperture_rad / spacing_m) + 1)
         elevation = np.linspace(-half, half, count)
-        arcs.append(r * np.column_stack((np.cos(elevation) * math.cos(bearing),
-                                         np.cos(elevation) * math.sin(bearing), np.sin(elevation))))
+        arcs.append(
+            r
+            * np.column_stack(
+                (
+                    np.cos(elevation) * math.cos(bearing),
+                    np.cos(elevation) * math.sin(bearing),
+                    np.sin(elevation),
+                )
+            )
+        )
     local = np.concatenate(arcs) if arcs else np.zeros((0, 3))
     rotation, origin = rotation_of(sonar.pose_sonar[3:]), np.array(sonar.pose_sonar[:3])
     return local @ rotation.T + origin, origin
 
 
-def echo_arcs(sonar: SonarImage, spacing_m: float,
-              min_db: float = ECHO_MIN_DB) -> tuple[np.ndarray, np.ndarray]:
+def echo_arcs(
+    sonar: SonarImage, spacing_m: float, min_db: float = ECHO_MIN_DB
+) -> tuple[np.ndarray, np.ndarray]:
     """Each beam's first echo as the arc it may lie on [m, world], and the sonar's position;
     ValueError if the frame does not decode or is not placed in the world."""
     if sonar.pose_frame != "world":
@@ -99,5 +110,11 @@ def fan(sonar: SonarImage, polar: np.ndarray, height_px: int = 256) -> np.ndarra
     map_x = (half - bearing) / (2 * half) * (sonar.beams - 1) if sonar.beams > 1 else np.zeros_like(bearing)
     outside = (range_fraction > 1.0) | (np.abs(bearing) > half)
     map_x[outside] = map_y[outside] = -10.0
-    return cv2.remap(polar, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.remap(
+        polar,
+        map_x.astype(np.float32),
+        map_y.astype(np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )

@@ -98,8 +98,12 @@ class Realtime:
         self._late = self._late + 1 if late else 0
         if self._late >= REALTIME_LATE_TICKS:
             _schedule_all(os.SCHED_OTHER, 0)
-            log.warning("%d ticks late in a row at real-time priority %d: the loop cannot keep its "
-                        "period, back to the normal scheduler", self._late, self.priority)
+            log.warning(
+                "%d ticks late in a row at real-time priority %d: the loop cannot keep its "
+                "period, back to the normal scheduler",
+                self._late,
+                self.priority,
+            )
             self.priority, self.why_not = 0, f"given up after {self._late} ticks late in a row"
 
     @property
@@ -136,8 +140,9 @@ class Workers:
 
     def start(self, name: str, target: Callable[..., None], *args: Any, background: bool = False) -> None:
         """Run `target(*args)` in a thread; `background`: below the periodic loops (in_background)."""
-        thread = threading.Thread(target=self._run, args=(name, target, args, background), name=name,
-                                  daemon=True)
+        thread = threading.Thread(
+            target=self._run, args=(name, target, args, background), name=name, daemon=True
+        )
         self._threads.append(thread)
         thread.start()
 
@@ -155,8 +160,9 @@ class Workers:
     def __enter__(self) -> Workers:
         return self
 
-    def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.stop.set()
         deadline = time.monotonic() + self.join_s
         for thread in self._threads:
@@ -164,8 +170,9 @@ class Workers:
             if thread.is_alive():
                 self.abandoned.append(thread.name)
         if self.abandoned:
-            log.warning("workers still running %.1f s after stop, let go: %s", self.join_s,
-                        ", ".join(self.abandoned))
+            log.warning(
+                "workers still running %.1f s after stop, let go: %s", self.join_s, ", ".join(self.abandoned)
+            )
         with self._lock:
             failures = list(self.failures)
         if exc is None and failures:

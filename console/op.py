@@ -59,8 +59,9 @@ def parse_arm(text: str) -> tuple[np.ndarray, np.ndarray]:
 INTENTS = ("valve", "lever")  # `abyss op valve NAME --turn DEG`, `abyss op lever NAME --to STOP`
 
 
-def command_of(kind: str, text: str, command_id: int,
-               amount: str = "") -> Waypoints | ArmGoal | OperatorMode | Intervention:
+def command_of(
+    kind: str, text: str, command_id: int, amount: str = ""
+) -> Waypoints | ArmGoal | OperatorMode | Intervention:
     """The command `abyss op KIND TEXT` sends; `amount`: a valve's turn [deg] or a lever's stop."""
     if kind in INTENTS:
         try:
@@ -112,8 +113,10 @@ def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float, a
     topic = "intervene" if kind in INTENTS else kind
     ack = send(endpoint, system, command, topic, timeout_s)
     if ack is None:
-        print(f"abyss op: no answer from onboard within {timeout_s:g} s (is system {system!r} running "
-              f"with shore at {endpoint}?)")
+        print(
+            f"abyss op: no answer from onboard within {timeout_s:g} s (is system {system!r} running "
+            f"with shore at {endpoint}?)"
+        )
         return 1
     if not ack.accepted:
         by = "" if kind in INTENTS else " by onboard"  # an intent the vessel cannot resolve, it refuses

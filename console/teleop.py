@@ -41,18 +41,31 @@ from abyss.common.models import panel
 
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
-    "w": ((1, 0, 0), (0, 0, 0)), "s": ((-1, 0, 0), (0, 0, 0)),
-    "a": ((0, 1, 0), (0, 0, 0)), "d": ((0, -1, 0), (0, 0, 0)),
-    "r": ((0, 0, 1), (0, 0, 0)), "f": ((0, 0, -1), (0, 0, 0)),
-    "q": ((0, 0, 0), (0, 0, 1)), "e": ((0, 0, 0), (0, 0, -1)),
-    "i": ((0, 0, 0), (0, 1, 0)), "k": ((0, 0, 0), (0, -1, 0)),
-    "u": ((0, 0, 0), (1, 0, 0)), "o": ((0, 0, 0), (-1, 0, 0)),
+    "w": ((1, 0, 0), (0, 0, 0)),
+    "s": ((-1, 0, 0), (0, 0, 0)),
+    "a": ((0, 1, 0), (0, 0, 0)),
+    "d": ((0, -1, 0), (0, 0, 0)),
+    "r": ((0, 0, 1), (0, 0, 0)),
+    "f": ((0, 0, -1), (0, 0, 0)),
+    "q": ((0, 0, 0), (0, 0, 1)),
+    "e": ((0, 0, 0), (0, 0, -1)),
+    "i": ((0, 0, 0), (0, 1, 0)),
+    "k": ((0, 0, 0), (0, -1, 0)),
+    "u": ((0, 0, 0), (1, 0, 0)),
+    "o": ((0, 0, 0), (-1, 0, 0)),
 }
 # key -> the intent: a part of the panel and its amount (`abyss op valve|lever`)
 INTENT_KEYS = {
-    "1": ("valve_0", "90"), "2": ("valve_1", "90"), "3": ("valve_2", "90"),
-    "4": ("valve_0", "-90"), "5": ("valve_1", "-90"), "6": ("valve_2", "-90"),
-    "7": ("lever_0", "up"), "8": ("lever_0", "down"), "9": ("lever_1", "up"), "0": ("lever_1", "down"),
+    "1": ("valve_0", "90"),
+    "2": ("valve_1", "90"),
+    "3": ("valve_2", "90"),
+    "4": ("valve_0", "-90"),
+    "5": ("valve_1", "-90"),
+    "6": ("valve_2", "-90"),
+    "7": ("lever_0", "up"),
+    "8": ("lever_0", "down"),
+    "9": ("lever_1", "up"),
+    "0": ("lever_1", "down"),
 }
 JS_EVENT = struct.Struct("<IhBB")  # Linux joystick API: time [ms], value, type, number
 JS_BUTTON, JS_AXIS, JS_INIT = 0x01, 0x02, 0x80
@@ -102,7 +115,8 @@ class Teleop:
         self.lock = threading.Lock()
         self.session = open_session(client_config(endpoint), "abyss teleop")
         self.subscriber = self.session.declare_subscriber(
-            keys.spec("vessel", "telemetry").key(system), self._on_telemetry)
+            keys.spec("vessel", "telemetry").key(system), self._on_telemetry
+        )
         self.acks = self.session.declare_subscriber(keys.operator_key(system, "ack"), self._on_ack)
         self.intents: dict[int, str] = {}  # command id -> what was asked, till answered
         self.sent = 0
@@ -225,8 +239,10 @@ def joystick(teleop: Teleop, path: Path, speed_mps: float, rate_radps: float) ->
             if now - last_s >= JOYSTICK_SEND_PERIOD_S:
                 dt, last_s = now - last_s, now
                 if axes.any():
-                    teleop.nudge(np.array([-axes[1], -axes[0], -axes[3]]) * speed_mps * dt,
-                                 np.array([0.0, 0.0, -axes[2]]) * rate_radps * dt)
+                    teleop.nudge(
+                        np.array([-axes[1], -axes[0], -axes[3]]) * speed_mps * dt,
+                        np.array([0.0, 0.0, -axes[2]]) * rate_radps * dt,
+                    )
     finally:
         os.close(fd)
 

@@ -17,8 +17,15 @@ def view(run_dir: Path, web_port: int | None) -> int:
         raise ConfigError("RUN_DIR", f"{run_dir} holds no {RECORDING_FILE} (a run with --viewer none?)")
     rerun = rerun_command()
     if web_port is not None:
-        command = [rerun, str(recording), "--serve-web", "--bind", "127.0.0.1",
-                   "--web-viewer-port", str(web_port)]
+        command = [
+            rerun,
+            str(recording),
+            "--serve-web",
+            "--bind",
+            "127.0.0.1",
+            "--web-viewer-port",
+            str(web_port),
+        ]
         print(f"abyss: serving {recording} at http://127.0.0.1:{web_port} (Ctrl-C stops)", flush=True)
     elif os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
         command = [rerun, str(recording)]

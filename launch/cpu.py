@@ -59,9 +59,12 @@ class CpuCaps:
         self.throttled_share: dict[str, float] = {}
         self.controller = find_controller(mounts) if self.caps else None
         if self.caps and self.controller is None:
-            raise ConfigError("--cpu", "capping a station's CPU needs a writable cgroup with the cpu "
-                              "controller (run as root, or in a delegated cgroup v2 subtree); none in "
-                              f"{mounts}")
+            raise ConfigError(
+                "--cpu",
+                "capping a station's CPU needs a writable cgroup with the cpu "
+                "controller (run as root, or in a delegated cgroup v2 subtree); none in "
+                f"{mounts}",
+            )
         if self.controller is None:
             return
         if self.controller.version == 2:  # the children of the root get the cpu controller

@@ -68,8 +68,11 @@ class Lab:
 
     def __post_init__(self) -> None:
         if not NAME_PATTERN.fullmatch(self.name):
-            raise ConfigError("--name", f"{self.name!r}: lower-case letters, digits and '-', at most 16, "
-                                        "starting with a letter or digit")
+            raise ConfigError(
+                "--name",
+                f"{self.name!r}: lower-case letters, digits and '-', at most 16, "
+                "starting with a letter or digit",
+            )
 
     def netns(self, station: str) -> str:
         return f"abyss-{self.name}-{keys.check_station(station)}"
@@ -109,21 +112,36 @@ class Lab:
             self.check_ours()
             pid = self.owner()
             if pid is not None:
-                raise LinkError(f"lab {self.name!r} is in use by process {pid}: stop it (`abyss lab down "
-                                f"--name {self.name}`) or give this one another --name")
+                raise LinkError(
+                    f"lab {self.name!r} is in use by process {pid}: stop it (`abyss lab down "
+                    f"--name {self.name}`) or give this one another --name"
+                )
             self.remove()
             if callable(echo):
                 echo(f"abyss: removed lab {self.name!r} left by a run that was killed")
         RECORDS.mkdir(parents=True, exist_ok=True)
-        self.record.write_text(json.dumps({"pid": os.getpid(),
-                                           "namespaces": [self.netns(s) for s in keys.STATIONS]}))
+        self.record.write_text(
+            json.dumps({"pid": os.getpid(), "namespaces": [self.netns(s) for s in keys.STATIONS]})
+        )
         try:
             for station in keys.STATIONS:
                 ip("netns", "add", self.netns(station))
                 ip("link", "set", "lo", "up", netns=self.netns(station))
             for hop, (a, b) in keys.HOPS.items():
-                ip("link", "add", self.device(a, hop), "netns", self.netns(a), "type", "veth",
-                   "peer", "name", self.device(b, hop), "netns", self.netns(b))
+                ip(
+                    "link",
+                    "add",
+                    self.device(a, hop),
+                    "netns",
+                    self.netns(a),
+                    "type",
+                    "veth",
+                    "peer",
+                    "name",
+                    self.device(b, hop),
+                    "netns",
+                    self.netns(b),
+                )
                 for station in (a, b):
                     ns, dev = self.netns(station), self.device(station, hop)
                     ip("addr", "add", f"{self.address(station, hop)}/24", "dev", dev, netns=ns)
@@ -142,9 +160,11 @@ class Lab:
         """LinkError when a namespace of this lab's name exists that no lab made (no record):
         someone else's, never removed here."""
         if (found := self.existing()) and not self.record.is_file():
-            raise LinkError(f"network namespace {found[0]} exists and is no abyss lab's (no "
-                            f"{self.record}): give this lab another --name, or remove it "
-                            f"(`ip netns del {found[0]}`) if it is yours")
+            raise LinkError(
+                f"network namespace {found[0]} exists and is no abyss lab's (no "
+                f"{self.record}): give this lab another --name, or remove it "
+                f"(`ip netns del {found[0]}`) if it is yours"
+            )
 
     def down(self, timeout_s: float = 15.0) -> str:
         """Stop the run that owns the lab (SIGTERM, as Ctrl-C) and remove the lab; what was done."""
@@ -169,8 +189,21 @@ class Lab:
         """`abyss link shape` on the station's host: its packets across `hop`, towards the
         neighbour there, shaped with `profile` (and `options`: fields, --seed, --every ...)."""
         neighbour = next(s for s in keys.HOPS[hop] if s != station)
-        return [*self.prefix(station), sys.executable, "-P", "-m", "abyss.cli", "link", "shape", hop,
-                "--peer", self.address(neighbour, hop), "--profile", profile, *options]
+        return [
+            *self.prefix(station),
+            sys.executable,
+            "-P",
+            "-m",
+            "abyss.cli",
+            "link",
+            "shape",
+            hop,
+            "--peer",
+            self.address(neighbour, hop),
+            "--profile",
+            profile,
+            *options,
+        ]
 
     def endpoints(self, station: str, scheme: str = "tcp", loopback: bool = True) -> list[str]:
         """`abyss station` options: listen on each hop's address (and loopback, for tools on that

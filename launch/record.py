@@ -15,19 +15,48 @@ from abyss.common.messages import PanelState, Telemetry
 
 CONTROL_FILE = "control.csv"
 PANEL_FILE = "panel.csv"  # the panel's truth: each part's angle and the fingers' force on it
-COLUMNS = ("sim_time_s", "mode", "waypoint_index", "waypoints_total",
-           "error_x_m", "error_y_m", "error_z_m", "heading_error_rad",
-           "arm_mode", "ee_error_x_m", "ee_error_y_m", "ee_error_z_m", "ee_orientation_error_rad",
-           "failsafe", "failsafe_events", "intervention_target", "intervention_phase",
-           "gripper_opening_m", "gripper_force_n")
+COLUMNS = (
+    "sim_time_s",
+    "mode",
+    "waypoint_index",
+    "waypoints_total",
+    "error_x_m",
+    "error_y_m",
+    "error_z_m",
+    "heading_error_rad",
+    "arm_mode",
+    "ee_error_x_m",
+    "ee_error_y_m",
+    "ee_error_z_m",
+    "ee_orientation_error_rad",
+    "failsafe",
+    "failsafe_events",
+    "intervention_target",
+    "intervention_phase",
+    "gripper_opening_m",
+    "gripper_force_n",
+)
 TEXT_COLUMNS = {"mode", "arm_mode", "failsafe", "intervention_target", "intervention_phase"}
 
 
 def row_of(t: Telemetry) -> list[str | float | int]:
-    return [t.sim_time_s, t.mode, t.waypoint_index, t.waypoints_total, *t.position_error_m_world,
-            t.heading_error_rad, t.arm_mode, *t.ee_position_error_m_world, t.ee_orientation_error_rad,
-            t.failsafe, t.failsafe_events, t.intervention_target, t.intervention_phase,
-            t.gripper_opening_m, t.gripper_force_n]
+    return [
+        t.sim_time_s,
+        t.mode,
+        t.waypoint_index,
+        t.waypoints_total,
+        *t.position_error_m_world,
+        t.heading_error_rad,
+        t.arm_mode,
+        *t.ee_position_error_m_world,
+        t.ee_orientation_error_rad,
+        t.failsafe,
+        t.failsafe_events,
+        t.intervention_target,
+        t.intervention_phase,
+        t.gripper_opening_m,
+        t.gripper_force_n,
+    ]
 
 
 def panel_columns(names: tuple[str, ...]) -> list[str]:

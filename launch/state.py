@@ -65,8 +65,12 @@ class RunState:
         return RunState(stations=stations, **table)
 
 
-def wait_for_state(run_dir: Path, holds: Callable[[RunState], bool], timeout_s: float,
-                   running: Callable[[], bool] = lambda: True) -> RunState | None:
+def wait_for_state(
+    run_dir: Path,
+    holds: Callable[[RunState], bool],
+    timeout_s: float,
+    running: Callable[[], bool] = lambda: True,
+) -> RunState | None:
     """The first state of the run for which `holds` is true, or None when `timeout_s` passes or
     the run ends (`running` false, the phase `ended`) before it does."""
     deadline = time.monotonic() + timeout_s

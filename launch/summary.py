@@ -56,12 +56,17 @@ def control_summary(t: Telemetry | None) -> dict[str, Any] | None:
     """The controllers' final state and errors, from the last telemetry onboard sent."""
     if t is None:
         return None
-    return {"sim_time_s": t.sim_time_s, "mode": t.mode, "arm_mode": t.arm_mode,
-            "position_error_m": t.position_error_m,
-            "heading_error_deg": abs(math.degrees(t.heading_error_rad)),
-            "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
-            "ee_orientation_error_deg": math.degrees(t.ee_orientation_error_rad),
-            "failsafe": t.failsafe, "failsafe_events": t.failsafe_events}
+    return {
+        "sim_time_s": t.sim_time_s,
+        "mode": t.mode,
+        "arm_mode": t.arm_mode,
+        "position_error_m": t.position_error_m,
+        "heading_error_deg": abs(math.degrees(t.heading_error_rad)),
+        "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
+        "ee_orientation_error_deg": math.degrees(t.ee_orientation_error_rad),
+        "failsafe": t.failsafe,
+        "failsafe_events": t.failsafe_events,
+    }
 
 
 class NavError:
@@ -87,12 +92,16 @@ class NavError:
     def summary(self) -> dict[str, Any] | None:
         if not self.errors_m:
             return None
-        return {"median_m": float(np.median(self.errors_m)), "max_m": max(self.errors_m),
-                "samples": len(self.errors_m)}
+        return {
+            "median_m": float(np.median(self.errors_m)),
+            "max_m": max(self.errors_m),
+            "samples": len(self.errors_m),
+        }
 
 
-def interventions_summary(mission: MissionConfig, start: PanelState | None,
-                          last: PanelState | None) -> list[dict[str, Any]]:
+def interventions_summary(
+    mission: MissionConfig, start: PanelState | None, last: PanelState | None
+) -> list[dict[str, Any]]:
     """Each of the mission's interventions judged on the simulation's truth: the part's angle
     against its target (a valve: where it started plus the turn; a lever: its stop)."""
     judged = []
@@ -103,14 +112,21 @@ def interventions_summary(mission: MissionConfig, start: PanelState | None,
         started_deg = 0.0 if start is None or index is None else math.degrees(start.angles_rad[index])
         begin_deg = angles_deg.get(part, started_deg)
         low, high = panel.part_range_rad(part)
-        target_deg = (math.degrees(high if stop == "up" else low) if stop
-                      else begin_deg + math.degrees(turn_rad))
+        target_deg = (
+            math.degrees(high if stop == "up" else low) if stop else begin_deg + math.degrees(turn_rad)
+        )
         angles_deg[part] = target_deg
         truth_deg = math.degrees(last.angles_rad[index]) if last is not None and index is not None else None
         tolerance_deg = LEVER_TOLERANCE_DEG if stop else VALVE_TOLERANCE_DEG
-        judged.append({"part": part, "target_deg": round(target_deg, 2), "tolerance_deg": tolerance_deg,
-                       "truth_deg": None if truth_deg is None else round(truth_deg, 2),
-                       "success": truth_deg is not None and abs(truth_deg - target_deg) <= tolerance_deg})
+        judged.append(
+            {
+                "part": part,
+                "target_deg": round(target_deg, 2),
+                "tolerance_deg": tolerance_deg,
+                "truth_deg": None if truth_deg is None else round(truth_deg, 2),
+                "success": truth_deg is not None and abs(truth_deg - target_deg) <= tolerance_deg,
+            }
+        )
     return judged
 
 
@@ -123,88 +139,129 @@ def deadlines_text(loops: dict[str, dict[str, Any]]) -> str:
 
 
 def render_summary(summary: dict[str, Any]) -> str:
-    lines = [f"abyss: {summary['system']}: {summary['verdict']}"
-             + (f" ({summary['failure']})" if summary["failure"] else "")
-             + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"]
-    lines.append(f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9} {'cores':>6} "
-                 f"{'shed':>6} {'deadlines':>16}")
+    lines = [
+        f"abyss: {summary['system']}: {summary['verdict']}"
+        + (f" ({summary['failure']})" if summary["failure"] else "")
+        + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"
+    ]
+    lines.append(
+        f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9} {'cores':>6} "
+        f"{'shed':>6} {'deadlines':>16}"
+    )
     for name, s in summary["stations"].items():
         if s.get("external"):
             lines.append(f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}")
             continue
-        lines.append(f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
-                     f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9} "
-                     f"{s['cpu']['cores'] if s.get('cpu') else float('nan'):>6.2f} "
-                     f"{sum(s.get('shed', {}).values()):>6} {deadlines_text(s.get('loops', {})):>16}"
-                     + (f"  capped at {s['cpu']['cap_cores']:g} core, throttled in "
-                        f"{s['cpu']['throttled_share']:.0%} of its periods"
-                        if "cap_cores" in s.get("cpu", {}) else "")
-                     + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
-                     + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else ""))
+        lines.append(
+            f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
+            f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9} "
+            f"{s['cpu']['cores'] if s.get('cpu') else float('nan'):>6.2f} "
+            f"{sum(s.get('shed', {}).values()):>6} {deadlines_text(s.get('loops', {})):>16}"
+            + (
+                f"  capped at {s['cpu']['cap_cores']:g} core, throttled in "
+                f"{s['cpu']['throttled_share']:.0%} of its periods"
+                if "cap_cores" in s.get("cpu", {})
+                else ""
+            )
+            + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
+            + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else "")
+        )
     cores = [s["cpu"]["cores"] for s in summary["stations"].values() if s.get("cpu")]
     if cores:
-        lines.append(f"  the stations' CPU: {sum(cores):.2f} cores in all (each station's process time "
-                     "over its wall time); shed: frames let go unprocessed for newer ones; deadlines: "
-                     "the station's worst loop")
+        lines.append(
+            f"  the stations' CPU: {sum(cores):.2f} cores in all (each station's process time "
+            "over its wall time); shed: frames let go unprocessed for newer ones; deadlines: "
+            "the station's worst loop"
+        )
     for r in summary.get("restarts", []):
         back = f"down {r['down_s']:.1f} s" if r.get("down_s") is not None else "not back"
-        lines.append(f"  restart: {r['station']} at t={r['t_s']:.1f} s (exit {exit_text(r['exit_code'])}), "
-                     f"{back}, the vehicle strayed {r['drift_m'] * 1e3:.0f} mm meanwhile")
+        lines.append(
+            f"  restart: {r['station']} at t={r['t_s']:.1f} s (exit {exit_text(r['exit_code'])}), "
+            f"{back}, the vehicle strayed {r['drift_m'] * 1e3:.0f} mm meanwhile"
+        )
     for e in summary.get("events", []):
         lines.append(f"  on shore: {e['station']} {e['event']} (sim t={e['sim_time_s']:.1f} s)")
-    lines.append(f"  {'link':<28} {'mode':<8} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} "
-                 f"{'retx':>5}")
+    lines.append(
+        f"  {'link':<28} {'mode':<8} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}"
+    )
     for hop, directions in summary["links"].items():
         for direction, st in directions.items():
             lines.append(  # with a shaper, delays and losses are its packets'; the kernel retransmits
                 f"  {hop + ' ' + direction:<28} {st.get('mode', 'emulated'):<8} "
                 f"{int(st['messages_delivered']):>6}/{int(st['messages_offered']):<6} "
                 f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
-                f"{int(st['losses']):>5} {int(st.get('retransmissions', 0)):>5}")
+                f"{int(st['losses']):>5} {int(st.get('retransmissions', 0)):>5}"
+            )
     m = summary["mission"]
-    lines.append("  mission: " + (f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, "
-                                  f"done: {m['done']}" if m else "no status reached shore")
-                 + (f"; {m['intervention_target']} {m['intervention_phase']}: {m['intervention_reason']}"
-                    if m and m.get("intervention_reason") else ""))
+    lines.append(
+        "  mission: "
+        + (
+            f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, done: {m['done']}"
+            if m
+            else "no status reached shore"
+        )
+        + (
+            f"; {m['intervention_target']} {m['intervention_phase']}: {m['intervention_reason']}"
+            if m and m.get("intervention_reason")
+            else ""
+        )
+    )
     for i in summary.get("interventions", []):
         truth = "no truth" if i["truth_deg"] is None else f"{i['truth_deg']:.1f} deg"
-        lines.append(f"  intervention (simulation's truth): {i['part']} at {truth}, target "
-                     f"{i['target_deg']:.0f} +- {i['tolerance_deg']:g} deg: "
-                     f"{'success' if i['success'] else 'NOT DONE'}")
+        lines.append(
+            f"  intervention (simulation's truth): {i['part']} at {truth}, target "
+            f"{i['target_deg']:.0f} +- {i['tolerance_deg']:g} deg: "
+            f"{'success' if i['success'] else 'NOT DONE'}"
+        )
     c = summary["control"]
     if c:
-        lines.append(f"  final errors (onboard): vehicle {c['position_error_m'] * 1e3:.1f} mm, heading "
-                     f"{c['heading_error_deg']:.2f} deg; end-effector "
-                     f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
-                     f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}")
+        lines.append(
+            f"  final errors (onboard): vehicle {c['position_error_m'] * 1e3:.1f} mm, heading "
+            f"{c['heading_error_deg']:.2f} deg; end-effector "
+            f"{c['ee_position_error_m'] * 1e3:.2f} mm, "
+            f"{c['ee_orientation_error_deg']:.2f} deg; failsafe events {c['failsafe_events']}"
+        )
     nav = summary.get("navigation")
     if nav:
-        lines.append(f"  navigation error (onboard's estimate against the truth): median "
-                     f"{nav['median_m'] * 1e3:.1f} mm, max {nav['max_m'] * 1e3:.1f} mm over {nav['samples']}")
+        lines.append(
+            f"  navigation error (onboard's estimate against the truth): median "
+            f"{nav['median_m'] * 1e3:.1f} mm, max {nav['max_m'] * 1e3:.1f} mm over {nav['samples']}"
+        )
     scene = summary["scene"]
     if scene:
-        lines.append(f"  scene on shore: {scene['occupied_cells']} occupied cells at "
-                     f"{scene['resolution_m']:g} m "
-                     f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
-                     f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}")
+        lines.append(
+            f"  scene on shore: {scene['occupied_cells']} occupied cells at "
+            f"{scene['resolution_m']:g} m "
+            f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
+            f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}"
+        )
         p = scene.get("perception")
         if p:
             rates = ", ".join(f"{source} {r['mean']:.0f}" for source, r in p["points_per_s"].items())
             mapped = ", ".join(f"{source} {s:.0f} s" for source, s in p["scene_source_s"].items())
-            lines.append(f"  perception (the vessel's, told shore): points/s {rates}; the scene from "
-                         f"{mapped or 'nothing'}; panel confidence {p['recognition_confidence']['last']:.2f} "
-                         f"(at most {p['recognition_confidence']['max']:.2f})")
+            lines.append(
+                f"  perception (the vessel's, told shore): points/s {rates}; the scene from "
+                f"{mapped or 'nothing'}; panel confidence {p['recognition_confidence']['last']:.2f} "
+                f"(at most {p['recognition_confidence']['max']:.2f})"
+            )
     sim = summary["simulation"]
     if sim:
-        lines.append(f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
-                     f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
-                     + (f" (scheduler: {scheduler})"
-                        if (scheduler := summary["stations"].get("simulation", {}).get("scheduler")) else "")
-                     + (f", faults {sim['faults']}" if sim["faults"] else ""))
+        lines.append(
+            f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
+            f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
+            + (
+                f" (scheduler: {scheduler})"
+                if (scheduler := summary["stations"].get("simulation", {}).get("scheduler"))
+                else ""
+            )
+            + (f", faults {sim['faults']}" if sim["faults"] else "")
+        )
     timing = summary.get("time", {})
     if "achieved_speed" in timing:
         asked = f" at speed {timing['speed']}" if timing["mode"] == "sim" else ""
-        lines.append(f"  time: {timing['mode']}{asked}: {timing['sim_s']:.1f} s simulated in "
-                     f"{timing['wall_s']:.1f} s of wall time (x{timing['achieved_speed']:.2f}), limited by "
-                     f"{timing['limited_by']}")
+        lines.append(
+            f"  time: {timing['mode']}{asked}: {timing['sim_s']:.1f} s simulated in "
+            f"{timing['wall_s']:.1f} s of wall time (x{timing['achieved_speed']:.2f}), limited by "
+            f"{timing['limited_by']}"
+        )
     return "\n".join(lines)

@@ -80,8 +80,13 @@ class Outage:
     drift_m: float = 0.0
 
     def summary(self) -> dict[str, Any]:
-        return {"station": self.station, "exit_code": self.exit_code, "t_s": round(self.t_s, 3),
-                "down_s": self.down_s, "drift_m": round(self.drift_m, 4)}
+        return {
+            "station": self.station,
+            "exit_code": self.exit_code,
+            "t_s": round(self.t_s, 3),
+            "down_s": self.down_s,
+            "drift_m": round(self.drift_m, 4),
+        }
 
 
 @dataclass
@@ -140,10 +145,17 @@ SINGLE_THREADED = dict.fromkeys(NATIVE_POOLS, "1")
 class Up:
     """Start, watch and stop one whole system; write its summary."""
 
-    def __init__(self, config: Config, out_dir: Path, port: int | None = None,
-                 echo: Any = None, external: Sequence[str] = (),
-                 restart: bool = False, placement: Placement | None = None,
-                 replayed: Replayed | None = None) -> None:
+    def __init__(
+        self,
+        config: Config,
+        out_dir: Path,
+        port: int | None = None,
+        echo: Any = None,
+        external: Sequence[str] = (),
+        restart: bool = False,
+        placement: Placement | None = None,
+        replayed: Replayed | None = None,
+    ) -> None:
         self.config = config
         self.replayed = replayed
         self.replay_start: ReplayStart | None = None
@@ -151,29 +163,45 @@ class Up:
         self.placement = placement or Local()
         self.external = tuple(keys.check_station(name) for name in external)  # started by the user
         if config.ros2.station in self.external:
-            raise ConfigError("--ros2", f"{config.ros2.station} is --external too: the gateway stands for a "
-                              "station that abyss up starts")
+            raise ConfigError(
+                "--ros2",
+                f"{config.ros2.station} is --external too: the gateway stands for a "
+                "station that abyss up starts",
+            )
         self.restart = restart  # a station that dies is started again instead of failing the run
         uncappable = sorted(set(config.cpu.capped()) & set(self.external))
         if uncappable:
-            raise ConfigError("--cpu", f"{uncappable[0]} is --external: abyss up does not start it, so "
-                              "cannot cap its CPU")
+            raise ConfigError(
+                "--cpu", f"{uncappable[0]} is --external: abyss up does not start it, so cannot cap its CPU"
+            )
         self.time = config.time
         if self.time.simulated:
             for refused, what in (("--external", self.external), ("--replay", replayed)):
                 if what:
-                    raise ConfigError(refused, "a real component or a replay runs on the wall clock, which "
-                                      "--time sim cannot speed up; use --time real with it")
+                    raise ConfigError(
+                        refused,
+                        "a real component or a replay runs on the wall clock, which "
+                        "--time sim cannot speed up; use --time real with it",
+                    )
             if self.time.mode == "lockstep" and restart:
-                raise ConfigError("--restart", "a station restarted mid-period leaves lockstep's counted "
-                                  "periods behind: use --time sim or real with it")
+                raise ConfigError(
+                    "--restart",
+                    "a station restarted mid-period leaves lockstep's counted "
+                    "periods behind: use --time sim or real with it",
+                )
             if config.cpu.capped():
-                raise ConfigError("--cpu", "a CPU cap is a share of wall time, and with --time sim the "
-                                  "simulation waits for a station that needs more: use --time real with it")
+                raise ConfigError(
+                    "--cpu",
+                    "a CPU cap is a share of wall time, and with --time sim the "
+                    "simulation waits for a station that needs more: use --time real with it",
+                )
         self.cpu = CpuCaps(config.system, config.cpu.capped())  # fails here where no cgroup can be made
         # with simulated time, the run's time is the simulation's (its duration, the mission's)
-        self.sim_clock = SimClock(config.simulation.control_period_s, self.time.speed_factor) \
-            if self.time.simulated else None
+        self.sim_clock = (
+            SimClock(config.simulation.control_period_s, self.time.speed_factor)
+            if self.time.simulated
+            else None
+        )
         self.mission_done_s: float | None = None  # since all stations were up (the run's time)
         self.mission_done_wall_s: float | None = None
         self.watch_from: tuple[float, float] | None = None  # (the run's time, monotonic) when watched from
@@ -277,16 +305,36 @@ class Up:
         log_path = self.out_dir / f"{name}.log"
         status_path = self.out_dir / f"{name}.json"
         # -P: the stations' own directory (the run directory) never shadows abyss's modules
-        command = [*self.placement.prefix(name), sys.executable, "-P", "-m", "abyss.cli", "station", name,
-                   "--config", str(config_path), "--status-file", str(status_path),
-                   *self.placement.args(name, self.endpoint),
-                   *(self.replayed.args(name) if self.replayed else [])]
+        command = [
+            *self.placement.prefix(name),
+            sys.executable,
+            "-P",
+            "-m",
+            "abyss.cli",
+            "station",
+            name,
+            "--config",
+            str(config_path),
+            "--status-file",
+            str(status_path),
+            *self.placement.args(name, self.endpoint),
+            *(self.replayed.args(name) if self.replayed else []),
+        ]
         with log_path.open("wb") as log:
-            process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
-                                       stdin=subprocess.DEVNULL, start_new_session=True, cwd=self.out_dir,
-                                       env={**os.environ, SUPERVISOR_ENV: str(os.getpid()),
-                                            BOOT_ENV: str(boot),
-                                            **(SINGLE_THREADED if self.time.mode == "lockstep" else {})})
+            process = subprocess.Popen(
+                command,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                start_new_session=True,
+                cwd=self.out_dir,
+                env={
+                    **os.environ,
+                    SUPERVISOR_ENV: str(os.getpid()),
+                    BOOT_ENV: str(boot),
+                    **(SINGLE_THREADED if self.time.mode == "lockstep" else {}),
+                },
+            )
         self.cpu.apply(name, process.pid)
         self._change_state(name, pid=process.pid)
         return Station(name, process, log_path, status_path)
@@ -312,17 +360,21 @@ class Up:
         self._change_state(station.name, restarts=restarted.restarts)
         now_s = time.monotonic()
         with self._lock:
-            outage = Outage(station.name, station.died, now_s - (self.up_s or now_s), now_s,
-                            self.truth_m_world)
+            outage = Outage(
+                station.name, station.died, now_s - (self.up_s or now_s), now_s, self.truth_m_world
+            )
             self.restarts.append(outage)
             self._down[station.name] = outage
-        self.echo(f"abyss:   {station.name} restarted (pid {restarted.process.pid}, restart "
-                  f"{restarted.restarts})")
+        self.echo(
+            f"abyss:   {station.name} restarted (pid {restarted.process.pid}, restart {restarted.restarts})"
+        )
 
     def _report_death(self, station: Station) -> None:
         tail = station.log_path.read_text(errors="replace").splitlines()[-15:]
-        self.echo(f"abyss: station {station.name} died with exit code {exit_text(station.died)}; "
-                  f"log {station.log_path}:")
+        self.echo(
+            f"abyss: station {station.name} died with exit code {exit_text(station.died)}; "
+            f"log {station.log_path}:"
+        )
         for line in tail:
             self.echo(f"    {line}")
 
@@ -348,18 +400,23 @@ class Up:
     def run(self, duration_s: float | None, keep_running: bool) -> int:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         onshore = self.config.onshore
-        web_port, grpc_port = (p if port_free(p) else free_port()
-                               for p in (onshore.viewer_web_port, onshore.viewer_grpc_port))
+        web_port, grpc_port = (
+            p if port_free(p) else free_port() for p in (onshore.viewer_web_port, onshore.viewer_grpc_port)
+        )
         self.config = dataclasses.replace(
             self.config,
-            onshore=dataclasses.replace(onshore, record_dir=str(self.out_dir), viewer_web_port=web_port,
-                                        viewer_grpc_port=grpc_port),
-            simulation=dataclasses.replace(self.config.simulation,
-                                           state_file=str(self.out_dir / SIMULATION_STATE_FILE)),
+            onshore=dataclasses.replace(
+                onshore, record_dir=str(self.out_dir), viewer_web_port=web_port, viewer_grpc_port=grpc_port
+            ),
+            simulation=dataclasses.replace(
+                self.config.simulation, state_file=str(self.out_dir / SIMULATION_STATE_FILE)
+            ),
             # lockstep ends on the same period however late the stop comes
             time=dataclasses.replace(self.config.time, end_s=duration_s or 0.0)
-            if self.time.mode == "lockstep" else self.config.time,
-            record=dataclasses.replace(self.config.record, directory=str(self.out_dir / RECORD_DIR)))
+            if self.time.mode == "lockstep"
+            else self.config.time,
+            record=dataclasses.replace(self.config.record, directory=str(self.out_dir / RECORD_DIR)),
+        )
         shutil.rmtree(self.out_dir / RECORD_DIR, ignore_errors=True)  # an earlier run's
         for name in (SIMULATION_STATE_FILE, *CARRIED_OVER):  # an earlier run's: restarts read them
             (self.out_dir / name).unlink(missing_ok=True)
@@ -372,8 +429,9 @@ class Up:
         self.testbed = station_recorder(self.config, TESTBED)
         observers = [
             *(session.declare_subscriber(key, self._on_observed) for key in keys.observation_keys(system)),
-            session.liveliness().declare_subscriber(keys.key(system, "*", "alive"), self._on_alive,
-                                                    history=True),
+            session.liveliness().declare_subscriber(
+                keys.key(system, "*", "alive"), self._on_alive, history=True
+            ),
             session.declare_subscriber(keys.mission_key(system), self._on_status),
             session.declare_subscriber(keys.simulation_status_key(system), self._on_status),
             session.declare_subscriber(keys.onboard_state_key(system), self._on_status),
@@ -381,19 +439,24 @@ class Up:
             session.declare_subscriber(keys.panel_truth_key(system), self._on_status),
             *([clock_follow(session, system, self.sim_clock)] if self.sim_clock is not None else []),
         ]
-        previous = {s: signal.signal(s, lambda *_: self.interrupted.set())
-                    for s in (signal.SIGINT, signal.SIGTERM)}
+        previous = {
+            s: signal.signal(s, lambda *_: self.interrupted.set()) for s in (signal.SIGINT, signal.SIGTERM)
+        }
         t0 = time.monotonic()
         failure, startup_s = "", 0.0
         self.keep_running = keep_running
         try:
-            self.echo(f"abyss: system {system}; Zenoh endpoint {self.endpoint} "
-                      f"(connect your own client here); run directory {self.out_dir}")
+            self.echo(
+                f"abyss: system {system}; Zenoh endpoint {self.endpoint} "
+                f"(connect your own client here); run directory {self.out_dir}"
+            )
             for name in keys.STATIONS:
                 if name in self.external:
                     self._change_state(name, external=True)
-                    self.echo(f"abyss: waiting for external station {name}: start it with `abyss station "
-                              f"{name} --system {system} --connect {self.endpoint}`")
+                    self.echo(
+                        f"abyss: waiting for external station {name}: start it with `abyss station "
+                        f"{name} --system {system} --connect {self.endpoint}`"
+                    )
                 else:
                     self.stations[name] = self._start(name, config_path)
                 if name == self.config.ros2.station:
@@ -457,8 +520,10 @@ class Up:
         last_report = next_start_s = wall0
         if self.replayed is not None:
             self.replay_start = ReplayStart(time.time() + REPLAY_DELAY_S)
-            self.echo(f"abyss: replaying {', '.join(self.replayed.stations)} of {self.replayed.run_dir} "
-                      f"from t={REPLAY_DELAY_S:g} s (speed {self.replayed.speed:g})")
+            self.echo(
+                f"abyss: replaying {', '.join(self.replayed.stations)} of {self.replayed.run_dir} "
+                f"from t={REPLAY_DELAY_S:g} s (speed {self.replayed.speed:g})"
+            )
         while True:
             if self.replay_start is not None and time.monotonic() >= next_start_s:
                 next_start_s = time.monotonic() + 1.0  # again each second, for a replayer that starts late
@@ -476,9 +541,14 @@ class Up:
                 self.mission_done_s = elapsed
                 self.mission_done_wall_s = time.monotonic() - wall0
                 self._change_state(mission_done=True)
-                self.echo(f"abyss: mission complete at t={elapsed:.1f} s"
-                          + (f" simulated, {self.mission_done_wall_s:.1f} s of wall time"
-                             if self.sim_clock is not None else ""))
+                self.echo(
+                    f"abyss: mission complete at t={elapsed:.1f} s"
+                    + (
+                        f" simulated, {self.mission_done_wall_s:.1f} s of wall time"
+                        if self.sim_clock is not None
+                        else ""
+                    )
+                )
             if done and not keep_running:
                 return ""
             if duration_s is not None and elapsed >= duration_s:
@@ -487,16 +557,24 @@ class Up:
                 last_report = time.monotonic()
                 state = "no telemetry on shore yet"
                 if mission:
-                    state = (f"{mission.mode}, waypoint {mission.waypoint_index}/"
-                             f"{mission.waypoints_total}, error {mission.position_error_m:.2f} m; arm "
-                             f"{mission.arm_mode}, error {mission.ee_position_error_m * 1e3:.0f} mm"
-                             + (f"; intervention {mission.interventions_done}/{mission.interventions_total} "
-                                f"{mission.intervention_target} {mission.intervention_phase}"
-                                if mission.interventions_total else "")
-                             + (f" ({mission.intervention_reason})" if mission.intervention_reason else "")
-                             + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else "")
-                             + ("; done on shore, not in the simulation's truth" if mission.done and not done
-                                else ""))
+                    state = (
+                        f"{mission.mode}, waypoint {mission.waypoint_index}/"
+                        f"{mission.waypoints_total}, error {mission.position_error_m:.2f} m; arm "
+                        f"{mission.arm_mode}, error {mission.ee_position_error_m * 1e3:.0f} mm"
+                        + (
+                            f"; intervention {mission.interventions_done}/{mission.interventions_total} "
+                            f"{mission.intervention_target} {mission.intervention_phase}"
+                            if mission.interventions_total
+                            else ""
+                        )
+                        + (f" ({mission.intervention_reason})" if mission.intervention_reason else "")
+                        + (f"; FAILSAFE: {mission.failsafe}" if mission.failsafe else "")
+                        + (
+                            "; done on shore, not in the simulation's truth"
+                            if mission.done and not done
+                            else ""
+                        )
+                    )
                 self.echo(f"abyss: t={elapsed:5.0f} s{self._speed_note(wall0)}  mission: {state}")
             if self.interrupted.wait(0.1):
                 self.echo("abyss: interrupted; stopping the stations")
@@ -523,9 +601,14 @@ class Up:
             limited_by = "speed asked"
         else:  # the station it waited on the longest; else its own physics and rendering
             limited_by = max(held, key=lambda s: held[s]) if held and max(held.values()) > 0 else "simulation"
-        return {**summary, "sim_s": round(sim_s, 3), "wall_s": round(wall_s, 3),
-                "achieved_speed": round(speed, 3),
-                "held_s": held, "limited_by": limited_by}
+        return {
+            **summary,
+            "sim_s": round(sim_s, 3),
+            "wall_s": round(wall_s, 3),
+            "achieved_speed": round(speed, 3),
+            "held_s": held,
+            "limited_by": limited_by,
+        }
 
     def _interventions(self) -> list[dict[str, Any]]:
         start, last = self.panel if self.panel else (None, None)
@@ -542,16 +625,25 @@ class Up:
             for hop, stats in status.pop("links", {}).items():
                 links[hop][stats["direction"]] = stats
             code = station.died if station.died is not None else station.process.returncode
-            stations[name] = {"exit_code": code, "restarts": station.restarts, "stop_s": status.get("stop_s"),
-                              "stop_cut": status.get("stop_cut", False),
-                              "alive_seen": name in self.alive_seen, "log": str(station.log_path),
-                              **{k: status.get(k, {})
-                                 for k in ("sent", "received", "rejected", "latency_ms", "cpu", "shed",
-                                           "loops")},
-                              "scheduler": status.get("scheduler", "")}
+            stations[name] = {
+                "exit_code": code,
+                "restarts": station.restarts,
+                "stop_s": status.get("stop_s"),
+                "stop_cut": status.get("stop_cut", False),
+                "alive_seen": name in self.alive_seen,
+                "log": str(station.log_path),
+                **{
+                    k: status.get(k, {})
+                    for k in ("sent", "received", "rejected", "latency_ms", "cpu", "shed", "loops")
+                },
+                "scheduler": status.get("scheduler", ""),
+            }
             if name in self.cpu.caps:
-                stations[name]["cpu"] = {**stations[name]["cpu"], "cap_cores": self.cpu.caps[name],
-                                         "throttled_share": round(self.cpu.throttled_share.get(name, 0.0), 4)}
+                stations[name]["cpu"] = {
+                    **stations[name]["cpu"],
+                    "cap_cores": self.cpu.caps[name],
+                    "throttled_share": round(self.cpu.throttled_share.get(name, 0.0), 4),
+                }
         for name in self.external:
             stations[name] = {"external": True, "alive_seen": name in self.alive_seen}
         if not failure and any(s.get("exit_code", 0) != 0 for s in stations.values()):
@@ -583,31 +675,45 @@ class Up:
 
 def viewer_line(cfg: OnshoreConfig) -> str:
     from abyss.stations.onshore.viewer import RECORDING_FILE, web_viewer_url
+
     recording = Path(cfg.record_dir) / RECORDING_FILE
-    return {"save": f"abyss: recording to {recording} (abyss view {cfg.record_dir})",
-            "web": f"abyss: web viewer at {web_viewer_url(cfg.viewer_web_port, cfg.viewer_grpc_port)} "
-                   f"(recording to {recording})",
-            "spawn": f"abyss: rerun viewer spawned (recording to {recording})",
-            "none": "abyss: no viewer, no recording"}[cfg.viewer]
+    return {
+        "save": f"abyss: recording to {recording} (abyss view {cfg.record_dir})",
+        "web": f"abyss: web viewer at {web_viewer_url(cfg.viewer_web_port, cfg.viewer_grpc_port)} "
+        f"(recording to {recording})",
+        "spawn": f"abyss: rerun viewer spawned (recording to {recording})",
+        "none": "abyss: no viewer, no recording",
+    }[cfg.viewer]
 
 
 def ros2_line(ros2: Ros2Config) -> str:
     """How a ROS 2 node joins the gateway that stands for a station (README: ROS 2 nodes)."""
     endpoint = (ros2.connect or ros2.listen)[0]
     where = "its router" if not ros2.connect else "the router it joined"
-    return (f"abyss: {ros2.station} is a ROS 2 gateway (domain {ros2.domain}, topics under "
-            f"{ros2.namespace}); start your node with RMW_IMPLEMENTATION=rmw_zenoh_cpp "
-            f"ROS_DOMAIN_ID={ros2.domain} "
-            f"ZENOH_CONFIG_OVERRIDE='connect/endpoints=[\"{endpoint}\"]' ({where}) and use_sim_time:=true")
+    return (
+        f"abyss: {ros2.station} is a ROS 2 gateway (domain {ros2.domain}, topics under "
+        f"{ros2.namespace}); start your node with RMW_IMPLEMENTATION=rmw_zenoh_cpp "
+        f"ROS_DOMAIN_ID={ros2.domain} "
+        f"ZENOH_CONFIG_OVERRIDE='connect/endpoints=[\"{endpoint}\"]' ({where}) and use_sim_time:=true"
+    )
 
 
-def run_up(config: Config, out: Path | None, duration_s: float | None, keep_running: bool,
-           port: int | None, external: Sequence[str] = (), restart: bool = False,
-           placement: Placement | None = None, replayed: Replayed | None = None) -> int:
+def run_up(
+    config: Config,
+    out: Path | None,
+    duration_s: float | None,
+    keep_running: bool,
+    port: int | None,
+    external: Sequence[str] = (),
+    restart: bool = False,
+    placement: Placement | None = None,
+    replayed: Replayed | None = None,
+) -> int:
     run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
-        return Up(config, run_dir, port, external=external, restart=restart, placement=placement,
-                  replayed=replayed).run(duration_s, keep_running)
+        return Up(
+            config, run_dir, port, external=external, restart=restart, placement=placement, replayed=replayed
+        ).run(duration_s, keep_running)
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)
         return 2

@@ -34,8 +34,13 @@ log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0
 LINK_MODES = ("emulated", "tun", "netem", "auto")
 AUTO_ORDER = ("netem", "tun")  # then emulated
-MESSAGE_COUNTERS = ("messages_", "bytes_offered", "bytes_delivered", "undelivered_at_close",
-                    "refused_at_stop")
+MESSAGE_COUNTERS = (
+    "messages_",
+    "bytes_offered",
+    "bytes_delivered",
+    "undelivered_at_close",
+    "refused_at_stop",
+)
 
 
 class Shaper(Protocol):
@@ -55,10 +60,20 @@ class StationLinks:
     """Each hop of `station`: its emulator (`runners[hop].send` is the station's egress), the
     link control keys, the statistics, a shaper of real packets where asked."""
 
-    def __init__(self, session: zenoh.Session, system: str, station: str, profiles: dict[str, LinkProfile],
-                 deliver: Callable[[str, bytes], None], *, seed: int = 0, link_mode: str = "emulated",
-                 peers: dict[str, str] | None = None, stopping: threading.Event | None = None,
-                 clock: Clock = WALL) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        system: str,
+        station: str,
+        profiles: dict[str, LinkProfile],
+        deliver: Callable[[str, bytes], None],
+        *,
+        seed: int = 0,
+        link_mode: str = "emulated",
+        peers: dict[str, str] | None = None,
+        stopping: threading.Event | None = None,
+        clock: Clock = WALL,
+    ) -> None:
         """`deliver(key, payload)` puts a message on the wire when its link delivers it;
         `peers[hop]`: the neighbour whose route a shaper takes (a name or an address; default:
         the neighbour's station name); `stopping`: set when the station is asked to stop, from
@@ -66,8 +81,10 @@ class StationLinks:
         if link_mode not in LINK_MODES:
             raise LinkError(f"link mode {link_mode!r}: allowed {', '.join(LINK_MODES)}")
         if clock.mode != "real" and link_mode != "emulated":
-            raise LinkError(f"link mode {link_mode}: shapes real packets on the wall clock, which --time "
-                            f"{clock.mode} cannot run faster; use --link emulated, or --time real")
+            raise LinkError(
+                f"link mode {link_mode}: shapes real packets on the wall clock, which --time "
+                f"{clock.mode} cannot run faster; use --link emulated, or --time real"
+            )
         self.session = session
         self.system = system
         self.station = station
@@ -79,13 +96,23 @@ class StationLinks:
         self._entities: list[zenoh.Subscriber | zenoh.Queryable] = []
         self.mode, self.shapers = self._shapers(link_mode, profiles, peers or {}, seed)
         for hop, neighbour in keys.hops_of(station).items():
-            self.runners[hop] = LinkRunner(f"{hop}:{station}->{neighbour}", profiles.get(hop, LinkProfile()),
-                                           deliver, link_rng(seed, station, hop),
-                                           passthrough=hop in self.shapers, stopping=stopping, clock=clock)
-            self._entities.append(session.declare_subscriber(
-                keys.link_key(system, hop), functools.partial(self._on_control_sample, hop)))
-            self._entities.append(session.declare_queryable(
-                keys.link_key(system, hop), functools.partial(self._on_query, hop)))
+            self.runners[hop] = LinkRunner(
+                f"{hop}:{station}->{neighbour}",
+                profiles.get(hop, LinkProfile()),
+                deliver,
+                link_rng(seed, station, hop),
+                passthrough=hop in self.shapers,
+                stopping=stopping,
+                clock=clock,
+            )
+            self._entities.append(
+                session.declare_subscriber(
+                    keys.link_key(system, hop), functools.partial(self._on_control_sample, hop)
+                )
+            )
+            self._entities.append(
+                session.declare_queryable(keys.link_key(system, hop), functools.partial(self._on_query, hop))
+            )
         self._stats_thread = threading.Thread(target=self._publish_stats, name="linkstats", daemon=True)
         self._stats_thread.start()
 
@@ -101,15 +128,18 @@ class StationLinks:
         runner = self.runners[hop]
         return lambda payload, reliable, key: runner.send(payload, reliable, tag=key)
 
-    def _shapers(self, link_mode: str, profiles: dict[str, LinkProfile], peers: dict[str, str],
-                 seed: int) -> tuple[str, dict[str, Shaper]]:
+    def _shapers(
+        self, link_mode: str, profiles: dict[str, LinkProfile], peers: dict[str, str], seed: int
+    ) -> tuple[str, dict[str, Shaper]]:
         """The link mode in force and its shapers; `auto` says which it took and why."""
         if link_mode == "emulated":
             return link_mode, {}
         tried: list[str] = []
         try:
-            routes = {hop: route_towards(peers.get(hop, neighbour))
-                      for hop, neighbour in keys.hops_of(self.station).items()}
+            routes = {
+                hop: route_towards(peers.get(hop, neighbour))
+                for hop, neighbour in keys.hops_of(self.station).items()
+            }
         except LinkError as exc:
             if link_mode != "auto":
                 raise
@@ -120,9 +150,11 @@ class StationLinks:
                 for hop, route in routes.items():
                     name = f"{hop}:{self.station}->{keys.hops_of(self.station)[hop]}"
                     profile = profiles.get(hop, LinkProfile())
-                    shapers[hop] = (NetemShaper(name, route.device, profile) if mode == "netem" else
-                                    TunShaper(name, route, profile, link_rng(seed, self.station, hop),
-                                              tun_name(hop)))
+                    shapers[hop] = (
+                        NetemShaper(name, route.device, profile)
+                        if mode == "netem"
+                        else TunShaper(name, route, profile, link_rng(seed, self.station, hop), tun_name(hop))
+                    )
             except LinkError as exc:
                 for shaper in shapers.values():
                     shaper.close()
@@ -162,8 +194,13 @@ class StationLinks:
         if hop in self.shapers:  # the runner only counts messages; the shaper has the packets
             stats = {k: v for k, v in stats.items() if k.startswith(MESSAGE_COUNTERS)}
             stats.update(self.shapers[hop].snapshot())
-        return LinkStats(hop=hop, direction=runner.name.split(":", 1)[1], profile=runner.profile.name,
-                         fields=runner.profile.fields(), stats=stats)
+        return LinkStats(
+            hop=hop,
+            direction=runner.name.split(":", 1)[1],
+            profile=runner.profile.name,
+            fields=runner.profile.fields(),
+            stats=stats,
+        )
 
     def _on_query(self, hop: str, query: zenoh.Query) -> None:
         query.reply(keys.link_key(self.system, hop), encode(self.stats(hop), 0, time.time()))
@@ -181,8 +218,12 @@ class StationLinks:
         links: dict[str, dict[str, object]] = {}
         for hop in self.runners:
             stats = self.stats(hop)
-            links[hop] = {"direction": stats.direction, "profile": stats.profile, "mode": self.mode,
-                          **stats.stats}
+            links[hop] = {
+                "direction": stats.direction,
+                "profile": stats.profile,
+                "mode": self.mode,
+                **stats.stats,
+            }
         return links
 
     def close(self, drain_s: float = 0.0, join_s: float = 1.0) -> None:

@@ -125,9 +125,17 @@ class Link:
         self._messages[mid] = _Message(len(payload), now_s, n, tag, copies=[0] * n)
         size = self.payload_per_packet
         packets = [
-            Packet(seq=next(self._next_seq), message=mid, index=i, data=part, crc=zlib.crc32(part),
-                   size_bytes=len(part) + HEADER_BYTES[self.profile.transport], t_s=now_s, last=i == n - 1)
-            for i, part in enumerate(payload[i * size:(i + 1) * size] for i in range(n))
+            Packet(
+                seq=next(self._next_seq),
+                message=mid,
+                index=i,
+                data=part,
+                crc=zlib.crc32(part),
+                size_bytes=len(part) + HEADER_BYTES[self.profile.transport],
+                t_s=now_s,
+                last=i == n - 1,
+            )
+            for i, part in enumerate(payload[i * size : (i + 1) * size] for i in range(n))
         ]
         self.transport.send(now_s, packets)
         return Offer.ACCEPTED
@@ -140,8 +148,12 @@ class Link:
 
     def pass_through(self, nbytes: int) -> None:
         """Count a message that bypassed the emulation (ideal profile, netem backend)."""
-        for name, value in (("messages_offered", 1), ("messages_delivered", 1),
-                            ("bytes_offered", nbytes), ("bytes_delivered", nbytes)):
+        for name, value in (
+            ("messages_offered", 1),
+            ("messages_delivered", 1),
+            ("bytes_offered", nbytes),
+            ("bytes_delivered", nbytes),
+        ):
             self.counters[name] += value
 
     def next_event_s(self) -> float | None:
@@ -152,8 +164,10 @@ class Link:
     def reconfigure(self, profile: LinkProfile) -> None:
         """Apply a new profile to every packet sent from now on; none in flight is lost."""
         if profile.transport != self.profile.transport:
-            raise LinkError(f"transport is {self.profile.transport} for the life of a link; "
-                            f"restart the station to use {profile.transport}")
+            raise LinkError(
+                f"transport is {self.profile.transport} for the life of a link; "
+                f"restart the station to use {profile.transport}"
+            )
         self.profile = profile
         self.pipeline.configure(profile)
 
@@ -233,8 +247,20 @@ class Link:
 
 
 COUNTERS = (
-    "messages_offered", "messages_delivered", "messages_dropped", "messages_lost",
-    "bytes_offered", "bytes_delivered", "packets_sent", "queue_drops", "losses",
-    "packets_corrupted", "corrupt_delivered", "duplicates", "retransmissions", "timeouts",
-    "undelivered_at_close", "refused_at_stop",
+    "messages_offered",
+    "messages_delivered",
+    "messages_dropped",
+    "messages_lost",
+    "bytes_offered",
+    "bytes_delivered",
+    "packets_sent",
+    "queue_drops",
+    "losses",
+    "packets_corrupted",
+    "corrupt_delivered",
+    "duplicates",
+    "retransmissions",
+    "timeouts",
+    "undelivered_at_close",
+    "refused_at_stop",
 )

@@ -38,8 +38,14 @@ def netem_args(profile: LinkProfile) -> list[str]:
                 args += [format_fraction(profile.correlation)]
             args += ["distribution", profile.distribution]
     if profile.loss_model == "gilbert-elliott":
-        args += ["loss", "gemodel", format_fraction(profile.ge_p), format_fraction(profile.ge_r),
-                 format_fraction(profile.ge_loss_bad), format_fraction(profile.ge_loss_good)]
+        args += [
+            "loss",
+            "gemodel",
+            format_fraction(profile.ge_p),
+            format_fraction(profile.ge_r),
+            format_fraction(profile.ge_loss_bad),
+            format_fraction(profile.ge_loss_good),
+        ]
     elif profile.loss:
         args += ["loss", "random", format_fraction(profile.loss)]
     if profile.corrupt:
@@ -80,11 +86,15 @@ def run_tc(command: list[str]) -> None:
         return
     message = (done.stderr or done.stdout).strip()
     if "qdisc kind is unknown" in message:
-        raise LinkError(f"the kernel has no sch_netem module ({message}); load it with "
-                        "`modprobe sch_netem` (Debian/Ubuntu: linux-modules-extra-$(uname -r))")
+        raise LinkError(
+            f"the kernel has no sch_netem module ({message}); load it with "
+            "`modprobe sch_netem` (Debian/Ubuntu: linux-modules-extra-$(uname -r))"
+        )
     if "Operation not permitted" in message:
-        raise LinkError(f"changing a qdisc needs CAP_NET_ADMIN ({message}); run as root or give "
-                        "the container cap_add: [NET_ADMIN]")
+        raise LinkError(
+            f"changing a qdisc needs CAP_NET_ADMIN ({message}); run as root or give "
+            "the container cap_add: [NET_ADMIN]"
+        )
     if "Cannot find device" in message:
         raise LinkError(f"no such interface: {message}")
     raise LinkError(f"{' '.join(command)} failed: {message}")

@@ -40,6 +40,7 @@ def _choice(allowed: tuple[str, ...]) -> Callable[[str, Any], str]:
         if value not in allowed:
             raise ConfigError(field, f"{value!r} not one of {', '.join(allowed)}")
         return str(value)
+
     return parse
 
 
@@ -52,6 +53,7 @@ def _integer(lo: int, hi: int) -> Callable[[str, Any], int]:
         if number is None or not lo <= number <= hi:
             raise ConfigError(field, f"{value!r} is not a whole number in [{lo}, {hi}]")
         return number
+
     return parse
 
 
@@ -130,8 +132,14 @@ class LinkProfile:
     @property
     def is_ideal(self) -> bool:
         """Nothing to emulate: the link can be a pass-through."""
-        return (math.isinf(self.rate_bps) and self.delay_s == 0.0 and self.jitter_s == 0.0
-                and self.mean_loss == 0.0 and self.corrupt == 0.0 and self.duplicate == 0.0)
+        return (
+            math.isinf(self.rate_bps)
+            and self.delay_s == 0.0
+            and self.jitter_s == 0.0
+            and self.mean_loss == 0.0
+            and self.corrupt == 0.0
+            and self.duplicate == 0.0
+        )
 
     @property
     def mean_loss(self) -> float:
@@ -168,10 +176,12 @@ def load_profiles(path: Path = PROFILES_FILE) -> Mapping[str, LinkProfile]:
         table = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError("profiles", f"cannot read: {exc}", str(path)) from None
-    return types.MappingProxyType({
-        name: LinkProfile(name=name).with_fields(fields, source=f"{path} [{name}]")
-        for name, fields in table.items()
-    })
+    return types.MappingProxyType(
+        {
+            name: LinkProfile(name=name).with_fields(fields, source=f"{path} [{name}]")
+            for name, fields in table.items()
+        }
+    )
 
 
 def profile(name: str, overrides: Mapping[str, Any] | None = None) -> LinkProfile:

@@ -28,15 +28,19 @@ def route_towards(host: str, timeout_s: float = 30.0) -> Route:
             break
         except socket.gaierror as exc:
             if time.monotonic() > deadline:
-                raise LinkError(f"cannot resolve the neighbour {host!r} ({exc}); give its address "
-                                "with --peer (an IPv4 address)") from None
+                raise LinkError(
+                    f"cannot resolve the neighbour {host!r} ({exc}); give its address "
+                    "with --peer (an IPv4 address)"
+                ) from None
             time.sleep(0.5)
     done = subprocess.run(["ip", "-j", "route", "get", address], capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise LinkError(f"no route to the neighbour {host} ({address}): {done.stderr.strip()}")
     route = json.loads(done.stdout)[0]
     if route["dev"] == "lo":
-        raise LinkError(f"the neighbour {host} ({address}) is on this host: shaping lo would shape every "
-                        "local connection; run the stations on separate hosts, containers or network "
-                        "namespaces (abyss lab), or use --link emulated")
+        raise LinkError(
+            f"the neighbour {host} ({address}) is on this host: shaping lo would shape every "
+            "local connection; run the stations on separate hosts, containers or network "
+            "namespaces (abyss lab), or use --link emulated"
+        )
     return Route(address, str(route["dev"]), str(route.get("prefsrc", "")))

@@ -28,9 +28,16 @@ class LinkRunner:
     no thread: `deliver_due` is the period's delivery phase (common.lockstep), nothing is passed
     through at once, and a sender never waits for room."""
 
-    def __init__(self, name: str, profile: LinkProfile, deliver: Callable[[Any, bytes], None],
-                 rng: np.random.Generator, passthrough: bool = False,
-                 stopping: threading.Event | None = None, clock: Clock = WALL) -> None:
+    def __init__(
+        self,
+        name: str,
+        profile: LinkProfile,
+        deliver: Callable[[Any, bytes], None],
+        rng: np.random.Generator,
+        passthrough: bool = False,
+        stopping: threading.Event | None = None,
+        clock: Clock = WALL,
+    ) -> None:
         self.name = name
         self.clock = clock
         self.driven = clock.mode == "lockstep"

@@ -64,9 +64,17 @@ class Variant:
 VARIANTS: dict[str, Variant] = {
     # closest to the textbook: Reno without SACK (so NewReno recovery), RACK, tail loss probes,
     # F-RTO or timestamps (so Karn's rule on retransmissions)
-    "reno-textbook": Variant("reno", (("tcp_sack", "0"), ("tcp_dsack", "0"), ("tcp_recovery", "0"),
-                                      ("tcp_early_retrans", "0"), ("tcp_frto", "0"),
-                                      ("tcp_timestamps", "0"))),
+    "reno-textbook": Variant(
+        "reno",
+        (
+            ("tcp_sack", "0"),
+            ("tcp_dsack", "0"),
+            ("tcp_recovery", "0"),
+            ("tcp_early_retrans", "0"),
+            ("tcp_frto", "0"),
+            ("tcp_timestamps", "0"),
+        ),
+    ),
     # the kernel's loss recovery as it ships (SACK, RACK-TLP, PRR, F-RTO), Reno's window
     "reno": Variant("reno"),
     "cubic": Variant("cubic"),
@@ -135,18 +143,36 @@ class Case:
 
 # Paces: about half of what TCP carries through each profile (the satellite at 5 % loss carries
 # about 150 kbit/s, at 1 % about 450); each phase lasts 5 to 30 s.
-CASES: dict[str, Case] = {c.name: c for c in (
-    Case("tether", "tether", "tether", 8.0,
-         (Stream(1_000, 200, 0.02), Stream(10_000, 100, 0.05), Stream(100_000, 20, 0.25))),
-    Case("satellite", "satellite", "satellite", 20.0,
-         (Stream(1_000, 100, 0.1), Stream(10_000, 20, 1.0), Stream(100_000, 4, 8.0))),
-    Case("satellite-1%", "satellite", "satellite", 15.0,
-         (Stream(1_000, 100, 0.1), Stream(10_000, 30, 0.5), Stream(100_000, 8, 3.0)),
-         overrides=(("loss", "1%"),)),
-    # lone packets on a link of little jitter, one in ten lost: recovered when the timer fires
-    # (RTO = SRTT + 200 ms, sooner than a probe), so their latency is the timer's
-    Case("tether-10%", "tether", "tether", 8.0, (Stream(1_000, 40, 0.5),), overrides=(("loss", "10%"),)),
-)}
+CASES: dict[str, Case] = {
+    c.name: c
+    for c in (
+        Case(
+            "tether",
+            "tether",
+            "tether",
+            8.0,
+            (Stream(1_000, 200, 0.02), Stream(10_000, 100, 0.05), Stream(100_000, 20, 0.25)),
+        ),
+        Case(
+            "satellite",
+            "satellite",
+            "satellite",
+            20.0,
+            (Stream(1_000, 100, 0.1), Stream(10_000, 20, 1.0), Stream(100_000, 4, 8.0)),
+        ),
+        Case(
+            "satellite-1%",
+            "satellite",
+            "satellite",
+            15.0,
+            (Stream(1_000, 100, 0.1), Stream(10_000, 30, 0.5), Stream(100_000, 8, 3.0)),
+            overrides=(("loss", "1%"),),
+        ),
+        # lone packets on a link of little jitter, one in ten lost: recovered when the timer fires
+        # (RTO = SRTT + 200 ms, sooner than a probe), so their latency is the timer's
+        Case("tether-10%", "tether", "tether", 8.0, (Stream(1_000, 40, 0.5),), overrides=(("loss", "10%"),)),
+    )
+}
 
 
 @dataclass
@@ -161,9 +187,11 @@ class Run:
     extra: dict[str, float] = field(default_factory=dict)  # shaper and kernel counters, for the record
 
     def metrics(self) -> dict[str, float]:
-        per_packet = {"retrans_per_packet": self.retransmissions / max(1, self.originals),
-                      "timeouts_per_packet": self.timeouts / max(1, self.originals),
-                      "packets": float(self.originals)}
+        per_packet = {
+            "retrans_per_packet": self.retransmissions / max(1, self.originals),
+            "timeouts_per_packet": self.timeouts / max(1, self.originals),
+            "packets": float(self.originals),
+        }
         if self.phase.window_s is not None:
             window_s = self.phase.window_s
             delivered_bytes = sum(size for _, size, t_s in self.deliveries if t_s <= window_s)
@@ -259,8 +287,9 @@ class Agreement:
         return abs(_mean(self.model) - _mean(self.kernel)) <= self.allowed
 
 
-def agreement(metric: str, model: Sequence[Mapping[str, float]],
-              kernel: Sequence[Mapping[str, float]]) -> Agreement:
+def agreement(
+    metric: str, model: Sequence[Mapping[str, float]], kernel: Sequence[Mapping[str, float]]
+) -> Agreement:
     """`metric` of one phase's runs (as `Run.metrics()` gives them), the model's against the kernel's."""
     resolution = 1.0 / _mean([r["packets"] for r in kernel]) if metric.endswith("_per_packet") else 0.0
     return Agreement(tuple(r[metric] for r in model), tuple(r[metric] for r in kernel), resolution)
@@ -298,9 +327,14 @@ def run_model(case: Case, phase: Phase, seed: int) -> Run:
     while now_s < end_s and (next_s := link.next_event_s()) is not None:
         run_until(min(next_s, end_s))
     retransmissions = link.counters["retransmissions"]
-    return Run(phase, deliveries, link.counters["packets_sent"] - retransmissions, retransmissions,
-               link.counters["timeouts"], {"losses": link.counters["losses"],
-                                           "queue_drops": link.counters["queue_drops"]})
+    return Run(
+        phase,
+        deliveries,
+        link.counters["packets_sent"] - retransmissions,
+        retransmissions,
+        link.counters["timeouts"],
+        {"losses": link.counters["losses"], "queue_drops": link.counters["queue_drops"]},
+    )
 
 
 # -- kernel TCP --------------------------------------------------------------------------------
@@ -345,20 +379,55 @@ def run_kernel(case: Case, variant: str, phase: Phase, seed: int, timeout_s: flo
             for station in (sender, receiver):
                 _check([*lab.prefix(station), "sysctl", "-q", "-w", *sysctls])
             fields = [f"--{k}={v}" for k, v in case.overrides]
-            shapers = [start(lab.shape(station, case.hop, case.profile, *fields, f"--seed={shaper_seed}",
-                                       "--every=3600", f"--duration={timeout_s}"))
-                       for station, shaper_seed in ((sender, seed), (receiver, seed + ACK_SEED_OFFSET))]
-            listening = start([*lab.prefix(receiver), sys.executable, "-P", "-m", __name__, "receive",
-                               f"--timeout={timeout_s}", *window])
+            shapers = [
+                start(
+                    lab.shape(
+                        station,
+                        case.hop,
+                        case.profile,
+                        *fields,
+                        f"--seed={shaper_seed}",
+                        "--every=3600",
+                        f"--duration={timeout_s}",
+                    )
+                )
+                for station, shaper_seed in ((sender, seed), (receiver, seed + ACK_SEED_OFFSET))
+            ]
+            listening = start(
+                [
+                    *lab.prefix(receiver),
+                    sys.executable,
+                    "-P",
+                    "-m",
+                    __name__,
+                    "receive",
+                    f"--timeout={timeout_s}",
+                    *window,
+                ]
+            )
         sent = subprocess.run(
-            [*lab.prefix(sender), sys.executable, "-P", "-m", __name__, "send",
-             f"--to={lab.address(receiver, case.hop)}", f"--timeout={timeout_s}",
-             f"--congestion-control={VARIANTS[variant].congestion_control}", *window],
-            input=json.dumps(phase.schedule), capture_output=True, text=True,
-            timeout=timeout_s + START_TIMEOUT_S, check=False)
+            [
+                *lab.prefix(sender),
+                sys.executable,
+                "-P",
+                "-m",
+                __name__,
+                "send",
+                f"--to={lab.address(receiver, case.hop)}",
+                f"--timeout={timeout_s}",
+                f"--congestion-control={VARIANTS[variant].congestion_control}",
+                *window,
+            ],
+            input=json.dumps(phase.schedule),
+            capture_output=True,
+            text=True,
+            timeout=timeout_s + START_TIMEOUT_S,
+            check=False,
+        )
         if sent.returncode != 0:
-            raise LinkError(f"kernel {variant} {case.name} {phase.name}: the sender failed: "
-                            f"{sent.stderr.strip()[-2000:]}")
+            raise LinkError(
+                f"kernel {variant} {case.name} {phase.name}: the sender failed: {sent.stderr.strip()[-2000:]}"
+            )
         report = json.loads(sent.stdout)
         received = json.loads(_finish(listening)[-1])
         shaped = [json.loads(_finish(shaper, signal.SIGTERM)[-1]) for shaper in shapers]
@@ -369,12 +438,22 @@ def run_kernel(case: Case, variant: str, phase: Phase, seed: int, timeout_s: flo
                 process.wait()
         lab.remove()
     t0_s, counters = report["t0_s"], report["counters"]
-    extra = {**{f"kernel_{k}": float(v) for k, v in counters.items()},
-             **{f"{way}_{k}": shaped[i][k] for i, way in enumerate(("data", "ack"))
-                for k in ("losses", "queue_drops", "packets_corrupted", "tun_tx_dropped")}}
-    return Run(phase, [(due - t0_s, size, at - t0_s) for due, size, at in received],
-               counters["TcpExtTCPOrigDataSent"], counters["TcpRetransSegs"], counters["TcpExtTCPTimeouts"],
-               extra)
+    extra = {
+        **{f"kernel_{k}": float(v) for k, v in counters.items()},
+        **{
+            f"{way}_{k}": shaped[i][k]
+            for i, way in enumerate(("data", "ack"))
+            for k in ("losses", "queue_drops", "packets_corrupted", "tun_tx_dropped")
+        },
+    }
+    return Run(
+        phase,
+        [(due - t0_s, size, at - t0_s) for due, size, at in received],
+        counters["TcpExtTCPOrigDataSent"],
+        counters["TcpRetransSegs"],
+        counters["TcpExtTCPTimeouts"],
+        extra,
+    )
 
 
 def _check(command: list[str]) -> None:
@@ -424,8 +503,13 @@ def tcp_counters() -> dict[str, int]:
     return counters
 
 
-def send(address: str, schedule: Sequence[tuple[float, int]], congestion_control: str,
-         window_s: float | None, timeout_s: float) -> dict[str, object]:
+def send(
+    address: str,
+    schedule: Sequence[tuple[float, int]],
+    congestion_control: str,
+    window_s: float | None,
+    timeout_s: float,
+) -> dict[str, object]:
     """Connect with `congestion_control`; send each message when it is due (no Nagle delay) and
     wait until the receiver has read everything, or, with `window_s`, send until then and reset the
     connection. When it started and this namespace's counters at the end."""

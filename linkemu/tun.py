@@ -45,13 +45,23 @@ TUN_PATH = "/dev/net/tun"
 TUNSETIFF = 0x400454CA
 IFF_TUN, IFF_NO_PI = 0x0001, 0x1000
 IFNAMSIZ = 16
-COUNTERS = ("packets_sent", "bytes_sent", "packets_forwarded", "bytes_forwarded", "queue_drops", "losses",
-            "packets_corrupted", "duplicates", "not_ipv4", "send_errors")
+COUNTERS = (
+    "packets_sent",
+    "bytes_sent",
+    "packets_forwarded",
+    "bytes_forwarded",
+    "queue_drops",
+    "losses",
+    "packets_corrupted",
+    "duplicates",
+    "not_ipv4",
+    "send_errors",
+)
 
 
 def tun_name(hop: str) -> str:
     """The TUN device of a hop's egress (Linux names hold 15 characters)."""
-    return f"abyss-{hop}"[:IFNAMSIZ - 1]
+    return f"abyss-{hop}"[: IFNAMSIZ - 1]
 
 
 def open_tun(name: str) -> int:
@@ -59,22 +69,30 @@ def open_tun(name: str) -> int:
     try:
         fd = os.open(TUN_PATH, os.O_RDWR | os.O_CLOEXEC)
     except FileNotFoundError:
-        raise LinkError(f"no {TUN_PATH}: load the tun module (`modprobe tun`); in a container, give "
-                        "it the device (compose: `devices: [/dev/net/tun]`, docker run: "
-                        "`--device /dev/net/tun`)") from None
+        raise LinkError(
+            f"no {TUN_PATH}: load the tun module (`modprobe tun`); in a container, give "
+            "it the device (compose: `devices: [/dev/net/tun]`, docker run: "
+            "`--device /dev/net/tun`)"
+        ) from None
     except PermissionError:
-        raise LinkError(f"{TUN_PATH} is not accessible: run as root or with CAP_NET_ADMIN "
-                        "(compose: `cap_add: [NET_ADMIN]`)") from None
+        raise LinkError(
+            f"{TUN_PATH} is not accessible: run as root or with CAP_NET_ADMIN "
+            "(compose: `cap_add: [NET_ADMIN]`)"
+        ) from None
     try:
         fcntl.ioctl(fd, TUNSETIFF, struct.pack(f"{IFNAMSIZ}sH22x", name.encode(), IFF_TUN | IFF_NO_PI))
     except OSError as exc:
         os.close(fd)
         if exc.errno == errno.EPERM:
-            raise LinkError(f"making TUN device {name} needs CAP_NET_ADMIN: run as root, or give the "
-                            "container `cap_add: [NET_ADMIN]`") from None
+            raise LinkError(
+                f"making TUN device {name} needs CAP_NET_ADMIN: run as root, or give the "
+                "container `cap_add: [NET_ADMIN]`"
+            ) from None
         if exc.errno == errno.EBUSY:
-            raise LinkError(f"a TUN device named {name} is in use by another process on this host: stop "
-                            "it (one shaper per hop and host) or run this one in its own namespace") from None
+            raise LinkError(
+                f"a TUN device named {name} is in use by another process on this host: stop "
+                "it (one shaper per hop and host) or run this one in its own namespace"
+            ) from None
         raise LinkError(f"cannot make TUN device {name}: {exc}") from None
     return fd
 
@@ -90,8 +108,9 @@ class TunShaper:
     """This host's packets to `route.address` through a TUN device and the hop's stages, then
     out of `route.device`. Thread-safe; `close()` removes the device and its route."""
 
-    def __init__(self, name: str, route: Route, profile: LinkProfile, rng: np.random.Generator,
-                 device: str) -> None:
+    def __init__(
+        self, name: str, route: Route, profile: LinkProfile, rng: np.random.Generator, device: str
+    ) -> None:
         self.name = name
         self.route = route
         self.device = device
@@ -108,19 +127,28 @@ class TunShaper:
         try:
             mtu = Path(f"/sys/class/net/{route.device}/mtu").read_text().strip()
             ip("link", "set", device, "mtu", mtu, "up")
-            ip("route", "replace", f"{route.address}/32", "dev", device,
-               *(["src", route.source] if route.source else []))
+            ip(
+                "route",
+                "replace",
+                f"{route.address}/32",
+                "dev",
+                device,
+                *(["src", route.source] if route.source else []),
+            )
             self._out = socket.socket(socket.AF_INET, socket.SOCK_RAW, socket.IPPROTO_RAW)
             self._out.setsockopt(socket.SOL_SOCKET, socket.SO_BINDTODEVICE, route.device.encode())
         except (LinkError, OSError) as exc:
             self._release()
             raise LinkError(f"TUN shaper {name}: {exc}") from None
-        self._threads = [threading.Thread(target=self._read, name=f"tun-read-{name}", daemon=True),
-                         threading.Thread(target=self._write, name=f"tun-write-{name}", daemon=True)]
+        self._threads = [
+            threading.Thread(target=self._read, name=f"tun-read-{name}", daemon=True),
+            threading.Thread(target=self._write, name=f"tun-write-{name}", daemon=True),
+        ]
         for thread in self._threads:
             thread.start()
-        log.info("TUN shaper %s: packets to %s through %s, then %s", name, route.address, device,
-                 route.device)
+        log.info(
+            "TUN shaper %s: packets to %s through %s, then %s", name, route.address, device, route.device
+        )
 
     def reconfigure(self, profile: LinkProfile) -> None:
         """Packets read from now on take the new profile; those on the wire keep their times."""
@@ -170,8 +198,17 @@ class TunShaper:
                 self.counters["packets_sent"] += 1
                 self.counters["bytes_sent"] += len(data)
                 header_bytes = (data[0] & 0x0F) * 4
-                packet = Packet(seq=0, message=0, index=0, data=data[header_bytes:], crc=0,
-                                size_bytes=len(data), t_s=read_s, last=True, head=data[:header_bytes])
+                packet = Packet(
+                    seq=0,
+                    message=0,
+                    index=0,
+                    data=data[header_bytes:],
+                    crc=0,
+                    size_bytes=len(data),
+                    t_s=read_s,
+                    last=True,
+                    head=data[:header_bytes],
+                )
                 for leaving in self.pipeline.run(packet):
                     heapq.heappush(self._wire, (leaving.t_s, next(self._tie), read_s, leaving))
                 self._cond.notify_all()

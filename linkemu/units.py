@@ -9,21 +9,19 @@ from collections.abc import Mapping
 from abyss.common.errors import ConfigError
 
 _NUMBER = r"\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*"
-_RATE = {"bit": 1.0, "kbit": 1e3, "mbit": 1e6, "gbit": 1e9, "bps": 8.0, "kbps": 8e3,
-         "mbps": 8e6, "gbps": 8e9}
+_RATE = {"bit": 1.0, "kbit": 1e3, "mbit": 1e6, "gbit": 1e9, "bps": 8.0, "kbps": 8e3, "mbps": 8e6, "gbps": 8e9}
 _TIME = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 _SIZE = {"b": 1, "kb": 1024, "mb": 1024**2}
 
 
-def _parse(field: str, text: str | float | int, units: Mapping[str, float], kind: str,
-           example: str) -> float:
+def _parse(field: str, text: str | float | int, units: Mapping[str, float], kind: str, example: str) -> float:
     if isinstance(text, (int, float)) and not isinstance(text, bool):
-        raise ConfigError(field, f"{text!r} has no unit; write it like {example!r} "
-                                 f"(units: {', '.join(units)})")
+        raise ConfigError(
+            field, f"{text!r} has no unit; write it like {example!r} (units: {', '.join(units)})"
+        )
     m = re.fullmatch(_NUMBER + r"([A-Za-z%]*)\s*", str(text))
     if not m or m.group(2).lower() not in units:
-        raise ConfigError(field, f"{text!r} is not a {kind} like {example!r} "
-                                 f"(units: {', '.join(units)})")
+        raise ConfigError(field, f"{text!r} is not a {kind} like {example!r} (units: {', '.join(units)})")
     return float(m.group(1)) * units[m.group(2).lower()]
 
 

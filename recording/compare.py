@@ -26,8 +26,15 @@ PAIR_WINDOW_S = 0.25
 FLOOR = 1e-6
 # ids are new in every run; the time is what pairs messages; the vessel's silence of shore measures
 # the satellite link itself (its losses and jitter), not the station's behaviour
-NOT_COMPARED = {"command_id", "arm_command_id", "boot_id", "scene_seq", "stream_id", "sim_time_s",
-                "shore_silence_s"}
+NOT_COMPARED = {
+    "command_id",
+    "arm_command_id",
+    "boot_id",
+    "scene_seq",
+    "stream_id",
+    "sim_time_s",
+    "shore_silence_s",
+}
 
 
 @dataclass
@@ -53,12 +60,18 @@ class KeyDiff:
         return any(f.differs for f in self.fields)
 
     def row(self) -> dict[str, Any]:
-        return {"key": self.key, "count": list(self.count), "rate_hz": [round(r, 2) for r in self.rate_hz],
-                "latency_ms": [round(v, 1) for v in self.latency_ms], "paired": self.paired,
-                "differs": self.differs,
-                "fields": {f.name: {"p95_abs": f.p95_abs, "shift": f.shift, "scale": f.scale,
-                                    "differs": f.differs}
-                           for f in self.fields}}
+        return {
+            "key": self.key,
+            "count": list(self.count),
+            "rate_hz": [round(r, 2) for r in self.rate_hz],
+            "latency_ms": [round(v, 1) for v in self.latency_ms],
+            "paired": self.paired,
+            "differs": self.differs,
+            "fields": {
+                f.name: {"p95_abs": f.p95_abs, "shift": f.shift, "scale": f.scale, "differs": f.differs}
+                for f in self.fields
+            },
+        }
 
 
 def numeric_fields(message: Message) -> dict[str, np.ndarray]:
@@ -94,8 +107,12 @@ class Series:
     def __init__(self, items: list[tuple[Record, Message]], start_s: float) -> None:
         self.items = items
         self.by_sim = bool(items) and all(hasattr(m, "sim_time_s") for _, m in items)
-        self.t_s = np.array([m.sim_time_s if self.by_sim else r.sent_s - start_s  # type: ignore[attr-defined]
-                             for r, m in items])
+        self.t_s = np.array(
+            [
+                m.sim_time_s if self.by_sim else r.sent_s - start_s  # type: ignore[attr-defined]
+                for r, m in items
+            ]
+        )
         sent_s = [r.sent_s for r, _ in items]
         self.duration_s = max(sent_s) - min(sent_s) if items else 0.0
 
@@ -127,13 +144,15 @@ class Series:
 
 def latency_ms(recording: Recording, key_topic: str) -> float:
     """The median time from the sender's stamp to the receiver's bus, of one key."""
-    delays = [r.recorded_s - r.sent_s for r in recording.records(directions=("received",))
-              if r.topic == key_topic]
+    delays = [
+        r.recorded_s - r.sent_s for r in recording.records(directions=("received",)) if r.topic == key_topic
+    ]
     return 1e3 * float(np.median(delays)) if delays else math.nan
 
 
-def compare(recorded: Recording, replayed: Recording, publishers: Sequence[str],
-            tolerance: float = 0.1) -> list[KeyDiff]:
+def compare(
+    recorded: Recording, replayed: Recording, publishers: Sequence[str], tolerance: float = 0.1
+) -> list[KeyDiff]:
     """Per data key of `publishers` (the live stations of the replay), how the replay differs."""
     starts = start_of(recorded), start_of(replayed)
     span_s = max(r.sent_s for r in recorded.published()) - starts[0]  # past it, a replay has no inputs
@@ -142,11 +161,24 @@ def compare(recorded: Recording, replayed: Recording, publishers: Sequence[str],
         if spec.station not in publishers:
             continue
         topic = f"{spec.station}/{spec.topic}"
-        a, b = (Series([(r, m) for r, m in run.messages(run.published((spec.station,)))
-                        if r.topic == topic and r.sent_s - start <= span_s], start)
-                for run, start in zip((recorded, replayed), starts, strict=True))
-        diff = KeyDiff(topic, (len(a.items), len(b.items)), (a.rate_hz(), b.rate_hz()),
-                       (latency_ms(recorded, topic), latency_ms(replayed, topic)), 0)
+        a, b = (
+            Series(
+                [
+                    (r, m)
+                    for r, m in run.messages(run.published((spec.station,)))
+                    if r.topic == topic and r.sent_s - start <= span_s
+                ],
+                start,
+            )
+            for run, start in zip((recorded, replayed), starts, strict=True)
+        )
+        diff = KeyDiff(
+            topic,
+            (len(a.items), len(b.items)),
+            (a.rate_hz(), b.rate_hz()),
+            (latency_ms(recorded, topic), latency_ms(replayed, topic)),
+            0,
+        )
         if spec.rate_hz:
             a, b = a.within(b), b.within(a)
             pairs = b.neighbours(a)
@@ -162,8 +194,9 @@ def compare(recorded: Recording, replayed: Recording, publishers: Sequence[str],
 QUANTILES = tuple(range(5, 100, 5))
 
 
-def field_diffs(a: Series, b: Series, pairs: list[tuple[int, np.ndarray]],
-                tolerance: float) -> list[FieldDiff]:
+def field_diffs(
+    a: Series, b: Series, pairs: list[tuple[int, np.ndarray]], tolerance: float
+) -> list[FieldDiff]:
     """Per field: `p95_abs`, the 95th percentile over `b`'s messages of the smallest difference to a
     recorded message near it in time (the link's jitter moves messages, not values), and `shift`,
     the largest difference of the two runs' quantiles (a signal of random phase, a heartbeat's
@@ -177,14 +210,26 @@ def field_diffs(a: Series, b: Series, pairs: list[tuple[int, np.ndarray]],
     for name, first in recorded[0].items():
         values = np.array([r[name] for r in recorded if name in r and r[name].shape == first.shape])
         news = [r[name] for r in replayed if name in r and r[name].shape == first.shape]
-        deltas = [min(float(np.max(np.abs(recorded[j][name] - replayed[i][name]))) for j in near)
-                  for i, near in pairs if name in replayed[i] and replayed[i][name].shape == first.shape]
+        deltas = [
+            min(float(np.max(np.abs(recorded[j][name] - replayed[i][name]))) for j in near)
+            for i, near in pairs
+            if name in replayed[i] and replayed[i][name].shape == first.shape
+        ]
         if not deltas:
             continue
-        scale = max(float(np.max(np.percentile(values, 95, axis=0) - np.percentile(values, 5, axis=0))),
-                    float(np.sqrt(np.mean(values**2))), FLOOR)
-        shift = float(np.max(np.abs(np.percentile(values, QUANTILES, axis=0)
-                                    - np.percentile(np.array(news), QUANTILES, axis=0))))
+        scale = max(
+            float(np.max(np.percentile(values, 95, axis=0) - np.percentile(values, 5, axis=0))),
+            float(np.sqrt(np.mean(values**2))),
+            FLOOR,
+        )
+        shift = float(
+            np.max(
+                np.abs(
+                    np.percentile(values, QUANTILES, axis=0)
+                    - np.percentile(np.array(news), QUANTILES, axis=0)
+                )
+            )
+        )
         p95 = float(np.percentile(deltas, 95))
         differs = p95 > tolerance * scale and shift > tolerance * scale
         out.append(FieldDiff(name, p95, shift, scale, bool(differs)))
@@ -192,9 +237,10 @@ def field_diffs(a: Series, b: Series, pairs: list[tuple[int, np.ndarray]],
     limit = max(tolerance, 0.1)
     for name in texts_a[0]:
         share = float(np.mean([all(texts_a[j][name] != texts_b[i][name] for j in near) for i, near in pairs]))
-        share_shift = max(float(abs(np.mean([t[name] == v for t in texts_a])
-                                    - np.mean([t[name] == v for t in texts_b])))
-                          for v in {t[name] for t in texts_a + texts_b})
+        share_shift = max(
+            float(abs(np.mean([t[name] == v for t in texts_a]) - np.mean([t[name] == v for t in texts_b])))
+            for v in {t[name] for t in texts_a + texts_b}
+        )
         out.append(FieldDiff(name, share, share_shift, 1.0, share > limit and share_shift > limit))
     return out
 
@@ -207,13 +253,15 @@ def render(diffs: list[KeyDiff]) -> str:
         result = "same" if d.paired else "unpaired"
         if worst:
             result = "differs: " + ", ".join(
-                f"{f.name} (p95 {f.p95_abs:.3g}, shift {f.shift:.3g} of {f.scale:.3g})" for f in worst[:3])
+                f"{f.name} (p95 {f.p95_abs:.3g}, shift {f.shift:.3g} of {f.scale:.3g})" for f in worst[:3]
+            )
         latency = "/".join("-" if math.isnan(v) else f"{v:.1f}" for v in d.latency_ms)
-        rows.append(f"{d.key:32} {d.count[0]:>6}/{d.count[1]:<7} {d.rate_hz[0]:>7.2f}/{d.rate_hz[1]:<8.2f} "
-                    f"{latency:>19}  {result}")
+        rows.append(
+            f"{d.key:32} {d.count[0]:>6}/{d.count[1]:<7} {d.rate_hz[0]:>7.2f}/{d.rate_hz[1]:<8.2f} "
+            f"{latency:>19}  {result}"
+        )
     return "\n".join(rows)
 
 
 def differing(diffs: list[KeyDiff]) -> list[str]:
     return [d.key for d in diffs if d.differs]
-

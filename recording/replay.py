@@ -48,8 +48,11 @@ def check_replayable(recording: Recording, stations: tuple[str, ...]) -> None:
     for station in stations:
         keys.check_station(station)
         if not recording.published((station,)):
-            raise ConfigError("--as", f"{recording.run_dir} holds no message of {station} (recorded: "
-                              f"{', '.join(sorted(recording.stations)) or 'none'})")
+            raise ConfigError(
+                "--as",
+                f"{recording.run_dir} holds no message of {station} (recorded: "
+                f"{', '.join(sorted(recording.stations)) or 'none'})",
+            )
 
 
 def origin_s(recording: Recording) -> float:
@@ -88,8 +91,10 @@ class Commands:
             return None if live_id is None else dataclasses.replace(message, command_id=live_id)
         if isinstance(message, Telemetry):
             return dataclasses.replace(
-                message, command_id=self.to_live.get(("waypoints", message.command_id), message.command_id),
-                arm_command_id=self.to_live.get(("arm", message.arm_command_id), message.arm_command_id))
+                message,
+                command_id=self.to_live.get(("waypoints", message.command_id), message.command_id),
+                arm_command_id=self.to_live.get(("arm", message.arm_command_id), message.arm_command_id),
+            )
         return message
 
 
@@ -118,8 +123,14 @@ class Replay:
         self.origin_s = origin_s(recording)
         commands = {c.__name__ for c in COMMAND_KIND}
         given = [s for s in keys.KEYS if s.to == bus.station and s.message in commands]
-        self.commands = Commands([m for _, m in recording.messages(
-            [r for r in recording.published() if data_spec(r.key) in given])])
+        self.commands = Commands(
+            [
+                m
+                for _, m in recording.messages(
+                    [r for r in recording.published() if data_spec(r.key) in given]
+                )
+            ]
+        )
         self.inboxes: dict[str, Inbox] = {s.key(bus.system): bus.subscribe(s.station, s.topic) for s in given}
         self.acks: dict[tuple[str, int], CommandAck] = {}  # the recorded answers, once due
         self.start = bus.subscribe_key(keys.replay_key(bus.system), ReplayStart.TYPE, maxlen=1)
@@ -129,8 +140,13 @@ class Replay:
         start_s = self._wait_start()
         if start_s is None:
             return
-        log.info("replaying %d messages of %s from %s (speed %g)", len(self.records), self.bus.station,
-                 time.strftime("%H:%M:%S", time.localtime(start_s)), self.speed)
+        log.info(
+            "replaying %d messages of %s from %s (speed %g)",
+            len(self.records),
+            self.bus.station,
+            time.strftime("%H:%M:%S", time.localtime(start_s)),
+            self.speed,
+        )
         for record in self.records:
             due_s = start_s + (record.sent_s - self.origin_s) / self.speed
             while not self.bus.stop.is_set():

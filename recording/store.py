@@ -120,8 +120,9 @@ class Recorder:
     """Writes one station's (or the testbed's) recording from any thread: the callers only queue,
     a writer thread encodes and flushes."""
 
-    def __init__(self, path: Path, station: str, system: str, level: str, caps: Caps = Caps(),
-                 clock: Clock = WALL) -> None:
+    def __init__(
+        self, path: Path, station: str, system: str, level: str, caps: Caps = Caps(), clock: Clock = WALL
+    ) -> None:
         self.clock = clock
         if level not in RECORD_LEVELS:
             raise ConfigError("record.level", f"{level!r} not one of {', '.join(RECORD_LEVELS)}")
@@ -137,10 +138,18 @@ class Recorder:
         self._file: IO[bytes] = path.open("wb")
         self._writer = Writer(self._file, use_chunking=False, use_statistics=True)
         self._writer.start(profile="abyss", library="abyss recording")
-        self._writer.add_metadata("abyss", {
-            "format_version": str(FORMAT_VERSION), "station": station, "system": system, "level": level,
-            "max_rate_hz": str(caps.max_hz), "bulk_max_rate_hz": str(caps.bulk_hz),
-            "messages": json.dumps({name: cls.VERSION for name, cls in MESSAGES.items()})})
+        self._writer.add_metadata(
+            "abyss",
+            {
+                "format_version": str(FORMAT_VERSION),
+                "station": station,
+                "system": system,
+                "level": level,
+                "max_rate_hz": str(caps.max_hz),
+                "bulk_max_rate_hz": str(caps.bulk_hz),
+                "messages": json.dumps({name: cls.VERSION for name, cls in MESSAGES.items()}),
+            },
+        )
         self._channels: dict[tuple[str, str], int] = {}
         self._schemas: dict[str, int] = {}
         self._thread = threading.Thread(target=self._write_loop, name=f"recorder {station}", daemon=True)
@@ -150,8 +159,14 @@ class Recorder:
         spec = data_spec(key)
         return self.level != "none" and (spec is None or recorded(self.level, spec))
 
-    def add(self, direction: str, key: str, payload: bytes, reason: str = "",
-            envelope: tuple[int, float] | None = None) -> None:
+    def add(
+        self,
+        direction: str,
+        key: str,
+        payload: bytes,
+        reason: str = "",
+        envelope: tuple[int, float] | None = None,
+    ) -> None:
         """Queue one message as this station `direction` it, now; skipped over its key's cap.
         `envelope`: its sequence number and stamp where the caller has them (the bus: the writer
         then need not unpack a frame's megabyte to find them)."""
@@ -168,9 +183,14 @@ class Recorder:
 
     def status(self) -> dict[str, Any]:
         with self._lock:
-            return {"file": str(self.path), "level": self.level, "recorded": dict(self.counts),
-                    "skipped_over_cap": dict(self.skipped), "bytes": self.bytes_written,
-                    "writer_cpu_s": round(self.writer_cpu_s, 3)}
+            return {
+                "file": str(self.path),
+                "level": self.level,
+                "recorded": dict(self.counts),
+                "skipped_over_cap": dict(self.skipped),
+                "bytes": self.bytes_written,
+                "writer_cpu_s": round(self.writer_cpu_s, 3),
+            }
 
     def close(self) -> None:
         """Write what is queued, then the MCAP summary (a file without it reads all the same)."""
@@ -188,13 +208,19 @@ class Recorder:
         if direction != "rejected" and message:
             if message not in self._schemas:
                 self._schemas[message] = self._writer.register_schema(
-                    message, "abyss-message", json.dumps({"version": MESSAGES[message].VERSION}).encode())
+                    message, "abyss-message", json.dumps({"version": MESSAGES[message].VERSION}).encode()
+                )
             schema = self._schemas[message]
-        metadata = {"direction": direction, "station": self.station, "message": message,
-                    "hop": spec.hop if spec is not None else "",
-                    "publisher": key.split("/")[2] if key.count("/") >= 2 else ""}
+        metadata = {
+            "direction": direction,
+            "station": self.station,
+            "message": message,
+            "hop": spec.hop if spec is not None else "",
+            "publisher": key.split("/")[2] if key.count("/") >= 2 else "",
+        }
         channel = self._channels[(key, direction)] = self._writer.register_channel(
-            key, REJECTED_ENCODING if direction == "rejected" else MESSAGE_ENCODING, schema, metadata)
+            key, REJECTED_ENCODING if direction == "rejected" else MESSAGE_ENCODING, schema, metadata
+        )
         return channel
 
     def _write_loop(self) -> None:
@@ -216,15 +242,27 @@ class Recorder:
         self._file.close()
         self.writer_cpu_s = time.thread_time()
 
-    def _write(self, direction: str, key: str, payload: bytes, recorded_s: float, reason: str,
-               envelope: tuple[int, float] | None) -> None:
+    def _write(
+        self,
+        direction: str,
+        key: str,
+        payload: bytes,
+        recorded_s: float,
+        reason: str,
+        envelope: tuple[int, float] | None,
+    ) -> None:
         seq, sent_s = 0, recorded_s
         if direction == "rejected":
             payload = msgpack.packb({"reason": reason, "payload": payload}, use_bin_type=True)
         else:
             seq, sent_s = envelope or envelope_of(payload)
-        self._writer.add_message(self._channel(direction, key), log_time=round(recorded_s * 1e9),
-                                 data=payload, publish_time=round(sent_s * 1e9), sequence=seq % 2**32)
+        self._writer.add_message(
+            self._channel(direction, key),
+            log_time=round(recorded_s * 1e9),
+            data=payload,
+            publish_time=round(sent_s * 1e9),
+            sequence=seq % 2**32,
+        )
         with self._lock:
             self.counts[direction] += 1
             self.bytes_written += len(payload)
@@ -312,26 +350,39 @@ def read_file(path: Path) -> RecordingFile:
             log.info("%s: read up to byte %d of %d (%s)", path, f.tell(), size, exc)
         read_bytes = f.tell()
     if not meta:
-        raise RecordingError(path, "not an abyss recording (no abyss metadata at its start)",
-                             "give the run directory of an `abyss up` with --record control or all")
-    return RecordingFile(path, meta["station"], meta["system"], meta["level"], records, complete, read_bytes,
-                         size)
+        raise RecordingError(
+            path,
+            "not an abyss recording (no abyss metadata at its start)",
+            "give the run directory of an `abyss up` with --record control or all",
+        )
+    return RecordingFile(
+        path, meta["station"], meta["system"], meta["level"], records, complete, read_bytes, size
+    )
 
 
 def _check_version(path: Path, meta: dict[str, str]) -> None:
     version = meta.get("format_version", "?")
     if version != str(FORMAT_VERSION):
-        raise RecordingError(path, f"recording format version {version}, this abyss reads {FORMAT_VERSION}",
-                             "record the run again with this abyss, or read it with the abyss that made it")
+        raise RecordingError(
+            path,
+            f"recording format version {version}, this abyss reads {FORMAT_VERSION}",
+            "record the run again with this abyss, or read it with the abyss that made it",
+        )
     try:
         recorded_versions = json.loads(meta.get("messages", "{}"))
     except ValueError:
         recorded_versions = {}
-    older = sorted(f"{name} v{v} (now v{MESSAGES[name].VERSION})" for name, v in recorded_versions.items()
-                   if name in MESSAGES and v != MESSAGES[name].VERSION)
+    older = sorted(
+        f"{name} v{v} (now v{MESSAGES[name].VERSION})"
+        for name, v in recorded_versions.items()
+        if name in MESSAGES and v != MESSAGES[name].VERSION
+    )
     if older:
-        raise RecordingError(path, f"messages of an older schema: {', '.join(older)}",
-                             "record the run again with this abyss, or read it with the abyss that made it")
+        raise RecordingError(
+            path,
+            f"messages of an older schema: {', '.join(older)}",
+            "record the run again with this abyss, or read it with the abyss that made it",
+        )
 
 
 def _record_of(channel: Channel, message: McapMessage) -> Record:
@@ -340,9 +391,18 @@ def _record_of(channel: Channel, message: McapMessage) -> Record:
     if channel.message_encoding == REJECTED_ENCODING:
         rejected = msgpack.unpackb(message.data, raw=False)
         payload, reason = rejected["payload"], rejected["reason"]
-    return Record(meta.get("station", ""), meta.get("direction", ""), channel.topic, meta.get("hop", ""),
-                  meta.get("message", ""), message.sequence, message.publish_time / 1e9,
-                  message.log_time / 1e9, payload, reason)
+    return Record(
+        meta.get("station", ""),
+        meta.get("direction", ""),
+        channel.topic,
+        meta.get("hop", ""),
+        meta.get("message", ""),
+        message.sequence,
+        message.publish_time / 1e9,
+        message.log_time / 1e9,
+        payload,
+        reason,
+    )
 
 
 @dataclass
@@ -363,8 +423,13 @@ class Recording:
 
     def records(self, stations: tuple[str, ...] = (), directions: tuple[str, ...] = ()) -> list[Record]:
         """Records of these stations' files in these directions (all if empty), by recorded time."""
-        chosen = [r for f in self.files if not stations or f.station in stations
-                  for r in f.records if not directions or r.direction in directions]
+        chosen = [
+            r
+            for f in self.files
+            if not stations or f.station in stations
+            for r in f.records
+            if not directions or r.direction in directions
+        ]
         return sorted(chosen, key=lambda r: r.recorded_s)
 
     def published(self, publishers: tuple[str, ...] = ()) -> list[Record]:
@@ -398,8 +463,12 @@ def open_recording(run_dir: Path) -> Recording:
     folder = run_dir / RECORD_DIR
     paths = sorted(folder.glob("*.mcap"), key=lambda p: p.stat().st_mtime) if folder.is_dir() else []
     if not paths:
-        raise RecordingError(folder, "no recording", "the run was made with --record none, or by an abyss "
-                             "before recording; run `abyss up --record all` (the default)")
+        raise RecordingError(
+            folder,
+            "no recording",
+            "the run was made with --record none, or by an abyss "
+            "before recording; run `abyss up --record all` (the default)",
+        )
     recording = Recording(run_dir)
     recording.files = [read_file(path) for path in paths]
     return recording

@@ -61,8 +61,9 @@ class Gateway:
     """`on_up`: per abyss topic of the station, what takes the node's message in place of the
     bus (ValueError: the message is refused with that reason)."""
 
-    def __init__(self, config: Config, bus: Bus,
-                 on_up: dict[str, Callable[[Any], object]] | None = None) -> None:
+    def __init__(
+        self, config: Config, bus: Bus, on_up: dict[str, Callable[[Any], object]] | None = None
+    ) -> None:
         cfg = config.ros2
         self.bus, self.namespace = bus, cfg.namespace
         self.session = open_session(ros_session_config(cfg.listen, cfg.connect), "the ROS 2 gateway")
@@ -87,17 +88,31 @@ class Gateway:
             spec, mapping = keys.spec(*key.split("/", 1)), types.key_map(key)
             assert mapping is not None
             for t in (t for t in mapping.topics if t.parse is not None):
-                self.node.subscription(self.topic(spec, t), t.type, mapping.qos(t),
-                                       functools.partial(self._up, spec, t), bus.reject)
+                self.node.subscription(
+                    self.topic(spec, t),
+                    t.type,
+                    mapping.qos(t),
+                    functools.partial(self._up, spec, t),
+                    bus.reject,
+                )
         self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", types.CLOCK_QOS)
         self.clock_s = -1.0
         self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
         self.camera_mounts: dict[str, np.ndarray] = {}
         self._publish_static()
-        log.info("ROS 2 gateway for %s: node %s/%s in domain %d, Zenoh %s (listen %s, connect %s); %d topics "
-                 "down, %d up", bus.station, cfg.namespace, self.node.name, cfg.domain, self.node.zid,
-                 list(cfg.listen), list(cfg.connect), len(self.publishers) + 2,
-                 sum(isinstance(e, rmw.Subscription) for e in self.node.endpoints))
+        log.info(
+            "ROS 2 gateway for %s: node %s/%s in domain %d, Zenoh %s (listen %s, connect %s); %d topics "
+            "down, %d up",
+            bus.station,
+            cfg.namespace,
+            self.node.name,
+            cfg.domain,
+            self.node.zid,
+            list(cfg.listen),
+            list(cfg.connect),
+            len(self.publishers) + 2,
+            sum(isinstance(e, rmw.Subscription) for e in self.node.endpoints),
+        )
 
     def topic(self, spec: keys.KeySpec, t: types.RosTopic) -> str:
         return t.topic(f"{spec.station}/{spec.topic}", self.namespace)
@@ -130,8 +145,11 @@ class Gateway:
                 self.clock_s = self.convert.sim_time_s
                 clock = types.clock(None, types.header(self.clock_s, ""), self.convert)
                 self.clock.put(types.serialize(clock))
-        if isinstance(message, Image) and message.pose_frame == "vehicle" \
-                and message.camera not in self.camera_mounts:
+        if (
+            isinstance(message, Image)
+            and message.pose_frame == "vehicle"
+            and message.camera not in self.camera_mounts
+        ):
             self.camera_mounts[message.camera] = message.pose_camera
             self._publish_static()
 
@@ -152,14 +170,23 @@ class Gateway:
             if unmatched:
                 if (command.TYPE, command.command_id) not in self._waiting_logged:
                     self._waiting_logged.add((command.TYPE, command.command_id))
-                    log.info("%s %d waits for a ROS 2 subscriber of %s; shore sends it again",
-                             COMMAND_KINDS[command.TYPE], command.command_id, ", ".join(unmatched))
+                    log.info(
+                        "%s %d waits for a ROS 2 subscriber of %s; shore sends it again",
+                        COMMAND_KINDS[command.TYPE],
+                        command.command_id,
+                        ", ".join(unmatched),
+                    )
                 return
             self._down(spec, mapping, command)
             answered = self.answers[command.TYPE, command.command_id] = CommandAck(
-                command.command_id, COMMAND_KINDS[command.TYPE], "")
-            log.info("%s %d handed to the ROS 2 node on %s", COMMAND_KINDS[command.TYPE], command.command_id,
-                     ", ".join(topics))
+                command.command_id, COMMAND_KINDS[command.TYPE], ""
+            )
+            log.info(
+                "%s %d handed to the ROS 2 node on %s",
+                COMMAND_KINDS[command.TYPE],
+                command.command_id,
+                ", ".join(topics),
+            )
         self.bus.publish("ack", answered)
 
     # -- up: ROS 2 -> abyss --------------------------------------------------------------

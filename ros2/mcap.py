@@ -85,15 +85,22 @@ class _Channels:
         if topic in self.ids:
             return
         if type_name not in self.schemas:
-            self.schemas[type_name] = self.writer.register_schema(type_name, "ros2msg",
-                                                                  types.msgdef(type_name).encode())
-        self.ids[topic] = self.writer.register_channel(topic, "cdr", self.schemas[type_name],
-                                                       {"offered_qos_profiles": qos_yaml(qos)})
+            self.schemas[type_name] = self.writer.register_schema(
+                type_name, "ros2msg", types.msgdef(type_name).encode()
+            )
+        self.ids[topic] = self.writer.register_channel(
+            topic, "cdr", self.schemas[type_name], {"offered_qos_profiles": qos_yaml(qos)}
+        )
         self.counts[topic] = 0
 
     def write(self, topic: str, message: Any, log_time_s: float, publish_time_s: float) -> None:
-        self.writer.add_message(self.ids[topic], log_time=_ns(log_time_s), data=types.serialize(message),
-                                publish_time=_ns(publish_time_s), sequence=self.counts[topic] % 2**32)
+        self.writer.add_message(
+            self.ids[topic],
+            log_time=_ns(log_time_s),
+            data=types.serialize(message),
+            publish_time=_ns(publish_time_s),
+            sequence=self.counts[topic] % 2**32,
+        )
         self.counts[topic] += 1
 
 
@@ -115,10 +122,14 @@ def camera_mounts(recording: Recording) -> dict[str, np.ndarray]:
 
 
 def sim_clock(recording: Recording) -> SimClock:
-    navigation = [r for r in recording.published(("simulation",)) + recording.observed()
-                  if r.topic in ("simulation/nav", "simulation/truth")]
-    return SimClock((r.sent_s, m.sim_time_s) for r, m in recording.messages(navigation)
-                    if isinstance(m, NavState))
+    navigation = [
+        r
+        for r in recording.published(("simulation",)) + recording.observed()
+        if r.topic in ("simulation/nav", "simulation/truth")
+    ]
+    return SimClock(
+        (r.sent_s, m.sim_time_s) for r, m in recording.messages(navigation) if isinstance(m, NavState)
+    )
 
 
 def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> dict[str, Any]:
@@ -153,19 +164,31 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
             writer.finish()
         part.replace(out)
     except OSError as exc:
-        raise AbyssError(f"{out}: cannot write the export ({exc.strerror or exc}); give -o a writable "
-                         "path") from None
+        raise AbyssError(
+            f"{out}: cannot write the export ({exc.strerror or exc}); give -o a writable path"
+        ) from None
     finally:
         part.unlink(missing_ok=True)  # left only by an export that failed
     stamps = [r.recorded_s for r, _ in exported]
-    return {"file": str(out), "topics": dict(sorted(channels.counts.items())),
-            "messages": sum(channels.counts.values()), "skipped": dict(skipped),
-            "run_s": max(stamps) - min(stamps) if stamps else 0.0,
-            "export_s": time.perf_counter() - started_s, "bytes": out.stat().st_size}
+    return {
+        "file": str(out),
+        "topics": dict(sorted(channels.counts.items())),
+        "messages": sum(channels.counts.values()),
+        "skipped": dict(skipped),
+        "run_s": max(stamps) - min(stamps) if stamps else 0.0,
+        "export_s": time.perf_counter() - started_s,
+        "bytes": out.stat().st_size,
+    }
 
 
-def _write_record(channels: _Channels, session: types.Session, clock: SimClock, r: Record, m: types.KeyMap,
-                  skipped: Counter[str]) -> None:
+def _write_record(
+    channels: _Channels,
+    session: types.Session,
+    clock: SimClock,
+    r: Record,
+    m: types.KeyMap,
+    skipped: Counter[str],
+) -> None:
     """One recorded message on each of its key's topics; one that does not convert is logged and
     counted in `skipped`."""
     try:

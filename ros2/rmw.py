@@ -78,14 +78,21 @@ def _duration(time: Any) -> str:
 
 def qos_string(qos: Qos) -> str:
     """The QoS field of a token."""
+
     def enum(value: Any, default: Any) -> str:
         return "" if value in (default, 0) else str(value.value)  # 0: the system default, i.e. rmw_zenoh's
 
-    reliability, durability, history, liveliness = (enum(v, d) for v, d in zip(
-        (qos.reliability, qos.durability, qos.history, qos.liveliness), _DEFAULTS, strict=True))
+    reliability, durability, history, liveliness = (
+        enum(v, d)
+        for v, d in zip(
+            (qos.reliability, qos.durability, qos.history, qos.liveliness), _DEFAULTS, strict=True
+        )
+    )
     depth = "" if qos.depth in (0, DEFAULT_DEPTH) else str(qos.depth)
-    return (f"{reliability}:{durability}:{history},{depth}:{_duration(qos.deadline)}:"
-            f"{_duration(qos.lifespan)}:{liveliness},{_duration(qos.liveliness_lease_duration)}")
+    return (
+        f"{reliability}:{durability}:{history},{depth}:{_duration(qos.deadline)}:"
+        f"{_duration(qos.lifespan)}:{liveliness},{_duration(qos.liveliness_lease_duration)}"
+    )
 
 
 @dataclass(frozen=True)
@@ -106,12 +113,25 @@ class Endpoint:
 
     @property
     def token(self) -> str:
-        parts = [LIVELINESS_PREFIX, str(self.domain), self.zid, str(self.node_id), str(self.entity_id),
-                 self.kind, mangle(self.enclave), mangle(self.namespace), self.node]
+        parts = [
+            LIVELINESS_PREFIX,
+            str(self.domain),
+            self.zid,
+            str(self.node_id),
+            str(self.entity_id),
+            self.kind,
+            mangle(self.enclave),
+            mangle(self.namespace),
+            self.node,
+        ]
         if self.kind != NODE:
             assert self.qos is not None
-            parts += [mangle(self.topic), dds_type(self.type_name), type_hash(self.type_name),
-                      qos_string(self.qos)]
+            parts += [
+                mangle(self.topic),
+                dds_type(self.type_name),
+                type_hash(self.type_name),
+                qos_string(self.qos),
+            ]
         return "/".join(parts)
 
     @property
@@ -132,7 +152,7 @@ def parse_attachment(data: bytes | None) -> tuple[int, int, bytes]:
     seq, stamp_ns, gid_length = ATTACHMENT.unpack_from(data)
     if gid_length != GID_BYTES:
         raise ValueError(f"attachment's GID is {gid_length} bytes, not {GID_BYTES}")
-    return seq, stamp_ns, data[ATTACHMENT.size:ATTACHMENT.size + GID_BYTES]
+    return seq, stamp_ns, data[ATTACHMENT.size : ATTACHMENT.size + GID_BYTES]
 
 
 def deserialize(payload: bytes, type_name: str) -> Any:
@@ -146,8 +166,11 @@ def deserialize(payload: bytes, type_name: str) -> Any:
 
 
 def _reliability(qos: Qos) -> zenoh.Reliability:
-    return zenoh.Reliability.BEST_EFFORT if qos.reliability == QosReliability.BEST_EFFORT \
+    return (
+        zenoh.Reliability.BEST_EFFORT
+        if qos.reliability == QosReliability.BEST_EFFORT
         else zenoh.Reliability.RELIABLE
+    )
 
 
 def _congestion(qos: Qos) -> zenoh.CongestionControl:
@@ -168,12 +191,18 @@ class Publisher:
         self.transient_local = qos.durability == QosDurability.TRANSIENT_LOCAL
         if self.transient_local:  # late subscribers get the last `depth` samples from the cache
             self._publisher: Any = zenoh.ext.declare_advanced_publisher(
-                node.session, self.key, reliability=_reliability(qos), congestion_control=_congestion(qos),
-                cache=zenoh.ext.CacheConfig(max_samples=qos.depth or DEFAULT_DEPTH), publisher_detection=True,
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5))
+                node.session,
+                self.key,
+                reliability=_reliability(qos),
+                congestion_control=_congestion(qos),
+                cache=zenoh.ext.CacheConfig(max_samples=qos.depth or DEFAULT_DEPTH),
+                publisher_detection=True,
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5),
+            )
         else:
             self._publisher = node.session.declare_publisher(
-                self.key, reliability=_reliability(qos), congestion_control=_congestion(qos))
+                self.key, reliability=_reliability(qos), congestion_control=_congestion(qos)
+            )
         self._token = node.session.liveliness().declare_token(self.endpoint.token)
 
     def put(self, payload: bytes) -> None:
@@ -197,8 +226,15 @@ class Subscription:
     """A ROS 2 subscription on Zenoh: every sample on the topic is checked (type, type hash,
     attachment, CDR) before `on_message` gets it; `on_reject(key, reason)` gets the others."""
 
-    def __init__(self, node: Node, topic: str, type_name: str, qos: Qos, on_message: Callable[[Any], None],
-                 on_reject: Callable[[str, str], None]) -> None:
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        type_name: str,
+        qos: Qos,
+        on_message: Callable[[Any], None],
+        on_reject: Callable[[str, str], None],
+    ) -> None:
         self.topic, self.type_name = topic, type_name
         self.endpoint = node.endpoint(SUBSCRIPTION, topic, type_name, qos)
         self.key = topic_key(node.domain, topic, type_name)
@@ -216,8 +252,10 @@ class Subscription:
             if got[0] != self.expected[0]:
                 raise ValueError(f"type {got[0]}, the topic carries {self.expected[0]}")
             if got[1] != self.expected[1]:
-                raise ValueError(f"type hash {got[1]} is not {self.type_name}'s {self.expected[1]} "
-                                 "(another version of the message definition)")
+                raise ValueError(
+                    f"type hash {got[1]} is not {self.type_name}'s {self.expected[1]} "
+                    "(another version of the message definition)"
+                )
             attached = sample.attachment
             parse_attachment(attached.to_bytes() if attached is not None else None)
             message = deserialize(sample.payload.to_bytes(), self.type_name)
@@ -246,16 +284,23 @@ class Node:
 
     def endpoint(self, kind: str, topic: str = "", type_name: str = "", qos: Qos | None = None) -> Endpoint:
         entity_id = self.id if kind == NODE else next(self._ids)
-        return Endpoint(self.domain, self.zid, self.id, entity_id, kind, self.namespace, self.name, topic,
-                        type_name, qos)
+        return Endpoint(
+            self.domain, self.zid, self.id, entity_id, kind, self.namespace, self.name, topic, type_name, qos
+        )
 
     def publisher(self, topic: str, type_name: str, qos: Qos) -> Publisher:
         publisher = Publisher(self, topic, type_name, qos)
         self.endpoints.append(publisher)
         return publisher
 
-    def subscription(self, topic: str, type_name: str, qos: Qos, on_message: Callable[[Any], None],
-                     on_reject: Callable[[str, str], None]) -> Subscription:
+    def subscription(
+        self,
+        topic: str,
+        type_name: str,
+        qos: Qos,
+        on_message: Callable[[Any], None],
+        on_reject: Callable[[str, str], None],
+    ) -> Subscription:
         subscription = Subscription(self, topic, type_name, qos, on_message, on_reject)
         self.endpoints.append(subscription)
         return subscription

@@ -103,8 +103,17 @@ def optical_frame(camera: str) -> str:
 # -- QoS ------------------------------------------------------------------------------------
 def _qos(reliability: QosReliability, depth: int, durability: QosDurability = QosDurability.VOLATILE) -> Qos:
     never = QosTime(0, 0)  # the defaults: no deadline, lifespan or lease
-    return Qos(QosHistory.KEEP_LAST, depth, reliability, durability, never, never, QosLiveliness.AUTOMATIC,
-               never, False)
+    return Qos(
+        QosHistory.KEEP_LAST,
+        depth,
+        reliability,
+        durability,
+        never,
+        never,
+        QosLiveliness.AUTOMATIC,
+        never,
+        False,
+    )
 
 
 SENSOR_QOS = _qos(QosReliability.BEST_EFFORT, 5)  # rclcpp's SensorDataQoS: a best-effort abyss key
@@ -136,20 +145,23 @@ def _quaternion(wxyz: Floats) -> Any:
 
 def _pose(position: Floats, orientation_wxyz: Floats) -> Any:
     x, y, z = (float(v) for v in position)
-    return _T["geometry_msgs/msg/Pose"](position=_T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
-                                        orientation=_quaternion(orientation_wxyz))
+    return _T["geometry_msgs/msg/Pose"](
+        position=_T["geometry_msgs/msg/Point"](x=x, y=y, z=z), orientation=_quaternion(orientation_wxyz)
+    )
 
 
 def _yaw_wxyz(yaw_rad: float) -> tuple[float, float, float, float]:
     return math.cos(yaw_rad / 2), 0.0, 0.0, math.sin(yaw_rad / 2)
 
 
-def _transform(stamp: Any, parent: str, child: str, translation: Floats,
-               rotation_wxyz: Floats) -> Any:
+def _transform(stamp: Any, parent: str, child: str, translation: Floats, rotation_wxyz: Floats) -> Any:
     return _T["geometry_msgs/msg/TransformStamped"](
-        header=_T["std_msgs/msg/Header"](stamp=stamp, frame_id=parent), child_frame_id=child,
-        transform=_T["geometry_msgs/msg/Transform"](translation=_vector(translation),
-                                                    rotation=_quaternion(rotation_wxyz)))
+        header=_T["std_msgs/msg/Header"](stamp=stamp, frame_id=parent),
+        child_frame_id=child,
+        transform=_T["geometry_msgs/msg/Transform"](
+            translation=_vector(translation), rotation=_quaternion(rotation_wxyz)
+        ),
+    )
 
 
 def _tf(transforms: list[Any]) -> Any:
@@ -163,9 +175,15 @@ def _floats(values: Floats) -> np.ndarray:
 def _diagnostics(head: Any, name: str, level: int, message: str, values: dict[str, object]) -> Any:
     """A DiagnosticArray of one status; `level`: DiagnosticStatus.OK, WARN, ERROR."""
     status = _T["diagnostic_msgs/msg/DiagnosticStatus"](
-        level=level, name=name, message=message, hardware_id="abyss",
-        values=[_T["diagnostic_msgs/msg/KeyValue"](key=k, value=f"{v:g}" if isinstance(v, float) else str(v))
-                for k, v in values.items()])
+        level=level,
+        name=name,
+        message=message,
+        hardware_id="abyss",
+        values=[
+            _T["diagnostic_msgs/msg/KeyValue"](key=k, value=f"{v:g}" if isinstance(v, float) else str(v))
+            for k, v in values.items()
+        ],
+    )
     return _T["diagnostic_msgs/msg/DiagnosticArray"](header=head, status=[status])
 
 
@@ -181,8 +199,10 @@ class ArmFrames:
     def __init__(self) -> None:
         self.model = pin.buildModelFromMJCF(str(ROBOT_FILE))
         self.data = self.model.createData()
-        self.q_index = {name: self.model.joints[self.model.getJointId(name)].idx_q
-                        for name in (*ARM_JOINTS, *GRIPPER_JOINTS)}
+        self.q_index = {
+            name: self.model.joints[self.model.getJointId(name)].idx_q
+            for name in (*ARM_JOINTS, *GRIPPER_JOINTS)
+        }
         frames = self.model.frames
         self.vehicle = self.model.getFrameId("vehicle", pin.FrameType.BODY)
         # (parent body, child, moving): each body on the vehicle, and the tool point
@@ -197,8 +217,9 @@ class ArmFrames:
     def name(self, frame: int) -> str:
         return BASE_LINK if frame == self.vehicle else str(self.model.frames[frame].name)
 
-    def transforms(self, positions_rad: Floats, gripper_opening_m: float,
-                   moving: bool) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    def transforms(
+        self, positions_rad: Floats, gripper_opening_m: float, moving: bool
+    ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
         """(parent, child, translation [m], rotation w, x, y, z) of the moving links, or of the
         fixed ones."""
         q = pin.neutral(self.model)
@@ -211,8 +232,14 @@ class ArmFrames:
         for parent, child, is_moving in self.links:
             if is_moving == moving:
                 relative = self.data.oMf[parent].actInv(self.data.oMf[child])
-                chosen.append((self.name(parent), self.name(child), np.array(relative.translation),
-                               quat_wxyz_of(relative.rotation)))
+                chosen.append(
+                    (
+                        self.name(parent),
+                        self.name(child),
+                        np.array(relative.translation),
+                        quat_wxyz_of(relative.rotation),
+                    )
+                )
         return chosen
 
 
@@ -258,13 +285,18 @@ def odometry(nav: NavState, head: Any, session: Session) -> Any:
     (`dvl_valid`): they do not cross to ROS 2."""
     zeros = np.zeros(36)  # covariance unknown
     return _T["nav_msgs/msg/Odometry"](
-        header=head, child_frame_id=BASE_LINK,
+        header=head,
+        child_frame_id=BASE_LINK,
         pose=_T["geometry_msgs/msg/PoseWithCovariance"](
-            pose=_pose(nav.position_m_world, nav.orientation_wxyz_world), covariance=zeros),
+            pose=_pose(nav.position_m_world, nav.orientation_wxyz_world), covariance=zeros
+        ),
         twist=_T["geometry_msgs/msg/TwistWithCovariance"](
-            twist=_T["geometry_msgs/msg/Twist"](linear=_vector(nav.velocity_mps_body),
-                                                angular=_vector(nav.angular_velocity_radps_body)),
-            covariance=zeros))
+            twist=_T["geometry_msgs/msg/Twist"](
+                linear=_vector(nav.velocity_mps_body), angular=_vector(nav.angular_velocity_radps_body)
+            ),
+            covariance=zeros,
+        ),
+    )
 
 
 def vehicle_tf(nav: NavState, head: Any, session: Session) -> Any:
@@ -272,17 +304,22 @@ def vehicle_tf(nav: NavState, head: Any, session: Session) -> Any:
 
 
 def _joint_state(head: Any, positions: Floats, velocities: Floats) -> Any:
-    return _T["sensor_msgs/msg/JointState"](header=head, name=[*ARM_JOINTS, *GRIPPER_JOINTS],
-                                            position=_floats(positions), velocity=_floats(velocities),
-                                            effort=_floats([]))
+    return _T["sensor_msgs/msg/JointState"](
+        header=head,
+        name=[*ARM_JOINTS, *GRIPPER_JOINTS],
+        position=_floats(positions),
+        velocity=_floats(velocities),
+        effort=_floats([]),
+    )
 
 
 def joint_state(joints: JointState, head: Any, session: Session) -> Any:
     """The arm's joints and each finger at half the gripper's opening; the fingers' velocities are
     not measured (NaN)."""
     finger_m = joints.gripper_opening_m / 2
-    return _joint_state(head, [*joints.positions_rad, finger_m, finger_m],
-                        [*joints.velocities_radps, math.nan, math.nan])
+    return _joint_state(
+        head, [*joints.positions_rad, finger_m, finger_m], [*joints.velocities_radps, math.nan, math.nan]
+    )
 
 
 def arm_tf(joints: JointState, head: Any, session: Session) -> Any:
@@ -300,13 +337,18 @@ def joint_velocities(ref: ArmVelocityRef, head: Any, session: Session) -> Any:
     dim = _T["std_msgs/msg/MultiArrayDimension"](label=ARM_COMMAND_LABEL, size=7, stride=7)
     return _T["std_msgs/msg/Float64MultiArray"](
         layout=_T["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=0),
-        data=_floats([*ref.joint_velocities_radps, ref.gripper_velocity_mps]))
+        data=_floats([*ref.joint_velocities_radps, ref.gripper_velocity_mps]),
+    )
 
 
 def twist(ref: VelocityRef, head: Any, session: Session) -> Any:
     """The vehicle's velocity reference in base_link; the yaw rate about its z axis."""
-    return _T["geometry_msgs/msg/TwistStamped"](header=head, twist=_T["geometry_msgs/msg/Twist"](
-        linear=_vector(ref.linear_mps_body), angular=_vector((0.0, 0.0, ref.yaw_rate_radps))))
+    return _T["geometry_msgs/msg/TwistStamped"](
+        header=head,
+        twist=_T["geometry_msgs/msg/Twist"](
+            linear=_vector(ref.linear_mps_body), angular=_vector((0.0, 0.0, ref.yaw_rate_radps))
+        ),
+    )
 
 
 def raw_image(image: Image, head: Any, session: Session) -> Any | None:
@@ -315,24 +357,35 @@ def raw_image(image: Image, head: Any, session: Session) -> Any | None:
         return None
     pixels = decode_image(image)
     return _T["sensor_msgs/msg/Image"](
-        header=header_of(head, optical_frame(image.camera)), height=image.height_px, width=image.width_px,
-        encoding="rgb8", is_bigendian=0, step=3 * image.width_px, data=np.ascontiguousarray(pixels).ravel())
+        header=header_of(head, optical_frame(image.camera)),
+        height=image.height_px,
+        width=image.width_px,
+        encoding="rgb8",
+        is_bigendian=0,
+        step=3 * image.width_px,
+        data=np.ascontiguousarray(pixels).ravel(),
+    )
 
 
 def compressed_image(image: Image, head: Any, session: Session) -> Any | None:
     if image.encoding != "jpeg":
         return None
-    return _T["sensor_msgs/msg/CompressedImage"](header=header_of(head, optical_frame(image.camera)),
-                                                 format="jpeg", data=np.frombuffer(image.data, np.uint8))
+    return _T["sensor_msgs/msg/CompressedImage"](
+        header=header_of(head, optical_frame(image.camera)),
+        format="jpeg",
+        data=np.frombuffer(image.data, np.uint8),
+    )
 
 
 def sonar_image(sonar: SonarImage, head: Any, session: Session) -> Any:
     """The polar image (rows range bins, columns beams port to starboard) as the sonar sent it,
     PNG or JPEG, in the sonar's own frame; its geometry is in the abyss message (marine_acoustic_msgs,
     which carries it, is in no message store rosbags has)."""
-    return _T["sensor_msgs/msg/CompressedImage"](header=header_of(head, sonar.sonar),
-                                                 format="png" if sonar.encoding == "png8" else "jpeg",
-                                                 data=np.frombuffer(sonar.data, np.uint8))
+    return _T["sensor_msgs/msg/CompressedImage"](
+        header=header_of(head, sonar.sonar),
+        format="png" if sonar.encoding == "png8" else "jpeg",
+        data=np.frombuffer(sonar.data, np.uint8),
+    )
 
 
 def depth_image(image: Image, head: Any, session: Session) -> Any | None:
@@ -341,23 +394,39 @@ def depth_image(image: Image, head: Any, session: Session) -> Any | None:
         return None
     depth_mm = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_UNCHANGED)
     if depth_mm is None or depth_mm.dtype != np.uint16 or depth_mm.shape != (image.height_px, image.width_px):
-        raise ValueError(f"{image.camera}: the depth PNG does not decode to "
-                         f"{image.width_px}x{image.height_px} 16-bit pixels")
+        raise ValueError(
+            f"{image.camera}: the depth PNG does not decode to "
+            f"{image.width_px}x{image.height_px} 16-bit pixels"
+        )
     return _T["sensor_msgs/msg/Image"](
-        header=header_of(head, optical_frame(image.camera)), height=image.height_px, width=image.width_px,
-        encoding="16UC1", is_bigendian=0, step=2 * image.width_px,
-        data=np.ascontiguousarray(depth_mm, dtype="<u2").view(np.uint8).ravel())
+        header=header_of(head, optical_frame(image.camera)),
+        height=image.height_px,
+        width=image.width_px,
+        encoding="16UC1",
+        is_bigendian=0,
+        step=2 * image.width_px,
+        data=np.ascontiguousarray(depth_mm, dtype="<u2").view(np.uint8).ravel(),
+    )
 
 
 def camera_info(image: Image, head: Any, session: Session) -> Any:
     """The pinhole intrinsics, no distortion (the rendered cameras have none)."""
     fx, fy, cx, cy = image.fx_px, image.fy_px, image.cx_px, image.cy_px
     return _T["sensor_msgs/msg/CameraInfo"](
-        header=header_of(head, optical_frame(image.camera)), height=image.height_px, width=image.width_px,
-        distortion_model="plumb_bob", d=np.zeros(5), k=_floats([fx, 0, cx, 0, fy, cy, 0, 0, 1]),
-        r=_floats([1, 0, 0, 0, 1, 0, 0, 0, 1]), p=_floats([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0]),
-        binning_x=0, binning_y=0, roi=_T["sensor_msgs/msg/RegionOfInterest"](
-            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
+        header=header_of(head, optical_frame(image.camera)),
+        height=image.height_px,
+        width=image.width_px,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=_floats([fx, 0, cx, 0, fy, cy, 0, 0, 1]),
+        r=_floats([1, 0, 0, 0, 1, 0, 0, 0, 1]),
+        p=_floats([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1, 0]),
+        binning_x=0,
+        binning_y=0,
+        roi=_T["sensor_msgs/msg/RegionOfInterest"](
+            x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+        ),
+    )
 
 
 CLOUD_POINT = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
@@ -372,12 +441,21 @@ def point_cloud(cloud: PointCloud, head: Any, session: Session) -> Any:
     rgb = colors.astype(np.uint32)
     records["rgb"] = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
     field = _T["sensor_msgs/msg/PointField"]
-    fields = [field(name=name, offset=4 * i, datatype=field.FLOAT32, count=1)
-              for i, name in enumerate(("x", "y", "z", "rgb"))]
+    fields = [
+        field(name=name, offset=4 * i, datatype=field.FLOAT32, count=1)
+        for i, name in enumerate(("x", "y", "z", "rgb"))
+    ]
     return _T["sensor_msgs/msg/PointCloud2"](
-        header=head, height=1, width=len(records), fields=fields, is_bigendian=False,
-        point_step=CLOUD_POINT.itemsize, row_step=CLOUD_POINT.itemsize * len(records),
-        data=records.view(np.uint8), is_dense=True)
+        header=head,
+        height=1,
+        width=len(records),
+        fields=fields,
+        is_bigendian=False,
+        point_step=CLOUD_POINT.itemsize,
+        row_step=CLOUD_POINT.itemsize * len(records),
+        data=records.view(np.uint8),
+        is_dense=True,
+    )
 
 
 def octree_data(octree: bytes) -> bytes:
@@ -396,8 +474,10 @@ def octree_file(data: bytes, resolution_m: float) -> bytes:
     children = np.frombuffer(data, np.uint8)[:, None] >> np.array([0, 2, 4, 6], np.uint8) & 3
     inner = int((children == 3).sum())
     if len(data) % 2 or len(data) != 2 * (inner + 1):
-        raise ValueError(f"{len(data)} bytes are not OctoMap's binary stream of a tree "
-                         f"({inner} inner children need {2 * (inner + 1)} bytes)")
+        raise ValueError(
+            f"{len(data)} bytes are not OctoMap's binary stream of a tree "
+            f"({inner} inner children need {2 * (inner + 1)} bytes)"
+        )
     size = len(data) // 2 + int(((children == 1) | (children == 2)).sum())
     head = f"# Octomap OcTree binary file\nid OcTree\nsize {size}\nres {resolution_m}\ndata\n"
     return head.encode() + data
@@ -409,26 +489,36 @@ def octomap(update: SceneUpdate, head: Any, session: Session) -> Any | None:
     if session.scene.apply(update) != "applied":
         return None
     return _T["octomap_msgs/msg/Octomap"](
-        header=head, binary=True, id="OcTree", resolution=session.scene.resolution_m,
-        data=np.frombuffer(octree_data(session.scene.binary()), np.int8))
+        header=head,
+        binary=True,
+        id="OcTree",
+        resolution=session.scene.resolution_m,
+        data=np.frombuffer(octree_data(session.scene.binary()), np.int8),
+    )
 
 
 def path(waypoints: Waypoints, head: Any, session: Session) -> Any:
     """Each waypoint a pose: x, y, z and the heading as a rotation about z."""
-    return _T["nav_msgs/msg/Path"](header=head, poses=[
-        _T["geometry_msgs/msg/PoseStamped"](header=head, pose=_pose(row[:3], _yaw_wxyz(float(row[3]))))
-        for row in waypoints.waypoints])
+    return _T["nav_msgs/msg/Path"](
+        header=head,
+        poses=[
+            _T["geometry_msgs/msg/PoseStamped"](header=head, pose=_pose(row[:3], _yaw_wxyz(float(row[3]))))
+            for row in waypoints.waypoints
+        ],
+    )
 
 
 def goal_pose(goal: ArmGoal, head: Any, session: Session) -> Any:
-    return _T["geometry_msgs/msg/PoseStamped"](header=head,
-                                               pose=_pose(goal.position_m_world, goal.orientation_wxyz_world))
+    return _T["geometry_msgs/msg/PoseStamped"](
+        header=head, pose=_pose(goal.position_m_world, goal.orientation_wxyz_world)
+    )
 
 
 def end_effector_pose(telemetry: Telemetry, head: Any, session: Session) -> Any:
     """Where onboard sees the tool, in the world."""
     return _T["geometry_msgs/msg/PoseStamped"](
-        header=head, pose=_pose(telemetry.ee_position_m_world, telemetry.ee_orientation_wxyz_world))
+        header=head, pose=_pose(telemetry.ee_position_m_world, telemetry.ee_orientation_wxyz_world)
+    )
 
 
 def objects(found: RecognisedObjects, head: Any, session: Session) -> Any:
@@ -436,81 +526,150 @@ def objects(found: RecognisedObjects, head: Any, session: Session) -> Any:
     the colour goes from red to green with the confidence."""
     marker_type = _T["visualization_msgs/msg/Marker"]
 
-    def marker(action: int, ns: str = "", index: int = 0, pose: Any = None,
-               size_m: Floats = (0, 0, 0), confidence: float = 0.0) -> Any:
+    def marker(
+        action: int,
+        ns: str = "",
+        index: int = 0,
+        pose: Any = None,
+        size_m: Floats = (0, 0, 0),
+        confidence: float = 0.0,
+    ) -> Any:
         return marker_type(
-            header=head, ns=ns, id=index, type=marker_type.CUBE, action=action,
-            pose=pose or _pose((0, 0, 0), (1, 0, 0, 0)), scale=_vector(size_m),
+            header=head,
+            ns=ns,
+            id=index,
+            type=marker_type.CUBE,
+            action=action,
+            pose=pose or _pose((0, 0, 0), (1, 0, 0, 0)),
+            scale=_vector(size_m),
             color=_T["std_msgs/msg/ColorRGBA"](r=1.0 - confidence, g=confidence, b=0.0, a=0.6),
-            lifetime=_T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False, points=[],
-            colors=[], texture_resource="",
+            lifetime=_T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+            frame_locked=False,
+            points=[],
+            colors=[],
+            texture_resource="",
             texture=_T["sensor_msgs/msg/CompressedImage"](header=head, format="", data=np.zeros(0, np.uint8)),
-            uv_coordinates=[], text=ns, mesh_resource="",
+            uv_coordinates=[],
+            text=ns,
+            mesh_resource="",
             mesh_file=_T["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
-            mesh_use_embedded_materials=False)
+            mesh_use_embedded_materials=False,
+        )
 
     found_each = zip(found.names, found.poses_world, found.half_sizes_m, found.confidences, strict=True)
-    boxes = [marker(marker_type.ADD, name, i, _pose(pose[:3], pose[3:]), 2 * half, float(confidence))
-             for i, (name, pose, half, confidence) in enumerate(found_each)]
+    boxes = [
+        marker(marker_type.ADD, name, i, _pose(pose[:3], pose[3:]), 2 * half, float(confidence))
+        for i, (name, pose, half, confidence) in enumerate(found_each)
+    ]
     return _T["visualization_msgs/msg/MarkerArray"](markers=[marker(marker_type.DELETEALL), *boxes])
 
 
 def telemetry_diagnostics(t: Telemetry, head: Any, session: Session) -> Any:
     """The controllers' state: WARN while the failsafe holds the vehicle and arm, with why."""
-    return _diagnostics(head, "abyss onboard controllers", WARN if t.failsafe else OK,
-                        f"failsafe: {t.failsafe}" if t.failsafe else f"vehicle {t.mode}, arm {t.arm_mode}", {
-                            "mode": t.mode, "arm_mode": t.arm_mode, "operator_mode": t.operator_mode,
-                            "failsafe": t.failsafe, "failsafe_events": t.failsafe_events,
-                            "command_id": t.command_id, "waypoint": f"{t.waypoint_index}/{t.waypoints_total}",
-                            "position_error_m": t.position_error_m, "heading_error_rad": t.heading_error_rad,
-                            "arm_command_id": t.arm_command_id,
-                            "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
-                            "ee_orientation_error_rad": t.ee_orientation_error_rad, "boot_id": t.boot_id})
+    return _diagnostics(
+        head,
+        "abyss onboard controllers",
+        WARN if t.failsafe else OK,
+        f"failsafe: {t.failsafe}" if t.failsafe else f"vehicle {t.mode}, arm {t.arm_mode}",
+        {
+            "mode": t.mode,
+            "arm_mode": t.arm_mode,
+            "operator_mode": t.operator_mode,
+            "failsafe": t.failsafe,
+            "failsafe_events": t.failsafe_events,
+            "command_id": t.command_id,
+            "waypoint": f"{t.waypoint_index}/{t.waypoints_total}",
+            "position_error_m": t.position_error_m,
+            "heading_error_rad": t.heading_error_rad,
+            "arm_command_id": t.arm_command_id,
+            "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
+            "ee_orientation_error_rad": t.ee_orientation_error_rad,
+            "boot_id": t.boot_id,
+        },
+    )
 
 
 def mission_diagnostics(m: MissionStatus, head: Any, session: Session) -> Any:
-    return _diagnostics(head, "abyss mission", WARN if m.failsafe else OK,
-                        "done" if m.done else f"failsafe: {m.failsafe}" if m.failsafe else m.mode, {
-                            "mode": m.mode, "arm_mode": m.arm_mode,
-                            "waypoint": f"{m.waypoint_index}/{m.waypoints_total}",
-                            "position_error_m": m.position_error_m, "heading_error_rad": m.heading_error_rad,
-                            "ee_position_error_m": m.ee_position_error_m,
-                            "ee_orientation_error_rad": m.ee_orientation_error_rad, "failsafe": m.failsafe,
-                            "failsafe_events": m.failsafe_events, "done": m.done})
+    return _diagnostics(
+        head,
+        "abyss mission",
+        WARN if m.failsafe else OK,
+        "done" if m.done else f"failsafe: {m.failsafe}" if m.failsafe else m.mode,
+        {
+            "mode": m.mode,
+            "arm_mode": m.arm_mode,
+            "waypoint": f"{m.waypoint_index}/{m.waypoints_total}",
+            "position_error_m": m.position_error_m,
+            "heading_error_rad": m.heading_error_rad,
+            "ee_position_error_m": m.ee_position_error_m,
+            "ee_orientation_error_rad": m.ee_orientation_error_rad,
+            "failsafe": m.failsafe,
+            "failsafe_events": m.failsafe_events,
+            "done": m.done,
+        },
+    )
 
 
 def perception_diagnostics(p: PerceptionStatus, head: Any, session: Session) -> Any:
     level = WARN if p.scene_source != "cameras" else OK
-    return _diagnostics(head, "abyss perception", level, f"scene from {p.scene_source or 'nothing yet'}", {
-        **{f"{source}_points_per_s": rate for source, rate in p.points_per_s.items()},
-        "recognition_confidence": p.recognition_confidence, "recognition_method": p.recognition_method})
+    return _diagnostics(
+        head,
+        "abyss perception",
+        level,
+        f"scene from {p.scene_source or 'nothing yet'}",
+        {
+            **{f"{source}_points_per_s": rate for source, rate in p.points_per_s.items()},
+            "recognition_confidence": p.recognition_confidence,
+            "recognition_method": p.recognition_method,
+        },
+    )
 
 
 def link_diagnostics(stats: LinkStats, head: Any, session: Session) -> Any:
     """What a link direction measured (its stats) under its profile (its fields)."""
-    return _diagnostics(head, f"abyss link {stats.hop} {stats.direction}", OK, f"profile {stats.profile}",
-                        {"profile": stats.profile, **stats.fields, **stats.stats})
+    return _diagnostics(
+        head,
+        f"abyss link {stats.hop} {stats.direction}",
+        OK,
+        f"profile {stats.profile}",
+        {"profile": stats.profile, **stats.fields, **stats.stats},
+    )
 
 
 def heartbeat_diagnostics(beat: Heartbeat, head: Any, session: Session) -> Any:
-    return _diagnostics(head, "abyss heartbeat", OK if beat.shore_heard else WARN,
-                        "shore heard" if beat.shore_heard else "shore lost",
-                        {"shore_heard": beat.shore_heard, "shore_silence_s": beat.shore_silence_s})
+    return _diagnostics(
+        head,
+        "abyss heartbeat",
+        OK if beat.shore_heard else WARN,
+        "shore heard" if beat.shore_heard else "shore lost",
+        {"shore_heard": beat.shore_heard, "shore_silence_s": beat.shore_silence_s},
+    )
 
 
 def ack_diagnostics(ack: CommandAck, head: Any, session: Session) -> Any:
-    return _diagnostics(head, f"abyss command {ack.command}", OK if ack.accepted else ERROR,
-                        "taken" if ack.accepted else f"refused: {ack.reason}",
-                        {"command": ack.command, "command_id": ack.command_id, "reason": ack.reason})
+    return _diagnostics(
+        head,
+        f"abyss command {ack.command}",
+        OK if ack.accepted else ERROR,
+        "taken" if ack.accepted else f"refused: {ack.reason}",
+        {"command": ack.command, "command_id": ack.command_id, "reason": ack.reason},
+    )
 
 
 def status_diagnostics(status: SimulationStatus, head: Any, session: Session) -> Any:
     """The simulation's pace and its faults (WARN while any is injected)."""
-    return _diagnostics(head, "abyss simulation", WARN if status.faults else OK,
-                        ", ".join(f"{k} {v:g}" for k, v in status.faults.items()) or "no faults", {
-                            "sim_time_s": status.sim_time_s, "realtime_factor": status.realtime_factor,
-                            "deadlines_met": status.deadlines_met,
-                            **{f"fault {k}": v for k, v in status.faults.items()}})
+    return _diagnostics(
+        head,
+        "abyss simulation",
+        WARN if status.faults else OK,
+        ", ".join(f"{k} {v:g}" for k, v in status.faults.items()) or "no faults",
+        {
+            "sim_time_s": status.sim_time_s,
+            "realtime_factor": status.realtime_factor,
+            "deadlines_met": status.deadlines_met,
+            **{f"fault {k}": v for k, v in status.faults.items()},
+        },
+    )
 
 
 def clock(status: SimulationStatus | None, head: Any, session: Session) -> Any:
@@ -530,10 +689,16 @@ def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndar
     """/tf_static: the arm's fixed links, and each camera's optical frame on the vehicle from its
     mounting (`Image.pose_camera` as the simulation sends it: x, y, z, w, x, y, z in base_link)."""
     stamp = ros_time(stamp_s)
-    arm = [_transform(stamp, parent, child, translation, rotation) for parent, child, translation, rotation
-           in session.arm.transforms(np.zeros(len(ARM_JOINTS)), 0.0, moving=False)]
-    cameras = [_transform(stamp, BASE_LINK, optical_frame(camera), pose[:3], pose[3:])
-               for camera, pose in sorted(camera_mounts.items())]
+    arm = [
+        _transform(stamp, parent, child, translation, rotation)
+        for parent, child, translation, rotation in session.arm.transforms(
+            np.zeros(len(ARM_JOINTS)), 0.0, moving=False
+        )
+    ]
+    cameras = [
+        _transform(stamp, BASE_LINK, optical_frame(camera), pose[:3], pose[3:])
+        for camera, pose in sorted(camera_mounts.items())
+    ]
     return _tf(arm + cameras)
 
 
@@ -590,13 +755,13 @@ def point_cloud_in(msg: Any, session: Session) -> PointCloud | None:
     count, step = int(msg.width) * int(msg.height), int(msg.point_step)
     if msg.is_bigendian or step < 12 or len(msg.data) < count * step:
         raise ValueError(f"{len(msg.data)} bytes for {count} points of {step} bytes (little-endian)")
-    rows = np.asarray(msg.data, np.uint8)[:count * step].reshape(count, step)
+    rows = np.asarray(msg.data, np.uint8)[: count * step].reshape(count, step)
 
     def column(name: str, dtype: str) -> np.ndarray:
         offset = int(fields[name].offset)
         if offset + 4 > step:
             raise ValueError(f"field {name!r} at offset {offset} lies past the point's {step} bytes")
-        return rows[:, offset:offset + 4].copy().view(dtype).ravel()
+        return rows[:, offset : offset + 4].copy().view(dtype).ravel()
 
     points_m = np.column_stack([column(name, "<f4") for name in ("x", "y", "z")]).astype(np.float64)
     colors = np.full((count, 3), 128, np.uint8)
@@ -607,8 +772,14 @@ def point_cloud_in(msg: Any, session: Session) -> PointCloud | None:
     if session.nav is None:
         return None
     stamp = msg.header.stamp
-    return pack_cloud("stereo", points_m[finite], colors[finite], session.nav.position_m_world, CLOUD_SCALE_M,
-                      stamp.sec + stamp.nanosec * 1e-9)
+    return pack_cloud(
+        "stereo",
+        points_m[finite],
+        colors[finite],
+        session.nav.position_m_world,
+        CLOUD_SCALE_M,
+        stamp.sec + stamp.nanosec * 1e-9,
+    )
 
 
 def octomap_in(msg: Any, session: Session) -> SceneUpdate:
@@ -619,9 +790,14 @@ def octomap_in(msg: Any, session: Session) -> SceneUpdate:
         kind = "binary" if msg.binary else "full"
         raise ValueError(f"a {kind} {msg.id!r} map; the scene takes a binary OcTree")
     stamp = msg.header.stamp
-    return SceneUpdate(kind="snapshot", scene_seq=0, resolution_m=float(msg.resolution),
-                       octree=octree_file(np.asarray(msg.data, np.int8).tobytes(), float(msg.resolution)),
-                       colors=np.zeros((0, 3), np.uint8), sim_time_s=stamp.sec + stamp.nanosec * 1e-9)
+    return SceneUpdate(
+        kind="snapshot",
+        scene_seq=0,
+        resolution_m=float(msg.resolution),
+        octree=octree_file(np.asarray(msg.data, np.int8).tobytes(), float(msg.resolution)),
+        colors=np.zeros((0, 3), np.uint8),
+        sim_time_s=stamp.sec + stamp.nanosec * 1e-9,
+    )
 
 
 TELEMETRY_VALUES = {  # the key-values read from the node's first DiagnosticStatus; the rest are ignored
@@ -668,13 +844,27 @@ def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
             ee_error_rad = float(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0)))
     joints = session.joints.positions_rad if session.joints is not None else np.zeros(len(ARM_JOINTS))
     return Telemetry(
-        position_m_world=position, yaw_rad=yaw, mode=values.get("mode", "idle"), command_id=command_id,
-        waypoint_index=min(index, total), waypoints_total=total, position_error_m_world=error_m,
-        heading_error_rad=heading_rad, arm_mode=values.get("arm_mode", "idle"), arm_command_id=arm_command_id,
-        ee_position_error_m_world=ee_error_m, ee_orientation_error_rad=ee_error_rad, ee_position_m_world=ee_m,
-        ee_orientation_wxyz_world=ee_wxyz, arm_positions_rad=joints, failsafe=values.get("failsafe", ""),
-        failsafe_events=int(events), sim_time_s=session.sim_time_s, operator_mode=session.operator_mode,
-        boot_id=session.boot_id)
+        position_m_world=position,
+        yaw_rad=yaw,
+        mode=values.get("mode", "idle"),
+        command_id=command_id,
+        waypoint_index=min(index, total),
+        waypoints_total=total,
+        position_error_m_world=error_m,
+        heading_error_rad=heading_rad,
+        arm_mode=values.get("arm_mode", "idle"),
+        arm_command_id=arm_command_id,
+        ee_position_error_m_world=ee_error_m,
+        ee_orientation_error_rad=ee_error_rad,
+        ee_position_m_world=ee_m,
+        ee_orientation_wxyz_world=ee_wxyz,
+        arm_positions_rad=joints,
+        failsafe=values.get("failsafe", ""),
+        failsafe_events=int(events),
+        sim_time_s=session.sim_time_s,
+        operator_mode=session.operator_mode,
+        boot_id=session.boot_id,
+    )
 
 
 # -- the table ------------------------------------------------------------------------------
@@ -717,37 +907,49 @@ ARM_PARENTS, ARM_CHILDREN = "arm_base .. arm_link6", "arm_link1 .. arm_link6, fi
 CLOCK = "/clock"
 BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
     "NavState": (ODOMETRY, RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS)),
-    "JointState": (RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_state),
-                   RosTopic(TF, TF_MESSAGE, ARM_PARENTS, arm_tf, ARM_CHILDREN, TF_QOS)),
-    "Image": (RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, raw_image, export=False),
-              RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", CAMERA_FRAME,
-                       compressed_image), CAMERA_INFO),
+    "JointState": (
+        RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_state),
+        RosTopic(TF, TF_MESSAGE, ARM_PARENTS, arm_tf, ARM_CHILDREN, TF_QOS),
+    ),
+    "Image": (
+        RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, raw_image, export=False),
+        RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", CAMERA_FRAME, compressed_image),
+        CAMERA_INFO,
+    ),
     "VelocityRef": (RosTopic("{key}", "geometry_msgs/msg/TwistStamped", BASE_LINK, twist, parse=twist_in),),
-    "ArmVelocityRef": (RosTopic("{key}", "std_msgs/msg/Float64MultiArray", "", joint_velocities,
-                                parse=joint_velocities_in),),
-    "Telemetry": (RosTopic("{key}/ee_pose", POSE, WORLD, end_effector_pose, parse=ee_pose_in),
-                  RosTopic("{key}/diagnostics", DIAGNOSTICS, "", telemetry_diagnostics, parse=telemetry_in)),
-    "PointCloud": (RosTopic("{key}", "sensor_msgs/msg/PointCloud2", WORLD, point_cloud,
-                            parse=point_cloud_in),),
+    "ArmVelocityRef": (
+        RosTopic("{key}", "std_msgs/msg/Float64MultiArray", "", joint_velocities, parse=joint_velocities_in),
+    ),
+    "Telemetry": (
+        RosTopic("{key}/ee_pose", POSE, WORLD, end_effector_pose, parse=ee_pose_in),
+        RosTopic("{key}/diagnostics", DIAGNOSTICS, "", telemetry_diagnostics, parse=telemetry_in),
+    ),
+    "PointCloud": (
+        RosTopic("{key}", "sensor_msgs/msg/PointCloud2", WORLD, point_cloud, parse=point_cloud_in),
+    ),
     "CommandAck": (RosTopic("{key}", DIAGNOSTICS, "", ack_diagnostics),),
     "Waypoints": (RosTopic("{key}", "nav_msgs/msg/Path", WORLD, path),),
     "ArmGoal": (RosTopic("{key}", POSE, WORLD, goal_pose),),
     "OperatorMode": (RosTopic("{key}", "std_msgs/msg/String", "", operator_mode),),
     "Heartbeat": (RosTopic("{key}", DIAGNOSTICS, "", heartbeat_diagnostics),),
-    "SceneUpdate": (RosTopic("{key}", "octomap_msgs/msg/Octomap", WORLD, octomap,
-                             parse=octomap_in),),
+    "SceneUpdate": (RosTopic("{key}", "octomap_msgs/msg/Octomap", WORLD, octomap, parse=octomap_in),),
     "RecognisedObjects": (RosTopic("{key}", "visualization_msgs/msg/MarkerArray", WORLD, objects),),
-    "SimulationStatus": (RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS),
-                         RosTopic("{key}", DIAGNOSTICS, "", status_diagnostics)),
-    "SonarImage": (RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", "<sonar>",
-                            sonar_image),),
+    "SimulationStatus": (
+        RosTopic(CLOCK, "rosgraph_msgs/msg/Clock", "", clock, qos=CLOCK_QOS),
+        RosTopic("{key}", DIAGNOSTICS, "", status_diagnostics),
+    ),
+    "SonarImage": (
+        RosTopic("{key}/image/compressed", "sensor_msgs/msg/CompressedImage", "<sonar>", sonar_image),
+    ),
     "PerceptionStatus": (RosTopic("{key}", DIAGNOSTICS, "", perception_diagnostics),),
     "LinkStats": (RosTopic("{key}", DIAGNOSTICS, "", link_diagnostics),),
     "MissionStatus": (RosTopic("{key}", DIAGNOSTICS, "", mission_diagnostics),),
 }
 BY_KEY: dict[str, tuple[RosTopic, ...]] = {  # keys that differ from their message's mapping
     "simulation/camera/cam_depth": (
-        RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, depth_image), CAMERA_INFO),
+        RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, depth_image),
+        CAMERA_INFO,
+    ),
     "simulation/truth": (ODOMETRY,),  # /tf is the navigation's: what the stations steer by
 }
 NOT_EXPORTED: dict[str, str] = {  # message -> why
@@ -790,8 +992,11 @@ def _key_map(key: str, message: str, reliability: keys.Reliability) -> KeyMap:
 
 
 TABLE: tuple[KeyMap, ...] = (
-    *(_key_map(f"{s.station}/{s.topic}", s.message, s.reliability) for s in keys.KEYS
-      if s.message not in NOT_EXPORTED),
+    *(
+        _key_map(f"{s.station}/{s.topic}", s.message, s.reliability)
+        for s in keys.KEYS
+        if s.message not in NOT_EXPORTED
+    ),
     *(_key_map(key, message, "reliable") for key, message in OBSERVED.items()),  # testbed keys: reliable
 )
 
@@ -809,9 +1014,14 @@ def gateway_keys(station: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
     if station == "vessel":
         return ("onboard/cloud",), ("vessel/scene",)
     maps = [(f"{s.station}/{s.topic}", s, key_map(f"{s.station}/{s.topic}")) for s in keys.KEYS]
-    return (tuple(key for key, s, m in maps if s.to == station and m is not None),
-            tuple(key for key, s, m in maps if s.station == station and m is not None
-                  and any(t.parse is not None for t in m.topics)))
+    return (
+        tuple(key for key, s, m in maps if s.to == station and m is not None),
+        tuple(
+            key
+            for key, s, m in maps
+            if s.station == station and m is not None and any(t.parse is not None for t in m.topics)
+        ),
+    )
 
 
 def stamp_of(message: Message, sent_sim_s: float) -> float:
@@ -833,12 +1043,18 @@ def serialize(message: Any) -> bytes:
 def topics_table() -> str:
     """The Markdown table of the ROS 2 topics; the README holds it. `export`: in `abyss export
     mcap`; `gateway`: what the ROS 2 gateway hands a node in a station's place, or takes from it."""
-    rows = ["| abyss key | ROS 2 topic | type | frame_id | child_frame_id | QoS | export | gateway |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    rows = [
+        "| abyss key | ROS 2 topic | type | frame_id | child_frame_id | QoS | export | gateway |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+
     def gateway(key: str, t: RosTopic) -> str:
         uses = [f"to {station}'s node" for station in ROS2_STATIONS if key in gateway_keys(station)[0]]
-        uses += [f"from {station}'s node" for station in ROS2_STATIONS
-                 if key in gateway_keys(station)[1] and t.parse is not None]
+        uses += [
+            f"from {station}'s node"
+            for station in ROS2_STATIONS
+            if key in gateway_keys(station)[1] and t.parse is not None
+        ]
         return ", ".join(uses) or "-"
 
     def code(text: str) -> str:
@@ -851,12 +1067,18 @@ def topics_table() -> str:
     for m in TABLE:
         key = m.key.replace("*/linkstats/*", "<station>/linkstats/<hop>")
         for t in m.topics:
-            rows.append(f"| {code(key)} | {code(t.topic(key))} | {t.type} | {code(t.frame_id)} "
-                        f"| {code(t.child_frame_id)} | {qos_text(m.qos(t))} | {'yes' if t.export else '-'} "
-                        f"| {gateway(m.key, t)} |")
-    rows.append(f"| (robot.xml; each camera's first frame) | {code(TF_STATIC)} | {TF_MESSAGE} "
-                f"| `{BASE_LINK}`, `arm_link6` | `arm_base`, `ee`, {code(CAMERA_FRAME)} "
-                f"| {qos_text(TF_STATIC_QOS)} | yes | to the node |")
-    rows.append(f"| (the latest simulated time handed over) | {code(CLOCK)} | rosgraph_msgs/msg/Clock "
-                f"| - | - | {qos_text(CLOCK_QOS)} | - | to the node |")
+            rows.append(
+                f"| {code(key)} | {code(t.topic(key))} | {t.type} | {code(t.frame_id)} "
+                f"| {code(t.child_frame_id)} | {qos_text(m.qos(t))} | {'yes' if t.export else '-'} "
+                f"| {gateway(m.key, t)} |"
+            )
+    rows.append(
+        f"| (robot.xml; each camera's first frame) | {code(TF_STATIC)} | {TF_MESSAGE} "
+        f"| `{BASE_LINK}`, `arm_link6` | `arm_base`, `ee`, {code(CAMERA_FRAME)} "
+        f"| {qos_text(TF_STATIC_QOS)} | yes | to the node |"
+    )
+    rows.append(
+        f"| (the latest simulated time handed over) | {code(CLOCK)} | rosgraph_msgs/msg/Clock "
+        f"| - | - | {qos_text(CLOCK_QOS)} | - | to the node |"
+    )
     return "\n".join(rows)

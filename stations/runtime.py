@@ -66,22 +66,40 @@ class Shell:
     links behind that bus (emulated or netem, with their control plane) and its liveliness
     token. `close()` undoes it all, links first, so that nothing blocks on a link."""
 
-    def __init__(self, name: str, config: Config, listen: Sequence[str] = (), connect: Sequence[str] = (),
-                 link_mode: str = "emulated", mode: str = "peer", tls_dir: Path | None = None,
-                 peers: dict[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        name: str,
+        config: Config,
+        listen: Sequence[str] = (),
+        connect: Sequence[str] = (),
+        link_mode: str = "emulated",
+        mode: str = "peer",
+        tls_dir: Path | None = None,
+        peers: dict[str, str] | None = None,
+    ) -> None:
         self.started_s, self.started_cpu_s = time.monotonic(), time.process_time() + children_cpu_s()
         profiles = config.links.profiles()
         tls = CertFiles(tls_dir, name) if tls_dir else None
         slowest_bps = min(profiles[hop].rate_bps for hop in keys.hops_of(name))
-        settings = zenoh_config(listen, connect, mode, tls=tls, acl_station=name if tls else None,
-                             slowest_rate_bps=slowest_bps)  # bad endpoints or certificates fail here
+        settings = zenoh_config(
+            listen, connect, mode, tls=tls, acl_station=name if tls else None, slowest_rate_bps=slowest_bps
+        )  # bad endpoints or certificates fail here
         self.refusals = security.refusal_log() if tls is not None else None
         self.session = open_session(settings, f"station {name}")
         self.clock, self._clock_closers = station_clock(self.session, config, name)
         self.bus = Bus(config.system, name, self.session, self.clock)
-        self.links = StationLinks(self.session, config.system, name, profiles, self.bus.transmit,
-                                  seed=config.seed, link_mode=link_mode, peers=peers, stopping=self.bus.stop,
-                                  clock=self.clock)
+        self.links = StationLinks(
+            self.session,
+            config.system,
+            name,
+            profiles,
+            self.bus.transmit,
+            seed=config.seed,
+            link_mode=link_mode,
+            peers=peers,
+            stopping=self.bus.stop,
+            clock=self.clock,
+        )
         for hop in self.links.runners:
             self.bus.route(hop, self.links.egress(hop))
         self.recorder = station_recorder(config, name, self.clock)
@@ -91,8 +109,9 @@ class Shell:
             self.bus.lockstep = station_lockstep(self.session, config, name, self.clock, self.bus, self.links)
             self._clock_closers.append(self.bus.lockstep.close)
             if name != "simulation":  # the simulation's physics is lockstep's master, and runs its own
-                threading.Thread(target=self.bus.lockstep.run, args=(config.time.end_s,), name="lockstep",
-                                 daemon=True).start()
+                threading.Thread(
+                    target=self.bus.lockstep.run, args=(config.time.end_s,), name="lockstep", daemon=True
+                ).start()
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
 
     def status(self) -> dict[str, Any]:
@@ -104,8 +123,11 @@ class Shell:
             status["recording"] = self.recorder.status()
         wall_s = time.monotonic() - self.started_s
         cpu_s = time.process_time() + children_cpu_s() - self.started_cpu_s  # its sensor processes too
-        status["cpu"] = {"cpu_s": round(cpu_s, 3), "wall_s": round(wall_s, 3),
-                         "cores": round(cpu_s / wall_s, 4) if wall_s > 0 else 0.0}  # all its threads
+        status["cpu"] = {
+            "cpu_s": round(cpu_s, 3),
+            "wall_s": round(wall_s, 3),
+            "cores": round(cpu_s / wall_s, 4) if wall_s > 0 else 0.0,
+        }  # all its threads
         return status
 
     def close(self, drain_s: float = 0.0) -> None:
@@ -122,15 +144,19 @@ class Shell:
         self.session.close()
 
 
-def station_clock(session: zenoh.Session, config: Config,
-                  name: str) -> tuple[Clock, list[Callable[[], None]]]:
+def station_clock(
+    session: zenoh.Session, config: Config, name: str
+) -> tuple[Clock, list[Callable[[], None]]]:
     """The station's clock: the wall clock, or (`time.mode` sim) the simulation's time, which the
     simulation ticks itself and every other station follows, telling how far its loops are done;
     and what closes it with the station."""
     if not config.time.simulated:
         return WALL, []
-    clock = (LockstepClock() if config.time.mode == "lockstep" else
-             SimClock(config.simulation.control_period_s, config.time.speed_factor))
+    clock = (
+        LockstepClock()
+        if config.time.mode == "lockstep"
+        else SimClock(config.simulation.control_period_s, config.time.speed_factor)
+    )
     if name == "simulation":
         return clock, []
     ticks = clock_follow(session, config.system, clock)
@@ -139,18 +165,31 @@ def station_clock(session: zenoh.Session, config: Config,
     return clock, [ticks.undeclare, ProgressReport(session, config.system, name, clock).close]
 
 
-def station_lockstep(session: zenoh.Session, config: Config, name: str, clock: LockstepClock, bus: Bus,
-                     links: StationLinks) -> Lockstep:
+def station_lockstep(
+    session: zenoh.Session, config: Config, name: str, clock: LockstepClock, bus: Bus, links: StationLinks
+) -> Lockstep:
     """A station's periods in lockstep: its links' deliveries, its neighbours', its loops."""
 
     def expects() -> dict[str, set[str]]:
         listened = bus.data_keys()
-        return {neighbour: {s.key(config.system) for s in keys.KEYS
-                            if s.station == neighbour and s.to == name} & listened
-                for neighbour in keys.hops_of(name).values()}
+        return {
+            neighbour: {s.key(config.system) for s in keys.KEYS if s.station == neighbour and s.to == name}
+            & listened
+            for neighbour in keys.hops_of(name).values()
+        }
 
-    lockstep = Lockstep(session, config.system, name, clock, links.deliver_due, bus.arrivals, expects,
-                        importlib.import_module(f"abyss.stations.{name}").loops(config), bus.stop, bus.reject)
+    lockstep = Lockstep(
+        session,
+        config.system,
+        name,
+        clock,
+        links.deliver_due,
+        bus.arrivals,
+        expects,
+        importlib.import_module(f"abyss.stations.{name}").loops(config),
+        bus.stop,
+        bus.reject,
+    )
     bus.on_arrival = lockstep.notify
     return lockstep
 
@@ -160,8 +199,14 @@ def station_recorder(config: Config, name: str, clock: Clock = WALL) -> Recorder
     record = config.record
     if not record.directory or record.level == "none":
         return None
-    return Recorder(free_recording_path(Path(record.directory), name), name, config.system, record.level,
-                    Caps(record.max_rate_hz, record.bulk_max_rate_hz), clock)
+    return Recorder(
+        free_recording_path(Path(record.directory), name),
+        name,
+        config.system,
+        record.level,
+        Caps(record.max_rate_hz, record.bulk_max_rate_hz),
+        clock,
+    )
 
 
 NATIVE_POOLS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -179,10 +224,18 @@ def single_threaded_native_pools() -> None:
     threadpool_limits(int(os.environ["OPENBLAS_NUM_THREADS"]))
 
 
-def run_station(name: str, config: Config, listen: Sequence[str], connect: Sequence[str],
-                status_file: Path | None, link_mode: str = "emulated", mode: str = "peer",
-                tls_dir: Path | None = None, peers: dict[str, str] | None = None,
-                entry: Callable[[Config, Any], None] | None = None) -> int:
+def run_station(
+    name: str,
+    config: Config,
+    listen: Sequence[str],
+    connect: Sequence[str],
+    status_file: Path | None,
+    link_mode: str = "emulated",
+    mode: str = "peer",
+    tls_dir: Path | None = None,
+    peers: dict[str, str] | None = None,
+    entry: Callable[[Config, Any], None] | None = None,
+) -> int:
     """Open the shell, run the station (or `entry` in its place: a replay) until SIGINT/SIGTERM,
     close, write the status file."""
     entry = entry or station_entry(name)
@@ -195,8 +248,12 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     def asked(signum: int) -> None:
         log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
         if not asked_s:
-            threading.Thread(target=_stop_watchdog, args=(name, stopped, status_file, outcome),
-                             name="stop watchdog", daemon=True).start()
+            threading.Thread(
+                target=_stop_watchdog,
+                args=(name, stopped, status_file, outcome),
+                name="stop watchdog",
+                daemon=True,
+            ).start()
         asked_s.append(time.monotonic())
         bus.stop.set()
 
@@ -220,8 +277,15 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
         signal.signal(signal.SIGINT, stop)
         signal.signal(signal.SIGTERM, stop)
         stop_with_supervisor()
-    log.info("%s up in system %s as a Zenoh %s (listen %s, connect %s%s)", name, config.system, mode,
-             list(listen), list(connect), ", TLS and access control" if tls_dir else "")
+    log.info(
+        "%s up in system %s as a Zenoh %s (listen %s, connect %s%s)",
+        name,
+        config.system,
+        mode,
+        list(listen),
+        list(connect),
+        ", TLS and access control" if tls_dir else "",
+    )
     code = 0
     try:
         entry(config, bus)
@@ -239,8 +303,9 @@ def run_station(name: str, config: Config, listen: Sequence[str], connect: Seque
     return code
 
 
-def _stop_watchdog(name: str, stopped: threading.Event, status_file: Path | None,
-                   outcome: dict[str, Any]) -> None:
+def _stop_watchdog(
+    name: str, stopped: threading.Event, status_file: Path | None, outcome: dict[str, Any]
+) -> None:
     """A station stops within STOP_BOUND_S of being asked, whatever hangs: past it, every
     thread's stack goes to the log (what hung: a Zenoh teardown, a native call), the status is
     written from the counters taken before the close, marked `stop_cut`, and the process ends."""
@@ -255,5 +320,8 @@ def _stop_watchdog(name: str, stopped: threading.Event, status_file: Path | None
 
 
 def configure_logging(verbose: bool = False) -> None:
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        stream=sys.stderr,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )

@@ -21,9 +21,15 @@ from abyss.launch.up import DEFAULT_PORT
 from abyss.linkemu.profile import load_profiles
 
 ROOT = Path(__file__).resolve().parents[1]
-OVERRIDES = {"ABYSS_TLS": "tls", "ABYSS_TLS_DIR": "/certs", "ABYSS_SATELLITE_PROFILE": "satellite-storm",
-             "ABYSS_TETHER_PROFILE": "tether-degraded", "ABYSS_SYSTEM": "field", "ABYSS_LINK": "emulated",
-             "ABYSS_ONBOARD_CPUS": "0.3"}
+OVERRIDES = {
+    "ABYSS_TLS": "tls",
+    "ABYSS_TLS_DIR": "/certs",
+    "ABYSS_SATELLITE_PROFILE": "satellite-storm",
+    "ABYSS_TETHER_PROFILE": "tether-degraded",
+    "ABYSS_SYSTEM": "field",
+    "ABYSS_LINK": "emulated",
+    "ABYSS_ONBOARD_CPUS": "0.3",
+}
 
 
 def resolved(env: dict[str, str]) -> dict[str, Any]:
@@ -31,8 +37,14 @@ def resolved(env: dict[str, str]) -> dict[str, Any]:
     if shutil.which("docker-compose") is None:
         pytest.skip("docker-compose not installed (setup.sh installs it as root)")
     clean = {k: v for k, v in os.environ.items() if not k.startswith("ABYSS_")}
-    done = subprocess.run(["docker-compose", "-f", str(ROOT / "compose.yaml"), "config"], cwd=ROOT,
-                          env={**clean, **env}, capture_output=True, text=True, check=False)
+    done = subprocess.run(
+        ["docker-compose", "-f", str(ROOT / "compose.yaml"), "config"],
+        cwd=ROOT,
+        env={**clean, **env},
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert done.returncode == 0, done.stderr
     return yaml.safe_load(done.stdout)  # type: ignore[no-any-return]
 
@@ -92,7 +104,7 @@ def test_the_image_installs_what_setup_installs() -> None:
     # the official image by default, any Debian 12 with Python 3.11 instead (deploy/base-image.sh)
     assert "ARG BASE=python:3.11-slim-bookworm" in dockerfile and "FROM ${BASE}" in dockerfile
     assert "python3 -m venv /opt/abyss" in dockerfile and "ENV PATH=/opt/abyss/bin:$PATH" in dockerfile
-    assert "ENTRYPOINT [\"abyss\"]" in dockerfile
+    assert 'ENTRYPOINT ["abyss"]' in dockerfile
     # every package folder goes into the image (pip refuses a package list with one missing)
     packages = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
     folders = {name.split(".")[1] for name in packages if name.count(".") >= 1}
@@ -107,6 +119,11 @@ def test_an_invalid_compose_file_is_refused(tmp_path: Path) -> None:
     broken = yaml.safe_load((ROOT / "compose.yaml").read_text())
     broken["services"]["vessel"]["netwroks"] = broken["services"]["vessel"].pop("networks")
     (tmp_path / "compose.yaml").write_text(yaml.safe_dump(broken))
-    done = subprocess.run(["docker-compose", "-f", str(tmp_path / "compose.yaml"), "config", "-q"],
-                          cwd=tmp_path, capture_output=True, text=True, check=False)
+    done = subprocess.run(
+        ["docker-compose", "-f", str(tmp_path / "compose.yaml"), "config", "-q"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert done.returncode != 0 and "netwroks" in done.stderr

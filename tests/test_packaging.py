@@ -22,8 +22,19 @@ ROOT = Path(__file__).resolve().parents[1]
 WHEEL_NAME = "abyss-0.1.0-py3-none-any.whl"
 PACKAGE_FOLDERS = ("cli", "common", "console", "launch", "linkemu", "stations", "validation")
 # not copied for the build: what the build writes, caches, runs and environments
-NOT_SOURCES = {".git", ".venv", "build", "dist", "runs", "certs", "__pycache__", ".pytest_cache",
-               ".ruff_cache", ".hypothesis", ".mypy_cache"}
+NOT_SOURCES = {
+    ".git",
+    ".venv",
+    "build",
+    "dist",
+    "runs",
+    "certs",
+    "__pycache__",
+    ".pytest_cache",
+    ".ruff_cache",
+    ".hypothesis",
+    ".mypy_cache",
+}
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -38,8 +49,9 @@ def _repo_packages() -> list[Path]:
     top = [p.parent for p in ROOT.glob("*/__init__.py")]
     found = [Path(".")]
     for folder in top:
-        found += [p.parent.relative_to(ROOT) for p in folder.rglob("__init__.py")
-                  if "__pycache__" not in p.parts]
+        found += [
+            p.parent.relative_to(ROOT) for p in folder.rglob("__init__.py") if "__pycache__" not in p.parts
+        ]
     return sorted(found)
 
 
@@ -62,8 +74,13 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     source = tmp / "source"
     shutil.copytree(ROOT, source, ignore=_ignore)
     out = tmp / "dist"
-    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out),
-                            str(source)], capture_output=True, text=True, timeout=240, env=_clean_env())
+    built = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(source)],
+        capture_output=True,
+        text=True,
+        timeout=240,
+        env=_clean_env(),
+    )
     assert built.returncode == 0, built.stdout + built.stderr
     wheels = list(out.glob("*.whl"))
     assert [w.name for w in wheels] == [WHEEL_NAME], wheels
@@ -100,12 +117,16 @@ def test_every_package_and_module_of_the_repository_is_in_the_wheel(names: set[s
     packages = _repo_packages()
     tops = {p.parts[0] for p in packages if p.parts}
     assert tops >= set(PACKAGE_FOLDERS), tops  # the scan below sees the folders it should
-    missing = [f"abyss.{'.'.join(p.parts)}".rstrip(".") for p in packages
-               if _in_wheel(p / "__init__.py") not in names]
+    missing = [
+        f"abyss.{'.'.join(p.parts)}".rstrip(".")
+        for p in packages
+        if _in_wheel(p / "__init__.py") not in names
+    ]
     assert not missing, f"packages missing from the wheel (add them to pyproject.toml's packages): {missing}"
     # every module, also one in a folder without __init__.py that no package list would name
-    modules = {ROOT / "__init__.py"} | {p for top in tops for p in (ROOT / top).rglob("*.py")
-                                        if "__pycache__" not in p.parts}
+    modules = {ROOT / "__init__.py"} | {
+        p for top in tops for p in (ROOT / top).rglob("*.py") if "__pycache__" not in p.parts
+    }
     in_repo = {_in_wheel(p.relative_to(ROOT)) for p in modules}
     in_wheel = {n for n in names if n.endswith(".py")}
     assert in_repo - in_wheel == set(), "modules missing from the wheel"
@@ -113,14 +134,18 @@ def test_every_package_and_module_of_the_repository_is_in_the_wheel(names: set[s
 
 
 def test_package_data_is_in_the_wheel_byte_for_byte(wheel: Path, names: set[str]) -> None:
-    models = [p for p in (ROOT / "common" / "models").iterdir()
-              if p.is_file() and p.suffix not in (".py", ".pyc")]
+    models = [
+        p for p in (ROOT / "common" / "models").iterdir() if p.is_file() and p.suffix not in (".py", ".pyc")
+    ]
     assert {p.name for p in models} >= {"robot.xml", "world.xml", "terrain.bin"}
     data = [*models, ROOT / "linkemu" / "profiles.toml", ROOT / "py.typed"]
     # nothing else in a package folder that is not Python: a new data file needs package-data
     for top in {p.parts[0] for p in _repo_packages() if p.parts}:
-        data += [p for p in (ROOT / top).rglob("*") if p.is_file() and "__pycache__" not in p.parts
-                 and p.suffix not in (".py", ".pyc")]
+        data += [
+            p
+            for p in (ROOT / top).rglob("*")
+            if p.is_file() and "__pycache__" not in p.parts and p.suffix not in (".py", ".pyc")
+        ]
     with zipfile.ZipFile(wheel) as z:
         for path in sorted(set(data)):
             name = _in_wheel(path.relative_to(ROOT))
@@ -136,33 +161,66 @@ def test_the_installed_wheel_runs_from_its_own_environment(wheel: Path, tmp_path
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
     python = venv / "bin" / "python"
-    installed = subprocess.run([sys.executable, "-m", "pip", "--python", str(python), "install", "-q",
-                                "--no-deps", "--no-index", str(wheel)],
-                               capture_output=True, text=True, timeout=120, env=_clean_env())
+    installed = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "--python",
+            str(python),
+            "install",
+            "-q",
+            "--no-deps",
+            "--no-index",
+            str(wheel),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=_clean_env(),
+    )
     assert installed.returncode == 0, installed.stdout + installed.stderr
-    site = Path(subprocess.run([python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
-                               capture_output=True, text=True, check=True).stdout.strip())
+    site = Path(
+        subprocess.run(
+            [python, "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    )
     assert (site / "abyss" / "__init__.py").is_file()
     dev_site = [sysconfig.get_path("purelib"), sysconfig.get_path("platlib")]
     # pinocchio's packages live in cmeel's prefix, which cmeel.pth would have added
-    dev_site += [str(Path(p) / "cmeel.prefix" / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}"
-                     / "site-packages") for p in dev_site]
+    dev_site += [
+        str(
+            Path(p)
+            / "cmeel.prefix"
+            / "lib"
+            / f"python{sys.version_info[0]}.{sys.version_info[1]}"
+            / "site-packages"
+        )
+        for p in dev_site
+    ]
     lines = dict.fromkeys(p for p in dev_site if Path(p).is_dir())
     (site / "zz_abyss_dev_dependencies.pth").write_text("".join(f"{p}\n" for p in lines))
 
     cwd = tmp_path / "elsewhere"
     cwd.mkdir()
     env = _clean_env()
-    keys = subprocess.run([venv / "bin" / "abyss", "keys"], capture_output=True, text=True, cwd=cwd,
-                          env=env, timeout=120)
+    keys = subprocess.run(
+        [venv / "bin" / "abyss", "keys"], capture_output=True, text=True, cwd=cwd, env=env, timeout=120
+    )
     assert keys.returncode == 0, keys.stderr
     assert "| `abyss/<system>/simulation/nav` | NavState |" in keys.stdout
 
-    probe = ("import sys, abyss, abyss.stations.onboard, abyss.common.models as m, abyss.launch.up; "
-             "print(abyss.__file__); print(abyss.stations.onboard.__file__); print(m.ROBOT_FILE); "
-             "print(sorted(n for n in sys.modules if 'editable' in n))")
-    imported = subprocess.run([python, "-c", probe], capture_output=True, text=True, cwd=cwd, env=env,
-                              timeout=120)
+    probe = (
+        "import sys, abyss, abyss.stations.onboard, abyss.common.models as m, abyss.launch.up; "
+        "print(abyss.__file__); print(abyss.stations.onboard.__file__); print(m.ROBOT_FILE); "
+        "print(sorted(n for n in sys.modules if 'editable' in n))"
+    )
+    imported = subprocess.run(
+        [python, "-c", probe], capture_output=True, text=True, cwd=cwd, env=env, timeout=120
+    )
     assert imported.returncode == 0, imported.stderr
     package, onboard, robot, editable = imported.stdout.splitlines()
     assert Path(package) == site / "abyss" / "__init__.py", package

@@ -25,8 +25,21 @@ def test_mypy_is_clean(tmp_path: Path) -> None:
     search.mkdir()
     (search / "abyss").symlink_to(ROOT, target_is_directory=True)
     done = subprocess.run(
-        [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml"),
-         "--cache-dir", str(tmp_path / "cache"), "-p", "abyss"],
-        capture_output=True, text=True, cwd=search, env={**os.environ, "MYPYPATH": str(search)},
-        timeout=280)
+        [
+            sys.executable,
+            "-m",
+            "mypy",
+            "--config-file",
+            str(ROOT / "pyproject.toml"),
+            "--cache-dir",
+            str(tmp_path / "cache"),
+            "-p",
+            "abyss",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=search,
+        env={**os.environ, "MYPYPATH": str(search)},
+        timeout=280,
+    )
     assert done.returncode == 0, done.stdout + done.stderr

@@ -58,7 +58,8 @@ def check(endpoint: str, system: str, station: str, duration_s: float) -> list[K
     try:
         subscribers = [
             session.declare_subscriber(s.key(system), functools.partial(on_sample, message=s.message))
-            for s in specs]
+            for s in specs
+        ]
         time.sleep(duration_s)
         for subscriber in subscribers:
             subscriber.undeclare()
@@ -82,13 +83,17 @@ def run_check(endpoint: str, system: str, station: str, duration_s: float) -> in
     for r in reports:
         nominal = f"{r.nominal_hz:g} Hz" if r.nominal_hz else "event"
         verdict = "ok" if r.passed else f"FAIL: {r.reason}"
-        print(f"  {r.key:<48} {r.message:<18} {nominal:>8} {r.rate_hz:>6.2f}Hz {r.received:>8} "
-              f"{r.invalid:>7}  {verdict}")
+        print(
+            f"  {r.key:<48} {r.message:<18} {nominal:>8} {r.rate_hz:>6.2f}Hz {r.received:>8} "
+            f"{r.invalid:>7}  {verdict}"
+        )
     periodic_silent = [r for r in reports if r.nominal_hz and not r.received]
     failed = [r for r in reports if not r.passed]
     events = [r.key for r in reports if not r.nominal_hz and not r.received]
     if events:
         print(f"  (event keys with nothing sent while listening: {', '.join(events)})")
-    print(f"abyss check: {station}: {len(reports) - len(failed)}/{len(reports)} keys pass"
-          + (f"; {len(periodic_silent)} periodic keys silent" if periodic_silent else ""))
+    print(
+        f"abyss check: {station}: {len(reports) - len(failed)}/{len(reports)} keys pass"
+        + (f"; {len(periodic_silent)} periodic keys silent" if periodic_silent else "")
+    )
     return 0 if not failed else 1

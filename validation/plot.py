@@ -24,16 +24,31 @@ FIGURES = ("vehicle_position_error", "vehicle_heading_error", "ee_position_error
 INTERVENTION_FIGURE = "intervention"
 
 
-def _figure(time_s: np.ndarray, series: dict[str, np.ndarray], ylabel: str, title: str,
-            path: Path, marks_s: np.ndarray, holds: np.ndarray) -> None:
+def _figure(
+    time_s: np.ndarray,
+    series: dict[str, np.ndarray],
+    ylabel: str,
+    title: str,
+    path: Path,
+    marks_s: np.ndarray,
+    holds: np.ndarray,
+) -> None:
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=100)
     for label, values in series.items():
         ax.plot(time_s, values, label=label, linewidth=1.4)
     for t in marks_s:
         ax.axvline(t, color="0.6", linestyle=":", linewidth=1)
     if holds.any():  # failsafe periods, shaded
-        ax.fill_between(time_s, 0, 1, where=holds, transform=ax.get_xaxis_transform(), color="tab:red",
-                        alpha=0.12, label="failsafe: holding")
+        ax.fill_between(
+            time_s,
+            0,
+            1,
+            where=holds,
+            transform=ax.get_xaxis_transform(),
+            color="tab:red",
+            alpha=0.12,
+            label="failsafe: holding",
+        )
     ax.axhline(0.0, color="0.3", linewidth=0.8)
     ax.set_xlabel("simulated time [s]")
     ax.set_ylabel(ylabel)
@@ -56,32 +71,62 @@ def plot_run(run_dir: Path) -> list[str]:
     holds = c["failsafe"] != ""
     reached_s = t[1:][np.diff(c["waypoint_index"]) > 0]  # when each waypoint was reached
     vehicle = c["mode"] != "idle"
-    _figure(t[vehicle], {f"e_{a}": c[f"error_{a}_m"][vehicle] for a in AXES}, "position error [m]",
-            "Vehicle position error, waypoints (dotted: each reached)", run_dir / f"{FIGURES[0]}.png",
-            reached_s, holds[vehicle])
-    _figure(t[vehicle], {"e_psi": np.degrees(c["heading_error_rad"][vehicle])}, "heading error [deg]",
-            "Vehicle heading error", run_dir / f"{FIGURES[1]}.png", reached_s, holds[vehicle])
+    _figure(
+        t[vehicle],
+        {f"e_{a}": c[f"error_{a}_m"][vehicle] for a in AXES},
+        "position error [m]",
+        "Vehicle position error, waypoints (dotted: each reached)",
+        run_dir / f"{FIGURES[0]}.png",
+        reached_s,
+        holds[vehicle],
+    )
+    _figure(
+        t[vehicle],
+        {"e_psi": np.degrees(c["heading_error_rad"][vehicle])},
+        "heading error [deg]",
+        "Vehicle heading error",
+        run_dir / f"{FIGURES[1]}.png",
+        reached_s,
+        holds[vehicle],
+    )
     arm = np.isin(c["arm_mode"], ("moving", "reached"))
     arm_t = t[arm] if arm.any() else t[:0]
-    _figure(arm_t, {f"e_{a}": c[f"ee_error_{a}_m"][arm] * 1e3 for a in AXES}, "position error [mm]",
-            "End-effector position error, constant target", run_dir / f"{FIGURES[2]}.png",
-            np.array([]), holds[arm])
-    _figure(arm_t, {"angle": np.degrees(c["ee_orientation_error_rad"][arm])}, "orientation error [deg]",
-            "End-effector orientation error, constant target", run_dir / f"{FIGURES[3]}.png",
-            np.array([]), holds[arm])
+    _figure(
+        arm_t,
+        {f"e_{a}": c[f"ee_error_{a}_m"][arm] * 1e3 for a in AXES},
+        "position error [mm]",
+        "End-effector position error, constant target",
+        run_dir / f"{FIGURES[2]}.png",
+        np.array([]),
+        holds[arm],
+    )
+    _figure(
+        arm_t,
+        {"angle": np.degrees(c["ee_orientation_error_rad"][arm])},
+        "orientation error [deg]",
+        "End-effector orientation error, constant target",
+        run_dir / f"{FIGURES[3]}.png",
+        np.array([]),
+        holds[arm],
+    )
     last = -1
     vehicle_mm = [c[f"error_{a}_m"][last] * 1e3 for a in AXES]
-    lines = [f"wrote {', '.join(name + '.png' for name in FIGURES)} in {run_dir}",
-             f"final errors at t = {t[last]:.1f} s: vehicle {_mm(vehicle_mm)}, heading "
-             f"{math.degrees(c['heading_error_rad'][last]):+.2f} deg"]
+    lines = [
+        f"wrote {', '.join(name + '.png' for name in FIGURES)} in {run_dir}",
+        f"final errors at t = {t[last]:.1f} s: vehicle {_mm(vehicle_mm)}, heading "
+        f"{math.degrees(c['heading_error_rad'][last]):+.2f} deg",
+    ]
     if arm.any():
         ee_mm = [c[f"ee_error_{a}_m"][arm][last] * 1e3 for a in AXES]
-        lines.append(f"final errors, end-effector: {_mm(ee_mm)}, orientation "
-                     f"{math.degrees(c['ee_orientation_error_rad'][arm][last]):.2f} deg")
+        lines.append(
+            f"final errors, end-effector: {_mm(ee_mm)}, orientation "
+            f"{math.degrees(c['ee_orientation_error_rad'][arm][last]):.2f} deg"
+        )
     else:
         lines.append("the arm never moved towards a goal in this run")
-    lines.append(f"failsafe: {int(c['failsafe_events'][last])} events, "
-                 f"{holds.mean():.0%} of the record holding")
+    lines.append(
+        f"failsafe: {int(c['failsafe_events'][last])} events, {holds.mean():.0%} of the record holding"
+    )
     return lines + _intervention_figure(run_dir, c)
 
 
@@ -92,23 +137,38 @@ def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
     if panel is None or not worked or len(panel["sim_time_s"]) < 2:
         return []
     targets = {i["part"]: i for i in read_json(run_dir / "summary.json").get("interventions", [])}
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6.5), dpi=100, sharex=True,
-                                      gridspec_kw={"height_ratios": [3, 2]})
+    fig, (top, bottom) = plt.subplots(
+        2, 1, figsize=(8, 6.5), dpi=100, sharex=True, gridspec_kw={"height_ratios": [3, 2]}
+    )
     t_panel, t = panel["sim_time_s"], c["sim_time_s"]
     lines = []
     for i, part in enumerate(worked):
         color = f"C{i}"
-        top.plot(t_panel, np.degrees(panel[f"{part}_rad"]), color=color, linewidth=1.4,
-                 label=f"{part} (truth)")
-        bottom.plot(t_panel, panel[f"{part}_finger_force_n"], color=color, linewidth=1.0, alpha=0.7,
-                    label=f"fingers on {part} (truth)")
+        top.plot(
+            t_panel, np.degrees(panel[f"{part}_rad"]), color=color, linewidth=1.4, label=f"{part} (truth)"
+        )
+        bottom.plot(
+            t_panel,
+            panel[f"{part}_finger_force_n"],
+            color=color,
+            linewidth=1.0,
+            alpha=0.7,
+            label=f"fingers on {part} (truth)",
+        )
         final_deg = math.degrees(panel[f"{part}_rad"][-1])
         if part in targets:
             target = targets[part]
-            top.axhline(target["target_deg"], color=color, linestyle="--", linewidth=1,
-                        label=f"{part} target +- {target['tolerance_deg']:g} deg")
-            lines.append(f"{part}: {final_deg:+.1f} deg, target {target['target_deg']:+.1f} deg "
-                         f"({'success' if target['success'] else 'NOT DONE'})")
+            top.axhline(
+                target["target_deg"],
+                color=color,
+                linestyle="--",
+                linewidth=1,
+                label=f"{part} target +- {target['tolerance_deg']:g} deg",
+            )
+            lines.append(
+                f"{part}: {final_deg:+.1f} deg, target {target['target_deg']:+.1f} deg "
+                f"({'success' if target['success'] else 'NOT DONE'})"
+            )
         else:
             lines.append(f"{part}: {final_deg:+.1f} deg")
     phase = np.char.add(np.char.add(c["intervention_target"], " "), c["intervention_phase"])
@@ -116,8 +176,17 @@ def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
     for k in changes:
         if c["intervention_phase"][k]:
             top.axvline(t[k], color="0.6", linestyle=":", linewidth=1)
-            top.text(t[k], 1.0, c["intervention_phase"][k], rotation=90, fontsize=7, va="top", ha="right",
-                     transform=top.get_xaxis_transform(), color="0.35")
+            top.text(
+                t[k],
+                1.0,
+                c["intervention_phase"][k],
+                rotation=90,
+                fontsize=7,
+                va="top",
+                ha="right",
+                transform=top.get_xaxis_transform(),
+                color="0.35",
+            )
     bottom.plot(t, c["gripper_force_n"], color="k", linewidth=1.2, label="grip squeeze (onboard)")
     top.set_ylabel("angle [deg]")
     top.set_title("Interventions: each part's angle against its target (dotted: the phases)")

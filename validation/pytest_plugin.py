@@ -94,8 +94,9 @@ def abyss_system(tmp_path: Path) -> Iterator[Any]:
 
     running: list[RunningSystem] = []
 
-    def start(scenario: str | Path | dict[str, Any], time: str | None = None,
-              speed: str | None = None) -> RunningSystem:
+    def start(
+        scenario: str | Path | dict[str, Any], time: str | None = None, speed: str | None = None
+    ) -> RunningSystem:
         """`time`: real, sim or lockstep (default: the scenario's own), `speed` with sim; a scenario
         that cannot follow simulated time (an external station, a CPU cap) fails to start then."""
         spec = scenario_of(scenario) if isinstance(scenario, dict) else load_scenario(Path(scenario))

@@ -70,7 +70,7 @@ GRASP_ROTATION_PANEL = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0
 
 
 def part_kind(name: str) -> str:
-    """"valve" or "lever"; ValueError with the names there are for another."""
+    """ "valve" or "lever"; ValueError with the names there are for another."""
     if name in VALVES:
         return "valve"
     if name in LEVERS:

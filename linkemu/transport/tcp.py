@@ -98,10 +98,13 @@ class Tcp:
             self._arm_timer(now_s)
 
     def gauges(self) -> dict[str, float]:
-        return {"cwnd_packets": self.cwnd, "srtt_ms": (self.srtt_s or 0.0) * 1e3,
-                "rto_ms": self.rto_s * 1e3,
-                "rtt_mean_ms": self.rtt_sum_s / max(1, self.rtt_samples) * 1e3,
-                "first_rto_mean_ms": self.first_rto_sum_s / max(1, self.first_timeouts) * 1e3}
+        return {
+            "cwnd_packets": self.cwnd,
+            "srtt_ms": (self.srtt_s or 0.0) * 1e3,
+            "rto_ms": self.rto_s * 1e3,
+            "rtt_mean_ms": self.rtt_sum_s / max(1, self.rtt_samples) * 1e3,
+            "first_rto_mean_ms": self.first_rto_sum_s / max(1, self.first_timeouts) * 1e3,
+        }
 
     # -- sender: sending -----------------------------------------------------------------
     def _pump(self, t_s: float) -> int:
@@ -142,11 +145,19 @@ class Tcp:
                 self.unsent.popleft()
                 self.unsent_offset = 0
         first = pieces[0][0]
-        data = b"".join(part.data[offset:offset + length] for part, offset, length in pieces)
+        data = b"".join(part.data[offset : offset + length] for part, offset, length in pieces)
         seq = next(self._segment_numbers)
         self.pieces[seq] = pieces
-        return Packet(seq=seq, message=first.message, index=first.index, data=data, crc=zlib.crc32(data),
-                      size_bytes=first.size_bytes - len(first.data) + len(data), t_s=0.0, last=False)
+        return Packet(
+            seq=seq,
+            message=first.message,
+            index=first.index,
+            data=data,
+            crc=zlib.crc32(data),
+            size_bytes=first.size_bytes - len(first.data) + len(data),
+            t_s=0.0,
+            last=False,
+        )
 
     def _transmit(self, t_s: float, packet: Packet) -> None:
         if packet.seq <= self.highest_sent:
@@ -286,8 +297,9 @@ class Tcp:
         self._reorder_timer += 1
         if math.isfinite(wake_s):
             generation = self._reorder_timer
-            self.link.schedule(wake_s, lambda t: self._reorder_timeout(t) if generation == self._reorder_timer
-                               else None)
+            self.link.schedule(
+                wake_s, lambda t: self._reorder_timeout(t) if generation == self._reorder_timer else None
+            )
 
     def _reorder_timeout(self, t_s: float) -> None:
         self._detect_losses(t_s)
@@ -333,7 +345,7 @@ class Tcp:
         arrived (a flipped bit included)."""
         position = 0
         for part, offset, length in pieces:
-            self.rcv_part += segment.data[position:position + length]
+            self.rcv_part += segment.data[position : position + length]
             position += length
             if offset + length == len(part.data):
                 data, self.rcv_part = bytes(self.rcv_part), bytearray()

@@ -68,18 +68,23 @@ def run(config: Config, bus: Bus) -> None:
 def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> None:
     nav = bus.subscribe("simulation", "nav", maxlen=8)
     joints = bus.subscribe("simulation", "joints", maxlen=4)
-    goals = [bus.subscribe("vessel", topic) for topic in ("goal/waypoints", "goal/arm", "goal/mode",
-                                                              "goal/intervene")]
+    goals = [
+        bus.subscribe("vessel", topic)
+        for topic in ("goal/waypoints", "goal/arm", "goal/mode", "goal/intervene")
+    ]
     heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
     rate = bus.loop("control", config.onboard.control_period_s)
     while rate.sleep():
         latest_joints = messages_of([r for r in (joints.latest(),) if r is not None], JointState)
         commands = [r.message for inbox in goals for r in inbox.drain()]
         inputs = OnboardInputs(
-            commands=[c for c in commands
-                      if isinstance(c, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))],
-            heartbeats=messages_of(heartbeats.drain(), Heartbeat), nav=messages_of(nav.drain(), NavState),
-            joints=latest_joints[-1] if latest_joints else None)
+            commands=[
+                c for c in commands if isinstance(c, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))
+            ],
+            heartbeats=messages_of(heartbeats.drain(), Heartbeat),
+            nav=messages_of(nav.drain(), NavState),
+            joints=latest_joints[-1] if latest_joints else None,
+        )
         out = core.step(inputs, bus.clock.now_s())
         with shared.lock:
             for pose in out.poses:
@@ -104,8 +109,11 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
 
     cfg = config.onboard
     settings = CloudSettings.of(cfg)
-    needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set()) | (
-        {"cam_right"} if "stereo" in cfg.cloud_sources else set())
+    needed = (
+        {"cam_left"}
+        | ({"cam_depth"} if "depth" in cfg.cloud_sources else set())
+        | ({"cam_right"} if "stereo" in cfg.cloud_sources else set())
+    )
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}
     sets: dict[float, dict[str, Image]] = {}
     last_image_s = -float("inf")
@@ -148,9 +156,15 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
             now_s = bus.clock.now_s()
             if cfg.image_rate_hz > 0 and now_s - last_image_s >= 1.0 / cfg.image_rate_hz:
                 left = frames["cam_left"]
-                bus.publish("image", dataclasses.replace(
-                    left, pose_frame="world", pose_camera=camera_in_world(left, pose),
-                    data=encode_jpeg(decode_image(left), cfg.image_jpeg_quality)))
+                bus.publish(
+                    "image",
+                    dataclasses.replace(
+                        left,
+                        pose_frame="world",
+                        pose_camera=camera_in_world(left, pose),
+                        data=encode_jpeg(decode_image(left), cfg.image_jpeg_quality),
+                    ),
+                )
                 last_image_s = now_s
         except ValueError as exc:  # frames that do not decode, or a camera pose in the wrong frame
             bus.reject(key, str(exc))
@@ -168,13 +182,19 @@ def _sonar_loop(bus: Bus, shared: Shared) -> None:
             sonar = received.message
             assert isinstance(sonar, SonarImage)
             if sonar.pose_frame != "vehicle":
-                bus.reject(received.key, f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the "
-                                         "vehicle's")
+                bus.reject(
+                    received.key,
+                    f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the vehicle's",
+                )
                 continue
             with shared.lock:
                 pose = shared.poses.at(sonar.sim_time_s)
             if pose is None:
                 log.debug("no navigation estimate at %.2f s; sonar frame skipped", sonar.sim_time_s)
                 continue
-            bus.publish("sonar", dataclasses.replace(sonar, pose_frame="world",
-                                                     pose_sonar=mount_in_world(sonar.pose_sonar, pose)))
+            bus.publish(
+                "sonar",
+                dataclasses.replace(
+                    sonar, pose_frame="world", pose_sonar=mount_in_world(sonar.pose_sonar, pose)
+                ),
+            )

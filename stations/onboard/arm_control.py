@@ -53,8 +53,9 @@ class Constraints:
         return -k * (self.values - self.minimums)
 
 
-def damped_inverse(u: np.ndarray, s: np.ndarray, vt: np.ndarray, damping: float,
-                   threshold: float) -> np.ndarray:
+def damped_inverse(
+    u: np.ndarray, s: np.ndarray, vt: np.ndarray, damping: float, threshold: float
+) -> np.ndarray:
     """Pseudo-inverse, from a thin SVD, with damping that grows as the smallest singular value
     falls below `threshold`, up to `damping` at a singularity (Nakamura and Hanafusa; Maciejewski)."""
     smallest = float(s[-1]) if s.size else 0.0
@@ -74,7 +75,7 @@ def damped_pinv(jacobian: np.ndarray, damping: float, threshold: float) -> np.nd
 def null_projector(s: np.ndarray, vt: np.ndarray) -> np.ndarray:
     """The orthogonal projector onto the null space of a matrix, from its thin SVD (singular values
     descending); those up to 1e-10 times the largest count as zero (as numpy's pinv with that rcond)."""
-    kept = vt[:np.count_nonzero(s > 1e-10 * s[0])]
+    kept = vt[: np.count_nonzero(s > 1e-10 * s[0])]
     return np.eye(vt.shape[1]) - kept.T @ kept
 
 
@@ -100,8 +101,8 @@ def solve(tasks: Sequence[Task], n: int, damping: float, threshold: float) -> li
 
 
 def solve_constrained(
-        constraints: Constraints, tasks: Sequence[Task], n: int, k: float, damping: float,
-        threshold: float) -> tuple[np.ndarray, list[int], list[np.ndarray]]:
+    constraints: Constraints, tasks: Sequence[Task], n: int, k: float, damping: float, threshold: float
+) -> tuple[np.ndarray, list[int], list[np.ndarray]]:
     """Set-based task priority: the constraints that the solution would break join the top
     of the stack, the worst first, until none is broken. Returns xdot, the active constraints'
     indices and every task's contribution (the active constraints' first)."""
@@ -109,7 +110,9 @@ def solve_constrained(
     bound = rates - 1e-12  # broken below
     active: list[int] = []
     while True:
-        above = [Task(constraints.names[i], constraints.gradients[i:i + 1], rates[i:i + 1]) for i in active]
+        above = [
+            Task(constraints.names[i], constraints.gradients[i : i + 1], rates[i : i + 1]) for i in active
+        ]
         contributions = solve(above + list(tasks), n, damping, threshold)
         xdot = sum(contributions, np.zeros(n))
         along = constraints.gradients @ xdot
@@ -144,8 +147,9 @@ class ArmKinematics:
     def n(self) -> int:
         return len(self.columns)
 
-    def update(self, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray,
-               arm_rad: np.ndarray) -> None:
+    def update(
+        self, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray, arm_rad: np.ndarray
+    ) -> None:
         self.q[0:3], self.q[3:7] = position_m_world, np.asarray(orientation_wxyz_world)[XYZW]
         self.q[self.arm_q] = arm_rad
         pin.computeJointJacobians(self.model, self.data, self.q)
@@ -243,23 +247,31 @@ class ArmController:
         # the joints), then each clearance point against each obstacle
         kin, joints, margin_rad = self.kinematics, len(ARM_JOINTS), cfg.joint_limit_margin_rad
         self.boxes = np.array(mission.obstacles, dtype=float).reshape(-1, 6)
-        clearances = [f"{point} clear of obstacle {j}"
-                      for point in CLEARANCE_POINTS for j in range(len(self.boxes))]
-        self.constraint_names = (*(f"{name} {side}" for name in ARM_JOINTS for side in ("lower", "upper")),
-                                 *clearances)
+        clearances = [
+            f"{point} clear of obstacle {j}" for point in CLEARANCE_POINTS for j in range(len(self.boxes))
+        ]
+        self.constraint_names = (
+            *(f"{name} {side}" for name in ARM_JOINTS for side in ("lower", "upper")),
+            *clearances,
+        )
         self.limit_gradients = np.zeros((2 * joints, kin.n))
         self.limit_gradients[0::2, :joints] = np.eye(joints)
         self.limit_gradients[1::2, :joints] = -np.eye(joints)
-        self.constraint_minimums = np.concatenate((
-            np.column_stack((kin.lower_rad + margin_rad, -kin.upper_rad + margin_rad)).ravel(),
-            np.full(len(clearances), cfg.clearance_m)))
-        self.speed_limits = np.r_[np.full(joints, cfg.max_joint_speed_radps), np.full(3, cfg.max_speed_mps),
-                                  cfg.max_yaw_rate_radps][:kin.n]
+        self.constraint_minimums = np.concatenate(
+            (
+                np.column_stack((kin.lower_rad + margin_rad, -kin.upper_rad + margin_rad)).ravel(),
+                np.full(len(clearances), cfg.clearance_m),
+            )
+        )
+        self.speed_limits = np.r_[
+            np.full(joints, cfg.max_joint_speed_radps), np.full(3, cfg.max_speed_mps), cfg.max_yaw_rate_radps
+        ][: kin.n]
         for constant in (self.boxes, self.limit_gradients, self.constraint_minimums, self.speed_limits):
             constant.flags.writeable = False
 
-    def set_goal(self, command_id: int, position_m_world: np.ndarray,
-                 orientation_wxyz_world: np.ndarray) -> bool:
+    def set_goal(
+        self, command_id: int, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray
+    ) -> bool:
         if command_id == self.command_id:
             return False
         self.command_id = command_id
@@ -272,8 +284,10 @@ class ArmController:
         """Position error [m, world] and orientation error (rotation vector) [rad, world]."""
         assert self.goal_position_m_world is not None
         pose = self.kinematics.pose(self.kinematics.ee)
-        return (self.goal_position_m_world - pose.translation,
-                np.asarray(pin.log3(self.goal_rotation @ pose.rotation.T)))
+        return (
+            self.goal_position_m_world - pose.translation,
+            np.asarray(pin.log3(self.goal_rotation @ pose.rotation.T)),
+        )
 
     def constraints(self, arm_rad: np.ndarray) -> Constraints:
         kin = self.kinematics
@@ -281,12 +295,22 @@ class ArmController:
         linear = np.array([kin.jacobian(frame)[:3] for frame in kin.points])  # (points, 3, n)
         distances_m, gradients = box_distances(points_m_world, self.boxes)  # (points, boxes[, 3])
         clearance_gradients = (gradients @ linear).reshape(-1, kin.n)
-        limits_rad = self.limit_gradients[:, :len(ARM_JOINTS)] @ arm_rad
-        return Constraints(self.constraint_names, np.vstack((self.limit_gradients, clearance_gradients)),
-                           np.concatenate((limits_rad, distances_m.ravel())), self.constraint_minimums)
+        limits_rad = self.limit_gradients[:, : len(ARM_JOINTS)] @ arm_rad
+        return Constraints(
+            self.constraint_names,
+            np.vstack((self.limit_gradients, clearance_gradients)),
+            np.concatenate((limits_rad, distances_m.ravel())),
+            self.constraint_minimums,
+        )
 
-    def step(self, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray, arm_rad: np.ndarray,
-             enabled: bool, reference: PoseReference | None = None) -> ArmOutput:
+    def step(
+        self,
+        position_m_world: np.ndarray,
+        orientation_wxyz_world: np.ndarray,
+        arm_rad: np.ndarray,
+        enabled: bool,
+        reference: PoseReference | None = None,
+    ) -> ArmOutput:
         """One period towards the goal, or with `reference` along it instead (the goal kept)."""
         kin, cfg = self.kinematics, self.cfg
         kin.update(position_m_world, orientation_wxyz_world, arm_rad)
@@ -300,29 +324,52 @@ class ArmController:
         # once settled, the goal stays reached within twice the tolerances, so that navigation
         # noise at the tolerance's edge does not make the status flicker
         scale = REACHED_HYSTERESIS if self.within_s >= self.mission.arm_settle_s else 1.0
-        within = (_norm(position_error) < scale * self.mission.arm_position_tolerance_m
-                  and angle < scale * self.mission.arm_orientation_tolerance_rad)
+        within = (
+            _norm(position_error) < scale * self.mission.arm_position_tolerance_m
+            and angle < scale * self.mission.arm_orientation_tolerance_rad
+        )
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         if not enabled:
             return ArmOutput(zero, None, "hold", position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
-        tasks = [Task("end-effector position", jacobian[:3],
-                      _limit(cfg.kp_ee_position * position_error, cfg.max_ee_speed_mps)),
-                 Task("end-effector orientation", jacobian[3:],
-                      _limit(cfg.kp_ee_orientation * rotation_error, cfg.max_ee_rate_radps))]
+        tasks = [
+            Task(
+                "end-effector position",
+                jacobian[:3],
+                _limit(cfg.kp_ee_position * position_error, cfg.max_ee_speed_mps),
+            ),
+            Task(
+                "end-effector orientation",
+                jacobian[3:],
+                _limit(cfg.kp_ee_orientation * rotation_error, cfg.max_ee_rate_radps),
+            ),
+        ]
         reached = self.within_s >= self.mission.arm_settle_s
         return self._solve(tasks, arm_rad, "reached" if reached else "moving", position_error, angle)
 
-    def _solve(self, tasks: list[Task], arm_rad: np.ndarray, mode: str, position_error: np.ndarray,
-               angle: float) -> ArmOutput:
+    def _solve(
+        self, tasks: list[Task], arm_rad: np.ndarray, mode: str, position_error: np.ndarray, angle: float
+    ) -> ArmOutput:
         """The tasks under the constraints, within the speed limits."""
         kin, cfg = self.kinematics, self.cfg
-        xdot, active, _ = solve_constrained(self.constraints(arm_rad), tasks, kin.n, cfg.kp_constraint,
-                                            cfg.damping, cfg.singular_value_threshold)
+        xdot, active, _ = solve_constrained(
+            self.constraints(arm_rad),
+            tasks,
+            kin.n,
+            cfg.kp_constraint,
+            cfg.damping,
+            cfg.singular_value_threshold,
+        )
         xdot = self._within_speed_limits(xdot)
-        vehicle = xdot[len(ARM_JOINTS):] if cfg.whole_body else None
-        return ArmOutput(xdot[:len(ARM_JOINTS)], vehicle, mode, position_error, angle,
-                         tuple(self.constraint_names[i] for i in active))
+        vehicle = xdot[len(ARM_JOINTS) :] if cfg.whole_body else None
+        return ArmOutput(
+            xdot[: len(ARM_JOINTS)],
+            vehicle,
+            mode,
+            position_error,
+            angle,
+            tuple(self.constraint_names[i] for i in active),
+        )
 
     def _follow(self, ref: PoseReference, arm_rad: np.ndarray, enabled: bool) -> ArmOutput:
         """Track a moving pose: feedforward plus feedback, under the same constraints. The turn
@@ -337,18 +384,32 @@ class ArmController:
             return ArmOutput(np.zeros(len(ARM_JOINTS)), None, "hold", position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         angular = ref.angular_velocity_radps_world + cfg.kp_ee_orientation * rotation_error
-        tasks = [Task("end-effector position", jacobian[:3], _limit(
-            ref.velocity_mps_world + cfg.kp_ee_position * position_error, cfg.max_ee_speed_mps))]
+        tasks = [
+            Task(
+                "end-effector position",
+                jacobian[:3],
+                _limit(ref.velocity_mps_world + cfg.kp_ee_position * position_error, cfg.max_ee_speed_mps),
+            )
+        ]
         if ref.axis_world is None:
-            tasks.append(Task("end-effector orientation", jacobian[3:],
-                              _limit(angular, cfg.max_ee_rate_radps)))
+            tasks.append(
+                Task("end-effector orientation", jacobian[3:], _limit(angular, cfg.max_ee_rate_radps))
+            )
         else:
             axis = ref.axis_world / np.linalg.norm(ref.axis_world)
             across = np.linalg.svd(axis[None, :])[2][1:]  # two unit rows normal to the axis
-            tasks += [Task("turn about the axis", axis[None, :] @ jacobian[3:],
-                           np.clip([axis @ angular], -cfg.max_ee_rate_radps, cfg.max_ee_rate_radps)),
-                      Task("orientation across the axis", across @ jacobian[3:],
-                           _limit(across @ angular, cfg.max_ee_rate_radps))]
+            tasks += [
+                Task(
+                    "turn about the axis",
+                    axis[None, :] @ jacobian[3:],
+                    np.clip([axis @ angular], -cfg.max_ee_rate_radps, cfg.max_ee_rate_radps),
+                ),
+                Task(
+                    "orientation across the axis",
+                    across @ jacobian[3:],
+                    _limit(across @ angular, cfg.max_ee_rate_radps),
+                ),
+            ]
         return self._solve(tasks, arm_rad, "moving", position_error, angle)
 
     def _within_speed_limits(self, xdot: np.ndarray) -> np.ndarray:

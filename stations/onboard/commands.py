@@ -32,8 +32,9 @@ class CommandGate:
         self.reach_m = reach_m
         self.answers: OrderedDict[tuple[str, int], CommandAck] = OrderedDict()  # by (type, id)
 
-    def answer(self, command: Message, vehicle_goal: np.ndarray,
-               arm_busy: str = "") -> tuple[CommandAck, bool]:
+    def answer(
+        self, command: Message, vehicle_goal: np.ndarray, arm_busy: str = ""
+    ) -> tuple[CommandAck, bool]:
         """The acknowledgement of `command`, and whether it is new and taken (to be applied).
         `vehicle_goal`: x, y, z [m, world], yaw [rad] where the vehicle will hold; `arm_busy`:
         why the arm takes no new goal now ('' when it does)."""
@@ -75,6 +76,8 @@ class CommandGate:
         shoulder_m_world = np.array([x, y, z]) + rotation_of_rpy(0.0, 0.0, yaw) @ self.shoulder_m_vehicle
         distance_m = float(np.linalg.norm(position_m_world - shoulder_m_world))
         if distance_m > self.reach_m:
-            return (f"out of reach: {distance_m:.2f} m from the shoulder where the vehicle will hold "
-                    f"({x:.2f}, {y:.2f}, {z:.2f}) m, the arm reaches {self.reach_m:.2f} m")
+            return (
+                f"out of reach: {distance_m:.2f} m from the shoulder where the vehicle will hold "
+                f"({x:.2f}, {y:.2f}, {z:.2f}) m, the arm reaches {self.reach_m:.2f} m"
+            )
         return ""

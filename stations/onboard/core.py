@@ -99,16 +99,21 @@ class Onboard:
         for command in inputs.commands:
             ack, taken = self.gate.answer(command, self._holding_at(), self._arm_busy())
             out.acks.append(ack)
-            if not taken and isinstance(command, InterventionGoal) and self.intervention is not None \
-                    and self.intervention.refine(command):
+            if (
+                not taken
+                and isinstance(command, InterventionGoal)
+                and self.intervention is not None
+                and self.intervention.refine(command)
+            ):
                 log.info("intervention %d refined", command.command_id)
             elif not taken:
                 log.info("%s command %d not taken: %s", ack.command, ack.command_id, ack.reason or "a resend")
             elif isinstance(command, Waypoints):
                 self.vehicle.set_waypoints(command.command_id, command.waypoints)
             elif isinstance(command, ArmGoal):
-                self.arm.set_goal(command.command_id, command.position_m_world,
-                                  command.orientation_wxyz_world)
+                self.arm.set_goal(
+                    command.command_id, command.position_m_world, command.orientation_wxyz_world
+                )
                 self.intervention = None
             elif isinstance(command, InterventionGoal):
                 self.intervention = InterventionRun(command)
@@ -141,8 +146,12 @@ class Onboard:
         reference = None
         if run is not None:
             arm.kinematics.update(position, orientation, arm_rad)
-            command = run.step(arm.kinematics.pose(arm.kinematics.ee), joints.gripper_opening_m,
-                               cfg.control_period_s, enabled)
+            command = run.step(
+                arm.kinematics.pose(arm.kinematics.ee),
+                joints.gripper_opening_m,
+                cfg.control_period_s,
+                enabled,
+            )
             reference, gripper_mps = command.reference, command.gripper_mps
         a = arm.step(position, orientation, arm_rad, enabled, reference)
         if run is not None and not run.active and a.mode == "moving":
@@ -160,21 +169,45 @@ class Onboard:
         out.arm = ArmVelocityRef(a.joint_velocities_radps, gripper_mps)
         if self.tick % self.every == 0:
             ee_pose = arm.kinematics.pose(arm.kinematics.ee)
-            intervention_id, target, phase, reason, turned_rad, turn_goal_rad = (-1, "", "", "", 0.0, 0.0) \
-                if run is None else (run.goal.command_id, run.goal.target, run.phase, run.reason,
-                                     float(np.clip(run.turned_rad, -10.0, 10.0)), run.goal.turn_rad)
+            intervention_id, target, phase, reason, turned_rad, turn_goal_rad = (
+                (-1, "", "", "", 0.0, 0.0)
+                if run is None
+                else (
+                    run.goal.command_id,
+                    run.goal.target,
+                    run.phase,
+                    run.reason,
+                    float(np.clip(run.turned_rad, -10.0, 10.0)),
+                    run.goal.turn_rad,
+                )
+            )
             out.telemetry = Telemetry(
-                position_m_world=position, yaw_rad=yaw, mode=v.mode, command_id=vehicle.command_id,
-                waypoint_index=v.waypoint_index, waypoints_total=v.waypoints_total,
-                position_error_m_world=v.position_error_m_world, heading_error_rad=v.heading_error_rad,
-                arm_mode=a.mode, arm_command_id=arm.command_id,
+                position_m_world=position,
+                yaw_rad=yaw,
+                mode=v.mode,
+                command_id=vehicle.command_id,
+                waypoint_index=v.waypoint_index,
+                waypoints_total=v.waypoints_total,
+                position_error_m_world=v.position_error_m_world,
+                heading_error_rad=v.heading_error_rad,
+                arm_mode=a.mode,
+                arm_command_id=arm.command_id,
                 ee_position_error_m_world=a.position_error_m_world,
                 ee_orientation_error_rad=a.orientation_error_rad,
                 ee_position_m_world=ee_pose.translation,
                 ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
-                arm_positions_rad=arm_rad[:len(ARM_JOINTS)], failsafe=hold,
-                failsafe_events=self.failsafe.events, sim_time_s=self.sim_time_s,
-                operator_mode=self.operator_mode, boot_id=self.boot_id,
-                gripper_opening_m=joints.gripper_opening_m, gripper_force_n=joints.gripper_force_n,
-                intervention_id=intervention_id, intervention_target=target, intervention_phase=phase,
-                intervention_reason=reason, turned_rad=turned_rad, turn_goal_rad=turn_goal_rad)
+                arm_positions_rad=arm_rad[: len(ARM_JOINTS)],
+                failsafe=hold,
+                failsafe_events=self.failsafe.events,
+                sim_time_s=self.sim_time_s,
+                operator_mode=self.operator_mode,
+                boot_id=self.boot_id,
+                gripper_opening_m=joints.gripper_opening_m,
+                gripper_force_n=joints.gripper_force_n,
+                intervention_id=intervention_id,
+                intervention_target=target,
+                intervention_phase=phase,
+                intervention_reason=reason,
+                turned_rad=turned_rad,
+                turn_goal_rad=turn_goal_rad,
+            )

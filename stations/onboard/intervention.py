@@ -134,8 +134,11 @@ class InterventionRun:
     def _held_pose(self) -> tuple[np.ndarray, np.ndarray]:
         if self.phase in ("grasp", "turn", "release"):
             return self.pose_at(self.reference_rad if self.phase == "turn" else self.turned_rad)
-        back = {"approach": PRE_GRASP_M, "pre-grasp": PRE_GRASP_M - self.slide_m,
-                "retreat": self.slide_m}.get(self.phase, PRE_GRASP_M)
+        back = {
+            "approach": PRE_GRASP_M,
+            "pre-grasp": PRE_GRASP_M - self.slide_m,
+            "retreat": self.slide_m,
+        }.get(self.phase, PRE_GRASP_M)
         return self.pose_at(self.from_rad, back)
 
     def _next(self, phase: str) -> None:
@@ -217,8 +220,10 @@ class InterventionRun:
                 self._next("release")  # a lever at its stop
             else:
                 turned_deg, goal_deg = math.degrees(self.turned_rad), math.degrees(self.goal.turn_rad)
-                self._fail(f"{self.goal.target} does not turn: stopped at {turned_deg:.0f} of {goal_deg:.0f} "
-                           "deg (seized?)")
+                self._fail(
+                    f"{self.goal.target} does not turn: stopped at {turned_deg:.0f} of {goal_deg:.0f} "
+                    "deg (seized?)"
+                )
             return self._release(tool, opening_m, dt_s)
         step = direction * TURN_RATE_RADPS * dt_s
         ahead = (self.reference_rad + step - self.turned_rad) * direction
@@ -251,8 +256,9 @@ class InterventionRun:
         position, rotation = self.pose_at(self.from_rad, self.slide_m)
         sliding = self.slide_m < PRE_GRASP_M
         velocity = -SLIDE_MPS * rotation[:, 0] if sliding else np.zeros(3)
-        if not sliding and (self._settled(tool, position, rotation, dt_s)
-                            or self.phase_s >= TIMEOUT_S["retreat"]):
+        if not sliding and (
+            self._settled(tool, position, rotation, dt_s) or self.phase_s >= TIMEOUT_S["retreat"]
+        ):
             if self.reason:
                 self._next("failed")
             elif self.retry:

@@ -42,7 +42,7 @@ class NavFilter:
 
     def __init__(self, cfg: OnboardConfig) -> None:
         self.time_constant_s = cfg.nav_time_constant_s
-        self.fix_variance_m2 = cfg.nav_usbl_sigma_m ** 2
+        self.fix_variance_m2 = cfg.nav_usbl_sigma_m**2
         self.dvl_sigma_mps = cfg.nav_dvl_sigma_mps
         self.gate_sigmas = cfg.nav_gate_sigmas
         self.delay_compensation = cfg.nav_delay_compensation
@@ -55,7 +55,7 @@ class NavFilter:
         self.position_m_world: np.ndarray | None = None
         self.orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
         self.bias_mps_world = np.zeros(2)  # what the DVL reads over the truth, x and y
-        self.covariance = np.diag([math.inf, BIAS_SIGMA_MPS ** 2])  # position [m^2], bias [(m/s)^2]
+        self.covariance = np.diag([math.inf, BIAS_SIGMA_MPS**2])  # position [m^2], bias [(m/s)^2]
         self.velocity_mps_world = np.zeros(3)  # the latest used: the DVL's, or fading while coasting
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (sim time [s], x and y [m, world])
         self.pending_m = np.zeros(2)  # of the corrections, what the output has not taken up yet
@@ -83,8 +83,9 @@ class NavFilter:
         if self.position_m_world is None:
             return None, self.orientation_wxyz_world
         self.pending_m *= math.exp(-dt / BLEND_S)
-        return np.r_[self.position_m_world[:2] - self.pending_m, self.position_m_world[2]], \
-            self.orientation_wxyz_world
+        return np.r_[
+            self.position_m_world[:2] - self.pending_m, self.position_m_world[2]
+        ], self.orientation_wxyz_world
 
     def _gain(self, dt: float) -> float:
         return 1.0 if self.time_constant_s == 0 else dt / (self.time_constant_s + dt)
@@ -102,12 +103,12 @@ class NavFilter:
             noise_m2 = (self.dvl_sigma_mps * dt) ** 2
         else:
             self.velocity_mps_world = self.velocity_mps_world * math.exp(-dt / COAST_FADE_S)
-            noise_m2 = COAST_SIGMA_MPS ** 2 * dt
+            noise_m2 = COAST_SIGMA_MPS**2 * dt
         predicted = self.position_m_world + self.velocity_mps_world * dt
         predicted[2] += self._gain(dt) * (-nav.depth_m - predicted[2])
         self.position_m_world = predicted
         moved = np.array([[1.0, -dt], [0.0, 1.0]]) if nav.dvl_valid else np.eye(2)
-        self.covariance = moved @ self.covariance @ moved.T + np.diag([noise_m2, BIAS_WALK_MPS ** 2 * dt])
+        self.covariance = moved @ self.covariance @ moved.T + np.diag([noise_m2, BIAS_WALK_MPS**2 * dt])
         self.history.append((nav.sim_time_s, predicted[:2].copy()))
         while self.history and self.history[0][0] < nav.sim_time_s - HISTORY_S:
             self.history.popleft()
@@ -120,15 +121,21 @@ class NavFilter:
         then = self._estimate_at(nav.usbl_time_s) if self.delay_compensation else None
         innovation = fix - (self.position_m_world[:2] if then is None else then)
         spread_m2 = float(self.covariance[0, 0]) + self.fix_variance_m2
-        if float(innovation @ innovation) > self.gate_sigmas ** 2 * spread_m2:
+        if float(innovation @ innovation) > self.gate_sigmas**2 * spread_m2:
             self.rejected += 1
             self._rejected_in_a_row += 1
-            log.info("USBL fix taken at %.2f s rejected: %.2f m off the estimate (gate %.2f m); %d so far",
-                     nav.usbl_time_s, float(np.linalg.norm(innovation)),
-                     self.gate_sigmas * math.sqrt(spread_m2), self.rejected)
+            log.info(
+                "USBL fix taken at %.2f s rejected: %.2f m off the estimate (gate %.2f m); %d so far",
+                nav.usbl_time_s,
+                float(np.linalg.norm(innovation)),
+                self.gate_sigmas * math.sqrt(spread_m2),
+                self.rejected,
+            )
             if self._rejected_in_a_row >= RESET_AFTER_REJECTED:
-                log.warning("%d USBL fixes rejected in a row: the estimate starts afresh from the fix",
-                            self._rejected_in_a_row)
+                log.warning(
+                    "%d USBL fixes rejected in a row: the estimate starts afresh from the fix",
+                    self._rejected_in_a_row,
+                )
                 self._start(nav)
             return
         self._rejected_in_a_row = 0
@@ -159,7 +166,7 @@ class NavFilter:
     def _start(self, nav: NavState) -> None:
         self.position_m_world = np.r_[nav.position_m_world[:2], -nav.depth_m]
         self.pending_m = np.zeros(2)
-        self.covariance = np.diag([self.fix_variance_m2, BIAS_SIGMA_MPS ** 2])
+        self.covariance = np.diag([self.fix_variance_m2, BIAS_SIGMA_MPS**2])
         self.bias_mps_world = np.zeros(2)
         self.history.clear()
         self._rejected_in_a_row = 0

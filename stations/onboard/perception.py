@@ -56,10 +56,20 @@ class Camera:
         if scale == 1:
             return self
         fx, fy, cx, cy = self.matrix[0, 0], self.matrix[1, 1], self.matrix[0, 2], self.matrix[1, 2]
-        matrix = np.array([[fx / scale, 0.0, (cx + 0.5) / scale - 0.5],
-                           [0.0, fy / scale, (cy + 0.5) / scale - 0.5], [0.0, 0.0, 1.0]])
-        return Camera(matrix, self.width_px // scale, self.height_px // scale, self.rotation_in_vehicle,
-                      self.position_m_vehicle)
+        matrix = np.array(
+            [
+                [fx / scale, 0.0, (cx + 0.5) / scale - 0.5],
+                [0.0, fy / scale, (cy + 0.5) / scale - 0.5],
+                [0.0, 0.0, 1.0],
+            ]
+        )
+        return Camera(
+            matrix,
+            self.width_px // scale,
+            self.height_px // scale,
+            self.rotation_in_vehicle,
+            self.position_m_vehicle,
+        )
 
 
 def depth_to_points(depth_m: np.ndarray, camera: Camera, max_range_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -88,8 +98,12 @@ def colors_at(points_m_camera: np.ndarray, camera: Camera, rgb: np.ndarray) -> t
 
 
 # onboard.stereo_mode (config.STEREO_MODES) -> OpenCV's
-SGBM_MODES = {"3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
-              "hh": cv2.STEREO_SGBM_MODE_HH, "hh4": cv2.STEREO_SGBM_MODE_HH4}
+SGBM_MODES = {
+    "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
+    "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
+    "hh": cv2.STEREO_SGBM_MODE_HH,
+    "hh4": cv2.STEREO_SGBM_MODE_HH4,
+}
 
 
 @dataclass(frozen=True)
@@ -117,9 +131,15 @@ class StereoFilter:
 
     @staticmethod
     def of(cfg: OnboardConfig) -> StereoFilter:
-        return StereoFilter(cfg.stereo_uniqueness_percent, cfg.stereo_speckle_window_px,
-                            cfg.stereo_speckle_range_px, cfg.stereo_lr_max_diff_px, cfg.stereo_min_texture,
-                            cfg.stereo_edge_step_px, cfg.stereo_lr_scale)
+        return StereoFilter(
+            cfg.stereo_uniqueness_percent,
+            cfg.stereo_speckle_window_px,
+            cfg.stereo_speckle_range_px,
+            cfg.stereo_lr_max_diff_px,
+            cfg.stereo_min_texture,
+            cfg.stereo_edge_step_px,
+            cfg.stereo_lr_scale,
+        )
 
     def scaled(self, scale: int) -> StereoFilter:
         """The same filter for images `scale` times smaller: windows in pixels shrunk by the
@@ -203,8 +223,9 @@ def right_disparity_of(matcher: cv2.StereoSGBM, left: np.ndarray, right: np.ndar
     return disparity_of(matcher, right, left)[:, ::-1]
 
 
-def left_right_consistent(disparity_px: np.ndarray, right_disparity_px: np.ndarray, ratio: int,
-                          max_diff_px: float) -> np.ndarray:
+def left_right_consistent(
+    disparity_px: np.ndarray, right_disparity_px: np.ndarray, ratio: int, max_diff_px: float
+) -> np.ndarray:
     """Where the right image's disparity (of the pair `ratio` times smaller, in its pixels) at
     the pixel each left disparity [px] points to is found and within `max_diff_px` of it [px]."""
     rows, cols = np.indices(disparity_px.shape)
@@ -309,9 +330,16 @@ class CloudSettings:
 
     @staticmethod
     def of(cfg: OnboardConfig) -> CloudSettings:
-        return CloudSettings(cfg.cloud_voxel_m, cfg.cloud_max_range_m, cfg.cloud_scale_m,
-                             cfg.stereo_disparities, cfg.self_filter_radius_m, StereoFilter.of(cfg),
-                             cfg.stereo_mode, cfg.stereo_scale)
+        return CloudSettings(
+            cfg.cloud_voxel_m,
+            cfg.cloud_max_range_m,
+            cfg.cloud_scale_m,
+            cfg.stereo_disparities,
+            cfg.self_filter_radius_m,
+            StereoFilter.of(cfg),
+            cfg.stereo_mode,
+            cfg.stereo_scale,
+        )
 
 
 def world_cloud(
@@ -333,8 +361,9 @@ def world_cloud(
     rotation = rotation_of(orientation)
     # to the world and onto the voxel grid first: what follows works on a point per voxel (a
     # few percent of the pixels), coloured by the pixel its mean falls on
-    world = (points_depth @ (rotation @ depth_camera.rotation_in_vehicle).T
-             + (rotation @ depth_camera.position_m_vehicle + position))
+    world = points_depth @ (rotation @ depth_camera.rotation_in_vehicle).T + (
+        rotation @ depth_camera.position_m_vehicle + position
+    )
     world, _ = voxel_downsample(world, np.zeros((len(world), 0), np.uint8), settings.voxel_m)
     in_rgb = ((world - position) @ rotation - rgb_camera.position_m_vehicle) @ rgb_camera.rotation_in_vehicle
     colors, seen = colors_at(in_rgb, rgb_camera, rgb)
@@ -401,7 +430,16 @@ def clouds_of(
             scale=settings.stereo_scale,
         )
         clouds.append(
-            world_cloud("stereo", depth, left_camera.scaled(settings.stereo_scale), left, left_camera, pose,
-                        arm_m_world, settings, sim_time_s)
+            world_cloud(
+                "stereo",
+                depth,
+                left_camera.scaled(settings.stereo_scale),
+                left,
+                left_camera,
+                pose,
+                arm_m_world,
+                settings,
+                sim_time_s,
+            )
         )
     return clouds

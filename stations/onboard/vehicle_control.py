@@ -61,8 +61,9 @@ class VehicleController:
         self._new_leg()
         return True
 
-    def step(self, position_m_world: np.ndarray, yaw_rad: float, dt_s: float,
-             hold: bool = False) -> ControlOutput:
+    def step(
+        self, position_m_world: np.ndarray, yaw_rad: float, dt_s: float, hold: bool = False
+    ) -> ControlOutput:
         """One control period; with `hold`, the pose where holding began is held instead."""
         pose = np.r_[position_m_world, yaw_rad]
         self._observe(pose, dt_s)
@@ -97,12 +98,17 @@ class VehicleController:
         if self.mission.waypoint_timeout_s == 0:
             return math.inf
         g = self.gains
-        return (float(np.linalg.norm(target[:3] - pose[:3])) / g.max_speed_mps
-                + abs(wrap_rad(target[3] - pose[3])) / g.max_yaw_rate_radps + self.mission.waypoint_timeout_s)
+        return (
+            float(np.linalg.norm(target[:3] - pose[:3])) / g.max_speed_mps
+            + abs(wrap_rad(target[3] - pose[3])) / g.max_yaw_rate_radps
+            + self.mission.waypoint_timeout_s
+        )
 
     def _within(self, target: np.ndarray, pose: np.ndarray) -> bool:
-        return bool(np.linalg.norm(target[:3] - pose[:3]) < self.mission.position_tolerance_m
-                    and abs(wrap_rad(target[3] - pose[3])) < self.mission.heading_tolerance_rad)
+        return bool(
+            np.linalg.norm(target[:3] - pose[:3]) < self.mission.position_tolerance_m
+            and abs(wrap_rad(target[3] - pose[3])) < self.mission.heading_tolerance_rad
+        )
 
     def _observe(self, pose: np.ndarray, dt_s: float) -> None:
         """The offset: the pose's change since the last step less what the last command asked
@@ -116,11 +122,17 @@ class VehicleController:
         unexplained = change / dt_s - last_command - self.offset
         self.offset = self.offset + dt_s / (g.offset_time_constant_s + dt_s) * unexplained
         self.offset[:3] = _clip_norm(self.offset[:3], MAX_OFFSET_SHARE * g.max_speed_mps)
-        self.offset[3] = float(np.clip(self.offset[3], -MAX_OFFSET_SHARE * g.max_yaw_rate_radps,
-                                       MAX_OFFSET_SHARE * g.max_yaw_rate_radps))
+        self.offset[3] = float(
+            np.clip(
+                self.offset[3],
+                -MAX_OFFSET_SHARE * g.max_yaw_rate_radps,
+                MAX_OFFSET_SHARE * g.max_yaw_rate_radps,
+            )
+        )
 
-    def _output(self, target: np.ndarray, pose: np.ndarray, mode: str, index: int,
-                total: int) -> ControlOutput:
+    def _output(
+        self, target: np.ndarray, pose: np.ndarray, mode: str, index: int, total: int
+    ) -> ControlOutput:
         """Towards `target` (x, y, z, yaw) from `pose`: the body velocity and yaw rate, and the
         errors; the command (world frame) is kept for the observer."""
         g = self.gains
@@ -128,10 +140,14 @@ class VehicleController:
         heading_error = wrap_rad(target[3] - pose[3])
         distance = float(np.linalg.norm(error))
         speed = min(g.kp_position * distance, math.sqrt(2.0 * g.max_accel_mps2 * distance), g.max_speed_mps)
-        u_world = _clip_norm(error * (speed / distance if distance > 0 else 0.0) - self.offset[:3],
-                             g.max_speed_mps)
-        r = float(np.clip(g.kp_heading * heading_error - self.offset[3], -g.max_yaw_rate_radps,
-                          g.max_yaw_rate_radps))
+        u_world = _clip_norm(
+            error * (speed / distance if distance > 0 else 0.0) - self.offset[:3], g.max_speed_mps
+        )
+        r = float(
+            np.clip(
+                g.kp_heading * heading_error - self.offset[3], -g.max_yaw_rate_radps, g.max_yaw_rate_radps
+            )
+        )
         self._last = (pose, np.r_[u_world, r])
         c, s = math.cos(pose[3]), math.sin(pose[3])
         u_body = np.array([c * u_world[0] + s * u_world[1], -s * u_world[0] + c * u_world[1], u_world[2]])

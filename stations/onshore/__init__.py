@@ -66,8 +66,13 @@ def run(config: Config, bus: Bus) -> None:
     viewer = Viewer(sinks.recording) if sinks.recording is not None else None
     tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
         f"op/{topic}": bus.subscribe_key(keys.operator_key(bus.system, topic), message)
-        for topic, message in (("mode", "OperatorMode"), ("waypoints", "Waypoints"), ("arm", "ArmGoal"),
-                               ("intervene", "Intervention"))}
+        for topic, message in (
+            ("mode", "OperatorMode"),
+            ("waypoints", "Waypoints"),
+            ("arm", "ArmGoal"),
+            ("intervene", "Intervention"),
+        )
+    }
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)
     rate = bus.loop("display", PERIOD_S)
     saved: tuple[str, str] = ("", "")
@@ -79,9 +84,14 @@ def run(config: Config, bus: Bus) -> None:
         if scene.receiver.new_streams > streams:
             operator.event("vessel", "restarted: a new scene stream, kept on the map shore holds")
         received = telemetry.drain()
-        out = operator.step(OperatorInputs(
-            tool_commands=[(topic, r.message) for topic, inbox in tools.items() for r in inbox.drain()],
-            acks=messages_of(acks.drain(), CommandAck), telemetry=messages_of(received, Telemetry)), now_s)
+        out = operator.step(
+            OperatorInputs(
+                tool_commands=[(topic, r.message) for topic, inbox in tools.items() for r in inbox.drain()],
+                acks=messages_of(acks.drain(), CommandAck),
+                telemetry=messages_of(received, Telemetry),
+            ),
+            now_s,
+        )
         for ack in out.answers:
             bus.observe(keys.operator_key(bus.system, "ack"), ack)
         for topic, message in out.messages:
@@ -89,8 +99,13 @@ def run(config: Config, bus: Bus) -> None:
         if out.status is not None:
             bus.observe(keys.mission_key(bus.system), out.status)
         if viewer:
-            _show(viewer, bus.clock.stamp_s(), out.first_sent, received,
-                  [*images.drain(), *sonar.drain(), *link_stats.drain()])
+            _show(
+                viewer,
+                bus.clock.stamp_s(),
+                out.first_sent,
+                received,
+                [*images.drain(), *sonar.drain(), *link_stats.drain()],
+            )
         if record_dir and now_s - saved_s >= SAVE_PERIOD_S:
             saved, saved_s = _save(record_dir, operator, saved), now_s
     if record_dir:
@@ -109,8 +124,13 @@ def _save(record_dir: Path, operator: Operator, saved: tuple[str, str]) -> tuple
     return texts
 
 
-def _show(viewer: Viewer, stamp_s: float, first_sent: list[Message], telemetry: list[Received],
-          others: list[Received]) -> None:
+def _show(
+    viewer: Viewer,
+    stamp_s: float,
+    first_sent: list[Message],
+    telemetry: list[Received],
+    others: list[Received],
+) -> None:
     """What came in, at its sender's stamp, and each command when it is first sent (`stamp_s`)."""
     for command in first_sent:
         if isinstance(command, Waypoints):
@@ -122,10 +142,17 @@ def _show(viewer: Viewer, stamp_s: float, first_sent: list[Message], telemetry: 
             t = r.message
             viewer.telemetry(t, r.stamp_s)
             if t.intervention_target:
-                viewer.intervention(r.stamp_s, t.sim_time_s, t.intervention_target, t.intervention_phase,
-                                    t.intervention_reason, math.degrees(t.turned_rad),
-                                    math.degrees(t.turn_goal_rad), t.gripper_opening_m * 1e3,
-                                    t.gripper_force_n)
+                viewer.intervention(
+                    r.stamp_s,
+                    t.sim_time_s,
+                    t.intervention_target,
+                    t.intervention_phase,
+                    t.intervention_reason,
+                    math.degrees(t.turned_rad),
+                    math.degrees(t.turn_goal_rad),
+                    t.gripper_opening_m * 1e3,
+                    t.gripper_force_n,
+                )
     for r in others:
         if isinstance(r.message, Image):
             viewer.image(r.message, r.stamp_s)
@@ -138,8 +165,9 @@ def _show(viewer: Viewer, stamp_s: float, first_sent: list[Message], telemetry: 
 class Scene:
     """Shore's copy of the scene and the recognised objects."""
 
-    def __init__(self, bus: Bus, request_period_s: float, viewer: Viewer | None = None,
-                 viewer_period_s: float = 2.0) -> None:
+    def __init__(
+        self, bus: Bus, request_period_s: float, viewer: Viewer | None = None, viewer_period_s: float = 2.0
+    ) -> None:
         self.bus = bus
         self.request_period_s = request_period_s
         self.viewer = viewer
@@ -170,11 +198,18 @@ class Scene:
                 self.update_bytes += wire_bytes(received.message)
                 self.sim_time_s = received.message.sim_time_s
                 if self.viewer:
-                    self.viewer.scene_update(self.receiver.latest_centres_m, self.receiver.latest_colors,
-                                             received.stamp_s, self.sim_time_s)
+                    self.viewer.scene_update(
+                        self.receiver.latest_centres_m,
+                        self.receiver.latest_colors,
+                        received.stamp_s,
+                        self.sim_time_s,
+                    )
             elif outcome == "gap":
-                log.info("scene update %d does not follow %d: asking for a snapshot",
-                         received.message.scene_seq, self.receiver.last_seq)
+                log.info(
+                    "scene update %d does not follow %d: asking for a snapshot",
+                    received.message.scene_seq,
+                    self.receiver.last_seq,
+                )
                 self._last_request_s = -float("inf")
         for received in self.objects_inbox.drain():
             assert isinstance(received.message, RecognisedObjects)
@@ -197,8 +232,12 @@ class Scene:
         """The whole scene to the viewer, when it changed, at most every `viewer_period_s`."""
         changed = self.receiver.applied != self._shown_applied
         if self.viewer and changed and (final or now_s - self._shown_s >= self.viewer_period_s):
-            self.viewer.scene(*self.receiver.occupied_cells(), self.receiver.resolution_m,
-                              self.bus.clock.stamp_s(), self.sim_time_s)
+            self.viewer.scene(
+                *self.receiver.occupied_cells(),
+                self.receiver.resolution_m,
+                self.bus.clock.stamp_s(),
+                self.sim_time_s,
+            )
             self._shown_s, self._shown_applied = now_s, self.receiver.applied
 
     def save(self, directory: Path) -> None:
@@ -207,14 +246,22 @@ class Scene:
         snapshot = self.receiver.snapshot(self.sim_time_s)
         if snapshot is not None:
             (directory / SCENE_FILE).write_bytes(encode(snapshot, 0, self.bus.clock.stamp_s()))
-        stats = {"updates_applied": self.receiver.applied, "gaps": self.receiver.gaps,
-                 "snapshot_requests": self.requests, "update_bytes": self.update_bytes,
-                 "resolution_m": self.receiver.resolution_m,
-                 "occupied_cells": len(self.receiver.colors),
-                 "objects": {name: {"pose_world": pose.tolist(), "confidence": float(c)}
-                             for name, pose, c in zip(self.objects.names, self.objects.poses_world,
-                                                      self.objects.confidences, strict=True)}
-                 if self.objects else {},
-                 "recognition_method": self.objects.method if self.objects else "",
-                 "perception": self.perception.summary()}
+        stats = {
+            "updates_applied": self.receiver.applied,
+            "gaps": self.receiver.gaps,
+            "snapshot_requests": self.requests,
+            "update_bytes": self.update_bytes,
+            "resolution_m": self.receiver.resolution_m,
+            "occupied_cells": len(self.receiver.colors),
+            "objects": {
+                name: {"pose_world": pose.tolist(), "confidence": float(c)}
+                for name, pose, c in zip(
+                    self.objects.names, self.objects.poses_world, self.objects.confidences, strict=True
+                )
+            }
+            if self.objects
+            else {},
+            "recognition_method": self.objects.method if self.objects else "",
+            "perception": self.perception.summary(),
+        }
         (directory / "scene.json").write_text(json.dumps(stats, indent=2))

@@ -88,8 +88,12 @@ class OperatorOutputs:
 
 
 class Operator:
-    def __init__(self, mission: MissionConfig, history: list[dict[str, object]] | None = None,
-                 events: list[dict[str, object]] | None = None) -> None:
+    def __init__(
+        self,
+        mission: MissionConfig,
+        history: list[dict[str, object]] | None = None,
+        events: list[dict[str, object]] | None = None,
+    ) -> None:
         """`history` and `events`: what an earlier run of this station left (a restart)."""
         self.mission = mission
         self.mode = Command("op/mode", OperatorMode(new_id(), "auto"))
@@ -105,7 +109,8 @@ class Operator:
             self.intervene.replace(mission_intervention(mission, 0))
         self.commands = {c.topic: c for c in (self.mode, self.waypoints, self.arm, self.intervene)}
         self.history: dict[tuple[str, int], dict[str, object]] = {  # every command sent, and its fate
-            (f"op/{e['command']}", int(e["command_id"])): e for e in history or []}  # type: ignore[call-overload]
+            (f"op/{e['command']}", int(e["command_id"])): e for e in history or []
+        }  # type: ignore[call-overload]
         self.events: list[dict[str, object]] = list(events or [])  # restarts seen, what shore did
         self.status: MissionStatus | None = None
         self.last_status_s = self.last_beat_s = -float("inf")
@@ -129,7 +134,7 @@ class Operator:
         mission = self.waypoints.message.waypoints
         total = t.waypoints_total if 0 < t.waypoints_total <= len(mission) else len(mission)
         self.waypoint_offset = len(mission) - total
-        self.waypoints.in_force(Waypoints(t.command_id, mission[self.waypoint_offset:]), now_s)
+        self.waypoints.in_force(Waypoints(t.command_id, mission[self.waypoint_offset :]), now_s)
         goal = self.mission.arm_goal()
         if goal is not None and t.arm_command_id >= 0:
             self.arm.in_force(ArmGoal(t.arm_command_id, *goal), now_s)
@@ -137,16 +142,18 @@ class Operator:
         targets = [part for part, _ in self.mission.interventions]
         if t.intervention_id >= 0 and t.intervention_target in targets:  # the one onboard works on
             self.intervention_index = targets.index(t.intervention_target)
-            self.intervene.in_force(mission_intervention(self.mission, self.intervention_index,
-                                                         t.intervention_id), now_s)
+            self.intervene.in_force(
+                mission_intervention(self.mission, self.intervention_index, t.intervention_id), now_s
+            )
         for command in (self.waypoints, self.arm, self.intervene):
             entry = self.history.get((command.topic, command.message.command_id)) if command.message else None
             if entry is not None:  # sent by this station before its restart, flown since
                 entry.update(answered=True, accepted=True)
         index = self.waypoint_offset + t.waypoint_index
         self.onboard = t
-        self.event("onshore", f"rejoined the mission in progress (waypoint {index}/{len(mission)}, "
-                   f"arm {t.arm_mode})")
+        self.event(
+            "onshore", f"rejoined the mission in progress (waypoint {index}/{len(mission)}, arm {t.arm_mode})"
+        )
 
     def _rehand(self, before: Telemetry | None, t: Telemetry) -> None:
         """Onboard rebooted: the goals in force again, the waypoints from the one it was flying."""
@@ -173,14 +180,22 @@ class Operator:
             self._rehand(self.onboard, t)
         self.onboard = t
         self._next_intervention(t)
-        self.status = mission_status(t, self.waypoints, self.arm, self.waypoint_offset,
-                                     self.intervene, self.intervention_index, len(self.mission.interventions))
+        self.status = mission_status(
+            t,
+            self.waypoints,
+            self.arm,
+            self.waypoint_offset,
+            self.intervene,
+            self.intervention_index,
+            len(self.mission.interventions),
+        )
 
     def _next_intervention(self, t: Telemetry) -> None:
         """The mission's next intervention once onboard has done the one in hand."""
         current = self.intervene.message
-        done = (current is not None and t.intervention_id == current.command_id
-                and t.intervention_phase == "done")
+        done = (
+            current is not None and t.intervention_id == current.command_id and t.intervention_phase == "done"
+        )
         if done and self.intervention_index + 1 < len(self.mission.interventions):
             self.intervention_index += 1
             self.intervene.replace(mission_intervention(self.mission, self.intervention_index))
@@ -197,8 +212,12 @@ class Operator:
             if entry is not None:
                 entry.update(answered=True, accepted=ack.accepted, reason=ack.reason)
             if self.commands[f"op/{ack.command}"].answered(ack):
-                log.info("%s command %d %s", ack.command, ack.command_id,
-                         "taken" if ack.accepted else f"refused: {ack.reason}")
+                log.info(
+                    "%s command %d %s",
+                    ack.command,
+                    ack.command_id,
+                    "taken" if ack.accepted else f"refused: {ack.reason}",
+                )
         for t in inputs.telemetry:
             self._telemetry(t, now_s)
         if not self.joined and now_s - self.first_step_s >= JOIN_WAIT_S:
@@ -207,9 +226,17 @@ class Operator:
         for command in self.commands.values() if self.joined else ():
             due = now_s - command.sent_s > self.mission.resend_period_s
             if command.message is not None and command.answer is None and due and not command.waiting():
-                entry = self.history.setdefault((command.topic, command.message.command_id), {
-                    "command": command.topic.removeprefix("op/"), "command_id": command.message.command_id,
-                    "sends": 0, "answered": False, "accepted": False, "reason": ""})
+                entry = self.history.setdefault(
+                    (command.topic, command.message.command_id),
+                    {
+                        "command": command.topic.removeprefix("op/"),
+                        "command_id": command.message.command_id,
+                        "sends": 0,
+                        "answered": False,
+                        "accepted": False,
+                        "reason": "",
+                    },
+                )
                 entry["sends"] = int(entry["sends"]) + 1  # type: ignore[call-overload]
                 if command.sent_s == -float("inf"):
                     out.first_sent.append(command.message)
@@ -220,10 +247,18 @@ class Operator:
             self.last_beat_s = now_s
         if now_s - self.last_status_s >= STATUS_PERIOD_S:
             out.status = self.status or MissionStatus(
-                mode="idle", waypoint_index=0, waypoints_total=len(self.mission.waypoints),
+                mode="idle",
+                waypoint_index=0,
+                waypoints_total=len(self.mission.waypoints),
                 position_error_m=0.0,
-                heading_error_rad=0.0, arm_mode="idle", ee_position_error_m=0.0, ee_orientation_error_rad=0.0,
-                failsafe="", failsafe_events=0, interventions_total=len(self.mission.interventions))
+                heading_error_rad=0.0,
+                arm_mode="idle",
+                ee_position_error_m=0.0,
+                ee_orientation_error_rad=0.0,
+                failsafe="",
+                failsafe_events=0,
+                interventions_total=len(self.mission.interventions),
+            )
             self.last_status_s = now_s
         return out
 
@@ -233,8 +268,15 @@ def mission_intervention(mission: MissionConfig, index: int, command_id: int | N
     return Intervention(command_id if command_id is not None else new_id(), part, *panel.intent(part, amount))
 
 
-def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int = 0,
-                   intervene: Command | None = None, index: int = 0, total: int = 0) -> MissionStatus:
+def mission_status(
+    t: Telemetry,
+    waypoints: Command,
+    arm: Command,
+    offset: int = 0,
+    intervene: Command | None = None,
+    index: int = 0,
+    total: int = 0,
+) -> MissionStatus:
     """The mission as telemetry shows it; done once the vehicle holds its last waypoint, the
     end-effector its goal and onboard says the last intervention is done, all of the commands
     this station sent last. Waypoints count from the mission's first: `offset` were reached
@@ -250,15 +292,23 @@ def mission_status(t: Telemetry, waypoints: Command, arm: Command, offset: int =
         finished = index + int(on_it and t.intervention_phase == "done")
     phase = t.intervention_phase if on_it else ""
     return MissionStatus(
-        mode=t.mode, waypoint_index=offset + t.waypoint_index if flying else offset,
+        mode=t.mode,
+        waypoint_index=offset + t.waypoint_index if flying else offset,
         waypoints_total=offset + len(waypoints.message.waypoints),
-        position_error_m=t.position_error_m, heading_error_rad=abs(t.heading_error_rad), arm_mode=t.arm_mode,
+        position_error_m=t.position_error_m,
+        heading_error_rad=abs(t.heading_error_rad),
+        arm_mode=t.arm_mode,
         ee_position_error_m=float(np.linalg.norm(t.ee_position_error_m_world)),
-        ee_orientation_error_rad=t.ee_orientation_error_rad, failsafe=t.failsafe,
-        failsafe_events=t.failsafe_events, done=vehicle_done and arm_done and finished >= total,
-        interventions_done=finished, interventions_total=total,
+        ee_orientation_error_rad=t.ee_orientation_error_rad,
+        failsafe=t.failsafe,
+        failsafe_events=t.failsafe_events,
+        done=vehicle_done and arm_done and finished >= total,
+        interventions_done=finished,
+        interventions_total=total,
         intervention_target=current.target if isinstance(current, Intervention) else "",
-        intervention_phase=phase, intervention_reason=t.intervention_reason if on_it else "")
+        intervention_phase=phase,
+        intervention_reason=t.intervention_reason if on_it else "",
+    )
 
 
 class PerceptionSeen:
@@ -285,9 +335,14 @@ class PerceptionSeen:
             if status.scene_source:
                 mapped_s[status.scene_source] = mapped_s.get(status.scene_source, 0.0) + max(0.0, t1 - t0)
         confidence = [status.recognition_confidence for status in statuses]
-        return {"reports": len(statuses),
-                "points_per_s": {source: {"mean": float(np.mean(r)), "max": max(r), "last": r[-1]}
-                                 for source, r in rates.items()},
-                "scene_source_s": mapped_s, "scene_source": statuses[-1].scene_source,
-                "recognition_confidence": {"last": confidence[-1], "max": max(confidence)},
-                "recognition_method": statuses[-1].recognition_method}
+        return {
+            "reports": len(statuses),
+            "points_per_s": {
+                source: {"mean": float(np.mean(r)), "max": max(r), "last": r[-1]}
+                for source, r in rates.items()
+            },
+            "scene_source_s": mapped_s,
+            "scene_source": statuses[-1].scene_source,
+            "recognition_confidence": {"last": confidence[-1], "max": max(confidence)},
+            "recognition_method": statuses[-1].recognition_method,
+        }

@@ -93,9 +93,12 @@ def blueprint() -> rrb.Blueprint:
     perception = rrb.Vertical(
         rrb.Spatial2DView(origin="sonar", name="Sonar (from above, middle beam up)"),
         rrb.TextLogView(origin="status/perception", name="Perception"),
-        *(rrb.TimeSeriesView(origin=f"perception/{group}", name=name)
-          for group, name in PERCEPTION_VIEWS.items()),
-        row_shares=[3, 1, 2, 2], name="Perception",
+        *(
+            rrb.TimeSeriesView(origin=f"perception/{group}", name=name)
+            for group, name in PERCEPTION_VIEWS.items()
+        ),
+        row_shares=[3, 1, 2, 2],
+        name="Perception",
     )
     links = rrb.Grid(
         *(rrb.TimeSeriesView(origin=f"links/{hop}/{group}", name=f"{hop} {name}")

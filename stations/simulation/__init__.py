@@ -91,8 +91,10 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
             except ValueError as exc:
                 bus.reject(control_key, str(exc))
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
-        refs = references(v.message if v and isinstance(v.message, VelocityRef) else None,
-                          a.message if a and isinstance(a.message, ArmVelocityRef) else None)
+        refs = references(
+            v.message if v and isinstance(v.message, VelocityRef) else None,
+            a.message if a and isinstance(a.message, ArmVelocityRef) else None,
+        )
         stepped_from_s = world.data.time
         with lock:
             world.step(refs, sim.control_period_s)
@@ -109,10 +111,16 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
             saved_s = truth.sim_time_s
         wall = time.monotonic()
         if wall - wall0 >= STATUS_PERIOD_S:
-            bus.observe(keys.simulation_status_key(bus.system), SimulationStatus(
-                sim_time_s=truth.sim_time_s, realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
-                deadlines_met=rate.deadlines_met, faults=dict(world.faults),
-                held_s=keeper.held_s()))
+            bus.observe(
+                keys.simulation_status_key(bus.system),
+                SimulationStatus(
+                    sim_time_s=truth.sim_time_s,
+                    realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
+                    deadlines_met=rate.deadlines_met,
+                    faults=dict(world.faults),
+                    held_s=keeper.held_s(),
+                ),
+            )
             wall0, sim0 = wall, truth.sim_time_s
         if not keeper.after_step(stepped_from_s, truth.sim_time_s):
             break
@@ -133,8 +141,11 @@ class Timekeeper:
         self.lockstep: Lockstep | None = bus.lockstep
         self.rate = bus.loop("physics", 0.0 if self.lockstep else period_s / self.time.speed_factor, WALL)
         self.clock = bus.clock if isinstance(bus.clock, SimClock) and self.lockstep is None else None
-        self.holdback = (Holdback(bus.session, bus.system, self.time.stations, self.time.max_lag_s,
-                                  bus.reject) if self.clock is not None else None)
+        self.holdback = (
+            Holdback(bus.session, bus.system, self.time.stations, self.time.max_lag_s, bus.reject)
+            if self.clock is not None
+            else None
+        )
         self.waited_wall_s = 0.0  # lockstep: for the stations to finish their periods
         if self.time.simulated:
             self.tell(start_s)  # a resumed simulation starts where it was
@@ -164,9 +175,14 @@ class Timekeeper:
         the period; False once the station stops."""
         if self.lockstep is not None:
             lockstep, wall0 = self.lockstep, time.monotonic()
-            done = lockstep.wait_for(f"every station done at t={from_s:.2f} s", lambda: all(
-                lockstep.reported(station, "done")[0] >= from_s - TICK_TOLERANCE_S
-                for station in self.time.stations), lambda: self.tell(from_s))
+            done = lockstep.wait_for(
+                f"every station done at t={from_s:.2f} s",
+                lambda: all(
+                    lockstep.reported(station, "done")[0] >= from_s - TICK_TOLERANCE_S
+                    for station in self.time.stations
+                ),
+                lambda: self.tell(from_s),
+            )
             self.waited_wall_s += time.monotonic() - wall0
             return done
         if self.clock is not None:
@@ -184,8 +200,15 @@ class Timekeeper:
             self.holdback.close()
 
 
-def _sensor_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str],
-                 kind: str, rate_hz: float) -> None:
+def _sensor_loop(
+    config: Config,
+    bus: Bus,
+    world: World,
+    lock: threading.Lock,
+    blackout: set[str],
+    kind: str,
+    rate_hz: float,
+) -> None:
     """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics
     state, in a process of its own (stations.simulation.offload)."""
     from abyss.stations.simulation.offload import Offloaded, state_of

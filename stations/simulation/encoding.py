@@ -20,8 +20,17 @@ def encode_image(cameras: Cameras, data: object, camera: str, jpeg_quality: int)
         encoding, payload = "png16", buffer.tobytes()
     else:
         encoding, payload = "jpeg", encode_jpeg(cameras.rgb(data, camera), jpeg_quality)
-    return Image(camera=camera, encoding=encoding, pose_frame="vehicle", width_px=intrinsics.width_px,
-                 height_px=intrinsics.height_px, fx_px=intrinsics.fx_px, fy_px=intrinsics.fy_px,
-                 cx_px=intrinsics.cx_px, cy_px=intrinsics.cy_px,
-                 pose_camera=cameras.pose_in_vehicle(camera), data=payload,
-                 sim_time_s=float(data.time))  # type: ignore[attr-defined]
+    return Image(
+        camera=camera,
+        encoding=encoding,
+        pose_frame="vehicle",
+        width_px=intrinsics.width_px,
+        height_px=intrinsics.height_px,
+        fx_px=intrinsics.fx_px,
+        fy_px=intrinsics.fy_px,
+        cx_px=intrinsics.cx_px,
+        cy_px=intrinsics.cy_px,
+        pose_camera=cameras.pose_in_vehicle(camera),
+        data=payload,
+        sim_time_s=float(data.time),
+    )  # type: ignore[attr-defined]

@@ -63,15 +63,23 @@ def load_vehicle(path: Path) -> VehicleModel:
 
     def numbers(section: str, key: str, sizes: tuple[int, ...], non_negative: bool) -> np.ndarray:
         value = np.asarray(get(section, key), dtype=float) if _is_numbers(get(section, key)) else None
-        if value is None or value.size not in sizes or not np.all(np.isfinite(value)) \
-                or (non_negative and np.any(value < 0)):
+        if (
+            value is None
+            or value.size not in sizes
+            or not np.all(np.isfinite(value))
+            or (non_negative and np.any(value < 0))
+        ):
             sign = "non-negative " if non_negative else ""
-            raise ConfigError(f"{section}.{key}", f"needs {' or '.join(map(str, sizes))} {sign}numbers",
-                              str(path))
+            raise ConfigError(
+                f"{section}.{key}", f"needs {' or '.join(map(str, sizes))} {sign}numbers", str(path)
+            )
         return value
 
-    mass = numbers("added_mass", "diagonal", (6, 36), True) if "diagonal" in doc.get("added_mass", {}) \
+    mass = (
+        numbers("added_mass", "diagonal", (6, 36), True)
+        if "diagonal" in doc.get("added_mass", {})
         else numbers("added_mass", "matrix", (36,), False)
+    )
     added_mass = np.diag(mass) if mass.size == 6 else mass.reshape(6, 6)
     if not np.allclose(added_mass, added_mass.T) or np.min(np.linalg.eigvalsh(added_mass)) < 0:
         raise ConfigError("added_mass", "must be symmetric and positive semi-definite", str(path))
@@ -79,28 +87,38 @@ def load_vehicle(path: Path) -> VehicleModel:
     if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
         raise ConfigError("thrusters.names", "needs a list of the MJCF's thruster names", str(path))
     thrusters = ThrusterSpec(
-        tuple(names), _positive(path, "thrusters", "time_constant_s", get("thrusters", "time_constant_s")),
+        tuple(names),
+        _positive(path, "thrusters", "time_constant_s", get("thrusters", "time_constant_s")),
         _positive(path, "thrusters", "deadband", get("thrusters", "deadband"), upper=0.5, zero=True),
         _positive(path, "thrusters", "forward_max_n", get("thrusters", "forward_max_n")),
-        _positive(path, "thrusters", "reverse_max_n", get("thrusters", "reverse_max_n")))
+        _positive(path, "thrusters", "reverse_max_n", get("thrusters", "reverse_max_n")),
+    )
     return VehicleModel(
-        name=str(get("", "name")), source=str(get("", "source")), added_mass=added_mass,
+        name=str(get("", "name")),
+        source=str(get("", "source")),
+        added_mass=added_mass,
         linear_damping=numbers("damping", "linear", (6,), True),
         quadratic_damping=numbers("damping", "quadratic", (6,), True),
         volume_m3=_positive(path, "buoyancy", "volume_m3", get("buoyancy", "volume_m3")),
         centre_of_buoyancy_m_body=numbers("buoyancy", "centre_m_body", (3,), False),
-        thrusters=thrusters)
+        thrusters=thrusters,
+    )
 
 
 def _is_numbers(value: Any) -> bool:
-    return isinstance(value, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                           for v in value)
+    return isinstance(value, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+    )
 
 
-def _positive(path: Path, section: str, key: str, value: Any, upper: float = float("inf"),
-              zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not (0 <= value <= upper if zero else 0 < value <= upper):
+def _positive(
+    path: Path, section: str, key: str, value: Any, upper: float = float("inf"), zero: bool = False
+) -> float:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not (0 <= value <= upper if zero else 0 < value <= upper)
+    ):
         bound = f"[0, {upper}]" if zero else (f"(0, {upper}]" if upper < float("inf") else "> 0")
         raise ConfigError(f"{section}.{key}", f"{value!r}: needs a number {bound}", str(path))
     return float(value)
@@ -124,11 +142,13 @@ class Fossen:
         entries, self._rows, self._columns = [], [], []
         for i in range(6):
             row, start = self.dof + i, model.M_rowadr[self.dof + i]
-            columns = list(model.M_colind[start:start + model.M_rownnz[row]])
+            columns = list(model.M_colind[start : start + model.M_rownnz[row]])
             wanted = range(self.dof, row + 1)
             if not all(c in columns for c in wanted):
-                raise ValueError(f"body {body!r}: MuJoCo keeps its inertia diagonal (a 'simple' body); "
-                                 f"give it an offset centre of gravity or a child body")
+                raise ValueError(
+                    f"body {body!r}: MuJoCo keeps its inertia diagonal (a 'simple' body); "
+                    f"give it an offset centre of gravity or a child body"
+                )
             entries += [start + columns.index(c) for c in wanted]
             self._rows += [i] * len(wanted)
             self._columns += [c - self.dof for c in wanted]
@@ -158,10 +178,13 @@ class Fossen:
         a1u, a1v, a1w, a2p, a2q, a2r = (self.vehicle.added_mass @ nu_r).tolist()
         # C_A(nu_r) nu_r = (omega x a1, v_r x a1 + omega x a2), a = M_A nu_r (Fossen eq. 6.44)
         coriolis = [
-            q * a1w - r * a1v, r * a1u - p * a1w, p * a1v - q * a1u,
+            q * a1w - r * a1v,
+            r * a1u - p * a1w,
+            p * a1v - q * a1u,
             vr * a1w - wr * a1v + q * a2r - r * a2q,
             wr * a1u - ur * a1w + r * a2p - p * a2r,
-            ur * a1v - vr * a1u + p * a2q - q * a2p]
+            ur * a1v - vr * a1u + p * a2q - q * a2p,
+        ]
         linear, quadratic = self._damping
         damping = [(dl + dq * abs(x)) * x for dl, dq, x in zip(linear, quadratic, nu_r, strict=True)]
         # M_A nu_r_dot: MuJoCo's inertia holds M_A T qacc, the rest of nu_r_dot is -(omega x v_r, 0)
@@ -180,9 +203,9 @@ class Fossen:
         rotation = data.xmat[self.body].reshape(3, 3)
         turn = self._turn  # T^T, with nu = T qvel, T = diag(R^T, I)
         turn[:3, :3] = rotation
-        nu = turn.T @ data.qvel[d:d + 6]  # free joint: linear in the world, angular in the body
+        nu = turn.T @ data.qvel[d : d + 6]  # free joint: linear in the world, angular in the body
         tau = self.wrench_n_body(nu, rotation.T @ current_mps_world, rotation)
-        data.qfrc_applied[d:d + 6] = turn @ tau
+        data.qfrc_applied[d : d + 6] = turn @ tau
         added = turn @ self.vehicle.added_mass @ turn.T  # T^T M_A T
         data.M[self._entries] += added.take(self._flat)
         mujoco.mj_factorM(model, data)

@@ -42,13 +42,13 @@ class Plant:
 
     def rotation(self, data: mujoco.MjData) -> np.ndarray:
         rotation = np.empty(9)
-        mujoco.mju_quat2Mat(rotation, data.qpos[self.qpos + 3:self.qpos + 7])
+        mujoco.mju_quat2Mat(rotation, data.qpos[self.qpos + 3 : self.qpos + 7])
         return rotation.reshape(3, 3)
 
     def vehicle_velocity_body(self, data: mujoco.MjData) -> np.ndarray:
         """(surge, sway, heave, roll rate, pitch rate, yaw rate) in the body frame."""
-        linear = self.rotation(data).T @ data.qvel[self.qvel:self.qvel + 3]  # freejoint: world
-        return np.concatenate((linear, data.qvel[self.qvel + 3:self.qvel + 6]))  # angular: body frame
+        linear = self.rotation(data).T @ data.qvel[self.qvel : self.qvel + 3]  # freejoint: world
+        return np.concatenate((linear, data.qvel[self.qvel + 3 : self.qvel + 6]))  # angular: body frame
 
 
 class Kinematic:
@@ -61,8 +61,8 @@ class Kinematic:
         p = self.plant
         r = p.rotation(data)
         # level the vehicle: no roll or pitch rate, yaw rate about the world's vertical
-        data.qvel[p.qvel:p.qvel + 3] = r @ ref.vehicle_body[:3]
-        data.qvel[p.qvel + 3:p.qvel + 6] = r.T @ np.array([0.0, 0.0, ref.vehicle_body[3]])
+        data.qvel[p.qvel : p.qvel + 3] = r @ ref.vehicle_body[:3]
+        data.qvel[p.qvel + 3 : p.qvel + 6] = r.T @ np.array([0.0, 0.0, ref.vehicle_body[3]])
         data.qvel[p.arm_dofs] = ref.arm_radps
         data.qvel[p.gripper_dofs] = ref.gripper_mps
         data.ctrl[:] = 0.0
@@ -87,7 +87,10 @@ class Dynamic:
         self._damping = (vehicle.linear_damping[ACTUATED], vehicle.quadratic_damping[ACTUATED])
         self.gains = gains
         self._vehicle_kp, self._vehicle_ki, self._vehicle_kd = (
-            np.array(gains.vehicle_kp), np.array(gains.vehicle_ki), np.array(gains.vehicle_kd))
+            np.array(gains.vehicle_kp),
+            np.array(gains.vehicle_ki),
+            np.array(gains.vehicle_kd),
+        )
         self._vehicle_integral = np.zeros(4)
         self._vehicle_error = np.zeros(4)
         self._arm_integral = np.zeros(6)

@@ -56,8 +56,9 @@ class Buoyancy:
     def apply(self, data: mujoco.MjData) -> None:
         """Set xfrc_applied of the wet bodies (world frame, about each body's centre of mass)."""
         b, wrench = self.bodies, self._wrench
-        centre_world = data.xpos[b] + np.einsum("bij,bj->bi", data.xmat[b].reshape(-1, 3, 3),
-                                                self.centre_m_body)
+        centre_world = data.xpos[b] + np.einsum(
+            "bij,bj->bi", data.xmat[b].reshape(-1, 3, 3), self.centre_m_body
+        )
         lever_m = centre_world - data.xipos[b]
         # lever x (0, 0, f): numpy's cross on these rows, to the bit, without its overhead
         wrench[:, 3] = lever_m[:, 1] * wrench[:, 2]
@@ -70,8 +71,13 @@ class Current:
     in between, held beyond its ends) plus a first-order Gauss-Markov process on each horizontal
     component, x_dot = -x / T + w, stationary standard deviation sigma (seeded)."""
 
-    def __init__(self, profile: tuple[tuple[float, float, float, float], ...], sigma_mps: float,
-                 time_constant_s: float, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        profile: tuple[tuple[float, float, float, float], ...],
+        sigma_mps: float,
+        time_constant_s: float,
+        rng: np.random.Generator,
+    ) -> None:
         rows = np.array(sorted(profile) or [(0.0, 0.0, 0.0, 0.0)], dtype=float)
         self.depths_m, self.mean_mps = rows[:, 0], rows[:, 1:]
         self._mean_by_axis = [self.mean_mps[:, k].copy() for k in range(3)]
@@ -92,4 +98,5 @@ class Current:
         if self.sigma_mps > 0 and dt > 0:
             decay = math.exp(-dt / self.time_constant_s)
             self.gauss_markov_mps = decay * self.gauss_markov_mps + self.rng.normal(
-                0.0, self.sigma_mps * math.sqrt(1.0 - decay * decay), 2)
+                0.0, self.sigma_mps * math.sqrt(1.0 - decay * decay), 2
+            )

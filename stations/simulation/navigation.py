@@ -52,8 +52,9 @@ class Navigation:
         if self._next_fix_s is None or now_s >= self._next_fix_s - 1e-6:  # the clock: a sum of steps
             self._ping(truth)
             period_s = 1.0 / c.usbl_rate_hz
-            self._next_fix_s = now_s + period_s if self._next_fix_s is None else max(
-                self._next_fix_s + period_s, now_s)
+            self._next_fix_s = (
+                now_s + period_s if self._next_fix_s is None else max(self._next_fix_s + period_s, now_s)
+            )
         for fix in [f for f in self.pending if f.delivered_s <= now_s]:
             self.pending.remove(fix)
             self.latest = fix
@@ -63,14 +64,20 @@ class Navigation:
         pressure_pa = -truth.position_m_world[2] * SEAWATER_PA_PER_M + n(0, c.pressure_sigma_pa * k["depth"])
         velocity = np.zeros(3)
         if bottom_lock:
-            velocity = ((1.0 + c.dvl_scale_error) * truth.velocity_mps_body + np.array(c.dvl_offset_mps_body)
-                        + n(0, c.dvl_sigma_mps * k["dvl"], 3))
+            velocity = (
+                (1.0 + c.dvl_scale_error) * truth.velocity_mps_body
+                + np.array(c.dvl_offset_mps_body)
+                + n(0, c.dvl_sigma_mps * k["dvl"], 3)
+            )
         return NavState(
             position_m_world=np.zeros(3) if self.latest is None else self.latest.position_m_world,
             orientation_wxyz_world=orientation / np.linalg.norm(orientation),
             velocity_mps_body=velocity,
-            angular_velocity_radps_body=(truth.angular_velocity_radps_body + self.gyro_bias_radps
-                                         + n(0, 0.1 * c.imu_sigma_rad * k["imu"], 3)),
+            angular_velocity_radps_body=(
+                truth.angular_velocity_radps_body
+                + self.gyro_bias_radps
+                + n(0, 0.1 * c.imu_sigma_rad * k["imu"], 3)
+            ),
             sim_time_s=now_s,
             usbl_time_s=-1.0 if self.latest is None else self.latest.measured_s,
             depth_m=float(pressure_pa / SEAWATER_PA_PER_M),
@@ -85,19 +92,24 @@ class Navigation:
         position = truth.position_m_world + n(0, c.usbl_sigma_m * self.scale["usbl"], 3)
         if self.rng.random() < c.usbl_outlier_probability:
             heading_rad = self.rng.uniform(0.0, 2 * math.pi)
-            position = position + c.usbl_outlier_m * np.array([math.cos(heading_rad), math.sin(heading_rad),
-                                                               0.0])
+            position = position + c.usbl_outlier_m * np.array(
+                [math.cos(heading_rad), math.sin(heading_rad), 0.0]
+            )
         slant_m = float(np.linalg.norm(truth.position_m_world - np.array(c.usbl_transceiver_m_world)))
-        self.pending.append(Fix(position, truth.sim_time_s,
-                                truth.sim_time_s + slant_m / SOUND_SPEED_MPS + c.usbl_processing_s))
+        self.pending.append(
+            Fix(
+                position, truth.sim_time_s, truth.sim_time_s + slant_m / SOUND_SPEED_MPS + c.usbl_processing_s
+            )
+        )
 
 
 class DvlBeams:
     """The DVL's four Janus beams, 30 degrees off the vertical, 45 degrees off the bow, cast
     in MuJoCo: bottom lock when every beam meets the seabed within the altitude range."""
 
-    def __init__(self, model: mujoco.MjModel, vehicle_body: int, min_altitude_m: float,
-                 max_altitude_m: float) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, vehicle_body: int, min_altitude_m: float, max_altitude_m: float
+    ) -> None:
         self.model = model
         self.vehicle_body = vehicle_body
         self.seabed = model.geom(SEABED_GEOM).id

@@ -61,8 +61,9 @@ class Offloaded:
 
     def __init__(self, kind: str, model: Any, config: Any, seed: list[int]) -> None:
         self.kind = kind
-        self.process = subprocess.Popen([sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE)
+        self.process = subprocess.Popen(
+            [sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+        )
         in_background(self.process.pid)  # before it starts threads, which inherit it
         self._call("init", kind, model, config, seed)
 
@@ -72,8 +73,9 @@ class Offloaded:
             _write(self.process.stdin, request)
             status, result, cpu_s = _read(self.process.stdout)
         except (EOFError, OSError, pickle.UnpicklingError) as exc:
-            raise OffloadFailed(f"the {self.kind} process ended (exit {self.process.poll()}): {exc!r}"
-                                ) from None
+            raise OffloadFailed(
+                f"the {self.kind} process ended (exit {self.process.poll()}): {exc!r}"
+            ) from None
         child_cpu(f"{self.kind} {self.process.pid}", cpu_s)
         if status != "ok":
             raise OffloadFailed(f"the {self.kind} process failed: {result}")
@@ -119,8 +121,9 @@ class _Sensor:
         if kind == "cameras":
             from abyss.stations.simulation.rendering import Cameras
 
-            self.cameras = Cameras(model, config.camera_width_px, config.camera_height_px, config.water,
-                                   config.marine_snow, rng)
+            self.cameras = Cameras(
+                model, config.camera_width_px, config.camera_height_px, config.water, config.marine_snow, rng
+            )
         else:
             from abyss.stations.simulation.sonar import ImagingSonar
 

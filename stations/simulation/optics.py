@@ -69,8 +69,10 @@ class WaterType:
 
     @property
     def scattering_per_m(self) -> tuple[float, float, float]:
-        return tuple(max(k - a, 0.1 * k) for k, a in  # type: ignore[return-value]
-                     zip(self.attenuation_per_m, PURE_WATER_ABSORPTION_PER_M, strict=True))
+        return tuple(
+            max(k - a, 0.1 * k)
+            for k, a in zip(self.attenuation_per_m, PURE_WATER_ABSORPTION_PER_M, strict=True)  # type: ignore[return-value]
+        )
 
 
 def _jerlov(name: str, kd_600: float, kd_525: float, kd_475: float, snow_per_m3: float) -> WaterType:
@@ -78,18 +80,21 @@ def _jerlov(name: str, kd_600: float, kd_525: float, kd_475: float, snow_per_m3:
 
 
 # Jerlov 1976, Table XXVII (K_d [1/m]); oceanic I-III, coastal 1C-9C, clearest first
-WATER_TYPES: dict[str, WaterType] = {w.name: w for w in (
-    _jerlov("I", 0.235, 0.043, 0.018, 7.0),
-    _jerlov("IA", 0.240, 0.048, 0.025, 10.0),
-    _jerlov("IB", 0.245, 0.054, 0.033, 13.0),
-    _jerlov("II", 0.260, 0.076, 0.062, 20.0),
-    _jerlov("III", 0.295, 0.116, 0.116, 30.0),
-    _jerlov("1C", 0.300, 0.130, 0.170, 50.0),
-    _jerlov("3C", 0.330, 0.200, 0.290, 80.0),
-    _jerlov("5C", 0.400, 0.310, 0.430, 130.0),
-    _jerlov("7C", 0.480, 0.490, 0.710, 200.0),
-    _jerlov("9C", 0.600, 0.780, 1.230, 300.0),
-)}
+WATER_TYPES: dict[str, WaterType] = {
+    w.name: w
+    for w in (
+        _jerlov("I", 0.235, 0.043, 0.018, 7.0),
+        _jerlov("IA", 0.240, 0.048, 0.025, 10.0),
+        _jerlov("IB", 0.245, 0.054, 0.033, 13.0),
+        _jerlov("II", 0.260, 0.076, 0.062, 20.0),
+        _jerlov("III", 0.295, 0.116, 0.116, 30.0),
+        _jerlov("1C", 0.300, 0.130, 0.170, 50.0),
+        _jerlov("3C", 0.330, 0.200, 0.290, 80.0),
+        _jerlov("5C", 0.400, 0.310, 0.430, 130.0),
+        _jerlov("7C", 0.480, 0.490, 0.710, 200.0),
+        _jerlov("9C", 0.600, 0.780, 1.230, 300.0),
+    )
+}
 
 
 @dataclass(frozen=True)
@@ -133,8 +138,14 @@ class Optics:
     """One camera's underwater optics: coefficients, the lamps and the backscatter maps are fixed
     at start; `radiance` is the formation model, `image` the camera's picture of it."""
 
-    def __init__(self, water: WaterType, intrinsics: Intrinsics, lamps: tuple[Lamp, ...],
-                 marine_snow: float = 1.0, backscatter_step_px: int = 8) -> None:
+    def __init__(
+        self,
+        water: WaterType,
+        intrinsics: Intrinsics,
+        lamps: tuple[Lamp, ...],
+        marine_snow: float = 1.0,
+        backscatter_step_px: int = 8,
+    ) -> None:
         self.water = water
         self.intrinsics = intrinsics
         self.lamps = lamps
@@ -151,16 +162,19 @@ class Optics:
         s_m, ds_m = 0.5 * (edges_m[1:] + edges_m[:-1]), np.diff(edges_m)
         points = coarse[:, :, None, :] * s_m[:, None]  # (h, w, k, 3)
         irradiance = sum(lamp.irradiance(points, self.beta_d) for lamp in self.lamps)
-        scatter = (np.asarray(self.water.scattering_per_m, np.float32)
-                   * BACKSCATTER_PHASE_PER_SR / LAMBERT_WHITE)
+        scatter = (
+            np.asarray(self.water.scattering_per_m, np.float32) * BACKSCATTER_PHASE_PER_SR / LAMBERT_WHITE
+        )
         dl = irradiance * scatter * np.exp(-s_m[:, None] * self.beta_d) * ds_m[:, None]  # (h, w, k, 3)
         cumulative = np.cumsum(dl, axis=2)
         total = cumulative[:, :, -1, :]
         half = np.argmax(cumulative >= 0.5 * total[:, :, None, :], axis=2)  # first knot past half
         beta_b = np.log(2.0) / np.maximum(edges_m[1:][half], 1e-3)
         size = (self.intrinsics.width_px, self.intrinsics.height_px)
-        return (cv2.resize(total, size, interpolation=cv2.INTER_LINEAR),
-                cv2.resize(beta_b.astype(np.float32), size, interpolation=cv2.INTER_LINEAR))
+        return (
+            cv2.resize(total, size, interpolation=cv2.INTER_LINEAR),
+            cv2.resize(beta_b.astype(np.float32), size, interpolation=cv2.INTER_LINEAR),
+        )
 
     def radiance(self, rgb: np.ndarray, range_m: np.ndarray) -> np.ndarray:
         """The underwater radiance (h, w, 3) [1: a white face at REFERENCE_M in air] of the render

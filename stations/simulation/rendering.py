@@ -18,8 +18,10 @@ if TYPE_CHECKING:
     from abyss.stations.simulation.optics import Lamp, Optics
 
 BACKENDS = ("egl", "osmesa")
-_PROBE = ("import mujoco; r = mujoco.Renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 8, 8); "
-          "r.render(); r.close()")
+_PROBE = (
+    "import mujoco; r = mujoco.Renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 8, 8); "
+    "r.render(); r.close()"
+)
 
 
 class RenderingUnavailable(AbyssError):
@@ -34,8 +36,9 @@ def choose_gl_backend() -> str:
     errors = []
     for backend in BACKENDS:
         env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
-        done = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True,
-                              timeout=60, check=False)
+        done = subprocess.run(
+            [sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, timeout=60, check=False
+        )
         if done.returncode == 0:
             os.environ["MUJOCO_GL"] = backend
             os.environ.setdefault("PYOPENGL_PLATFORM", backend)
@@ -44,7 +47,8 @@ def choose_gl_backend() -> str:
     raise RenderingUnavailable(
         "no offscreen OpenGL backend works (" + "; ".join(errors) + "); install one with "
         "`apt-get install libegl1 libegl-mesa0` (EGL) or `apt-get install libosmesa6` (OSMesa), "
-        "or set simulation.camera_rate_hz = 0 to run without cameras")
+        "or set simulation.camera_rate_hz = 0 to run without cameras"
+    )
 
 
 @dataclass(frozen=True)
@@ -72,8 +76,15 @@ class Cameras:
     its range from a depth render of the same camera, instead of MuJoCo's fog; the depth camera
     is a range sensor, which the water leaves alone."""
 
-    def __init__(self, model: object, width_px: int, height_px: int, water: str = "none",
-                 marine_snow: float = 1.0, rng: np.random.Generator | None = None) -> None:
+    def __init__(
+        self,
+        model: object,
+        width_px: int,
+        height_px: int,
+        water: str = "none",
+        marine_snow: float = 1.0,
+        rng: np.random.Generator | None = None,
+    ) -> None:
         import mujoco
 
         self.model = model
@@ -90,8 +101,9 @@ class Cameras:
         self._optics: dict[str, Optics] = {}
 
     def intrinsics(self, camera: str) -> Intrinsics:
-        return Intrinsics.from_fovy(self.renderer.width, self.renderer.height,
-                                    float(self.model.camera(camera).fovy[0]))  # type: ignore[attr-defined]
+        return Intrinsics.from_fovy(
+            self.renderer.width, self.renderer.height, float(self.model.camera(camera).fovy[0])
+        )  # type: ignore[attr-defined]
 
     def pose_in_vehicle(self, camera: str) -> np.ndarray:
         """x, y, z [m] and quaternion w, x, y, z of the camera in its body's frame, with
@@ -111,8 +123,12 @@ class Cameras:
         if self.water == "none":
             return None
         if camera not in self._optics:
-            self._optics[camera] = Optics(WATER_TYPES[self.water], self.intrinsics(camera),
-                                          lamps_of(self.model, camera), self.marine_snow)
+            self._optics[camera] = Optics(
+                WATER_TYPES[self.water],
+                self.intrinsics(camera),
+                lamps_of(self.model, camera),
+                self.marine_snow,
+            )
         return self._optics[camera]
 
     def plain_rgb(self, data: object, camera: str) -> np.ndarray:
@@ -159,7 +175,12 @@ def lamps_of(model: object, camera: str) -> tuple[Lamp, ...]:
     for i in range(m.nlight):  # type: ignore[attr-defined]
         if m.light_bodyid[i] != cam.bodyid[0] or m.light_type[i] != mujoco.mjtLightType.mjLIGHT_SPOT:  # type: ignore[attr-defined]
             continue
-        lamps.append(Lamp(tuple((rotation.T @ (m.light_pos[i] - cam.pos)).tolist()),  # type: ignore[attr-defined]
-                          tuple((rotation.T @ m.light_dir[i]).tolist()),  # type: ignore[attr-defined]
-                          float(np.radians(m.light_cutoff[i])), float(m.light_exponent[i])))  # type: ignore[attr-defined]
+        lamps.append(
+            Lamp(
+                tuple((rotation.T @ (m.light_pos[i] - cam.pos)).tolist()),  # type: ignore[attr-defined]
+                tuple((rotation.T @ m.light_dir[i]).tolist()),  # type: ignore[attr-defined]
+                float(np.radians(m.light_cutoff[i])),
+                float(m.light_exponent[i]),
+            )
+        )  # type: ignore[attr-defined]
     return tuple(lamps)

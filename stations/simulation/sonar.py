@@ -50,9 +50,10 @@ class ImagingSonar:
         half = spec.vertical_aperture_rad / 2
         elevations = np.linspace(-half, half, spec.rays_per_beam)
         azimuth, elevation = np.meshgrid(spec.bearings_rad(), elevations, indexing="ij")  # beam, ray
-        self.directions_site = np.stack((np.cos(elevation) * np.cos(azimuth),
-                                         np.cos(elevation) * np.sin(azimuth), np.sin(elevation)),
-                                        axis=-1).reshape(-1, 3)
+        self.directions_site = np.stack(
+            (np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth), np.sin(elevation)),
+            axis=-1,
+        ).reshape(-1, 3)
         # the beam pattern in elevation: a sinc^2 main lobe whose first nulls fall just past the aperture
         self.pattern = np.sinc(elevation / (1.2 * half)).reshape(-1) ** 2
         self._beam_of_ray = np.repeat(np.arange(spec.beams), spec.rays_per_beam)
@@ -66,8 +67,20 @@ class ImagingSonar:
         distance = np.empty(n)
         geoms = np.empty(n, np.int32)
         normals = np.empty((n, 3))
-        mujoco.mj_multiRay(self.model, data, data.site_xpos[self.site].copy(), directions.reshape(-1), None,
-                           True, self.body, geoms, distance, normals.reshape(-1), n, self.spec.range_max_m)
+        mujoco.mj_multiRay(
+            self.model,
+            data,
+            data.site_xpos[self.site].copy(),
+            directions.reshape(-1),
+            None,
+            True,
+            self.body,
+            geoms,
+            distance,
+            normals.reshape(-1),
+            n,
+            self.spec.range_max_m,
+        )
         distance[distance > self.spec.range_max_m] = -1.0
         incidence = np.abs(np.einsum("ij,ij->i", normals, directions))
         return distance, geoms, incidence
@@ -93,8 +106,17 @@ class ImagingSonar:
         """The image as the sonar sends it: PNG, with its geometry and its mounting on the body
         that carries it (the vehicle frame)."""
         s, m = self.spec, self.model
-        return SonarImage(sonar=s.site, encoding="png8", pose_frame="vehicle", beams=s.beams, bins=s.bins,
-                          range_max_m=s.range_max_m, horizontal_fov_rad=s.horizontal_fov_rad,
-                          vertical_aperture_rad=s.vertical_aperture_rad, dynamic_range_db=s.dynamic_range_db,
-                          pose_sonar=np.r_[m.site_pos[self.site], m.site_quat[self.site]],
-                          data=encode_polar(self.image(data, rng), "png8"), sim_time_s=float(data.time))
+        return SonarImage(
+            sonar=s.site,
+            encoding="png8",
+            pose_frame="vehicle",
+            beams=s.beams,
+            bins=s.bins,
+            range_max_m=s.range_max_m,
+            horizontal_fov_rad=s.horizontal_fov_rad,
+            vertical_aperture_rad=s.vertical_aperture_rad,
+            dynamic_range_db=s.dynamic_range_db,
+            pose_sonar=np.r_[m.site_pos[self.site], m.site_quat[self.site]],
+            data=encode_polar(self.image(data, rng), "png8"),
+            sim_time_s=float(data.time),
+        )

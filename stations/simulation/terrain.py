@@ -66,8 +66,12 @@ def bilinear(heights: np.ndarray, xy: np.ndarray) -> np.ndarray:
     i0 = np.clip(np.floor(v).astype(int), 0, n - 2)
     j0 = np.clip(np.floor(u).astype(int), 0, n - 2)
     a, b = v - i0, u - j0
-    return ((1 - a) * (1 - b) * heights[i0, j0] + (1 - a) * b * heights[i0, j0 + 1]
-            + a * (1 - b) * heights[i0 + 1, j0] + a * b * heights[i0 + 1, j0 + 1])
+    return (
+        (1 - a) * (1 - b) * heights[i0, j0]
+        + (1 - a) * b * heights[i0, j0 + 1]
+        + a * (1 - b) * heights[i0 + 1, j0]
+        + a * b * heights[i0 + 1, j0 + 1]
+    )
 
 
 @dataclass(frozen=True)
@@ -152,8 +156,10 @@ def hfield_xml(heights_m: np.ndarray, file_name: str) -> tuple[str, str]:
     """The MJCF hfield asset and geom for these heights: MuJoCo normalises the file's heights
     to [0, 1], so the elevation range goes into `size` and the lowest point into `pos`."""
     low, high = float(heights_m.min()), float(heights_m.max())
-    asset = (f'<hfield name="terrain" file="{file_name}" '
-             f'size="{HALF_SIZE_M:g} {HALF_SIZE_M:g} {max(high - low, 1e-3):.4f} 0.5"/>')
+    asset = (
+        f'<hfield name="terrain" file="{file_name}" '
+        f'size="{HALF_SIZE_M:g} {HALF_SIZE_M:g} {max(high - low, 1e-3):.4f} 0.5"/>'
+    )
     geom = f'<geom name="seabed" type="hfield" hfield="terrain" pos="0 0 {low:.4f}" material="seabed"/>'
     return asset, geom
 
@@ -166,6 +172,8 @@ def install(heights_m: np.ndarray, models_dir: Path, world_file: Path) -> None:
     text, n_asset = re.subn(r'<hfield name="terrain"[^>]*/>', asset, text)
     text, n_geom = re.subn(r'<geom name="seabed"[^>]*/>', geom, text)
     if n_asset != 1 or n_geom != 1:
-        raise TerrainError(f"{world_file}: expected one <hfield name=\"terrain\"> and one "
-                           f"<geom name=\"seabed\">, found {n_asset} and {n_geom}")
+        raise TerrainError(
+            f'{world_file}: expected one <hfield name="terrain"> and one '
+            f'<geom name="seabed">, found {n_asset} and {n_geom}'
+        )
     world_file.write_text(text)

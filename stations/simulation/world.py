@@ -55,22 +55,33 @@ class World:
         self.model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
-        gains = PidGains(config.vehicle_kp, config.vehicle_ki, config.vehicle_kd, config.arm_kp,
-                         config.arm_ki, config.gripper_kp)
+        gains = PidGains(
+            config.vehicle_kp,
+            config.vehicle_ki,
+            config.vehicle_kd,
+            config.arm_kp,
+            config.arm_ki,
+            config.gripper_kp,
+        )
         self.vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else VEHICLE_FILE)
-        missing = [n for n in self.vehicle.thrusters.names
-                   if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0]
+        missing = [
+            n
+            for n in self.vehicle.thrusters.names
+            if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0
+        ]
         if missing:
-            raise ConfigError("simulation.vehicle_file", f"thrusters.names: {', '.join(missing)} not "
-                                                         f"motors of the MJCF")
+            raise ConfigError(
+                "simulation.vehicle_file", f"thrusters.names: {', '.join(missing)} not motors of the MJCF"
+            )
         self.controller = LOW_LEVELS[config.low_level](self.model, gains, self.vehicle)
         self.plant = self.controller.plant
         self.hydrodynamics: Fossen | None = None
         if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
             self.hydrodynamics = Fossen(self.model, self.vehicle)
         self.buoyancy = Buoyancy(self.model, dry=() if self.hydrodynamics is None else ("vehicle",))
-        self.current = Current(config.current_profile, config.current_sigma_mps,
-                               config.current_time_constant_s, rng)
+        self.current = Current(
+            config.current_profile, config.current_sigma_mps, config.current_time_constant_s, rng
+        )
         self.water_mps_world = np.zeros(3)  # the current where the vehicle is
         self.navigation = Navigation(config, rng)
         self.faults: dict[str, float] = {}
@@ -80,18 +91,24 @@ class World:
         self._part_range_rad = self.model.jnt_range[self._part_joints].copy()
         self._part_bodies = np.array([self.model.body(n).id for n in self.parts])
         self._finger_bodies = {self.model.body(n).id for n in GRIPPER_JOINTS}
-        robot_dofs = np.r_[np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs,
-                           self.plant.gripper_dofs]
+        robot_dofs = np.r_[
+            np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs, self.plant.gripper_dofs
+        ]
         self._passive_dofs = np.setdiff1d(np.arange(self.model.nv), robot_dofs)
         p = self.plant.qpos
-        self.data.qpos[p:p + 3] = config.start_position_m_world
-        self.data.qpos[p + 3:p + 7] = [np.cos(config.start_yaw_rad / 2), 0.0, 0.0,
-                                       np.sin(config.start_yaw_rad / 2)]
+        self.data.qpos[p : p + 3] = config.start_position_m_world
+        self.data.qpos[p + 3 : p + 7] = [
+            np.cos(config.start_yaw_rad / 2),
+            0.0,
+            0.0,
+            np.sin(config.start_yaw_rad / 2),
+        ]
         for name, angle_rad in zip(ARM_JOINTS, ARM_STOWED_RAD, strict=True):
             self.data.qpos[self.model.joint(name).qposadr[0]] = angle_rad
         mujoco.mj_forward(self.model, self.data)
-        self.dvl = DvlBeams(self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m,
-                            config.dvl_max_altitude_m)
+        self.dvl = DvlBeams(
+            self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
+        )
 
     def step(self, refs: References, period_s: float) -> None:
         """Advance by `period_s` [s] (a whole number of physics steps)."""
@@ -122,11 +139,12 @@ class World:
     # -- outputs -------------------------------------------------------------------------
     def truth(self) -> NavState:
         p = self.plant.qpos
-        quat = self.data.qpos[p + 3:p + 7] / np.linalg.norm(self.data.qpos[p + 3:p + 7])
+        quat = self.data.qpos[p + 3 : p + 7] / np.linalg.norm(self.data.qpos[p + 3 : p + 7])
         velocity = self.plant.vehicle_velocity_body(self.data)
-        position, t = self.data.qpos[p:p + 3].copy(), float(self.data.time)
-        return NavState(position, quat, velocity[:3], velocity[3:], t, usbl_time_s=t,
-                        depth_m=float(-position[2]))
+        position, t = self.data.qpos[p : p + 3].copy(), float(self.data.time)
+        return NavState(
+            position, quat, velocity[:3], velocity[3:], t, usbl_time_s=t, depth_m=float(-position[2])
+        )
 
     def nav(self) -> NavState:
         """The sensors' readings now; once every control period (a USBL fix is due by the clock)."""
@@ -137,10 +155,12 @@ class World:
         return JointState(
             positions_rad=np.array([d.qpos[self.model.joint(n).qposadr[0]] for n in ARM_JOINTS]),
             velocities_radps=d.qvel[p.arm_dofs].copy(),
-            gripper_opening_m=float(np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]]
-                                                for n in GRIPPER_JOINTS), 0.0, 1.0)),
+            gripper_opening_m=float(
+                np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]] for n in GRIPPER_JOINTS), 0.0, 1.0)
+            ),
             sim_time_s=float(d.time),
-            gripper_force_n=float(np.mean(np.abs(d.actuator_force[p.gripper_motors]))))
+            gripper_force_n=float(np.mean(np.abs(d.actuator_force[p.gripper_motors]))),
+        )
 
     def panel(self) -> PanelState:
         """The valves' and levers' angles, and how hard the fingers press on each (the normal
@@ -176,8 +196,11 @@ class World:
             state = np.load(path)
         except (OSError, ValueError, EOFError):  # none, or cut short (a crash before the rename hit disk)
             return False
-        if not isinstance(state, np.ndarray) or state.shape != (mujoco.mj_stateSize(self.model, STATE),) \
-                or not np.all(np.isfinite(state)):
+        if (
+            not isinstance(state, np.ndarray)
+            or state.shape != (mujoco.mj_stateSize(self.model, STATE),)
+            or not np.all(np.isfinite(state))
+        ):
             return False
         mujoco.mj_setState(self.model, self.data, state, STATE)
         mujoco.mj_forward(self.model, self.data)
@@ -194,16 +217,21 @@ class World:
             if self.controller.dynamics:
                 self.controller.thrusters.efficiency[:] = 1.0
             return
-        allowed = {"thruster": self.vehicle.thrusters.names, "camera": CAMERAS, "noise": NAV_SENSORS,
-                   "seize": self.parts}[fault.fault]
+        allowed = {
+            "thruster": self.vehicle.thrusters.names,
+            "camera": CAMERAS,
+            "noise": NAV_SENSORS,
+            "seize": self.parts,
+        }[fault.fault]
         if fault.target not in allowed:
             raise ValueError(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
         if fault.fault == "thruster":
             if fault.value > 1.0:
                 raise ValueError("thruster efficiency must lie in [0, 1]")
             if self.controller.dynamics:
-                self.controller.thrusters.efficiency[self.vehicle.thrusters.names.index(fault.target)] = \
+                self.controller.thrusters.efficiency[self.vehicle.thrusters.names.index(fault.target)] = (
                     fault.value
+                )
         elif fault.fault == "seize":  # stuck where it stands: its stops close in on it
             i = self.parts.index(fault.target)
             angle_rad = float(self.data.qpos[self._part_qpos[i]])

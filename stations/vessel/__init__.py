@@ -52,8 +52,9 @@ def run(config: Config, bus: Bus) -> None:
     from abyss.common.scene import SceneModel
 
     cfg = config.vessel
-    model = SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes,
-                       cfg.scene_track_period_s)
+    model = SceneModel(
+        cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s
+    )
     images = bus.subscribe("onboard", "image", maxlen=2)
     sim_time_s = [0.0]  # of the latest cloud, shared by the model and the stream
     objects: list[RecognisedObjects | None] = [None]  # recognition's latest, for the relay
@@ -65,8 +66,9 @@ def run(config: Config, bus: Bus) -> None:
         gateway = Gateway(config, bus, on_up={"scene": lambda update: model.adopt(update.octree)})
     try:
         with Workers(bus.stop) as workers:
-            workers.start("scene", _scene_loop, config, bus, model, images, sim_time_s, objects, sonar,
-                          gateway is None)
+            workers.start(
+                "scene", _scene_loop, config, bus, model, images, sim_time_s, objects, sonar, gateway is None
+            )
             workers.start("scene send", _send_loop, config, bus, model, images, sim_time_s, sonar)
             if gateway is not None:
                 workers.start("ros2 gateway", gateway.run)
@@ -89,17 +91,27 @@ def _relay_loop(config: Config, bus: Bus, objects: list[RecognisedObjects | None
         onboard_state = latest.message if latest and isinstance(latest.message, Telemetry) else None
         inputs = RelayInputs(
             commands=[(topic, r.message) for topic, inbox in operator.items() for r in inbox.drain()],
-            acks=messages_of(acks.drain(), CommandAck), shore_heard=bool(shore_beats.drain()),
-            telemetry=(latest.seq, onboard_state) if latest and onboard_state else None, objects=objects[0])
+            acks=messages_of(acks.drain(), CommandAck),
+            shore_heard=bool(shore_beats.drain()),
+            telemetry=(latest.seq, onboard_state) if latest and onboard_state else None,
+            objects=objects[0],
+        )
         for topic, message in relay.step(inputs, bus.clock.now_s()):
             bus.publish(topic, message)
         if not rate.sleep():
             break
 
 
-def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float],
-                recognised: list[RecognisedObjects | None], sonar: list[SonarImage | None],
-                insert: bool = True) -> None:
+def _scene_loop(
+    config: Config,
+    bus: Bus,
+    model: SceneModel,
+    images: Inbox,
+    sim_time_s: list[float],
+    recognised: list[RecognisedObjects | None],
+    sonar: list[SonarImage | None],
+    insert: bool = True,
+) -> None:
     """Integrate the clouds (unless a ROS 2 node maps them: `insert` False), or the sonar's
     echoes while the cameras see nothing, recognise the panel, and tell shore what perception
     works with; another thread (`_send_loop`) streams the result, so that a slow insertion (a
@@ -137,8 +149,12 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
                 continue
             perception.received("sonar", len(echoes), bus.clock.now_s())
             if insert and perception.sonar_feeds(bus.clock.now_s()) and len(echoes):
-                model.insert(echoes, np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)), origin,
-                             received.message.sim_time_s)
+                model.insert(
+                    echoes,
+                    np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1)),
+                    origin,
+                    received.message.sim_time_s,
+                )
                 inserted_s = bus.clock.now_s()
                 sim_time_s[0] = max(sim_time_s[0], received.message.sim_time_s)
         now_s = bus.clock.now_s()
@@ -156,8 +172,10 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
                 assert isinstance(image.message, Image)
                 try:
                     if image.message.pose_frame != "world":
-                        raise ValueError(f"camera pose in the {image.message.pose_frame} frame; the vessel "
-                                         "needs it in the world frame")
+                        raise ValueError(
+                            f"camera pose in the {image.message.pose_frame} frame; the vessel "
+                            "needs it in the world frame"
+                        )
                     rgb = decode_image(image.message)
                 except ValueError as exc:
                     bus.reject(image.key, str(exc))
@@ -168,8 +186,14 @@ def _scene_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_
                 bus.publish("objects", objects)
 
 
-def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_time_s: list[float],
-               sonar: list[SonarImage | None]) -> None:
+def _send_loop(
+    config: Config,
+    bus: Bus,
+    model: SceneModel,
+    images: Inbox,
+    sim_time_s: list[float],
+    sonar: list[SonarImage | None],
+) -> None:
     """The I/O shell of the scene stream (`core.SceneStream`), paced by shore's acknowledgements."""
     requests = bus.subscribe("onshore", "scene_request")
     acks = bus.subscribe("onshore", "scene_ack", maxlen=256)
@@ -178,8 +202,14 @@ def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, sim_t
     while rate.sleep():
         image = images.latest()
         frame = image.message if image and isinstance(image.message, Image) else None
-        out = stream.step(bus.clock.now_s(), sim_time_s[0], messages_of(acks.drain(), SceneAck),
-                          bool(requests.drain()), frame, sonar[0])
+        out = stream.step(
+            bus.clock.now_s(),
+            sim_time_s[0],
+            messages_of(acks.drain(), SceneAck),
+            bool(requests.drain()),
+            frame,
+            sonar[0],
+        )
         for topic, reason in out.rejected:
             bus.reject(keys.spec("onboard", topic).key(bus.system), reason)
         for topic, message in out.messages:

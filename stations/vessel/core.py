@@ -37,8 +37,12 @@ from abyss.stations.vessel.pacing import ScenePacer
 if TYPE_CHECKING:
     from abyss.common.scene import SceneModel
 
-RELAYED_DOWN = {"op/waypoints": "goal/waypoints", "op/arm": "goal/arm", "op/mode": "goal/mode",
-                "op/intervene": "goal/intervene"}
+RELAYED_DOWN = {
+    "op/waypoints": "goal/waypoints",
+    "op/arm": "goal/arm",
+    "op/mode": "goal/mode",
+    "op/intervene": "goal/intervene",
+}
 Outgoing = list[tuple[str, Message]]  # (topic, message) in the order to publish
 
 
@@ -183,8 +187,12 @@ class Perception:
             confidence, method = float(objects.confidences[objects.names.index("panel")]), objects.method
         return PerceptionStatus(
             points_per_s={source: count / window_s for source, count in counts.items()},
-            window_s=max(window_s, 0.1), scene_source=self.scene_source(now_s),
-            recognition_confidence=confidence, recognition_method=method, sim_time_s=sim_time_s)
+            window_s=max(window_s, 0.1),
+            scene_source=self.scene_source(now_s),
+            recognition_confidence=confidence,
+            recognition_method=method,
+            sim_time_s=sim_time_s,
+        )
 
 
 @dataclass
@@ -203,8 +211,9 @@ class SceneStream:
         self.pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
         self.last_frame_s = {"image": -float("inf"), "sonar": -float("inf")}
 
-    def _frame(self, now_s: float, image: Image | None, sonar: SonarImage | None,
-               out: StreamOutputs) -> tuple[str, Image | SonarImage] | None:
+    def _frame(
+        self, now_s: float, image: Image | None, sonar: SonarImage | None, out: StreamOutputs
+    ) -> tuple[str, Image | SonarImage] | None:
         """The camera's frame, downscaled, or the sonar's, as JPEG, if one is due."""
         periods = {"image": (image, self.cfg.image_period_s), "sonar": (sonar, self.cfg.sonar_period_s)}
         for topic, (frame, period_s) in periods.items():
@@ -214,14 +223,24 @@ class SceneStream:
             try:
                 if isinstance(frame, Image):
                     return topic, downscale(frame, self.cfg.image_scale, self.cfg.image_jpeg_quality)
-                return topic, dataclasses.replace(frame, encoding="jpeg", data=encode_polar(
-                    decode_polar(frame), "jpeg", self.cfg.image_jpeg_quality))
+                return topic, dataclasses.replace(
+                    frame,
+                    encoding="jpeg",
+                    data=encode_polar(decode_polar(frame), "jpeg", self.cfg.image_jpeg_quality),
+                )
             except ValueError as exc:
                 out.rejected.append((topic, str(exc)))
         return None
 
-    def step(self, now_s: float, sim_time_s: float, acks: list[SceneAck], snapshot_asked: bool,
-             image: Image | None, sonar: SonarImage | None = None) -> StreamOutputs:
+    def step(
+        self,
+        now_s: float,
+        sim_time_s: float,
+        acks: list[SceneAck],
+        snapshot_asked: bool,
+        image: Image | None,
+        sonar: SonarImage | None = None,
+    ) -> StreamOutputs:
         out = StreamOutputs()
         for ack in acks:
             self.pacer.acknowledged(now_s, ack.scene_seq)

@@ -20,8 +20,9 @@ REFINE_M = 0.005
 FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
 
 
-def resolve(intent: Intervention, objects: RecognisedObjects | None,
-            believed_rad: float = 0.0) -> tuple[InterventionGoal | None, str]:
+def resolve(
+    intent: Intervention, objects: RecognisedObjects | None, believed_rad: float = 0.0
+) -> tuple[InterventionGoal | None, str]:
     """The goal, or None and why it is refused; None and "" while the panel is not recognised
     yet (the intent waits)."""
     try:
@@ -36,8 +37,10 @@ def resolve(intent: Intervention, objects: RecognisedObjects | None,
     target_rad = believed_rad + intent.turn_rad if kind == "valve" else (high if intent.to == "up" else low)
     if not low - 1e-9 <= target_rad <= high + 1e-9:
         low_deg, high_deg, at_deg = math.degrees(low), math.degrees(high), math.degrees(believed_rad)
-        return None, (f"{intent.target} turns between {low_deg:.0f} and {high_deg:.0f} deg; at {at_deg:.0f} "
-                      f"deg it can turn by {low_deg - at_deg:.0f} to {high_deg - at_deg:.0f} deg")
+        return None, (
+            f"{intent.target} turns between {low_deg:.0f} and {high_deg:.0f} deg; at {at_deg:.0f} "
+            f"deg it can turn by {low_deg - at_deg:.0f} to {high_deg - at_deg:.0f} deg"
+        )
     if abs(target_rad - believed_rad) < ALREADY_RAD:
         return None, f"{intent.target} is at {math.degrees(believed_rad):.0f} deg already"
     if objects is None or "panel" not in objects.names:
@@ -50,9 +53,12 @@ def resolve(intent: Intervention, objects: RecognisedObjects | None,
     if kind == "valve" and target_rad > 0:  # the fingers are symmetric: the grasp that ends the
         grasp_rotation = grasp_rotation @ FLIP_ABOUT_X  # turn with the tool rolled least
     return InterventionGoal(
-        command_id=intent.command_id, target=intent.target,
-        pivot_m_world=panel_rotation @ pivot + panel_m_world, axis_world=panel_rotation @ axis,
+        command_id=intent.command_id,
+        target=intent.target,
+        pivot_m_world=panel_rotation @ pivot + panel_m_world,
+        axis_world=panel_rotation @ axis,
         grasp_m_world=panel_rotation @ (pivot + turned @ grasp) + panel_m_world,
         grasp_orientation_wxyz_world=quat_wxyz_of(panel_rotation @ turned @ grasp_rotation),
-        turn_rad=target_rad - believed_rad, to_stop=kind == "lever"), ""
-
+        turn_rad=target_rad - believed_rad,
+        to_stop=kind == "lever",
+    ), ""

@@ -197,10 +197,14 @@ class PanelTracker:
     confidence-weighted average. Its confidence follows the recent frames' (an exponential
     average), and fades while frames find nothing: what murk or a lost camera does shows."""
 
-    def __init__(self, expected_m_world: np.ndarray | None = None,
-                 bias_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
-        self.expected_m_world = np.array(panel.PANEL_POSITION_M_WORLD if expected_m_world is None
-                                         else expected_m_world)
+    def __init__(
+        self,
+        expected_m_world: np.ndarray | None = None,
+        bias_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> None:
+        self.expected_m_world = np.array(
+            panel.PANEL_POSITION_M_WORLD if expected_m_world is None else expected_m_world
+        )
         self.bias_m_world = np.asarray(bias_m_world, float)  # a fault: added to what is reported
         self.estimate: Pose | None = None
         self.weight = 0.0
@@ -231,8 +235,11 @@ class PanelTracker:
             frame = shape
         else:  # nothing seen: the estimate stands, believed less
             if self.estimate is not None:
-                self.estimate = Pose(self.estimate.rotation, self.estimate.position_m_world,
-                                     (1.0 - CONFIDENCE_GAIN) * self.estimate.confidence)
+                self.estimate = Pose(
+                    self.estimate.rotation,
+                    self.estimate.position_m_world,
+                    (1.0 - CONFIDENCE_GAIN) * self.estimate.confidence,
+                )
             return self.estimate
         self.method = "+".join(name for name, p in (("texture", texture), ("shape", shape)) if p is not None)
         if self.estimate is None or (texture is not None and not self.anchored):
@@ -256,8 +263,11 @@ class PanelTracker:
         """The panel, its valves and its levers as recognised objects."""
         if self.estimate is None:
             return None
-        pose = Pose(self.estimate.rotation, self.estimate.position_m_world + self.bias_m_world,
-                    self.estimate.confidence)
+        pose = Pose(
+            self.estimate.rotation,
+            self.estimate.position_m_world + self.bias_m_world,
+            self.estimate.confidence,
+        )
         names, poses, sizes = ["panel"], [pose.as_vector()], [panel.PLATE_HALF_SIZE_M]
         half_thickness_m = panel.HANDLE_THICKNESS_M / 2
         for name, pivot in (*panel.VALVES.items(), *panel.LEVERS.items()):

@@ -83,7 +83,8 @@ def test_a_wait_on_simulated_time_lasts_its_share_of_wall_time(ticking: tuple[Si
 
 
 def test_a_named_loop_on_simulated_time_keeps_its_period_and_says_how_far_it_is(
-        ticking: tuple[SimClock, Ticker]) -> None:
+    ticking: tuple[SimClock, Ticker],
+) -> None:
     clock, _ = ticking
     stop = threading.Event()
     reported: list[float] = []
@@ -104,15 +105,21 @@ def test_a_named_loop_on_simulated_time_keeps_its_period_and_says_how_far_it_is(
 
 
 def test_an_emulated_link_on_simulated_time_delays_by_its_profile_in_simulated_time(
-        ticking: tuple[SimClock, Ticker]) -> None:
+    ticking: tuple[SimClock, Ticker],
+) -> None:
     """The tether (100 ms +- 10 ms) at speed 4: the delays, measured in simulated time, are the
     profile's; on the wall clock they last a quarter of that."""
     clock, _ = ticking
     delivered: list[tuple[float, float]] = []  # (sent, delivered) on the wall clock
     sent_wall_s: dict[int, float] = {}
     tether = profile("tether")
-    runner = LinkRunner("tether", tether, lambda tag, _payload: delivered.append(
-        (sent_wall_s[tag], time.monotonic())), np.random.default_rng(1), clock=clock)
+    runner = LinkRunner(
+        "tether",
+        tether,
+        lambda tag, _payload: delivered.append((sent_wall_s[tag], time.monotonic())),
+        np.random.default_rng(1),
+        clock=clock,
+    )
     try:
         for i in range(40):
             sent_wall_s[i] = time.monotonic()
@@ -145,9 +152,15 @@ def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(s
     own = SimClock(PERIOD_S)  # the simulation's own loops (none here)
     rejected: list[tuple[str, str]] = []
     got_bad = threading.Event()
-    holdback = Holdback(simulation, "sys", ["onboard", "vessel"], max_lag_s=0.1,
-                        reject=lambda key, reason: (rejected.append((key, reason)), got_bad.set()),
-                        start_wall_s=0.5, silent_wall_s=0.5)
+    holdback = Holdback(
+        simulation,
+        "sys",
+        ["onboard", "vessel"],
+        max_lag_s=0.1,
+        reject=lambda key, reason: (rejected.append((key, reason)), got_bad.set()),
+        start_wall_s=0.5,
+        silent_wall_s=0.5,
+    )
     onboard_clock = SimClock(PERIOD_S)
     report = ProgressReport(station, "sys", "onboard", onboard_clock)
     stop = threading.Event()
@@ -178,14 +191,17 @@ def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(s
         holdback.close()
 
 
-@pytest.mark.parametrize(("items", "field", "reason"), [
-    (["time.mode=fast"], "time.mode", "not one of real, sim"),
-    (["time.mode=sim", "time.speed=0"], "time.speed", "a number from 0.01 to 1000, or max"),
-    (["time.mode=sim", "time.speed=quick"], "time.speed", "or max"),
-    (["time.speed=4"], "time.speed", "only with time.mode sim"),
-    (["time.mode=sim", "time.stations=[\"simulation\"]"], "time.stations", "not one of"),
-    (["time.mode=sim", "ros2.station=onboard"], "time.mode", "runs on the wall clock"),
-])
+@pytest.mark.parametrize(
+    ("items", "field", "reason"),
+    [
+        (["time.mode=fast"], "time.mode", "not one of real, sim"),
+        (["time.mode=sim", "time.speed=0"], "time.speed", "a number from 0.01 to 1000, or max"),
+        (["time.mode=sim", "time.speed=quick"], "time.speed", "or max"),
+        (["time.speed=4"], "time.speed", "only with time.mode sim"),
+        (["time.mode=sim", 'time.stations=["simulation"]'], "time.stations", "not one of"),
+        (["time.mode=sim", "ros2.station=onboard"], "time.mode", "runs on the wall clock"),
+    ],
+)
 def test_a_bad_time_source_fails_at_start_naming_the_field(items: list[str], field: str, reason: str) -> None:
     with pytest.raises(ConfigError) as caught:
         load(None, items)
@@ -212,8 +228,10 @@ def test_lockstep_runs_the_loops_due_one_at_a_time_in_name_order() -> None:
             time.sleep(0.01)  # a thread left to itself would overlap the next loop here
             inside[0] -= 1
 
-    threads = [threading.Thread(target=loop, args=args, daemon=True)
-               for args in (("sonar", 0.1), ("control", 0.05), ("perception", 0.05))]
+    threads = [
+        threading.Thread(target=loop, args=args, daemon=True)
+        for args in (("sonar", 0.1), ("control", 0.05), ("perception", 0.05))
+    ]
     for thread in threads:
         thread.start()
     while clock.loops() != {"sonar", "control", "perception"}:
@@ -222,6 +240,16 @@ def test_lockstep_runs_the_loops_due_one_at_a_time_in_name_order() -> None:
         clock.set_period(period * 0.05)
         clock.run_loops(period * 0.05, stop)
     stop.set()
-    assert [name for name, _ in ran] == ["control", "perception", "control", "perception", "sonar",
-                                         "control", "perception", "control", "perception", "sonar"]
+    assert [name for name, _ in ran] == [
+        "control",
+        "perception",
+        "control",
+        "perception",
+        "sonar",
+        "control",
+        "perception",
+        "control",
+        "perception",
+        "sonar",
+    ]
     assert [t for name, t in ran if name == "sonar"] == pytest.approx([0.1, 0.2])

@@ -20,37 +20,42 @@ def test_readme_keys_table_is_the_generated_one() -> None:
 
 
 def test_abyss_keys_prints_the_table() -> None:
-    out = subprocess.run([sys.executable, "-m", "abyss.cli", "keys"], capture_output=True, text=True,
-                         check=True, cwd=ROOT).stdout
+    out = subprocess.run(
+        [sys.executable, "-m", "abyss.cli", "keys"], capture_output=True, text=True, check=True, cwd=ROOT
+    ).stdout
     assert out.strip() == keys.keys_table()
 
 
 def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
     from abyss.common.messages import MESSAGES
+
     for spec in keys.KEYS:
         assert spec.hop in keys.HOPS and spec.message in MESSAGES
     assert keys.key("s1", "onboard", "telemetry") == "abyss/s1/onboard/telemetry"
 
 
-@pytest.mark.parametrize(("override", "field"), [
-    ("simulation.control_period_s=0.003", "simulation.control_period_s"),
-    ("links.tether=nope", "links.tether"),
-    ("onboard.kp=1", "onboard.kp"),
-    ("seed=abc", "seed"),
-    ("system=bad id!", "system"),
-    ("mission.waypoints=[[1,2]]", "mission.waypoints[0]"),
-    ('onboard.cloud_sources=["lidar"]', "onboard.cloud_sources"),
-    ("onboard.stereo_disparities=60", "onboard.stereo_disparities"),
-    ("vessel.scene_share=1.5", "vessel.scene_share"),
-    ("vessel.octree_resolution_m=0.001", "vessel.octree_resolution_m"),
-    ("vessel.recognition_bias_m=[0, 0, 2]", "vessel.recognition_bias_m"),
-    ("vessel.recognition_bias_m=[0, 0]", "vessel.recognition_bias_m"),
-    ("ros2.station=simulation", "ros2.station"),
-    ("ros2.domain=233", "ros2.domain"),
-    ("ros2.namespace=abyss", "ros2.namespace"),
-    ("ros2.listen=[]", "ros2.listen"),
-    ("simulation.vehicle_file=no-such-vehicle.toml", "simulation.vehicle_file"),
-])
+@pytest.mark.parametrize(
+    ("override", "field"),
+    [
+        ("simulation.control_period_s=0.003", "simulation.control_period_s"),
+        ("links.tether=nope", "links.tether"),
+        ("onboard.kp=1", "onboard.kp"),
+        ("seed=abc", "seed"),
+        ("system=bad id!", "system"),
+        ("mission.waypoints=[[1,2]]", "mission.waypoints[0]"),
+        ('onboard.cloud_sources=["lidar"]', "onboard.cloud_sources"),
+        ("onboard.stereo_disparities=60", "onboard.stereo_disparities"),
+        ("vessel.scene_share=1.5", "vessel.scene_share"),
+        ("vessel.octree_resolution_m=0.001", "vessel.octree_resolution_m"),
+        ("vessel.recognition_bias_m=[0, 0, 2]", "vessel.recognition_bias_m"),
+        ("vessel.recognition_bias_m=[0, 0]", "vessel.recognition_bias_m"),
+        ("ros2.station=simulation", "ros2.station"),
+        ("ros2.domain=233", "ros2.domain"),
+        ("ros2.namespace=abyss", "ros2.namespace"),
+        ("ros2.listen=[]", "ros2.listen"),
+        ("simulation.vehicle_file=no-such-vehicle.toml", "simulation.vehicle_file"),
+    ],
+)
 def test_bad_config_names_the_field(override: str, field: str) -> None:
     with pytest.raises(ConfigError) as info:
         load(overrides=[override])
@@ -85,9 +90,13 @@ def test_profiles_parse_with_units_and_refuse_bad_values() -> None:
     sat = profiles["satellite"]
     assert (sat.rate_bps, sat.delay_s, sat.jitter_s, sat.loss, sat.corrupt) == (1e6, 0.15, 0.075, 0.05, 0.001)
     assert profiles["tether"].with_fields(profiles["tether"].fields()) == profiles["tether"]
-    for fields, match in [({"rate": "20mbits"}, "not a rate"), ({"loss": "120%"}, r"\[0%, 100%\]"),
-                          ({"delay": 5}, "no unit"), ({"transport": "sctp"}, "tcp, udp"),
-                          ({"warp": "1"}, "unknown profile field")]:
+    for fields, match in [
+        ({"rate": "20mbits"}, "not a rate"),
+        ({"loss": "120%"}, r"\[0%, 100%\]"),
+        ({"delay": 5}, "no unit"),
+        ({"transport": "sctp"}, "tcp, udp"),
+        ({"warp": "1"}, "unknown profile field"),
+    ]:
         with pytest.raises(ConfigError, match=match):
             profile("tether", fields)
     with pytest.raises(ConfigError, match="available: ideal"):
@@ -95,6 +104,11 @@ def test_profiles_parse_with_units_and_refuse_bad_values() -> None:
 
 
 def test_cli_refuses_a_bad_profile_before_starting() -> None:
-    done = subprocess.run([sys.executable, "-m", "abyss.cli", "up", "--profile", "tether=nope"],
-                          capture_output=True, text=True, cwd=ROOT, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-m", "abyss.cli", "up", "--profile", "tether=nope"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
     assert done.returncode == 2 and "links.tether" in done.stderr and "satellite" in done.stderr

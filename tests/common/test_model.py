@@ -50,20 +50,23 @@ def test_forward_kinematics_and_jacobians_agree(models: tuple[mujoco.MjModel, pi
         np.testing.assert_allclose(jac[:3, arm_dofs_pin], jacp[:, arm_dofs_mj], atol=1e-9)
         np.testing.assert_allclose(jac[3:, arm_dofs_pin], jacr[:, arm_dofs_mj], atol=1e-9)
         for name in ("arm_link2", "arm_link4", "arm_link6"):
-            np.testing.assert_allclose(pd.oMf[pm.getFrameId(name)].translation, md.xpos[mj.body(name).id],
-                                       atol=1e-9)
+            np.testing.assert_allclose(
+                pd.oMf[pm.getFrameId(name)].translation, md.xpos[mj.body(name).id], atol=1e-9
+            )
 
 
 def test_joint_limits_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
     mj, pm = models
     for name in ARM_JOINTS:
         idx = pm.joints[pm.getJointId(name)].idx_q
-        np.testing.assert_allclose([pm.lowerPositionLimit[idx], pm.upperPositionLimit[idx]],
-                                   mj.joint(name).range, atol=1e-12)
+        np.testing.assert_allclose(
+            [pm.lowerPositionLimit[idx], pm.upperPositionLimit[idx]], mj.joint(name).range, atol=1e-12
+        )
 
 
-def test_the_panel_recognition_knows_is_the_panel_in_the_world(models: tuple[mujoco.MjModel, pin.Model],
-                                                               tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_the_panel_recognition_knows_is_the_panel_in_the_world(
+    models: tuple[mujoco.MjModel, pin.Model], tmp_path
+) -> None:  # type: ignore[no-untyped-def]
     import cv2
 
     from abyss.common.models import panel
@@ -82,7 +85,8 @@ def test_the_panel_recognition_knows_is_the_panel_in_the_world(models: tuple[muj
 
 
 def test_the_arm_touches_nothing_of_the_robot_straight_or_stowed(
-        models: tuple[mujoco.MjModel, pin.Model]) -> None:
+    models: tuple[mujoco.MjModel, pin.Model],
+) -> None:
     """No contact at all with the arm straight or stowed and the vehicle in open water: a contact
     between two of the robot's own bodies there would press on the joints in every step."""
     mj, _ = models
@@ -93,6 +97,12 @@ def test_the_arm_touches_nothing_of_the_robot_straight_or_stowed(
         for name, value in zip(ARM_JOINTS, pose_rad, strict=True):
             md.qpos[mj.joint(name).qposadr[0]] = value
         mujoco.mj_forward(mj, md)
-        touching = [(mj.body(mj.geom_bodyid[c.geom[0]]).name, mj.body(mj.geom_bodyid[c.geom[1]]).name,
-                     round(float(c.dist), 4)) for c in md.contact[:md.ncon]]
+        touching = [
+            (
+                mj.body(mj.geom_bodyid[c.geom[0]]).name,
+                mj.body(mj.geom_bodyid[c.geom[1]]).name,
+                round(float(c.dist), 4),
+            )
+            for c in md.contact[: md.ncon]
+        ]
         assert touching == [], (pose_rad, touching)

@@ -13,15 +13,20 @@ from abyss.common.errors import ConfigError
 from abyss.common.security import RefusalLog, access_control, check_endpoints
 
 # Zenoh 1.10's own lines (colours stripped), as a station's stdout shows them
-DENIED = ("2026-11-22T10:44:06Z TRACE rx-0 ThreadId(10) zenoh::net::routing::interceptor::access_control: "
-          "c239 on Interface(rov1)+CertCommonName(simulation)+Transport(Tls)+c239 is unauthorized to "
-          "Put (ingress) on abyss/s/vessel/goal/waypoints")
+DENIED = (
+    "2026-11-22T10:44:06Z TRACE rx-0 ThreadId(10) zenoh::net::routing::interceptor::access_control: "
+    "c239 on Interface(rov1)+CertCommonName(simulation)+Transport(Tls)+c239 is unauthorized to "
+    "Put (ingress) on abyss/s/vessel/goal/waypoints"
+)
 DROPPED = "2026-11-22T10:44:06Z TRACE rx-0 ThreadId(10) zenoh::net::routing::interceptor: Msg intercepted!"
 ALLOWED = DENIED.replace("is unauthorized", "is authorized")
-HANDSHAKE = ("2026-11-22T10:44:39Z  WARN acc-0 ThreadId(06) zenoh_link_tls::unicast: "
-             "peer sent no certificates. Hint: increase the system open file limit.")
-OTHER = ("2026-11-22T10:44:39Z  WARN net-0 ThreadId(03) zenoh::net::runtime::orchestrator: "
-         "Scouting delay elapsed")
+HANDSHAKE = (
+    "2026-11-22T10:44:39Z  WARN acc-0 ThreadId(06) zenoh_link_tls::unicast: "
+    "peer sent no certificates. Hint: increase the system open file limit."
+)
+OTHER = (
+    "2026-11-22T10:44:39Z  WARN net-0 ThreadId(03) zenoh::net::runtime::orchestrator: Scouting delay elapsed"
+)
 
 
 def rules_for(station: str, holder: str) -> list[dict[str, object]]:
@@ -35,8 +40,10 @@ def test_each_received_key_is_taken_only_from_its_publisher(station: str) -> Non
     for spec in (s for s in keys.KEYS if s.to == station):
         key = f"abyss/*/{spec.station}/{spec.topic}"
         for holder in certs.HOLDERS:
-            denied = any(r["permission"] == "deny" and key in r["key_exprs"] and "put" in r["messages"]
-                         for r in rules_for(station, holder))
+            denied = any(
+                r["permission"] == "deny" and key in r["key_exprs"] and "put" in r["messages"]
+                for r in rules_for(station, holder)
+            )
             assert denied == (holder != spec.station), (station, key, holder)
     assert access_control(station)["default_permission"] == "deny"  # an unknown holder gets nothing
 
@@ -69,9 +76,12 @@ def test_endpoints_and_certificates_agree(tmp_path: Path) -> None:
 
 def test_bad_deployment_arguments_name_the_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from abyss.cli import main
+
     assert main(["certs", "make", str(tmp_path), "--host", "mallory=10.0.0.9"]) == 2
-    assert "--host: unknown holder 'mallory'; allowed: simulation, onboard, vessel, onshore, operator" \
+    assert (
+        "--host: unknown holder 'mallory'; allowed: simulation, onboard, vessel, onshore, operator"
         in capsys.readouterr().err
+    )
     assert main(["station", "vessel", "--peer", "sea=10.0.0.9"]) == 2
     assert "hop: unknown hop 'sea'; allowed: rov, tether, satellite" in capsys.readouterr().err
     assert main(["station", "vessel", "--peer", "tether"]) == 2

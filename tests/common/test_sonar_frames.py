@@ -30,11 +30,20 @@ from abyss.stations.simulation.world import World
 
 def frame(beams: int = 9, bins: int = 20, fov_deg: float = 90.0) -> SonarImage:
     polar = np.zeros((bins, beams), np.uint8)
-    return SonarImage(sonar="sonar", encoding="png8", pose_frame="world", beams=beams, bins=bins,
-                      range_max_m=10.0, horizontal_fov_rad=math.radians(fov_deg),
-                      vertical_aperture_rad=math.radians(20.0), dynamic_range_db=40.0,
-                      pose_sonar=np.array([1.0, 2.0, -3.0, 1.0, 0.0, 0.0, 0.0]),
-                      data=encode_polar(polar, "png8"), sim_time_s=0.0)
+    return SonarImage(
+        sonar="sonar",
+        encoding="png8",
+        pose_frame="world",
+        beams=beams,
+        bins=bins,
+        range_max_m=10.0,
+        horizontal_fov_rad=math.radians(fov_deg),
+        vertical_aperture_rad=math.radians(20.0),
+        dynamic_range_db=40.0,
+        pose_sonar=np.array([1.0, 2.0, -3.0, 1.0, 0.0, 0.0, 0.0]),
+        data=encode_polar(polar, "png8"),
+        sim_time_s=0.0,
+    )
 
 
 def with_image(sonar: SonarImage, polar: np.ndarray, encoding: str = "png8") -> SonarImage:
@@ -93,14 +102,18 @@ def test_the_panels_echoes_lie_on_arcs_through_its_ray_cast_surface() -> None:
     echo's arc passes within 10 cm of the point where the ray along its beam and the elevation
     of the truth meets the panel, and no arc point lies farther than the arc's own sag from the
     panel's face."""
-    config = SimulationConfig(start_position_m_world=(1.5, 0.5, -8.0), start_yaw_rad=0.3,
-                              low_level="kinematic")
+    config = SimulationConfig(
+        start_position_m_world=(1.5, 0.5, -8.0), start_yaw_rad=0.3, low_level="kinematic"
+    )
     world = World(config, np.random.default_rng(0))
     sonar = ImagingSonar(world.model)
     sent = sonar.message(world.data, np.random.default_rng(1))
     truth = world.truth()
-    placed = dataclasses.replace(sent, pose_frame="world", pose_sonar=mount_in_world(
-        sent.pose_sonar, (truth.position_m_world, truth.orientation_wxyz_world)))
+    placed = dataclasses.replace(
+        sent,
+        pose_frame="world",
+        pose_sonar=mount_in_world(sent.pose_sonar, (truth.position_m_world, truth.orientation_wxyz_world)),
+    )
     range_m, bearing_rad = first_echoes(placed, decode_polar(placed), -15.0)
     assert len(range_m) >= 10  # the plate spans a score of beams from 2.5 m
     face_x_m = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0]
@@ -112,10 +125,16 @@ def test_the_panels_echoes_lie_on_arcs_through_its_ray_cast_surface() -> None:
         # the truth: the nearest surface along this bearing across the aperture
         hits = []
         for elevation in np.linspace(-sent.vertical_aperture_rad / 2, sent.vertical_aperture_rad / 2, 41):
-            local = np.array([math.cos(elevation) * math.cos(bearing),
-                              math.cos(elevation) * math.sin(bearing), math.sin(elevation)])
-            distance = mujoco.mj_ray(world.model, world.data, origin, site @ local, None, True, sonar.body,
-                                     geom)
+            local = np.array(
+                [
+                    math.cos(elevation) * math.cos(bearing),
+                    math.cos(elevation) * math.sin(bearing),
+                    math.sin(elevation),
+                ]
+            )
+            distance = mujoco.mj_ray(
+                world.model, world.data, origin, site @ local, None, True, sonar.body, geom
+            )
             if distance > 0:
                 hits.append(origin + distance * (site @ local))
         nearest = min(hits, key=lambda p: float(np.linalg.norm(p - origin)))

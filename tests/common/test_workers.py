@@ -149,8 +149,14 @@ def without_sys_nice() -> None:
 
 
 def realtime_probe(allowed: bool) -> dict[str, object]:
-    done = subprocess.run([sys.executable, "-c", REALTIME_PROBE], capture_output=True, text=True, timeout=60,
-                          preexec_fn=None if allowed else without_sys_nice, check=True)
+    done = subprocess.run(
+        [sys.executable, "-c", REALTIME_PROBE],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=None if allowed else without_sys_nice,
+        check=True,
+    )
     return dict(json.loads(done.stdout))
 
 

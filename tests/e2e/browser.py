@@ -56,7 +56,8 @@ class Browser:
                 time.sleep(0.2)
         page = next(t for t in targets if t.get("type") == "page")
         self.ws: ClientConnection = self.stack.enter_context(
-            connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=30))
+            connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=30)
+        )
         self.call("Emulation.setDeviceMetricsOverride", width=width_px, height=height_px, deviceScaleFactor=1,
                   mobile=False)  # fmt: skip
 

@@ -21,8 +21,12 @@ from abyss.launch.state import RunState, wait_for_state
 ROOT = Path(__file__).resolve().parents[2]
 # the mission before the interventions (done in about 30 s, not 60): waypoints, then the fingers
 # either side of the middle valve's handle; for the tests that need a mission to end, not to work
-ARM_MISSION = ("--set", "mission.interventions=[]",
-               "--set", "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]")
+ARM_MISSION = (
+    "--set",
+    "mission.interventions=[]",
+    "--set",
+    "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]",
+)
 
 
 @pytest.fixture
@@ -48,8 +52,13 @@ class Up:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.process = subprocess.Popen(
             [sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out), *args],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=out.parent, env=env,
-            start_new_session=True)  # its stations share its process group: a failed test kills them all
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=out.parent,
+            env=env,
+            start_new_session=True,
+        )  # its stations share its process group: a failed test kills them all
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -74,8 +83,9 @@ class Up:
         """`abyss up`'s state.json, once `holds` is true of it."""
         state = wait_for_state(self.out, holds, timeout_s, lambda: self.process.poll() is None)
         if state is None:
-            raise AssertionError(f"state.json never held; state {RunState.read(self.out)}; output:\n"
-                                 + "\n".join(self.lines))
+            raise AssertionError(
+                f"state.json never held; state {RunState.read(self.out)}; output:\n" + "\n".join(self.lines)
+            )
         return state
 
     def wait_up(self, timeout_s: float = 60.0) -> RunState:
@@ -135,11 +145,35 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     gathers the octree's changes each second rather than every 5 s: shore's final map is compared
     with a replay's, and a run stops wherever the gathering is (up to a period of changes apart)."""
     out = tmp_path_factory.mktemp("recorded") / "run"
-    done = subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out),
-                           "--viewer", "save", "--record", "all", "--keep-running", "--duration", "40",
-                           "--set", "simulation.camera_rate_hz=0.5", "--set", "vessel.scene_track_period_s=1",
-                           *ARM_MISSION],
-                          capture_output=True, text=True, cwd=out.parent, timeout=240)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-P",
+            "-m",
+            "abyss.cli",
+            "up",
+            "--port",
+            "0",
+            "--out",
+            str(out),
+            "--viewer",
+            "save",
+            "--record",
+            "all",
+            "--keep-running",
+            "--duration",
+            "40",
+            "--set",
+            "simulation.camera_rate_hz=0.5",
+            "--set",
+            "vessel.scene_track_period_s=1",
+            *ARM_MISSION,
+        ],
+        capture_output=True,
+        text=True,
+        cwd=out.parent,
+        timeout=240,
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert done.returncode == 0 and summary["verdict"] == "done", done.stdout + done.stderr
     return out
@@ -147,5 +181,10 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def abyss(*args: str, timeout_s: float = 60.0, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
     """An abyss command as a user types it, in `cwd` (-P: that directory never shadows abyss)."""
-    return subprocess.run([sys.executable, "-P", "-m", "abyss.cli", *args], capture_output=True, text=True,
-                          cwd=cwd, timeout=timeout_s)
+    return subprocess.run(
+        [sys.executable, "-P", "-m", "abyss.cli", *args],
+        capture_output=True,
+        text=True,
+        cwd=cwd,
+        timeout=timeout_s,
+    )

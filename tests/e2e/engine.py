@@ -49,8 +49,9 @@ def docker_cli() -> str | None:
 
 
 def docker(*args: str, timeout_s: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([docker_cli() or "docker", *args], capture_output=True, text=True,
-                          timeout=timeout_s, check=False)
+    return subprocess.run(
+        [docker_cli() or "docker", *args], capture_output=True, text=True, timeout=timeout_s, check=False
+    )
 
 
 def compose_command() -> list[str] | None:
@@ -93,8 +94,13 @@ def start_engine(timeout_s: float = 60.0) -> str | None:
         return None
     say(f"starting dockerd (log: {DOCKERD_LOG})")
     # detached by a shell that exits at once: dockerd outlives the test and is no child of it
-    started = subprocess.run(["sh", "-c", 'dockerd >"$1" 2>&1 </dev/null & echo $!', "sh", str(DOCKERD_LOG)],
-                             capture_output=True, text=True, check=True, start_new_session=True)
+    started = subprocess.run(
+        ["sh", "-c", 'dockerd >"$1" 2>&1 </dev/null & echo $!', "sh", str(DOCKERD_LOG)],
+        capture_output=True,
+        text=True,
+        check=True,
+        start_new_session=True,
+    )
     pid = int(started.stdout)
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and running(pid):
@@ -123,12 +129,21 @@ def image_size_bytes(name: str) -> int:
     return int(docker("image", "inspect", "--format", "{{.Size}}", name).stdout)
 
 
-def run_logged(command: list[str], log: Path, timeout_s: float, show: Callable[[str], str | None],
-               env: dict[str, str] | None = None) -> int:
+def run_logged(
+    command: list[str],
+    log: Path,
+    timeout_s: float,
+    show: Callable[[str], str | None],
+    env: dict[str, str] | None = None,
+) -> int:
     """`command`'s exit code; its output in `log`, what `show` makes of each line printed as it
     comes, and the command killed after `timeout_s`."""
-    with log.open("w") as out, subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                                 text=True, env=env) as process:
+    with (
+        log.open("w") as out,
+        subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        ) as process,
+    ):
         watchdog = threading.Timer(timeout_s, process.kill)
         watchdog.start()
         try:
@@ -170,8 +185,9 @@ def build_base(timeout_s: float = 600.0) -> float:
     say(f"making {BASE_IMAGE} with debootstrap (a minute or two)")
     start = time.monotonic()
     log = Path(tempfile.gettempdir()) / "abyss-base-image.log"
-    code = run_logged(["bash", str(ROOT / "deploy" / "base-image.sh"), BASE_IMAGE], log, timeout_s,
-                      lambda line: line)
+    code = run_logged(
+        ["bash", str(ROOT / "deploy" / "base-image.sh"), BASE_IMAGE], log, timeout_s, lambda line: line
+    )
     if code != 0:
         raise RuntimeError(f"deploy/base-image.sh failed ({code}); see {log}")
     seconds = time.monotonic() - start
@@ -206,8 +222,13 @@ def inputs_digest(base: str, context: Path = ROOT) -> str:
     return digest.hexdigest()
 
 
-def build_image(base: str = BASE_IMAGE, tag: str = IMAGE, context: Path = ROOT, timeout_s: float = 900.0,
-                force: bool = False) -> float | None:
+def build_image(
+    base: str = BASE_IMAGE,
+    tag: str = IMAGE,
+    context: Path = ROOT,
+    timeout_s: float = 900.0,
+    force: bool = False,
+) -> float | None:
     """The project's image, built unless `tag` holds one of the same inputs (unless `force`);
     the seconds the build took, or None when the image was reused."""
     digest = inputs_digest(base, context)
@@ -218,9 +239,25 @@ def build_image(base: str = BASE_IMAGE, tag: str = IMAGE, context: Path = ROOT, 
     secret = ["--secret", f"id=ca,src={CA_BUNDLE}"] if CA_BUNDLE.is_file() else []
     log = Path(tempfile.gettempdir()) / "abyss-image-build.log"
     start = time.monotonic()
-    code = run_logged([docker_cli() or "docker", "build", "--progress=plain", *secret, "--build-arg",
-                       f"BASE={base}", "--label", f"{INPUTS_LABEL}={digest}", "-t", tag, str(context)],
-                      log, timeout_s, BuildSteps(), env={**os.environ, "DOCKER_BUILDKIT": "1"})
+    code = run_logged(
+        [
+            docker_cli() or "docker",
+            "build",
+            "--progress=plain",
+            *secret,
+            "--build-arg",
+            f"BASE={base}",
+            "--label",
+            f"{INPUTS_LABEL}={digest}",
+            "-t",
+            tag,
+            str(context),
+        ],
+        log,
+        timeout_s,
+        BuildSteps(),
+        env={**os.environ, "DOCKER_BUILDKIT": "1"},
+    )
     if code != 0:
         raise RuntimeError(f"docker build failed ({code}); its log ends:\n{log.read_text()[-3000:]}")
     seconds = time.monotonic() - start
@@ -237,14 +274,27 @@ class Compose:
         command = compose_command()
         assert command is not None
         self.project = project
-        self.command = [*command, "-p", project, "-f", str(ROOT / "compose.yaml"), "--project-directory",
-                        str(directory)]
+        self.command = [
+            *command,
+            "-p",
+            project,
+            "-f",
+            str(ROOT / "compose.yaml"),
+            "--project-directory",
+            str(directory),
+        ]
         clean = {k: v for k, v in os.environ.items() if not k.startswith("ABYSS_")}
         self.env = {**clean, **env}
 
     def __call__(self, *args: str, timeout_s: float = 120.0) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([*self.command, *args], capture_output=True, text=True, env=self.env,
-                              timeout=timeout_s, check=False)
+        return subprocess.run(
+            [*self.command, *args],
+            capture_output=True,
+            text=True,
+            env=self.env,
+            timeout=timeout_s,
+            check=False,
+        )
 
     def states(self) -> dict[str, str]:
         """Each service's container state: its health where it has one (starting, healthy,
@@ -252,17 +302,23 @@ class Compose:
         ids = docker("ps", "-aq", "--filter", f"label=com.docker.compose.project={self.project}").stdout
         if not ids.split():
             return {}
-        shown = docker("inspect", "--format", '{{index .Config.Labels "com.docker.compose.service"}} '
-                       "{{if .State.Health}}{{.State.Health.Status}}{{else}}{{.State.Status}}{{end}}",
-                       *ids.split())
+        shown = docker(
+            "inspect",
+            "--format",
+            '{{index .Config.Labels "com.docker.compose.service"}} '
+            "{{if .State.Health}}{{.State.Health.Status}}{{else}}{{.State.Status}}{{end}}",
+            *ids.split(),
+        )
         return dict(line.split(" ", 1) for line in shown.stdout.splitlines() if " " in line)
 
     def container(self, service: str) -> str:
         return self("ps", "-q", service).stdout.strip()
 
     def exit_codes(self) -> dict[str, int]:
-        return {s: int(docker("inspect", "--format", "{{.State.ExitCode}}", self.container(s)).stdout)
-                for s in keys.STATIONS}
+        return {
+            s: int(docker("inspect", "--format", "{{.State.ExitCode}}", self.container(s)).stdout)
+            for s in keys.STATIONS
+        }
 
     def logs(self, tail: int | str = 40) -> str:
         """The services' logs: their last `tail` lines each ("all": every line)."""
@@ -276,8 +332,10 @@ class Compose:
         while time.monotonic() - start < timeout_s:
             states = self.states()
             if states != shown:
-                say(f"{time.monotonic() - start:5.1f} s: " + ", ".join(f"{s} {states.get(s, '-')}"
-                                                                      for s in keys.STATIONS))
+                say(
+                    f"{time.monotonic() - start:5.1f} s: "
+                    + ", ".join(f"{s} {states.get(s, '-')}" for s in keys.STATIONS)
+                )
                 shown = states
             if [states.get(s) for s in keys.STATIONS] == ["healthy"] * len(keys.STATIONS):
                 return time.monotonic() - start
@@ -297,8 +355,10 @@ class Compose:
             if isinstance(status, MissionStatus):
                 if status.waypoint_index != reached[0]:
                     reached[0] = status.waypoint_index
-                    say(f"mission: waypoint {status.waypoint_index}/{status.waypoints_total}, "
-                        f"mode {status.mode}, arm {status.arm_mode}")
+                    say(
+                        f"mission: waypoint {status.waypoint_index}/{status.waypoints_total}, "
+                        f"mode {status.mode}, arm {status.arm_mode}"
+                    )
                 if status.done:
                     done.set()
 
@@ -310,8 +370,9 @@ class Compose:
                 states = self.states()
                 broken = [s for s in keys.STATIONS if states.get(s) != "healthy"]
                 assert not broken, f"{broken} {states}\n{self.logs()}"
-                assert time.monotonic() - start < timeout_s, \
+                assert time.monotonic() - start < timeout_s, (
                     f"mission not done within {timeout_s:.0f} s (waypoint {reached[0]})\n{self.logs()}"
+                )
         finally:
             subscriber.undeclare()
             session.close()

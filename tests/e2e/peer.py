@@ -47,8 +47,10 @@ def watch(endpoint: str, system: str, timeout_s: float) -> dict[str, object]:
         seen["truth"] = int(seen["truth"]) + 1  # type: ignore[call-overload]
 
     session = open_session(client_config(endpoint), "watch")
-    subscribers = [session.declare_subscriber(keys.mission_key(system), on_mission),
-                   session.declare_subscriber(keys.truth_key(system), on_truth)]
+    subscribers = [
+        session.declare_subscriber(keys.mission_key(system), on_mission),
+        session.declare_subscriber(keys.truth_key(system), on_truth),
+    ]
     done.wait(timeout_s)
     for subscriber in subscribers:
         subscriber.undeclare()
@@ -61,12 +63,19 @@ def intrude(endpoint: str, system: str, holder: str, count: int) -> dict[str, ob
     config.insert_json5("scouting/multicast/enabled", "false")
     config.insert_json5("connect/endpoints", json.dumps([endpoint]))
     if holder != "none":
-        config.insert_json5("transport/link/tls",
-                            json.dumps(tls_settings(CertFiles(Path(os.environ[TLS_DIR_ENV]), holder))))
+        config.insert_json5(
+            "transport/link/tls", json.dumps(tls_settings(CertFiles(Path(os.environ[TLS_DIR_ENV]), holder)))
+        )
     else:  # a TLS client that shows no certificate of its own
-        config.insert_json5("transport/link/tls", json.dumps({
-            "root_ca_certificate": str(Path(os.environ[TLS_DIR_ENV]) / "ca.pem"),
-            "verify_name_on_connect": False}))
+        config.insert_json5(
+            "transport/link/tls",
+            json.dumps(
+                {
+                    "root_ca_certificate": str(Path(os.environ[TLS_DIR_ENV]) / "ca.pem"),
+                    "verify_name_on_connect": False,
+                }
+            ),
+        )
     session = zenoh.open(config)
     time.sleep(2.0)
     peers = len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
@@ -100,8 +109,13 @@ def receive(listen: str, seconds: float, every: float = math.inf) -> dict[str, o
     return {"received": len(got), "span_s": got[-1] - got[0] if got else 0.0}
 
 
-def send(connect: str, count: int, size: int, tuned_for_bps: float, until: Path | None = None,
-         ) -> dict[str, object]:
+def send(
+    connect: str,
+    count: int,
+    size: int,
+    tuned_for_bps: float,
+    until: Path | None = None,
+) -> dict[str, object]:
     session = open_session(zenoh_config(connect=[connect], slowest_rate_bps=tuned_for_bps), "send")
     publisher = session.declare_publisher("large/data", congestion_control=zenoh.CongestionControl.DROP)
     time.sleep(1.0)

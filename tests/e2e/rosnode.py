@@ -24,9 +24,12 @@ from pycdr2.types import array, float64, int8, int32, sequence, uint8, uint32
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 _HASHES = get_typestore(Stores.ROS2_JAZZY)  # REP 2016 hashes, from a maintained library
-_HASHES.register(get_types_from_msg(  # octomap_msgs/msg/Octomap.msg, its fields
-    "std_msgs/Header header\nbool binary\nstring id\nfloat64 resolution\nint8[] data\n",
-    "octomap_msgs/msg/Octomap"))
+_HASHES.register(
+    get_types_from_msg(  # octomap_msgs/msg/Octomap.msg, its fields
+        "std_msgs/Header header\nbool binary\nstring id\nfloat64 resolution\nint8[] data\n",
+        "octomap_msgs/msg/Octomap",
+    )
+)
 
 
 # -- the messages, as their .msg files define them ------------------------------------------
@@ -248,15 +251,30 @@ class Token:
     def parse(cls, key: str) -> "Token":
         parts = key.split("/")
         assert parts[0] == "@ros2_lv" and len(parts) >= 9, key
-        fields: list[Any] = [int(parts[1]), parts[2], int(parts[3]), int(parts[4]), parts[5],
-                             *(p.replace("%", "/") for p in parts[6:9])]
+        fields: list[Any] = [
+            int(parts[1]),
+            parts[2],
+            int(parts[3]),
+            int(parts[4]),
+            parts[5],
+            *(p.replace("%", "/") for p in parts[6:9]),
+        ]
         if parts[5] != "NN":
             fields += [parts[9].replace("%", "/"), parts[10], parts[11], parts[12]]
         return cls(*fields)
 
     def key(self) -> str:
-        parts = ["@ros2_lv", str(self.domain), self.zid, str(self.node_id), str(self.entity_id), self.kind,
-                 self.enclave.replace("/", "%"), self.namespace.replace("/", "%"), self.node]
+        parts = [
+            "@ros2_lv",
+            str(self.domain),
+            self.zid,
+            str(self.node_id),
+            str(self.entity_id),
+            self.kind,
+            self.enclave.replace("/", "%"),
+            self.namespace.replace("/", "%"),
+            self.node,
+        ]
         if self.kind != "NN":
             parts += [self.topic.replace("/", "%"), self.type, self.hash, self.qos]
         return "/".join(parts)
@@ -276,15 +294,19 @@ def session_config(endpoint: str) -> zenoh.Config:
 class RosNode:
     """One node with the publishers and subscriptions of a ROS 2 onboard controller."""
 
-    def __init__(self, endpoint: str, domain: int = 0, namespace: str = "/",
-                 name: str = "team_onboard") -> None:
+    def __init__(
+        self, endpoint: str, domain: int = 0, namespace: str = "/", name: str = "team_onboard"
+    ) -> None:
         self.session = zenoh.open(session_config(endpoint))
         self.domain, self.namespace, self.name = domain, namespace, name
         self.zid = str(self.session.info.zid())
         self.ids = iter(range(1_000_000))
         self.node_id = next(self.ids)
-        self.tokens = [self.session.liveliness().declare_token(
-            Token(domain, self.zid, self.node_id, self.node_id, "NN", "/", namespace, name).key())]
+        self.tokens = [
+            self.session.liveliness().declare_token(
+                Token(domain, self.zid, self.node_id, self.node_id, "NN", "/", namespace, name).key()
+            )
+        ]
         self.seq: dict[str, int] = {}
         self.publishers: dict[str, tuple[Any, bytes]] = {}
         self.subscribers: list[Any] = []
@@ -296,25 +318,43 @@ class RosNode:
 
     def _token(self, kind: str, topic: str, message: type[IdlStruct], qos: str) -> str:
         name = ros_type(message)
-        return Token(self.domain, self.zid, self.node_id, next(self.ids), kind, "/", self.namespace,
-                     self.name, topic, dds_name(name), rihs01(name), qos).key()
+        return Token(
+            self.domain,
+            self.zid,
+            self.node_id,
+            next(self.ids),
+            kind,
+            "/",
+            self.namespace,
+            self.name,
+            topic,
+            dds_name(name),
+            rihs01(name),
+            qos,
+        ).key()
 
     def publisher(self, topic: str, message: type[IdlStruct], qos: str = QOS_DEFAULT) -> None:
         token = self._token("MP", topic, message, qos)
         self.tokens.append(self.session.liveliness().declare_token(token))
         gid = xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little")
         reliability = zenoh.Reliability.BEST_EFFORT if qos.startswith("2:") else zenoh.Reliability.RELIABLE
-        self.publishers[topic] = (self.session.declare_publisher(
-            data_key(self.domain, topic, message), reliability=reliability,
-            congestion_control=zenoh.CongestionControl.DROP), gid)
+        self.publishers[topic] = (
+            self.session.declare_publisher(
+                data_key(self.domain, topic, message),
+                reliability=reliability,
+                congestion_control=zenoh.CongestionControl.DROP,
+            ),
+            gid,
+        )
 
     def publish(self, topic: str, message: IdlStruct) -> None:
         publisher, gid = self.publishers[topic]
         self.seq[topic] = self.seq.get(topic, 0) + 1
         publisher.put(message.serialize(), attachment=attachment(self.seq[topic], gid))
 
-    def subscribe(self, topic: str, message: type[IdlStruct], on_message: Callable[[Any], None],
-                  qos: str = QOS_DEFAULT) -> None:
+    def subscribe(
+        self, topic: str, message: type[IdlStruct], on_message: Callable[[Any], None], qos: str = QOS_DEFAULT
+    ) -> None:
         self.tokens.append(self.session.liveliness().declare_token(self._token("MS", topic, message, qos)))
 
         def on_sample(sample: zenoh.Sample) -> None:
@@ -380,8 +420,10 @@ class WaypointPilot:
 
     def _path(self, path: Path) -> None:
         with self.lock:
-            self.flight.waypoints = [(p.pose.position.x, p.pose.position.y, p.pose.position.z,
-                                      yaw_of(p.pose.orientation)) for p in path.poses]
+            self.flight.waypoints = [
+                (p.pose.position.x, p.pose.position.y, p.pose.position.z, yaw_of(p.pose.orientation))
+                for p in path.poses
+            ]
             self.flight.index = 0
 
     def step(self, tick: int) -> None:
@@ -397,8 +439,11 @@ class WaypointPilot:
             p, yaw = odometry.pose.pose.position, yaw_of(odometry.pose.pose.orientation)
             x, y, z, heading = waypoints[min(index, len(waypoints) - 1)]
             ex, ey, ez, eyaw = x - p.x, y - p.y, z - p.z, wrap(heading - yaw)
-            if index < len(waypoints) and math.dist((ex, ey, ez), (0, 0, 0)) < self.TOLERANCE_M \
-                    and abs(eyaw) < self.TOLERANCE_RAD:
+            if (
+                index < len(waypoints)
+                and math.dist((ex, ey, ez), (0, 0, 0)) < self.TOLERANCE_M
+                and abs(eyaw) < self.TOLERANCE_RAD
+            ):
                 index += 1
                 with self.lock:
                     self.flight.index = index
@@ -409,15 +454,24 @@ class WaypointPilot:
             c, s = math.cos(yaw), math.sin(yaw)
             vx, vy, vz = scale * (c * ux + s * uy), scale * (-s * ux + c * uy), scale * uz
             yaw_rate = max(-self.MAX_YAW_RATE_RADPS, min(self.MAX_YAW_RATE_RADPS, self.GAIN_PER_S * eyaw))
-        self.node.publish(self.velocity, TwistStamped(Header(stamp, "base_link"), Twist(
-            Vector3(vx, vy, vz), Vector3(0.0, 0.0, yaw_rate))))
+        self.node.publish(
+            self.velocity,
+            TwistStamped(Header(stamp, "base_link"), Twist(Vector3(vx, vy, vz), Vector3(0.0, 0.0, yaw_rate))),
+        )
         self.node.publish(self.arm, Float64MultiArray(MultiArrayLayout([], 0), [0.0] * 7))
         self.flight.commands += 1
         if tick % 2 == 0:
-            values = [KeyValue("mode", mode), KeyValue("waypoint", f"{index}/{len(waypoints)}"),
-                      KeyValue("arm_mode", "idle")]
-            self.node.publish(self.diagnostics, DiagnosticArray(Header(stamp, ""), [DiagnosticStatus(
-                0, "team onboard", mode, "test", values)]))
+            values = [
+                KeyValue("mode", mode),
+                KeyValue("waypoint", f"{index}/{len(waypoints)}"),
+                KeyValue("arm_mode", "idle"),
+            ]
+            self.node.publish(
+                self.diagnostics,
+                DiagnosticArray(
+                    Header(stamp, ""), [DiagnosticStatus(0, "team onboard", mode, "test", values)]
+                ),
+            )
 
     def fly(self, stop: threading.Event, period_s: float = 0.05) -> None:
         tick = 0
@@ -442,7 +496,9 @@ class Mapper:
     def _cloud(self, cloud: PointCloud2) -> None:
         offsets = {f.name: f.offset for f in cloud.fields}
         rows = np.frombuffer(bytes(cloud.data), np.uint8).reshape(-1, cloud.point_step)
-        xyz = np.column_stack([rows[:, offsets[a]:offsets[a] + 4].copy().view("<f4").ravel() for a in "xyz"])
+        xyz = np.column_stack(
+            [rows[:, offsets[a] : offsets[a] + 4].copy().view("<f4").ravel() for a in "xyz"]
+        )
         with self.lock:
             self.points_m.append(xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64))
 
@@ -455,9 +511,17 @@ class Mapper:
         tree.updateNodes(points_m, 2.0, True)
         tree.updateInnerOccupancy()
         binary = bytes(tree.writeBinary())
-        data = binary[binary.index(b"\ndata\n") + 6:]
-        self.node.publish(self.scene, Octomap(Header(Time(0, 0), "world"), True, "OcTree", self.resolution_m,
-                                              list(np.frombuffer(data, np.int8))))
+        data = binary[binary.index(b"\ndata\n") + 6 :]
+        self.node.publish(
+            self.scene,
+            Octomap(
+                Header(Time(0, 0), "world"),
+                True,
+                "OcTree",
+                self.resolution_m,
+                list(np.frombuffer(data, np.int8)),
+            ),
+        )
         self.maps += 1
 
     def map_points(self) -> np.ndarray:

@@ -35,8 +35,12 @@ pytestmark = pytest.mark.e2e
 HOP_ENDS = {hop: tuple(s for s in keys.STATIONS if hop in keys.hops_of(s)) for hop in keys.HOPS}
 
 
-def link_show(endpoint: str, holds: Callable[[dict[tuple[str, str], dict[str, str]]], bool], *hop: str,
-              timeout_s: float = 30.0) -> dict[tuple[str, str], dict[str, str]]:
+def link_show(
+    endpoint: str,
+    holds: Callable[[dict[tuple[str, str], dict[str, str]]], bool],
+    *hop: str,
+    timeout_s: float = 30.0,
+) -> dict[tuple[str, str], dict[str, str]]:
     """`abyss link show --json` from the host, asked again until what it shows holds (its query
     waits 3 s for the replies, which cross the emulated links) or `timeout_s` passes: each hop
     direction's fields."""
@@ -71,8 +75,11 @@ def image() -> Iterator[str]:
 def test_compose_up_runs_the_mission(image: str, tmp_path: Path) -> None:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    compose = engine.Compose(f"abysse2e{os.getpid()}", tmp_path,
-                             {"ABYSS_LINK": LINK, "ABYSS_SYSTEM": SYSTEM, "ABYSS_PORT": str(port)})
+    compose = engine.Compose(
+        f"abysse2e{os.getpid()}",
+        tmp_path,
+        {"ABYSS_LINK": LINK, "ABYSS_SYSTEM": SYSTEM, "ABYSS_PORT": str(port)},
+    )
     try:
         up = compose("up", "-d", "--no-build")
         assert up.returncode == 0, up.stderr
@@ -84,8 +91,12 @@ def test_compose_up_runs_the_mission(image: str, tmp_path: Path) -> None:
 
         # each station shaped its own interfaces (it says which way), none fell back to emulating
         logs = compose.logs(tail="all")  # lines "<project>_<service>_1 | ..." (v1), "<service>-1 | ..."
-        modes = {s: line.split("link mode auto: ", 1)[1].split()[0] for line in logs.splitlines()
-                 for s in keys.STATIONS if "link mode auto: " in line and s in line.split("|", 1)[0]}
+        modes = {
+            s: line.split("link mode auto: ", 1)[1].split()[0]
+            for line in logs.splitlines()
+            for s in keys.STATIONS
+            if "link mode auto: " in line and s in line.split("|", 1)[0]
+        }
         assert set(modes) == set(keys.STATIONS) and set(modes.values()) <= {"netem", "tun"}, (modes, logs)
         engine.say(f"link modes: {modes}")
 
@@ -95,8 +106,9 @@ def test_compose_up_runs_the_mission(image: str, tmp_path: Path) -> None:
         assert set(shown) == every_direction, shown
 
         # from inside shore's container: both ends of the satellite take the change
-        changed = compose("exec", "-T", "onshore", "abyss", "link", "set", "satellite", "--loss", "10%",
-                          "--system", SYSTEM)
+        changed = compose(
+            "exec", "-T", "onshore", "abyss", "link", "set", "satellite", "--loss", "10%", "--system", SYSTEM
+        )
         # sent; only its read-back query may time out on a busy satellite (the check follows)
         assert changed.returncode == 0 or "sent, but no station" in changed.stderr, changed.stderr
         ten = {("satellite", "onshore->vessel"): "10%", ("satellite", "vessel->onshore"): "10%"}

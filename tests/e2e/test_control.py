@@ -84,8 +84,10 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Flight]:
             truths[low_level] = Truth(up.endpoint, f"e2e-wp-{low_level}")
         for up in ups.values():
             assert up.wait(180) == 0, up.output()
-        return {low_level: Flight(up.summary(), truths[low_level].since(0.0)[-1], up.output())
-                for low_level, up in ups.items()}
+        return {
+            low_level: Flight(up.summary(), truths[low_level].since(0.0)[-1], up.output())
+            for low_level, up in ups.items()
+        }
     except BaseException:  # both stopped now (a module fixture's failure skips no_leftover_systems)
         for up in ups.values():
             if up.process.poll() is None:
@@ -115,8 +117,16 @@ def test_three_waypoints_are_reached(flights: dict[str, Flight], low_level: str)
 
 def test_failsafe_holds_station_through_a_tether_outage_and_resumes(tmp_path: Path) -> None:
     system = "e2e-failsafe"
-    up = Up(tmp_path / "run", "--system", system, "--duration", "120",
-            "--set", "simulation.low_level=kinematic", *ARM_MISSION)
+    up = Up(
+        tmp_path / "run",
+        "--system",
+        system,
+        "--duration",
+        "120",
+        "--set",
+        "simulation.low_level=kinematic",
+        *ARM_MISSION,
+    )
     truth = Truth(up.endpoint, system)
     link = ("--connect", up.endpoint, "--system", system)
     try:

@@ -114,8 +114,12 @@ def decoded(exported: Path) -> dict[str, list[Any]]:
 def recorded(recording: Recording, key: str) -> list[Message]:
     """The messages of one key as the export takes them (as published; the testbed's as observed)."""
     records = recording.observed() + recording.published()
-    return [m for _, m in recording.messages(sorted((r for r in records if r.topic == key),
-                                                    key=lambda r: r.recorded_s))]
+    return [
+        m
+        for _, m in recording.messages(
+            sorted((r for r in records if r.topic == key), key=lambda r: r.recorded_s)
+        )
+    ]
 
 
 def seconds(stamp: Any) -> float:
@@ -138,13 +142,19 @@ def matrix(transform: Any) -> np.ndarray:
 
 # -- the tests ----------------------------------------------------------------------------
 def test_rerun_checks_the_export_and_converts_it_with_every_topic_an_entity(
-        exported: Path, decoded: dict[str, list[Any]], tmp_path: Path) -> None:
-    check = subprocess.run([str(RERUN), "mcap", "check", str(exported)], capture_output=True, text=True,
-                           timeout=120)
+    exported: Path, decoded: dict[str, list[Any]], tmp_path: Path
+) -> None:
+    check = subprocess.run(
+        [str(RERUN), "mcap", "check", str(exported)], capture_output=True, text=True, timeout=120
+    )
     assert check.returncode == 0, check.stdout + check.stderr
     rrd = tmp_path / "run.rrd"
-    convert = subprocess.run([str(RERUN), "mcap", "convert", str(exported), "-o", str(rrd)],
-                             capture_output=True, text=True, timeout=120)
+    convert = subprocess.run(
+        [str(RERUN), "mcap", "convert", str(exported), "-o", str(rrd)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert convert.returncode == 0, convert.stdout + convert.stderr
     rows: dict[str, int] = defaultdict(int)
     columns: dict[str, set[str]] = defaultdict(set)
@@ -154,13 +164,15 @@ def test_rerun_checks_the_export_and_converts_it_with_every_topic_an_entity(
     for topic, messages in decoded.items():
         assert rows[topic] >= len(messages), (topic, rows[topic], len(messages))
     # what rerun understood, not only carried: clouds with colour, transforms, images, intrinsics, poses
-    semantic = {"/abyss/onboard/cloud": {"Points3D:positions", "Points3D:rgb"},
-                TF: {"Transform3D:translation", "Transform3D:child_frame"},
-                TF_STATIC: {"Transform3D:translation", "Transform3D:parent_frame"},
-                "/abyss/simulation/camera/cam_left/image/compressed": {"EncodedImage:blob"},
-                "/abyss/simulation/camera/cam_depth/image": {"DepthImage:buffer"},
-                "/abyss/simulation/camera/cam_left/camera_info": {"Pinhole:image_from_camera"},
-                "/abyss/onboard/telemetry/ee_pose": {"InstancePoses3D:translations"}}
+    semantic = {
+        "/abyss/onboard/cloud": {"Points3D:positions", "Points3D:rgb"},
+        TF: {"Transform3D:translation", "Transform3D:child_frame"},
+        TF_STATIC: {"Transform3D:translation", "Transform3D:parent_frame"},
+        "/abyss/simulation/camera/cam_left/image/compressed": {"EncodedImage:blob"},
+        "/abyss/simulation/camera/cam_depth/image": {"DepthImage:buffer"},
+        "/abyss/simulation/camera/cam_left/camera_info": {"Pinhole:image_from_camera"},
+        "/abyss/onboard/telemetry/ee_pose": {"InstancePoses3D:translations"},
+    }
     for entity, wanted in semantic.items():
         assert wanted <= columns[entity], (entity, sorted(columns[entity]))
     assert rows[TF] >= sum(len(m.transforms) for m in decoded[TF])  # a row per transform
@@ -195,7 +207,8 @@ def test_topics_types_qos_and_counts_are_the_recordings(exported: Path, recordin
 
 
 def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
-        recording: Recording, decoded: dict[str, list[Any]]) -> None:
+    recording: Recording, decoded: dict[str, list[Any]]
+) -> None:
     for key in ("simulation/nav", "simulation/truth"):
         nav, odometry = recorded(recording, key), decoded[f"/abyss/{key}"]
         k = len(nav) // 2
@@ -219,8 +232,12 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
     # the arm's links, chained from base_link to the tool point, against MuJoCo's kinematics
     static = {t.child_frame_id: t for t in decoded[TF_STATIC][0].transforms}
     stamp = joints[k].sim_time_s
-    moving = {t.child_frame_id: t for m in decoded[TF] for t in m.transforms
-              if t.header.frame_id != "world" and seconds(t.header.stamp) == pytest.approx(stamp, abs=1e-9)}
+    moving = {
+        t.child_frame_id: t
+        for m in decoded[TF]
+        for t in m.transforms
+        if t.header.frame_id != "world" and seconds(t.header.stamp) == pytest.approx(stamp, abs=1e-9)
+    }
     chain = [static["arm_base"], *(moving[f"arm_link{i}"] for i in range(1, 7)), static["ee"]]
     parents = ["base_link", "arm_base", *(f"arm_link{i}" for i in range(1, 7))]
     assert [t.header.frame_id for t in chain] == parents
@@ -251,12 +268,14 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
 
 
 def test_stamps_without_simulated_time_are_their_senders_in_simulated_time(
-        recording: Recording, decoded: dict[str, list[Any]]) -> None:
+    recording: Recording, decoded: dict[str, list[Any]]
+) -> None:
     navigation = [r for r in recording.published(("simulation",)) if r.topic == "simulation/nav"]
     sent = sorted((r.sent_s, m.sim_time_s) for r, m in recording.messages(navigation))
     wall_s, sim_s = np.array(sent).T
-    refs = sorted(r.sent_s for r in recording.published(("onboard",))
-                  if r.topic == "onboard/cmd/vehicle_velocity")
+    refs = sorted(
+        r.sent_s for r in recording.published(("onboard",)) if r.topic == "onboard/cmd/vehicle_velocity"
+    )
     stamps = [seconds(t.header.stamp) for t in decoded["/abyss/onboard/cmd/vehicle_velocity"]]
     checked = 0
     for sent_s, stamp_s in zip(refs, stamps, strict=True):
@@ -270,9 +289,12 @@ def test_stamps_without_simulated_time_are_their_senders_in_simulated_time(
 
 
 def test_images_clouds_scene_paths_and_diagnostics_hold_the_recorded_values(
-        recording: Recording, decoded: dict[str, list[Any]], recorded_run: Path) -> None:
-    left, jpeg = recorded(recording, "simulation/camera/cam_left"), decoded[
-        "/abyss/simulation/camera/cam_left/image/compressed"][2]
+    recording: Recording, decoded: dict[str, list[Any]], recorded_run: Path
+) -> None:
+    left, jpeg = (
+        recorded(recording, "simulation/camera/cam_left"),
+        decoded["/abyss/simulation/camera/cam_left/image/compressed"][2],
+    )
     assert (jpeg.format, jpeg.header.frame_id) == ("jpeg", "cam_left_optical_frame")
     pixels = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_COLOR)
     assert pixels.shape[:2] == (left[2].height_px, left[2].width_px)
@@ -280,10 +302,16 @@ def test_images_clouds_scene_paths_and_diagnostics_hold_the_recorded_values(
     assert (info.width, info.height) == (left[2].width_px, left[2].height_px)
     frame = left[2]
     assert list(info.k) == pytest.approx([frame.fx_px, 0, frame.cx_px, 0, frame.fy_px, frame.cy_px, 0, 0, 1])
-    depth, raw = recorded(recording, "simulation/camera/cam_depth")[1], decoded[
-        "/abyss/simulation/camera/cam_depth/image"][1]
-    assert (raw.encoding, raw.width, raw.height, raw.step) == ("16UC1", depth.width_px, depth.height_px,
-                                                               2 * depth.width_px)
+    depth, raw = (
+        recorded(recording, "simulation/camera/cam_depth")[1],
+        decoded["/abyss/simulation/camera/cam_depth/image"][1],
+    )
+    assert (raw.encoding, raw.width, raw.height, raw.step) == (
+        "16UC1",
+        depth.width_px,
+        depth.height_px,
+        2 * depth.width_px,
+    )
     png_mm = cv2.imdecode(np.frombuffer(depth.data, np.uint8), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(np.frombuffer(bytes(raw.data), "<u2").reshape(png_mm.shape), png_mm)
 
@@ -291,8 +319,12 @@ def test_images_clouds_scene_paths_and_diagnostics_hold_the_recorded_values(
     k = len(clouds) // 2
     cloud = exported_clouds[k]
     assert (cloud.header.frame_id, cloud.width, cloud.height) == ("world", clouds[k].count, 1)
-    assert [(f.name, f.offset, f.datatype) for f in cloud.fields] == [("x", 0, 7), ("y", 4, 7), ("z", 8, 7),
-                                                                       ("rgb", 12, 7)]
+    assert [(f.name, f.offset, f.datatype) for f in cloud.fields] == [
+        ("x", 0, 7),
+        ("y", 4, 7),
+        ("z", 8, 7),
+        ("rgb", 12, 7),
+    ]
     points = np.frombuffer(bytes(cloud.data), [("xyz", "<f4", 3), ("rgb", "<u4")])
     points_m, colors = unpack_cloud(clouds[k])
     np.testing.assert_allclose(points["xyz"], points_m, atol=1e-5)
@@ -351,8 +383,9 @@ def test_bad_run_directories_fail_with_the_path_and_the_fix(tmp_path: Path) -> N
     with (tmp_path / "record" / "onboard.mcap").open("wb") as f:  # a recording of another format's version
         writer = Writer(f)
         writer.start(profile="abyss")
-        writer.add_metadata("abyss", {"format_version": "0", "station": "onboard", "system": "x",
-                                      "level": "all"})
+        writer.add_metadata(
+            "abyss", {"format_version": "0", "station": "onboard", "system": "x", "level": "all"}
+        )
         writer.finish()
     older = abyss("export", "mcap", str(tmp_path))
     assert older.returncode == 2 and "recording format version 0" in older.stderr

@@ -25,9 +25,21 @@ MISSION_TIMEOUT_S = 120.0
 
 
 def station_args(hosts: Hosts, station: str, run_dir: Path, *extra: str) -> list[str]:
-    return ["-m", "abyss.cli", "station", station, "--system", SYSTEM,
-            *hosts.endpoints(station, "tls"), "--tls", str(run_dir / "certs"),
-            "--status-file", str(run_dir / f"{station}.json"), *ARM_MISSION, *extra]
+    return [
+        "-m",
+        "abyss.cli",
+        "station",
+        station,
+        "--system",
+        SYSTEM,
+        *hosts.endpoints(station, "tls"),
+        "--tls",
+        str(run_dir / "certs"),
+        "--status-file",
+        str(run_dir / f"{station}.json"),
+        *ARM_MISSION,
+        *extra,
+    ]
 
 
 def stop(processes: dict[str, subprocess.Popen[bytes]]) -> None:
@@ -53,8 +65,12 @@ def wait_up(processes: dict[str, subprocess.Popen[bytes]], run_dir: Path, timeou
 
 
 def in_ns(hosts: Hosts, station: str, run_dir: Path, *args: str) -> dict[str, object]:
-    done = hosts.run(station, ["tests/e2e/peer.py", *args], timeout_s=MISSION_TIMEOUT_S + 30,
-                     env={TLS_DIR_ENV: str(run_dir / "certs")})
+    done = hosts.run(
+        station,
+        ["tests/e2e/peer.py", *args],
+        timeout_s=MISSION_TIMEOUT_S + 30,
+        env={TLS_DIR_ENV: str(run_dir / "certs")},
+    )
     assert done.returncode == 0, done.stderr[-2000:]
     return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
@@ -65,17 +81,32 @@ def test_shaped_mission_over_separate_hosts_with_tls_and_access_control(hosts: H
     # nothing joins two stations but a hop: simulation cannot reach the vessel or the shore
     assert not hosts.reaches("simulation", hosts.address("vessel", "tether"))
     assert not hosts.reaches("onshore", hosts.address("onboard", "tether"))
-    processes = {s: hosts.popen(s, station_args(hosts, s, tmp_path, "--link", "auto"), tmp_path / f"{s}.log")
-                 for s in keys.STATIONS}
+    processes = {
+        s: hosts.popen(s, station_args(hosts, s, tmp_path, "--link", "auto"), tmp_path / f"{s}.log")
+        for s in keys.STATIONS
+    }
     try:
         wait_up(processes, tmp_path)
-        qdiscs = {(s, hop): subprocess.run(["tc", "-n", hosts.netns(s), "qdisc", "show", "dev",
-                                            hosts.device(s, hop)], capture_output=True, text=True).stdout
-                  for (s, hop) in hosts.ends}
+        qdiscs = {
+            (s, hop): subprocess.run(
+                ["tc", "-n", hosts.netns(s), "qdisc", "show", "dev", hosts.device(s, hop)],
+                capture_output=True,
+                text=True,
+            ).stdout
+            for (s, hop) in hosts.ends
+        }
         with ThreadPoolExecutor(1) as pool:
             # a tool on shore's host sees the mission through; the truth crosses three routed hops
-            watching = pool.submit(in_ns, hosts, "onshore", tmp_path, "watch", f"tls/127.0.0.1:{PORT}",
-                                   SYSTEM, str(MISSION_TIMEOUT_S))
+            watching = pool.submit(
+                in_ns,
+                hosts,
+                "onshore",
+                tmp_path,
+                "watch",
+                f"tls/127.0.0.1:{PORT}",
+                SYSTEM,
+                str(MISSION_TIMEOUT_S),
+            )
             # meanwhile, during the mission: the containers' health check, a station's token seen
             # through its own TLS listener
             certs_env = {TLS_DIR_ENV: str(tmp_path / "certs")}
@@ -136,9 +167,25 @@ def test_shaped_mission_over_separate_hosts_with_tls_and_access_control(hosts: H
 def test_netem_refused_with_its_fix_where_the_kernel_lacks_it(hosts: Hosts, tmp_path: Path) -> None:
     """`--link netem` on a kernel without sch_netem: the station refuses to start and says why
     (`--link auto` takes the TUN shaper there: the mission test above)."""
-    probe = subprocess.run(["ip", "netns", "exec", hosts.netns("vessel"), "tc", "qdisc", "add", "dev",
-                            hosts.device("vessel", "tether"), "root", "netem", "delay", "1ms"],
-                           capture_output=True, text=True)
+    probe = subprocess.run(
+        [
+            "ip",
+            "netns",
+            "exec",
+            hosts.netns("vessel"),
+            "tc",
+            "qdisc",
+            "add",
+            "dev",
+            hosts.device("vessel", "tether"),
+            "root",
+            "netem",
+            "delay",
+            "1ms",
+        ],
+        capture_output=True,
+        text=True,
+    )
     if probe.returncode == 0:
         pytest.skip("this kernel has sch_netem: --link netem is taken (and auto picks it)")
     assert "unknown" in probe.stderr, probe.stderr  # the kernel's word for a missing sch_netem
@@ -159,16 +206,47 @@ def large_burst(tuned: bool, run_dir: Path) -> int:
     try:
         hosts.make()
         bottleneck = hosts.device("vessel", "satellite")
-        subprocess.run(["tc", "-n", hosts.netns("vessel"), "qdisc", "add", "dev", bottleneck,
-                        "root", "tbf", "rate", "1mbit", "burst", "16kb", "latency", "400ms"], check=True)
+        subprocess.run(
+            [
+                "tc",
+                "-n",
+                hosts.netns("vessel"),
+                "qdisc",
+                "add",
+                "dev",
+                bottleneck,
+                "root",
+                "tbf",
+                "rate",
+                "1mbit",
+                "burst",
+                "16kb",
+                "latency",
+                "400ms",
+            ],
+            check=True,
+        )
         shore = f"tcp/{hosts.address('onshore', 'satellite')}:{PORT}"
         counted = run_dir / "counted"
         with ThreadPoolExecutor(2) as pool:
-            received = pool.submit(hosts.run, "onshore",
-                                   ["tests/e2e/peer.py", "receive", shore, "25", "5"], 120)
+            received = pool.submit(
+                hosts.run, "onshore", ["tests/e2e/peer.py", "receive", shore, "25", "5"], 120
+            )
             time.sleep(1.0)
-            sending = pool.submit(hosts.run, "vessel", ["tests/e2e/peer.py", "send", shore, "5", str(200_000),
-                                                        "1e6" if tuned else "inf", str(counted)], 120)
+            sending = pool.submit(
+                hosts.run,
+                "vessel",
+                [
+                    "tests/e2e/peer.py",
+                    "send",
+                    shore,
+                    "5",
+                    str(200_000),
+                    "1e6" if tuned else "inf",
+                    str(counted),
+                ],
+                120,
+            )
             try:
                 done = received.result()
             finally:
@@ -188,8 +266,10 @@ def large_messages(tmp_path_factory: pytest.TempPathFactory) -> dict[bool, int]:
     if reason := usable():
         pytest.skip(reason)
     with ThreadPoolExecutor(2) as pool:
-        runs = {tuned: pool.submit(large_burst, tuned, tmp_path_factory.mktemp(f"large-{tuned}"))
-                for tuned in (False, True)}
+        runs = {
+            tuned: pool.submit(large_burst, tuned, tmp_path_factory.mktemp(f"large-{tuned}"))
+            for tuned in (False, True)
+        }
         return {tuned: run.result() for tuned, run in runs.items()}
 
 

@@ -39,8 +39,12 @@ class Shapers:
             for station in keys.HOPS[hop]:
                 log = log_dir / f"shape-{hop}-{station}.log"
                 with log.open("w") as out:
-                    process = subprocess.Popen(hosts.shape(station, hop, name, "--every", "60"),
-                                               stdout=out, stderr=subprocess.STDOUT, text=True)
+                    process = subprocess.Popen(
+                        hosts.shape(station, hop, name, "--every", "60"),
+                        stdout=out,
+                        stderr=subprocess.STDOUT,
+                        text=True,
+                    )
                 self.processes.append((process, log))
         deadline = time.monotonic() + 30.0
         for process, log in self.processes:  # each says so once its route goes through it
@@ -59,12 +63,16 @@ class Shapers:
         return stats
 
 
-def ping(hosts: Hosts, station: str, address: str, count: int,
-         interval_s: float) -> tuple[float, float, float]:
+def ping(
+    hosts: Hosts, station: str, address: str, count: int, interval_s: float
+) -> tuple[float, float, float]:
     """RTT mean and standard deviation [ms] and the share of pings lost."""
-    done = subprocess.run([*hosts.prefix(station), "ping", "-q", "-n", "-c", str(count), "-i",
-                           str(interval_s), address], capture_output=True, text=True,
-                          timeout=count * interval_s + 30)
+    done = subprocess.run(
+        [*hosts.prefix(station), "ping", "-q", "-n", "-c", str(count), "-i", str(interval_s), address],
+        capture_output=True,
+        text=True,
+        timeout=count * interval_s + 30,
+    )
     loss = re.search(r"([\d.]+)% packet loss", done.stdout)
     rtt = re.search(r"= [\d.]+/([\d.]+)/[\d.]+/([\d.]+) ms", done.stdout)
     assert loss and rtt, done.stdout + done.stderr
@@ -83,9 +91,13 @@ def test_ping_and_a_udp_flow_through_the_shaped_hops(hosts: Hosts, tmp_path: Pat
     try:
         floor_ms, _, _ = ping(hosts, "simulation", hosts.address("onboard", "rov"), 50, 0.02)
         with ThreadPoolExecutor(2) as pool:
-            runs = {hop: (pool.submit(ping, hosts, station, hosts.address(neighbour, hop), count, interval_s),
-                          count)
-                    for hop, station, neighbour, count, interval_s in PINGS}
+            runs = {
+                hop: (
+                    pool.submit(ping, hosts, station, hosts.address(neighbour, hop), count, interval_s),
+                    count,
+                )
+                for hop, station, neighbour, count, interval_s in PINGS
+            }
             runs["tether"][0].result()  # the tether's pings done: the flow takes the tether, while the
             # satellite's pings (other shapers, 4 a second) go on
             flow = udp_flow(hosts, "onboard", "vessel", "tether", rate_bps=30e6, seconds=4.0)
@@ -100,8 +112,10 @@ def test_ping_and_a_udp_flow_through_the_shaped_hops(hosts: Hosts, tmp_path: Pat
         received = round(count * (1.0 - lost))
         expected_ms = 2e3 * one_way_s(p, PING_BYTES) + floor_ms
         sigma_ms = math.sqrt(2.0) * p.jitter_s * 1e3
-        print(f"{hop}: RTT {mean_ms:.1f} +/- {std_ms:.1f} ms (profile {expected_ms:.1f} +/- {sigma_ms:.1f}), "
-              f"lost {lost:.1%} (profile {expected_loss:.1%}) of {count}")
+        print(
+            f"{hop}: RTT {mean_ms:.1f} +/- {std_ms:.1f} ms (profile {expected_ms:.1f} +/- {sigma_ms:.1f}), "
+            f"lost {lost:.1%} (profile {expected_loss:.1%}) of {count}"
+        )
         assert abs(mean_ms - expected_ms) < Z_99 * sigma_ms / math.sqrt(received), (hop, mean_ms, expected_ms)
         assert abs(std_ms / sigma_ms - 1.0) < Z_99 / math.sqrt(2.0 * (received - 1)), (hop, std_ms, sigma_ms)
         loss_bound = Z_99 * math.sqrt(expected_loss * keep**2 / count) + 1e-9
@@ -118,11 +132,18 @@ def udp_flow(hosts: Hosts, sender: str, receiver: str, hop: str, rate_bps: float
     """The rate [bit/s of IP packets] at which a flow offered at `rate_bps` arrives."""
     address = hosts.address(receiver, hop)
     with ThreadPoolExecutor(1) as pool:
-        received = pool.submit(hosts.run, receiver, ["tests/e2e/udpflow.py", "receive", address, "5001",
-                                                     str(seconds)], seconds + 60)
+        received = pool.submit(
+            hosts.run,
+            receiver,
+            ["tests/e2e/udpflow.py", "receive", address, "5001", str(seconds)],
+            seconds + 60,
+        )
         time.sleep(0.5)  # the receiver binds (its first datagram starts its clock, whenever it comes)
-        sent = hosts.run(sender, ["tests/e2e/udpflow.py", "send", address, "5001", str(rate_bps),
-                                  str(seconds + 2.0), "1400"], seconds + 30)
+        sent = hosts.run(
+            sender,
+            ["tests/e2e/udpflow.py", "send", address, "5001", str(rate_bps), str(seconds + 2.0), "1400"],
+            seconds + 30,
+        )
         assert sent.returncode == 0, sent.stderr
         done = received.result()
     assert done.returncode == 0, done.stderr
@@ -137,16 +158,46 @@ def test_abyss_lab_up_flies_the_mission_and_takes_a_link_change(tmp_path: Path) 
         pytest.skip(reason)
     name = f"t{os.getpid() % 100000}"
     out = tmp_path / "run"
-    lab = subprocess.Popen([*ABYSS, "lab", "up", "--name", name, "--out", str(out), "--keep-running",
-                            "--duration", "150", *ARM_MISSION], cwd=tmp_path, stdout=subprocess.PIPE,
-                           stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lab = subprocess.Popen(
+        [
+            *ABYSS,
+            "lab",
+            "up",
+            "--name",
+            name,
+            "--out",
+            str(out),
+            "--keep-running",
+            "--duration",
+            "150",
+            *ARM_MISSION,
+        ],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
     try:
         lines = read_until(lab, "mission complete", 150.0)
-        changed = abyss("lab", "exec", "onshore", "--name", name, "--", *ABYSS, "link", "set", "satellite",
-                        "--loss", "10%")
+        changed = abyss(
+            "lab",
+            "exec",
+            "onshore",
+            "--name",
+            name,
+            "--",
+            *ABYSS,
+            "link",
+            "set",
+            "satellite",
+            "--loss",
+            "10%",
+        )
         assert changed.returncode == 0, changed.stderr
-        shown = abyss("lab", "exec", "vessel", "--name", name, "--", *ABYSS, "link", "show", "satellite",
-                      "--json")
+        shown = abyss(
+            "lab", "exec", "vessel", "--name", name, "--", *ABYSS, "link", "show", "satellite", "--json"
+        )
         assert shown.returncode == 0, shown.stderr
         lab.send_signal(signal.SIGINT)
         lines += lab.communicate(timeout=60)[0].splitlines()
@@ -222,20 +273,49 @@ def test_without_root_or_a_tun_device_the_error_names_the_fix(tmp_path: Path) ->
     nobody = "setpriv --reuid=nobody --regid=nogroup --clear-groups --inh-caps=-all"
     as_nobody = [*nobody.split(), *ABYSS]
     env = {**os.environ, "HOME": str(tmp_path)}
-    lab = subprocess.run([*as_nobody, "lab", "up", "--name", "nobody"], capture_output=True, text=True,
-                         cwd=tmp_path, env=env, timeout=60)
+    lab = subprocess.run(
+        [*as_nobody, "lab", "up", "--name", "nobody"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+        timeout=60,
+    )
     assert lab.returncode == 2 and "run it as root" in lab.stderr, lab.stderr
-    shape = subprocess.run([*as_nobody, "link", "shape", "tether", "--peer", "127.0.0.2"],
-                           capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    shape = subprocess.run(
+        [*as_nobody, "link", "shape", "tether", "--peer", "127.0.0.2"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+        timeout=60,
+    )
     assert shape.returncode == 2 and "on this host" in shape.stderr, shape.stderr  # loopback: refused first
     # a host of its own with a neighbour on a veth: the shaper gets as far as the TUN device
     host = "ip link add d0 type veth peer name d1 && ip addr add 10.9.0.1/24 dev d0 && ip link set d0 up"
     shape_cmd = f"{' '.join(ABYSS)} link shape tether --peer 10.9.0.2"
-    hidden = subprocess.run(["unshare", "--mount", "--net", "sh", "-c",
-                             f"mount -t tmpfs none /dev/net && {host} && exec {shape_cmd}"],
-                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    hidden = subprocess.run(
+        [
+            "unshare",
+            "--mount",
+            "--net",
+            "sh",
+            "-c",
+            f"mount -t tmpfs none /dev/net && {host} && exec {shape_cmd}",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
     assert hidden.returncode == 2, hidden.stderr
     assert "no /dev/net/tun" in hidden.stderr and "modprobe tun" in hidden.stderr, hidden.stderr
-    no_cap = subprocess.run(["unshare", "--net", "sh", "-c", f"{host} && exec {nobody} {shape_cmd}"],
-                            capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    no_cap = subprocess.run(
+        ["unshare", "--net", "sh", "-c", f"{host} && exec {nobody} {shape_cmd}"],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+        timeout=60,
+    )
     assert no_cap.returncode == 2 and "CAP_NET_ADMIN" in no_cap.stderr, no_cap.stderr

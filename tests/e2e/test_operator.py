@@ -29,7 +29,8 @@ class TelemetryOnShore:
         self.lock = threading.Lock()
         self.session = open_session(zenoh_config(connect=[endpoint], mode="client"), "test")
         self.subscriber = self.session.declare_subscriber(
-            keys.spec("vessel", "telemetry").key(SYSTEM), self._on_sample)
+            keys.spec("vessel", "telemetry").key(SYSTEM), self._on_sample
+        )
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         message = decode(str(sample.key_expr), sample.payload.to_bytes(), "Telemetry").message

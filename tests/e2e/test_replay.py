@@ -28,8 +28,18 @@ def test_every_data_key_is_recorded_as_sent_and_as_received(recorded_run: Path) 
     seen = {(r.direction, r.topic) for r in recording.records()}
     for spec in keys.KEYS:
         topic = f"{spec.station}/{spec.topic}"
-        events = ("scene_request", "op/waypoints", "op/arm", "op/mode", "op/intervene", "goal/waypoints",
-                  "goal/arm", "goal/mode", "goal/intervene", "ack")
+        events = (
+            "scene_request",
+            "op/waypoints",
+            "op/arm",
+            "op/mode",
+            "op/intervene",
+            "goal/waypoints",
+            "goal/arm",
+            "goal/mode",
+            "goal/intervene",
+            "ack",
+        )
         if spec.topic in events and ("sent", topic) not in seen:
             continue  # events a run may not have
         assert ("sent", topic) in seen and ("received", topic) in seen, topic
@@ -37,10 +47,12 @@ def test_every_data_key_is_recorded_as_sent_and_as_received(recorded_run: Path) 
     for r in recording.records(stations=("vessel",), directions=("received",)):
         spec = data_spec(r.key)
         assert spec is not None and r.hop == spec.hop
+
     # as received: the tether's 100 ms +/- 10 ms is in the receiver's stamps, none on the ideal rov hop
     def delays_s(station: str, topic: str) -> list[float]:
-        return sorted(r.recorded_s - r.sent_s for r in recording.records((station,), ("received",))
-                      if r.topic == topic)
+        return sorted(
+            r.recorded_s - r.sent_s for r in recording.records((station,), ("received",)) if r.topic == topic
+        )
 
     tether, rov = delays_s("vessel", "onboard/telemetry"), delays_s("onboard", "simulation/nav")
     assert tether[len(tether) // 2] > 0.08 and rov[len(rov) // 2] < 0.05
@@ -55,25 +67,58 @@ REPLAYS = {  # name: what is replayed (and compared); the rest runs live
     # default a replay lasts the recording's span (its 40 s and the stations' start) and 2 s more
     "shore-live": ("--as", "simulation", "--as", "onboard", "--keep-running"),
     "onboard-live": ("--as", "simulation", "--as", "vessel", "--as", "onshore", "--compare"),
-    "onboard-changed": ("--as", "simulation", "--as", "vessel", "--as", "onshore", "--compare",
-                        "--set", "onboard.kp_position=1.2"),
+    "onboard-changed": (
+        "--as",
+        "simulation",
+        "--as",
+        "vessel",
+        "--as",
+        "onshore",
+        "--compare",
+        "--set",
+        "onboard.kp_position=1.2",
+    ),
 }
 
 
 @pytest.fixture(scope="module")
-def replays(recorded_run: Path, tmp_path_factory: pytest.TempPathFactory,
-            ) -> dict[str, tuple[subprocess.CompletedProcess[str], Path]]:
+def replays(
+    recorded_run: Path,
+    tmp_path_factory: pytest.TempPathFactory,
+) -> dict[str, tuple[subprocess.CompletedProcess[str], Path]]:
     """The replays the tests below judge, as a user runs them (each its own system), all at once:
     the exit, the output and the run directory of each. Shore-live's live vessel drops clouds it
     cannot insert in time (a bounded inbox), so a machine busier than in the recorded run would
     shrink its scene: the two comparisons (onboard live, the rest replayed) run beside it at the
     lowest CPU priority (nice 19), on what it leaves."""
     base = tmp_path_factory.mktemp("replays")
-    started = {name: subprocess.Popen(
-        [*([] if name == "shore-live" else ["nice", "-n", "19"]), sys.executable, "-P", "-m", "abyss.cli",
-         "replay", str(recorded_run), *REPLAYS[name], "--out", str(base / name), "--viewer", "none",
-         "--port", "0", "--system", name],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=base) for name in REPLAYS}
+    started = {
+        name: subprocess.Popen(
+            [
+                *([] if name == "shore-live" else ["nice", "-n", "19"]),
+                sys.executable,
+                "-P",
+                "-m",
+                "abyss.cli",
+                "replay",
+                str(recorded_run),
+                *REPLAYS[name],
+                "--out",
+                str(base / name),
+                "--viewer",
+                "none",
+                "--port",
+                "0",
+                "--system",
+                name,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=base,
+        )
+        for name in REPLAYS
+    }
     done = {}
     for name, process in started.items():
         stdout, stderr = process.communicate(timeout=200)
@@ -83,15 +128,22 @@ def replays(recorded_run: Path, tmp_path_factory: pytest.TempPathFactory,
 
 
 def test_replayed_simulation_and_onboard_drive_live_vessel_and_shore_to_the_recorded_end(
-        recorded_run: Path, replays: dict[str, tuple[subprocess.CompletedProcess[str], Path]]) -> None:
+    recorded_run: Path, replays: dict[str, tuple[subprocess.CompletedProcess[str], Path]]
+) -> None:
     done, out = replays["shore-live"]
     assert done.returncode == 0, done.stdout + done.stderr
     recorded, replayed = (json.loads((run / "summary.json").read_text()) for run in (recorded_run, out))
     assert replayed["verdict"] == "done" and replayed["mission_done_s"] is not None
     cells = [s["scene"]["occupied_cells"] for s in (recorded, replayed)]
-    vessel = [(s["stations"]["vessel"]["received"].get(f"abyss/{s['system']}/onboard/cloud"),
-               s["stations"]["vessel"].get("shed"), s["scene"]["updates_applied"], s["wall_s"])
-              for s in (recorded, replayed)]  # clouds in, clouds shed, map updates on shore, run length
+    vessel = [
+        (
+            s["stations"]["vessel"]["received"].get(f"abyss/{s['system']}/onboard/cloud"),
+            s["stations"]["vessel"].get("shed"),
+            s["scene"]["updates_applied"],
+            s["wall_s"],
+        )
+        for s in (recorded, replayed)
+    ]  # clouds in, clouds shed, map updates on shore, run length
     assert abs(cells[1] - cells[0]) <= 0.05 * cells[0], (cells, vessel)
     state = ("mode", "waypoint_index", "waypoints_total", "arm_mode", "done")
     assert {k: replayed["mission"][k] for k in state} == {k: recorded["mission"][k] for k in state}
@@ -106,7 +158,8 @@ def test_replayed_simulation_and_onboard_drive_live_vessel_and_shore_to_the_reco
 
 @pytest.mark.parametrize("name", ["onboard-live", "onboard-changed"])
 def test_compare_names_the_keys_a_changed_gain_changes_and_nothing_else(
-        replays: dict[str, tuple[subprocess.CompletedProcess[str], Path]], name: str) -> None:
+    replays: dict[str, tuple[subprocess.CompletedProcess[str], Path]], name: str
+) -> None:
     done, out = replays[name]
     rows = {row["key"]: row for row in json.loads((out / "compare.json").read_text())}
     assert set(rows) == {f"onboard/{s.topic}" for s in keys.KEYS if s.station == "onboard"}

@@ -53,8 +53,9 @@ UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each 
 }
 
 
-def _gateway_graph(node: RosNode, name: str, needs: set[tuple[str, str]],
-                   timeout_s: float = 20.0) -> list[Token]:
+def _gateway_graph(
+    node: RosNode, name: str, needs: set[tuple[str, str]], timeout_s: float = 20.0
+) -> list[Token]:
     """The graph once the gateway's node and the endpoints `needs` (kind, topic) are in it: the
     gateway declares its node's token first and each endpoint's as it makes it."""
     deadline = time.monotonic() + timeout_s
@@ -73,54 +74,104 @@ def _send_bad_samples(session: zenoh.Session, gid: bytes) -> int:
         key = data_key(0, topic, message)
         prefix = key.rsplit("/", 2)[0]
         session.put(key, b"\x00\x01\x00\x00\xff\xff", attachment=attachment)
-        session.put(f"{prefix}/{dds_name(ros_type(message))}/RIHS01_{'0' * 64}", b"\x00\x01\x00\x00",
-                    attachment=attachment)
+        session.put(
+            f"{prefix}/{dds_name(ros_type(message))}/RIHS01_{'0' * 64}",
+            b"\x00\x01\x00\x00",
+            attachment=attachment,
+        )
         session.put(key, b"\x00\x01\x00\x00" + bytes(64))
-        session.put(f"{prefix}/std_msgs::msg::dds_::String_/{rihs01('std_msgs/msg/String')}",
-                    b"\x00\x01\x00\x00\x01\x00\x00\x00\x00", attachment=attachment)
+        session.put(
+            f"{prefix}/std_msgs::msg::dds_::String_/{rihs01('std_msgs/msg/String')}",
+            b"\x00\x01\x00\x00\x01\x00\x00\x00\x00",
+            attachment=attachment,
+        )
     return 4
 
 
 def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    up = Up(tmp_path / "run", "--ros2", "onboard", "--set", f'ros2.listen=["{endpoint}"]',
-            "--set", "mission.interventions=[]", "--duration", "120", "--viewer", "none",
-            "--record", "control",
-            # the node flies on the raw USBL fixes, with no filter: a 3 m outlier late in the run
-            # would leave the vehicle metres off (onboard's own filter rejects them: test_nav_filter)
-            "--set", "simulation.usbl_outlier_probability=0")
+    up = Up(
+        tmp_path / "run",
+        "--ros2",
+        "onboard",
+        "--set",
+        f'ros2.listen=["{endpoint}"]',
+        "--set",
+        "mission.interventions=[]",
+        "--duration",
+        "120",
+        "--viewer",
+        "none",
+        "--record",
+        "control",
+        # the node flies on the raw USBL fixes, with no filter: a 3 m outlier late in the run
+        # would leave the vehicle metres off (onboard's own filter rejects them: test_nav_filter)
+        "--set",
+        "simulation.usbl_outlier_probability=0",
+    )
     up.wait_for(r"onboard is a ROS 2 gateway .*connect/endpoints=\[\"" + endpoint)
     up_endpoint = up.wait_for(r"Zenoh endpoint (\S+)").group(1)
     up.wait_up()
     node = RosNode(endpoint)
     stop = threading.Event()
     try:
-        graph = _gateway_graph(node, "abyss_onboard_gateway", {
-            ("MP", "/abyss/simulation/nav"), ("MS", "/abyss/onboard/cmd/vehicle_velocity"),
-            ("MP", "/tf_static"), ("MP", "/clock")})
+        graph = _gateway_graph(
+            node,
+            "abyss_onboard_gateway",
+            {
+                ("MP", "/abyss/simulation/nav"),
+                ("MS", "/abyss/onboard/cmd/vehicle_velocity"),
+                ("MP", "/tf_static"),
+                ("MP", "/clock"),
+            },
+        )
         by_topic = {(t.kind, t.topic): t for t in graph if t.node == "abyss_onboard_gateway"}
         odometry = by_topic["MP", "/abyss/simulation/nav"]
-        assert (odometry.namespace, odometry.type, odometry.hash, odometry.qos) == \
-            ("/abyss", "nav_msgs::msg::dds_::Odometry_", rihs01("nav_msgs/msg/Odometry"), QOS_SENSOR)
+        assert (odometry.namespace, odometry.type, odometry.hash, odometry.qos) == (
+            "/abyss",
+            "nav_msgs::msg::dds_::Odometry_",
+            rihs01("nav_msgs/msg/Odometry"),
+            QOS_SENSOR,
+        )
         velocity = by_topic["MS", "/abyss/onboard/cmd/vehicle_velocity"]
         assert velocity.type == "geometry_msgs::msg::dds_::TwistStamped_"
         assert by_topic["MP", "/tf_static"].qos == ":1:,1:,:,:,,"  # reliable, transient local, depth 1
         assert by_topic["MP", "/clock"].qos == "2::,1:,:,:,,"
-        assert {("MP", "/abyss/vessel/goal/waypoints"), ("MS", "/abyss/onboard/cmd/arm_velocity"),
-                ("MP", "/abyss/simulation/camera/cam_left/image")} <= set(by_topic)
+        assert {
+            ("MP", "/abyss/vessel/goal/waypoints"),
+            ("MS", "/abyss/onboard/cmd/arm_velocity"),
+            ("MP", "/abyss/simulation/camera/cam_left/image"),
+        } <= set(by_topic)
 
         pilot = WaypointPilot(node)
         flying = threading.Thread(target=pilot.fly, args=(stop,), daemon=True)
         flying.start()
-        check = subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "check", "onboard", "--connect",
-                                up_endpoint, "--duration", "4"], capture_output=True, text=True, timeout=60)
+        check = subprocess.run(
+            [
+                sys.executable,
+                "-P",
+                "-m",
+                "abyss.cli",
+                "check",
+                "onboard",
+                "--connect",
+                up_endpoint,
+                "--duration",
+                "4",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         bad_each = _send_bad_samples(node.session, bytes(16))
         # /tf_static from the gateway's cache to a subscriber that comes late, as tf2's does
         static: list[TFMessage] = []
         late = zenoh.ext.declare_advanced_subscriber(
-            node.session, data_key(0, "/tf_static", TFMessage),
+            node.session,
+            data_key(0, "/tf_static", TFMessage),
             lambda s: static.append(TFMessage.deserialize(s.payload.to_bytes())),
-            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1))
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+        )
         assert up.wait(120) == 0, up.output()
         late.undeclare()
     finally:
@@ -129,8 +180,9 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["verdict"] == "done" and summary["mission"]["done"], summary["mission"]
     recording = open_recording(tmp_path / "run")
-    truth = [m for _, m in recording.messages(
-        [r for r in recording.observed() if r.topic == "simulation/truth"])]
+    truth = [
+        m for _, m in recording.messages([r for r in recording.observed() if r.topic == "simulation/truth"])
+    ]
     assert isinstance(truth[-1], NavState)
     # the node steers on the raw USBL fixes (1 Hz, each up to 1.3 s old, no filter): it calls a
     # waypoint reached on a stale fix, with the vehicle up to a few decimetres on (measured 0.27
@@ -150,8 +202,12 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
         assert rejected.get(data_key(0, topic, message), 0) >= bad_each, (topic, rejected)
     assert all(s["exit_code"] == 0 for s in summary["stations"].values())
     log = (tmp_path / "run" / "onboard.log").read_text()
-    for reason in ("does not decode", "type hash RIHS01_000", "no attachment",
-                   "type std_msgs::msg::dds_::String_"):
+    for reason in (
+        "does not decode",
+        "type hash RIHS01_000",
+        "no attachment",
+        "type std_msgs::msg::dds_::String_",
+    ):
         assert reason in log, reason
     # abyss check judges the node's rates and contents through the gateway
     assert "onboard/cmd/vehicle_velocity" in check.stdout, check.stdout + check.stderr
@@ -167,23 +223,40 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
     PointCloud2 and publishes its map as an Octomap, which the vessel streams to shore in place
     of its own octree; maps it cannot adopt are refused with their reason."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    up = Up(tmp_path / "run", "--ros2", "vessel", "--set", f'ros2.listen=["{endpoint}"]', "--duration", "25",
-            "--keep-running", "--viewer", "save", "--record", "none")
+    up = Up(
+        tmp_path / "run",
+        "--ros2",
+        "vessel",
+        "--set",
+        f'ros2.listen=["{endpoint}"]',
+        "--duration",
+        "25",
+        "--keep-running",
+        "--viewer",
+        "save",
+        "--record",
+        "none",
+    )
     up.wait_up()
     node = RosNode(endpoint, name="team_mapper")
     stop = threading.Event()
     try:
-        graph = _gateway_graph(node, "abyss_vessel_gateway", {
-            ("MP", "/abyss/onboard/cloud"), ("MS", "/abyss/vessel/scene"), ("MP", "/clock")})
+        graph = _gateway_graph(
+            node,
+            "abyss_vessel_gateway",
+            {("MP", "/abyss/onboard/cloud"), ("MS", "/abyss/vessel/scene"), ("MP", "/clock")},
+        )
         mine = {(t.kind, t.topic) for t in graph if t.node == "abyss_vessel_gateway"}
         assert ("MP", "/abyss/simulation/nav") not in mine  # the vessel is handed clouds only
         mapper = rosnode.Mapper(node, 0.1)  # vessel.octree_resolution_m
         mapping = threading.Thread(target=mapper.run, args=(stop,), daemon=True)
         mapping.start()
         head = rosnode.Header(rosnode.Time(0, 0), "world")
-        wrong = [rosnode.Octomap(head, True, "OcTree", 0.05, [0, 0]),  # another resolution
-                 rosnode.Octomap(head, False, "OcTree", 0.1, []),  # a full map, not binary
-                 rosnode.Octomap(head, True, "OcTree", 0.1, [3, 0, 0])]  # torn data
+        wrong = [
+            rosnode.Octomap(head, True, "OcTree", 0.05, [0, 0]),  # another resolution
+            rosnode.Octomap(head, False, "OcTree", 0.1, []),  # a full map, not binary
+            rosnode.Octomap(head, True, "OcTree", 0.1, [3, 0, 0]),
+        ]  # torn data
         for octomap in wrong:
             node.publish(mapper.scene, octomap)
         assert up.wait(90) == 0, up.output()

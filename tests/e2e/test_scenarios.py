@@ -27,10 +27,19 @@ SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]
 # the verdict each scenario must end with, three systems at once as one alone: a verdict that
 # load could change fails here (sensor-noise's arm settles to its 5 mm in 33-39 s, and need not)
 VERDICTS: dict[str, set[str]] = {
-    "every-station-killed": {"done"}, "nominal": {"done"}, "recognition-biased": {"incomplete"},
-    "satellite-down": {"incomplete"}, "satellite-storm": {"done"}, "sensor-noise": {"done", "incomplete"},
-    "tether-degraded": {"done"}, "tether-outage": {"done"}, "thruster-failure": {"done"}, "turbid": {"done"},
-    "valve-seized": {"incomplete"}, "vessel-crash": {"done"}, "onboard-starved": {"done"},
+    "every-station-killed": {"done"},
+    "nominal": {"done"},
+    "recognition-biased": {"incomplete"},
+    "satellite-down": {"incomplete"},
+    "satellite-storm": {"done"},
+    "sensor-noise": {"done", "incomplete"},
+    "tether-degraded": {"done"},
+    "tether-outage": {"done"},
+    "thruster-failure": {"done"},
+    "turbid": {"done"},
+    "valve-seized": {"incomplete"},
+    "vessel-crash": {"done"},
+    "onboard-starved": {"done"},
 }
 
 
@@ -59,13 +68,16 @@ def library(tmp_path_factory: pytest.TempPathFactory) -> tuple[subprocess.Comple
 
 @pytest.mark.timeout(960)
 def test_the_library_passes_with_systems_in_parallel(
-        library: tuple[subprocess.CompletedProcess[str], Path]) -> None:
+    library: tuple[subprocess.CompletedProcess[str], Path],
+) -> None:
     done, out = library
     assert done.returncode == 0, done.stdout[-6000:] + done.stderr
     assert f"{len(SELF_CONTAINED)}/{len(SELF_CONTAINED)} scenarios passed" in done.stdout
     assert set(verdicts(out / "junit.xml").values()) == {("passed",)}
-    words = {c.get("name"): c.find("properties/property[@name='verdict']").get("value")  # type: ignore[union-attr]
-             for c in ET.parse(out / "junit.xml").getroot().iter("testcase")}
+    words = {
+        c.get("name"): c.find("properties/property[@name='verdict']").get("value")  # type: ignore[union-attr]
+        for c in ET.parse(out / "junit.xml").getroot().iter("testcase")
+    }
     assert set(words) == set(VERDICTS), sorted(words)
     assert all(words[name] in verdicts for name, verdicts in VERDICTS.items()), words
     # the scenario meant to fail failed on exactly the assertions it names, and the others held
@@ -89,8 +101,11 @@ def test_the_library_passes_with_systems_in_parallel(
     crash = next(r for r in run_dirs if r.name.endswith("vessel-crash"))
     assert '"restarts": 1' in (crash / "summary.json").read_text()
     # every station killed in turn: each back, each restart on shore, the mission done
-    killed = json.loads(next(r for r in run_dirs if r.name.endswith("every-station-killed"))
-                        .joinpath("summary.json").read_text())
+    killed = json.loads(
+        next(r for r in run_dirs if r.name.endswith("every-station-killed"))
+        .joinpath("summary.json")
+        .read_text()
+    )
     assert [r["station"] for r in killed["restarts"]] == ["simulation", "onboard", "vessel", "onshore"]
     assert all(r["down_s"] is not None for r in killed["restarts"]), killed["restarts"]
     assert {e["station"] for e in killed["events"]} == {"onboard", "vessel", "onshore"}, killed["events"]
@@ -101,11 +116,16 @@ def test_the_library_passes_with_systems_in_parallel(
 def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     system = abyss_system(ROOT / "scenarios" / "external-onboard.toml")
     line = system.wait_for(r"waiting for external station onboard: start it with `(abyss station [^`]+)`")
-    silent = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,
-                   "--duration", "2")  # nothing of onboard's yet: the check must fail
+    silent = abyss(
+        "check", "onboard", "--connect", system.endpoint, "--system", system.system_id, "--duration", "2"
+    )  # nothing of onboard's yet: the check must fail
     assert silent.returncode == 1 and "FAIL: 0.00 Hz, nominal 20 Hz" in silent.stdout, silent.stdout
-    own = subprocess.Popen([sys.executable, "-m", "abyss.cli", *line.group(1).split()[1:]], cwd=ROOT,
-                           stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)  # as the team starts theirs
+    own = subprocess.Popen(
+        [sys.executable, "-m", "abyss.cli", *line.group(1).split()[1:]],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.STDOUT,
+    )  # as the team starts theirs
     try:
         system.wait_up(60.0)
         checked = abyss("check", "onboard", "--connect", system.endpoint, "--system", system.system_id,

@@ -20,7 +20,7 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
 
 # every top-level name abyss imports under, and the import package itself
 SHADOWS = ("abyss", "common", "stations", "linkemu", "launch", "cli", "console", "validation")
-BROKEN = 'raise RuntimeError("wrong {name} imported: the user\'s folder shadows abyss\'s")\n'
+BROKEN = "raise RuntimeError(\"wrong {name} imported: the user's folder shadows abyss's\")\n"
 # an upper bound: `abyss up` ends when shore sees the mission done (ARM_MISSION: about 28 s of a
 # 1.0 real-time factor simulation, measured on a 2-core machine), so a generous one costs nothing
 DURATION_S = 90
@@ -46,10 +46,28 @@ def test_up_flies_the_mission_beside_folders_that_shadow_abyss(tmp_path: Path) -
     shadow(tmp_path / "run")  # and the run directory, the stations' current directory
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONSAFEPATH")}
     process = subprocess.Popen(
-        [console_script(), "up", "--duration", str(DURATION_S), "--port", "0", "--out", "run",
-         "--viewer", "none", "--system", "shadow", *ARM_MISSION],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path, env=env,
-        start_new_session=True)
+        [
+            console_script(),
+            "up",
+            "--duration",
+            str(DURATION_S),
+            "--port",
+            "0",
+            "--out",
+            "run",
+            "--viewer",
+            "none",
+            "--system",
+            "shadow",
+            *ARM_MISSION,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+        start_new_session=True,
+    )
     try:
         output, _ = process.communicate(timeout=DURATION_S + 45)
     finally:

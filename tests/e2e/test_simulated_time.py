@@ -18,8 +18,22 @@ pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 
 
 def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:
-    up = Up(tmp_path / "run", "--time", "sim", "--speed", "4", "--keep-running", "--duration", "20",
-            "--system", "e2e-sim", "--viewer", "none", "--record", "none")
+    up = Up(
+        tmp_path / "run",
+        "--time",
+        "sim",
+        "--speed",
+        "4",
+        "--keep-running",
+        "--duration",
+        "20",
+        "--system",
+        "e2e-sim",
+        "--viewer",
+        "none",
+        "--record",
+        "none",
+    )
     assert up.wait(180) == 0, up.output()
     summary = up.summary()
     timing = summary["time"]
@@ -49,8 +63,22 @@ def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:
 
 
 def test_speed_max_runs_as_fast_as_the_slowest_station_and_names_it(tmp_path: Path) -> None:
-    up = Up(tmp_path / "run", "--time", "sim", "--speed", "max", "--keep-running", "--duration", "10",
-            "--system", "e2e-max", "--viewer", "none", "--record", "none")
+    up = Up(
+        tmp_path / "run",
+        "--time",
+        "sim",
+        "--speed",
+        "max",
+        "--keep-running",
+        "--duration",
+        "10",
+        "--system",
+        "e2e-max",
+        "--viewer",
+        "none",
+        "--record",
+        "none",
+    )
     assert up.wait(150) == 0, up.output()
     timing = up.summary()["time"]
     assert timing["speed"] == "max" and timing["sim_s"] >= 10.0
@@ -62,8 +90,18 @@ def test_speed_max_runs_as_fast_as_the_slowest_station_and_names_it(tmp_path: Pa
 
 @pytest.mark.timeout(300)
 def test_the_tether_outage_failsafe_keeps_its_bounds_at_speed_4(tmp_path: Path) -> None:
-    done = abyss("scenario", "run", str(ROOT / "scenarios" / "tether-outage.toml"), "--time", "sim",
-                 "--speed", "4", "--report", str(tmp_path / "rep"), timeout_s=280)
+    done = abyss(
+        "scenario",
+        "run",
+        str(ROOT / "scenarios" / "tether-outage.toml"),
+        "--time",
+        "sim",
+        "--speed",
+        "4",
+        "--report",
+        str(tmp_path / "rep"),
+        timeout_s=280,
+    )
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr
     assert "ok   failsafe phase=turn from_s=1.0 to_s=7.0" in done.stdout
     summary = json.loads(next((tmp_path / "rep" / "runs").glob("*/summary.json")).read_text())
@@ -71,33 +109,66 @@ def test_the_tether_outage_failsafe_keeps_its_bounds_at_speed_4(tmp_path: Path) 
     assert summary["mission_done_s"] <= 145  # simulated seconds, the scenario's bound
 
 
-@pytest.mark.parametrize(("args", "said"), [
-    (("up", "--time", "sim", "--external", "onboard"), "--external: a real component or a replay runs on "
-                                                       "the wall clock"),
-    (("up", "--speed", "4"), "--speed: time.speed: 4: only with time.mode sim"),
-    (("up", "--time", "sim", "--speed", "fast"), "--speed: time.speed: 'fast': a number from 0.01 to 1000, "
-                                                 "or max"),
-    (("up", "--time", "sim", "--speed", "4", "--cpu", "onboard=0.3"), "--cpu: a CPU cap is a share of "
-                                                                        "wall time"),
-    (("up", "--time", "sim", "--ros2", "onboard"), "time.mode: sim: a ROS 2 node (ros2.station, --ros2)"),
-    (("up", "--time", "lockstep", "--restart"), "--restart: a station restarted mid-period"),
-])
-def test_what_cannot_follow_simulated_time_is_refused_at_start(tmp_path: Path, args: tuple[str, ...],
-                                                               said: str) -> None:
+@pytest.mark.parametrize(
+    ("args", "said"),
+    [
+        (
+            ("up", "--time", "sim", "--external", "onboard"),
+            "--external: a real component or a replay runs on the wall clock",
+        ),
+        (("up", "--speed", "4"), "--speed: time.speed: 4: only with time.mode sim"),
+        (
+            ("up", "--time", "sim", "--speed", "fast"),
+            "--speed: time.speed: 'fast': a number from 0.01 to 1000, or max",
+        ),
+        (
+            ("up", "--time", "sim", "--speed", "4", "--cpu", "onboard=0.3"),
+            "--cpu: a CPU cap is a share of wall time",
+        ),
+        (("up", "--time", "sim", "--ros2", "onboard"), "time.mode: sim: a ROS 2 node (ros2.station, --ros2)"),
+        (("up", "--time", "lockstep", "--restart"), "--restart: a station restarted mid-period"),
+    ],
+)
+def test_what_cannot_follow_simulated_time_is_refused_at_start(
+    tmp_path: Path, args: tuple[str, ...], said: str
+) -> None:
     done = abyss(*args, "--out", str(tmp_path / "run"), "--port", "0", timeout_s=60)
     assert done.returncode == 2 and said in done.stderr, done.stdout + done.stderr
 
 
 def test_a_station_on_real_links_refuses_simulated_time(tmp_path: Path) -> None:
-    done = abyss("station", "onboard", "--time", "sim", "--link", "tun", "--listen", "tcp/127.0.0.1:0",
-                 "--status-file", str(tmp_path / "status.json"), timeout_s=60)
+    done = abyss(
+        "station",
+        "onboard",
+        "--time",
+        "sim",
+        "--link",
+        "tun",
+        "--listen",
+        "tcp/127.0.0.1:0",
+        "--status-file",
+        str(tmp_path / "status.json"),
+        timeout_s=60,
+    )
     assert done.returncode != 0
     assert "link mode tun: shapes real packets on the wall clock" in done.stderr, done.stderr[-3000:]
 
 
 def _lockstep_run(out: Path, system: str) -> Up:
-    return Up(out, "--time", "lockstep", "--keep-running", "--duration", "15", "--system", system,
-              "--viewer", "none", "--record", "all")
+    return Up(
+        out,
+        "--time",
+        "lockstep",
+        "--keep-running",
+        "--duration",
+        "15",
+        "--system",
+        system,
+        "--viewer",
+        "none",
+        "--record",
+        "all",
+    )
 
 
 @pytest.mark.timeout(300)
@@ -105,8 +176,18 @@ def test_lockstep_repeats_bit_for_bit_on_a_loaded_machine(tmp_path: Path) -> Non
     """The same seed twice, the first run beside a whole real-time system that loads the machine:
     every message each station sent, onboard's telemetry as recorded (control.csv) and the scene
     shore ends with, byte for byte; and a run ends on the same period however late it is stopped."""
-    load = Up(tmp_path / "load", "--keep-running", "--duration", "60", "--system", "e2e-load",
-              "--viewer", "none", "--record", "none")
+    load = Up(
+        tmp_path / "load",
+        "--keep-running",
+        "--duration",
+        "60",
+        "--system",
+        "e2e-load",
+        "--viewer",
+        "none",
+        "--record",
+        "none",
+    )
     first = _lockstep_run(tmp_path / "a", "e2e-lockstep")
     assert first.wait(200) == 0, first.output()
     load.process.terminate()
@@ -119,8 +200,14 @@ def test_lockstep_repeats_bit_for_bit_on_a_loaded_machine(tmp_path: Path) -> Non
     assert len(rows) > 140 and 14.8 < float(rows[-1].split(",")[0]) < 15.0, rows[-1]  # 10 Hz to the end
     assert (a / "scene.msgpack").read_bytes() == (b / "scene.msgpack").read_bytes()
     for station in keys.STATIONS:
-        sent = [{(r.key, r.seq): r.payload for r in read_file(run / "record" / f"{station}.mcap").records
-                 if r.direction == "sent"} for run in (a, b)]
+        sent = [
+            {
+                (r.key, r.seq): r.payload
+                for r in read_file(run / "record" / f"{station}.mcap").records
+                if r.direction == "sent"
+            }
+            for run in (a, b)
+        ]
         assert sent[0] and sent[0] == sent[1], station
     summary = first.summary()
     assert summary["time"]["mode"] == "lockstep" and summary["time"]["sim_s"] >= 14.9
@@ -130,8 +217,17 @@ def test_lockstep_repeats_bit_for_bit_on_a_loaded_machine(tmp_path: Path) -> Non
 def test_the_pytest_fixture_takes_the_time_source_and_refuses_what_cannot_follow_it(abyss_system) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(pytest.UsageError, match="external onboard keeps the wall clock"):
         abyss_system(ROOT / "scenarios" / "external-onboard.toml", time="sim", speed="4")
-    system = abyss_system({"name": "short", "use": "interface", "duration_s": 8, "stop_when_done": False,
-                           "assert": [{"kind": "stations"}]}, time="sim", speed="4")
+    system = abyss_system(
+        {
+            "name": "short",
+            "use": "interface",
+            "duration_s": 8,
+            "stop_when_done": False,
+            "assert": [{"kind": "stations"}],
+        },
+        time="sim",
+        speed="4",
+    )
     assert system.scenario.time.simulated and system.scenario.time.speed_factor == 4.0
     result = system.result(timeout_s=120)
     assert result.passed, [v.detail for v in result.verdicts]

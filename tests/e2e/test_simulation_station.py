@@ -45,8 +45,11 @@ def schedulers(pid: int) -> dict[int, int]:
 
 def children(pid: int) -> list[int]:
     """The processes that process `pid`'s threads started."""
-    return [int(child) for thread in os.listdir(f"/proc/{pid}/task")
-            for child in Path(f"/proc/{pid}/task/{thread}/children").read_text().split()]
+    return [
+        int(child)
+        for thread in os.listdir(f"/proc/{pid}/task")
+        for child in Path(f"/proc/{pid}/task/{thread}/children").read_text().split()
+    ]
 
 
 class Observed:
@@ -71,14 +74,34 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
     port = free_port()
     status_file = tmp_path / "simulation.json"
     station = subprocess.Popen(
-        [sys.executable, "-m", "abyss.cli", "station", "simulation", "--system", SYSTEM,
-         "--listen", f"tcp/127.0.0.1:{port}", "--status-file", str(status_file),
-         "--set", "simulation.camera_rate_hz=2", "--set", "simulation.low_level=dynamic"],
-        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "station",
+            "simulation",
+            "--system",
+            SYSTEM,
+            "--listen",
+            f"tcp/127.0.0.1:{port}",
+            "--status-file",
+            str(status_file),
+            "--set",
+            "simulation.camera_rate_hz=2",
+            "--set",
+            "simulation.low_level=dynamic",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     session = open_session(zenoh_config(connect=[f"tcp/127.0.0.1:{port}"]), "test onboard")
     observed = Observed()
-    watched = (keys.truth_key(SYSTEM), keys.simulation_status_key(SYSTEM),
-               keys.key(SYSTEM, "simulation", "camera", "*"))
+    watched = (
+        keys.truth_key(SYSTEM),
+        keys.simulation_status_key(SYSTEM),
+        keys.key(SYSTEM, "simulation", "camera", "*"),
+    )
     subscribers = [session.declare_subscriber(k, observed.on_sample) for k in watched]
     command_key = keys.spec("onboard", "cmd/vehicle_velocity").key(SYSTEM)
     try:
@@ -100,13 +123,16 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
 
         envelope = msgpack.unpackb(forward)
         nan = np.array([np.nan, 0, 0]).tobytes()
-        for bad in ({"linear_mps_body": {"dtype": "<f8", "shape": [3], "data": nan}},  # NaN
-                    {"linear_mps_body": {"dtype": "<f8", "shape": [2], "data": bytes(16)}},  # shape
-                    {"yaw_rate_radps": 1e6}):  # absurd magnitude
+        for bad in (
+            {"linear_mps_body": {"dtype": "<f8", "shape": [3], "data": nan}},  # NaN
+            {"linear_mps_body": {"dtype": "<f8", "shape": [2], "data": bytes(16)}},  # shape
+            {"yaw_rate_radps": 1e6},
+        ):  # absurd magnitude
             session.put(command_key, msgpack.packb({**envelope, "body": {**envelope["body"], **bad}}))
         control_key = keys.simulation_control_key(SYSTEM)
-        injected = abyss("fault", "thruster", "thr_vl", "0.5", "--connect", f"tcp/127.0.0.1:{port}",
-                         "--system", SYSTEM)
+        injected = abyss(
+            "fault", "thruster", "thr_vl", "0.5", "--connect", f"tcp/127.0.0.1:{port}", "--system", SYSTEM
+        )
         assert injected.returncode == 0 and "thruster/thr_vl" in injected.stdout, injected.stderr
         session.put(control_key, encode(SimulationControl("thruster", "thr_nope", 0.5), 1, time.time()))
         time.sleep(1.5)
@@ -138,6 +164,7 @@ def test_simulation_station_commands_watchdog_faults_and_cameras(tmp_path: Path)
     counts = json.loads(status_file.read_text())
     assert counts["rejected"][command_key] == 3
     assert counts["rejected"][keys.simulation_control_key(SYSTEM)] == 1
-    assert counts["scheduler"] == ("fifo 10" if REALTIME_ALLOWED else
-                                   "normal (not permitted here (Operation not permitted))")
+    assert counts["scheduler"] == (
+        "fifo 10" if REALTIME_ALLOWED else "normal (not permitted here (Operation not permitted))"
+    )
     assert "thr_nope" in output and "not one of" in output

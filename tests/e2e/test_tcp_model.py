@@ -35,18 +35,29 @@ FIGURES: dict[tuple[str, str], tuple[range, tuple[str, ...]]] = {  # (case, phas
 def runs() -> Mapping[Job, Run]:
     if reason := kernel_unusable():
         pytest.skip(reason)
-    return run_all([Job(way, case, phase, seed) for (case, phase), (kernel_seeds, _) in FIGURES.items()
-                    for way, seeds in (("model", MODEL_SEEDS), (VARIANT, kernel_seeds)) for seed in seeds])
+    return run_all(
+        [
+            Job(way, case, phase, seed)
+            for (case, phase), (kernel_seeds, _) in FIGURES.items()
+            for way, seeds in (("model", MODEL_SEEDS), (VARIANT, kernel_seeds))
+            for seed in seeds
+        ]
+    )
 
 
 @pytest.mark.timeout(150)
-@pytest.mark.parametrize(("case", "phase", "metric"),
-                         [(case, phase, metric) for (case, phase), (_, metrics) in FIGURES.items()
-                          for metric in metrics])
+@pytest.mark.parametrize(
+    ("case", "phase", "metric"),
+    [(case, phase, metric) for (case, phase), (_, metrics) in FIGURES.items() for metric in metrics],
+)
 def test_model_agrees_with_kernel_tcp(runs: Mapping[Job, Run], case: str, phase: str, metric: str) -> None:
-    model, kernel = ([r.metrics() for j, r in runs.items() if (j.way, j.case, j.phase) == (way, case, phase)]
-                     for way in ("model", VARIANT))
+    model, kernel = (
+        [r.metrics() for j, r in runs.items() if (j.way, j.case, j.phase) == (way, case, phase)]
+        for way in ("model", VARIANT)
+    )
     a = agreement(metric, model, kernel)
-    assert a.agrees, (f"{case} {phase} {metric}: model {np.mean(a.model):.4g} over {len(a.model)} seeds, "
-                      f"kernel {VARIANT} {np.mean(a.kernel):.4g} over {len(a.kernel)}: they may differ by "
-                      f"{a.allowed:.4g} (model / kernel {a.ratio:.2f})")
+    assert a.agrees, (
+        f"{case} {phase} {metric}: model {np.mean(a.model):.4g} over {len(a.model)} seeds, "
+        f"kernel {VARIANT} {np.mean(a.kernel):.4g} over {len(a.kernel)}: they may differ by "
+        f"{a.allowed:.4g} (model / kernel {a.ratio:.2f})"
+    )

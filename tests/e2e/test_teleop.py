@@ -60,8 +60,26 @@ class Vessel:
     def _telemetry(self) -> None:
         key, seq = keys.spec("vessel", "telemetry").key(SYSTEM), 0
         while not self.stop.wait(0.2):
-            t = Telemetry(POSITION, 0.0, "reached", 1, 3, 3, np.zeros(3), 0.0, "idle", -1, np.zeros(3), 0.0,
-                          EE_POSITION, np.array([1.0, 0, 0, 0]), np.zeros(6), "", 0, 10.0)
+            t = Telemetry(
+                POSITION,
+                0.0,
+                "reached",
+                1,
+                3,
+                3,
+                np.zeros(3),
+                0.0,
+                "idle",
+                -1,
+                np.zeros(3),
+                0.0,
+                EE_POSITION,
+                np.array([1.0, 0, 0, 0]),
+                np.zeros(6),
+                "",
+                0,
+                10.0,
+            )
             self.session.put(key, encode(t, seq, time.time()))
             seq += 1
 
@@ -89,9 +107,22 @@ def vessel() -> Iterator[Vessel]:
 
 
 def teleop(vessel: Vessel, *args: str, **streams: object) -> subprocess.Popen[bytes]:
-    return subprocess.Popen([sys.executable, "-m", "abyss.cli", "teleop", "--connect",
-                             f"tcp/127.0.0.1:{vessel.port}", "--system", SYSTEM, *args],
-                            cwd=ROOT, start_new_session=True, **streams)  # type: ignore[call-overload]
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "abyss.cli",
+            "teleop",
+            "--connect",
+            f"tcp/127.0.0.1:{vessel.port}",
+            "--system",
+            SYSTEM,
+            *args,
+        ],
+        cwd=ROOT,
+        start_new_session=True,
+        **streams,
+    )  # type: ignore[call-overload]
 
 
 def test_keys_in_a_pseudo_terminal_move_the_goals(vessel: Vessel) -> None:
@@ -161,8 +192,14 @@ def test_keys_in_a_pseudo_terminal_move_the_goals(vessel: Vessel) -> None:
 def test_a_joystick_drives_the_vehicle_forward(vessel: Vessel, tmp_path: Path) -> None:
     device = tmp_path / "js0"
     os.mkfifo(device)
-    process = teleop(vessel, "--joystick", str(device), stdin=subprocess.DEVNULL,
-                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    process = teleop(
+        vessel,
+        "--joystick",
+        str(device),
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
     try:
         with device.open("wb", buffering=0) as js:
             js.write(JS_EVENT.pack(0, -32767, JS_AXIS, 1))  # left stick fully forward

@@ -68,12 +68,22 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
     for chunk in RrdReader(tmp_path / "run" / "onshore.rrd").stream().to_chunks():
         rows[chunk.entity_path.lstrip("/")] += chunk.num_rows
     arm = "world/vehicle/arm_base/arm_link1/arm_link2/arm_link3/arm_link4/arm_link5/arm_link6"
-    for path in ("world/vehicle", "world/vehicle/hull", arm, "world/path", "world/mission/waypoints",
-                 "world/scene/octree", "world/scene/latest_update",
-                 "world/objects/panel", "world/objects/valve_1", "world/camera/image",
-                 "errors/vehicle_position_m/distance", "errors/tool_orientation_deg/angle",
-                 "links/satellite/delay_ms/vessel_to_onshore/p50",
-                 "links/tether/throughput_kbps/onboard_to_vessel"):
+    for path in (
+        "world/vehicle",
+        "world/vehicle/hull",
+        arm,
+        "world/path",
+        "world/mission/waypoints",
+        "world/scene/octree",
+        "world/scene/latest_update",
+        "world/objects/panel",
+        "world/objects/valve_1",
+        "world/camera/image",
+        "errors/vehicle_position_m/distance",
+        "errors/tool_orientation_deg/angle",
+        "links/satellite/delay_ms/vessel_to_onshore/p50",
+        "links/tether/throughput_kbps/onboard_to_vessel",
+    ):
         assert rows[path] > 0, (path, sorted(rows))
     assert rows["world/vehicle"] >= 10 and rows[arm] == rows["world/vehicle"]  # telemetry at 2 Hz, 20 s
 
@@ -93,8 +103,17 @@ def test_a_killed_station_is_reported_and_up_fails(tmp_path: Path) -> None:
 def test_a_satellite_outage_all_run_long_is_incomplete_and_every_station_stops(tmp_path: Path) -> None:
     """Nothing crosses the satellite: the mission never starts, reliable messages pile up on the
     link until senders block, and each station still stops within its bound."""
-    up = Up(tmp_path / "run", "--duration", "15", "--system", "e2e-outage", "--profile", "satellite=outage",
-            "--viewer", "none")
+    up = Up(
+        tmp_path / "run",
+        "--duration",
+        "15",
+        "--system",
+        "e2e-outage",
+        "--profile",
+        "satellite=outage",
+        "--viewer",
+        "none",
+    )
     assert up.wait(90) == 3, up.output()  # incomplete
     summary = up.summary()
     assert summary["verdict"] == "incomplete" and summary["failure"] == "", up.output()
@@ -136,8 +155,10 @@ def test_a_killed_up_takes_its_stations_down(tmp_path: Path) -> None:
 
 
 def test_two_systems_side_by_side_without_crosstalk(tmp_path: Path) -> None:
-    ups = {name: Up(tmp_path / name, "--keep-running", "--duration", "12", "--system", name)
-           for name in ("alpha", "beta")}
+    ups = {
+        name: Up(tmp_path / name, "--keep-running", "--duration", "12", "--system", name)
+        for name in ("alpha", "beta")
+    }
     for up in ups.values():
         up.wait_up()
     seen: dict[str, set[str]] = {}

@@ -33,7 +33,7 @@ PANELS = ["World", "Camera", "Vehicle position error [m]", "Heading error [deg]"
 def colourful_px_in_3d_view(bgr: np.ndarray) -> int:
     h, w = bgr.shape[:2]
     x0, x1, y0, y1 = VIEW_BOX
-    view = bgr[int(y0 * h):int(y1 * h), int(x0 * w):int(x1 * w)]
+    view = bgr[int(y0 * h) : int(y1 * h), int(x0 * w) : int(x1 * w)]
     saturation = cv2.cvtColor(view, cv2.COLOR_BGR2HSV)[..., 1]
     return int((saturation > 100).sum())
 

@@ -22,32 +22,58 @@ def state(**angles_deg: float) -> PanelState:
 
 
 def test_each_intervention_is_judged_on_the_true_angle_against_its_target() -> None:
-    mission = MissionConfig(arm_target=(), interventions=(("valve_1", "90"), ("lever_0", "down"),
-                                                          ("valve_1", "-45")))
+    mission = MissionConfig(
+        arm_target=(), interventions=(("valve_1", "90"), ("lever_0", "down"), ("valve_1", "-45"))
+    )
     judged = interventions_summary(mission, state(), state(valve_1=43.0, lever_0=-44.0))
     assert [(j["part"], j["target_deg"], j["success"]) for j in judged] == [
-        ("valve_1", 90.0, False), ("lever_0", -45.0, True), ("valve_1", 45.0, True)]  # 90 then -45
+        ("valve_1", 90.0, False),
+        ("lever_0", -45.0, True),
+        ("valve_1", 45.0, True),
+    ]  # 90 then -45
     judged = interventions_summary(mission, state(), state(valve_1=84.0, lever_0=-40.0))
     assert [j["success"] for j in judged] == [False, False, False]  # 6 deg short; 5 from the stop
     unseen = interventions_summary(mission, None, None)  # no truth came
     assert all(not j["success"] and j["truth_deg"] is None for j in unseen)
-    summary = {"system": "s", "verdict": "incomplete", "failure": "", "startup_s": 1.0, "wall_s": 9.0,
-               "stations": {}, "links": {}, "mission": None, "control": None, "scene": None,
-               "simulation": None, "interventions": judged}
+    summary = {
+        "system": "s",
+        "verdict": "incomplete",
+        "failure": "",
+        "startup_s": 1.0,
+        "wall_s": 9.0,
+        "stations": {},
+        "links": {},
+        "mission": None,
+        "control": None,
+        "scene": None,
+        "simulation": None,
+        "interventions": judged,
+    }
     assert "valve_1 at 84.0 deg, target 90 +- 5 deg: NOT DONE" in render_summary(summary)
-    summary["mission"] = {"mode": "reached", "waypoint_index": 3, "waypoints_total": 3, "done": False,
-                          "intervention_target": "valve_1", "intervention_phase": "failed",
-                          "intervention_reason": "valve_1 does not turn"}
+    summary["mission"] = {
+        "mode": "reached",
+        "waypoint_index": 3,
+        "waypoints_total": 3,
+        "done": False,
+        "intervention_target": "valve_1",
+        "intervention_phase": "failed",
+        "intervention_reason": "valve_1 does not turn",
+    }
     assert "done: False; valve_1 failed: valve_1 does not turn" in render_summary(summary)
 
 
 def test_a_wrong_intent_fails_at_the_command_line_with_what_is_allowed() -> None:
-    for args, expected in ((["valve", "lever_0", "--turn", "90"], "lever_0 is a lever, not a valve"),
-                           (["valve", "valve_1"], "turned by an angle in [-180, 180] deg"),
-                           (["valve", "valve_7", "--turn", "90"],
-                            "valve_0, valve_1, valve_2, lever_0, lever_1"),
-                           (["lever", "lever_1", "--to", "sideways"], "invalid choice: 'sideways'")):
-        done = subprocess.run([sys.executable, "-m", "abyss.cli", "op", *args, "--timeout", "1"],
-                              capture_output=True, text=True, timeout=60)
+    for args, expected in (
+        (["valve", "lever_0", "--turn", "90"], "lever_0 is a lever, not a valve"),
+        (["valve", "valve_1"], "turned by an angle in [-180, 180] deg"),
+        (["valve", "valve_7", "--turn", "90"], "valve_0, valve_1, valve_2, lever_0, lever_1"),
+        (["lever", "lever_1", "--to", "sideways"], "invalid choice: 'sideways'"),
+    ):
+        done = subprocess.run(
+            [sys.executable, "-m", "abyss.cli", "op", *args, "--timeout", "1"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert done.returncode == 2 and expected in done.stderr, (args, done.stdout, done.stderr)
     assert math.isclose(panel.intent("valve_2", "-30")[0], math.radians(-30))

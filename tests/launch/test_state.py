@@ -24,8 +24,9 @@ def a_state(**changes: Any) -> RunState:
 
 
 def test_write_then_read_gives_the_same_state(tmp_path: Path) -> None:
-    written = a_state(phase="ended", mission_done=True, viewer="http://localhost:9090", verdict="ok",
-                      failure="")
+    written = a_state(
+        phase="ended", mission_done=True, viewer="http://localhost:9090", verdict="ok", failure=""
+    )
     written.write(tmp_path)
     read = RunState.read(tmp_path)
     assert read == written
@@ -33,7 +34,11 @@ def test_write_then_read_gives_the_same_state(tmp_path: Path) -> None:
     assert isinstance(read.stations["onboard"], StationState) and read.stations["onboard"].restarts == 2
     table = json.loads((tmp_path / STATE_FILE).read_text())  # a plain file other programs read
     assert table["phase"] == "ended" and table["stations"]["simulation"] == {
-        "pid": 11, "up": True, "restarts": 0, "external": False}
+        "pid": 11,
+        "up": True,
+        "restarts": 0,
+        "external": False,
+    }
     assert sorted(p.name for p in tmp_path.iterdir()) == [STATE_FILE]  # no partial file left
 
 
@@ -63,7 +68,8 @@ def test_a_phase_not_in_the_list_is_refused(phase: str) -> None:
 
 
 def test_a_write_that_fails_before_the_rename_leaves_the_previous_state_whole(
-        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The file is never written in place: only the rename makes a new state visible."""
     a_state(phase="up").write(tmp_path)
 
@@ -142,8 +148,9 @@ def test_wait_for_state_is_none_at_once_when_the_run_ended_without_it(tmp_path: 
     assert wait_for_state(tmp_path, lambda s: s.mission_done, timeout_s=60.0) is None
     assert time.monotonic() - t0 < 5.0
     # but an ended state that holds is returned, and so is one that holds once the run is gone
-    assert wait_for_state(tmp_path, lambda s: s.phase == "ended", 0.0) == a_state(phase="ended",
-                                                                                   verdict="failed")
+    assert wait_for_state(tmp_path, lambda s: s.phase == "ended", 0.0) == a_state(
+        phase="ended", verdict="failed"
+    )
     assert wait_for_state(tmp_path, lambda s: s.verdict == "failed", 60.0, running=lambda: False)
 
 

@@ -29,12 +29,16 @@ from abyss.launch.summary import exit_code, render_summary, verdict_of
 from abyss.launch.up import Station, Up, port_free, ros2_line, run_up, viewer_line
 
 # children that say "ready" once their signal handlers are set, so no signal comes too early
-IGNORES_SIGINT = ("import signal, sys\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-                  "print('ready', flush=True)\nwhile True:\n    signal.pause()\n")
-STOPS_ON_SIGINT = ("import signal, sys, time\n"
-                   "def stop(*_):\n    time.sleep(0.3)  # closing its links\n    sys.exit(7)\n"
-                   "signal.signal(signal.SIGINT, stop)\nprint('ready', flush=True)\n"
-                   "while True:\n    signal.pause()\n")
+IGNORES_SIGINT = (
+    "import signal, sys\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+    "print('ready', flush=True)\nwhile True:\n    signal.pause()\n"
+)
+STOPS_ON_SIGINT = (
+    "import signal, sys, time\n"
+    "def stop(*_):\n    time.sleep(0.3)  # closing its links\n    sys.exit(7)\n"
+    "signal.signal(signal.SIGINT, stop)\nprint('ready', flush=True)\n"
+    "while True:\n    signal.pause()\n"
+)
 RUNS = STOPS_ON_SIGINT
 
 
@@ -53,8 +57,9 @@ class System:
 
     def station(self, name: str, code: str) -> Station:
         """A station running `code`, once it said it is ready (when it says anything)."""
-        process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                                   stdin=subprocess.DEVNULL)
+        process = subprocess.Popen(
+            [sys.executable, "-c", code], stdout=subprocess.PIPE, stdin=subprocess.DEVNULL
+        )
         self.processes.append(process)
         assert process.stdout is not None
         if "ready" in code:
@@ -95,13 +100,23 @@ def system(tmp_path: Path) -> Iterator[Callable[..., System]]:
 
 
 def mission(done: bool) -> MissionStatus:
-    return MissionStatus(mode="reached", waypoint_index=3, waypoints_total=3, position_error_m=0.01,
-                         heading_error_rad=0.001, arm_mode="reached" if done else "moving",
-                         ee_position_error_m=0.004, ee_orientation_error_rad=0.01, failsafe="",
-                         failsafe_events=0, done=done)
+    return MissionStatus(
+        mode="reached",
+        waypoint_index=3,
+        waypoints_total=3,
+        position_error_m=0.01,
+        heading_error_rad=0.001,
+        arm_mode="reached" if done else "moving",
+        ee_position_error_m=0.004,
+        ee_orientation_error_rad=0.01,
+        failsafe="",
+        failsafe_events=0,
+        done=done,
+    )
 
 
 # -- construction ------------------------------------------------------------------------------
+
 
 def test_port_zero_picks_a_free_port_and_a_taken_port_is_seen(tmp_path: Path) -> None:
     up = Up(Config(system="unit"), tmp_path / "run", port=0, echo=lambda _: None)
@@ -141,6 +156,7 @@ def test_viewer_line_names_where_to_look(tmp_path: Path) -> None:
 
 # -- deaths ------------------------------------------------------------------------------------
 
+
 def test_each_death_is_reported_once_with_its_exit_code(system: Callable[..., System]) -> None:
     s = system()
     crashed = s.exited("simulation", 3)
@@ -168,8 +184,10 @@ def test_a_death_is_reported_with_the_signal_and_the_end_of_the_log(system: Call
 
 # -- stopping ----------------------------------------------------------------------------------
 
+
 def test_stop_interrupts_every_station_and_kills_the_ones_that_do_not_stop(
-        system: Callable[..., System], monkeypatch: pytest.MonkeyPatch) -> None:
+    system: Callable[..., System], monkeypatch: pytest.MonkeyPatch
+) -> None:
     timeout_s = 2.0
     monkeypatch.setattr(up_module, "STOP_TIMEOUT_S", timeout_s)
     s = system()
@@ -188,7 +206,8 @@ def test_stop_interrupts_every_station_and_kills_the_ones_that_do_not_stop(
 
 
 def test_stop_does_not_kill_stations_that_stop_in_time(
-        system: Callable[..., System], monkeypatch: pytest.MonkeyPatch) -> None:
+    system: Callable[..., System], monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setattr(up_module, "STOP_TIMEOUT_S", 30.0)
     s = system()
     stations = [s.station(name, STOPS_ON_SIGINT) for name in keys.STATIONS]
@@ -201,6 +220,7 @@ def test_stop_does_not_kill_stations_that_stop_in_time(
 
 # -- start-up and the watch ------------------------------------------------------------------
 
+
 def test_start_up_ends_when_every_station_is_alive(system: Callable[..., System]) -> None:
     s = system()
     pids = {name: s.station(name, RUNS).process.pid for name in keys.STATIONS}
@@ -211,7 +231,8 @@ def test_start_up_ends_when_every_station_is_alive(system: Callable[..., System]
 
 
 def test_start_up_fails_on_a_death_or_the_timeout_and_ends_on_an_interrupt(
-        system: Callable[..., System], monkeypatch: pytest.MonkeyPatch) -> None:
+    system: Callable[..., System], monkeypatch: pytest.MonkeyPatch
+) -> None:
     s = system()
     for name in ("simulation", "vessel", "onshore"):
         s.station(name, RUNS)
@@ -258,7 +279,8 @@ def test_the_watch_keeps_running_after_the_mission_until_the_duration(system: Ca
 
 
 def test_the_watch_fails_when_a_station_dies_and_stops_when_interrupted(
-        system: Callable[..., System]) -> None:
+    system: Callable[..., System],
+) -> None:
     s = system()
     s.station("simulation", RUNS)
     s.exited("onboard", 2)
@@ -274,21 +296,42 @@ def test_the_watch_fails_when_a_station_dies_and_stops_when_interrupted(
 
 # -- the summary -------------------------------------------------------------------------------
 
+
 def status_file(name: str, system_id: str = "unit") -> dict[str, object]:
     """What `abyss station --status-file` writes, in short."""
-    hop, other = {"simulation": ("rov", "onboard"), "onboard": ("tether", "vessel"),
-                  "vessel": ("satellite", "onshore"), "onshore": ("satellite", "vessel")}[name]
+    hop, other = {
+        "simulation": ("rov", "onboard"),
+        "onboard": ("tether", "vessel"),
+        "vessel": ("satellite", "onshore"),
+        "onshore": ("satellite", "vessel"),
+    }[name]
     key = f"abyss/{system_id}/{name}/telemetry"
-    return {"exit_code": 0, "sent": {key: 10}, "received": {f"abyss/{system_id}/{other}/x": 4},
-            "rejected": {key: 1}, "latency_ms": {key: {"latency_p50_ms": 1.0}}, "refused": {},
-            "links": {hop: {"direction": f"{name}->{other}", "profile": hop, "messages_offered": 10.0,
-                            "messages_delivered": 9.0, "losses": 1.0, "retransmissions": 2.0,
-                            "delay_p50_ms": 100.0, "delay_p99_ms": 150.0}},
-            "scheduler": "fifo 10" if name == "simulation" else "normal (not asked for)"}
+    return {
+        "exit_code": 0,
+        "sent": {key: 10},
+        "received": {f"abyss/{system_id}/{other}/x": 4},
+        "rejected": {key: 1},
+        "latency_ms": {key: {"latency_p50_ms": 1.0}},
+        "refused": {},
+        "links": {
+            hop: {
+                "direction": f"{name}->{other}",
+                "profile": hop,
+                "messages_offered": 10.0,
+                "messages_delivered": 9.0,
+                "losses": 1.0,
+                "retransmissions": 2.0,
+                "delay_p50_ms": 100.0,
+                "delay_p99_ms": 150.0,
+            }
+        },
+        "scheduler": "fifo 10" if name == "simulation" else "normal (not asked for)",
+    }
 
 
 def test_summary_of_a_station_that_died_without_its_status_file_is_failed(
-        system: Callable[..., System]) -> None:
+    system: Callable[..., System],
+) -> None:
     s = system(external=["onshore"])
     for name in ("simulation", "vessel"):
         station = s.exited(name, 0)
@@ -312,8 +355,9 @@ def test_summary_of_a_station_that_died_without_its_status_file_is_failed(
     json.dumps(summary)  # summary.json
 
     text = render_summary(summary)
-    assert text.splitlines()[0] == ("abyss: unit: failed (a station exited with an error); "
-                                    "up in 1.5 s, ran 12 s")
+    assert text.splitlines()[0] == (
+        "abyss: unit: failed (a station exited with an error); up in 1.5 s, ran 12 s"
+    )
     assert "  onboard          1        0         0         0" in text
     assert "  onshore     external, never seen" in text
     assert "  rov simulation->onboard      emulated      9/10       100.0   150.0     1     2" in text
@@ -347,34 +391,76 @@ def test_summary_of_a_clean_run_is_done(system: Callable[..., System]) -> None:
     text = render_summary(summary)
     assert text.splitlines()[0] == "abyss: unit: done; up in 1.2 s, ran 31 s"
     assert "  mission: reached, 3/3 waypoints, done: True" in text
-    assert ("  simulation: 29.5 s simulated, real-time factor 0.98, deadlines met 99.5% "
-            "(scheduler: fifo 10)") in text
+    assert (
+        "  simulation: 29.5 s simulated, real-time factor 0.98, deadlines met 99.5% (scheduler: fifo 10)"
+    ) in text
     assert summary["stations"]["simulation"]["scheduler"] == "fifo 10"
 
 
 def test_render_summary_of_every_section() -> None:
     summary = {
-        "system": "demo", "verdict": "ok", "failure": "", "startup_s": 1.04, "wall_s": 30.4,
-        "stations": {"simulation": {"exit_code": 0, "restarts": 2, "sent": {"a": 5, "b": 6},
-                                    "received": {"c": 7}, "rejected": {},
-                                    "cpu": {"cpu_s": 5.5, "wall_s": 30.0, "cores": 0.1833, "cap_cores": 0.3,
-                                            "throttled_share": 0.61},
-                                    "shed": {"k1": 3, "k2": 4},
-                                    "loops": {
-                                        "physics": {"period_s": 0.05, "ticks": 600, "deadlines_met": 0.987},
-                                        "cameras": {"period_s": 1.0, "ticks": 30, "deadlines_met": 1.0}}},
-                     "onboard": {"external": True, "alive_seen": True}},
-        "links": {"satellite": {"vessel->onshore": {"messages_delivered": 70.0, "messages_offered": 71.0,
-                                                   "delay_p50_ms": 239.1, "delay_p99_ms": 1187.2,
-                                                   "losses": 7.0, "retransmissions": 12.0}},
-                  "rov": {}},
+        "system": "demo",
+        "verdict": "ok",
+        "failure": "",
+        "startup_s": 1.04,
+        "wall_s": 30.4,
+        "stations": {
+            "simulation": {
+                "exit_code": 0,
+                "restarts": 2,
+                "sent": {"a": 5, "b": 6},
+                "received": {"c": 7},
+                "rejected": {},
+                "cpu": {
+                    "cpu_s": 5.5,
+                    "wall_s": 30.0,
+                    "cores": 0.1833,
+                    "cap_cores": 0.3,
+                    "throttled_share": 0.61,
+                },
+                "shed": {"k1": 3, "k2": 4},
+                "loops": {
+                    "physics": {"period_s": 0.05, "ticks": 600, "deadlines_met": 0.987},
+                    "cameras": {"period_s": 1.0, "ticks": 30, "deadlines_met": 1.0},
+                },
+            },
+            "onboard": {"external": True, "alive_seen": True},
+        },
+        "links": {
+            "satellite": {
+                "vessel->onshore": {
+                    "messages_delivered": 70.0,
+                    "messages_offered": 71.0,
+                    "delay_p50_ms": 239.1,
+                    "delay_p99_ms": 1187.2,
+                    "losses": 7.0,
+                    "retransmissions": 12.0,
+                }
+            },
+            "rov": {},
+        },
         "mission": None,
-        "control": {"position_error_m": 0.0055, "heading_error_deg": 0.04, "ee_position_error_m": 0.00329,
-                    "ee_orientation_error_deg": 0.07, "failsafe_events": 0},
-        "scene": {"occupied_cells": 16900, "resolution_m": 0.1, "updates_applied": 19,
-                  "update_bytes": 68_000, "gaps": 0, "objects": {"panel": {}, "valve_1": {}}},
-        "simulation": {"sim_time_s": 18.8, "realtime_factor": 0.99, "deadlines_met": 0.995,
-                       "faults": {"thruster_2": 0.5}},
+        "control": {
+            "position_error_m": 0.0055,
+            "heading_error_deg": 0.04,
+            "ee_position_error_m": 0.00329,
+            "ee_orientation_error_deg": 0.07,
+            "failsafe_events": 0,
+        },
+        "scene": {
+            "occupied_cells": 16900,
+            "resolution_m": 0.1,
+            "updates_applied": 19,
+            "update_bytes": 68_000,
+            "gaps": 0,
+            "objects": {"panel": {}, "valve_1": {}},
+        },
+        "simulation": {
+            "sim_time_s": 18.8,
+            "realtime_factor": 0.99,
+            "deadlines_met": 0.995,
+            "faults": {"thruster_2": 0.5},
+        },
     }
     assert render_summary(summary).splitlines() == [
         "abyss: demo: ok; up in 1.0 s, ran 30 s",
@@ -396,16 +482,20 @@ def test_render_summary_of_every_section() -> None:
     ]
 
 
-@pytest.mark.parametrize(("failure", "done", "interrupted", "keep_running", "verdict", "code"), [
-    ("", True, False, False, "done", 0),
-    ("", True, True, True, "done", 0),  # Ctrl-C ends a run kept running after its mission
-    ("", False, False, False, "incomplete", 3),
-    ("", False, False, True, "incomplete", 0),  # asked to run for its duration, not for a mission
-    ("", False, True, False, "interrupted", 130),
-    ("onboard died", True, False, False, "failed", 1),
-    ("onboard did not stop within 10 s", False, True, True, "failed", 1),
-])
-def test_the_verdict_and_the_exit_code(failure: str, done: bool, interrupted: bool, keep_running: bool,
-                                       verdict: str, code: int) -> None:
+@pytest.mark.parametrize(
+    ("failure", "done", "interrupted", "keep_running", "verdict", "code"),
+    [
+        ("", True, False, False, "done", 0),
+        ("", True, True, True, "done", 0),  # Ctrl-C ends a run kept running after its mission
+        ("", False, False, False, "incomplete", 3),
+        ("", False, False, True, "incomplete", 0),  # asked to run for its duration, not for a mission
+        ("", False, True, False, "interrupted", 130),
+        ("onboard died", True, False, False, "failed", 1),
+        ("onboard did not stop within 10 s", False, True, True, "failed", 1),
+    ],
+)
+def test_the_verdict_and_the_exit_code(
+    failure: str, done: bool, interrupted: bool, keep_running: bool, verdict: str, code: int
+) -> None:
     assert verdict_of(failure, done, interrupted) == verdict
     assert exit_code(verdict, keep_running) == code

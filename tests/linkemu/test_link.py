@@ -20,13 +20,23 @@ def link(**fields: str) -> Link:
     return Link(LinkProfile(name="test").with_fields(fields))
 
 
-@pytest.mark.parametrize(("distribution", "transport"), [
-    ("normal", "udp"), ("normal", "tcp"), ("uniform", "udp"), ("uniform", "tcp"),
-    ("pareto", "udp"), ("paretonormal", "udp")])  # heavy tails under TCP: head-of-line blocking
+@pytest.mark.parametrize(
+    ("distribution", "transport"),
+    [
+        ("normal", "udp"),
+        ("normal", "tcp"),
+        ("uniform", "udp"),
+        ("uniform", "tcp"),
+        ("pareto", "udp"),
+        ("paretonormal", "udp"),
+    ],
+)  # heavy tails under TCP: head-of-line blocking
 def test_delay_mean_and_spread_match_the_profile(distribution: str, transport: str) -> None:
     n, delay_ms, jitter_ms = 4000, 100.0, 10.0
-    out = drive(link(delay="100ms", jitter="10ms", distribution=distribution, transport=transport),
-                numbered(n, gap_s=0.1))  # spaced far beyond the jitter: order never binds
+    out = drive(
+        link(delay="100ms", jitter="10ms", distribution=distribution, transport=transport),
+        numbered(n, gap_s=0.1),
+    )  # spaced far beyond the jitter: order never binds
     delays_ms = np.array([(d.delivered_s - d.offered_s) * 1e3 for d in out])
     assert len(out) == n and ids(out) == list(range(n))
     heavy_tailed = distribution.startswith("pareto")  # sample moments converge slowly
@@ -44,8 +54,9 @@ def test_delay_mean_and_spread_match_the_profile(distribution: str, transport: s
 
 def test_jitter_keeps_order_and_correlation_keeps_variance() -> None:
     n = 4000
-    out = drive(link(delay="100ms", jitter="30ms", correlation="80%", transport="udp"),
-                numbered(n, gap_s=0.001))
+    out = drive(
+        link(delay="100ms", jitter="30ms", correlation="80%", transport="udp"), numbered(n, gap_s=0.001)
+    )
     assert ids(out) == list(range(n))  # jitter far above the spacing, yet no reordering
     delays = np.array([d.delivered_s - d.offered_s for d in out])
     lag1 = np.corrcoef(delays[:-1], delays[1:])[0, 1]
@@ -146,8 +157,14 @@ def test_tcp_delivers_everything_in_order_through_loss_and_corruption() -> None:
 
 def padhye_bps(mss_bytes: int, rtt_s: float, p: float, t0_s: float, b: int = 1) -> float:
     """Padhye, Firoiu, Towsley, Kurose (1998), eq. (30) without the window limit."""
-    return mss_bytes * 8 / (rtt_s * math.sqrt(2 * b * p / 3)
-                            + t0_s * min(1.0, 3 * math.sqrt(3 * b * p / 8)) * p * (1 + 32 * p * p))
+    return (
+        mss_bytes
+        * 8
+        / (
+            rtt_s * math.sqrt(2 * b * p / 3)
+            + t0_s * min(1.0, 3 * math.sqrt(3 * b * p / 8)) * p * (1 + 32 * p * p)
+        )
+    )
 
 
 @pytest.mark.parametrize(("loss", "bound"), [("1%", (0.75, 1.35)), ("5%", (0.85, 1.2))])
@@ -162,8 +179,9 @@ def test_tcp_goodput_against_the_padhye_model(loss: str, bound: tuple[float, flo
     out = drive(lnk, numbered(5000, mss))
     goodput_bps = len(out) * mss * 8 / out[-1].delivered_s
     gauges = lnk.transport.gauges()
-    predicted = padhye_bps(mss, gauges["rtt_mean_ms"] / 1e3, lnk.profile.loss,
-                           gauges["first_rto_mean_ms"] / 1e3)
+    predicted = padhye_bps(
+        mss, gauges["rtt_mean_ms"] / 1e3, lnk.profile.loss, gauges["first_rto_mean_ms"] / 1e3
+    )
     assert bound[0] < goodput_bps / predicted < bound[1]
 
 
@@ -186,8 +204,10 @@ def test_tcp_window_restarts_after_an_idle_spell() -> None:
 def test_loss_throttles_tcp() -> None:
     clean = Link(profile("tether"))
     lossy = Link(profile("tether", {"loss": "2%"}))
-    rates = [len(out) * 1460 * 8 / out[-1].delivered_s
-             for out in (drive(lnk, numbered(5000, 1460)) for lnk in (clean, lossy))]
+    rates = [
+        len(out) * 1460 * 8 / out[-1].delivered_s
+        for out in (drive(lnk, numbered(5000, 1460)) for lnk in (clean, lossy))
+    ]
     assert rates[1] < 0.5 * rates[0]
 
 
@@ -212,11 +232,24 @@ def test_reconfigure_in_flight_loses_nothing() -> None:
     distribution=st.sampled_from(["normal", "uniform", "pareto", "paretonormal"]),
     seed=st.integers(0, 2**32),
 )
-def test_nothing_lost_or_added_without_impairments(sizes: list[int], rate_kbit: int, delay_ms: int,
-                                                    jitter_ms: int, transport: str, distribution: str,
-                                                    seed: int) -> None:
-    lnk = link(rate=f"{rate_kbit}kbit", delay=f"{delay_ms}ms", jitter=f"{jitter_ms}ms",
-               transport=transport, distribution=distribution, seed=str(seed), queue_limit="100000")
+def test_nothing_lost_or_added_without_impairments(
+    sizes: list[int],
+    rate_kbit: int,
+    delay_ms: int,
+    jitter_ms: int,
+    transport: str,
+    distribution: str,
+    seed: int,
+) -> None:
+    lnk = link(
+        rate=f"{rate_kbit}kbit",
+        delay=f"{delay_ms}ms",
+        jitter=f"{jitter_ms}ms",
+        transport=transport,
+        distribution=distribution,
+        seed=str(seed),
+        queue_limit="100000",
+    )
     rng = np.random.default_rng(seed)
     payloads = [(i * 0.002, rng.bytes(n)) for i, n in enumerate(sizes)]
     out = drive(lnk, payloads)

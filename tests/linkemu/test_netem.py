@@ -16,13 +16,13 @@ from abyss.linkemu.profile import load_profiles, profile
 EXPECTED = {
     "ideal": "tc qdisc replace dev veth0 root netem limit 1000",
     "tether": "tc qdisc replace dev veth0 root netem delay 100ms 10ms distribution normal "
-              "rate 20mbit limit 1234",
+    "rate 20mbit limit 1234",
     "satellite": "tc qdisc replace dev veth0 root netem delay 150ms 75ms distribution normal "
-                 "loss random 5% corrupt 0.1% rate 1mbit limit 238",
+    "loss random 5% corrupt 0.1% rate 1mbit limit 238",
     "satellite-storm": "tc qdisc replace dev veth0 root netem delay 300ms 150ms distribution normal "
-                       "loss gemodel 2.8% 25% 100% 0% corrupt 0.5% rate 256kbit limit 120",
+    "loss gemodel 2.8% 25% 100% 0% corrupt 0.5% rate 256kbit limit 120",
     "tether-degraded": "tc qdisc replace dev veth0 root netem delay 200ms 50ms distribution normal "
-                       "loss random 1% rate 2mbit limit 567",
+    "loss random 1% rate 2mbit limit 567",
     "outage": "tc qdisc replace dev veth0 root netem loss random 100% limit 100",
 }
 
@@ -43,8 +43,9 @@ def netns() -> object:
         pytest.skip("needs root and iproute2 to make a network namespace")
     name = f"abyss-{uuid.uuid4().hex[:8]}"
     subprocess.run(["ip", "netns", "add", name], check=True)
-    subprocess.run(["ip", "-n", name, "link", "add", "veth0", "type", "veth", "peer", "name", "veth1"],
-                   check=True)
+    subprocess.run(
+        ["ip", "-n", name, "link", "add", "veth0", "type", "veth", "peer", "name", "veth1"], check=True
+    )
     yield name
     subprocess.run(["ip", "netns", "del", name], check=False)
 
@@ -56,8 +57,12 @@ def test_apply_change_and_clear_in_a_namespace(netns: str) -> None:
         if "sch_netem" in str(exc):
             pytest.skip(f"kernel without netem: {exc}")
         raise
-    shown = subprocess.run(["ip", "netns", "exec", netns, "tc", "qdisc", "show", "dev", "veth0"],
-                           capture_output=True, text=True, check=True).stdout
+    shown = subprocess.run(
+        ["ip", "netns", "exec", netns, "tc", "qdisc", "show", "dev", "veth0"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert "netem" in shown and "loss 5%" in shown
     run_tc(tc_command("veth0", profile("tether"), netns))
     run_tc(tc_command("veth0", None, netns))

@@ -25,6 +25,7 @@ def nav(i: int) -> bytes:
 
 def cloud(i: int) -> bytes:
     import zlib
+
     message = PointCloud("depth", 1, 0.01, np.zeros(3), np.zeros(3), zlib.compress(bytes(9)), 0.5 * i)
     return encode(message, i, time.time())
 
@@ -79,25 +80,33 @@ def test_a_killed_station_s_file_reads_up_to_where_it_stopped(tmp_path: Path) ->
     cut.write_bytes(whole[: len(whole) // 2])  # a station killed mid-write: no summary, half a record
     f = read_file(cut)
     assert not f.complete and 0 < len(f.records) < 61
-    assert [r.seq for r in f.records if r.direction == "received"] == list(range(len(
-        [r for r in f.records if r.direction == "received"])))
+    assert [r.seq for r in f.records if r.direction == "received"] == list(
+        range(len([r for r in f.records if r.direction == "received"]))
+    )
 
 
-def test_another_format_or_an_older_schema_is_refused_with_the_fix(tmp_path: Path,
-                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+def test_another_format_or_an_older_schema_is_refused_with_the_fix(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     with pytest.raises(RecordingError, match=r"no recording.*--record all"):
         open_recording(tmp_path)
     monkeypatch.setattr(store, "FORMAT_VERSION", 0)
     write(tmp_path / "record" / "onboard.mcap", 1).close()
     monkeypatch.undo()
-    with pytest.raises(RecordingError, match=r"onboard\.mcap: recording format version 0, this abyss "
-                                             "reads 1; record the run again"):
+    with pytest.raises(
+        RecordingError,
+        match=r"onboard\.mcap: recording format version 0, this abyss "
+        "reads 1; record the run again",
+    ):
         open_recording(tmp_path)
     monkeypatch.setattr(JointState, "VERSION", 0)  # a message's schema changed since the recording
     write(tmp_path / "old.mcap", 1).close()
     monkeypatch.undo()
-    with pytest.raises(RecordingError, match=r"old\.mcap: messages of an older schema: JointState v0 "
-                                             rf"\(now v{JointState.VERSION}\)"):
+    with pytest.raises(
+        RecordingError,
+        match=r"old\.mcap: messages of an older schema: JointState v0 "
+        rf"\(now v{JointState.VERSION}\)",
+    ):
         read_file(tmp_path / "old.mcap")
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
     with pytest.raises(RecordingError, match="not an abyss recording"):

@@ -18,19 +18,31 @@ STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f
 
 
 def test_data_keys_are_design_md_s() -> None:
-    assert rmw.topic_key(0, "/chatter", "std_msgs/msg/String") == \
-        f"0/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
-    assert rmw.topic_key(0, "/robot1/chatter", "std_msgs/msg/String") == \
-        f"0/robot1/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
+    assert (
+        rmw.topic_key(0, "/chatter", "std_msgs/msg/String")
+        == f"0/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
+    )
+    assert (
+        rmw.topic_key(0, "/robot1/chatter", "std_msgs/msg/String")
+        == f"0/robot1/chatter/std_msgs::msg::dds_::String_/{STRING_HASH}"
+    )
 
 
-@pytest.mark.parametrize(("type_name", "published"), [
-    ("std_msgs/msg/String", STRING_HASH),  # design.md
-    ("geometry_msgs/msg/Twist", "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"),
-    ("geometry_msgs/msg/Pose", "RIHS01_d501954e9476cea2996984e812054b68026ae0bfae789d9a10b23daf35cc90fa"),
-    ("geometry_msgs/msg/Transform",
-     "RIHS01_beb83fbe698636351461f6f35d1abb20010c43d55374d81bd041f1ba2581fddc"),
-])
+@pytest.mark.parametrize(
+    ("type_name", "published"),
+    [
+        ("std_msgs/msg/String", STRING_HASH),  # design.md
+        (
+            "geometry_msgs/msg/Twist",
+            "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a",
+        ),
+        ("geometry_msgs/msg/Pose", "RIHS01_d501954e9476cea2996984e812054b68026ae0bfae789d9a10b23daf35cc90fa"),
+        (
+            "geometry_msgs/msg/Transform",
+            "RIHS01_beb83fbe698636351461f6f35d1abb20010c43d55374d81bd041f1ba2581fddc",
+        ),
+    ],
+)
 def test_type_hashes_are_the_ones_ros_prints(type_name: str, published: str) -> None:
     assert rmw.type_hash(type_name) == published
 
@@ -38,10 +50,22 @@ def test_type_hashes_are_the_ones_ros_prints(type_name: str, published: str) -> 
 def test_liveliness_tokens_are_design_md_s() -> None:
     node = rmw.Endpoint(0, ZID, 0, 0, rmw.NODE, "/", "listener")
     assert node.token == f"@ros2_lv/0/{ZID}/0/0/NN/%/%/listener"
-    subscription = rmw.Endpoint(0, ZID, 0, 10, rmw.SUBSCRIPTION, "/", "listener", "/chatter",
-                                "std_msgs/msg/String", types.RELIABLE_QOS)
-    assert subscription.token == (f"@ros2_lv/0/{ZID}/0/10/MS/%/%/listener/%chatter/"
-                                  f"std_msgs::msg::dds_::String_/{STRING_HASH}/::,10:,:,:,,")
+    subscription = rmw.Endpoint(
+        0,
+        ZID,
+        0,
+        10,
+        rmw.SUBSCRIPTION,
+        "/",
+        "listener",
+        "/chatter",
+        "std_msgs/msg/String",
+        types.RELIABLE_QOS,
+    )
+    assert subscription.token == (
+        f"@ros2_lv/0/{ZID}/0/10/MS/%/%/listener/%chatter/"
+        f"std_msgs::msg::dds_::String_/{STRING_HASH}/::,10:,:,:,,"
+    )
     nested = rmw.Endpoint(5, ZID, 3, 3, rmw.NODE, "/robot1/arm", "driver")
     assert nested.token == f"@ros2_lv/5/{ZID}/3/3/NN/%/%robot1%arm/driver"
 
@@ -56,10 +80,21 @@ def test_qos_strings_leave_rmw_zenoh_s_defaults_empty() -> None:
 def test_gids_are_rmw_zenoh_s_xxh3_of_the_token() -> None:
     zid = "c88f831a9a3a16ddecf065cebd5aa080"
     node = rmw.Endpoint(0, zid, 0, 0, rmw.NODE, "/", "teleop")
-    publisher = rmw.Endpoint(0, zid, 0, 3, rmw.PUBLISHER, "/", "teleop", "/cmd_vel",
-                             "geometry_msgs/msg/Twist", types.RELIABLE_QOS)
-    clock = rmw.Endpoint(0, zid, 0, 12, rmw.SUBSCRIPTION, "/", "sim_listener", "/clock",
-                         "rosgraph_msgs/msg/Clock", types.CLOCK_QOS)
+    publisher = rmw.Endpoint(
+        0, zid, 0, 3, rmw.PUBLISHER, "/", "teleop", "/cmd_vel", "geometry_msgs/msg/Twist", types.RELIABLE_QOS
+    )
+    clock = rmw.Endpoint(
+        0,
+        zid,
+        0,
+        12,
+        rmw.SUBSCRIPTION,
+        "/",
+        "sim_listener",
+        "/clock",
+        "rosgraph_msgs/msg/Clock",
+        types.CLOCK_QOS,
+    )
     assert node.gid.hex() == "c3aee7280179c53813730c7ac9dc33ff"
     assert publisher.gid.hex() == "c4051822192c37bc15f1812448d1f986"
     assert clock.gid.hex() == "b7f23239c7f9859abc1e5cca98902900"
@@ -68,7 +103,7 @@ def test_gids_are_rmw_zenoh_s_xxh3_of_the_token() -> None:
 def test_attachment_is_33_bytes_and_malformed_ones_are_named() -> None:
     gid = bytes.fromhex("c4051822192c37bc15f1812448d1f986")
     data = rmw.attachment(1, 1732400000123456789, gid)
-    assert data.hex() == "0100000000000000" "15cd3e189fb80a18" "10" "c4051822192c37bc15f1812448d1f986"
+    assert data.hex() == "010000000000000015cd3e189fb80a1810c4051822192c37bc15f1812448d1f986"
     assert rmw.parse_attachment(data) == (1, 1732400000123456789, gid)
     with pytest.raises(ValueError, match="no attachment"):
         rmw.parse_attachment(None)
@@ -83,9 +118,10 @@ def test_attachment_is_33_bytes_and_malformed_ones_are_named() -> None:
 
 def test_cdr_is_fast_cdr_s_and_bad_bytes_are_refused() -> None:
     twist = types.TYPESTORE.types["geometry_msgs/msg/Twist"](
-        linear=types._vector((0.5, 0, 0)), angular=types._vector((0, 0, 0.25)))
+        linear=types._vector((0.5, 0, 0)), angular=types._vector((0, 0, 0.25))
+    )
     payload = types.serialize(twist)
-    assert payload.hex() == ("00010000" "000000000000e03f" + "0000000000000000" * 4 + "000000000000d03f")
+    assert payload.hex() == ("00010000000000000000e03f" + "0000000000000000" * 4 + "000000000000d03f")
     assert rmw.deserialize(payload, "geometry_msgs/msg/Twist").angular.z == 0.25
     clock = types.clock(None, types.header(12.5, ""), None)  # type: ignore[arg-type]
     assert types.serialize(clock).hex() == "000100000c0000000065cd1d"
@@ -97,14 +133,24 @@ def test_cdr_is_fast_cdr_s_and_bad_bytes_are_refused() -> None:
 
 def _diagnostics(**values: str) -> object:
     t = types.TYPESTORE.types
-    return t["diagnostic_msgs/msg/DiagnosticArray"](header=types.header(1.0, ""), status=[
-        t["diagnostic_msgs/msg/DiagnosticStatus"](level=0, name="node", message="", hardware_id="", values=[
-            t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values.items()])])
+    return t["diagnostic_msgs/msg/DiagnosticArray"](
+        header=types.header(1.0, ""),
+        status=[
+            t["diagnostic_msgs/msg/DiagnosticStatus"](
+                level=0,
+                name="node",
+                message="",
+                hardware_id="",
+                values=[t["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values.items()],
+            )
+        ],
+    )
 
 
 def _nav(sim_time_s: float) -> NavState:
-    return NavState(np.array([1.0, 0.0, -7.0]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3),
-                    sim_time_s)
+    return NavState(
+        np.array([1.0, 0.0, -7.0]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), sim_time_s
+    )
 
 
 def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
@@ -115,8 +161,12 @@ def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
     session.handed(ArmGoal(9, np.array([2.0, 0.0, -7.0]), np.array([1.0, 0, 0, 0])))
     telemetry = types.telemetry_in(_diagnostics(mode="moving", waypoint="1/2", arm_mode="idle"), session)
     assert telemetry is not None
-    assert (telemetry.mode, telemetry.command_id, telemetry.waypoint_index, telemetry.waypoints_total) == \
-        ("moving", 7, 1, 2)
+    assert (telemetry.mode, telemetry.command_id, telemetry.waypoint_index, telemetry.waypoints_total) == (
+        "moving",
+        7,
+        1,
+        2,
+    )
     assert np.allclose(telemetry.position_error_m_world, [1.5, 0.8, -0.6]) and telemetry.arm_command_id == 9
     assert telemetry.sim_time_s == 4.0 and telemetry.boot_id == session.boot_id
     with pytest.raises(ValueError, match="not one of"):
@@ -127,8 +177,12 @@ def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
 
 def test_velocity_commands_parse_back_within_abyss_s_bounds() -> None:
     t = types.TYPESTORE.types
-    twist = t["geometry_msgs/msg/TwistStamped"](header=types.header(1.0, "base_link"), twist=t[
-        "geometry_msgs/msg/Twist"](linear=types._vector((0.2, 0, -0.1)), angular=types._vector((0, 0, 0.3))))
+    twist = t["geometry_msgs/msg/TwistStamped"](
+        header=types.header(1.0, "base_link"),
+        twist=t["geometry_msgs/msg/Twist"](
+            linear=types._vector((0.2, 0, -0.1)), angular=types._vector((0, 0, 0.3))
+        ),
+    )
     ref = types.twist_in(twist, types.Session())
     assert np.allclose(ref.linear_mps_body, [0.2, 0, -0.1]) and ref.yaw_rate_radps == pytest.approx(0.3)
     twist.header.frame_id = "world"
@@ -150,8 +204,11 @@ def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
     session = types.Session()
     points_m = np.array([[4.0, 0.1, -8.5], [4.2, -0.3, -8.6], [np.nan, 0.0, 0.0]])
     colors = np.array([[255, 0, 0], [0, 128, 255], [0, 0, 0]], np.uint8)
-    cloud = types.point_cloud(pack_cloud("stereo", points_m[:2], colors[:2], np.zeros(3), 0.002, 1.0),
-                              types.header(1.0, types.WORLD), session)
+    cloud = types.point_cloud(
+        pack_cloud("stereo", points_m[:2], colors[:2], np.zeros(3), 0.002, 1.0),
+        types.header(1.0, types.WORLD),
+        session,
+    )
     assert types.point_cloud_in(cloud, session) is None  # no navigation yet: no sensor origin
     session.handed(_nav(1.0))
     back = types.point_cloud_in(cloud, session)
@@ -173,8 +230,12 @@ def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
     binary = write_cells(cell_keys(keys_m, 0.1), np.array([True, True, False]), 0.1)
     data = types.octree_data(binary)
     octomap = types.TYPESTORE.types["octomap_msgs/msg/Octomap"](
-        header=types.header(2.0, types.WORLD), binary=True, id="OcTree", resolution=0.1,
-        data=np.frombuffer(data, np.int8))
+        header=types.header(2.0, types.WORLD),
+        binary=True,
+        id="OcTree",
+        resolution=0.1,
+        data=np.frombuffer(data, np.int8),
+    )
     snapshot = types.octomap_in(octomap, types.Session())
     size = binary.split(b"\nsize ")[1].split(b"\n")[0]  # as OctoMap wrote it
     assert snapshot.octree.endswith(data) and b"\nsize " + size + b"\n" in snapshot.octree

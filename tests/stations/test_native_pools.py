@@ -24,8 +24,14 @@ print(json.dumps({"before": before, "after": after, "omp": os.environ["OMP_NUM_T
 
 def probe(**env: str) -> dict[str, object]:
     environment = {k: v for k, v in os.environ.items() if not k.endswith("_NUM_THREADS")}
-    out = subprocess.run([sys.executable, "-c", PROBE], env={**environment, **env}, capture_output=True,
-                         text=True, check=True, timeout=60).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE],
+        env={**environment, **env},
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    ).stdout
     return dict(json.loads(out))
 
 

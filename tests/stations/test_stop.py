@@ -36,15 +36,36 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
     session = open_session(zenoh_config([endpoint], mode="router"), "test")  # as abyss up's
     with log_path.open("wb") as log:
         station = subprocess.Popen(
-            [sys.executable, "-P", "-m", "abyss.cli", "station", "onshore", "--system", system,
-             "--listen", "tcp/127.0.0.1:0", "--connect", endpoint, "--status-file", str(status_path),
-             "--set", "onshore.viewer=none"], stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
+            [
+                sys.executable,
+                "-P",
+                "-m",
+                "abyss.cli",
+                "station",
+                "onshore",
+                "--system",
+                system,
+                "--listen",
+                "tcp/127.0.0.1:0",
+                "--connect",
+                endpoint,
+                "--status-file",
+                str(status_path),
+                "--set",
+                "onshore.viewer=none",
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=tmp_path,
+        )
     flooding = threading.Event()
     try:
         up = session.liveliness().declare_subscriber(keys.alive_key(system, "onshore"), history=True)
         assert up.recv() is not None  # blocks until the station's token is seen
-        session.put(keys.link_key(system, "satellite"),
-                    encode(LinkControl("", {"rate": f"{RATE_BPS // 1000}kbit"}), 0, time.time()))
+        session.put(
+            keys.link_key(system, "satellite"),
+            encode(LinkControl("", {"rate": f"{RATE_BPS // 1000}kbit"}), 0, time.time()),
+        )
         waypoints = np.tile([0.0, 0.0, -10.0, 0.0], (1000, 1))
 
         def flood() -> None:
@@ -99,8 +120,12 @@ def test_a_station_that_hangs_is_cut_at_its_bound_with_its_stacks_and_status(tmp
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = open_session(zenoh_config([endpoint], mode="router"), "test")
     status_path = tmp_path / "onshore.json"
-    station = subprocess.Popen([sys.executable, "-P", "-c", HANGING_STATION, endpoint, str(status_path)],
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=tmp_path)
+    station = subprocess.Popen(
+        [sys.executable, "-P", "-c", HANGING_STATION, endpoint, str(status_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        cwd=tmp_path,
+    )
     try:
         up = session.liveliness().declare_subscriber(keys.alive_key("hang", "onshore"), history=True)
         assert up.recv() is not None

@@ -17,11 +17,14 @@ def summary(*cores: float) -> dict:  # type: ignore[type-arg]
     return {"stations": {f"s{i}": {"cpu": {"cores": c}} for i, c in enumerate(cores)}}
 
 
-def test_auto_parallel_follows_the_cost_measured_here(tmp_path: Path,
-                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+def test_auto_parallel_follows_the_cost_measured_here(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    assert capacity.measured_cores() == (capacity.REFERENCE_CORES,
-                                         "the project's measurement (none here yet)")
+    assert capacity.measured_cores() == (
+        capacity.REFERENCE_CORES,
+        "the project's measurement (none here yet)",
+    )
     capacity.record([summary(0.2, 0.2), summary(0.3, 0.1), {"stations": {}}, summary(0.4, 0.2)])
     cores, source = capacity.measured_cores()
     assert cores == pytest.approx(0.4) and "latest 3 systems" in source  # the median; nothing from no CPU

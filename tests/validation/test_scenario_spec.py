@@ -24,8 +24,11 @@ def test_the_library_loads_and_covers_the_five_uses_but_parallel() -> None:
     scenarios = [load_scenario(p) for p in LIBRARY]
     assert len(scenarios) >= 9
     assert {s.use for s in scenarios} == set(USES) - {"parallel"}  # parallel is how they run, not a file
-    assert [s.name for s in scenarios if s.expect_failed] == ["recognition-biased", "satellite-down",
-                                                                  "valve-seized"]
+    assert [s.name for s in scenarios if s.expect_failed] == [
+        "recognition-biased",
+        "satellite-down",
+        "valve-seized",
+    ]
 
 
 @pytest.mark.parametrize(("change", "field", "allowed"), [
@@ -93,8 +96,13 @@ def test_commands_and_links_are_judged_from_the_run() -> None:
 
 def test_an_intervention_is_judged_on_what_onboard_said_and_on_the_truth() -> None:
     def worked(phase: str, reason: str = "") -> Telemetry:
-        return dataclasses.replace(state(""), intervention_id=4, intervention_target="valve_1",
-                                   intervention_phase=phase, intervention_reason=reason)
+        return dataclasses.replace(
+            state(""),
+            intervention_id=4,
+            intervention_target="valve_1",
+            intervention_phase=phase,
+            intervention_reason=reason,
+        )
 
     turned = [(1.0, worked("turn")), (2.0, worked("done"))]
     judged = {"part": "valve_1", "target_deg": 90.0}
@@ -104,8 +112,10 @@ def test_an_intervention_is_judged_on_what_onboard_said_and_on_the_truth() -> No
     assert judge(Run(on_target, states=turned), (done,))[0].passed
     believed = judge(Run(short, states=turned), (done,))[0]  # onboard says done; the truth does not
     assert not believed.passed and "truth 9.0 deg" in believed.detail
-    stalled = [(1.0, worked("turn")),
-               (2.0, worked("failed", "valve_1 does not turn: stopped at 8 of 90 deg"))]
+    stalled = [
+        (1.0, worked("turn")),
+        (2.0, worked("failed", "valve_1 does not turn: stopped at 8 of 90 deg")),
+    ]
     seized = Assertion("intervention", {"part": "valve_1", "outcome": "failed", "reason": "does not turn"})
     assert judge(Run(short, states=stalled), (seized,))[0].passed
     assert not judge(Run(short, states=stalled), (done,))[0].passed
@@ -130,9 +140,11 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
     assert not why and nominal.time.simulated and nominal.time.speed_factor == 4.0
     back, _ = nominal.on_time("real", None)
     assert not back.time.simulated and back.time.speed_factor == 1.0
-    for name, mode, said in (("external-onboard", "sim", "external onboard keeps the wall clock"),
-                             ("onboard-starved", "lockstep", "a CPU cap is a share of wall time"),
-                             ("vessel-crash", "lockstep", "a station killed mid-period")):
+    for name, mode, said in (
+        ("external-onboard", "sim", "external onboard keeps the wall clock"),
+        ("onboard-starved", "lockstep", "a CPU cap is a share of wall time"),
+        ("vessel-crash", "lockstep", "a station killed mid-period"),
+    ):
         scenario = load_scenario(root / f"{name}.toml")
         kept, why = scenario.on_time(mode, "4" if mode == "sim" else None)
         assert kept is scenario and not kept.time.simulated and said in why, why
@@ -141,18 +153,35 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
 def test_a_failed_scenario_says_which_assertions_came_out_wrong(tmp_path: Path) -> None:
     """The line the CLI prints last, and JUnit's failure message: the assertions that did not come
     out as the scenario expects, with their figures, not those that did."""
-    table = {**MINIMAL, "assert": [{"kind": "stations"}, {"kind": "mission_done", "within_s": 20},
-                                   {"kind": "commands_answered"}], "expect_failed": ["mission_done"]}
+    table = {
+        **MINIMAL,
+        "assert": [
+            {"kind": "stations"},
+            {"kind": "mission_done", "within_s": 20},
+            {"kind": "commands_answered"},
+        ],
+        "expect_failed": ["mission_done"],
+    }
     scenario = scenario_of(table)
     stations, done, answered = scenario.assertions
     as_expected = [Verdict(stations, True, "0 restarts"), Verdict(done, False, "not done")]
-    assert Result(scenario, tmp_path, [*as_expected, Verdict(answered, True, "all answered")], True,
-                  1.0).why_failed == ""
-    result = Result(scenario, tmp_path, [*as_expected, Verdict(answered, False, "unanswered: mode 7")],
-                    False, 1.0)
+    assert (
+        Result(
+            scenario, tmp_path, [*as_expected, Verdict(answered, True, "all answered")], True, 1.0
+        ).why_failed
+        == ""
+    )
+    result = Result(
+        scenario, tmp_path, [*as_expected, Verdict(answered, False, "unanswered: mode 7")], False, 1.0
+    )
     assert result.why_failed == "commands_answered failed: unanswered: mode 7"
-    held = Result(scenario, tmp_path, [as_expected[0], Verdict(done, True, "done at 12 s"),
-                                       Verdict(answered, True, "all answered")], False, 1.0)
+    held = Result(
+        scenario,
+        tmp_path,
+        [as_expected[0], Verdict(done, True, "done at 12 s"), Verdict(answered, True, "all answered")],
+        False,
+        1.0,
+    )
     assert held.why_failed == "mission_done within_s=20.0 held: done at 12 s"
     broken = Result(scenario, tmp_path, [], False, 1.0, error="no summary.json:\nlast lines")
     assert broken.why_failed == "no summary.json:"

@@ -29,8 +29,10 @@ def available_cores() -> float:
     """The CPUs this process may run on, fewer where the cgroup it sees as its root has a quota (a
     container's --cpus)."""
     cores = float(len(os.sched_getaffinity(0)))
-    quotas = ((Path("/sys/fs/cgroup/cpu.max"), _v2_quota),
-              (Path("/sys/fs/cgroup/cpu/cpu.cfs_quota_us"), _v1_quota))
+    quotas = (
+        (Path("/sys/fs/cgroup/cpu.max"), _v2_quota),
+        (Path("/sys/fs/cgroup/cpu/cpu.cfs_quota_us"), _v1_quota),
+    )
     for path, parse in quotas:
         try:
             quota = parse(path)
@@ -67,8 +69,11 @@ def measured_cores() -> tuple[float, str]:
 def record(summaries: Iterable[dict[str, Any]]) -> None:
     """Keep the cost of each system that ran (its stations' cores summed), per simulated second
     (a system at speed X takes X times its real-time cores)."""
-    new = [sum(s["cpu"]["cores"] for s in summary.get("stations", {}).values() if s.get("cpu"))
-           / max(summary.get("time", {}).get("achieved_speed", 1.0), 1e-3) for summary in summaries]
+    new = [
+        sum(s["cpu"]["cores"] for s in summary.get("stations", {}).values() if s.get("cpu"))
+        / max(summary.get("time", {}).get("achieved_speed", 1.0), 1e-3)
+        for summary in summaries
+    ]
     new = [c for c in new if c > 0]
     if not new:
         return
@@ -89,5 +94,7 @@ def auto_parallel(scenarios: int, speed: float = 1.0) -> tuple[int, str]:
     per_system_at_speed = per_system * speed if math.isfinite(speed) else 1.0
     count = max(1, min(scenarios, math.floor(HEADROOM * cores / per_system_at_speed)))
     at = "" if speed == 1.0 else f" at speed {speed:g}" if math.isfinite(speed) else " at speed max"
-    return count, (f"--parallel auto: {count} systems at once{at} ({cores:g} cores here, {HEADROOM:.0%} of "
-                   f"them for the systems; a system takes {per_system_at_speed:.2f} cores{at}, {source})")
+    return count, (
+        f"--parallel auto: {count} systems at once{at} ({cores:g} cores here, {HEADROOM:.0%} of "
+        f"them for the systems; a system takes {per_system_at_speed:.2f} cores{at}, {source})"
+    )

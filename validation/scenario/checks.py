@@ -72,7 +72,11 @@ def final_error(
 
 
 def failsafe(
-    run: Run, from_s: float, to_s: float, enter_within_s: float = 3.0, leave_within_s: float = 5.0,
+    run: Run,
+    from_s: float,
+    to_s: float,
+    enter_within_s: float = 3.0,
+    leave_within_s: float = 5.0,
     phase: str = "",
 ) -> tuple[bool, str]:
     """Entered within `enter_within_s` of `from_s`, and left within `leave_within_s` of `to_s`;
@@ -136,8 +140,13 @@ def stations(run: Run, max_restarts: float = 0, max_drift_m: float = math.inf) -
     failed = [n for n, s in own.items() if s["exit_code"] != 0]
     back = [r for r in run.summary.get("restarts", []) if r.get("down_s") is not None]
     drift_m = max((r["drift_m"] for r in back), default=0.0)
-    ok = (run.summary.get("verdict") in ("done", "incomplete") and not failed and restarts <= max_restarts
-          and len(back) == restarts and drift_m <= max_drift_m)
+    ok = (
+        run.summary.get("verdict") in ("done", "incomplete")
+        and not failed
+        and restarts <= max_restarts
+        and len(back) == restarts
+        and drift_m <= max_drift_m
+    )
     return ok, (
         f"verdict {run.summary.get('verdict')}"
         + (f" ({run.summary['failure']})" if run.summary.get("failure") else "")
@@ -156,11 +165,17 @@ def intervention(run: Run, part: str, outcome: str = "done", reason: str = "") -
         return False, f"{part}: no end reported (last phase: {seen[-1] if seen else 'none'})"
     end = ends[-1]
     judged = next((i for i in run.summary.get("interventions", []) if i["part"] == part), None)
-    truth = ("no truth" if judged is None
-             else f"truth {judged['truth_deg']} deg, target {judged['target_deg']} deg")
+    truth = (
+        "no truth"
+        if judged is None
+        else f"truth {judged['truth_deg']} deg, target {judged['target_deg']} deg"
+    )
     on_target = judged is not None and judged["success"]
-    held = end.intervention_phase == outcome and reason in end.intervention_reason and on_target == (
-        outcome == "done")
+    held = (
+        end.intervention_phase == outcome
+        and reason in end.intervention_reason
+        and on_target == (outcome == "done")
+    )
     said = f": {end.intervention_reason}" if end.intervention_reason else ""
     return held, f"{part} {end.intervention_phase}{said}; {truth}"
 
@@ -177,7 +192,8 @@ def arm_limits(run: Run, margin_deg: float = 1.0) -> tuple[bool, str]:
     worst = int(np.argmax(past_rad))
     return bool(past_rad.max() <= margin_rad), (
         f"{len(q)} states; nearest a limit: {ARM_JOINTS[worst]} at {math.degrees(past_rad[worst]):+.1f} deg "
-        f"from it (allowed {margin_deg:g} deg past)")
+        f"from it (allowed {margin_deg:g} deg past)"
+    )
 
 
 def arm_ranges_rad() -> tuple[np.ndarray, np.ndarray]:
@@ -212,8 +228,13 @@ def _perception(run: Run) -> dict[str, Any]:
     return dict((run.summary.get("scene") or {}).get("perception") or {})
 
 
-def perception(run: Run, source: str, min_points_per_s: float = -math.inf,
-               max_points_per_s: float = math.inf, min_mapped_s: float = 0.0) -> tuple[bool, str]:
+def perception(
+    run: Run,
+    source: str,
+    min_points_per_s: float = -math.inf,
+    max_points_per_s: float = math.inf,
+    min_mapped_s: float = 0.0,
+) -> tuple[bool, str]:
     """The points `source` brought (its mean rate over shore's reports) within the bounds, and
     the scene mapped from it (the cameras', for depth and stereo) for at least `min_mapped_s`."""
     p = _perception(run)
@@ -224,9 +245,11 @@ def perception(run: Run, source: str, min_points_per_s: float = -math.inf,
     if rate is None:
         return False, f"no report of {source} ({p['reports']} reports)"
     held = min_points_per_s <= rate <= max_points_per_s and mapped_s >= min_mapped_s
-    return held, (f"{source}: {rate:.0f} points/s on average (allowed [{min_points_per_s:g}, "
-                  f"{max_points_per_s:g}]), the scene mapped from it for {mapped_s:.0f} s (at least "
-                  f"{min_mapped_s:g}); {p['reports']} reports on shore")
+    return held, (
+        f"{source}: {rate:.0f} points/s on average (allowed [{min_points_per_s:g}, "
+        f"{max_points_per_s:g}]), the scene mapped from it for {mapped_s:.0f} s (at least "
+        f"{min_mapped_s:g}); {p['reports']} reports on shore"
+    )
 
 
 def recognition(run: Run, min_confidence: float = 0.0, max_confidence: float = 1.0) -> tuple[bool, str]:
@@ -237,7 +260,8 @@ def recognition(run: Run, min_confidence: float = 0.0, max_confidence: float = 1
     confidence = p["recognition_confidence"]
     return min_confidence <= confidence["last"] <= max_confidence, (
         f"panel confidence {confidence['last']:.2f} at the end (allowed [{min_confidence:g}, "
-        f"{max_confidence:g}]), {confidence['max']:.2f} at most, by {p['recognition_method'] or 'nothing'}")
+        f"{max_confidence:g}]), {confidence['max']:.2f} at most, by {p['recognition_method'] or 'nothing'}"
+    )
 
 
 CHECKS: dict[str, Callable[..., tuple[bool, str]]] = {

@@ -124,8 +124,9 @@ class System:
     def running(self) -> bool:
         return self.process.poll() is None
 
-    def state(self, holds: Callable[[RunState], bool] = lambda _: True,
-              timeout_s: float = 0.0) -> RunState | None:
+    def state(
+        self, holds: Callable[[RunState], bool] = lambda _: True, timeout_s: float = 0.0
+    ) -> RunState | None:
         """`abyss up`'s state (`state.json`) once `holds` is true of it; None if it is not in time."""
         return wait_for_state(self.out_dir, holds, timeout_s, self.running)
 
@@ -164,8 +165,13 @@ def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> s
     return event.describe()
 
 
-def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[str], None],
-                 started: Callable[[System, str], None] | None = None) -> Result:
+def run_scenario(
+    scenario: Scenario,
+    out_dir: Path,
+    index: int,
+    say: Callable[[str], None],
+    started: Callable[[System, str], None] | None = None,
+) -> Result:
     """Run one scenario to its end; `started(system, system_id)` is called once `abyss up` runs."""
     t0 = time.monotonic()
     system_id = f"{scenario.name}-{os.getpid()}-{index}"[-64:]
@@ -248,8 +254,9 @@ def run_scenario(scenario: Scenario, out_dir: Path, index: int, say: Callable[[s
             plot_run(out_dir)
         except (AbyssError, OSError) as exc:  # too short a run to plot
             say(f"no plots: {exc}")
-    return Result(scenario, out_dir, verdicts, passed, time.monotonic() - t0, error,
-                  str(run.summary.get("verdict", "")))
+    return Result(
+        scenario, out_dir, verdicts, passed, time.monotonic() - t0, error, str(run.summary.get("verdict", ""))
+    )
 
 
 def run_all(scenarios: Sequence[Scenario], out_dir: Path, parallel: int) -> list[Result]:

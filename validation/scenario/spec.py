@@ -24,8 +24,13 @@ ACTIONS = ("link", "fault", "kill")
 ASSERTIONS: dict[str, dict[str, type]] = {
     "mission_done": {"within_s": float},
     "final_error": {"vehicle_m": float, "ee_m": float, "ee_deg": float},
-    "failsafe": {"from_s": float, "to_s": float, "enter_within_s": float, "leave_within_s": float,
-                 "phase": str},
+    "failsafe": {
+        "from_s": float,
+        "to_s": float,
+        "enter_within_s": float,
+        "leave_within_s": float,
+        "phase": str,
+    },
     "commands_answered": {},
     "scene": {"min_occupied_cells": float, "objects": list},
     "link": {"hop": str, "direction": str, "stat": str, "max": float, "min": float},
@@ -34,8 +39,12 @@ ASSERTIONS: dict[str, dict[str, type]] = {
     "shed": {"station": str, "min": float, "max": float},
     "intervention": {"part": str, "outcome": str, "reason": str},
     "arm_limits": {"margin_deg": float},
-    "perception": {"source": str, "min_points_per_s": float, "max_points_per_s": float,
-                   "min_mapped_s": float},
+    "perception": {
+        "source": str,
+        "min_points_per_s": float,
+        "max_points_per_s": float,
+        "min_mapped_s": float,
+    },
     "recognition": {"min_confidence": float, "max_confidence": float},
 }
 OUTCOMES = ("done", "failed")  # of an intervention

@@ -29,7 +29,7 @@ def test_a_lower_task_never_disturbs_a_higher_one() -> None:
             tasks[-1] = Task("copy", tasks[0].jacobian[:1], rng.normal(size=1))
         contributions = solve(tasks, n, damping=0.05, threshold=0.05)
         for i, higher in enumerate(tasks):
-            for lower in contributions[i + 1:]:
+            for lower in contributions[i + 1 :]:
                 np.testing.assert_allclose(higher.jacobian @ lower, 0.0, atol=1e-9)
 
 
@@ -37,8 +37,9 @@ def test_the_top_task_is_met_exactly_away_from_singularities() -> None:
     rng = np.random.default_rng(4)
     jacobian = rng.normal(size=(3, 6))
     velocity = rng.normal(size=3)
-    contributions = solve([Task("top", jacobian, velocity), Task("rest", np.eye(6), rng.normal(size=6))],
-                          6, 0.05, 0.05)
+    contributions = solve(
+        [Task("top", jacobian, velocity), Task("rest", np.eye(6), rng.normal(size=6))], 6, 0.05, 0.05
+    )
     np.testing.assert_allclose(jacobian @ sum(contributions), velocity, atol=1e-9)
 
 
@@ -57,8 +58,9 @@ def fly(arm: ArmController, world: World, seconds: float) -> list[np.ndarray]:
     seen = []
     for _ in range(round(seconds / PERIOD_S)):
         truth = world.truth()
-        out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad,
-                       enabled=True)
+        out = arm.step(
+            truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad, enabled=True
+        )
         assert np.all(np.isfinite(out.joint_velocities_radps))
         world.step(References(np.zeros(4), out.joint_velocities_radps, 0.0), PERIOD_S)
         seen.append(world.joints().positions_rad)
@@ -66,9 +68,16 @@ def fly(arm: ArmController, world: World, seconds: float) -> list[np.ndarray]:
 
 
 def setup(*overrides: str) -> tuple[ArmController, World]:
-    config = load(None, ["simulation.low_level=kinematic", "mission.interventions=[]",
-                         f"mission.arm_target={VALVE_HANDLE}",
-                         f"simulation.start_position_m_world={LAST_WAYPOINT}", *overrides])
+    config = load(
+        None,
+        [
+            "simulation.low_level=kinematic",
+            "mission.interventions=[]",
+            f"mission.arm_target={VALVE_HANDLE}",
+            f"simulation.start_position_m_world={LAST_WAYPOINT}",
+            *overrides,
+        ],
+    )
     return ArmController(config.onboard, config.mission), World(config.simulation, np.random.default_rng(0))
 
 
@@ -85,16 +94,23 @@ def test_a_constant_target_is_reached() -> None:
     rotation = world.data.site_xmat[site].reshape(3, 3)
     angle_rad = np.arccos(np.clip((np.trace(arm.goal_rotation.T @ rotation) - 1) / 2, -1, 1))
     assert position_error_m < 1e-3 and np.degrees(angle_rad) < 0.5
-    out = arm.step(world.truth().position_m_world, world.truth().orientation_wxyz_world,
-                   world.joints().positions_rad, enabled=True)
+    out = arm.step(
+        world.truth().position_m_world,
+        world.truth().orientation_wxyz_world,
+        world.joints().positions_rad,
+        enabled=True,
+    )
     assert out.mode == "reached"
 
 
-@pytest.mark.parametrize("target", [
-    (6.5, 0.0, -8.4, 0.0, 0.0, 0.0),  # far beyond reach, through the panel: stretched, singular
-    (4.2, 0.0, -10.5, 0.0, 1.5, 0.0),  # under the seabed, pointing down
-    (4.3, 1.5, -8.0, 0.0, 0.0, 3.0),  # beside and behind: the shoulder and wrist against their limits
-])
+@pytest.mark.parametrize(
+    "target",
+    [
+        (6.5, 0.0, -8.4, 0.0, 0.0, 0.0),  # far beyond reach, through the panel: stretched, singular
+        (4.2, 0.0, -10.5, 0.0, 1.5, 0.0),  # under the seabed, pointing down
+        (4.3, 1.5, -8.0, 0.0, 0.0, 3.0),  # beside and behind: the shoulder and wrist against their limits
+    ],
+)
 def test_joint_limits_and_clearance_hold_unreachable_targets_stay_finite(target: tuple[float, ...]) -> None:
     arm, world = setup("mission.arm_target=" + str(list(target)))
     goal = arm.mission.arm_goal()

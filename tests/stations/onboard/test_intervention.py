@@ -28,20 +28,33 @@ LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
 def recognised(offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RecognisedObjects:
     """The panel as the vessel would recognise it: where world.xml puts it, plus `offset_m`."""
     position = np.add(panel.PANEL_POSITION_M_WORLD, offset_m)
-    return RecognisedObjects(("panel",), np.array([[*position, 1.0, 0.0, 0.0, 0.0]]),
-                             np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "texture", 0.0)
+    return RecognisedObjects(
+        ("panel",),
+        np.array([[*position, 1.0, 0.0, 0.0, 0.0]]),
+        np.array([panel.PLATE_HALF_SIZE_M]),
+        np.ones(1),
+        "texture",
+        0.0,
+    )
 
 
-def goal_of(part: str, amount: str,
-            offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> InterventionGoal:
+def goal_of(
+    part: str, amount: str, offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+) -> InterventionGoal:
     goal, reason = resolve(Intervention(1, part, *panel.intent(part, amount)), recognised(offset_m))
     assert goal is not None, reason
     return goal
 
 
 def setup(low_level: str) -> tuple[ArmController, World]:
-    config = load(None, [f"simulation.low_level={low_level}", "simulation.camera_rate_hz=0",
-                         f"simulation.start_position_m_world={LAST_WAYPOINT}"])
+    config = load(
+        None,
+        [
+            f"simulation.low_level={low_level}",
+            "simulation.camera_rate_hz=0",
+            f"simulation.start_position_m_world={LAST_WAYPOINT}",
+        ],
+    )
     return ArmController(config.onboard, config.mission), World(config.simulation, np.random.default_rng(0))
 
 
@@ -54,8 +67,9 @@ def tool_pose(arm: ArmController, world: World) -> pin.SE3:
 
 def track(arm: ArmController, world: World, reference: PoseReference, gripper_mps: float = 0.0) -> None:
     truth = world.truth()
-    out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad, True,
-                   reference)
+    out = arm.step(
+        truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad, True, reference
+    )
     world.step(References(np.zeros(4), out.joint_velocities_radps, gripper_mps), PERIOD_S)
 
 
@@ -81,8 +95,9 @@ def test_the_turning_task_turns_the_tool_about_the_valve_axis_with_the_handle_he
     assert handle_error_m < 0.005, handle_error_m
 
 
-def work(goal: InterventionGoal, seize: bool = False, seconds: float = 60.0) -> tuple[InterventionRun, World,
-                                                                                       list[np.ndarray]]:
+def work(
+    goal: InterventionGoal, seize: bool = False, seconds: float = 60.0
+) -> tuple[InterventionRun, World, list[np.ndarray]]:
     """The primitive on the dynamic low level until it ends; the arm's joints seen on the way."""
     arm, world = setup("dynamic")
     if seize:
@@ -103,11 +118,13 @@ def truth_deg(world: World, part: str) -> float:
     return math.degrees(float(state.angles_rad[state.names.index(part)]))
 
 
-@pytest.mark.parametrize(("part", "amount", "target_deg", "tolerance_deg"),
-                         [("valve_1", "90", 90.0, 5.0), ("valve_0", "-45", -45.0, 5.0),
-                          ("lever_0", "down", -45.0, 3.0)])
-def test_the_primitive_works_the_part_judged_on_the_truth(part: str, amount: str, target_deg: float,
-                                                          tolerance_deg: float) -> None:
+@pytest.mark.parametrize(
+    ("part", "amount", "target_deg", "tolerance_deg"),
+    [("valve_1", "90", 90.0, 5.0), ("valve_0", "-45", -45.0, 5.0), ("lever_0", "down", -45.0, 3.0)],
+)
+def test_the_primitive_works_the_part_judged_on_the_truth(
+    part: str, amount: str, target_deg: float, tolerance_deg: float
+) -> None:
     run, world, _ = work(goal_of(part, amount))
     assert run.phase == "done", run.reason
     assert truth_deg(world, part) == pytest.approx(target_deg, abs=tolerance_deg)

@@ -51,8 +51,16 @@ def test_an_outlier_moves_nothing_and_coasting_keeps_the_last_velocity_fading() 
 
     def nav(t_s: float, fix_m: float, fix_s: float, dvl_valid: bool = True) -> NavState:
         velocity_mps = np.array([0.2, 0.0, 0.0]) if dvl_valid else np.zeros(3)
-        return NavState(np.array([fix_m, 0.0, -7.0]), q, velocity_mps, np.zeros(3), t_s, usbl_time_s=fix_s,
-                        depth_m=7.0, dvl_valid=dvl_valid)
+        return NavState(
+            np.array([fix_m, 0.0, -7.0]),
+            q,
+            velocity_mps,
+            np.zeros(3),
+            t_s,
+            usbl_time_s=fix_s,
+            depth_m=7.0,
+            dvl_valid=dvl_valid,
+        )
 
     for i in range(200):  # 10 s at 0.2 m/s, a perfect fix each second
         t_s = i * 0.05

@@ -31,8 +31,15 @@ def test_a_cut_tether_trips_the_failsafe_by_heartbeats_alone_and_it_lets_go_afte
         if step % round(config.vessel.heartbeat_period_s / STEP_S) == 0:
             tether.offer(now_s, encode(Heartbeat(0.0, True), step, now_s))
         beats = [decode("k", d.payload, "Heartbeat").message for d in tether.advance(now_s)]
-        nav = NavState(np.array([0.0, 0.0, -5.0]), np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(3),
-                       sim_time_s=now_s, usbl_time_s=now_s, depth_m=5.0)
+        nav = NavState(
+            np.array([0.0, 0.0, -5.0]),
+            np.array([1.0, 0.0, 0.0, 0.0]),
+            np.zeros(3),
+            np.zeros(3),
+            sim_time_s=now_s,
+            usbl_time_s=now_s,
+            depth_m=5.0,
+        )
         out = core.step(OnboardInputs(heartbeats=beats, nav=[nav], joints=joints), now_s)  # type: ignore[arg-type]
         assert out.vehicle is not None and out.arm is not None
         if out.telemetry is not None:

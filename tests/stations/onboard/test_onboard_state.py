@@ -33,8 +33,15 @@ def test_nav_filter_cuts_the_fix_noise_and_follows_motion() -> None:
         t_s = i * 0.05
         truth = np.array([0.2 * t_s, 0.0, -7.0])
         fix = truth + rng.normal(0, [0.05, 0.05, 0.01])
-        state = NavState(fix, np.array([1.0, 0, 0, 0]), np.array([0.2, 0, 0]) + rng.normal(0, 0.005, 3),
-                         np.zeros(3), t_s, usbl_time_s=t_s, depth_m=7.0 + rng.normal(0, 0.01))
+        state = NavState(
+            fix,
+            np.array([1.0, 0, 0, 0]),
+            np.array([0.2, 0, 0]) + rng.normal(0, 0.005, 3),
+            np.zeros(3),
+            t_s,
+            usbl_time_s=t_s,
+            depth_m=7.0 + rng.normal(0, 0.01),
+        )
         position, orientation = nav_filter.update(state)
         assert position is not None
         if t_s > 20:  # past the filter's settling

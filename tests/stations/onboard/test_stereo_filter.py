@@ -67,8 +67,13 @@ def test_a_textureless_pair_gives_no_depth(scale: int) -> None:
 
 
 def test_a_shrunk_camera_sees_a_point_where_the_shrunk_image_has_it() -> None:
-    camera = Camera(np.array([[400.0, 0.0, 320.0], [0.0, 400.0, 240.0], [0.0, 0.0, 1.0]]), 640, 480,
-                    np.eye(3), np.zeros(3))
+    camera = Camera(
+        np.array([[400.0, 0.0, 320.0], [0.0, 400.0, 240.0], [0.0, 0.0, 1.0]]),
+        640,
+        480,
+        np.eye(3),
+        np.zeros(3),
+    )
     half = camera.scaled(2)
     point_m = np.array([0.3, -0.2, 4.0])
     full_px, half_px = (c.matrix @ point_m / point_m[2] for c in (camera, half))
@@ -104,7 +109,7 @@ def test_the_half_resolution_lr_check_rejects_an_occluded_strip_as_the_full_one(
     half = left_right_consistent(left_px, right_px[pick::2, pick::2] / 2, 2, 1.0)
     assert full.sum() == full.size - full[FACE_ROWS, STRIP].size  # the strip only
     # the strip rejected but for a column at each end: its edges lie within a shrunk pixel
-    assert not half[FACE_ROWS, STRIP.start + 1:STRIP.stop - 1].any()
+    assert not half[FACE_ROWS, STRIP.start + 1 : STRIP.stop - 1].any()
     assert half.sum() > 0.97 * full.sum()  # the face's edges blurred by a shrunk pixel at most
 
 
@@ -116,9 +121,11 @@ def test_the_half_resolution_lr_check_keeps_what_the_full_one_does_of_a_matched_
     pair = [np.repeat(grey.clip(0, 255).astype(np.uint8)[..., None], 3, axis=2) for grey in scene(*textures)]
     truth_px = true_disparities_px()[0]
     kept, wrong = {}, {}
-    for name, check in (("none", StereoFilter(lr_max_diff_px=0, edge_step_px=0)),
-                        ("full", StereoFilter(edge_step_px=0, lr_scale=1)),
-                        ("half", StereoFilter(edge_step_px=0, lr_scale=2))):
+    for name, check in (
+        ("none", StereoFilter(lr_max_diff_px=0, edge_step_px=0)),
+        ("full", StereoFilter(edge_step_px=0, lr_scale=1)),
+        ("half", StereoFilter(edge_step_px=0, lr_scale=2)),
+    ):
         depth_m = stereo_depth(*pair, 100.0, 0.12, 64, 9, check)
         kept[name] = depth_m > 0
         found_px = 100.0 * 0.12 / np.where(kept[name], depth_m, np.inf)
@@ -127,9 +134,17 @@ def test_the_half_resolution_lr_check_keeps_what_the_full_one_does_of_a_matched_
     assert kept["half"].mean() > kept["full"].mean() - 0.02
 
 
-@pytest.mark.parametrize("field, value", [("stereo_min_texture", -1.0), ("stereo_uniqueness_percent", 101),
-                                          ("stereo_speckle_range_px", 0), ("stereo_edge_step_px", -0.5),
-                                          ("stereo_scale", 3), ("stereo_lr_scale", 4)])
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("stereo_min_texture", -1.0),
+        ("stereo_uniqueness_percent", 101),
+        ("stereo_speckle_range_px", 0),
+        ("stereo_edge_step_px", -0.5),
+        ("stereo_scale", 3),
+        ("stereo_lr_scale", 4),
+    ],
+)
 def test_stereo_settings_are_validated_with_the_field_named(field: str, value: float) -> None:
     with pytest.raises(ConfigError, match=f"onboard.{field}"):
         OnboardConfig(**{field: value})

@@ -42,13 +42,16 @@ class Vehicle:
     def move(self, linear_mps_body: np.ndarray, yaw_rate_radps: float) -> None:
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
         v = linear_mps_body
-        reference, self.pending = self.pending, np.array(
-            [c * v[0] - s * v[1], s * v[0] + c * v[1], v[2], yaw_rate_radps])
+        reference, self.pending = (
+            self.pending,
+            np.array([c * v[0] - s * v[1], s * v[0] + c * v[1], v[2], yaw_rate_radps]),
+        )
         if self.stuck:
             reference = np.zeros(4)
         self.velocity_mps_world += DT_S / (self.lag_s + DT_S) * (reference - self.velocity_mps_world)
-        self.position_m_world = self.position_m_world + DT_S * (self.velocity_mps_world[:3]
-                                                                + self.current_mps_world)
+        self.position_m_world = self.position_m_world + DT_S * (
+            self.velocity_mps_world[:3] + self.current_mps_world
+        )
         self.yaw_rad = (self.yaw_rad + DT_S * self.velocity_mps_world[3] + math.pi) % (2 * math.pi) - math.pi
 
 
@@ -59,8 +62,12 @@ class Flight:
     vehicle: Vehicle
 
 
-def fly(controller: VehicleController, seconds: float, vehicle: Vehicle | None = None,
-        hold_s: tuple[float, float] = (0.0, 0.0)) -> Flight:
+def fly(
+    controller: VehicleController,
+    seconds: float,
+    vehicle: Vehicle | None = None,
+    hold_s: tuple[float, float] = (0.0, 0.0),
+) -> Flight:
     """`seconds` of flight, held (the failsafe) from `hold_s[0]` to `hold_s[1]`."""
     vehicle = vehicle or Vehicle()
     flight = Flight([], [], vehicle)
@@ -93,16 +100,24 @@ def test_three_waypoints_reached_in_turn() -> None:
 def leg_bounds_s(mission: MissionConfig, gains: OnboardConfig, margin_s: float) -> list[float]:
     """Each leg of the mission from the start of `fly`, flown at the speed limits, plus `margin_s`."""
     poses = np.r_[[[0.0, 0.0, -5.0, 0.0]], np.array(mission.waypoints)]
-    return [float(np.linalg.norm(b[:3] - a[:3])) / gains.max_speed_mps
-            + abs(b[3] - a[3]) / gains.max_yaw_rate_radps + margin_s for a, b in itertools.pairwise(poses)]
+    return [
+        float(np.linalg.norm(b[:3] - a[:3])) / gains.max_speed_mps
+        + abs(b[3] - a[3]) / gains.max_yaw_rate_radps
+        + margin_s
+        for a, b in itertools.pairwise(poses)
+    ]
 
 
-@pytest.mark.parametrize("vehicle", [
-    Vehicle(),
-    Vehicle(lag_s=0.3, nav_sigma_m=0.002),
-    Vehicle(lag_s=0.3, current_mps_world=np.array([0.1, -0.05, 0.02]), nav_sigma_m=0.002),
-    Vehicle(current_mps_world=np.array([-0.15, 0.1, 0.0]), nav_sigma_m=0.002),
-], ids=["kinematic", "lagging", "lagging-in-a-current", "kinematic-in-a-current"])
+@pytest.mark.parametrize(
+    "vehicle",
+    [
+        Vehicle(),
+        Vehicle(lag_s=0.3, nav_sigma_m=0.002),
+        Vehicle(lag_s=0.3, current_mps_world=np.array([0.1, -0.05, 0.02]), nav_sigma_m=0.002),
+        Vehicle(current_mps_world=np.array([-0.15, 0.1, 0.0]), nav_sigma_m=0.002),
+    ],
+    ids=["kinematic", "lagging", "lagging-in-a-current", "kinematic-in-a-current"],
+)
 def test_each_waypoint_is_landed_on_in_a_bounded_time(vehicle: Vehicle) -> None:
     """The tight tolerances of the e2e test (1 cm, 0.5 deg, on the estimate) within each leg
     flown at the speed limits plus 10 s; the former PI took 20-30 s more to creep the last
@@ -148,7 +163,7 @@ def test_a_waypoint_out_of_reach_is_missed_after_its_time() -> None:
     flight = fly(controller, limit_s + 10.0, vehicle, hold_s=(1.0, 11.0))
     missed_at_s = flight.modes.index("missed") * DT_S
     assert limit_s + 10.0 - 2 * DT_S <= missed_at_s <= limit_s + 10.0 + 2 * DT_S
-    assert set(flight.modes[flight.modes.index("missed"):]) == {"missed"} and controller.index == 0
+    assert set(flight.modes[flight.modes.index("missed") :]) == {"missed"} and controller.index == 0
     vehicle.stuck = False  # it can reach it now, but a missed waypoint stays missed
     assert set(fly(controller, 20.0, vehicle).modes) == {"missed"}
     assert np.linalg.norm(vehicle.position_m_world - mission.waypoints[0][:3]) < 0.02  # held there

@@ -37,8 +37,9 @@ OP_TOPICS = {"op/mode", "op/waypoints", "op/arm"}
 
 @pytest.fixture
 def mission() -> MissionConfig:
-    mission = dataclasses.replace(Config().mission, interventions=(),
-                                  arm_target=(4.86, 0.0, -8.35, 1.57, 0.0, 0.0))
+    mission = dataclasses.replace(
+        Config().mission, interventions=(), arm_target=(4.86, 0.0, -8.35, 1.57, 0.0, 0.0)
+    )
     assert len(mission.waypoints) == 3 and mission.arm_goal() is not None
     return mission
 
@@ -46,13 +47,26 @@ def mission() -> MissionConfig:
 def telemetry(**fields: object) -> Telemetry:
     """Onboard's telemetry: a fresh onboard at rest, with `fields` changed."""
     values: dict[str, object] = {
-        "position_m_world": np.zeros(3), "yaw_rad": 0.0, "mode": "idle", "command_id": -1,
-        "waypoint_index": 0, "waypoints_total": 0, "position_error_m_world": np.zeros(3),
-        "heading_error_rad": 0.0, "arm_mode": "idle", "arm_command_id": -1,
-        "ee_position_error_m_world": np.zeros(3), "ee_orientation_error_rad": 0.0,
-        "ee_position_m_world": np.zeros(3), "ee_orientation_wxyz_world": np.array([1.0, 0.0, 0.0, 0.0]),
-        "arm_positions_rad": np.zeros(6), "failsafe": "", "failsafe_events": 0, "sim_time_s": 1.0,
-        "operator_mode": "auto", "boot_id": 1,
+        "position_m_world": np.zeros(3),
+        "yaw_rad": 0.0,
+        "mode": "idle",
+        "command_id": -1,
+        "waypoint_index": 0,
+        "waypoints_total": 0,
+        "position_error_m_world": np.zeros(3),
+        "heading_error_rad": 0.0,
+        "arm_mode": "idle",
+        "arm_command_id": -1,
+        "ee_position_error_m_world": np.zeros(3),
+        "ee_orientation_error_rad": 0.0,
+        "ee_position_m_world": np.zeros(3),
+        "ee_orientation_wxyz_world": np.array([1.0, 0.0, 0.0, 0.0]),
+        "arm_positions_rad": np.zeros(6),
+        "failsafe": "",
+        "failsafe_events": 0,
+        "sim_time_s": 1.0,
+        "operator_mode": "auto",
+        "boot_id": 1,
     }
     values.update(fields)
     return Telemetry(**values)  # type: ignore[arg-type]
@@ -74,8 +88,9 @@ def waypoints_taken(operator: Operator, now_s: float) -> dict[str, Message]:
     """Onboard takes the waypoints sent: what shore sends at `now_s` on hearing it."""
     waypoints = operator.waypoints.message
     assert isinstance(waypoints, Waypoints)
-    return commands(operator.step(OperatorInputs(acks=[CommandAck(waypoints.command_id, "waypoints", "")]),
-                                  now_s))
+    return commands(
+        operator.step(OperatorInputs(acks=[CommandAck(waypoints.command_id, "waypoints", "")]), now_s)
+    )
 
 
 def assert_mission_commands(sent: dict[str, Message], mission: MissionConfig) -> None:
@@ -127,11 +142,26 @@ def test_without_telemetry_the_mission_goes_out_after_the_join_wait(mission: Mis
 
 def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfig) -> None:
     history: list[dict[str, object]] = [
-        {"command": "waypoints", "command_id": 123, "sends": 1, "answered": False, "accepted": False,
-         "reason": ""}]
+        {
+            "command": "waypoints",
+            "command_id": 123,
+            "sends": 1,
+            "answered": False,
+            "accepted": False,
+            "reason": "",
+        }
+    ]
     operator = Operator(mission, history=history)
-    flying = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="moving",
-                       arm_command_id=456, arm_mode="idle", operator_mode="auto", boot_id=7)
+    flying = telemetry(
+        command_id=123,
+        waypoints_total=3,
+        waypoint_index=2,
+        mode="moving",
+        arm_command_id=456,
+        arm_mode="idle",
+        operator_mode="auto",
+        boot_id=7,
+    )
     out = operator.step(OperatorInputs(telemetry=[flying]), 0.0)
     assert commands(out) == {} and out.first_sent == []
     assert [e["station"] for e in operator.events] == ["onshore"]
@@ -141,8 +171,15 @@ def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfi
     entry = operator.history[("op/waypoints", 123)]
     assert entry["answered"] is True and entry["accepted"] is True
     # onboard holds the last waypoint and the end-effector its goal: the mission is done
-    reached = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="reached",
-                        arm_command_id=456, arm_mode="reached", boot_id=7)
+    reached = telemetry(
+        command_id=123,
+        waypoints_total=3,
+        waypoint_index=2,
+        mode="reached",
+        arm_command_id=456,
+        arm_mode="reached",
+        boot_id=7,
+    )
     out = operator.step(OperatorInputs(telemetry=[reached]), STATUS_PERIOD_S + 0.01)
     assert isinstance(out.status, MissionStatus) and out.status.done
     assert (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
@@ -154,11 +191,23 @@ def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfi
 
 def test_the_arm_goal_of_another_command_is_not_done(mission: MissionConfig) -> None:
     operator = Operator(mission)
-    first = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="reached",
-                      arm_command_id=456, arm_mode="reached")
+    first = telemetry(
+        command_id=123,
+        waypoints_total=3,
+        waypoint_index=2,
+        mode="reached",
+        arm_command_id=456,
+        arm_mode="reached",
+    )
     operator.step(OperatorInputs(telemetry=[first]), 0.0)
-    other = telemetry(command_id=123, waypoints_total=3, waypoint_index=2, mode="reached",
-                      arm_command_id=789, arm_mode="reached")
+    other = telemetry(
+        command_id=123,
+        waypoints_total=3,
+        waypoint_index=2,
+        mode="reached",
+        arm_command_id=789,
+        arm_mode="reached",
+    )
     out = operator.step(OperatorInputs(telemetry=[other]), STATUS_PERIOD_S + 0.01)
     assert out.status is not None and not out.status.done
 
@@ -174,8 +223,15 @@ def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig)
     now_s += STATUS_PERIOD_S + 0.01
     out = operator.step(OperatorInputs(acks=acks), now_s)
     assert commands(out) == {} and len(out.answers) == 3
-    boot_a = telemetry(boot_id=1, command_id=ids["op/waypoints"], waypoint_index=2, waypoints_total=3,
-                       mode="moving", arm_command_id=-1, sim_time_s=40.0)
+    boot_a = telemetry(
+        boot_id=1,
+        command_id=ids["op/waypoints"],
+        waypoint_index=2,
+        waypoints_total=3,
+        mode="moving",
+        arm_command_id=-1,
+        sim_time_s=40.0,
+    )
     now_s += STATUS_PERIOD_S + 0.01
     out = operator.step(OperatorInputs(telemetry=[boot_a]), now_s)
     assert commands(out) == {}
@@ -198,8 +254,14 @@ def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig)
     assert out.status is not None and (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
 
     # onboard flies the remaining waypoint: counted from the mission's first
-    flying = telemetry(boot_id=2, command_id=waypoints.command_id, waypoint_index=0, waypoints_total=1,
-                       mode="moving", sim_time_s=42.0)
+    flying = telemetry(
+        boot_id=2,
+        command_id=waypoints.command_id,
+        waypoint_index=0,
+        waypoints_total=1,
+        mode="moving",
+        sim_time_s=42.0,
+    )
     now_s += STATUS_PERIOD_S + 0.01
     out = operator.step(OperatorInputs(telemetry=[flying]), now_s)
     assert out.status is not None
@@ -208,8 +270,9 @@ def test_a_rebooted_onboard_is_handed_the_goals_in_force(mission: MissionConfig)
 
 
 def test_the_missions_interventions_go_one_after_the_other_and_end_it(mission: MissionConfig) -> None:
-    mission = dataclasses.replace(mission, arm_target=(),
-                                  interventions=(("valve_1", "90"), ("lever_0", "down")))
+    mission = dataclasses.replace(
+        mission, arm_target=(), interventions=(("valve_1", "90"), ("lever_0", "down"))
+    )
     operator = Operator(mission)
     assert "op/intervene" not in commands(operator.step(OperatorInputs(telemetry=[telemetry()]), 0.0))
     first = waypoints_taken(operator, 0.0)["op/intervene"]
@@ -226,8 +289,12 @@ def test_the_missions_interventions_go_one_after_the_other_and_end_it(mission: M
     second = commands(out)["op/intervene"]
     assert isinstance(second, Intervention) and second.target == "lever_0" and second.to == "down"
     assert out.status is not None and not out.status.done and out.status.interventions_done == 1
-    failed = telemetry(**flown, intervention_id=second.command_id, intervention_phase="failed",
-                       intervention_reason="lever_0 does not turn")
+    failed = telemetry(
+        **flown,
+        intervention_id=second.command_id,
+        intervention_phase="failed",
+        intervention_reason="lever_0 does not turn",
+    )
     status = operator.step(OperatorInputs(telemetry=[failed]), 3.0).status
     assert status is not None and not status.done and status.intervention_reason == "lever_0 does not turn"
     thrown = telemetry(**flown, intervention_id=second.command_id, intervention_phase="done")

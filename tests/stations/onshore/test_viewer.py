@@ -200,8 +200,10 @@ def test_the_sonar_and_what_perception_works_with(recording: Recording) -> None:
     assert np.linalg.norm(echoes - [1.0, 0, -6], axis=1) == pytest.approx(np.full(len(echoes), 5.25))
     assert scalars(batches["perception/points_per_s/depth"]) == pytest.approx([100.0, 0.0])
     assert scalars(batches["perception/recognition_confidence"]) == pytest.approx([0.5, 0.3])
-    assert values(batches["status/perception"], "TextLog:text") == [["the scene is mapped from cameras"],
-                                                                   ["the scene is mapped from sonar"]]
+    assert values(batches["status/perception"], "TextLog:text") == [
+        ["the scene is mapped from cameras"],
+        ["the scene is mapped from sonar"],
+    ]
     assert values(batches["status/perception"], "TextLog:level") == [["INFO"], ["WARN"]]
 
 

@@ -26,9 +26,13 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 def quat_to_rotation(q: np.ndarray) -> np.ndarray:
     w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 class Reference:
@@ -43,8 +47,7 @@ class Reference:
         assert np.allclose(model.body_iquat[b], [1, 0, 0, 0])
         i_o = inertia_cg - self.m * skew(self.r_g) @ skew(self.r_g)
         self.i_o = i_o
-        self.m_rb = np.block([[self.m * np.eye(3), -self.m * skew(self.r_g)],
-                              [self.m * skew(self.r_g), i_o]])
+        self.m_rb = np.block([[self.m * np.eye(3), -self.m * skew(self.r_g)], [self.m * skew(self.r_g), i_o]])
         self.v = vehicle
         self.g = -float(model.opt.gravity[2])
         self.buoyancy_n = float(model.opt.density) * self.g * vehicle.volume_m3
@@ -54,19 +57,30 @@ class Reference:
         q, nu = x[3:7], x[7:]
         rotation = quat_to_rotation(q)
         v1, w = nu[:3], nu[3:]
-        c_rb = np.block([[self.m * skew(w), -self.m * skew(w) @ skew(self.r_g)],
-                         [self.m * skew(self.r_g) @ skew(w), -skew(self.i_o @ w)]])
+        c_rb = np.block(
+            [
+                [self.m * skew(w), -self.m * skew(w) @ skew(self.r_g)],
+                [self.m * skew(self.r_g) @ skew(w), -skew(self.i_o @ w)],
+            ]
+        )
         a = self.v.added_mass @ nu
         c_a = np.block([[np.zeros((3, 3)), -skew(a[:3])], [-skew(a[:3]), -skew(a[3:])]])
         d = np.diag(self.v.linear_damping + self.v.quadratic_damping * np.abs(nu))
         weight = rotation.T @ np.array([0.0, 0.0, -self.m * self.g])
         lift = rotation.T @ np.array([0.0, 0.0, self.buoyancy_n])
-        g_eta = np.r_[weight + lift, np.cross(self.r_g, weight)
-                      + np.cross(self.v.centre_of_buoyancy_m_body, lift)]
+        g_eta = np.r_[
+            weight + lift, np.cross(self.r_g, weight) + np.cross(self.v.centre_of_buoyancy_m_body, lift)
+        ]
         nu_dot = self.mass_inv @ (tau_body + g_eta - c_rb @ nu - c_a @ nu - d @ nu)
         w_, x_, y_, z_ = q
-        q_dot = 0.5 * np.array([-x_ * w[0] - y_ * w[1] - z_ * w[2], w_ * w[0] + y_ * w[2] - z_ * w[1],
-                                w_ * w[1] + z_ * w[0] - x_ * w[2], w_ * w[2] + x_ * w[1] - y_ * w[0]])
+        q_dot = 0.5 * np.array(
+            [
+                -x_ * w[0] - y_ * w[1] - z_ * w[2],
+                w_ * w[0] + y_ * w[2] - z_ * w[1],
+                w_ * w[1] + z_ * w[0] - x_ * w[2],
+                w_ * w[2] + x_ * w[1] - y_ * w[0],
+            ]
+        )
         return np.r_[rotation @ v1, q_dot, nu_dot]
 
 
@@ -95,11 +109,23 @@ def simulate_reference(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
     reference = Reference(model, load_vehicle(MODELS_DIR / "bluerov2_heavy.toml"))
     x0 = np.r_[0.0, 0.0, -5.0, 1.0, 0.0, 0.0, 0.0, np.zeros(6)]
     times = np.arange(0.0, duration_s + 1e-9, 0.1)
-    solution = solve_ivp(reference.derivative, (0.0, duration_s), x0, t_eval=times, args=(tau_body,),
-                         rtol=1e-9, atol=1e-11, method="DOP853")
+    solution = solve_ivp(
+        reference.derivative,
+        (0.0, duration_s),
+        x0,
+        t_eval=times,
+        args=(tau_body,),
+        rtol=1e-9,
+        atol=1e-11,
+        method="DOP853",
+    )
     assert solution.success
-    return np.array([_sample(t, x[:3], x[3:7], np.r_[quat_to_rotation(x[3:7]) @ x[7:10], x[10:]])
-                     for t, x in zip(solution.t, solution.y.T, strict=True)])
+    return np.array(
+        [
+            _sample(t, x[:3], x[3:7], np.r_[quat_to_rotation(x[3:7]) @ x[7:10], x[10:]])
+            for t, x in zip(solution.t, solution.y.T, strict=True)
+        ]
+    )
 
 
 def _sample(t: float, position: np.ndarray, quat: np.ndarray, qvel: np.ndarray) -> list[float]:
@@ -203,10 +229,12 @@ def test_thruster_rotor_lag_dead_band_and_asymmetric_curve() -> None:
 
 def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_path: Path) -> None:
     text = VEHICLE_FILE.read_text()
-    for old, new, field in (("volume_m3 = 2.916", "volume_m3 = -1", "buoyancy.volume_m3"),
-                            ("deadband = 0.05", "deadband = 0.9", "thrusters.deadband"),
-                            ("linear = [86.6, ", "linear = [", "damping.linear"),
-                            ("time_constant_s = 0.2\n", "", "thrusters.time_constant_s")):
+    for old, new, field in (
+        ("volume_m3 = 2.916", "volume_m3 = -1", "buoyancy.volume_m3"),
+        ("deadband = 0.05", "deadband = 0.9", "thrusters.deadband"),
+        ("linear = [86.6, ", "linear = [", "damping.linear"),
+        ("time_constant_s = 0.2\n", "", "thrusters.time_constant_s"),
+    ):
         assert old in text
         bad = tmp_path / "vehicle.toml"
         bad.write_text(text.replace(old, new))

@@ -30,11 +30,15 @@ def fly(w: World, seconds: float, refs: References | None = None) -> list[NavSta
 
 
 def test_usbl_fixes_come_at_their_rate_each_after_its_travel_and_processing() -> None:
-    w = world(usbl_rate_hz=1.0, usbl_processing_s=0.3, usbl_dropout_probability=0.0,
-              usbl_outlier_probability=0.0)
+    w = world(
+        usbl_rate_hz=1.0, usbl_processing_s=0.3, usbl_dropout_probability=0.0, usbl_outlier_probability=0.0
+    )
     navs = fly(w, 30.0, References(np.array([0.0, 0.2, 0.0, 0.0]), np.zeros(6), 0.0))
-    delivered = [(n.sim_time_s, n.usbl_time_s) for i, n in enumerate(navs)
-                 if n.usbl_time_s >= 0 and (i == 0 or n.usbl_time_s != navs[i - 1].usbl_time_s)]
+    delivered = [
+        (n.sim_time_s, n.usbl_time_s)
+        for i, n in enumerate(navs)
+        if n.usbl_time_s >= 0 and (i == 0 or n.usbl_time_s != navs[i - 1].usbl_time_s)
+    ]
     measured_s = np.array([m for _, m in delivered])
     assert len(delivered) >= 28
     np.testing.assert_allclose(np.diff(measured_s), 1.0, atol=1e-6)

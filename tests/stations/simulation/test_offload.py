@@ -35,7 +35,7 @@ def moved() -> tuple[SimulationConfig, World]:
     world = World(config, np.random.default_rng(0))
     for _ in range(10):
         world.step(references(None, None), config.control_period_s)
-    world.data.qpos[world.plant.qpos:world.plant.qpos + 3] += [0.3, -0.2, 0.1]
+    world.data.qpos[world.plant.qpos : world.plant.qpos + 3] += [0.3, -0.2, 0.1]
     return config, world
 
 
@@ -45,8 +45,14 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
     data = mujoco.MjData(world.model)
     mujoco.mj_copyData(data, world.model, world.data)
     mujoco.mj_forward(world.model, data)
-    cameras = Cameras(world.model, config.camera_width_px, config.camera_height_px, config.water,
-                      config.marine_snow, np.random.default_rng([7, 1]))
+    cameras = Cameras(
+        world.model,
+        config.camera_width_px,
+        config.camera_height_px,
+        config.water,
+        config.marine_snow,
+        np.random.default_rng([7, 1]),
+    )
     try:
         here = [encode_image(cameras, data, camera, config.jpeg_quality) for camera in CAMERAS]
     finally:

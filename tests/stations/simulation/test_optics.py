@@ -65,7 +65,8 @@ def marker_contrast(radiance: np.ndarray, plain: np.ndarray, focal_px: float, ra
 
 @pytest.mark.parametrize("name", list(WATER_TYPES))
 def test_marker_contrast_falls_with_the_configured_attenuation(
-        world: tuple[mujoco.MjModel, mujoco.MjData, Cameras], name: str) -> None:
+    world: tuple[mujoco.MjModel, mujoco.MjData, Cameras], name: str
+) -> None:
     model, data, cameras = world
     intrinsics = cameras.intrinsics("cam_left")
     lamps = lamps_of(model, "cam_left")
@@ -76,10 +77,13 @@ def test_marker_contrast_falls_with_the_configured_attenuation(
         look_at_marker(model, data, range_m)
         plain = cameras.plain_rgb(data, "cam_left")
         ranges = range_of_depth(cameras.depth_m(data, "cam_left"), intrinsics)
-        ratio = (marker_contrast(water.radiance(plain, ranges), plain, intrinsics.fx_px, range_m)
-                 / marker_contrast(clear.radiance(plain, ranges), plain, intrinsics.fx_px, range_m))
-        lamps_m = [np.linalg.norm(data.light_xpos[model.light(n).id] - marker_m_world())
-                   for n in ("headlight_left", "headlight_right")]
+        ratio = marker_contrast(
+            water.radiance(plain, ranges), plain, intrinsics.fx_px, range_m
+        ) / marker_contrast(clear.radiance(plain, ranges), plain, intrinsics.fx_px, range_m)
+        lamps_m = [
+            np.linalg.norm(data.light_xpos[model.light(n).id] - marker_m_world())
+            for n in ("headlight_left", "headlight_right")
+        ]
         paths_m.append(range_m + np.mean(lamps_m))  # lamps -> marker -> camera
         log_ratios.append(np.log(ratio))
     slopes = -np.polyfit(paths_m, np.array(log_ratios), 1)[0]  # per channel [1/m]
@@ -108,13 +112,21 @@ def test_snow_and_noise_come_from_the_generator(world: tuple[mujoco.MjModel, muj
     again = optics.image(plain, ranges, np.random.default_rng(3))
     other = optics.image(plain, ranges, np.random.default_rng(4))
     assert np.array_equal(first, again) and not np.array_equal(first, other)
-    snow = {name: (Optics(WATER_TYPES[name], cameras.intrinsics("cam_left"), lamps_of(model, "cam_left"))
-                   .snow(ranges, np.random.default_rng(0)) > 0.01).sum() for name in ("I", "9C")}
+    snow = {
+        name: (
+            Optics(WATER_TYPES[name], cameras.intrinsics("cam_left"), lamps_of(model, "cam_left")).snow(
+                ranges, np.random.default_rng(0)
+            )
+            > 0.01
+        ).sum()
+        for name in ("I", "9C")
+    }
     assert snow["9C"] > 3 * snow["I"] > 0, snow
 
 
 def test_the_depth_camera_is_left_alone_and_the_rgb_is_not(
-        world: tuple[mujoco.MjModel, mujoco.MjData, Cameras]) -> None:
+    world: tuple[mujoco.MjModel, mujoco.MjData, Cameras],
+) -> None:
     model, data, plain = world
     look_at_marker(model, data, 2.0)
     murky = Cameras(model, WIDTH_PX, HEIGHT_PX, water="9C", rng=np.random.default_rng(0))

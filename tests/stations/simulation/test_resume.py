@@ -23,8 +23,10 @@ def world() -> World:
 def moved(tmp_path_factory: pytest.TempPathFactory) -> tuple[World, Path]:
     """A world driven for 1 s (surge, heave, yaw and the arm), its state saved."""
     w = world()
-    refs = references(VelocityRef(np.array([0.3, 0.0, -0.1]), 0.2),
-                      ArmVelocityRef(np.array([0.2, -0.1, 0.1, 0.3, -0.2, 0.3]), 0.0))
+    refs = references(
+        VelocityRef(np.array([0.3, 0.0, -0.1]), 0.2),
+        ArmVelocityRef(np.array([0.2, -0.1, 0.1, 0.3, -0.2, 0.3]), 0.0),
+    )
     for _ in range(100):
         w.step(refs, DT_S)
     path = tmp_path_factory.mktemp("state") / "state.npy"

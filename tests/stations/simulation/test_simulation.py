@@ -136,7 +136,7 @@ def test_the_panel_is_visible_from_the_start_pose(cameras: tuple[World, Cameras]
     w, cams = cameras
     u, v = project(w, cams, "cam_left", np.array([4.95, 0.0, -8.6]))
     image = decode_image(encode_image(cams, w.data, "cam_left", 90)).astype(float)
-    patch = image[int(v) - 30:int(v) + 30, int(u) - 30:int(u) + 30].mean(axis=2)
+    patch = image[int(v) - 30 : int(v) + 30, int(u) - 30 : int(u) + 30].mean(axis=2)
     assert patch.std() > 60  # the black and white checker of the panel face
     assert image.std() > 20
 
@@ -182,8 +182,9 @@ def project(w: World, cams: Cameras, camera: str, point_world: np.ndarray) -> tu
 
 def test_a_seed_makes_a_run_repeatable() -> None:
     def run(seed: int) -> list[np.ndarray]:
-        w = World(SimulationConfig(current_sigma_mps=0.2, current_time_constant_s=5.0),
-                  np.random.default_rng(seed))
+        w = World(
+            SimulationConfig(current_sigma_mps=0.2, current_time_constant_s=5.0), np.random.default_rng(seed)
+        )
         out = []
         for _ in range(50):
             w.step(References(np.array([0.2, 0.0, 0.0, 0.1]), np.zeros(6), 0.0), 0.05)

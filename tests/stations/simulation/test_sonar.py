@@ -19,14 +19,20 @@ def world_at(position: tuple[float, float, float], yaw_rad: float) -> World:
     return World(config, np.random.default_rng(0))
 
 
-def truth_range_m(world: World, sonar: ImagingSonar, bearing_rad: float, elevation_rad: float = 0.0,
-                  body: str = "") -> float:
+def truth_range_m(
+    world: World, sonar: ImagingSonar, bearing_rad: float, elevation_rad: float = 0.0, body: str = ""
+) -> float:
     """One mj_ray from the sonar along a bearing, as the ground truth; with `body`, the ray must
     end on that body's geoms."""
     d = world.data
     rotation = d.site_xmat[sonar.site].reshape(3, 3)
-    local = np.array([math.cos(elevation_rad) * math.cos(bearing_rad),
-                      math.cos(elevation_rad) * math.sin(bearing_rad), math.sin(elevation_rad)])
+    local = np.array(
+        [
+            math.cos(elevation_rad) * math.cos(bearing_rad),
+            math.cos(elevation_rad) * math.sin(bearing_rad),
+            math.sin(elevation_rad),
+        ]
+    )
     geom = np.zeros(1, np.int32)
     origin = d.site_xpos[sonar.site].copy()
     distance = float(mujoco.mj_ray(world.model, d, origin, rotation @ local, None, True, sonar.body, geom))
@@ -67,8 +73,9 @@ def test_the_seabed_appears_where_the_beams_meet_it() -> None:
     sonar = ImagingSonar(world.model, spec)
     image = sonar.image(world.data, np.random.default_rng(0))
     beam = spec.beams // 2
-    nearest_m = truth_range_m(world, sonar, spec.bearings_rad()[beam], -spec.vertical_aperture_rad / 2,
-                              body="world")  # the seabed is a world geom
+    nearest_m = truth_range_m(
+        world, sonar, spec.bearings_rad()[beam], -spec.vertical_aperture_rad / 2, body="world"
+    )  # the seabed is a world geom
     assert nearest_m < spec.range_max_m
     column = image[:, beam].astype(float)
     first_echo = int(np.argmax(column > 0.5 * column.max())) * spec.bin_m()

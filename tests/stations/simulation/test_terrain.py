@@ -64,10 +64,16 @@ def test_cli_builds_into_a_directory_and_refuses_a_missing_cloud(tmp_path: Path)
     cloud = tmp_path / "cloud.ply"
     run = [sys.executable, "-m", "abyss.cli", "terrain"]
     subprocess.run([*run, "cloud", str(cloud), "--seed", "3", "--points", "5000"], cwd=ROOT, check=True)
-    done = subprocess.run([*run, "build", str(cloud), "--out", str(tmp_path / "t")], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [*run, "build", str(cloud), "--out", str(tmp_path / "t")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "t" / "terrain.bin").exists() and '<hfield name="terrain"' in done.stdout
-    missing = subprocess.run([*run, "build", str(tmp_path / "none.ply")], cwd=ROOT, capture_output=True,
-                             text=True, timeout=60)
+    missing = subprocess.run(
+        [*run, "build", str(tmp_path / "none.ply")], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
     assert missing.returncode == 2 and "no such file" in missing.stderr

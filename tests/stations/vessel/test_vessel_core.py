@@ -44,13 +44,15 @@ def seabed(rng: np.random.Generator, n: int = 4000) -> tuple[np.ndarray, np.ndar
     return points, colors, np.array([0.0, 0.0, 3.0])
 
 
-def fly(link_name: str, seconds: float, first_guess_bps: float, transport: str = "tcp",
-        seed: int = 0) -> dict[str, float]:
+def fly(
+    link_name: str, seconds: float, first_guess_bps: float, transport: str = "tcp", seed: int = 0
+) -> dict[str, float]:
     """The vessel's scene stream to a shore that acknowledges each update, over `link_name` both
     ways, with telemetry beside it; what the stream learnt and what the link carried."""
     rng = np.random.default_rng(seed)
     down = profile(link_name).with_fields(  # the rate, the delay and the jitter; no loss
-        {"loss": "0%", "corrupt": "0%", "loss_model": "bernoulli", "transport": transport})
+        {"loss": "0%", "corrupt": "0%", "loss_model": "bernoulli", "transport": transport}
+    )
     to_shore, to_vessel = Link(down, np.random.default_rng(seed)), Link(down, np.random.default_rng(seed + 1))
     cfg = dataclasses.replace(VesselConfig(), satellite_capacity_bps=first_guess_bps)
     model = SceneModel(0.1, 8.0, cfg.scene_update_bytes)
@@ -78,10 +80,16 @@ def fly(link_name: str, seconds: float, first_guess_bps: float, transport: str =
                 receiver.apply(d.tag)
                 ack = SceneAck(d.tag.scene_seq)
                 to_vessel.offer(now_s, encode(ack, 0, now_s), tag=ack.scene_seq)
-    return {"capacity_bps": stream.pacer.capacity_bps, "rtt0_s": stream.pacer.rtt0_s,
-            "most_in_flight": most_in_flight, "acked": stream.pacer.acked, "applied": receiver.applied,
-            "telemetry_p95_s": float(np.percentile(telemetry_delay_s, 95)), "link_bps": down.rate_bps,
-            "served_bps": 8.0 * service[0] / service[1]}
+    return {
+        "capacity_bps": stream.pacer.capacity_bps,
+        "rtt0_s": stream.pacer.rtt0_s,
+        "most_in_flight": most_in_flight,
+        "acked": stream.pacer.acked,
+        "applied": receiver.applied,
+        "telemetry_p95_s": float(np.percentile(telemetry_delay_s, 95)),
+        "link_bps": down.rate_bps,
+        "served_bps": 8.0 * service[0] / service[1],
+    }
 
 
 FLOWN = {  # link: the first guess of its capacity (the satellite's 4x high)
@@ -95,14 +103,18 @@ def flown() -> dict[tuple[str, str], dict[str, float]]:
     """Each link with each transport, 60 s of it on explicit times: CPU alone, so two at a time in
     processes of their own (spawned: nothing of this one's threads), each the same computation."""
     with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
-        runs = {(transport, link): pool.submit(fly, link, 60.0, first_guess_bps=guess, transport=transport)
-                for transport in ("tcp", "udp") for link, guess in FLOWN.items()}
+        runs = {
+            (transport, link): pool.submit(fly, link, 60.0, first_guess_bps=guess, transport=transport)
+            for transport in ("tcp", "udp")
+            for link, guess in FLOWN.items()
+        }
         return {job: run.result() for job, run in runs.items()}
 
 
 @pytest.mark.parametrize("transport", ["tcp", "udp"])
 def test_scene_stream_paces_itself_to_the_link_from_acks_alone(
-        flown: dict[tuple[str, str], dict[str, float]], transport: str) -> None:
+    flown: dict[tuple[str, str], dict[str, float]], transport: str
+) -> None:
     satellite, storm = flown[(transport, "satellite")], flown[(transport, "satellite-storm")]
     for got in (satellite, storm):
         assert got["most_in_flight"] == 1, got  # telemetry never waits behind more than one update
@@ -158,10 +170,12 @@ def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_
     relay = Relay(VesselConfig(), now_s=0.0)
     intent = Intervention(5, "valve_1", math.radians(90), "")
     assert relay.step(RelayInputs(commands=[("op/intervene", intent)]), 0.0) == [
-        ("heartbeat", Heartbeat(0.0, True))]  # not recognised yet: it waits (shore resends)
+        ("heartbeat", Heartbeat(0.0, True))
+    ]  # not recognised yet: it waits (shore resends)
     seen = np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]])  # the panel recognised 6 cm low
-    by_shape = RecognisedObjects(("panel",), seen, np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "shape",
-                                 0.5)
+    by_shape = RecognisedObjects(
+        ("panel",), seen, np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "shape", 0.5
+    )
     out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=by_shape), 0.5)
     assert [t for t, _ in out] == ["heartbeat"]  # no markers seen: it waits
     objects = dataclasses.replace(by_shape, method="texture+shape", sim_time_s=1.0)
@@ -170,8 +184,9 @@ def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_
     assert isinstance(goal, InterventionGoal) and goal.command_id == 5
     assert goal.turn_rad == pytest.approx(math.pi / 2)
     np.testing.assert_allclose(goal.pivot_m_world, [4.93, 0.0, -8.41])  # from the estimate, not the truth
-    done = dataclasses.replace(sample_telemetry(), intervention_id=5, intervention_phase="done",
-                               turned_rad=math.radians(88))
+    done = dataclasses.replace(
+        sample_telemetry(), intervention_id=5, intervention_phase="done", turned_rad=math.radians(88)
+    )
     relay.step(RelayInputs(telemetry=(1, done)), 2.0)
     again = Intervention(6, "valve_1", math.radians(45), "")  # from 88 deg: past the stop at 90
     ack = next(m for t, m in relay.step(RelayInputs(commands=[("op/intervene", again)]), 3.0) if t == "ack")
@@ -187,8 +202,14 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
     def recognised(z_m: float) -> RecognisedObjects:
-        return RecognisedObjects(("panel",), np.array([[5.0, 0.0, z_m, 1.0, 0.0, 0.0, 0.0]]),
-                                 np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "texture", 1.0)
+        return RecognisedObjects(
+            ("panel",),
+            np.array([[5.0, 0.0, z_m, 1.0, 0.0, 0.0, 0.0]]),
+            np.array([panel.PLATE_HALF_SIZE_M]),
+            np.ones(1),
+            "texture",
+            1.0,
+        )
 
     def goals(out: list) -> list[InterventionGoal]:
         return [m for t, m in out if t == "goal/intervene"]

@@ -25,11 +25,22 @@ class UnknownProfile(ConfigError):
         self.available = available
 
 
-class BadMessage(AbyssError):
-    """Bytes from the network that do not decode to a valid message."""
+class BadInput(AbyssError):
+    """Input from outside the process (bytes from the network, a message's fields, an image) that
+    is not valid. Decoders raise it and the station shells catch it, drop the input and count it
+    as rejected with `reason`; nothing else is caught as "rejected", so a defect in abyss itself
+    (a numpy shape error in a decoder, say) still surfaces as the bug it is."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class BadMessage(BadInput):
+    """Bytes from the network on `key` that do not decode to a valid message."""
 
     def __init__(self, key: str, reason: str) -> None:
-        super().__init__(f"{key}: {reason}")
+        AbyssError.__init__(self, f"{key}: {reason}")
         self.key = key
         self.reason = reason
 

@@ -7,6 +7,7 @@ import dataclasses
 import cv2
 import numpy as np
 
+from abyss.common.errors import BadInput
 from abyss.common.messages import Image
 
 DEPTH_SCALE_M = 0.001  # one PNG count [m]
@@ -21,10 +22,10 @@ def decode_image(image: Image) -> np.ndarray:
     expected = (image.height_px, image.width_px)
     if pixels is None or pixels.shape[:2] != expected:
         got = "nothing" if pixels is None else f"{pixels.shape}"
-        raise ValueError(f"{image.camera}: {image.encoding} data decodes to {got}, expected {expected}")
+        raise BadInput(f"{image.camera}: {image.encoding} data decodes to {got}, expected {expected}")
     if image.encoding == "png16":
         if pixels.dtype != np.uint16 or pixels.ndim != 2:
-            raise ValueError(f"{image.camera}: depth is not a 16-bit single-channel PNG")
+            raise BadInput(f"{image.camera}: depth is not a 16-bit single-channel PNG")
         return pixels.astype(np.float32) * DEPTH_SCALE_M
     return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
 

@@ -11,6 +11,7 @@ import math
 import cv2
 import numpy as np
 
+from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import SonarImage
 
@@ -35,7 +36,7 @@ def decode_polar(sonar: SonarImage) -> np.ndarray:
     polar = cv2.imdecode(buffer, cv2.IMREAD_GRAYSCALE) if len(buffer) else None
     if polar is None or polar.shape != (sonar.bins, sonar.beams):
         got = "nothing" if polar is None else f"{polar.shape}"
-        raise ValueError(
+        raise BadInput(
             f"{sonar.sonar}: {sonar.encoding} data decodes to {got}, expected ({sonar.bins}, {sonar.beams})"
         )
     return polar
@@ -92,7 +93,7 @@ def echo_arcs(
     """Each beam's first echo as the arc it may lie on [m, world], and the sonar's position;
     ValueError if the frame does not decode or is not placed in the world."""
     if sonar.pose_frame != "world":
-        raise ValueError(f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the world's")
+        raise BadInput(f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the world's")
     range_m, bearing_rad = first_echoes(sonar, decode_polar(sonar), min_db)
     return arc_points(sonar, range_m, bearing_rad, spacing_m)
 

@@ -16,6 +16,7 @@ import numpy as np
 from abyss.common import keys
 from abyss.common.bus import Bus, messages_of
 from abyss.common.config import Config
+from abyss.common.errors import BadInput
 from abyss.common.messages import (
     ArmGoal,
     Heartbeat,
@@ -166,7 +167,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
                     ),
                 )
                 last_image_s = now_s
-        except ValueError as exc:  # frames that do not decode, or a camera pose in the wrong frame
+        except BadInput as exc:  # frames that do not decode, or a camera pose in the wrong frame
             bus.reject(key, str(exc))
         resting_until_s = started_s + (bus.clock.now_s() - started_s) / cfg.perception_max_busy
 

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from abyss.common.clouds import pack_cloud, voxel_downsample
+from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, PointCloud
@@ -40,7 +41,7 @@ class Camera:
     @staticmethod
     def of(image: Image) -> Camera:
         if image.pose_frame != "vehicle":
-            raise ValueError(f"{image.camera}: pose in the {image.pose_frame} frame, expected the vehicle's")
+            raise BadInput(f"{image.camera}: pose in the {image.pose_frame} frame, expected the vehicle's")
         matrix = np.array([[image.fx_px, 0.0, image.cx_px], [0.0, image.fy_px, image.cy_px], [0.0, 0.0, 1.0]])
         return Camera(
             matrix,

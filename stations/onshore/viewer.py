@@ -20,6 +20,7 @@ import rerun.blueprint as rrb
 
 from abyss.common import keys
 from abyss.common.config import OnshoreConfig
+from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import (
     ArmGoal,
@@ -367,7 +368,7 @@ class Viewer:
         try:
             polar = decode_polar(frame)
             echoes, _ = echo_arcs(frame, SONAR_ARC_SPACING_M)
-        except ValueError:
+        except BadInput:
             return
         self._at(stamp_s, frame.sim_time_s)
         self.recording.log("sonar/fan", rr.Image(fan(frame, polar), color_model="L"))

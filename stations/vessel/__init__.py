@@ -18,6 +18,7 @@ from abyss.common import keys
 from abyss.common.bus import Bus, Inbox, messages_of
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
+from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import (
     CommandAck,
@@ -144,7 +145,7 @@ def _scene_loop(
             sonar[0] = received.message
             try:
                 echoes, origin = echo_arcs(received.message, cfg.octree_resolution_m)
-            except ValueError as exc:
+            except BadInput as exc:
                 bus.reject(received.key, str(exc))
                 continue
             perception.received("sonar", len(echoes), bus.clock.now_s())
@@ -172,12 +173,12 @@ def _scene_loop(
                 assert isinstance(image.message, Image)
                 try:
                     if image.message.pose_frame != "world":
-                        raise ValueError(
+                        raise BadInput(
                             f"camera pose in the {image.message.pose_frame} frame; the vessel "
                             "needs it in the world frame"
                         )
                     rgb = decode_image(image.message)
-                except ValueError as exc:
+                except BadInput as exc:
                     bus.reject(image.key, str(exc))
             tracker.update(rgb, image.message if image is not None else None, points)  # type: ignore[arg-type]
             objects = tracker.objects(sim_time_s[0])

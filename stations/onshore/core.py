@@ -109,8 +109,9 @@ class Operator:
             self.intervene.replace(mission_intervention(mission, 0))
         self.commands = {c.topic: c for c in (self.mode, self.waypoints, self.arm, self.intervene)}
         self.history: dict[tuple[str, int], dict[str, object]] = {  # every command sent, and its fate
-            (f"op/{e['command']}", int(e["command_id"])): e for e in history or []
-        }  # type: ignore[call-overload]
+            (f"op/{e['command']}", int(e["command_id"])): e  # type: ignore[call-overload]
+            for e in history or []
+        }
         self.events: list[dict[str, object]] = list(events or [])  # restarts seen, what shore did
         self.status: MissionStatus | None = None
         self.last_status_s = self.last_beat_s = -float("inf")

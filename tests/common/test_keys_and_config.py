@@ -14,9 +14,9 @@ from abyss.linkemu.profile import load_profiles, profile
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_readme_keys_table_is_the_generated_one() -> None:
-    readme = (ROOT / "README.md").read_text()
-    assert keys.keys_table() in readme
+def test_docs_keys_table_is_the_generated_one() -> None:
+    page = (ROOT / "docs" / "links.md").read_text()
+    assert keys.keys_table() in page
 
 
 def test_abyss_keys_prints_the_table() -> None:

@@ -1,4 +1,4 @@
-"""The ROS 2 table (`ros2.types`) and the README agree."""
+"""The ROS 2 table (`ros2.types`) and its docs page (docs/ros2.md) agree."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ from abyss.ros2.types import topics_table
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_readme_topic_table_is_the_generated_one() -> None:
-    assert topics_table() in (ROOT / "README.md").read_text()
+def test_docs_topic_table_is_the_generated_one() -> None:
+    assert topics_table() in (ROOT / "docs" / "ros2.md").read_text()
 
 
-def test_readme_lists_what_a_ros2_node_states_in_its_diagnostics() -> None:
+def test_docs_list_what_a_ros2_node_states_in_its_diagnostics() -> None:
     from abyss.ros2.types import TELEMETRY_VALUES
 
-    readme = (ROOT / "README.md").read_text()
+    page = (ROOT / "docs" / "ros2.md").read_text()
     for key, meaning in TELEMETRY_VALUES.items():
-        assert f"  - `{key}`: {meaning}" in readme, key
+        assert f"  - `{key}`: {meaning}" in page, key

@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import assert_never
 
 import zenoh
 
@@ -149,19 +150,21 @@ class System:
 
 def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> str:
     """Carry out one event; a line saying what was done."""
-    if event.action == "link":
-        session.put(
-            keys.link_key(system_id, event.hop), encode(LinkControl(event.profile, {}), 0, time.time())
-        )
-    elif event.action == "fault":
-        control = SimulationControl(event.fault, event.target, event.value)
-        session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
-    else:
-        state = up.state()
-        pid = state.stations[event.station].pid if state and event.station in state.stations else None
-        if pid is None:
-            return f"kill {event.station}: no pid (an external station?)"
-        os.kill(pid, signal.SIGKILL)
+    match event.action:
+        case "link":
+            control: LinkControl | SimulationControl = LinkControl(event.profile, {})
+            session.put(keys.link_key(system_id, event.hop), encode(control, 0, time.time()))
+        case "fault":
+            control = SimulationControl(event.fault, event.target, event.value)
+            session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
+        case "kill":
+            state = up.state()
+            pid = state.stations[event.station].pid if state and event.station in state.stations else None
+            if pid is None:
+                return f"kill {event.station}: no pid (an external station?)"
+            os.kill(pid, signal.SIGKILL)
+        case _:
+            assert_never(event.action)
     return event.describe()
 
 

@@ -31,10 +31,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return cmd_view(args)
-    from abyss.launch.up import CONFIG_FILE, Replayed, run_up
+    from abyss.launch.start import CONFIG_FILE, Replayed
+    from abyss.launch.up import run_up
     from abyss.recording.compare import compare, differing, render
+    from abyss.recording.reader import open_recording
     from abyss.recording.replay import check_replayable, check_speed
-    from abyss.recording.store import open_recording
 
     if not args.as_station:
         raise ConfigError(

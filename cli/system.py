@@ -153,6 +153,15 @@ def cmd_keys(_args: argparse.Namespace) -> int:
 
 
 def add_commands(sub: Any) -> None:
+    _add_up(sub)
+    _add_station(sub)
+    _add_health(sub)
+    _add_certs(sub)
+    p = sub.add_parser("keys", help="print the table of every key")
+    p.set_defaults(func=cmd_keys)
+
+
+def _add_up(sub: Any) -> None:
     p = sub.add_parser("up", help="run all four stations on this machine")
     run_args(p)
     p.add_argument(
@@ -177,6 +186,8 @@ def add_commands(sub: Any) -> None:
     )
     p.set_defaults(func=cmd_up)
 
+
+def _add_station(sub: Any) -> None:
     p = sub.add_parser("station", help="run one station, e.g. on its own host")
     p.add_argument("name", choices=keys.STATIONS)
     config_args(p, speed=False)  # --speed scales a replay here; simulated time's: --set time.speed=X
@@ -226,6 +237,8 @@ def add_commands(sub: Any) -> None:
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=cmd_station)
 
+
+def _add_health(sub: Any) -> None:
     p = sub.add_parser(
         "health", help="exit 0 when a station's liveliness token is seen (a container's health check)"
     )
@@ -234,6 +247,8 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--timeout", type=float, default=3.0, metavar="S")
     p.set_defaults(func=cmd_health)
 
+
+def _add_certs(sub: Any) -> None:
     certs = sub.add_parser("certs", help="certificates for authenticated links").add_subparsers(
         dest="certs", required=True
     )
@@ -247,6 +262,3 @@ def add_commands(sub: Any) -> None:
         help="an extra name or address in a holder's certificate (repeatable)",
     )
     p.set_defaults(func=cmd_certs_make)
-
-    p = sub.add_parser("keys", help="print the table of every key")
-    p.set_defaults(func=cmd_keys)

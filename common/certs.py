@@ -79,7 +79,25 @@ def make(directory: Path, hosts: dict[str, list[str]] | None = None) -> list[Pat
     now = datetime.datetime.now(datetime.UTC)
     valid = (now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=VALID_DAYS))
     ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca_cert = (
+    ca_cert = _ca_certificate(ca_key, valid)
+    written = [directory / "ca.pem", directory / "ca.key"]
+    written[0].write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
+    _write_key(written[1], ca_key)
+    for holder in HOLDERS:
+        files = CertFiles(directory, holder)
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = _holder_certificate(holder, key, (hosts or {}).get(holder, []), ca_key, ca_cert, valid)
+        files.certificate.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+        _write_key(files.private_key, key)
+        written += [files.certificate, files.private_key]
+    return written
+
+
+def _ca_certificate(
+    ca_key: ec.EllipticCurvePrivateKey, valid: tuple[datetime.datetime, datetime.datetime]
+) -> x509.Certificate:
+    """The CA's own certificate: it signs certificates and nothing else."""
+    return (
         x509.CertificateBuilder()
         .subject_name(_name("abyss CA"))
         .issuer_name(_name("abyss CA"))
@@ -104,39 +122,45 @@ def make(directory: Path, hosts: dict[str, list[str]] | None = None) -> list[Pat
         )
         .sign(ca_key, hashes.SHA256())
     )
-    written = [directory / "ca.pem", directory / "ca.key"]
-    written[0].write_bytes(ca_cert.public_bytes(serialization.Encoding.PEM))
-    _write_key(written[1], ca_key)
-    for holder in HOLDERS:
-        files = CertFiles(directory, holder)
-        key = ec.generate_private_key(ec.SECP256R1())
-        names: list[x509.GeneralName] = [
-            x509.DNSName(holder),
-            x509.DNSName("localhost"),
-            x509.IPAddress(ipaddress.ip_address("127.0.0.1")),
-        ]
-        for host in (hosts or {}).get(holder, []):
-            try:
-                names.append(x509.IPAddress(ipaddress.ip_address(host)))
-            except ValueError:
-                names.append(x509.DNSName(host))
-        cert = (
-            x509.CertificateBuilder()
-            .subject_name(_name(holder))
-            .issuer_name(ca_cert.subject)
-            .public_key(key.public_key())
-            .serial_number(x509.random_serial_number())
-            .not_valid_before(valid[0])
-            .not_valid_after(valid[1])
-            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-            .add_extension(x509.SubjectAlternativeName(names), critical=False)
-            .add_extension(
-                x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
-                critical=False,
-            )
-            .sign(ca_key, hashes.SHA256())
+
+
+def _alternative_names(holder: str, hosts: list[str]) -> list[x509.GeneralName]:
+    """The holder, `localhost`, 127.0.0.1 and each of `hosts` (an address, else a name)."""
+    names: list[x509.GeneralName] = [
+        x509.DNSName(holder),
+        x509.DNSName("localhost"),
+        x509.IPAddress(ipaddress.ip_address("127.0.0.1")),
+    ]
+    for host in hosts:
+        try:
+            names.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            names.append(x509.DNSName(host))
+    return names
+
+
+def _holder_certificate(
+    holder: str,
+    key: ec.EllipticCurvePrivateKey,
+    hosts: list[str],
+    ca_key: ec.EllipticCurvePrivateKey,
+    ca_cert: x509.Certificate,
+    valid: tuple[datetime.datetime, datetime.datetime],
+) -> x509.Certificate:
+    """A holder's certificate, signed by the CA, for both ends of a link."""
+    return (
+        x509.CertificateBuilder()
+        .subject_name(_name(holder))
+        .issuer_name(ca_cert.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(valid[0])
+        .not_valid_after(valid[1])
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(x509.SubjectAlternativeName(_alternative_names(holder, hosts)), critical=False)
+        .add_extension(
+            x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+            critical=False,
         )
-        files.certificate.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-        _write_key(files.private_key, key)
-        written += [files.certificate, files.private_key]
-    return written
+        .sign(ca_key, hashes.SHA256())
+    )

@@ -13,12 +13,15 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 from abyss.common.runfiles import write_whole
 
 STATE_FILE = "state.json"
-PHASES = ("starting", "up", "stopping", "ended")
+Phase = Literal["starting", "up", "stopping", "ended"]  # the run's phase, in this order
+PHASES: tuple[Phase, ...] = get_args(Phase)
+# how a run ended (launch.summary.VERDICTS: what `abyss up` exits with); "" until it ended
+Verdict = Literal["done", "incomplete", "interrupted", "failed"]
 POLL_PERIOD_S = 0.05
 
 
@@ -35,11 +38,11 @@ class RunState:
     system: str
     endpoint: str
     supervisor_pid: int
-    phase: str = "starting"
+    phase: Phase = "starting"
     stations: dict[str, StationState] = field(default_factory=dict)
     mission_done: bool = False
     viewer: str = ""  # where to look: the web viewer's address or the recording
-    verdict: str = ""  # once ended: done, incomplete, interrupted or failed (launch.summary)
+    verdict: Verdict | Literal[""] = ""  # once ended
     failure: str = ""
 
     def __post_init__(self) -> None:

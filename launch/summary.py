@@ -13,11 +13,12 @@ import numpy as np
 from abyss.common.config import MissionConfig
 from abyss.common.messages import PanelState, Telemetry
 from abyss.common.models import panel
+from abyss.launch.state import Verdict
 
 VALVE_TOLERANCE_DEG = 5.0  # a valve turned within this of its target is turned
 LEVER_TOLERANCE_DEG = 3.0  # a lever within this of its stop is at its stop
 
-VERDICTS = {  # the word, and what `abyss up` exits with
+VERDICTS: dict[Verdict, int] = {  # the word, and what `abyss up` exits with
     "done": 0,  # shore saw the mission done, and nothing failed
     "incomplete": 3,  # the run reached its duration before the mission was done
     "interrupted": 130,  # Ctrl-C or SIGTERM before the mission was done (128 + SIGINT)
@@ -25,7 +26,7 @@ VERDICTS = {  # the word, and what `abyss up` exits with
 }
 
 
-def verdict_of(failure: str, mission_done: bool, interrupted: bool) -> str:
+def verdict_of(failure: str, mission_done: bool, interrupted: bool) -> Verdict:
     if failure:
         return "failed"
     if mission_done:
@@ -33,7 +34,7 @@ def verdict_of(failure: str, mission_done: bool, interrupted: bool) -> str:
     return "interrupted" if interrupted else "incomplete"
 
 
-def exit_code(verdict: str, keep_running: bool) -> int:
+def exit_code(verdict: Verdict, keep_running: bool) -> int:
     """A run asked to keep running for its duration is not judged on its mission: `incomplete`
     exits 0 there."""
     return 0 if verdict == "incomplete" and keep_running else VERDICTS[verdict]
@@ -139,33 +140,52 @@ def deadlines_text(loops: dict[str, dict[str, Any]]) -> str:
 
 
 def render_summary(summary: dict[str, Any]) -> str:
+    """The screen of text `abyss up` ends with, one section after the other."""
+    sections = (
+        _stations_lines,
+        _restart_lines,
+        _link_lines,
+        _mission_lines,
+        _control_lines,
+        _scene_lines,
+        _simulation_lines,
+        _time_lines,
+    )
     lines = [
         f"abyss: {summary['system']}: {summary['verdict']}"
         + (f" ({summary['failure']})" if summary["failure"] else "")
         + f"; up in {summary['startup_s']:.1f} s, ran {summary['wall_s']:.0f} s"
     ]
-    lines.append(
+    for section in sections:
+        lines += section(summary)
+    return "\n".join(lines)
+
+
+def _station_line(name: str, s: dict[str, Any]) -> str:
+    if s.get("external"):
+        return f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}"
+    return (
+        f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
+        f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9} "
+        f"{s['cpu']['cores'] if s.get('cpu') else float('nan'):>6.2f} "
+        f"{sum(s.get('shed', {}).values()):>6} {deadlines_text(s.get('loops', {})):>16}"
+        + (
+            f"  capped at {s['cpu']['cap_cores']:g} core, throttled in "
+            f"{s['cpu']['throttled_share']:.0%} of its periods"
+            if "cap_cores" in s.get("cpu", {})
+            else ""
+        )
+        + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
+        + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else "")
+    )
+
+
+def _stations_lines(summary: dict[str, Any]) -> list[str]:
+    lines = [
         f"  {'station':<11} {'exit':>6} {'sent':>8} {'received':>9} {'rejected':>9} {'cores':>6} "
         f"{'shed':>6} {'deadlines':>16}"
-    )
-    for name, s in summary["stations"].items():
-        if s.get("external"):
-            lines.append(f"  {name:<11} external, {'seen' if s['alive_seen'] else 'never seen'}")
-            continue
-        lines.append(
-            f"  {name:<11} {exit_text(s['exit_code']):>6} {sum(s['sent'].values()):>8} "
-            f"{sum(s['received'].values()):>9} {sum(s['rejected'].values()):>9} "
-            f"{s['cpu']['cores'] if s.get('cpu') else float('nan'):>6.2f} "
-            f"{sum(s.get('shed', {}).values()):>6} {deadlines_text(s.get('loops', {})):>16}"
-            + (
-                f"  capped at {s['cpu']['cap_cores']:g} core, throttled in "
-                f"{s['cpu']['throttled_share']:.0%} of its periods"
-                if "cap_cores" in s.get("cpu", {})
-                else ""
-            )
-            + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
-            + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else "")
-        )
+    ]
+    lines += [_station_line(name, s) for name, s in summary["stations"].items()]
     cores = [s["cpu"]["cores"] for s in summary["stations"].values() if s.get("cpu")]
     if cores:
         lines.append(
@@ -173,6 +193,11 @@ def render_summary(summary: dict[str, Any]) -> str:
             "over its wall time); shed: frames let go unprocessed for newer ones; deadlines: "
             "the station's worst loop"
         )
+    return lines
+
+
+def _restart_lines(summary: dict[str, Any]) -> list[str]:
+    lines = []
     for r in summary.get("restarts", []):
         back = f"down {r['down_s']:.1f} s" if r.get("down_s") is not None else "not back"
         lines.append(
@@ -181,9 +206,13 @@ def render_summary(summary: dict[str, Any]) -> str:
         )
     for e in summary.get("events", []):
         lines.append(f"  on shore: {e['station']} {e['event']} (sim t={e['sim_time_s']:.1f} s)")
-    lines.append(
+    return lines
+
+
+def _link_lines(summary: dict[str, Any]) -> list[str]:
+    lines = [
         f"  {'link':<28} {'mode':<8} {'delivered':>13} {'p50 ms':>7} {'p99 ms':>7} {'lost':>5} {'retx':>5}"
-    )
+    ]
     for hop, directions in summary["links"].items():
         for direction, st in directions.items():
             lines.append(  # with a shaper, delays and losses are its packets'; the kernel retransmits
@@ -192,8 +221,12 @@ def render_summary(summary: dict[str, Any]) -> str:
                 f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
                 f"{int(st['losses']):>5} {int(st.get('retransmissions', 0)):>5}"
             )
+    return lines
+
+
+def _mission_lines(summary: dict[str, Any]) -> list[str]:
     m = summary["mission"]
-    lines.append(
+    lines = [
         "  mission: "
         + (
             f"{m['mode']}, {m['waypoint_index']}/{m['waypoints_total']} waypoints, done: {m['done']}"
@@ -205,7 +238,7 @@ def render_summary(summary: dict[str, Any]) -> str:
             if m and m.get("intervention_reason")
             else ""
         )
-    )
+    ]
     for i in summary.get("interventions", []):
         truth = "no truth" if i["truth_deg"] is None else f"{i['truth_deg']:.1f} deg"
         lines.append(
@@ -213,6 +246,11 @@ def render_summary(summary: dict[str, Any]) -> str:
             f"{i['target_deg']:.0f} +- {i['tolerance_deg']:g} deg: "
             f"{'success' if i['success'] else 'NOT DONE'}"
         )
+    return lines
+
+
+def _control_lines(summary: dict[str, Any]) -> list[str]:
+    lines = []
     c = summary["control"]
     if c:
         lines.append(
@@ -227,41 +265,51 @@ def render_summary(summary: dict[str, Any]) -> str:
             f"  navigation error (onboard's estimate against the truth): median "
             f"{nav['median_m'] * 1e3:.1f} mm, max {nav['max_m'] * 1e3:.1f} mm over {nav['samples']}"
         )
+    return lines
+
+
+def _scene_lines(summary: dict[str, Any]) -> list[str]:
     scene = summary["scene"]
-    if scene:
+    if not scene:
+        return []
+    lines = [
+        f"  scene on shore: {scene['occupied_cells']} occupied cells at "
+        f"{scene['resolution_m']:g} m "
+        f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
+        f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}"
+    ]
+    p = scene.get("perception")
+    if p:
+        rates = ", ".join(f"{source} {r['mean']:.0f}" for source, r in p["points_per_s"].items())
+        mapped = ", ".join(f"{source} {s:.0f} s" for source, s in p["scene_source_s"].items())
         lines.append(
-            f"  scene on shore: {scene['occupied_cells']} occupied cells at "
-            f"{scene['resolution_m']:g} m "
-            f"from {scene['updates_applied']} updates ({scene['update_bytes'] / 1e3:.0f} kB), "
-            f"{scene['gaps']} gaps; recognised: {', '.join(scene['objects']) or 'nothing'}"
+            f"  perception (the vessel's, told shore): points/s {rates}; the scene from "
+            f"{mapped or 'nothing'}; panel confidence {p['recognition_confidence']['last']:.2f} "
+            f"(at most {p['recognition_confidence']['max']:.2f})"
         )
-        p = scene.get("perception")
-        if p:
-            rates = ", ".join(f"{source} {r['mean']:.0f}" for source, r in p["points_per_s"].items())
-            mapped = ", ".join(f"{source} {s:.0f} s" for source, s in p["scene_source_s"].items())
-            lines.append(
-                f"  perception (the vessel's, told shore): points/s {rates}; the scene from "
-                f"{mapped or 'nothing'}; panel confidence {p['recognition_confidence']['last']:.2f} "
-                f"(at most {p['recognition_confidence']['max']:.2f})"
-            )
+    return lines
+
+
+def _simulation_lines(summary: dict[str, Any]) -> list[str]:
     sim = summary["simulation"]
-    if sim:
-        lines.append(
-            f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
-            f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
-            + (
-                f" (scheduler: {scheduler})"
-                if (scheduler := summary["stations"].get("simulation", {}).get("scheduler"))
-                else ""
-            )
-            + (f", faults {sim['faults']}" if sim["faults"] else "")
-        )
+    if not sim:
+        return []
+    scheduler = summary["stations"].get("simulation", {}).get("scheduler")
+    return [
+        f"  simulation: {sim['sim_time_s']:.1f} s simulated, real-time factor "
+        f"{sim['realtime_factor']:.2f}, deadlines met {sim['deadlines_met']:.1%}"
+        + (f" (scheduler: {scheduler})" if scheduler else "")
+        + (f", faults {sim['faults']}" if sim["faults"] else "")
+    ]
+
+
+def _time_lines(summary: dict[str, Any]) -> list[str]:
     timing = summary.get("time", {})
-    if "achieved_speed" in timing:
-        asked = f" at speed {timing['speed']}" if timing["mode"] == "sim" else ""
-        lines.append(
-            f"  time: {timing['mode']}{asked}: {timing['sim_s']:.1f} s simulated in "
-            f"{timing['wall_s']:.1f} s of wall time (x{timing['achieved_speed']:.2f}), limited by "
-            f"{timing['limited_by']}"
-        )
-    return "\n".join(lines)
+    if "achieved_speed" not in timing:
+        return []
+    asked = f" at speed {timing['speed']}" if timing["mode"] == "sim" else ""
+    return [
+        f"  time: {timing['mode']}{asked}: {timing['sim_s']:.1f} s simulated in "
+        f"{timing['wall_s']:.1f} s of wall time (x{timing['achieved_speed']:.2f}), limited by "
+        f"{timing['limited_by']}"
+    ]

@@ -20,7 +20,7 @@ import numpy as np
 
 from abyss.common import keys
 from abyss.common.messages import Message, ReplayStart
-from abyss.recording.store import Record, Recording
+from abyss.recording.reader import Record, Recording
 
 PAIR_WINDOW_S = 0.25
 FLOOR = 1e-6

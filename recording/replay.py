@@ -34,7 +34,8 @@ from abyss.common.messages import (
     Waypoints,
     decode,
 )
-from abyss.recording.store import Record, Recording, data_spec, open_recording
+from abyss.recording.reader import Record, Recording, open_recording
+from abyss.recording.store import data_spec
 
 log = logging.getLogger(__name__)
 

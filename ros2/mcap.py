@@ -30,7 +30,7 @@ from ruamel.yaml import YAML
 
 from abyss.common.errors import AbyssError
 from abyss.common.messages import Image, NavState
-from abyss.recording.store import Record, Recording, open_recording
+from abyss.recording.reader import Record, Recording, open_recording
 from abyss.ros2 import types
 
 log = logging.getLogger(__name__)

@@ -17,7 +17,7 @@ import yaml
 from abyss.cli import parser
 from abyss.common import keys
 from abyss.common.config import LinksConfig
-from abyss.launch.up import DEFAULT_PORT
+from abyss.launch.start import DEFAULT_PORT
 from abyss.linkemu.profile import load_profiles
 
 ROOT = Path(__file__).resolve().parents[1]

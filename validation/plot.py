@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -65,10 +66,18 @@ def plot_run(run_dir: Path) -> list[str]:
     if not (run_dir / CONTROL_FILE).is_file():
         raise ConfigError("RUN_DIR", f"{run_dir} has no {CONTROL_FILE}; give a run directory of `abyss up`")
     c = read_control(run_dir)
-    t = c["sim_time_s"]
-    if len(t) < 2:
+    if len(c["sim_time_s"]) < 2:
         raise ConfigError("RUN_DIR", f"{run_dir / CONTROL_FILE} holds fewer than two rows")
     holds = c["failsafe"] != ""
+    _vehicle_figures(run_dir, c, holds)
+    arm = np.isin(c["arm_mode"], ("moving", "reached"))
+    _arm_figures(run_dir, c, holds, arm)
+    return _final_lines(run_dir, c, holds, arm) + _intervention_figure(run_dir, c)
+
+
+def _vehicle_figures(run_dir: Path, c: dict[str, np.ndarray], holds: np.ndarray) -> None:
+    """The vehicle's position and heading errors while it has a goal; dotted: each waypoint reached."""
+    t = c["sim_time_s"]
     reached_s = t[1:][np.diff(c["waypoint_index"]) > 0]  # when each waypoint was reached
     vehicle = c["mode"] != "idle"
     _figure(
@@ -89,7 +98,11 @@ def plot_run(run_dir: Path) -> list[str]:
         reached_s,
         holds[vehicle],
     )
-    arm = np.isin(c["arm_mode"], ("moving", "reached"))
+
+
+def _arm_figures(run_dir: Path, c: dict[str, np.ndarray], holds: np.ndarray, arm: np.ndarray) -> None:
+    """The end-effector's position and orientation errors while the arm has a goal."""
+    t = c["sim_time_s"]
     arm_t = t[arm] if arm.any() else t[:0]
     _figure(
         arm_t,
@@ -109,11 +122,15 @@ def plot_run(run_dir: Path) -> list[str]:
         np.array([]),
         holds[arm],
     )
+
+
+def _final_lines(run_dir: Path, c: dict[str, np.ndarray], holds: np.ndarray, arm: np.ndarray) -> list[str]:
+    """What was written, and the final errors."""
     last = -1
     vehicle_mm = [c[f"error_{a}_m"][last] * 1e3 for a in AXES]
     lines = [
         f"wrote {', '.join(name + '.png' for name in FIGURES)} in {run_dir}",
-        f"final errors at t = {t[last]:.1f} s: vehicle {_mm(vehicle_mm)}, heading "
+        f"final errors at t = {c['sim_time_s'][last]:.1f} s: vehicle {_mm(vehicle_mm)}, heading "
         f"{math.degrees(c['heading_error_rad'][last]):+.2f} deg",
     ]
     if arm.any():
@@ -127,7 +144,7 @@ def plot_run(run_dir: Path) -> list[str]:
     lines.append(
         f"failsafe: {int(c['failsafe_events'][last])} events, {holds.mean():.0%} of the record holding"
     )
-    return lines + _intervention_figure(run_dir, c)
+    return lines
 
 
 def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
@@ -140,37 +157,60 @@ def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
     fig, (top, bottom) = plt.subplots(
         2, 1, figsize=(8, 6.5), dpi=100, sharex=True, gridspec_kw={"height_ratios": [3, 2]}
     )
-    t_panel, t = panel["sim_time_s"], c["sim_time_s"]
-    lines = []
-    for i, part in enumerate(worked):
-        color = f"C{i}"
-        top.plot(
-            t_panel, np.degrees(panel[f"{part}_rad"]), color=color, linewidth=1.4, label=f"{part} (truth)"
-        )
-        bottom.plot(
-            t_panel,
-            panel[f"{part}_finger_force_n"],
-            color=color,
-            linewidth=1.0,
-            alpha=0.7,
-            label=f"fingers on {part} (truth)",
-        )
-        final_deg = math.degrees(panel[f"{part}_rad"][-1])
-        if part in targets:
-            target = targets[part]
-            top.axhline(
-                target["target_deg"],
-                color=color,
-                linestyle="--",
-                linewidth=1,
-                label=f"{part} target +- {target['tolerance_deg']:g} deg",
-            )
-            lines.append(
-                f"{part}: {final_deg:+.1f} deg, target {target['target_deg']:+.1f} deg "
-                f"({'success' if target['success'] else 'NOT DONE'})"
-            )
-        else:
-            lines.append(f"{part}: {final_deg:+.1f} deg")
+    lines = [
+        _plot_part(top, bottom, panel, part, f"C{i}", targets.get(part)) for i, part in enumerate(worked)
+    ]
+    _mark_phases(top, c)
+    bottom.plot(
+        c["sim_time_s"], c["gripper_force_n"], color="k", linewidth=1.2, label="grip squeeze (onboard)"
+    )
+    top.set_ylabel("angle [deg]")
+    top.set_title("Interventions: each part's angle against its target (dotted: the phases)")
+    bottom.set_ylabel("force [N]")
+    bottom.set_xlabel("simulated time [s]")
+    for ax in (top, bottom):
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper left", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(run_dir / f"{INTERVENTION_FIGURE}.png")
+    plt.close(fig)
+    return [f"wrote {INTERVENTION_FIGURE}.png: " + "; ".join(lines)]
+
+
+def _plot_part(
+    top: Any, bottom: Any, panel: dict[str, np.ndarray], part: str, color: str, target: dict[str, Any] | None
+) -> str:
+    """One worked part: its true angle (and target) above, the fingers' force on it below; the
+    line that says where it ended."""
+    t_panel = panel["sim_time_s"]
+    top.plot(t_panel, np.degrees(panel[f"{part}_rad"]), color=color, linewidth=1.4, label=f"{part} (truth)")
+    bottom.plot(
+        t_panel,
+        panel[f"{part}_finger_force_n"],
+        color=color,
+        linewidth=1.0,
+        alpha=0.7,
+        label=f"fingers on {part} (truth)",
+    )
+    final_deg = math.degrees(panel[f"{part}_rad"][-1])
+    if target is None:
+        return f"{part}: {final_deg:+.1f} deg"
+    top.axhline(
+        target["target_deg"],
+        color=color,
+        linestyle="--",
+        linewidth=1,
+        label=f"{part} target +- {target['tolerance_deg']:g} deg",
+    )
+    return (
+        f"{part}: {final_deg:+.1f} deg, target {target['target_deg']:+.1f} deg "
+        f"({'success' if target['success'] else 'NOT DONE'})"
+    )
+
+
+def _mark_phases(top: Any, c: dict[str, np.ndarray]) -> None:
+    """A dotted line, named, where each intervention phase begins."""
+    t = c["sim_time_s"]
     phase = np.char.add(np.char.add(c["intervention_target"], " "), c["intervention_phase"])
     changes = np.flatnonzero(phase[1:] != phase[:-1]) + 1
     for k in changes:
@@ -187,18 +227,6 @@ def _intervention_figure(run_dir: Path, c: dict[str, np.ndarray]) -> list[str]:
                 transform=top.get_xaxis_transform(),
                 color="0.35",
             )
-    bottom.plot(t, c["gripper_force_n"], color="k", linewidth=1.2, label="grip squeeze (onboard)")
-    top.set_ylabel("angle [deg]")
-    top.set_title("Interventions: each part's angle against its target (dotted: the phases)")
-    bottom.set_ylabel("force [N]")
-    bottom.set_xlabel("simulated time [s]")
-    for ax in (top, bottom):
-        ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper left", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(run_dir / f"{INTERVENTION_FIGURE}.png")
-    plt.close(fig)
-    return [f"wrote {INTERVENTION_FIGURE}.png: " + "; ".join(lines)]
 
 
 def _mm(values_mm: list[float]) -> str:

@@ -77,83 +77,109 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
     return frames
 
 
+class ResolutionRun:
+    """One resolution's run in virtual time: the octree, its pacer and the link, with the
+    figures counted as it goes."""
+
+    def __init__(self, resolution_m: float, config: Config, link_profile: str, seed: int) -> None:
+        cfg = config.vessel
+        self.resolution_m = resolution_m
+        self.link = Link(profile(link_profile), np.random.default_rng(seed))
+        self.model = SceneModel(
+            resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s
+        )
+        self.pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
+        self.acks: dict[int, float] = {}  # scene seq -> when shore's acknowledgement reaches the vessel [s]
+        self.telemetry = encode(sample_telemetry(), 0, 0.0)
+        self.latency = {"scene": Samples(), "telemetry": Samples()}
+        self.offered = {"scene": 0, "telemetry": 0}
+        self.delivered = {"scene": 0, "telemetry": 0}
+        self.update_bytes: list[int] = []
+        self.snapshot_bytes = 0
+        self.integrate_s = 0.0  # [s] of the process's time, inserting frames
+
+    def integrate(self, frame: Frame, now_s: float) -> None:
+        t0 = time.perf_counter()
+        self.model.insert(frame.points_m_world, frame.colors, frame.sensor_m_world, now_s)
+        self.integrate_s += time.perf_counter() - t0
+
+    def offer_telemetry(self, now_s: float) -> None:
+        self.offered["telemetry"] += 1
+        self.link.offer(now_s, self.telemetry, tag="telemetry")
+
+    def send_scene(self, now_s: float) -> None:
+        """Shore's acknowledgements that are back, then the updates the pacer allows now."""
+        for seq in [seq for seq, at_s in self.acks.items() if at_s <= now_s]:
+            self.pacer.acknowledged(now_s, seq)
+            del self.acks[seq]
+        self.pacer.tick(now_s)
+        while self.pacer.allows():
+            update = self.model.next_update(now_s, self.pacer.update_bytes())
+            if update is None:
+                break
+            payload = encode(update, update.scene_seq, now_s)
+            if self.link.offer(now_s, payload, block=True, tag=("scene", update.scene_seq)) is Offer.ACCEPTED:
+                self.offered["scene"] += 1
+                self.update_bytes.append(len(payload))
+                if update.kind == "snapshot":
+                    self.snapshot_bytes = len(payload)
+            self.pacer.sent(now_s, len(payload), update.scene_seq)
+
+    def deliver(self, now_s: float) -> None:
+        for delivery in self.link.advance(now_s):
+            name = delivery.tag if delivery.tag == "telemetry" else "scene"
+            self.latency[name].add(delivery.delivered_s - delivery.offered_s)
+            self.delivered[name] += 1
+            if name == "scene":  # shore acknowledges it; the ack takes the link's delay back
+                self.acks[delivery.tag[1]] = delivery.delivered_s + self.link.profile.delay_s
+
+    def result(self, frames: int, duration_s: float) -> dict[str, Any]:
+        stats = self.link.snapshot()
+        bt_bytes = len(self.model.binary())
+        sent_bytes = sum(self.update_bytes)
+        result: dict[str, Any] = {
+            "resolution_m": self.resolution_m,
+            "updates": self.offered["scene"],
+            "update_bytes_mean": float(np.mean(self.update_bytes)) if self.update_bytes else 0.0,
+            "update_bytes_max": max(self.update_bytes, default=0),
+            "first_update_bytes": self.snapshot_bytes,
+            "scene_bytes_sent": int(sent_bytes),
+            "map_bt_bytes": bt_bytes,
+            "sent_over_bt": sent_bytes / bt_bytes if bt_bytes else 0.0,  # 1: the map sent once
+            "pending_cells_at_end": len(self.model.pending),
+            "throughput_bps": 8.0 * stats["bytes_delivered"] / duration_s,
+            "link_rate_bps": self.link.profile.rate_bps,
+            "capacity_estimate_bps": self.pacer.capacity_bps,
+            "integrate_ms_per_frame": 1e3 * self.integrate_s / max(frames, 1),
+            "loss_packets": stats.get("losses", 0.0) / max(stats.get("packets_sent", 1.0), 1.0),
+        }
+        for name in ("scene", "telemetry"):
+            result[f"{name}_delivered"] = self.delivered[name]
+            result[f"{name}_offered"] = self.offered[name]
+            percentiles = self.latency[name].percentiles("latency", 1e3, "ms", (50, 95))
+            result.update({f"{name}_{k}": v for k, v in percentiles.items()})
+        return result
+
+
 def run_resolution(
     frames: list[Frame], resolution_m: float, config: Config, link_profile: str, duration_s: float, seed: int
 ) -> dict[str, Any]:
     """One resolution: frames integrated once a second, updates and telemetry over the link."""
-    cfg = config.vessel
-    link = Link(profile(link_profile), np.random.default_rng(seed))
-    model = SceneModel(resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s)
-    pacer = ScenePacer(cfg.scene_share, cfg.satellite_capacity_bps, cfg.scene_update_bytes)
-    acks: dict[int, float] = {}  # scene seq -> when shore's acknowledgement reaches the vessel [s]
-    telemetry = encode(sample_telemetry(), 0, 0.0)
-    latency = {"scene": Samples(), "telemetry": Samples()}
-    offered = {"scene": 0, "telemetry": 0}
-    delivered = {"scene": 0, "telemetry": 0}
-    update_bytes: list[int] = []
-    snapshot_bytes = 0
-    integrate_s = 0.0
+    run = ResolutionRun(resolution_m, config, link_profile, seed)
     frame_period_s = duration_s / len(frames)
     next_frame, next_telemetry_s = 0, 0.0
     for step in range(math.ceil(duration_s / STEP_S) + 1):
         now_s = step * STEP_S
         if next_frame < len(frames) and now_s >= next_frame * frame_period_s:
-            frame = frames[next_frame]
-            t0 = time.perf_counter()
-            model.insert(frame.points_m_world, frame.colors, frame.sensor_m_world, now_s)
-            integrate_s += time.perf_counter() - t0
+            run.integrate(frames[next_frame], now_s)
             next_frame += 1
-        model.track(now_s)
+        run.model.track(now_s)
         if now_s >= next_telemetry_s:
-            offered["telemetry"] += 1
-            link.offer(now_s, telemetry, tag="telemetry")
+            run.offer_telemetry(now_s)
             next_telemetry_s += TELEMETRY_PERIOD_S
-        for seq in [seq for seq, at_s in acks.items() if at_s <= now_s]:  # shore's acks are back
-            pacer.acknowledged(now_s, seq)
-            del acks[seq]
-        pacer.tick(now_s)
-        while pacer.allows():
-            update = model.next_update(now_s, pacer.update_bytes())
-            if update is None:
-                break
-            payload = encode(update, update.scene_seq, now_s)
-            if link.offer(now_s, payload, block=True, tag=("scene", update.scene_seq)) is Offer.ACCEPTED:
-                offered["scene"] += 1
-                update_bytes.append(len(payload))
-                if update.kind == "snapshot":
-                    snapshot_bytes = len(payload)
-            pacer.sent(now_s, len(payload), update.scene_seq)
-        for delivery in link.advance(now_s):
-            name = delivery.tag if delivery.tag == "telemetry" else "scene"
-            latency[name].add(delivery.delivered_s - delivery.offered_s)
-            delivered[name] += 1
-            if name == "scene":  # shore acknowledges it; the ack takes the link's delay back
-                acks[delivery.tag[1]] = delivery.delivered_s + link.profile.delay_s
-    stats = link.snapshot()
-    bt_bytes = len(model.binary())
-    result: dict[str, Any] = {
-        "resolution_m": resolution_m,
-        "updates": offered["scene"],
-        "update_bytes_mean": float(np.mean(update_bytes)) if update_bytes else 0.0,
-        "update_bytes_max": max(update_bytes, default=0),
-        "first_update_bytes": snapshot_bytes,
-        "scene_bytes_sent": int(sum(update_bytes)),
-        "map_bt_bytes": bt_bytes,
-        "sent_over_bt": sum(update_bytes) / bt_bytes if bt_bytes else 0.0,  # 1: the map sent once
-        "pending_cells_at_end": len(model.pending),
-        "throughput_bps": 8.0 * stats["bytes_delivered"] / duration_s,
-        "link_rate_bps": link.profile.rate_bps,
-        "capacity_estimate_bps": pacer.capacity_bps,
-        "integrate_ms_per_frame": 1e3 * integrate_s / max(len(frames), 1),
-        "loss_packets": stats.get("losses", 0.0) / max(stats.get("packets_sent", 1.0), 1.0),
-    }
-    for name in ("scene", "telemetry"):
-        result[f"{name}_delivered"] = delivered[name]
-        result[f"{name}_offered"] = offered[name]
-        result.update(
-            {f"{name}_{k}": v for k, v in latency[name].percentiles("latency", 1e3, "ms", (50, 95)).items()}
-        )
-    return result
+        run.send_scene(now_s)
+        run.deliver(now_s)
+    return run.result(len(frames), duration_s)
 
 
 def sample_telemetry() -> Telemetry:

@@ -21,7 +21,7 @@ from conftest import abyss
 from rerun.chunk import RrdReader
 
 from abyss.common import keys
-from abyss.recording.store import open_recording
+from abyss.recording.reader import open_recording
 from abyss.stations.runtime import free_port
 
 LINK = "auto"  # compose.yaml's default: netem where the kernel has sch_netem, else the TUN shaper

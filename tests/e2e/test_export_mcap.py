@@ -27,7 +27,7 @@ from abyss.common.clouds import unpack_cloud
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import Message, decode
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, WORLD_FILE
-from abyss.recording.store import Recording, open_recording
+from abyss.recording.reader import Recording, open_recording
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 

@@ -15,7 +15,8 @@ import pytest
 from conftest import Up, abyss
 
 from abyss.common import keys
-from abyss.recording.store import data_spec, open_recording
+from abyss.recording.reader import open_recording
+from abyss.recording.store import data_spec
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 

@@ -39,7 +39,7 @@ from rosnode import (
 
 from abyss.common.messages import NavState, SceneUpdate, decode
 from abyss.common.scene import cell_keys, iterate_leaves, leaves_to_cells, read_binary
-from abyss.recording.store import open_recording
+from abyss.recording.reader import open_recording
 from abyss.stations.onshore import SCENE_FILE
 from abyss.stations.runtime import free_port
 

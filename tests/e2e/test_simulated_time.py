@@ -12,7 +12,7 @@ import pytest
 from conftest import ROOT, Up, abyss
 
 from abyss.common import keys
-from abyss.recording.store import read_file
+from abyss.recording.reader import read_file
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
 

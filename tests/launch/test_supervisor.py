@@ -1,4 +1,4 @@
-"""`abyss up`'s supervisor (`launch/up.py`'s `Up`) without Zenoh: its stations stand in as short
+"""`abyss up`'s supervisor (`launch/up.py`'s `Up` and its parts) without Zenoh: its stations stand in as short
 Python processes, its observers' findings (stations alive, mission status) are set by hand.
 How it notices deaths, stops its stations, waits for them, watches the run and sums it up.
 
@@ -23,10 +23,13 @@ from abyss.common import keys
 from abyss.common.config import Config, Ros2Config
 from abyss.common.errors import ConfigError
 from abyss.common.messages import MissionStatus, SimulationStatus
-from abyss.launch import up as up_module
+from abyss.launch import stop as stop_module
+from abyss.launch import supervise as supervise_module
+from abyss.launch.start import Station, port_free, ros2_line, viewer_line
 from abyss.launch.state import RunState
+from abyss.launch.stop import stop_all
 from abyss.launch.summary import exit_code, render_summary, verdict_of
-from abyss.launch.up import Station, Up, port_free, ros2_line, run_up, viewer_line
+from abyss.launch.up import Up, run_up
 
 # children that say "ready" once their signal handlers are set, so no signal comes too early
 IGNORES_SIGINT = (
@@ -66,7 +69,7 @@ class System:
             assert process.stdout.readline() == b"ready\n"
         station = Station(name, process, self.up.out_dir / f"{name}.log", self.up.out_dir / f"{name}.json")
         station.log_path.write_text(f"{name} starting\n")
-        self.up.stations[name] = station
+        self.up.supervisor.stations[name] = station
         return station
 
     def exited(self, name: str, code: int) -> Station:
@@ -161,13 +164,13 @@ def test_each_death_is_reported_once_with_its_exit_code(system: Callable[..., Sy
     s = system()
     crashed = s.exited("simulation", 3)
     running = s.station("onboard", RUNS)
-    dead = s.up._check_deaths()
+    dead = s.up.supervisor.check_deaths()
     assert dead == [crashed] and crashed.died == 3 and running.died is None
-    assert s.up._check_deaths() == []  # already reported
+    assert s.up.supervisor.check_deaths() == []  # already reported
     running.process.kill()
     running.process.wait(timeout=60)
-    assert s.up._check_deaths() == [running] and running.died == -signal.SIGKILL
-    assert s.up._check_deaths() == []
+    assert s.up.supervisor.check_deaths() == [running] and running.died == -signal.SIGKILL
+    assert s.up.supervisor.check_deaths() == []
 
 
 def test_a_death_is_reported_with_the_signal_and_the_end_of_the_log(system: Callable[..., System]) -> None:
@@ -176,8 +179,8 @@ def test_a_death_is_reported_with_the_signal_and_the_end_of_the_log(system: Call
     station.log_path.write_text("".join(f"log line {i}\n" for i in range(40)))
     station.process.kill()
     station.process.wait(timeout=60)
-    [dead] = s.up._check_deaths()
-    s.up._report_death(dead)
+    [dead] = s.up.supervisor.check_deaths()
+    s.up.supervisor.report_death(dead)
     assert s.lines[0] == f"abyss: station onboard died with exit code -9 (SIGKILL); log {station.log_path}:"
     assert s.lines[1:] == [f"    log line {i}" for i in range(25, 40)]  # the last 15 lines
 
@@ -189,13 +192,13 @@ def test_stop_interrupts_every_station_and_kills_the_ones_that_do_not_stop(
     system: Callable[..., System], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     timeout_s = 2.0
-    monkeypatch.setattr(up_module, "STOP_TIMEOUT_S", timeout_s)
+    monkeypatch.setattr(stop_module, "STOP_TIMEOUT_S", timeout_s)
     s = system()
     willing = s.station("simulation", STOPS_ON_SIGINT)  # takes 0.3 s to stop: it is waited for
     stubborn = [s.station("onboard", IGNORES_SIGINT), s.station("vessel", IGNORES_SIGINT)]
     gone = s.exited("onshore", 0)
     t0 = time.monotonic()
-    s.up._stop_all()
+    stop_all(s.up.supervisor.stations.values(), s.up.echo)
     elapsed = time.monotonic() - t0
     assert willing.process.returncode == 7  # its SIGINT handler ran: SIGINT, not SIGTERM or SIGKILL
     assert [st.process.returncode for st in stubborn] == [-signal.SIGKILL] * 2
@@ -208,11 +211,11 @@ def test_stop_interrupts_every_station_and_kills_the_ones_that_do_not_stop(
 def test_stop_does_not_kill_stations_that_stop_in_time(
     system: Callable[..., System], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(up_module, "STOP_TIMEOUT_S", 30.0)
+    monkeypatch.setattr(stop_module, "STOP_TIMEOUT_S", 30.0)
     s = system()
     stations = [s.station(name, STOPS_ON_SIGINT) for name in keys.STATIONS]
     t0 = time.monotonic()
-    s.up._stop_all()
+    stop_all(s.up.supervisor.stations.values(), s.up.echo)
     assert time.monotonic() - t0 < 15.0  # it does not wait the whole timeout for stopped stations
     assert [st.process.returncode for st in stations] == [7] * 4
     assert s.lines == []
@@ -224,8 +227,8 @@ def test_stop_does_not_kill_stations_that_stop_in_time(
 def test_start_up_ends_when_every_station_is_alive(system: Callable[..., System]) -> None:
     s = system()
     pids = {name: s.station(name, RUNS).process.pid for name in keys.STATIONS}
-    s.up.alive = set(keys.STATIONS)
-    assert s.up._wait_until_up(time.monotonic()) == ""
+    s.up.heard.alive = set(keys.STATIONS)
+    assert s.up.supervisor.wait_until_up(time.monotonic()) == ""
     for name, pid in pids.items():
         assert any(line.startswith(f"abyss:   {name} up (pid {pid}, ") for line in s.lines), s.output()
 
@@ -237,43 +240,45 @@ def test_start_up_fails_on_a_death_or_the_timeout_and_ends_on_an_interrupt(
     for name in ("simulation", "vessel", "onshore"):
         s.station(name, RUNS)
     s.exited("onboard", 1)
-    s.up.alive = {"simulation"}
-    assert s.up._wait_until_up(time.monotonic()) == "onboard died during start-up"
+    s.up.heard.alive = {"simulation"}
+    assert s.up.supervisor.wait_until_up(time.monotonic()) == "onboard died during start-up"
     assert "abyss: station onboard died with exit code 1; log" in s.output()
 
     s = system()
     for name in keys.STATIONS:
         s.station(name, RUNS)
     s.up.interrupted.set()
-    assert s.up._wait_until_up(time.monotonic()) == ""  # not a failure: the verdict says interrupted
+    assert (
+        s.up.supervisor.wait_until_up(time.monotonic()) == ""
+    )  # not a failure: the verdict says interrupted
 
-    monkeypatch.setattr(up_module, "STARTUP_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(supervise_module, "STARTUP_TIMEOUT_S", 0.3)
     s = system()
     for name in keys.STATIONS:
         s.station(name, RUNS)
-    s.up.alive = {"simulation"}
+    s.up.heard.alive = {"simulation"}
     t0 = time.monotonic()
-    assert s.up._wait_until_up(t0) == "not up after 0.3 s: onboard, onshore, vessel"
+    assert s.up.supervisor.wait_until_up(t0) == "not up after 0.3 s: onboard, onshore, vessel"
     assert 0.3 <= time.monotonic() - t0 < 10.0
 
 
 def test_the_watch_ends_with_the_mission_and_marks_it_done(system: Callable[..., System]) -> None:
     s = system()
     s.station("simulation", RUNS)
-    s.up.mission = mission(done=True)
+    s.up.heard.mission = mission(done=True)
     t0 = time.monotonic()
-    assert s.up._watch(duration_s=60.0, keep_running=False) == ""
+    assert s.up.supervisor.watch(duration_s=60.0, keep_running=False) == ""
     assert time.monotonic() - t0 < 30.0
-    assert s.up.mission_done_s is not None and "mission complete at t=" in s.output()
+    assert s.up.supervisor.mission_done_s is not None and "mission complete at t=" in s.output()
     state = RunState.read(s.up.out_dir)
     assert state is not None and state.mission_done
 
 
 def test_the_watch_keeps_running_after_the_mission_until_the_duration(system: Callable[..., System]) -> None:
     s = system()
-    s.up.mission = mission(done=True)
+    s.up.heard.mission = mission(done=True)
     t0 = time.monotonic()
-    assert s.up._watch(duration_s=0.5, keep_running=True) == ""
+    assert s.up.supervisor.watch(duration_s=0.5, keep_running=True) == ""
     assert time.monotonic() - t0 >= 0.5
     assert s.output().count("mission complete") == 1  # said once, not on every pass
 
@@ -284,13 +289,13 @@ def test_the_watch_fails_when_a_station_dies_and_stops_when_interrupted(
     s = system()
     s.station("simulation", RUNS)
     s.exited("onboard", 2)
-    s.up.mission = mission(done=False)
-    assert s.up._watch(duration_s=60.0, keep_running=False) == "onboard died"
+    s.up.heard.mission = mission(done=False)
+    assert s.up.supervisor.watch(duration_s=60.0, keep_running=False) == "onboard died"
 
     s = system()
     s.station("simulation", RUNS)
     s.up.interrupted.set()
-    assert s.up._watch(duration_s=None, keep_running=True) == ""
+    assert s.up.supervisor.watch(duration_s=None, keep_running=True) == ""
     assert "abyss: interrupted; stopping the stations" in s.output()
 
 
@@ -337,8 +342,8 @@ def test_summary_of_a_station_that_died_without_its_status_file_is_failed(
         station = s.exited(name, 0)
         station.status_path.write_text(json.dumps(status_file(name)))
     s.exited("onboard", 1)  # no status file: it never got to write one
-    s.up.alive_seen = {"simulation", "onboard", "vessel"}
-    summary = s.up._summary(12.3456, 1.5, failure="")
+    s.up.heard.alive_seen = {"simulation", "onboard", "vessel"}
+    summary = s.up.summary(12.3456, 1.5, failure="")
     assert summary["verdict"] == "failed" and summary["failure"] == "a station exited with an error"
     onboard = summary["stations"]["onboard"]
     assert onboard["exit_code"] == 1 and onboard["alive_seen"]
@@ -371,8 +376,8 @@ def test_summary_keeps_the_failure_given_and_the_died_code(system: Callable[...,
     killed = s.station("onboard", RUNS)
     killed.process.kill()
     killed.process.wait(timeout=60)
-    s.up._check_deaths()
-    summary = s.up._summary(30.0, 1.0, failure="onboard died")
+    s.up.supervisor.check_deaths()
+    summary = s.up.summary(30.0, 1.0, failure="onboard died")
     assert summary["verdict"] == "failed" and summary["failure"] == "onboard died"
     assert summary["stations"]["onboard"]["exit_code"] == -signal.SIGKILL
     assert "onboard     -9 (SIGKILL)" in render_summary(summary)
@@ -382,10 +387,10 @@ def test_summary_of_a_clean_run_is_done(system: Callable[..., System]) -> None:
     s = system()
     for name in keys.STATIONS:
         s.exited(name, 0).status_path.write_text(json.dumps(status_file(name)))
-    s.up.mission = mission(done=True)
-    s.up.mission_done_s = 28.2
-    s.up.simulation = SimulationStatus(sim_time_s=29.5, realtime_factor=0.98, deadlines_met=0.995)
-    summary = s.up._summary(31.0, 1.2, failure="")
+    s.up.heard.mission = mission(done=True)
+    s.up.supervisor.mission_done_s = 28.2
+    s.up.heard.simulation = SimulationStatus(sim_time_s=29.5, realtime_factor=0.98, deadlines_met=0.995)
+    summary = s.up.summary(31.0, 1.2, failure="")
     assert summary["verdict"] == "done" and summary["failure"] == ""
     assert summary["mission"]["done"] is True and summary["mission_done_s"] == 28.2
     text = render_summary(summary)

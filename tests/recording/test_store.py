@@ -11,7 +11,8 @@ import pytest
 
 from abyss.common.messages import JointState, NavState, PointCloud, encode
 from abyss.recording import store
-from abyss.recording.store import Caps, Recorder, RecordingError, open_recording, read_file
+from abyss.recording.reader import open_recording, read_file
+from abyss.recording.store import Caps, Recorder, RecordingError
 
 SYSTEM = "t"
 NAV = "abyss/t/simulation/nav"

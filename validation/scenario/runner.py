@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import assert_never
 
 import zenoh
 
@@ -149,20 +150,50 @@ class System:
 
 def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> str:
     """Carry out one event; a line saying what was done."""
-    if event.action == "link":
-        session.put(
-            keys.link_key(system_id, event.hop), encode(LinkControl(event.profile, {}), 0, time.time())
-        )
-    elif event.action == "fault":
-        control = SimulationControl(event.fault, event.target, event.value)
-        session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
-    else:
-        state = up.state()
-        pid = state.stations[event.station].pid if state and event.station in state.stations else None
-        if pid is None:
-            return f"kill {event.station}: no pid (an external station?)"
-        os.kill(pid, signal.SIGKILL)
+    match event.action:
+        case "link":
+            control: LinkControl | SimulationControl = LinkControl(event.profile, {})
+            session.put(keys.link_key(system_id, event.hop), encode(control, 0, time.time()))
+        case "fault":
+            control = SimulationControl(event.fault, event.target, event.value)
+            session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
+        case "kill":
+            state = up.state()
+            pid = state.stations[event.station].pid if state and event.station in state.stations else None
+            if pid is None:
+                return f"kill {event.station}: no pid (an external station?)"
+            os.kill(pid, signal.SIGKILL)
+        case _:
+            assert_never(event.action)
     return event.describe()
+
+
+class Timeline:
+    """Onboard's states as the scenario sees them, timed on the system's clock from the moment
+    every station was up; Zenoh's callback appends to it."""
+
+    def __init__(self, scenario: Scenario, run: Run) -> None:
+        self.run = run
+        self.lock = threading.Lock()
+        self.up_s = 0.0  # when the system was up, on its clock
+        timing = scenario.time  # events and onboard's states are timed on the system's clock
+        self.clock = SimClock(SIM_CLOCK_HORIZON_S, timing.speed_factor) if timing.simulated else None
+
+    def now_s(self) -> float:
+        return self.clock.now_s() if self.clock is not None else time.monotonic()
+
+    def since_up_s(self) -> float:
+        return self.now_s() - self.up_s
+
+    def on_state(self, sample: zenoh.Sample) -> None:
+        state = message_of(sample, "Telemetry")
+        if isinstance(state, Telemetry):
+            with self.lock:
+                self.run.states.append((self.since_up_s(), state))
+
+    def phase_began_s(self, phase: str) -> float | None:
+        with self.lock:
+            return phase_began_s(self.run.states, phase)
 
 
 def run_scenario(
@@ -181,20 +212,6 @@ def run_scenario(
     if started is not None:
         started(up, system_id)
     run = Run({})
-    lock = threading.Lock()
-    t_up = [0.0]
-    timing = scenario.time  # events and onboard's states are timed on the system's clock
-    clock = SimClock(SIM_CLOCK_HORIZON_S, timing.speed_factor) if timing.simulated else None
-
-    def now_s() -> float:
-        return clock.now_s() if clock is not None else time.monotonic()
-
-    def on_state(sample: zenoh.Sample) -> None:
-        state = message_of(sample, "Telemetry")
-        if isinstance(state, Telemetry):
-            with lock:
-                run.states.append((now_s() - t_up[0], state))
-
     error = ""
     try:
         timeout_s = START_TIMEOUT_S + (EXTERNAL_TIMEOUT_S if scenario.external else 0.0)
@@ -204,38 +221,64 @@ def run_scenario(
             up.kill()
         else:
             say(f"up in {time.monotonic() - t0:.1f} s")
-            session = open_session(zenoh_config(connect=[state.endpoint], mode="client"), "abyss scenario")
-            ticks = clock_follow(session, system_id, clock) if clock is not None else None
-            t_up[0] = now_s()
-            subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), on_state)
-            try:
-                for event in scenario.events:
-                    while up.process.poll() is None:
-                        with lock:
-                            origin_s = phase_began_s(run.states, event.phase)
-                        if origin_s is not None and now_s() - t_up[0] >= origin_s + event.at_s:
-                            break
-                        time.sleep(0.05)
-                    if up.process.poll() is not None:
-                        say(f"{event.when()}: not reached, {event.describe()} not done")
-                        break
-                    at_s = now_s() - t_up[0]
-                    say(f"{event.when()} (t={at_s:.1f} s): {apply(event, session, system_id, up)}")
-                    run.killed += event.action == "kill"
-                up.process.wait(timeout=scenario.duration_s + 90.0)
-            except subprocess.TimeoutExpired:
-                error = "abyss up did not stop in time"
-                up.kill()
-            finally:
-                subscriber.undeclare()
-                if ticks is not None:
-                    ticks.undeclare()
-                session.close()
+            error = _drive(scenario, up, state.endpoint, system_id, Timeline(scenario, run), say)
     finally:
         up.process.wait()
         up.reader.join(timeout=5)
         if up.process.stdout is not None:
             up.process.stdout.close()
+    error = _collect(out_dir, up, run, error)
+    verdicts = judge(run, scenario.assertions) if not error else []
+    failed = {v.assertion.kind for v in verdicts if not v.passed}
+    passed = not error and failed == set(scenario.expect_failed)
+    _plot(out_dir, say)
+    return Result(
+        scenario, out_dir, verdicts, passed, time.monotonic() - t0, error, str(run.summary.get("verdict", ""))
+    )
+
+
+def _drive(
+    scenario: Scenario,
+    up: System,
+    endpoint: str,
+    system_id: str,
+    timeline: Timeline,
+    say: Callable[[str], None],
+) -> str:
+    """Apply the scenario's events at their times while onboard's states are recorded, then wait
+    for `abyss up` to end: '' or why it did not in time."""
+    session = open_session(zenoh_config(connect=[endpoint], mode="client"), "abyss scenario")
+    ticks = clock_follow(session, system_id, timeline.clock) if timeline.clock is not None else None
+    timeline.up_s = timeline.now_s()
+    subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), timeline.on_state)
+    try:
+        for event in scenario.events:
+            while up.process.poll() is None:
+                origin_s = timeline.phase_began_s(event.phase)
+                if origin_s is not None and timeline.since_up_s() >= origin_s + event.at_s:
+                    break
+                time.sleep(0.05)
+            if up.process.poll() is not None:
+                say(f"{event.when()}: not reached, {event.describe()} not done")
+                break
+            at_s = timeline.since_up_s()
+            say(f"{event.when()} (t={at_s:.1f} s): {apply(event, session, system_id, up)}")
+            timeline.run.killed += event.action == "kill"
+        up.process.wait(timeout=scenario.duration_s + 90.0)
+    except subprocess.TimeoutExpired:
+        up.kill()
+        return "abyss up did not stop in time"
+    finally:
+        subscriber.undeclare()
+        if ticks is not None:
+            ticks.undeclare()
+        session.close()
+    return ""
+
+
+def _collect(out_dir: Path, up: System, run: Run, error: str) -> str:
+    """What the run left (its summary, the commands shore sent, `abyss up`'s output) into `run`;
+    the error, or why there is no summary."""
     summary_path = out_dir / "summary.json"
     if summary_path.exists():
         run.summary = json.loads(summary_path.read_text())
@@ -244,9 +287,10 @@ def run_scenario(
     commands_path = out_dir / "commands.json"
     run.commands = json.loads(commands_path.read_text()) if commands_path.exists() else []
     (out_dir / "output.log").write_text("\n".join(up.lines) + "\n")
-    verdicts = judge(run, scenario.assertions) if not error else []
-    failed = {v.assertion.kind for v in verdicts if not v.passed}
-    passed = not error and failed == set(scenario.expect_failed)
+    return error
+
+
+def _plot(out_dir: Path, say: Callable[[str], None]) -> None:
     if (out_dir / "control.csv").exists():
         from abyss.validation.plot import plot_run
 
@@ -254,9 +298,6 @@ def run_scenario(
             plot_run(out_dir)
         except (AbyssError, OSError) as exc:  # too short a run to plot
             say(f"no plots: {exc}")
-    return Result(
-        scenario, out_dir, verdicts, passed, time.monotonic() - t0, error, str(run.summary.get("verdict", ""))
-    )
 
 
 def run_all(scenarios: Sequence[Scenario], out_dir: Path, parallel: int) -> list[Result]:

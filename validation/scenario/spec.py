@@ -9,7 +9,7 @@ import dataclasses
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, assert_never, get_args
 
 from abyss.common import keys
 from abyss.common.config import TimeConfig, load
@@ -19,7 +19,8 @@ from abyss.common.models import panel
 from abyss.linkemu.profile import load_profiles
 
 USES = ("distributed", "interface", "degradation", "parallel", "fault-recovery")
-ACTIONS = ("link", "fault", "kill")
+Action = Literal["link", "fault", "kill"]  # what an event does
+ACTIONS: tuple[Action, ...] = get_args(Action)
 # assertion kind -> the fields it takes (beyond `kind`), each with its type
 ASSERTIONS: dict[str, dict[str, type]] = {
     "mission_done": {"within_s": float},
@@ -53,7 +54,7 @@ OUTCOMES = ("done", "failed")  # of an intervention
 @dataclass(frozen=True)
 class Event:
     at_s: float  # after all stations are up [s], or after onboard first reports `phase`
-    action: str  # link | fault | kill
+    action: Action
     phase: str = ""  # an intervention's phase (messages.INTERVENTION_PHASES), e.g. turn
     hop: str = ""
     profile: str = ""
@@ -66,11 +67,15 @@ class Event:
         return f"{self.at_s:g} s into {self.phase}" if self.phase else f"t={self.at_s:g} s"
 
     def describe(self) -> str:
-        if self.action == "link":
-            return f"link {self.hop} -> {self.profile}"
-        if self.action == "fault":
-            return f"fault {self.fault} {self.target} {self.value:g}".rstrip()
-        return f"kill {self.station}"
+        match self.action:
+            case "link":
+                return f"link {self.hop} -> {self.profile}"
+            case "fault":
+                return f"fault {self.fault} {self.target} {self.value:g}".rstrip()
+            case "kill":
+                return f"kill {self.station}"
+            case _:
+                assert_never(self.action)
 
 
 @dataclass(frozen=True)
@@ -143,10 +148,17 @@ def _choice(value: str, allowed: tuple[str, ...] | list[str], where: str) -> str
     return value
 
 
+def _action(value: str, where: str) -> Action:
+    for action in ACTIONS:
+        if value == action:
+            return action
+    raise ConfigError(where, f"{value!r} not one of {', '.join(ACTIONS)}")
+
+
 def _event(table: dict[str, Any], where: str) -> Event:
     table = dict(table)
     at_s = _take(table, "at_s", float, where)
-    action = _choice(_take(table, "action", str, where), ACTIONS, f"{where}.action")
+    action = _action(_take(table, "action", str, where), f"{where}.action")
     phase = _take(table, "phase", str, where, "")
     if phase:
         _choice(phase, INTERVENTION_PHASES[1:], f"{where}.phase")

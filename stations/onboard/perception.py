@@ -8,7 +8,6 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import logging
-from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -20,7 +19,6 @@ from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, PointCloud
-from abyss.stations.onboard.navigation import nlerp
 
 if TYPE_CHECKING:
     from abyss.common.config import OnboardConfig
@@ -280,35 +278,6 @@ def stereo_depth(
     depth_m = np.zeros_like(disparity_px)
     depth_m[valid] = focal_px * baseline_m / disparity_px[valid]
     return depth_m
-
-
-class PoseHistory:
-    """The navigation estimate over the last seconds, looked up at a frame's time."""
-
-    def __init__(self, span_s: float = 5.0) -> None:
-        self.span_s = span_s
-        self._poses: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
-
-    def add(
-        self, sim_time_s: float, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray
-    ) -> None:
-        self._poses.append((sim_time_s, np.array(position_m_world), np.array(orientation_wxyz_world)))
-        while self._poses and self._poses[0][0] < sim_time_s - self.span_s:
-            self._poses.popleft()
-
-    def at(self, sim_time_s: float, tolerance_s: float = 0.2) -> tuple[np.ndarray, np.ndarray] | None:
-        """Position and orientation interpolated at `sim_time_s`; None if no estimate lies
-        within `tolerance_s` of it."""
-        poses = list(self._poses)
-        for (t0, p0, q0), (t1, p1, q1) in itertools.pairwise(poses):
-            if t0 <= sim_time_s <= t1:
-                f = (sim_time_s - t0) / (t1 - t0) if t1 > t0 else 0.0
-                return p0 + f * (p1 - p0), nlerp(q0, q1, f)
-        if poses:
-            t, p, q = min(poses, key=lambda pose: abs(pose[0] - sim_time_s))
-            if abs(t - sim_time_s) <= tolerance_s:
-                return p, q
-        return None
 
 
 def segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ import pinocchio as pin
 from abyss.common.config import MissionConfig, OnboardConfig
 from abyss.common.geometry import rotation_of
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
+from abyss.stations.onboard.modes import Mode
 
 CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist, end-effector
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
@@ -226,7 +227,7 @@ class PoseReference:
 class ArmOutput:
     joint_velocities_radps: np.ndarray  # (6,) model order
     vehicle_velocity: np.ndarray | None  # surge, sway, heave [m/s, body], yaw rate [rad/s]; whole body
-    mode: str  # idle | moving | reached | hold
+    mode: Mode  # idle, moving, reached or hold
     position_error_m_world: np.ndarray
     orientation_error_rad: float
     active: tuple[str, ...]  # constraints that ranked above the goal this step
@@ -318,7 +319,7 @@ class ArmController:
         if reference is not None:
             return self._follow(reference, arm_rad, enabled)
         if self.goal_position_m_world is None:
-            return ArmOutput(zero, None, "idle", np.zeros(3), 0.0, ())
+            return ArmOutput(zero, None, Mode.IDLE, np.zeros(3), 0.0, ())
         position_error, rotation_error = self.errors()
         angle = _norm(rotation_error)
         # once settled, the goal stays reached within twice the tolerances, so that navigation
@@ -330,7 +331,7 @@ class ArmController:
         )
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         if not enabled:
-            return ArmOutput(zero, None, "hold", position_error, angle, ())
+            return ArmOutput(zero, None, Mode.HOLD, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         tasks = [
             Task(
@@ -345,10 +346,10 @@ class ArmController:
             ),
         ]
         reached = self.within_s >= self.mission.arm_settle_s
-        return self._solve(tasks, arm_rad, "reached" if reached else "moving", position_error, angle)
+        return self._solve(tasks, arm_rad, Mode.REACHED if reached else Mode.MOVING, position_error, angle)
 
     def _solve(
-        self, tasks: list[Task], arm_rad: np.ndarray, mode: str, position_error: np.ndarray, angle: float
+        self, tasks: list[Task], arm_rad: np.ndarray, mode: Mode, position_error: np.ndarray, angle: float
     ) -> ArmOutput:
         """The tasks under the constraints, within the speed limits."""
         kin, cfg = self.kinematics, self.cfg
@@ -381,7 +382,7 @@ class ArmController:
         rotation_error = np.asarray(pin.log3(ref.rotation @ pose.rotation.T))
         angle = _norm(rotation_error)
         if not enabled:
-            return ArmOutput(np.zeros(len(ARM_JOINTS)), None, "hold", position_error, angle, ())
+            return ArmOutput(np.zeros(len(ARM_JOINTS)), None, Mode.HOLD, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         angular = ref.angular_velocity_radps_world + cfg.kp_ee_orientation * rotation_error
         tasks = [
@@ -410,7 +411,7 @@ class ArmController:
                     _limit(across @ angular, cfg.max_ee_rate_radps),
                 ),
             ]
-        return self._solve(tasks, arm_rad, "moving", position_error, angle)
+        return self._solve(tasks, arm_rad, Mode.MOVING, position_error, angle)
 
     def _within_speed_limits(self, xdot: np.ndarray) -> np.ndarray:
         """Scale the whole solution (its direction kept) so that no variable exceeds its limit."""

@@ -87,8 +87,8 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
             joints=latest_joints[-1] if latest_joints else None,
         )
         out = core.step(inputs, bus.clock.now_s())
-        if out.poses:
-            shared.poses.update(out.poses, PoseHistory.added)
+        if out.poses:  # this loop is the only one that writes them
+            shared.poses.set(shared.poses.get().added(out.poses))
         if out.arm_m_world is not None:
             arm_m_world = out.arm_m_world.copy()
             arm_m_world.flags.writeable = False

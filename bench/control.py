@@ -15,7 +15,8 @@ import numpy as np
 
 from abyss.common.config import load
 from abyss.common.models import ARM_STOWED_RAD
-from abyss.stations.onboard.arm_control import ArmController, damped_pinv
+from abyss.stations.onboard.arm_control import ArmController
+from abyss.stations.onboard.task_priority import damped_pinv
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 

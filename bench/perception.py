@@ -1,6 +1,6 @@
 """Stereo perception over a whole mission: precision and recall of the scene model's occupied
 cells against the world's geometry, and the stereo cloud's cost per frame, with the stereo
-filters (perception.StereoFilter) and without them (OpenCV's semi-global matcher as it was),
+filters (stereo.StereoFilter) and without them (OpenCV's semi-global matcher as it was),
 in clear water (simulation.water "none": MuJoCo's fog) and in Jerlov's oceanic type I
 (attenuation, backscatter, marine snow and sensor noise).
 
@@ -45,14 +45,8 @@ from abyss.common.config import MissionConfig, OnboardConfig, SimulationConfig, 
 from abyss.common.geometry import rotation_of  # noqa: E402
 from abyss.common.models import CAMERAS  # noqa: E402
 from abyss.common.scene import SceneModel, cell_keys, iterate_leaves, leaves_to_cells  # noqa: E402
-from abyss.stations.onboard.perception import (  # noqa: E402
-    Camera,
-    CloudSettings,
-    StereoFilter,
-    clouds_of,
-    depth_to_points,
-    stereo_depth,
-)
+from abyss.stations.onboard.perception import Camera, CloudSettings, clouds_of, depth_to_points  # noqa: E402
+from abyss.stations.onboard.stereo import StereoFilter, stereo_depth  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402

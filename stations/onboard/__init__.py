@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import threading
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from abyss.common import keys
 from abyss.common.bus import Bus, messages_of
 from abyss.common.config import Config
-from abyss.common.errors import BadInput
 from abyss.common.messages import (
     ArmGoal,
     Heartbeat,
@@ -30,20 +29,21 @@ from abyss.common.messages import (
 )
 from abyss.common.models import CAMERAS
 from abyss.common.rate import Rate
+from abyss.common.shared import Latest
 from abyss.common.workers import Workers
 from abyss.stations.onboard.core import Onboard, OnboardInputs
-from abyss.stations.onboard.perception import PoseHistory
+from abyss.stations.onboard.navigation import PoseHistory
 
 log = logging.getLogger(__name__)
 
 
+@dataclass
 class Shared:
-    """What the control loop hands the perception thread: poses, and where the arm is."""
+    """What the control loop hands the perception and sonar threads: the navigation estimate over
+    the last seconds, and where the arm is [m, world] (for the clouds' self-filter)."""
 
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.poses = PoseHistory()
-        self.arm_m_world = np.zeros((0, 3))
+    poses: Latest[PoseHistory] = field(default_factory=lambda: Latest(PoseHistory()))
+    arm_m_world: Latest[np.ndarray] = field(default_factory=lambda: Latest(np.zeros((0, 3))))
 
 
 def loops(config: Config) -> tuple[str, ...]:
@@ -87,11 +87,12 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
             joints=latest_joints[-1] if latest_joints else None,
         )
         out = core.step(inputs, bus.clock.now_s())
-        with shared.lock:
-            for pose in out.poses:
-                shared.poses.add(*pose)
-            if out.arm_m_world is not None:
-                shared.arm_m_world = out.arm_m_world
+        if out.poses:  # this loop is the only one that writes them
+            shared.poses.set(shared.poses.get().added(out.poses))
+        if out.arm_m_world is not None:
+            arm_m_world = out.arm_m_world.copy()
+            arm_m_world.flags.writeable = False
+            shared.arm_m_world.set(arm_m_world)
         for ack in out.acks:
             bus.publish("ack", ack)
         if out.vehicle is not None and out.arm is not None:
@@ -103,73 +104,32 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
 
 
 def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
-    """Clouds from each complete set of frames (taken at one instant), placed with the pose
-    estimated for that instant; the left frame re-encoded to the vessel at its own rate."""
-    from abyss.common.images import decode_image, encode_jpeg
-    from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
+    """The I/O shell of the frame sets (frame_sets.FrameSets): frames in, clouds and the left
+    camera's image out, bad frames rejected and shed sets counted on the left camera's key."""
+    from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets  # OpenCV's, on first use
 
-    cfg = config.onboard
-    settings = CloudSettings.of(cfg)
-    needed = (
-        {"cam_left"}
-        | ({"cam_depth"} if "depth" in cfg.cloud_sources else set())
-        | ({"cam_right"} if "stereo" in cfg.cloud_sources else set())
-    )
+    core = FrameSets(config.onboard)
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}
-    sets: dict[float, dict[str, Image]] = {}
-    last_image_s = -float("inf")
     key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
     # with simulated time, a frame set being worked on holds the simulation (common.clock)
     rate = Rate(0.05, bus.stop, bus.clock, "perception")
-    resting_until_s = -float("inf")
-    sets_taken = 0
     while rate.sleep():
-        for camera, inbox in inboxes.items():
-            for received in inbox.drain():
-                assert isinstance(received.message, Image)
-                sets.setdefault(received.message.sim_time_s, {})[camera] = received.message
-        if bus.clock.now_s() < resting_until_s:  # what comes meanwhile waits; the newest set is taken
-            continue
-        complete = [t for t, frames in sets.items() if needed <= set(frames)]
-        if not complete:
-            for t in sorted(sets)[:-4]:  # a set that never completes (a frame lost) is let go
-                del sets[t]
-            continue
-        t = max(complete)
-        frames = sets.pop(t)
-        if len(complete) > 1:  # complete sets not yet processed when a newer one came: shed, the oldest first
-            bus.shed(key, len(complete) - 1)
-        for older in [s for s in sets if s < t]:
-            del sets[older]
-        with shared.lock:
-            pose = shared.poses.at(t)
-            arm_m_world = shared.arm_m_world.copy()
-        if pose is None:
-            log.debug("no navigation estimate at %.2f s; frames skipped", t)
-            continue
-        started_s = bus.clock.now_s()
-        try:
-            stereo_now = sets_taken % cfg.stereo_every == 0
-            sources = tuple(s for s in cfg.cloud_sources if s != "stereo" or stereo_now)
-            sets_taken += 1
-            for cloud in clouds_of(frames, pose, arm_m_world, sources, settings):
-                bus.publish("cloud", cloud)
-            now_s = bus.clock.now_s()
-            if cfg.image_rate_hz > 0 and now_s - last_image_s >= 1.0 / cfg.image_rate_hz:
-                left = frames["cam_left"]
-                bus.publish(
-                    "image",
-                    dataclasses.replace(
-                        left,
-                        pose_frame="world",
-                        pose_camera=camera_in_world(left, pose),
-                        data=encode_jpeg(decode_image(left), cfg.image_jpeg_quality),
-                    ),
-                )
-                last_image_s = now_s
-        except BadInput as exc:  # frames that do not decode, or a camera pose in the wrong frame
-            bus.reject(key, str(exc))
-        resting_until_s = started_s + (bus.clock.now_s() - started_s) / cfg.perception_max_busy
+        frames = [
+            (camera, frame)
+            for camera, inbox in inboxes.items()
+            for frame in messages_of(inbox.drain(), Image)
+        ]
+        inputs = FrameSetInputs(frames, shared.poses.get(), shared.arm_m_world.get())
+        out = core.step(inputs, bus.clock.now_s())
+        if out.shed:
+            bus.shed(key, out.shed)
+        for reason in out.rejected:
+            bus.reject(key, reason)
+        for cloud in out.clouds:
+            bus.publish("cloud", cloud)
+        if out.image is not None:
+            bus.publish("image", out.image)
+        core.finished(bus.clock.now_s())
 
 
 def _sonar_loop(bus: Bus, shared: Shared) -> None:
@@ -188,8 +148,7 @@ def _sonar_loop(bus: Bus, shared: Shared) -> None:
                     f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the vehicle's",
                 )
                 continue
-            with shared.lock:
-                pose = shared.poses.at(sonar.sim_time_s)
+            pose = shared.poses.get().at(sonar.sim_time_s)
             if pose is None:
                 log.debug("no navigation estimate at %.2f s; sonar frame skipped", sonar.sim_time_s)
                 continue

@@ -1,15 +1,8 @@
-"""Task-priority inverse kinematics for the arm on Pinocchio and the shared model (the paper's
-arm controller).
-
-    qdot = J1+ K1 e1 + N1 (J2 N1)+ (K2 e2 - J2 qdot1) + ... + N1..n-1 (Jn N1..n-1)+ (...)
-
-Each task is solved in the null space of the augmented Jacobian of the tasks above it, so a
-lower task never disturbs a higher one; the pseudo-inverse is damped near singularities.
-Safety constraints (joint limits, clearance from obstacles) are inequalities in the
-velocity-damper form hdot >= -k (h - h_min): they join the top of the stack only while the
-solution without them would break them (set-based task priority), so they cost the mission
-nothing while it is safe, and they rank above it when it is not.
-"""
+"""The arm's controller on Pinocchio and the shared model (the paper's arm controller): the
+end-effector's position, then its orientation, or a moving pose reference (an intervention's),
+as tasks of the task-priority solver (task_priority.py), under joint limits and clearance from
+obstacles as its constraints; the kinematics of the arm on the vehicle, and the distances to
+the obstacles' boxes."""
 
 from __future__ import annotations
 
@@ -23,105 +16,13 @@ import pinocchio as pin
 from abyss.common.config import MissionConfig, OnboardConfig
 from abyss.common.geometry import rotation_of
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
+from abyss.stations.onboard.modes import Mode
+from abyss.stations.onboard.task_priority import Constraints, Task, solve_constrained
 
 CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist, end-effector
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
 XYZW = [1, 2, 3, 0]  # Pinocchio's quaternion order, from w, x, y, z
 VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, heave, yaw rate
-
-
-# -- the solver ---------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Task:
-    """Rows of a task: J xdot = velocity, in the decision variables x."""
-
-    name: str
-    jacobian: np.ndarray  # (m, n)
-    velocity: np.ndarray  # (m,)
-
-
-@dataclass(frozen=True)
-class Constraints:
-    """Rows h(x) >= minimum, each enforced as the velocity damper hdot >= -k (h - minimum)."""
-
-    names: tuple[str, ...]
-    gradients: np.ndarray  # (c, n) dh/dx
-    values: np.ndarray  # (c,)
-    minimums: np.ndarray  # (c,)
-
-    def rates(self, k: float) -> np.ndarray:
-        return -k * (self.values - self.minimums)
-
-
-def damped_inverse(
-    u: np.ndarray, s: np.ndarray, vt: np.ndarray, damping: float, threshold: float
-) -> np.ndarray:
-    """Pseudo-inverse, from a thin SVD, with damping that grows as the smallest singular value
-    falls below `threshold`, up to `damping` at a singularity (Nakamura and Hanafusa; Maciejewski)."""
-    smallest = float(s[-1]) if s.size else 0.0
-    damping2 = damping**2 * (1.0 - (smallest / threshold) ** 2) if smallest < threshold else 0.0
-    denominator = s**2 + damping2  # descending, as s
-    if s.size and denominator[-1] > 1e-300:  # none is zero: no need to guard the division
-        return (vt.T * (s / denominator)) @ u.T
-    inverse = np.divide(s, denominator, out=np.zeros_like(s), where=denominator > 1e-300)
-    return (vt.T * inverse) @ u.T
-
-
-def damped_pinv(jacobian: np.ndarray, damping: float, threshold: float) -> np.ndarray:
-    """`damped_inverse` of `jacobian`."""
-    return damped_inverse(*np.linalg.svd(jacobian, full_matrices=False), damping, threshold)
-
-
-def null_projector(s: np.ndarray, vt: np.ndarray) -> np.ndarray:
-    """The orthogonal projector onto the null space of a matrix, from its thin SVD (singular values
-    descending); those up to 1e-10 times the largest count as zero (as numpy's pinv with that rcond)."""
-    kept = vt[: np.count_nonzero(s > 1e-10 * s[0])]
-    return np.eye(vt.shape[1]) - kept.T @ kept
-
-
-def solve(tasks: Sequence[Task], n: int, damping: float, threshold: float) -> list[np.ndarray]:
-    """Each task's contribution to xdot, in priority order; xdot is their sum. The first task's
-    SVD serves twice: its pseudo-inverse and the null space the second task works in; the last
-    task's null space is never formed."""
-    if not tasks:
-        return []
-    u, s, vt = np.linalg.svd(tasks[0].jacobian, full_matrices=False)
-    xdot = damped_inverse(u, s, vt, damping, threshold) @ tasks[0].velocity
-    contributions = [xdot]
-    for i, task in enumerate(tasks[1:], start=1):
-        if i > 1:  # the augmented Jacobian of the tasks above
-            _, s, vt = np.linalg.svd(np.vstack([t.jacobian for t in tasks[:i]]), full_matrices=False)
-        projector = null_projector(s, vt)
-        u, s, vt = np.linalg.svd(task.jacobian @ projector, full_matrices=False)
-        inverse = damped_inverse(u, s, vt, damping, threshold)
-        step = projector @ (inverse @ (task.velocity - task.jacobian @ xdot))
-        xdot = xdot + step
-        contributions.append(step)
-    return contributions
-
-
-def solve_constrained(
-    constraints: Constraints, tasks: Sequence[Task], n: int, k: float, damping: float, threshold: float
-) -> tuple[np.ndarray, list[int], list[np.ndarray]]:
-    """Set-based task priority: the constraints that the solution would break join the top
-    of the stack, the worst first, until none is broken. Returns xdot, the active constraints'
-    indices and every task's contribution (the active constraints' first)."""
-    rates = constraints.rates(k)
-    bound = rates - 1e-12  # broken below
-    active: list[int] = []
-    while True:
-        above = [
-            Task(constraints.names[i], constraints.gradients[i : i + 1], rates[i : i + 1]) for i in active
-        ]
-        contributions = solve(above + list(tasks), n, damping, threshold)
-        xdot = sum(contributions, np.zeros(n))
-        along = constraints.gradients @ xdot
-        broken = along < bound
-        if active:
-            broken[active] = False
-        if not broken.any():
-            return xdot, active, contributions
-        active.append(int(np.argmin(np.where(broken, along - rates, np.inf))))
 
 
 # -- the arm on the vehicle -----------------------------------------------------------------
@@ -226,7 +127,7 @@ class PoseReference:
 class ArmOutput:
     joint_velocities_radps: np.ndarray  # (6,) model order
     vehicle_velocity: np.ndarray | None  # surge, sway, heave [m/s, body], yaw rate [rad/s]; whole body
-    mode: str  # idle | moving | reached | hold
+    mode: Mode  # idle, moving, reached or hold
     position_error_m_world: np.ndarray
     orientation_error_rad: float
     active: tuple[str, ...]  # constraints that ranked above the goal this step
@@ -318,7 +219,7 @@ class ArmController:
         if reference is not None:
             return self._follow(reference, arm_rad, enabled)
         if self.goal_position_m_world is None:
-            return ArmOutput(zero, None, "idle", np.zeros(3), 0.0, ())
+            return ArmOutput(zero, None, Mode.IDLE, np.zeros(3), 0.0, ())
         position_error, rotation_error = self.errors()
         angle = _norm(rotation_error)
         # once settled, the goal stays reached within twice the tolerances, so that navigation
@@ -330,7 +231,7 @@ class ArmController:
         )
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         if not enabled:
-            return ArmOutput(zero, None, "hold", position_error, angle, ())
+            return ArmOutput(zero, None, Mode.HOLD, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         tasks = [
             Task(
@@ -345,10 +246,10 @@ class ArmController:
             ),
         ]
         reached = self.within_s >= self.mission.arm_settle_s
-        return self._solve(tasks, arm_rad, "reached" if reached else "moving", position_error, angle)
+        return self._solve(tasks, arm_rad, Mode.REACHED if reached else Mode.MOVING, position_error, angle)
 
     def _solve(
-        self, tasks: list[Task], arm_rad: np.ndarray, mode: str, position_error: np.ndarray, angle: float
+        self, tasks: list[Task], arm_rad: np.ndarray, mode: Mode, position_error: np.ndarray, angle: float
     ) -> ArmOutput:
         """The tasks under the constraints, within the speed limits."""
         kin, cfg = self.kinematics, self.cfg
@@ -381,7 +282,7 @@ class ArmController:
         rotation_error = np.asarray(pin.log3(ref.rotation @ pose.rotation.T))
         angle = _norm(rotation_error)
         if not enabled:
-            return ArmOutput(np.zeros(len(ARM_JOINTS)), None, "hold", position_error, angle, ())
+            return ArmOutput(np.zeros(len(ARM_JOINTS)), None, Mode.HOLD, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         angular = ref.angular_velocity_radps_world + cfg.kp_ee_orientation * rotation_error
         tasks = [
@@ -410,7 +311,7 @@ class ArmController:
                     _limit(across @ angular, cfg.max_ee_rate_radps),
                 ),
             ]
-        return self._solve(tasks, arm_rad, "moving", position_error, angle)
+        return self._solve(tasks, arm_rad, Mode.MOVING, position_error, angle)
 
     def _within_speed_limits(self, xdot: np.ndarray) -> np.ndarray:
         """Scale the whole solution (its direction kept) so that no variable exceeds its limit."""

@@ -30,12 +30,13 @@ from abyss.common.messages import (
     new_id,
 )
 from abyss.common.models import ARM_JOINTS
-from abyss.stations.onboard.arm_control import ArmController
+from abyss.stations.onboard.arm_control import ArmController, ArmOutput
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
 from abyss.stations.onboard.intervention import InterventionRun
+from abyss.stations.onboard.modes import ControlMode, Mode
 from abyss.stations.onboard.navigation import NavFilter
-from abyss.stations.onboard.vehicle_control import VehicleController
+from abyss.stations.onboard.vehicle_control import ControlOutput, VehicleController
 
 GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
 GRIPPER_GAIN_PER_S = 2.0
@@ -70,7 +71,7 @@ class Onboard:
         self.nav_filter = NavFilter(cfg)
         self.failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
         self.gate = CommandGate(config.mission, *self.arm.kinematics.reach())
-        self.operator_mode = "auto"
+        self.operator_mode = ControlMode.AUTO
         self.every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
         self.position_m_world: np.ndarray | None = None
         self.orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
@@ -83,7 +84,7 @@ class Onboard:
         run = self.intervention
         if run is None or not run.active:
             return ""
-        return f"the intervention on {run.goal.target} is in progress ({run.phase})"
+        return f"the intervention on {run.goal.target} is in progress ({run.phase.value})"
 
     def _holding_at(self) -> np.ndarray:
         """Where the vehicle will hold: x, y, z [m, world], yaw [rad]."""
@@ -118,7 +119,7 @@ class Onboard:
             elif isinstance(command, InterventionGoal):
                 self.intervention = InterventionRun(command)
             elif isinstance(command, OperatorMode):
-                self.operator_mode = command.mode
+                self.operator_mode = ControlMode(command.mode)  # from the wire
         for beat in inputs.heartbeats:
             self.failsafe.heard(now_s, beat)
         for nav in inputs.nav:
@@ -137,13 +138,12 @@ class Onboard:
         cfg, vehicle, arm = self.cfg, self.vehicle, self.arm
         position, orientation = self.position_m_world, self.orientation_wxyz_world
         arm_rad = joints.positions_rad
-        hold = self.failsafe.check(now_s) or ("operator hold" if self.operator_mode == "hold" else "")
-        yaw = yaw_of(orientation)
-        v = vehicle.step(position, yaw, cfg.control_period_s, hold=bool(hold))
-        arm_free = v.mode in ("reached", "idle") or self.operator_mode == "teleop"
+        operator_hold = self.operator_mode == ControlMode.HOLD
+        hold = self.failsafe.check(now_s) or ("operator hold" if operator_hold else "")
+        v = vehicle.step(position, yaw_of(orientation), cfg.control_period_s, hold=bool(hold))
+        arm_free = v.mode in (Mode.REACHED, Mode.IDLE) or self.operator_mode == ControlMode.TELEOP
         enabled = not hold and arm_free
-        run, gripper_mps = self.intervention, None
-        reference = None
+        run, reference, gripper_mps = self.intervention, None, None
         if run is not None:
             arm.kinematics.update(position, orientation, arm_rad)
             command = run.step(
@@ -154,60 +154,69 @@ class Onboard:
             )
             reference, gripper_mps = command.reference, command.gripper_mps
         a = arm.step(position, orientation, arm_rad, enabled, reference)
-        if run is not None and not run.active and a.mode == "moving":
-            a = dataclasses.replace(a, mode="reached")
+        if run is not None and not run.active and a.mode == Mode.MOVING:
+            a = dataclasses.replace(a, mode=Mode.REACHED)
         out.arm_m_world = arm.kinematics.chain_m_world()
         linear, yaw_rate = v.linear_mps_body, v.yaw_rate_radps
-        if a.vehicle_velocity is not None and a.mode in ("moving", "reached"):
+        if a.vehicle_velocity is not None and a.mode in (Mode.MOVING, Mode.REACHED):
             linear, yaw_rate = a.vehicle_velocity[:3], float(a.vehicle_velocity[3])
         out.vehicle = VelocityRef(linear, yaw_rate)
-        if gripper_mps is None:
-            gripper_mps = 0.0
-        if run is None and a.mode in ("moving", "reached"):
-            opening_error_m = GRIPPER_OPENING_M - joints.gripper_opening_m
-            gripper_mps = float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
-        out.arm = ArmVelocityRef(a.joint_velocities_radps, gripper_mps)
+        out.arm = ArmVelocityRef(a.joint_velocities_radps, self._gripper_mps(gripper_mps, a, joints))
         if self.tick % self.every == 0:
-            ee_pose = arm.kinematics.pose(arm.kinematics.ee)
-            intervention_id, target, phase, reason, turned_rad, turn_goal_rad = (
-                (-1, "", "", "", 0.0, 0.0)
-                if run is None
-                else (
-                    run.goal.command_id,
-                    run.goal.target,
-                    run.phase,
-                    run.reason,
-                    float(np.clip(run.turned_rad, -10.0, 10.0)),
-                    run.goal.turn_rad,
-                )
+            out.telemetry = self._telemetry(v, a, joints, hold)
+
+    def _gripper_mps(self, intervention_mps: float | None, a: ArmOutput, joints: JointState) -> float:
+        """The gripper's speed [m/s]: the intervention's; without one, opened while the arm
+        reaches for its goal; else still."""
+        if self.intervention is None and a.mode in (Mode.MOVING, Mode.REACHED):
+            opening_error_m = GRIPPER_OPENING_M - joints.gripper_opening_m
+            return float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
+        return 0.0 if intervention_mps is None else intervention_mps
+
+    def _telemetry(self, v: ControlOutput, a: ArmOutput, joints: JointState, hold: str) -> Telemetry:
+        """The controllers' state for the vessel; modes and phases as their wire values."""
+        assert self.position_m_world is not None
+        arm, run = self.arm, self.intervention
+        ee_pose = arm.kinematics.pose(arm.kinematics.ee)
+        intervention_id, target, phase, reason, turned_rad, turn_goal_rad = (
+            (-1, "", "", "", 0.0, 0.0)
+            if run is None
+            else (
+                run.goal.command_id,
+                run.goal.target,
+                run.phase.value,
+                run.reason,
+                float(np.clip(run.turned_rad, -10.0, 10.0)),
+                run.goal.turn_rad,
             )
-            out.telemetry = Telemetry(
-                position_m_world=position,
-                yaw_rad=yaw,
-                mode=v.mode,
-                command_id=vehicle.command_id,
-                waypoint_index=v.waypoint_index,
-                waypoints_total=v.waypoints_total,
-                position_error_m_world=v.position_error_m_world,
-                heading_error_rad=v.heading_error_rad,
-                arm_mode=a.mode,
-                arm_command_id=arm.command_id,
-                ee_position_error_m_world=a.position_error_m_world,
-                ee_orientation_error_rad=a.orientation_error_rad,
-                ee_position_m_world=ee_pose.translation,
-                ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
-                arm_positions_rad=arm_rad[: len(ARM_JOINTS)],
-                failsafe=hold,
-                failsafe_events=self.failsafe.events,
-                sim_time_s=self.sim_time_s,
-                operator_mode=self.operator_mode,
-                boot_id=self.boot_id,
-                gripper_opening_m=joints.gripper_opening_m,
-                gripper_force_n=joints.gripper_force_n,
-                intervention_id=intervention_id,
-                intervention_target=target,
-                intervention_phase=phase,
-                intervention_reason=reason,
-                turned_rad=turned_rad,
-                turn_goal_rad=turn_goal_rad,
-            )
+        )
+        return Telemetry(
+            position_m_world=self.position_m_world,
+            yaw_rad=yaw_of(self.orientation_wxyz_world),
+            mode=v.mode.value,
+            command_id=self.vehicle.command_id,
+            waypoint_index=v.waypoint_index,
+            waypoints_total=v.waypoints_total,
+            position_error_m_world=v.position_error_m_world,
+            heading_error_rad=v.heading_error_rad,
+            arm_mode=a.mode.value,
+            arm_command_id=arm.command_id,
+            ee_position_error_m_world=a.position_error_m_world,
+            ee_orientation_error_rad=a.orientation_error_rad,
+            ee_position_m_world=ee_pose.translation,
+            ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
+            arm_positions_rad=joints.positions_rad[: len(ARM_JOINTS)],
+            failsafe=hold,
+            failsafe_events=self.failsafe.events,
+            sim_time_s=self.sim_time_s,
+            operator_mode=self.operator_mode.value,
+            boot_id=self.boot_id,
+            gripper_opening_m=joints.gripper_opening_m,
+            gripper_force_n=joints.gripper_force_n,
+            intervention_id=intervention_id,
+            intervention_target=target,
+            intervention_phase=phase,
+            intervention_reason=reason,
+            turned_rad=turned_rad,
+            turn_goal_rad=turn_goal_rad,
+        )

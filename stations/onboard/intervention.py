@@ -22,7 +22,10 @@ hold), and the gripper keeps squeezing what it holds meanwhile."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from enum import StrEnum
+from typing import ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -52,8 +55,30 @@ AT_STOP_RAD = OVERTRAVEL_RAD + math.radians(3.0)  # a thrown lever that stalls t
 POSITION_TOLERANCE_M = 0.005
 ORIENTATION_TOLERANCE_RAD = 0.03
 SETTLE_S = 0.3
-TIMEOUT_S = {"approach": 40.0, "pre-grasp": 10.0, "grasp": 5.0, "release": 4.0, "retreat": 10.0}
 ATTEMPTS = 2  # a failed grasp or a slip is tried once more
+
+
+class Phase(StrEnum):
+    """An intervention's phases, in order (messages.INTERVENTION_PHASES, less "" for none yet)."""
+
+    APPROACH = "approach"
+    PRE_GRASP = "pre-grasp"
+    GRASP = "grasp"
+    TURN = "turn"
+    RELEASE = "release"
+    RETREAT = "retreat"
+    DONE = "done"
+    FAILED = "failed"
+
+
+REFINABLE = frozenset(Phase(phase) for phase in REFINABLE_PHASES)
+TIMEOUT_S = {
+    Phase.APPROACH: 40.0,
+    Phase.PRE_GRASP: 10.0,
+    Phase.GRASP: 5.0,
+    Phase.RELEASE: 4.0,
+    Phase.RETREAT: 10.0,
+}
 
 
 @dataclass(frozen=True)
@@ -69,7 +94,7 @@ class InterventionRun:
 
     def __init__(self, goal: InterventionGoal) -> None:
         self._take(goal)
-        self.phase = "approach"
+        self.phase = Phase.APPROACH
         self.reason = ""  # why it failed, once it will
         self.retry = ""  # why the grasp is tried again, while it is
         self.attempts = 1
@@ -93,18 +118,18 @@ class InterventionRun:
     def refine(self, goal: InterventionGoal) -> bool:
         """The same intervention resolved again from a better estimate of the panel (the vessel's
         recognition sharpens as the vehicle closes in): taken until the fingers close."""
-        if goal.command_id != self.goal.command_id or self.phase not in REFINABLE_PHASES:
+        if goal.command_id != self.goal.command_id or self.phase not in REFINABLE:
             return False
         self._take(goal)
         return True
 
     @property
     def active(self) -> bool:
-        return self.phase not in ("done", "failed")
+        return self.phase not in (Phase.DONE, Phase.FAILED)
 
     @property
     def holding(self) -> bool:
-        return self.phase in ("grasp", "turn")
+        return self.phase in (Phase.GRASP, Phase.TURN)
 
     # -- geometry --------------------------------------------------------------------------
     def pose_at(self, angle_rad: float, back_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -129,26 +154,26 @@ class InterventionRun:
             position, rotation = self._held_pose()
             return Command(PoseReference(position, rotation), -SQUEEZE_MPS if self.holding else 0.0)
         self.phase_s += dt_s
-        return getattr(self, "_" + self.phase.replace("-", "_"))(tool, opening_m, dt_s)
+        return self._STEPS[self.phase](self, tool, opening_m, dt_s)
 
     def _held_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        if self.phase in ("grasp", "turn", "release"):
-            return self.pose_at(self.reference_rad if self.phase == "turn" else self.turned_rad)
+        if self.phase in (Phase.GRASP, Phase.TURN, Phase.RELEASE):
+            return self.pose_at(self.reference_rad if self.phase == Phase.TURN else self.turned_rad)
         back = {
-            "approach": PRE_GRASP_M,
-            "pre-grasp": PRE_GRASP_M - self.slide_m,
-            "retreat": self.slide_m,
+            Phase.APPROACH: PRE_GRASP_M,
+            Phase.PRE_GRASP: PRE_GRASP_M - self.slide_m,
+            Phase.RETREAT: self.slide_m,
         }.get(self.phase, PRE_GRASP_M)
         return self.pose_at(self.from_rad, back)
 
-    def _next(self, phase: str) -> None:
+    def _next(self, phase: Phase) -> None:
         self.phase, self.phase_s, self.settled_s, self.slide_m = phase, 0.0, 0.0, 0.0
         self.openings = []
 
     def _fail(self, reason: str) -> None:
         """Back off: open, retreat, then failed with `reason`."""
         self.reason = reason
-        self._next("release")
+        self._next(Phase.RELEASE)
 
     def _timed_out(self, what: str) -> bool:
         if self.phase_s < TIMEOUT_S[self.phase]:
@@ -169,7 +194,7 @@ class InterventionRun:
     def _approach(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
         position, rotation = self.pose_at(self.from_rad, PRE_GRASP_M)
         if self._settled(tool, position, rotation, dt_s) and opening_m > OPEN_M - 0.01:
-            self._next("pre-grasp")
+            self._next(Phase.PRE_GRASP)
         else:
             self._timed_out("the pre-grasp pose not reached")
         return Command(PoseReference(position, rotation), self._open(opening_m))
@@ -180,7 +205,7 @@ class InterventionRun:
         sliding = self.slide_m < PRE_GRASP_M
         velocity = SLIDE_MPS * rotation[:, 0] if sliding else np.zeros(3)
         if not sliding and self._settled(tool, position, rotation, dt_s):
-            self._next("grasp")
+            self._next(Phase.GRASP)
         else:
             self._timed_out("the grasp pose not reached (blocked short of the handle?)")
         return Command(PoseReference(position, rotation, velocity), self._open(opening_m))
@@ -194,7 +219,7 @@ class InterventionRun:
                 self.hold_opening_m = opening_m
                 self.reference_rad = self.from_rad
                 self.progress = (self.phase_s, self.turned_rad)
-                self._next("turn")
+                self._next(Phase.TURN)
             else:
                 self._again(f"the grasp closed on nothing (opening {opening_m * 1e3:.0f} mm)")
         else:
@@ -209,7 +234,7 @@ class InterventionRun:
             self._again(f"the grasp slipped at {math.degrees(self.turned_rad):.0f} deg")
             return self._release(tool, opening_m, dt_s)
         if abs(goal - self.turned_rad) < TURN_TOLERANCE_RAD:
-            self._next("release")
+            self._next(Phase.RELEASE)
             return self._release(tool, opening_m, dt_s)
         direction = math.copysign(1.0, goal - self.turned_rad)
         if direction * (self.turned_rad - self.progress[1]) > PROGRESS_RAD:
@@ -217,7 +242,7 @@ class InterventionRun:
         elif self.phase_s - self.progress[0] > STALL_S or opening_m > self.hold_opening_m + PRIED_M:
             # the part does not follow the tool: it stopped, or it forces the fingers open
             if self.goal.to_stop and abs(self.goal.turn_rad - self.turned_rad) < AT_STOP_RAD:
-                self._next("release")  # a lever at its stop
+                self._next(Phase.RELEASE)  # a lever at its stop
             else:
                 turned_deg, goal_deg = math.degrees(self.turned_rad), math.degrees(self.goal.turn_rad)
                 self._fail(
@@ -242,13 +267,13 @@ class InterventionRun:
             return
         self.attempts += 1
         self.retry = why
-        self._next("release")
+        self._next(Phase.RELEASE)
 
     def _release(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
         position, rotation = self.pose_at(self.turned_rad)
-        if opening_m > OPEN_M - 0.01 or self.phase_s >= TIMEOUT_S["release"]:
+        if opening_m > OPEN_M - 0.01 or self.phase_s >= TIMEOUT_S[Phase.RELEASE]:
             self.from_rad = self.turned_rad
-            self._next("retreat")
+            self._next(Phase.RETREAT)
         return Command(PoseReference(position, rotation), self._open(opening_m))
 
     def _retreat(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
@@ -257,13 +282,23 @@ class InterventionRun:
         sliding = self.slide_m < PRE_GRASP_M
         velocity = -SLIDE_MPS * rotation[:, 0] if sliding else np.zeros(3)
         if not sliding and (
-            self._settled(tool, position, rotation, dt_s) or self.phase_s >= TIMEOUT_S["retreat"]
+            self._settled(tool, position, rotation, dt_s) or self.phase_s >= TIMEOUT_S[Phase.RETREAT]
         ):
             if self.reason:
-                self._next("failed")
+                self._next(Phase.FAILED)
             elif self.retry:
                 self.retry = ""
-                self._next("approach")
+                self._next(Phase.APPROACH)
             else:
-                self._next("done")
+                self._next(Phase.DONE)
         return Command(PoseReference(position, rotation, velocity), self._open(opening_m))
+
+    # each phase's step, called by `step` while the intervention is active
+    _STEPS: ClassVar[dict[Phase, Callable[[InterventionRun, pin.SE3, float, float], Command]]] = {
+        Phase.APPROACH: _approach,
+        Phase.PRE_GRASP: _pre_grasp,
+        Phase.GRASP: _grasp,
+        Phase.TURN: _turn,
+        Phase.RELEASE: _release,
+        Phase.RETREAT: _retreat,
+    }

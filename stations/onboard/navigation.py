@@ -13,9 +13,12 @@ the estimate out."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -178,3 +181,45 @@ def nlerp(a_wxyz: np.ndarray, b_wxyz: np.ndarray, fraction: float) -> np.ndarray
         b_wxyz = -b_wxyz
     q = (1.0 - fraction) * a_wxyz + fraction * b_wxyz
     return q / np.linalg.norm(q)
+
+
+Pose = tuple[float, np.ndarray, np.ndarray]  # sim time [s], position [m, world], orientation (w, x, y, z)
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array = np.array(array, dtype=float)
+    array.flags.writeable = False
+    return array
+
+
+@dataclass(frozen=True)
+class PoseHistory:
+    """The navigation estimate over the last `span_s` [s], looked up at a frame's time. Never
+    changed once made (`added` returns a new one), so the control loop can hand it whole to the
+    threads that place frames (common.shared.Latest)."""
+
+    poses: tuple[Pose, ...] = ()
+    span_s: float = 5.0
+
+    def added(self, poses: Iterable[Pose]) -> PoseHistory:
+        """This history with `poses` (oldest first) added, those older than `span_s` before each
+        let go."""
+        kept = deque(self.poses)
+        for sim_time_s, position_m_world, orientation_wxyz_world in poses:
+            kept.append((sim_time_s, _read_only(position_m_world), _read_only(orientation_wxyz_world)))
+            while kept and kept[0][0] < sim_time_s - self.span_s:
+                kept.popleft()
+        return PoseHistory(tuple(kept), self.span_s)
+
+    def at(self, sim_time_s: float, tolerance_s: float = 0.2) -> tuple[np.ndarray, np.ndarray] | None:
+        """Position [m, world] and orientation (w, x, y, z) interpolated at `sim_time_s` [s]; None
+        if no estimate lies within `tolerance_s` [s] of it."""
+        for (t0, p0, q0), (t1, p1, q1) in itertools.pairwise(self.poses):
+            if t0 <= sim_time_s <= t1:
+                f = (sim_time_s - t0) / (t1 - t0) if t1 > t0 else 0.0
+                return p0 + f * (p1 - p0), nlerp(q0, q1, f)
+        if self.poses:
+            t, p, q = min(self.poses, key=lambda pose: abs(pose[0] - sim_time_s))
+            if abs(t - sim_time_s) <= tolerance_s:
+                return p, q
+        return None

@@ -20,6 +20,7 @@ import numpy as np
 
 from abyss.common.config import MissionConfig, OnboardConfig
 from abyss.common.geometry import wrap_rad
+from abyss.stations.onboard.modes import Mode
 
 MAX_OFFSET_SHARE = 0.5  # the offset's estimate is kept within this share of the speed limits
 
@@ -28,7 +29,7 @@ MAX_OFFSET_SHARE = 0.5  # the offset's estimate is kept within this share of the
 class ControlOutput:
     linear_mps_body: np.ndarray
     yaw_rate_radps: float
-    mode: str  # idle | moving | reached | hold | missed (a waypoint's time ran out; it is held)
+    mode: Mode  # missed: a waypoint's time ran out; it is held
     waypoint_index: int  # waypoints reached so far
     waypoints_total: int
     position_error_m_world: np.ndarray
@@ -71,11 +72,11 @@ class VehicleController:
         if hold:
             if self._hold is None:
                 self._hold = pose
-            return self._output(self._hold, pose, "hold", min(self.index, total), total)
+            return self._output(self._hold, pose, Mode.HOLD, min(self.index, total), total)
         self._hold = None
         if total == 0:
             self._last = (pose, np.zeros(4))
-            return ControlOutput(np.zeros(3), 0.0, "idle", 0, 0, np.zeros(3), 0.0)
+            return ControlOutput(np.zeros(3), 0.0, Mode.IDLE, 0, 0, np.zeros(3), 0.0)
         target = self.waypoints[min(self.index, total - 1)]
         if self.index < total and not self.missed:
             if self._leg_limit_s is None:
@@ -87,7 +88,7 @@ class VehicleController:
             else:
                 self._leg_s += dt_s
                 self.missed = self._leg_s > self._leg_limit_s
-        mode = "missed" if self.missed else "reached" if self.index >= total else "moving"
+        mode = Mode.MISSED if self.missed else Mode.REACHED if self.index >= total else Mode.MOVING
         return self._output(target, pose, mode, self.index, total)
 
     def _new_leg(self) -> None:
@@ -131,7 +132,7 @@ class VehicleController:
         )
 
     def _output(
-        self, target: np.ndarray, pose: np.ndarray, mode: str, index: int, total: int
+        self, target: np.ndarray, pose: np.ndarray, mode: Mode, index: int, total: int
     ) -> ControlOutput:
         """Towards `target` (x, y, z, yaw) from `pose`: the body velocity and yaw rate, and the
         errors; the command (world frame) is kept for the observer."""

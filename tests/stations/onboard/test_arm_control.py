@@ -8,7 +8,8 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD
-from abyss.stations.onboard.arm_control import ArmController, ArmKinematics, Task, box_distance, solve
+from abyss.stations.onboard.arm_control import ArmController, ArmKinematics, box_distance
+from abyss.stations.onboard.task_priority import Task, solve
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 

@@ -16,7 +16,7 @@ from abyss.common.config import load
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
 from abyss.common.models import ARM_JOINTS, panel
 from abyss.stations.onboard.arm_control import ArmController, PoseReference
-from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun
+from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun, Phase
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 from abyss.stations.vessel.intents import resolve
@@ -157,5 +157,5 @@ def test_a_refined_goal_is_taken_until_the_fingers_close() -> None:
     run = InterventionRun(goal)
     assert run.refine(moved) and np.allclose(run.grasp_m, moved.grasp_m_world)
     assert not run.refine(dataclasses.replace(moved, command_id=4))  # another intervention's
-    run.phase = "turn"
+    run.phase = Phase.TURN
     assert not run.refine(goal) and np.allclose(run.grasp_m, moved.grasp_m_world)

@@ -7,7 +7,7 @@ import numpy as np
 from abyss.common.config import OnboardConfig
 from abyss.common.messages import Heartbeat, NavState
 from abyss.stations.onboard.failsafe import Failsafe
-from abyss.stations.onboard.navigation import NavFilter
+from abyss.stations.onboard.navigation import NavFilter, PoseHistory
 
 
 def test_failsafe_enters_on_each_cause_counts_entries_and_resumes() -> None:
@@ -50,3 +50,16 @@ def test_nav_filter_cuts_the_fix_noise_and_follows_motion() -> None:
     assert np.median(filtered) < 0.25 * np.median(raw)
     assert np.median(filtered) < 0.01
     assert abs(np.linalg.norm(orientation) - 1.0) < 1e-9
+
+
+def test_the_pose_history_is_handed_over_whole_and_looked_up_between_estimates() -> None:
+    east = np.array([1.0, 0.0, 0.0, 0.0])
+    history = PoseHistory(span_s=2.0).added(
+        [(0.0, np.zeros(3), east), (1.0, np.array([1.0, 0.0, 0.0]), east)]
+    )
+    later = history.added([(3.5, np.array([3.5, 0.0, 0.0]), east)])
+    assert len(history.poses) == 2 and [t for t, _, _ in later.poses] == [3.5]  # older than span_s let go
+    position, _ = history.at(0.25)  # type: ignore[misc]
+    assert np.allclose(position, [0.25, 0.0, 0.0])
+    assert history.at(1.15) is not None and history.at(1.3) is None  # 0.2 s tolerance past the ends
+    assert not later.poses[0][1].flags.writeable  # no reader can change it behind the writer's back

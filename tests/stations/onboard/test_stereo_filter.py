@@ -1,4 +1,4 @@
-"""The stereo matcher's filters (perception.StereoFilter): the scene model built from stereo
+"""The stereo matcher's filters (stereo.StereoFilter): the scene model built from stereo
 clouds along the start of the default mission in oceanic water (type I: noise and marine snow
 in open water), against the cameras' depth renders, with bench/perception.py's measure; at
 half resolution (onboard.stereo_scale); the left-right check's match at half resolution
@@ -18,12 +18,8 @@ import pytest
 
 from abyss.common.config import OnboardConfig
 from abyss.common.errors import ConfigError
-from abyss.stations.onboard.perception import (
-    Camera,
-    StereoFilter,
-    left_right_consistent,
-    stereo_depth,
-)
+from abyss.stations.onboard.perception import Camera
+from abyss.stations.onboard.stereo import StereoFilter, left_right_consistent, stereo_depth
 
 BENCH = Path(__file__).parents[3] / "bench" / "perception.py"
 # a near face before a far wall, rectified, 320 x 120 px: their disparities [px], the face's

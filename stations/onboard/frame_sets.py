@@ -1,0 +1,131 @@
+"""Onboard's frame sets, without Zenoh: the cameras' frames gathered into sets by the instant
+they were taken, each complete set made into clouds in the world frame with the navigation pose
+estimated for that instant, and the left frame sent on to the vessel at its own rate.
+
+A set is complete once it holds every frame the cloud sources need (cam_left, and cam_depth and
+cam_right for the depth and stereo sources). Only the newest complete set is worked on: complete
+sets not processed when a newer one came are shed, the oldest first, and counted. A set with no
+navigation estimate near its time is skipped. The stereo source runs on every `stereo_every`-th
+set taken. After each set the core rests in proportion to its work, so that it is busy
+`perception_max_busy` of the time at most (frames that come meanwhile wait; the newest set is
+taken)."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from abyss.common.config import OnboardConfig
+from abyss.common.errors import BadInput
+from abyss.common.images import decode_image, encode_jpeg
+from abyss.common.messages import Image, PointCloud
+from abyss.stations.onboard.navigation import PoseHistory
+from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
+
+INCOMPLETE_KEPT = 4  # sets that never complete (a frame lost): the newest this many are kept
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FrameSetInputs:
+    """What reached perception since the last step."""
+
+    frames: Sequence[tuple[str, Image]] = ()  # (camera, frame), oldest first
+    poses: PoseHistory = field(default_factory=PoseHistory)  # the navigation estimate, as handed over
+    arm_m_world: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # the arm's chain [m, world]
+
+
+@dataclass
+class FrameSetOutputs:
+    clouds: list[PointCloud] = field(default_factory=list)
+    image: Image | None = None  # the left frame, its pose in the world, for the vessel
+    shed: int = 0  # complete sets let go unprocessed, a newer one having come
+    rejected: list[str] = field(default_factory=list)  # why a set's frames were dropped (BadInput)
+    taken_s: float | None = None  # the sim time [s] of the set worked on this step
+    skipped_s: float | None = None  # the sim time [s] of a set dropped for want of a pose estimate
+
+
+class FrameSets:
+    """One perception step at a time: frames in, clouds and the camera image out."""
+
+    def __init__(self, cfg: OnboardConfig) -> None:
+        self.cfg = cfg
+        self.settings = CloudSettings.of(cfg)
+        self.needed = (
+            {"cam_left"}
+            | ({"cam_depth"} if "depth" in cfg.cloud_sources else set())
+            | ({"cam_right"} if "stereo" in cfg.cloud_sources else set())
+        )
+        self.sets: dict[float, dict[str, Image]] = {}  # sim time [s] -> camera -> frame
+        self.sets_taken = 0
+        self.last_image_s = -float("inf")  # [s, this station's clock]
+        self.resting_until_s = -float("inf")
+        self._started_s: float | None = None  # when the set being worked on was taken
+
+    def step(self, inputs: FrameSetInputs, now_s: float) -> FrameSetOutputs:
+        """Gather `inputs.frames`, and work on the newest complete set unless resting. `now_s`
+        [s, this station's clock]; call `finished` once what this returns is published."""
+        out = FrameSetOutputs()
+        for camera, frame in inputs.frames:
+            self.sets.setdefault(frame.sim_time_s, {})[camera] = frame
+        if now_s < self.resting_until_s:  # what comes meanwhile waits; the newest set is taken
+            return out
+        t = self._newest_complete(out)
+        if t is None:
+            return out
+        frames = self.sets.pop(t)
+        pose = inputs.poses.at(t)
+        if pose is None:
+            log.debug("no navigation estimate at %.2f s; frames skipped", t)
+            out.skipped_s = t
+            return out
+        out.taken_s, self._started_s = t, now_s
+        stereo_now = self.sets_taken % self.cfg.stereo_every == 0
+        sources = tuple(s for s in self.cfg.cloud_sources if s != "stereo" or stereo_now)
+        self.sets_taken += 1
+        try:
+            out.clouds = clouds_of(frames, pose, inputs.arm_m_world, sources, self.settings)
+            out.image = self._image(frames["cam_left"], pose, now_s)
+        except BadInput as exc:  # frames that do not decode, or a camera pose in the wrong frame
+            out.rejected.append(exc.reason)
+        return out
+
+    def finished(self, now_s: float) -> None:
+        """The set taken by the last step is done (published) at `now_s` [s, this station's
+        clock]: rest so that the work was `perception_max_busy` of the time."""
+        if self._started_s is not None:
+            busy_s = now_s - self._started_s
+            self.resting_until_s = self._started_s + busy_s / self.cfg.perception_max_busy
+            self._started_s = None
+
+    def _newest_complete(self, out: FrameSetOutputs) -> float | None:
+        """The sim time of the newest complete set, those older let go (complete ones counted
+        as shed); None if none is complete."""
+        complete = [t for t, frames in self.sets.items() if self.needed <= set(frames)]
+        if not complete:
+            for t in sorted(self.sets)[:-INCOMPLETE_KEPT]:
+                del self.sets[t]
+            return None
+        newest = max(complete)
+        out.shed = len(complete) - 1  # not yet processed when a newer one came: the oldest first
+        for older in [s for s in self.sets if s < newest]:
+            del self.sets[older]
+        return newest
+
+    def _image(self, left: Image, pose: tuple[np.ndarray, np.ndarray], now_s: float) -> Image | None:
+        """The left frame for the vessel, re-encoded with its pose in the world, at its rate."""
+        cfg = self.cfg
+        if cfg.image_rate_hz <= 0 or now_s - self.last_image_s < 1.0 / cfg.image_rate_hz:
+            return None
+        image = dataclasses.replace(
+            left,
+            pose_frame="world",
+            pose_camera=camera_in_world(left, pose),
+            data=encode_jpeg(decode_image(left), cfg.image_jpeg_quality),
+        )
+        self.last_image_s = now_s
+        return image

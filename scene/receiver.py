@@ -90,9 +90,10 @@ class SceneReceiver:
         keys, owners = leaves_to_cells(centres_m, sizes_m, self.resolution_m)
         cell_occupied = occupied[owners]
         centres_of_cells = cell_centres(keys, self.resolution_m)
-        self.tree.updateNodes(centres_of_cells[cell_occupied], LOG_ODDS_SET, True)  # type: ignore[attr-defined]
-        self.tree.updateNodes(centres_of_cells[~cell_occupied], -LOG_ODDS_SET, True)  # type: ignore[attr-defined]
-        self.tree.updateInnerOccupancy()  # type: ignore[attr-defined]
+        tree: object = self.tree
+        tree.updateNodes(centres_of_cells[cell_occupied], LOG_ODDS_SET, True)  # type: ignore[attr-defined]
+        tree.updateNodes(centres_of_cells[~cell_occupied], -LOG_ODDS_SET, True)  # type: ignore[attr-defined]
+        tree.updateInnerOccupancy()  # type: ignore[attr-defined]
         color_of_leaf = np.zeros((len(occupied), 3), np.uint8)
         color_of_leaf[occupied] = colors
         for key, occ, owner in zip(keys, cell_occupied, owners, strict=True):

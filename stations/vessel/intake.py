@@ -110,7 +110,7 @@ class Intake:
                 rgb = decode_image(image)
             except BadInput as exc:
                 out.rejected.append(("image", exc.reason))
-        self.tracker.update(rgb, image, self.points)  # type: ignore[arg-type]
+        self.tracker.update(rgb, image, self.points)
         objects = self.tracker.objects(self.sim_time_s.get())
         if objects is not None:
             self.objects.set(objects)

@@ -37,6 +37,7 @@ WORKDIR /abyss
 COPY pyproject.toml README.md __init__.py py.typed ./
 COPY common common
 COPY linkemu linkemu
+COPY scene scene
 COPY stations stations
 COPY launch launch
 COPY validation validation

@@ -44,7 +44,8 @@ from abyss.common.clouds import unpack_cloud  # noqa: E402
 from abyss.common.config import MissionConfig, OnboardConfig, SimulationConfig, VesselConfig  # noqa: E402
 from abyss.common.geometry import rotation_of  # noqa: E402
 from abyss.common.models import CAMERAS  # noqa: E402
-from abyss.common.scene import SceneModel, cell_keys, iterate_leaves, leaves_to_cells  # noqa: E402
+from abyss.scene.model import SceneModel  # noqa: E402
+from abyss.scene.octree import cell_keys, iterate_leaves, leaves_to_cells  # noqa: E402
 from abyss.stations.onboard.perception import Camera, CloudSettings, clouds_of, depth_to_points  # noqa: E402
 from abyss.stations.onboard.stereo import StereoFilter, stereo_depth  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402

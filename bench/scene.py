@@ -27,7 +27,8 @@ from abyss.common.config import SimulationConfig, VesselConfig  # noqa: E402
 from abyss.common.images import decode_image  # noqa: E402
 from abyss.common.messages import encode  # noqa: E402
 from abyss.common.models import CAMERAS  # noqa: E402
-from abyss.common.scene import SceneModel, iterate_leaves  # noqa: E402
+from abyss.scene.model import SceneModel  # noqa: E402
+from abyss.scene.octree import iterate_leaves  # noqa: E402
 from abyss.stations.onboard.perception import CloudSettings, clouds_of  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402

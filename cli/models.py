@@ -45,8 +45,7 @@ def cmd_terrain_cloud(args: argparse.Namespace) -> int:
 
 
 def cmd_scene_export(args: argparse.Namespace) -> int:
-    from abyss.common.scene import export
-    from abyss.stations.onshore import SCENE_FILE
+    from abyss.scene.export import SCENE_FILE, export
 
     source = args.run_dir / SCENE_FILE
     if not source.is_file():

@@ -34,6 +34,7 @@ import numpy as np
 from abyss.common import keys
 from abyss.common.bus import Bus, open_session, zenoh_config
 from abyss.common.config import Config
+from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
 from abyss.common.rate import Rate
 from abyss.ros2 import rmw, types
@@ -59,7 +60,7 @@ def ros_session_config(listen: tuple[str, ...], connect: tuple[str, ...]) -> Any
 
 class Gateway:
     """`on_up`: per abyss topic of the station, what takes the node's message in place of the
-    bus (ValueError: the message is refused with that reason)."""
+    bus (ValueError or BadInput: the message is refused with that reason)."""
 
     def __init__(
         self, config: Config, bus: Bus, on_up: dict[str, Callable[[Any], object]] | None = None
@@ -200,7 +201,7 @@ class Gateway:
                 message = t.parse(ros_message, self.convert)
             if message is not None and handler is not None:
                 handler(message)
-        except ValueError as exc:
+        except (ValueError, BadInput) as exc:
             self.bus.reject(rmw.topic_key(self.node.domain, self.topic(spec, t), t.type), str(exc))
             return
         if message is None or handler is not None:

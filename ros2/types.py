@@ -67,7 +67,7 @@ from abyss.common.messages import (
     new_id,
 )
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, GRIPPER_JOINTS, ROBOT_FILE
-from abyss.common.scene import SceneReceiver
+from abyss.scene.receiver import SceneReceiver
 
 WORLD = "world"
 BASE_LINK = "base_link"

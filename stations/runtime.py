@@ -55,6 +55,32 @@ def station_entry(name: str) -> Callable[[Config, Any], None]:
     return importlib.import_module(f"abyss.stations.{keys.check_station(name)}").run
 
 
+def station_main(name: str, config: Config) -> Callable[[Config, Any], None]:
+    """What runs in station `name`'s shell: the station's `run(config, bus)`, or with
+    `ros2.station` naming it (onboard or the vessel, as the config allows), the ROS 2 gateway
+    (abyss.ros2.gateway): in onboard's place, or beside the vessel, whose scene model then
+    adopts each map the ROS 2 node publishes."""
+    if config.ros2.station != name:
+        return station_entry(name)
+    if name == "vessel":
+        return _vessel_with_gateway
+    from abyss.ros2 import gateway
+
+    return gateway.run
+
+
+def _vessel_with_gateway(config: Config, bus: Bus) -> None:
+    """The vessel with a ROS 2 node for its scene model: the gateway hands the node the clouds,
+    and each map the node publishes to the vessel's model (`adopt`)."""
+    from abyss.ros2.gateway import Gateway
+    from abyss.stations import vessel
+
+    def mapper(adopt: Callable[[Any], object]) -> Gateway:
+        return Gateway(config, bus, on_up={"scene": adopt})
+
+    vessel.run(config, bus, mapper=mapper)
+
+
 def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as s:
         s.bind((host, 0))
@@ -224,6 +250,51 @@ def single_threaded_native_pools() -> None:
     threadpool_limits(int(os.environ["OPENBLAS_NUM_THREADS"]))
 
 
+class _StopSignals:
+    """SIGINT and SIGTERM ask the station to stop (`stop`), once its shell is up; a watchdog
+    (`_stop_watchdog`) then holds the stop to STOP_BOUND_S. The handler takes no lock: it runs in
+    the main thread between two of its bytecodes, maybe inside bus.stop.wait() with the event's
+    lock half taken, which set() takes too (a deadlock that once left a station to its
+    watchdog). It writes the signal to a pipe; a thread of its own reads it and asks for the
+    stop."""
+
+    def __init__(self, name: str, status_file: Path | None) -> None:
+        self.name, self.status_file = name, status_file
+        self.asked_s: list[float] = []  # when the stop was asked for (this process's monotonic clock)
+        self.stopped = threading.Event()
+        self.outcome: dict[str, Any] = {"exit_code": 0}  # what the watchdog writes if it has to cut the stop
+        self.stop: threading.Event | None = None  # the bus's, once the shell is up
+        self._read, self._write = os.pipe()
+        threading.Thread(target=self._watch, name="signals", daemon=True).start()
+
+    def install(self, stop: threading.Event) -> None:
+        self.stop = stop
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, self._handler)
+            signal.signal(signal.SIGTERM, self._handler)
+            stop_with_supervisor()
+
+    def _handler(self, signum: int, _frame: Any) -> None:
+        os.write(self._write, bytes([signum]))
+
+    def _watch(self) -> None:
+        while data := os.read(self._read, 1):
+            self._asked(data[0])
+
+    def _asked(self, signum: int) -> None:
+        log.info("%s: %s received, stopping", self.name, signal.Signals(signum).name)
+        if not self.asked_s:
+            threading.Thread(
+                target=_stop_watchdog,
+                args=(self.name, self.stopped, self.status_file, self.outcome),
+                name="stop watchdog",
+                daemon=True,
+            ).start()
+        self.asked_s.append(time.monotonic())
+        assert self.stop is not None  # the handlers are installed with it
+        self.stop.set()
+
+
 def run_station(
     name: str,
     config: Config,
@@ -236,47 +307,14 @@ def run_station(
     peers: dict[str, str] | None = None,
     entry: Callable[[Config, Any], None] | None = None,
 ) -> int:
-    """Open the shell, run the station (or `entry` in its place: a replay) until SIGINT/SIGTERM,
-    close, write the status file."""
-    entry = entry or station_entry(name)
+    """Open the shell, run the station (`station_main`, or `entry` in its place: a replay) until
+    SIGINT/SIGTERM, close, write the status file."""
+    entry = entry or station_main(name, config)
     single_threaded_native_pools()
     loops_first()
-    asked_s: list[float] = []  # when the stop was asked for (this process's monotonic clock)
-    stopped = threading.Event()
-    outcome: dict[str, Any] = {"exit_code": 0}  # what the watchdog writes if it has to cut the stop
-
-    def asked(signum: int) -> None:
-        log.info("%s: %s received, stopping", name, signal.Signals(signum).name)
-        if not asked_s:
-            threading.Thread(
-                target=_stop_watchdog,
-                args=(name, stopped, status_file, outcome),
-                name="stop watchdog",
-                daemon=True,
-            ).start()
-        asked_s.append(time.monotonic())
-        bus.stop.set()
-
-    # The handler takes no lock: it runs in the main thread between two of its bytecodes, maybe
-    # inside bus.stop.wait() with the event's lock half taken, which set() takes too (a deadlock
-    # that once left a station to its watchdog). It writes the signal to a pipe; a thread of its
-    # own reads it and asks for the stop.
-    signals_r, signals_w = os.pipe()
-
-    def stop(signum: int, _frame: Any) -> None:
-        os.write(signals_w, bytes([signum]))
-
-    def watch_signals() -> None:
-        while data := os.read(signals_r, 1):
-            asked(data[0])
-
-    threading.Thread(target=watch_signals, name="signals", daemon=True).start()
+    signals = _StopSignals(name, status_file)
     shell = Shell(name, config, listen, connect, link_mode, mode, tls_dir, peers)
-    bus = shell.bus
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, stop)
-        signal.signal(signal.SIGTERM, stop)
-        stop_with_supervisor()
+    signals.install(shell.bus.stop)
     log.info(
         "%s up in system %s as a Zenoh %s (listen %s, connect %s%s)",
         name,
@@ -288,17 +326,17 @@ def run_station(
     )
     code = 0
     try:
-        entry(config, bus)
+        entry(config, shell.bus)
     except Exception:
         log.exception("%s failed", name)
         code = 1
-    asked_s.append(time.monotonic())
-    outcome.update(exit_code=code, **shell.status())  # the counters so far, should the close hang
+    signals.asked_s.append(time.monotonic())
+    signals.outcome.update(exit_code=code, **shell.status())  # the counters so far, should the close hang
     shell.close()  # the links first: nothing still in flight is waited for, only counted
-    status = {**shell.status(), "stop_s": round(time.monotonic() - asked_s[0], 3)}  # from the signal
+    status = {**shell.status(), "stop_s": round(time.monotonic() - signals.asked_s[0], 3)}  # from the signal
     if status_file is not None:
         status_file.write_text(json.dumps({"exit_code": code, **status}, indent=2))
-    stopped.set()
+    signals.stopped.set()
     log.info("%s stopped (exit %d)", name, code)
     return code
 

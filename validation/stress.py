@@ -23,10 +23,10 @@ from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
 from abyss.common.messages import Telemetry, encode
 from abyss.common.samples import Samples
-from abyss.common.scene import SceneModel
 from abyss.linkemu.link import Link, Offer
 from abyss.linkemu.profile import profile
-from abyss.stations.vessel.pacing import ScenePacer
+from abyss.scene.model import SceneModel
+from abyss.scene.pacing import ScenePacer
 
 STEP_S = 0.05
 TELEMETRY_PERIOD_S = 0.5

@@ -27,23 +27,19 @@ from abyss.common.messages import (
     PerceptionStatus,
     Received,
     RecognisedObjects,
-    SceneAck,
-    SceneRequest,
     SceneUpdate,
     SonarImage,
     Telemetry,
     Waypoints,
-    encode,
-    wire_bytes,
 )
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
-from abyss.common.scene import SceneReceiver
+from abyss.scene.export import save_snapshot
+from abyss.scene.receiver import ShoreScene
 from abyss.stations.onshore.core import Operator, OperatorInputs, PerceptionSeen
 from abyss.stations.onshore.viewer import Sinks, Viewer
 
 PERIOD_S = 0.1
 SAVE_PERIOD_S = 1.0  # both files are rewritten this often when they changed: a killed shore keeps them
-SCENE_FILE = "scene.msgpack"  # the final scene, a snapshot SceneUpdate; `abyss scene export` reads it
 log = logging.getLogger(__name__)
 
 
@@ -57,55 +53,18 @@ def run(config: Config, bus: Bus) -> None:
     record_dir = Path(config.onshore.record_dir) if config.onshore.record_dir else None
     earlier = [read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER]
     operator = Operator(config.mission, *earlier)  # a restarted shore goes on with what it had
-    telemetry = bus.subscribe("vessel", "telemetry", maxlen=8)
-    acks = bus.subscribe("vessel", "ack")
-    images = bus.subscribe("vessel", "image", maxlen=2)
-    sonar = bus.subscribe("vessel", "sonar", maxlen=2)
-    link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), "LinkStats")
     sinks = Sinks(config.onshore, bus.system)
     viewer = Viewer(sinks.recording) if sinks.recording is not None else None
-    tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
-        f"op/{topic}": bus.subscribe_key(keys.operator_key(bus.system, topic), message)
-        for topic, message in (
-            ("mode", "OperatorMode"),
-            ("waypoints", "Waypoints"),
-            ("arm", "ArmGoal"),
-            ("intervene", "Intervention"),
-        )
-    }
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)
+    inboxes = _Inboxes(bus)
     rate = bus.loop("display", PERIOD_S)
     saved: tuple[str, str] = ("", "")
     saved_s = -float("inf")
     while rate.sleep():
         now_s = bus.clock.now_s()
-        streams = scene.receiver.new_streams
-        scene.step(now_s)
-        if scene.receiver.new_streams > streams:
+        if scene.step(now_s):
             operator.event("vessel", "restarted: a new scene stream, kept on the map shore holds")
-        received = telemetry.drain()
-        out = operator.step(
-            OperatorInputs(
-                tool_commands=[(topic, r.message) for topic, inbox in tools.items() for r in inbox.drain()],
-                acks=messages_of(acks.drain(), CommandAck),
-                telemetry=messages_of(received, Telemetry),
-            ),
-            now_s,
-        )
-        for ack in out.answers:
-            bus.observe(keys.operator_key(bus.system, "ack"), ack)
-        for topic, message in out.messages:
-            bus.publish(topic, message)
-        if out.status is not None:
-            bus.observe(keys.mission_key(bus.system), out.status)
-        if viewer:
-            _show(
-                viewer,
-                bus.clock.stamp_s(),
-                out.first_sent,
-                received,
-                [*images.drain(), *sonar.drain(), *link_stats.drain()],
-            )
+        _operate(bus, operator, inboxes, viewer, now_s)
         if record_dir and now_s - saved_s >= SAVE_PERIOD_S:
             saved, saved_s = _save(record_dir, operator, saved), now_s
     if record_dir:
@@ -113,6 +72,51 @@ def run(config: Config, bus: Bus) -> None:
         _save(record_dir, operator, saved)
     scene.show(bus.clock.now_s(), final=True)
     sinks.close()
+
+
+class _Inboxes:
+    """What the operator's loop reads: the vessel's telemetry, answers and frames, the links'
+    statistics, and the operator tools' commands."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.telemetry = bus.subscribe("vessel", "telemetry", maxlen=8)
+        self.acks = bus.subscribe("vessel", "ack")
+        self.images = bus.subscribe("vessel", "image", maxlen=2)
+        self.sonar = bus.subscribe("vessel", "sonar", maxlen=2)
+        self.link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), "LinkStats")
+        self.tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
+            f"op/{topic}": bus.subscribe_key(keys.operator_key(bus.system, topic), message)
+            for topic, message in (
+                ("mode", "OperatorMode"),
+                ("waypoints", "Waypoints"),
+                ("arm", "ArmGoal"),
+                ("intervene", "Intervention"),
+            )
+        }
+
+
+def _operate(bus: Bus, operator: Operator, inboxes: _Inboxes, viewer: Viewer | None, now_s: float) -> None:
+    """One step of the operator: what came in to the core, what it returns out, and to the viewer."""
+    received = inboxes.telemetry.drain()
+    out = operator.step(
+        OperatorInputs(
+            tool_commands=[
+                (topic, r.message) for topic, inbox in inboxes.tools.items() for r in inbox.drain()
+            ],
+            acks=messages_of(inboxes.acks.drain(), CommandAck),
+            telemetry=messages_of(received, Telemetry),
+        ),
+        now_s,
+    )
+    for ack in out.answers:
+        bus.observe(keys.operator_key(bus.system, "ack"), ack)
+    for topic, message in out.messages:
+        bus.publish(topic, message)
+    if out.status is not None:
+        bus.observe(keys.mission_key(bus.system), out.status)
+    if viewer:
+        others = [*inboxes.images.drain(), *inboxes.sonar.drain(), *inboxes.link_stats.drain()]
+        _show(viewer, bus.clock.stamp_s(), out.first_sent, received, others)
 
 
 def _save(record_dir: Path, operator: Operator, saved: tuple[str, str]) -> tuple[str, str]:
@@ -163,13 +167,13 @@ def _show(
 
 
 class Scene:
-    """Shore's copy of the scene and the recognised objects."""
+    """The I/O shell of shore's scene stream (`abyss.scene.receiver.ShoreScene`), and the
+    recognised objects and perception's status as the vessel tells them."""
 
     def __init__(
         self, bus: Bus, request_period_s: float, viewer: Viewer | None = None, viewer_period_s: float = 2.0
     ) -> None:
         self.bus = bus
-        self.request_period_s = request_period_s
         self.viewer = viewer
         self.viewer_period_s = viewer_period_s
         self._shown_s = -float("inf")  # when the whole scene last went to the viewer
@@ -178,55 +182,36 @@ class Scene:
         self.objects_inbox = bus.subscribe("vessel", "objects", maxlen=4)
         self.perception_inbox = bus.subscribe("vessel", "perception", maxlen=8)
         self.perception = PerceptionSeen()
-        self.receiver = SceneReceiver()
+        self.core = ShoreScene(request_period_s)
+        self.receiver = self.core.receiver
         self.objects: RecognisedObjects | None = None
-        self.requests = 0
-        self.update_bytes = 0
-        self.sim_time_s = 0.0
-        self._last_request_s = -float("inf")
 
-    def step(self, now_s: float) -> None:
-        for received in self.updates.drain():
-            assert isinstance(received.message, SceneUpdate)
-            self.bus.publish("scene_ack", SceneAck(received.message.scene_seq))  # the vessel paces by these
-            try:
-                outcome = self.receiver.apply(received.message)
-            except ValueError as exc:  # octree bytes that do not decode
-                self.bus.reject(received.key, str(exc))
-                outcome = "gap"
-            if outcome == "applied":
-                self.update_bytes += wire_bytes(received.message)
-                self.sim_time_s = received.message.sim_time_s
+    def step(self, now_s: float) -> bool:
+        """Whether a new scene stream went onto the map held (a restarted vessel)."""
+        received = [(r, r.message) for r in self.updates.drain() if isinstance(r.message, SceneUpdate)]
+        out = self.core.step([update for _, update in received], now_s)
+        for ack in out.acks:
+            self.bus.publish("scene_ack", ack)  # the vessel paces by these
+        for index, reason in out.rejected:
+            self.bus.reject(received[index][0].key, reason)
+        for applied in out.applied:
+            if self.viewer:
+                stamp_s = received[applied.index][0].stamp_s
+                self.viewer.scene_update(applied.centres_m_world, applied.colors, stamp_s, applied.sim_time_s)
+        for r in self.objects_inbox.drain():
+            if isinstance(r.message, RecognisedObjects):
+                self.objects = r.message
                 if self.viewer:
-                    self.viewer.scene_update(
-                        self.receiver.latest_centres_m,
-                        self.receiver.latest_colors,
-                        received.stamp_s,
-                        self.sim_time_s,
-                    )
-            elif outcome == "gap":
-                log.info(
-                    "scene update %d does not follow %d: asking for a snapshot",
-                    received.message.scene_seq,
-                    self.receiver.last_seq,
-                )
-                self._last_request_s = -float("inf")
-        for received in self.objects_inbox.drain():
-            assert isinstance(received.message, RecognisedObjects)
-            self.objects = received.message
-            if self.viewer:
-                self.viewer.objects(received.message, received.stamp_s)
-        for received in self.perception_inbox.drain():
-            assert isinstance(received.message, PerceptionStatus)
-            self.perception.add(received.message, received.stamp_s)
-            if self.viewer:
-                self.viewer.perception(received.message, received.stamp_s)
+                    self.viewer.objects(r.message, r.stamp_s)
+        for r in self.perception_inbox.drain():
+            if isinstance(r.message, PerceptionStatus):
+                self.perception.add(r.message, r.stamp_s)
+                if self.viewer:
+                    self.viewer.perception(r.message, r.stamp_s)
         self.show(now_s)
-        if self.receiver.tree is None and now_s - self._last_request_s >= self.request_period_s:
-            reason = "no map yet" if self.receiver.applied == 0 else "missed an update"
-            self.bus.publish("scene_request", SceneRequest(self.receiver.last_seq, reason))
-            self.requests += 1
-            self._last_request_s = now_s
+        if out.request is not None:
+            self.bus.publish("scene_request", out.request)
+        return out.new_stream
 
     def show(self, now_s: float, final: bool = False) -> None:
         """The whole scene to the viewer, when it changed, at most every `viewer_period_s`."""
@@ -236,32 +221,29 @@ class Scene:
                 *self.receiver.occupied_cells(),
                 self.receiver.resolution_m,
                 self.bus.clock.stamp_s(),
-                self.sim_time_s,
+                self.core.sim_time_s,
             )
             self._shown_s, self._shown_applied = now_s, self.receiver.applied
 
     def save(self, directory: Path) -> None:
         """The final scene (a snapshot update) and what it took, in the run directory."""
         directory.mkdir(parents=True, exist_ok=True)
-        snapshot = self.receiver.snapshot(self.sim_time_s)
-        if snapshot is not None:
-            (directory / SCENE_FILE).write_bytes(encode(snapshot, 0, self.bus.clock.stamp_s()))
+        save_snapshot(self.receiver, directory, self.core.sim_time_s, self.bus.clock.stamp_s())
+        objects = self.objects
         stats = {
             "updates_applied": self.receiver.applied,
             "gaps": self.receiver.gaps,
-            "snapshot_requests": self.requests,
-            "update_bytes": self.update_bytes,
+            "snapshot_requests": self.core.requests,
+            "update_bytes": self.core.update_bytes,
             "resolution_m": self.receiver.resolution_m,
             "occupied_cells": len(self.receiver.colors),
             "objects": {
                 name: {"pose_world": pose.tolist(), "confidence": float(c)}
-                for name, pose, c in zip(
-                    self.objects.names, self.objects.poses_world, self.objects.confidences, strict=True
-                )
+                for name, pose, c in zip(objects.names, objects.poses_world, objects.confidences, strict=True)
             }
-            if self.objects
+            if objects
             else {},
-            "recognition_method": self.objects.method if self.objects else "",
+            "recognition_method": objects.method if objects else "",
             "perception": self.perception.summary(),
         }
         (directory / "scene.json").write_text(json.dumps(stats, indent=2))

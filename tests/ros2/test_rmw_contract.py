@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from abyss.common.clouds import pack_cloud, unpack_cloud
+from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, ArmVelocityRef, NavState, Waypoints
 from abyss.ros2 import rmw, types
 
@@ -224,7 +225,8 @@ def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
 
 
 def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
-    from abyss.common.scene import GREY, SceneModel, cell_keys, write_cells
+    from abyss.scene.model import SceneModel
+    from abyss.scene.octree import GREY, cell_keys, write_cells
 
     keys_m = np.array([[4.05, 0.05, -8.45], [4.35, 0.05, -8.45], [4.05, 0.35, -8.05]])
     binary = write_cells(cell_keys(keys_m, 0.1), np.array([True, True, False]), 0.1)
@@ -245,5 +247,5 @@ def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
     assert update is not None and len(update.colors) == 2 and (update.colors == GREY).all()
     with pytest.raises(ValueError, match="not OctoMap's binary stream"):
         types.octree_file(data[:-2], 0.1)
-    with pytest.raises(ValueError, match=r"tree resolution 0\.05"):
+    with pytest.raises(BadInput, match=r"tree resolution 0\.05"):
         SceneModel(0.1, 10.0).adopt(types.octree_file(data, 0.05))

@@ -32,7 +32,8 @@ from abyss.common.messages import (
 )
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
 from abyss.common.sonar import encode_polar
-from abyss.stations.onshore.viewer import Viewer, blueprint
+from abyss.stations.onshore.layout import blueprint
+from abyss.stations.onshore.viewer import Viewer
 
 STAMP_S = 1.7e9  # a wall-clock stamp [s since the epoch]
 YAW_RAD = 0.6

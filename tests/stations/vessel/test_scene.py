@@ -13,25 +13,21 @@ import pyoctomap
 import pytest
 
 from abyss.common.clouds import unpack_cloud
-from abyss.common.config import STEREO_MODES, SimulationConfig
+from abyss.common.config import STEREO_MODES, SimulationConfig, VesselConfig
+from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
-from abyss.common.messages import BadMessage, PointCloud, SceneUpdate, decode, encode
+from abyss.common.messages import BadMessage, PointCloud, RecognisedObjects, SceneUpdate, decode, encode
 from abyss.common.models import CAMERAS, panel
-from abyss.common.scene import (
-    SceneModel,
-    SceneReceiver,
-    cell_centres,
-    cell_keys,
-    export,
-    iterate_leaves,
-    leaves_to_cells,
-    read_binary,
-)
+from abyss.scene.export import export
+from abyss.scene.model import SceneModel
+from abyss.scene.octree import cell_centres, cell_keys, iterate_leaves, leaves_to_cells, read_binary
+from abyss.scene.receiver import SceneReceiver
 from abyss.stations.onboard.perception import Camera, CloudSettings, camera_in_world, clouds_of
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
+from abyss.stations.vessel.intake import Intake, IntakeInputs
 from abyss.stations.vessel.recognition import CONFIDENCE_GAIN, PanelTracker, by_texture, rotation_error_rad
 
 FACE_X_M = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0] - 0.001  # the marker face's front
@@ -282,6 +278,24 @@ def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -
     assert again is not None and faded.confidence < again.confidence < confident
 
 
+def test_the_vessels_intake_recognises_the_panel_on_its_schedule(start: View) -> None:
+    """The intake (stations.vessel.intake) runs recognition every `recognition_period_s` on the
+    latest image and cloud, publishes what it found and keeps it for the relay."""
+    left = start.frames["cam_left"]
+    image = dataclasses.replace(left, pose_frame="world", pose_camera=camera_in_world(left, start.pose))
+    cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    cfg = VesselConfig(recognition_period_s=2.0, perception_period_s=100.0)
+    intake = Intake(cfg, SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m), 0.0, maps=False)
+    found = {}
+    for now_s in (0.0, 1.0, 1.9, 2.0, 3.0):
+        out = intake.step(IntakeInputs(clouds=[cloud] if now_s == 0.0 else [], image=image), now_s)
+        found[now_s] = [m for topic, m in out.messages if topic == "objects"]
+    assert [t for t, objects in found.items() if objects] == [0.0, 2.0]
+    latest = found[2.0][0]
+    assert isinstance(latest, RecognisedObjects) and latest.names[0] == "panel" and "texture" in latest.method
+    assert intake.objects.get() is latest  # what the relay resolves interventions by
+
+
 def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
     bad = SceneUpdate(
         kind="snapshot",
@@ -291,7 +305,7 @@ def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
         colors=np.zeros((0, 3), np.uint8),
         sim_time_s=0.0,
     )
-    with pytest.raises(ValueError, match="binary"):
+    with pytest.raises(BadInput, match="binary"):
         SceneReceiver().apply(bad)
     cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
     with pytest.raises(ValueError, match="need"):
@@ -299,5 +313,5 @@ def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
     with pytest.raises(BadMessage, match="not zlib"):
         payload = encode(cloud, 0, 0.0).replace(cloud.data[:16], b"\x00" * 16)
         decode("k", payload, "PointCloud")
-    with pytest.raises(ValueError, match="decodes to nothing"):
+    with pytest.raises(BadInput, match="decodes to nothing"):
         decode_image(dataclasses.replace(start.frames["cam_left"], data=b"not a jpeg"))

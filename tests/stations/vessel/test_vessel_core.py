@@ -26,11 +26,13 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.common.models import panel
-from abyss.common.scene import SceneModel, SceneReceiver
 from abyss.linkemu.link import Link, Offer
 from abyss.linkemu.profile import profile
-from abyss.stations.vessel.core import Perception, Relay, RelayInputs, SceneStream
-from abyss.stations.vessel.pacing import ScenePacer
+from abyss.scene.model import SceneModel
+from abyss.scene.pacing import ScenePacer
+from abyss.scene.receiver import SceneReceiver
+from abyss.scene.stream import SceneStream
+from abyss.stations.vessel.core import Perception, Relay, RelayInputs
 from abyss.validation.stress import sample_telemetry
 
 STEP_S = 0.01

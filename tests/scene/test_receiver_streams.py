@@ -1,4 +1,4 @@
-"""Scene streams on shore (common.scene.SceneReceiver): a restarted vessel's new SceneModel starts
+"""Scene streams on shore (abyss.scene.receiver.SceneReceiver): a restarted vessel's new SceneModel starts
 a new stream whose updates go onto the map shore holds (what the vessel saw before stays), while a
 snapshot of the same stream after a gap replaces the map. Synthetic walls, no rendering, each of
 one colour in the middle of a step of `COLOR_STEP` (what goes to shore)."""
@@ -8,14 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from abyss.common.messages import SceneUpdate, decode, encode
-from abyss.common.scene import (
-    HYSTERESIS_LOG_ODDS,
-    SceneModel,
-    SceneReceiver,
-    cell_keys,
-    iterate_leaves,
-    leaves_to_cells,
-)
+from abyss.scene.model import SceneModel
+from abyss.scene.octree import HYSTERESIS_LOG_ODDS, cell_keys, iterate_leaves, leaves_to_cells
+from abyss.scene.receiver import SceneReceiver
 
 RESOLUTION_M = 0.1
 SENSOR_M_WORLD = np.zeros(3)

@@ -16,7 +16,7 @@ from abyss.cli.args import (
 from abyss.common import keys
 from abyss.common.config import TIME_MODES
 from abyss.common.errors import ConfigError
-from abyss.linkemu.profile import profile
+from abyss.common.linkprofile import profile
 
 if TYPE_CHECKING:
     from abyss.validation.scenario.spec import Scenario

@@ -19,14 +19,14 @@ import numpy as np
 from abyss.common import keys
 from abyss.common.errors import ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
+from abyss.common.linkprofile import LinkProfile, load_profiles, profile
 from abyss.common.messages import CLOUD_SOURCES
 from abyss.common.models import panel
-from abyss.linkemu.profile import LinkProfile, load_profiles, profile
 
 
 @dataclass(frozen=True)
 class LinksConfig:
-    """Profile name per hop, from linkemu/profiles.toml."""
+    """Profile name per hop, from common/profiles.toml."""
 
     rov: str = "ideal"
     tether: str = "tether"

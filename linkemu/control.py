@@ -22,10 +22,10 @@ import zenoh
 from abyss.common import keys
 from abyss.common.clock import WALL, Clock
 from abyss.common.errors import AbyssError, BadMessage, LinkError
+from abyss.common.linkprofile import LinkProfile
+from abyss.common.linkprofile import profile as named_profile
 from abyss.common.messages import LinkControl, LinkStats, decode, encode
 from abyss.linkemu.netem import NetemShaper
-from abyss.linkemu.profile import LinkProfile
-from abyss.linkemu.profile import profile as named_profile
 from abyss.linkemu.route import route_towards
 from abyss.linkemu.runner import LinkRunner
 from abyss.linkemu.tun import TunShaper, tun_name

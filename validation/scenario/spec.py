@@ -14,9 +14,9 @@ from typing import Any
 from abyss.common import keys
 from abyss.common.config import TimeConfig, load
 from abyss.common.errors import ConfigError
+from abyss.common.linkprofile import load_profiles
 from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES
 from abyss.common.models import panel
-from abyss.linkemu.profile import load_profiles
 
 USES = ("distributed", "interface", "degradation", "parallel", "fault-recovery")
 ACTIONS = ("link", "fault", "kill")

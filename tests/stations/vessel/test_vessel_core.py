@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from abyss.common.config import VesselConfig
+from abyss.common.linkprofile import profile
 from abyss.common.messages import (
     CommandAck,
     Heartbeat,
@@ -28,7 +29,6 @@ from abyss.common.messages import (
 from abyss.common.models import panel
 from abyss.common.scene import SceneModel, SceneReceiver
 from abyss.linkemu.link import Link, Offer
-from abyss.linkemu.profile import profile
 from abyss.stations.vessel.core import Perception, Relay, RelayInputs, SceneStream
 from abyss.stations.vessel.pacing import ScenePacer
 from abyss.validation.stress import sample_telemetry

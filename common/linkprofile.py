@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from abyss.common.errors import ConfigError, UnknownProfile
-from abyss.linkemu.units import (
+from abyss.common.units import (
     format_fraction,
     format_rate,
     format_time,

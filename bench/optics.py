@@ -18,7 +18,7 @@ choose_gl_backend()
 
 from scene import timed  # noqa: E402  (bench/ is on the path when a bench runs)
 
-from abyss.common.config import SimulationConfig  # noqa: E402
+from abyss.common.config_simulation import SimulationConfig  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.optics import range_of_depth  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402

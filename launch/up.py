@@ -24,7 +24,9 @@ from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import SimClock
 from abyss.common.clock import follow as clock_follow
-from abyss.common.config import Config, OnshoreConfig, Ros2Config
+from abyss.common.config import Config
+from abyss.common.config_stations import OnshoreConfig
+from abyss.common.config_system import Ros2Config
 from abyss.common.errors import AbyssError, BadMessage, ConfigError
 from abyss.common.messages import (
     MissionStatus,

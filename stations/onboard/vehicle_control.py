@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.common.config import MissionConfig, OnboardConfig
+from abyss.common.config_stations import OnboardConfig
+from abyss.common.config_system import MissionConfig
 from abyss.common.geometry import wrap_rad
 
 MAX_OFFSET_SHARE = 0.5  # the offset's estimate is kept within this share of the speed limits

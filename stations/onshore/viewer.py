@@ -19,7 +19,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from abyss.common import keys
-from abyss.common.config import OnshoreConfig
+from abyss.common.config_stations import OnshoreConfig
 from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import (

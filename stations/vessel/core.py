@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from abyss.common.config import VesselConfig
+from abyss.common.config_stations import VesselConfig
 from abyss.common.images import downscale
 from abyss.common.messages import (
     CLOUD_SOURCES,

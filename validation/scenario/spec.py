@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from abyss.common import keys
-from abyss.common.config import TimeConfig, load
+from abyss.common.config import load
+from abyss.common.config_system import TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import load_profiles
 from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES

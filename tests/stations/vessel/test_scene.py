@@ -13,7 +13,8 @@ import pyoctomap
 import pytest
 
 from abyss.common.clouds import unpack_cloud
-from abyss.common.config import STEREO_MODES, SimulationConfig
+from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config_stations import STEREO_MODES
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import BadMessage, PointCloud, SceneUpdate, decode, encode

@@ -27,7 +27,8 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import open_session, publisher_qos, zenoh_config
-from abyss.common.config import Config, LinksConfig
+from abyss.common.config import Config
+from abyss.common.config_system import LinksConfig
 from abyss.common.messages import Message, NavState, Waypoints, encode
 from abyss.common.samples import Samples
 from abyss.stations.runtime import Shell, free_port

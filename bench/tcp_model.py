@@ -1,6 +1,6 @@
 """The TCP model against kernel TCP through the TUN shaper: the full table (issue #17).
 
-Every case of abyss.linkemu.tcpcheck (tether, satellite, satellite at 1 % loss, tether at 10 %)
+Every case of abyss.validation.tcpcheck (tether, satellite, satellite at 1 % loss, tether at 10 %)
 and phase (bulk; 1, 10, 100 kB messages), through the model (--model-seeds seeds) and each
 kernel variant (reno-textbook, reno, cubic; --kernel-seeds seeds, a throw-away lab each).
 Prints progress, then each metric's means and the ratio model / kernel (marked * where the two
@@ -25,16 +25,9 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from abyss.linkemu.tcpcheck import (
-    CASES,
-    TOLERANCE,
-    VARIANTS,
-    Job,
-    Run,
-    agreement,
-    kernel_unusable,
-    run_all,
-)
+from abyss.validation.tcpcheck.compare import TOLERANCE, agreement, run_all
+from abyss.validation.tcpcheck.kernel import kernel_unusable
+from abyss.validation.tcpcheck.workload import CASES, VARIANTS, Job, Run
 
 METRICS = {"bulk": ("goodput_bps", "retrans_per_packet", "timeouts_per_packet")}
 LATENCY = ("latency_p50_s", "latency_p95_s")

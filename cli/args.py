@@ -9,9 +9,10 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
-from abyss.common.config import TIME_MODES, Config, load
+from abyss.common.config import Config, load
+from abyss.common.config_system import TIME_MODES
 from abyss.common.errors import ConfigError
-from abyss.linkemu.profile import FIELDS
+from abyss.common.linkprofile import FIELDS
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 

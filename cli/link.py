@@ -19,6 +19,7 @@ from abyss.cli.args import (
 from abyss.common import keys
 from abyss.common.config import Config
 from abyss.common.errors import BadMessage, ConfigError
+from abyss.common.linkprofile import load_profiles, profile
 from abyss.common.messages import (
     LinkControl,
     LinkStats,
@@ -26,7 +27,6 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.linkemu.netem import run_tc, tc_command
-from abyss.linkemu.profile import load_profiles, profile
 
 
 def query_links(session: zenoh.Session, system: str, hop: str | None) -> list[LinkStats]:

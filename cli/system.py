@@ -19,7 +19,9 @@ from abyss.cli.args import (
     pairs,
 )
 from abyss.common import keys
-from abyss.common.config import RECORD_LEVELS, ROS2_STATIONS, VIEWERS, Config
+from abyss.common.config import Config
+from abyss.common.config_stations import VIEWERS, Viewer
+from abyss.common.config_system import RECORD_LEVELS, ROS2_STATIONS
 from abyss.common.errors import ConfigError
 from abyss.common.security import TLS_DIR_ENV
 from abyss.linkemu.control import LINK_MODES
@@ -35,7 +37,7 @@ def cmd_up(args: argparse.Namespace) -> int:
 def up_config(args: argparse.Namespace, config: Config) -> Config:
     """`--viewer` (default: spawn with a display, else save) and `--record` on top of `config`."""
     if args.viewer is not None or not any(s.startswith("onshore.viewer=") for s in args.set):
-        viewer = args.viewer or (
+        viewer: Viewer = args.viewer or (
             "spawn" if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") else "save"
         )
         config = dataclasses.replace(config, onshore=dataclasses.replace(config.onshore, viewer=viewer))

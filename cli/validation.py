@@ -14,9 +14,9 @@ from abyss.cli.args import (
     load_config,
 )
 from abyss.common import keys
-from abyss.common.config import TIME_MODES
+from abyss.common.config_system import TIME_MODES
 from abyss.common.errors import ConfigError
-from abyss.linkemu.profile import profile
+from abyss.common.linkprofile import profile
 
 if TYPE_CHECKING:
     from abyss.validation.scenario.spec import Scenario

@@ -12,9 +12,10 @@ import functools
 import logging
 import threading
 import time
+import typing
 from collections import Counter
 from collections.abc import Callable
-from typing import Protocol
+from typing import Literal, Protocol
 
 import numpy as np
 import zenoh
@@ -22,17 +23,28 @@ import zenoh
 from abyss.common import keys
 from abyss.common.clock import WALL, Clock
 from abyss.common.errors import AbyssError, BadMessage, LinkError
+from abyss.common.linkprofile import LinkProfile
+from abyss.common.linkprofile import profile as named_profile
 from abyss.common.messages import LinkControl, LinkStats, decode, encode
 from abyss.linkemu.netem import NetemShaper
-from abyss.linkemu.profile import LinkProfile
-from abyss.linkemu.profile import profile as named_profile
 from abyss.linkemu.route import route_towards
 from abyss.linkemu.runner import LinkRunner
 from abyss.linkemu.tun import TunShaper, tun_name
 
 log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0
-LINK_MODES = ("emulated", "tun", "netem", "auto")
+LinkMode = Literal["emulated", "tun", "netem", "auto"]
+LINK_MODES: tuple[LinkMode, ...] = typing.get_args(LinkMode)
+
+
+def link_mode_of(text: str) -> LinkMode:
+    """`text` (as the user typed it) as a link mode; LinkError with the allowed ones if it is none."""
+    for mode in LINK_MODES:
+        if text == mode:
+            return mode
+    raise LinkError(f"link mode {text!r}: allowed {', '.join(LINK_MODES)}")
+
+
 AUTO_ORDER = ("netem", "tun")  # then emulated
 MESSAGE_COUNTERS = (
     "messages_",
@@ -78,9 +90,8 @@ class StationLinks:
         `peers[hop]`: the neighbour whose route a shaper takes (a name or an address; default:
         the neighbour's station name); `stopping`: set when the station is asked to stop, from
         when on no send waits for room on a link; `clock`: the time the emulators run on."""
-        if link_mode not in LINK_MODES:
-            raise LinkError(f"link mode {link_mode!r}: allowed {', '.join(LINK_MODES)}")
-        if clock.mode != "real" and link_mode != "emulated":
+        mode = link_mode_of(link_mode)
+        if clock.mode != "real" and mode != "emulated":
             raise LinkError(
                 f"link mode {link_mode}: shapes real packets on the wall clock, which --time "
                 f"{clock.mode} cannot run faster; use --link emulated, or --time real"
@@ -94,7 +105,7 @@ class StationLinks:
         self.runners: dict[str, LinkRunner] = {}
         self.delivered: Counter[str] = Counter()  # per key, in lockstep (deliver_due)
         self._entities: list[zenoh.Subscriber | zenoh.Queryable] = []
-        self.mode, self.shapers = self._shapers(link_mode, profiles, peers or {}, seed)
+        self.mode, self.shapers = self._shapers(mode, profiles, peers or {}, seed)
         for hop, neighbour in keys.hops_of(station).items():
             self.runners[hop] = LinkRunner(
                 f"{hop}:{station}->{neighbour}",
@@ -129,7 +140,7 @@ class StationLinks:
         return lambda payload, reliable, key: runner.send(payload, reliable, tag=key)
 
     def _shapers(
-        self, link_mode: str, profiles: dict[str, LinkProfile], peers: dict[str, str], seed: int
+        self, link_mode: LinkMode, profiles: dict[str, LinkProfile], peers: dict[str, str], seed: int
     ) -> tuple[str, dict[str, Shaper]]:
         """The link mode in force and its shapers; `auto` says which it took and why."""
         if link_mode == "emulated":

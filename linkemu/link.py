@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from abyss.common.errors import LinkError
+from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
-from abyss.linkemu.profile import LinkProfile
 from abyss.linkemu.stages import STAGES, Packet, Stage
 
 HEADER_BYTES = {"tcp": 40, "udp": 28}  # IPv4 + TCP / UDP headers per packet

@@ -21,8 +21,8 @@ import shutil
 import subprocess
 
 from abyss.common.errors import LinkError
-from abyss.linkemu.profile import LinkProfile
-from abyss.linkemu.units import format_fraction, format_rate, format_time
+from abyss.common.linkprofile import LinkProfile
+from abyss.common.units import format_fraction, format_rate, format_time
 
 log = logging.getLogger(__name__)
 

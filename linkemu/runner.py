@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from abyss.common.clock import WALL, Clock
+from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
 from abyss.linkemu.link import Delivery, Link, Offer
-from abyss.linkemu.profile import LinkProfile
 
 log = logging.getLogger(__name__)
 

@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from abyss.common.errors import LinkError
+from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
 from abyss.linkemu.link import Pipeline
-from abyss.linkemu.profile import LinkProfile
 from abyss.linkemu.route import Route
 from abyss.linkemu.stages import Packet
 

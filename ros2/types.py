@@ -39,7 +39,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from abyss.common import keys
 from abyss.common.clouds import pack_cloud, unpack_cloud
-from abyss.common.config import ROS2_STATIONS
+from abyss.common.config_system import ROS2_STATIONS
 from abyss.common.geometry import quat_wxyz_of, rotation_of, wrap_rad, yaw_of
 from abyss.common.images import decode_image
 from abyss.common.messages import (

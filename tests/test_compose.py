@@ -16,9 +16,9 @@ import yaml
 
 from abyss.cli import parser
 from abyss.common import keys
-from abyss.common.config import LinksConfig
+from abyss.common.config_system import LinksConfig
+from abyss.common.linkprofile import load_profiles
 from abyss.launch.start import DEFAULT_PORT
-from abyss.linkemu.profile import load_profiles
 
 ROOT = Path(__file__).resolve().parents[1]
 OVERRIDES = {

@@ -138,7 +138,7 @@ def test_package_data_is_in_the_wheel_byte_for_byte(wheel: Path, names: set[str]
         p for p in (ROOT / "common" / "models").iterdir() if p.is_file() and p.suffix not in (".py", ".pyc")
     ]
     assert {p.name for p in models} >= {"robot.xml", "world.xml", "terrain.bin"}
-    data = [*models, ROOT / "linkemu" / "profiles.toml", ROOT / "py.typed"]
+    data = [*models, ROOT / "common" / "profiles.toml", ROOT / "py.typed"]
     # nothing else in a package folder that is not Python: a new data file needs package-data
     for top in {p.parts[0] for p in _repo_packages() if p.parts}:
         data += [

@@ -21,10 +21,10 @@ import numpy as np
 
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import Config
+from abyss.common.linkprofile import profile
 from abyss.common.messages import Telemetry, encode
 from abyss.common.samples import Samples
 from abyss.linkemu.link import Link, Offer
-from abyss.linkemu.profile import profile
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer
 

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.linkemu.profile import LinkProfile
+from abyss.common.linkprofile import LinkProfile
 
 
 @dataclass

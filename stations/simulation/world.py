@@ -9,7 +9,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from abyss.common.config import SimulationConfig
+from abyss.common.config_simulation import SimulationConfig
 from abyss.common.errors import ConfigError
 from abyss.common.messages import (
     ArmVelocityRef,

@@ -14,10 +14,11 @@ import pytest
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import Holdback, ProgressReport, SimClock
-from abyss.common.config import ConfigError, load
+from abyss.common.config import load
+from abyss.common.errors import ConfigError
+from abyss.common.linkprofile import profile
 from abyss.common.lockstep import LockstepClock
 from abyss.common.rate import Rate
-from abyss.linkemu.profile import profile
 from abyss.linkemu.runner import LinkRunner
 from abyss.stations.runtime import free_port
 

@@ -9,7 +9,7 @@ import pytest
 from abyss.common import keys
 from abyss.common.config import load
 from abyss.common.errors import ConfigError
-from abyss.linkemu.profile import load_profiles, profile
+from abyss.common.linkprofile import load_profiles, profile
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -20,8 +20,8 @@ from conftest import ARM_MISSION, ROOT, abyss
 from hosts import Hosts, usable
 
 from abyss.common import keys
+from abyss.common.linkprofile import LinkProfile, profile
 from abyss.launch.lab import Lab
-from abyss.linkemu.profile import LinkProfile, profile
 
 pytestmark = pytest.mark.e2e
 Z_99 = 2.576  # two-sided 99 % quantile of the normal distribution

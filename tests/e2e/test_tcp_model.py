@@ -18,7 +18,9 @@ from collections.abc import Mapping
 import numpy as np
 import pytest
 
-from abyss.linkemu.tcpcheck import Job, Run, agreement, kernel_unusable, run_all
+from abyss.validation.tcpcheck.compare import agreement, run_all
+from abyss.validation.tcpcheck.kernel import kernel_unusable
+from abyss.validation.tcpcheck.workload import Job, Run
 
 pytestmark = pytest.mark.e2e
 VARIANT = "reno"

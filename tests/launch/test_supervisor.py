@@ -20,7 +20,8 @@ from pathlib import Path
 import pytest
 
 from abyss.common import keys
-from abyss.common.config import Config, Ros2Config
+from abyss.common.config import Config
+from abyss.common.config_system import Ros2Config
 from abyss.common.errors import ConfigError
 from abyss.common.messages import MissionStatus, SimulationStatus
 from abyss.launch import stop as stop_module

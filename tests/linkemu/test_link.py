@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from abyss.common.errors import LinkError
+from abyss.common.linkprofile import LinkProfile, profile
 from abyss.linkemu.link import HEADER_BYTES, Link, Offer
-from abyss.linkemu.profile import LinkProfile, profile
 
 
 def link(**fields: str) -> Link:

@@ -10,8 +10,8 @@ import uuid
 import pytest
 
 from abyss.common.errors import LinkError
+from abyss.common.linkprofile import load_profiles, profile
 from abyss.linkemu.netem import netem_limit, run_tc, tc_command
-from abyss.linkemu.profile import load_profiles, profile
 
 EXPECTED = {
     "ideal": "tc qdisc replace dev veth0 root netem limit 1000",

@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from abyss.common.config import Config, Ros2Config
+from abyss.common.config import Config
+from abyss.common.config_system import Ros2Config
 from abyss.ros2 import gateway
 from abyss.stations import onboard, onshore, runtime, vessel
 

@@ -12,11 +12,12 @@ from pathlib import Path
 from typing import Any, Literal, assert_never, get_args
 
 from abyss.common import keys
-from abyss.common.config import TimeConfig, load
+from abyss.common.config import load
+from abyss.common.config_system import TimeConfig
 from abyss.common.errors import ConfigError
+from abyss.common.linkprofile import load_profiles
 from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES
 from abyss.common.models import panel
-from abyss.linkemu.profile import load_profiles
 
 USES = ("distributed", "interface", "degradation", "parallel", "fault-recovery")
 Action = Literal["link", "fault", "kill"]  # what an event does

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from abyss.common.config import Config
+from abyss.common.linkprofile import profile
 from abyss.common.messages import Heartbeat, JointState, NavState, decode, encode
 from abyss.linkemu.link import Link
-from abyss.linkemu.profile import profile
 from abyss.stations.onboard.core import Onboard, OnboardInputs
 
 STEP_S = 0.05

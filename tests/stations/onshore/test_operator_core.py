@@ -12,7 +12,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from abyss.common.config import Config, MissionConfig
+from abyss.common.config import Config
+from abyss.common.config_system import MissionConfig
 from abyss.common.messages import (
     ArmGoal,
     CommandAck,

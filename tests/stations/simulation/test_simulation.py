@@ -6,7 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config import SimulationConfig, load
+from abyss.common.config import load
+from abyss.common.config_simulation import SimulationConfig
 from abyss.common.images import decode_image
 from abyss.common.messages import SimulationControl
 from abyss.stations.simulation import _no_realtime

@@ -13,7 +13,8 @@ import pyoctomap
 import pytest
 
 from abyss.common.clouds import unpack_cloud
-from abyss.common.config import STEREO_MODES, SimulationConfig, VesselConfig
+from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config_stations import STEREO_MODES, VesselConfig
 from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image

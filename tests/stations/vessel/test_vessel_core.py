@@ -13,7 +13,8 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from abyss.common.config import VesselConfig
+from abyss.common.config_stations import VesselConfig
+from abyss.common.linkprofile import profile
 from abyss.common.messages import (
     CommandAck,
     Heartbeat,
@@ -27,7 +28,6 @@ from abyss.common.messages import (
 )
 from abyss.common.models import panel
 from abyss.linkemu.link import Link, Offer
-from abyss.linkemu.profile import profile
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer
 from abyss.scene.receiver import SceneReceiver

@@ -13,13 +13,15 @@ import functools
 import math
 import tomllib
 import types
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+from abyss.common.config_fields import one_of
 from abyss.common.errors import ConfigError, UnknownProfile
-from abyss.linkemu.units import (
+from abyss.common.units import (
     format_fraction,
     format_rate,
     format_time,
@@ -30,9 +32,12 @@ from abyss.linkemu.units import (
 )
 
 PROFILES_FILE = Path(__file__).with_name("profiles.toml")
-DISTRIBUTIONS = ("normal", "uniform", "pareto", "paretonormal")
-LOSS_MODELS = ("bernoulli", "gilbert-elliott")
-TRANSPORTS = ("tcp", "udp")
+Distribution = Literal["normal", "uniform", "pareto", "paretonormal"]
+DISTRIBUTIONS: tuple[Distribution, ...] = typing.get_args(Distribution)
+LossModel = Literal["bernoulli", "gilbert-elliott"]
+LOSS_MODELS: tuple[LossModel, ...] = typing.get_args(LossModel)
+Transport = Literal["tcp", "udp"]
+TRANSPORTS: tuple[Transport, ...] = typing.get_args(Transport)
 
 
 def _choice(allowed: tuple[str, ...]) -> Callable[[str, Any], str]:
@@ -103,9 +108,9 @@ class LinkProfile:
     rate_bps: float = math.inf
     delay_s: float = 0.0
     jitter_s: float = 0.0
-    distribution: str = "normal"
+    distribution: Distribution = "normal"
     correlation: float = 0.0  # delay correlation with the previous packet [0, 1)
-    loss_model: str = "bernoulli"
+    loss_model: LossModel = "bernoulli"
     loss: float = 0.0  # Bernoulli loss probability per packet
     ge_p: float = 0.0  # Gilbert-Elliott: P(good -> bad) per packet
     ge_r: float = 1.0  # P(bad -> good)
@@ -117,10 +122,13 @@ class LinkProfile:
     reorder: float = 0.0  # probability that a packet skips the delay and overtakes
     mtu_bytes: int = 1500
     queue_limit_packets: int = 1000
-    transport: str = "tcp"
+    transport: Transport = "tcp"
     seed: int = 0
 
     def __post_init__(self) -> None:
+        one_of("distribution", self.distribution, DISTRIBUTIONS)
+        one_of("loss_model", self.loss_model, LOSS_MODELS)
+        one_of("transport", self.transport, TRANSPORTS)
         if self.mtu_bytes < 128 or self.mtu_bytes > 65535:
             raise ConfigError("mtu", f"{self.mtu_bytes}B outside [128B, 65535B]")
         if self.correlation >= 1.0:

@@ -28,6 +28,7 @@ import numpy as np
 import pyoctomap
 
 from abyss.common.clouds import voxel_downsample
+from abyss.common.errors import BadInput
 from abyss.common.messages import SceneUpdate, new_id, wire_bytes
 
 log = logging.getLogger(__name__)
@@ -202,11 +203,11 @@ def read_binary(data: bytes, resolution_m: float) -> object:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         if not tree.readBinary(path):
-            raise ValueError("not an OctoMap binary tree")
+            raise BadInput("not an OctoMap binary tree")
     finally:
         os.unlink(path)
     if abs(tree.getResolution() - resolution_m) > 1e-9:
-        raise ValueError(f"tree resolution {tree.getResolution()} m, the update says {resolution_m} m")
+        raise BadInput(f"tree resolution {tree.getResolution()} m, the update says {resolution_m} m")
     return tree
 
 

@@ -122,8 +122,8 @@ class Teleop:
         self.sent = 0
 
     def _on_ack(self, sample: zenoh.Sample) -> None:
-        ack = message_of(sample, "CommandAck")
-        if not isinstance(ack, CommandAck):
+        ack = message_of(sample, CommandAck)
+        if ack is None:
             return
         with self.lock:
             asked = self.intents.pop(ack.command_id, None)
@@ -131,8 +131,8 @@ class Teleop:
             self.say(f"{asked}: {'taken by onboard' if ack.accepted else 'refused: ' + ack.reason}")
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
-        message = message_of(sample, "Telemetry")
-        if not isinstance(message, Telemetry):
+        message = message_of(sample, Telemetry)
+        if message is None:
             return
         with self.lock:
             self.goals.start_from(message)

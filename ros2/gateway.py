@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 
 from abyss.common import keys
-from abyss.common.bus import Bus, open_session, zenoh_config
+from abyss.common.bus import Bus, Inbox, open_session, zenoh_config
 from abyss.common.config import Config
+from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
 from abyss.common.rate import Rate
 from abyss.ros2 import rmw, types
@@ -41,6 +42,7 @@ from abyss.ros2 import rmw, types
 log = logging.getLogger(__name__)
 
 LOOP_PERIOD_S = 0.005  # the latency the gateway adds, at most, to what goes down
+Command = Waypoints | ArmGoal | OperatorMode  # an operator command the gateway answers for
 COMMAND_KINDS = {Waypoints.TYPE: "waypoints", ArmGoal.TYPE: "arm", OperatorMode.TYPE: "mode"}
 INBOX_DEPTH = 64
 
@@ -59,7 +61,7 @@ def ros_session_config(listen: tuple[str, ...], connect: tuple[str, ...]) -> Any
 
 class Gateway:
     """`on_up`: per abyss topic of the station, what takes the node's message in place of the
-    bus (ValueError: the message is refused with that reason)."""
+    bus (BadInput: the message is refused with that reason)."""
 
     def __init__(
         self, config: Config, bus: Bus, on_up: dict[str, Callable[[Any], object]] | None = None
@@ -71,7 +73,7 @@ class Gateway:
         self.convert = types.Session()
         self._lock = threading.Lock()  # the conversions' session: the loop and Zenoh's callbacks
         self.publishers: dict[str, rmw.Publisher] = {}
-        self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Any]] = []
+        self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Inbox[Message]]] = []
         self.answers: dict[tuple[str, int], CommandAck] = {}
         self._waiting_logged: set[tuple[str, int]] = set()
         self.on_up = on_up or {}
@@ -79,7 +81,9 @@ class Gateway:
         for key in down:
             spec, mapping = keys.spec(*key.split("/", 1)), types.key_map(key)
             assert mapping is not None
-            self.downlinks.append((spec, mapping, bus.subscribe(spec.station, spec.topic, INBOX_DEPTH)))
+            self.downlinks.append(
+                (spec, mapping, bus.subscribe(spec.station, spec.topic, spec.message_class, INBOX_DEPTH))
+            )
             for t in mapping.topics:
                 name = self.topic(spec, t)
                 if name not in self.publishers:
@@ -123,7 +127,7 @@ class Gateway:
         while rate.sleep():
             for spec, mapping, inbox in self.downlinks:
                 for received in inbox.drain():
-                    if received.message.TYPE in COMMAND_KINDS:
+                    if isinstance(received.message, Command):
                         self._command(spec, mapping, received.message)
                     else:
                         self._down(spec, mapping, received.message)
@@ -136,7 +140,7 @@ class Gateway:
             for t in mapping.topics:
                 try:
                     converted = t.convert(message, types.header(stamp_s, t.frame_id), self.convert)
-                except ValueError as exc:
+                except BadInput as exc:
                     self.bus.reject(spec.key(self.bus.system), f"not converted to {t.type}: {exc}")
                     continue
                 if converted is not None:
@@ -160,9 +164,8 @@ class Gateway:
             static = types.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
         self.static.put(types.serialize(static))
 
-    def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Message) -> None:
+    def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Command) -> None:
         """Hand an operator command over once the node subscribes to it, and answer for it."""
-        assert isinstance(command, (Waypoints, ArmGoal, OperatorMode))
         answered = self.answers.get((command.TYPE, command.command_id))
         if answered is None:
             topics = [self.topic(spec, t) for t in mapping.topics]
@@ -200,7 +203,7 @@ class Gateway:
                 message = t.parse(ros_message, self.convert)
             if message is not None and handler is not None:
                 handler(message)
-        except ValueError as exc:
+        except BadInput as exc:
             self.bus.reject(rmw.topic_key(self.node.domain, self.topic(spec, t), t.type), str(exc))
             return
         if message is None or handler is not None:

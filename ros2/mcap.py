@@ -28,7 +28,7 @@ from rosbags.interfaces import Qos
 from rosbags.rosbag2.metadata import dump_qos_v9
 from ruamel.yaml import YAML
 
-from abyss.common.errors import AbyssError
+from abyss.common.errors import AbyssError, BadInput
 from abyss.common.messages import Image, NavState
 from abyss.recording.store import Record, Recording, open_recording
 from abyss.ros2 import types
@@ -194,12 +194,12 @@ def _write_record(
     try:
         message = r.decode().message
         if m.message != message.TYPE:
-            raise ValueError(f"a {message.TYPE}, the table maps {m.message}")
+            raise BadInput(f"a {message.TYPE}, the table maps {m.message}")
         stamp_s = types.stamp_of(message, clock(r.sent_s))
         for t in m.exported:
             converted = t.convert(message, types.header(stamp_s, t.frame_id), session)
             if converted is not None:
                 channels.write(t.topic(r.topic), converted, r.recorded_s, r.sent_s)
-    except (AbyssError, ValueError) as exc:
+    except AbyssError as exc:
         log.warning("%s at %.3f: not exported: %s", r.topic, r.recorded_s, exc)
         skipped[r.topic] += 1

@@ -40,6 +40,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from abyss.common import keys
 from abyss.common.clouds import pack_cloud, unpack_cloud
 from abyss.common.config import ROS2_STATIONS
+from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_of, wrap_rad, yaw_of
 from abyss.common.images import decode_image
 from abyss.common.messages import (
@@ -394,7 +395,7 @@ def depth_image(image: Image, head: Any, session: Session) -> Any | None:
         return None
     depth_mm = cv2.imdecode(np.frombuffer(image.data, np.uint8), cv2.IMREAD_UNCHANGED)
     if depth_mm is None or depth_mm.dtype != np.uint16 or depth_mm.shape != (image.height_px, image.width_px):
-        raise ValueError(
+        raise BadInput(
             f"{image.camera}: the depth PNG does not decode to "
             f"{image.width_px}x{image.height_px} 16-bit pixels"
         )
@@ -463,7 +464,7 @@ def octree_data(octree: bytes) -> bytes:
     message's fields): what `writeBinaryData` writes and octomap_msgs carries."""
     head, separator, data = octree.partition(b"\ndata\n")
     if not separator or not head.startswith(b"# Octomap OcTree binary file"):
-        raise ValueError("not an OctoMap binary tree")
+        raise BadInput("not an OctoMap binary tree")
     return data
 
 
@@ -474,7 +475,7 @@ def octree_file(data: bytes, resolution_m: float) -> bytes:
     children = np.frombuffer(data, np.uint8)[:, None] >> np.array([0, 2, 4, 6], np.uint8) & 3
     inner = int((children == 3).sum())
     if len(data) % 2 or len(data) != 2 * (inner + 1):
-        raise ValueError(
+        raise BadInput(
             f"{len(data)} bytes are not OctoMap's binary stream of a tree "
             f"({inner} inner children need {2 * (inner + 1)} bytes)"
         )
@@ -704,13 +705,13 @@ def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndar
 
 # -- back from ROS 2: what a ROS 2 node publishes in a station's place (the gateway) --------
 # (ROS 2 message, session) -> abyss message, or None when it leaves nothing to send yet;
-# ValueError names what is wrong with it
+# BadInput names what is wrong with it
 Parse = Callable[[Any, Session], Message | None]
 
 
 def _frame(head: Any, allowed: str) -> None:
     if head.frame_id not in ("", allowed):
-        raise ValueError(f"frame_id {head.frame_id!r}, expected {allowed!r}")
+        raise BadInput(f"frame_id {head.frame_id!r}, expected {allowed!r}")
 
 
 def twist_in(msg: Any, session: Session) -> VelocityRef:
@@ -724,7 +725,7 @@ def twist_in(msg: Any, session: Session) -> VelocityRef:
 def joint_velocities_in(msg: Any, session: Session) -> ArmVelocityRef:
     data = np.asarray(msg.data, dtype=np.float64)
     if data.shape != (7,):
-        raise ValueError(f"{len(data)} values, expected 7 ({ARM_COMMAND_LABEL})")
+        raise BadInput(f"{len(data)} values, expected 7 ({ARM_COMMAND_LABEL})")
     return ArmVelocityRef(data[:6], float(data[6]))
 
 
@@ -734,7 +735,7 @@ def ee_pose_in(msg: Any, session: Session) -> None:
     p, q = msg.pose.position, msg.pose.orientation
     orientation = np.array([q.w, q.x, q.y, q.z])
     if not np.isfinite([p.x, p.y, p.z]).all() or abs(np.linalg.norm(orientation) - 1.0) > 1e-3:
-        raise ValueError("the pose's position is not finite or its orientation not a unit quaternion")
+        raise BadInput("the pose's position is not finite or its orientation not a unit quaternion")
     session.ee_pose = np.array([p.x, p.y, p.z]), orientation
     return None
 
@@ -751,16 +752,16 @@ def point_cloud_in(msg: Any, session: Session) -> PointCloud | None:
     float32, uint32 = _T["sensor_msgs/msg/PointField"].FLOAT32, _T["sensor_msgs/msg/PointField"].UINT32
     for name in ("x", "y", "z"):
         if name not in fields or fields[name].datatype != float32:
-            raise ValueError(f"no float32 field {name!r}: fields {sorted(fields)}")
+            raise BadInput(f"no float32 field {name!r}: fields {sorted(fields)}")
     count, step = int(msg.width) * int(msg.height), int(msg.point_step)
     if msg.is_bigendian or step < 12 or len(msg.data) < count * step:
-        raise ValueError(f"{len(msg.data)} bytes for {count} points of {step} bytes (little-endian)")
+        raise BadInput(f"{len(msg.data)} bytes for {count} points of {step} bytes (little-endian)")
     rows = np.asarray(msg.data, np.uint8)[: count * step].reshape(count, step)
 
     def column(name: str, dtype: str) -> np.ndarray:
         offset = int(fields[name].offset)
         if offset + 4 > step:
-            raise ValueError(f"field {name!r} at offset {offset} lies past the point's {step} bytes")
+            raise BadInput(f"field {name!r} at offset {offset} lies past the point's {step} bytes")
         return rows[:, offset : offset + 4].copy().view(dtype).ravel()
 
     points_m = np.column_stack([column(name, "<f4") for name in ("x", "y", "z")]).astype(np.float64)
@@ -788,7 +789,7 @@ def octomap_in(msg: Any, session: Session) -> SceneUpdate:
     _frame(msg.header, WORLD)
     if not msg.binary or msg.id != "OcTree":
         kind = "binary" if msg.binary else "full"
-        raise ValueError(f"a {kind} {msg.id!r} map; the scene takes a binary OcTree")
+        raise BadInput(f"a {kind} {msg.id!r} map; the scene takes a binary OcTree")
     stamp = msg.header.stamp
     return SceneUpdate(
         kind="snapshot",
@@ -815,14 +816,14 @@ def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
     errors against the goals (and the tool's pose, /ee_pose, where the node publishes it), the
     command ids of the goals in force, the joints, the operator mode. None before navigation."""
     if not msg.status:
-        raise ValueError("no DiagnosticStatus in the array")
+        raise BadInput("no DiagnosticStatus in the array")
     values = {kv.key: kv.value for kv in msg.status[0].values}
     waypoint = values.get("waypoint", "0").partition("/")[0]
     if not waypoint.isdigit():
-        raise ValueError(f"waypoint {values['waypoint']!r} is not `i` or `i/n`")
+        raise BadInput(f"waypoint {values['waypoint']!r} is not `i` or `i/n`")
     events = values.get("failsafe_events", "0")
     if not events.isdigit():
-        raise ValueError(f"failsafe_events {events!r} is not a count")
+        raise BadInput(f"failsafe_events {events!r} is not a count")
     nav = session.nav
     if nav is None:
         return None

@@ -18,6 +18,7 @@ from abyss.common import keys
 from abyss.common.bus import Bus
 from abyss.common.clock import WALL, Holdback, SimClock
 from abyss.common.config import Config
+from abyss.common.errors import BadInput
 from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
 from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
 from abyss.common.workers import Realtime, Workers
@@ -72,10 +73,10 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     from abyss.stations.simulation.world import references
 
     sim = config.simulation
-    vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", maxlen=4)
-    arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
+    vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", VelocityRef, maxlen=4)
+    arm = bus.subscribe("onboard", "cmd/arm_velocity", ArmVelocityRef, maxlen=4)
     control_key = keys.simulation_control_key(bus.system)
-    controls = bus.subscribe_key(control_key, "SimulationControl")
+    controls = bus.subscribe_key(control_key, SimulationControl)
     keeper = Timekeeper(config, bus, world.data.time)
     rate = keeper.rate
     wall0, sim0 = time.monotonic(), world.data.time
@@ -84,17 +85,13 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         if not keeper.before_step(world.data.time):
             break
         for control in controls.drain():
-            assert isinstance(control.message, SimulationControl)
             try:
                 with lock:
                     world.apply_fault(control.message, blackout)
-            except ValueError as exc:
-                bus.reject(control_key, str(exc))
+            except BadInput as exc:
+                bus.reject(control_key, exc.reason)
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
-        refs = references(
-            v.message if v and isinstance(v.message, VelocityRef) else None,
-            a.message if a and isinstance(a.message, ArmVelocityRef) else None,
-        )
+        refs = references(v.message if v else None, a.message if a else None)
         stepped_from_s = world.data.time
         with lock:
             world.step(refs, sim.control_period_s)

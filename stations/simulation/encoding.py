@@ -32,5 +32,5 @@ def encode_image(cameras: Cameras, data: object, camera: str, jpeg_quality: int)
         cy_px=intrinsics.cy_px,
         pose_camera=cameras.pose_in_vehicle(camera),
         data=payload,
-        sim_time_s=float(data.time),
-    )  # type: ignore[attr-defined]
+        sim_time_s=float(data.time),  # type: ignore[attr-defined]
+    )

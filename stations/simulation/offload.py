@@ -24,6 +24,7 @@ from typing import IO, Any
 
 import numpy as np
 
+from abyss.common.errors import AbyssError
 from abyss.common.workers import child_cpu, in_background
 
 STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the sensors' kinematics come from
@@ -31,7 +32,7 @@ HEADER = struct.Struct("<Q")
 CLOSE_S = 2.0  # a child that has not gone this long after its stdin closed is killed
 
 
-class OffloadFailed(RuntimeError):
+class OffloadFailed(AbyssError):
     """The sensor's process died or failed on a request."""
 
 

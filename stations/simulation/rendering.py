@@ -102,8 +102,10 @@ class Cameras:
 
     def intrinsics(self, camera: str) -> Intrinsics:
         return Intrinsics.from_fovy(
-            self.renderer.width, self.renderer.height, float(self.model.camera(camera).fovy[0])
-        )  # type: ignore[attr-defined]
+            self.renderer.width,
+            self.renderer.height,
+            float(self.model.camera(camera).fovy[0]),  # type: ignore[attr-defined]
+        )
 
     def pose_in_vehicle(self, camera: str) -> np.ndarray:
         """x, y, z [m] and quaternion w, x, y, z of the camera in its body's frame, with
@@ -179,8 +181,8 @@ def lamps_of(model: object, camera: str) -> tuple[Lamp, ...]:
             Lamp(
                 tuple((rotation.T @ (m.light_pos[i] - cam.pos)).tolist()),  # type: ignore[attr-defined]
                 tuple((rotation.T @ m.light_dir[i]).tolist()),  # type: ignore[attr-defined]
-                float(np.radians(m.light_cutoff[i])),
-                float(m.light_exponent[i]),
+                float(np.radians(m.light_cutoff[i])),  # type: ignore[attr-defined]
+                float(m.light_exponent[i]),  # type: ignore[attr-defined]
             )
-        )  # type: ignore[attr-defined]
+        )
     return tuple(lamps)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from abyss.common.config import SimulationConfig
+from abyss.common.errors import BadInput
 from abyss.common.messages import SonarImage
 from abyss.common.models import panel
 from abyss.common.sonar import (
@@ -76,11 +77,11 @@ def test_bad_bytes_and_sizes_are_refused_with_the_reason() -> None:
     polar = np.random.default_rng(0).integers(0, 255, (20, 9), dtype=np.uint8)
     assert np.array_equal(decode_polar(with_image(sonar, polar)), polar)  # PNG: what the sonar sent
     assert np.abs(decode_polar(with_image(sonar, polar, "jpeg")).astype(int) - polar).mean() < 40
-    with pytest.raises(ValueError, match="decodes to nothing"):
+    with pytest.raises(BadInput, match="decodes to nothing"):
         decode_polar(dataclasses.replace(sonar, data=b"\x00not an image"))
-    with pytest.raises(ValueError, match=r"expected \(20, 9\)"):
+    with pytest.raises(BadInput, match=r"expected \(20, 9\)"):
         decode_polar(with_image(sonar, np.zeros((20, 8), np.uint8)))
-    with pytest.raises(ValueError, match="vehicle frame, expected the world's"):
+    with pytest.raises(BadInput, match="vehicle frame, expected the world's"):
         echo_arcs(dataclasses.replace(sonar, pose_frame="vehicle"), 0.1)
 
 

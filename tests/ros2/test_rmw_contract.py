@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from abyss.common.clouds import pack_cloud, unpack_cloud
+from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, ArmVelocityRef, NavState, Waypoints
 from abyss.ros2 import rmw, types
 
@@ -105,14 +106,14 @@ def test_attachment_is_33_bytes_and_malformed_ones_are_named() -> None:
     data = rmw.attachment(1, 1732400000123456789, gid)
     assert data.hex() == "010000000000000015cd3e189fb80a1810c4051822192c37bc15f1812448d1f986"
     assert rmw.parse_attachment(data) == (1, 1732400000123456789, gid)
-    with pytest.raises(ValueError, match="no attachment"):
+    with pytest.raises(BadInput, match="no attachment"):
         rmw.parse_attachment(None)
-    with pytest.raises(ValueError, match="attachment of 20 bytes"):
+    with pytest.raises(BadInput, match="attachment of 20 bytes"):
         rmw.parse_attachment(data[:20])
-    with pytest.raises(ValueError, match="GID is 15 bytes"):
+    with pytest.raises(BadInput, match="GID is 15 bytes"):
         rmw.parse_attachment(data[:16] + b"\x0f" + gid)
     old = bytes.fromhex("0f73657175656e63655f6e756d626572")  # the pre-0.2.4 format's first field
-    with pytest.raises(ValueError):
+    with pytest.raises(BadInput):
         rmw.parse_attachment(old)
 
 
@@ -125,9 +126,9 @@ def test_cdr_is_fast_cdr_s_and_bad_bytes_are_refused() -> None:
     assert rmw.deserialize(payload, "geometry_msgs/msg/Twist").angular.z == 0.25
     clock = types.clock(None, types.header(12.5, ""), None)  # type: ignore[arg-type]
     assert types.serialize(clock).hex() == "000100000c0000000065cd1d"
-    with pytest.raises(ValueError, match="not CDR"):
+    with pytest.raises(BadInput, match="not CDR"):
         rmw.deserialize(b"\x07\x07garbage", "geometry_msgs/msg/Twist")
-    with pytest.raises(ValueError, match="does not decode"):
+    with pytest.raises(BadInput, match="does not decode"):
         rmw.deserialize(payload[:20], "geometry_msgs/msg/Twist")
 
 
@@ -169,9 +170,9 @@ def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
     )
     assert np.allclose(telemetry.position_error_m_world, [1.5, 0.8, -0.6]) and telemetry.arm_command_id == 9
     assert telemetry.sim_time_s == 4.0 and telemetry.boot_id == session.boot_id
-    with pytest.raises(ValueError, match="not one of"):
+    with pytest.raises(BadInput, match="not one of"):
         types.telemetry_in(_diagnostics(mode="flying"), session)
-    with pytest.raises(ValueError, match="waypoint 'x'"):
+    with pytest.raises(BadInput, match="waypoint 'x'"):
         types.telemetry_in(_diagnostics(waypoint="x"), session)
 
 
@@ -186,17 +187,17 @@ def test_velocity_commands_parse_back_within_abyss_s_bounds() -> None:
     ref = types.twist_in(twist, types.Session())
     assert np.allclose(ref.linear_mps_body, [0.2, 0, -0.1]) and ref.yaw_rate_radps == pytest.approx(0.3)
     twist.header.frame_id = "world"
-    with pytest.raises(ValueError, match="frame_id 'world'"):
+    with pytest.raises(BadInput, match="frame_id 'world'"):
         types.twist_in(twist, types.Session())
     session, head = types.Session(), types.header(0, "")
     sent = types.joint_velocities(ArmVelocityRef(np.arange(6) * 0.1, 0.02), head, session)
     command = types.joint_velocities(types.joint_velocities_in(sent, session), head, session)
     assert np.allclose(command.data, [*(np.arange(6) * 0.1), 0.02])
     command.data = np.zeros(5)
-    with pytest.raises(ValueError, match="5 values, expected 7"):
+    with pytest.raises(BadInput, match="5 values, expected 7"):
         types.joint_velocities_in(command, types.Session())
     command.data = np.full(7, 50.0)
-    with pytest.raises(ValueError, match="joint_velocities_radps"):
+    with pytest.raises(BadInput, match="joint_velocities_radps"):
         types.joint_velocities_in(command, types.Session())
 
 
@@ -216,10 +217,10 @@ def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
     got_m, got_colors = unpack_cloud(back)
     assert np.allclose(got_m, points_m[:2], atol=0.002) and (got_colors == colors[:2]).all()
     cloud.point_step = 8
-    with pytest.raises(ValueError, match="bytes for 2 points of 8"):
+    with pytest.raises(BadInput, match="bytes for 2 points of 8"):
         types.point_cloud_in(cloud, session)
     cloud.fields = cloud.fields[1:]
-    with pytest.raises(ValueError, match="no float32 field 'x'"):
+    with pytest.raises(BadInput, match="no float32 field 'x'"):
         types.point_cloud_in(cloud, session)
 
 
@@ -243,7 +244,7 @@ def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
     assert model.adopt(snapshot.octree) >= 2  # leaves: OctoMap prunes
     update = model.next_update(2.0)
     assert update is not None and len(update.colors) == 2 and (update.colors == GREY).all()
-    with pytest.raises(ValueError, match="not OctoMap's binary stream"):
+    with pytest.raises(BadInput, match="not OctoMap's binary stream"):
         types.octree_file(data[:-2], 0.1)
-    with pytest.raises(ValueError, match=r"tree resolution 0\.05"):
+    with pytest.raises(BadInput, match=r"tree resolution 0\.05"):
         SceneModel(0.1, 10.0).adopt(types.octree_file(data, 0.05))

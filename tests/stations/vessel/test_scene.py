@@ -14,9 +14,10 @@ import pytest
 
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config import STEREO_MODES, SimulationConfig
+from abyss.common.errors import BadInput, BadMessage
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
-from abyss.common.messages import BadMessage, PointCloud, SceneUpdate, decode, encode
+from abyss.common.messages import PointCloud, SceneUpdate, decode, encode
 from abyss.common.models import CAMERAS, panel
 from abyss.common.scene import (
     SceneModel,
@@ -291,13 +292,13 @@ def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
         colors=np.zeros((0, 3), np.uint8),
         sim_time_s=0.0,
     )
-    with pytest.raises(ValueError, match="binary"):
+    with pytest.raises(BadInput, match="binary"):
         SceneReceiver().apply(bad)
     cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
-    with pytest.raises(ValueError, match="need"):
+    with pytest.raises(BadInput, match="need"):
         dataclasses.replace(cloud, count=cloud.count + 1)
     with pytest.raises(BadMessage, match="not zlib"):
         payload = encode(cloud, 0, 0.0).replace(cloud.data[:16], b"\x00" * 16)
         decode("k", payload, "PointCloud")
-    with pytest.raises(ValueError, match="decodes to nothing"):
+    with pytest.raises(BadInput, match="decodes to nothing"):
         decode_image(dataclasses.replace(start.frames["cam_left"], data=b"not a jpeg"))

@@ -37,7 +37,8 @@ from abyss.common.config import Config
 from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
 from abyss.common.rate import Rate
-from abyss.ros2 import rmw, types
+from abyss.ros2 import motion, msgs, rmw, status, types
+from abyss.ros2.session import Session
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,7 @@ class Gateway:
         self.bus, self.namespace = bus, cfg.namespace
         self.session = open_session(ros_session_config(cfg.listen, cfg.connect), "the ROS 2 gateway")
         self.node = rmw.Node(self.session, cfg.domain, cfg.namespace, node_name(bus.station))
-        self.convert = types.Session()
+        self.convert = Session()
         self._lock = threading.Lock()  # the conversions' session: the loop and Zenoh's callbacks
         self.publishers: dict[str, rmw.Publisher] = {}
         self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Inbox[Message]]] = []
@@ -99,9 +100,9 @@ class Gateway:
                     functools.partial(self._up, spec, t),
                     bus.reject,
                 )
-        self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", types.CLOCK_QOS)
+        self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", msgs.CLOCK_QOS)
         self.clock_s = -1.0
-        self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
+        self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
         self.camera_mounts: dict[str, np.ndarray] = {}
         self._publish_static()
         log.info(
@@ -139,16 +140,16 @@ class Gateway:
             stamp_s = types.stamp_of(message, self.convert.sim_time_s)
             for t in mapping.topics:
                 try:
-                    converted = t.convert(message, types.header(stamp_s, t.frame_id), self.convert)
+                    converted = t.convert(message, msgs.header(stamp_s, t.frame_id), self.convert)
                 except BadInput as exc:
                     self.bus.reject(spec.key(self.bus.system), f"not converted to {t.type}: {exc}")
                     continue
                 if converted is not None:
-                    self.publishers[self.topic(spec, t)].put(types.serialize(converted))
+                    self.publishers[self.topic(spec, t)].put(msgs.serialize(converted))
             if self.convert.sim_time_s > self.clock_s:
                 self.clock_s = self.convert.sim_time_s
-                clock = types.clock(None, types.header(self.clock_s, ""), self.convert)
-                self.clock.put(types.serialize(clock))
+                clock = status.clock(None, msgs.header(self.clock_s, ""), self.convert)
+                self.clock.put(msgs.serialize(clock))
         if (
             isinstance(message, Image)
             and message.pose_frame == "vehicle"
@@ -161,8 +162,8 @@ class Gateway:
         """/tf_static: the arm's fixed links and the cameras mounted so far, all in one message
         (the cache of a transient local publisher of depth 1 keeps the last)."""
         with self._lock:
-            static = types.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
-        self.static.put(types.serialize(static))
+            static = motion.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
+        self.static.put(msgs.serialize(static))
 
     def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Command) -> None:
         """Hand an operator command over once the node subscribes to it, and answer for it."""

@@ -35,7 +35,7 @@ import zenoh.ext
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
 
 from abyss.common.errors import BadInput
-from abyss.ros2.types import TYPESTORE
+from abyss.ros2.msgs import TYPESTORE
 
 log = logging.getLogger(__name__)
 

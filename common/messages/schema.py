@@ -154,7 +154,7 @@ def _wire(meta: Mapping[str, Any]) -> dict[str, Any]:
     return {**meta, "wire_dtype": wire_dtype, "wire_str": wire_dtype.str}
 
 
-def _readschema_of(cls: type) -> Schema:
+def _read_schema(cls: type) -> Schema:
     hints = typing.get_type_hints(cls)
     fields = dataclasses.fields(cls)
     return Schema(
@@ -167,7 +167,7 @@ def _readschema_of(cls: type) -> Schema:
 # Per message class, cached. Typed as taking any class: mypy holds a frozen dataclass's class
 # object unhashable (it reads the instances' __hash__), so functools.cache's Hashable arguments
 # would refuse type[Message].
-schema_of: Callable[[type], Schema] = functools.cache(_readschema_of)
+schema_of: Callable[[type], Schema] = functools.cache(_read_schema)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ def test_readme_topic_table_is_the_generated_one() -> None:
 
 
 def test_readme_lists_what_a_ros2_node_states_in_its_diagnostics() -> None:
-    from abyss.ros2.types import TELEMETRY_VALUES
+    from abyss.ros2.from_ros import TELEMETRY_VALUES
 
     readme = (ROOT / "README.md").read_text()
     for key, meaning in TELEMETRY_VALUES.items():

@@ -24,6 +24,7 @@ from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, Si
 from abyss.common.workers import Realtime, Workers
 
 if TYPE_CHECKING:
+    from abyss.stations.simulation.offload import SensorKind
     from abyss.stations.simulation.world import World
 
 STATUS_PERIOD_S = 1.0
@@ -53,7 +54,11 @@ def run(config: Config, bus: Bus) -> None:
     blackout: set[str] = set()
     bus.realtime = Realtime(sim.realtime_priority, why_not=_no_realtime(config))
     with Workers(bus.stop) as workers:
-        for kind, rate_hz in (("cameras", sim.camera_rate_hz), ("sonar", sim.sonar_rate_hz)):
+        sensors: tuple[tuple[SensorKind, float], ...] = (
+            ("cameras", sim.camera_rate_hz),
+            ("sonar", sim.sonar_rate_hz),
+        )
+        for kind, rate_hz in sensors:
             if rate_hz > 0:
                 workers.start(kind, _sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
         _physics_loop(config, bus, world, lock, blackout)
@@ -203,7 +208,7 @@ def _sensor_loop(
     world: World,
     lock: threading.Lock,
     blackout: set[str],
-    kind: str,
+    kind: SensorKind,
     rate_hz: float,
 ) -> None:
     """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics

@@ -25,7 +25,8 @@ from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clouds import pack_cloud
 from abyss.common.messages import JointState, Message, NavState, VelocityRef, decode, encode
 from abyss.common.samples import Samples
-from abyss.ros2 import rmw, types
+from abyss.ros2 import from_ros, motion, msgs, rmw, status, types
+from abyss.ros2.session import Session
 from abyss.stations.runtime import free_port
 
 FLOOD, PACED, PACE_S = 2000, 300, 0.005
@@ -89,7 +90,7 @@ class GatewayDown:
     def __init__(self, abyss_topic: str) -> None:
         self.mapping = types.key_map(abyss_topic)
         assert self.mapping is not None
-        self.session = types.Session()
+        self.session = Session()
         self.gids = {t.name: bytes(16) for t in self.mapping.topics}
         self.keys = {t.name: rmw.topic_key(0, t.topic(abyss_topic), t.type) for t in self.mapping.topics}
         self.clock_key = rmw.topic_key(0, types.CLOCK, "rosgraph_msgs/msg/Clock")
@@ -101,31 +102,31 @@ class GatewayDown:
         stamp_s = types.stamp_of(message, 0.0)
         samples = []
         for t in self.mapping.topics:
-            converted = t.convert(message, types.header(stamp_s, t.frame_id), self.session)
+            converted = t.convert(message, msgs.header(stamp_s, t.frame_id), self.session)
             samples.append(
                 (
                     self.keys[t.name],
-                    types.serialize(converted),
+                    msgs.serialize(converted),
                     rmw.attachment(self.seq, time.time_ns(), self.gids[t.name]),
                 )
             )
-        clock = types.clock(None, types.header(stamp_s, ""), self.session)
+        clock = status.clock(None, msgs.header(stamp_s, ""), self.session)
         stamp = rmw.attachment(self.seq, time.time_ns(), bytes(16))
-        samples.append((self.clock_key, types.serialize(clock), stamp))
+        samples.append((self.clock_key, msgs.serialize(clock), stamp))
         return samples
 
 
 def twist_cdr() -> bytes:
-    twist = types.twist(
-        VelocityRef(np.array([0.2, 0.0, -0.1]), 0.1), types.header(3.5, types.BASE_LINK), types.Session()
+    twist = motion.twist(
+        VelocityRef(np.array([0.2, 0.0, -0.1]), 0.1), msgs.header(3.5, msgs.BASE_LINK), Session()
     )
-    return types.serialize(twist)
+    return msgs.serialize(twist)
 
 
-def gateway_up(payload: bytes, attachment: bytes, session: types.Session) -> list[Sample]:
+def gateway_up(payload: bytes, attachment: bytes, session: Session) -> list[Sample]:
     """rmw.Subscription's checks and decode, the table's parse, abyss's encode."""
     rmw.parse_attachment(attachment)
-    message = types.twist_in(rmw.deserialize(payload, "geometry_msgs/msg/TwistStamped"), session)
+    message = from_ros.twist_in(rmw.deserialize(payload, "geometry_msgs/msg/TwistStamped"), session)
     return [("abyss/bench/onboard/cmd/vehicle_velocity", encode(message, 1, time.time()), None)]
 
 
@@ -160,7 +161,7 @@ def main() -> None:
     ros_twist, attachment = twist_cdr(), rmw.attachment(1, time.time_ns(), bytes(16))
     nav_down, joints_down = GatewayDown("simulation/nav"), GatewayDown("simulation/joints")
     cloud_down = GatewayDown("onboard/cloud")
-    session = types.Session()
+    session = Session()
     cases: list[tuple[str, Callable[[], list[Sample]], Callable[[], list[Sample]]]] = [
         ("down NavState (Odometry, /tf, /clock)", lambda: abyss_down(NAV), lambda: nav_down(NAV)),
         (

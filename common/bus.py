@@ -13,57 +13,22 @@ import math
 import threading
 from collections import Counter, defaultdict, deque
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, NamedTuple, Protocol, TypeVar
+from typing import Any, Generic, NamedTuple, Protocol, overload
 
 import zenoh
+from typing_extensions import TypeVar
 
 from abyss.common import keys, security
 from abyss.common.certs import CertFiles
 from abyss.common.clock import WALL, Clock
 from abyss.common.errors import BadMessage, BusError, ConfigError
 from abyss.common.messages import Message, Received, decode, encode
+from abyss.common.qos import publisher_qos, slow_link_tuning
 from abyss.common.rate import Rate
 from abyss.common.samples import Samples
 from abyss.common.workers import Realtime
 
 log = logging.getLogger(__name__)
-
-
-ZENOH_PRIORITY = {
-    "control": zenoh.Priority.INTERACTIVE_HIGH,
-    "telemetry": zenoh.Priority.DATA_HIGH,
-    "bulk": zenoh.Priority.DATA_LOW,
-}
-LARGE_MESSAGE_BYTES = 256 * 1024  # the largest message a slow hop must carry without dropping it
-ZENOH_DEFAULT_WAIT_BEFORE_DROP_S = 0.001
-ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S = 5.0
-
-
-def publisher_qos(spec: keys.KeySpec, lockstep: bool = False) -> dict[str, Any]:
-    """The Zenoh publisher options of a data key: congestion control by its reliability (in
-    lockstep always BLOCK: a station waits for every message its neighbours' links delivered),
-    priority, and express (not batched) for control."""
-    return {
-        "congestion_control": zenoh.CongestionControl.BLOCK
-        if spec.reliability == "reliable" or lockstep
-        else zenoh.CongestionControl.DROP,
-        "priority": ZENOH_PRIORITY[spec.priority],
-        "express": spec.priority == "control",
-    }
-
-
-def slow_link_tuning(rate_bps: float) -> dict[str, Any]:
-    """`transport/link/tx/queue/congestion_control` for a link of `rate_bps`: Zenoh drops a DROP
-    message whose batches find the queue full for 1 ms, and closes the link when a BLOCK message
-    waits 5 s; a 256 kB message needs 2.1 s at 1 Mbit/s, so both waits grow with the time the
-    link takes to carry one large message."""
-    serialise_s = 0.0 if math.isinf(rate_bps) else LARGE_MESSAGE_BYTES * 8.0 / rate_bps
-    drop_us = round(1e6 * min(max(ZENOH_DEFAULT_WAIT_BEFORE_DROP_S, serialise_s), 5.0))
-    close_us = round(1e6 * max(ZENOH_DEFAULT_WAIT_BEFORE_CLOSE_S, 10.0 * serialise_s))
-    return {
-        "drop": {"wait_before_drop": drop_us, "max_wait_before_drop_fragments": max(drop_us, 50_000)},
-        "block": {"wait_before_close": close_us},
-    }
 
 
 def zenoh_config(
@@ -101,9 +66,17 @@ def client_config(endpoint: str) -> zenoh.Config:
     return zenoh_config(connect=[endpoint], mode="client", tls=security.tool_certificates(endpoint))
 
 
-def message_of(sample: zenoh.Sample, message: str) -> Message | None:
-    """The `message` a sample carries, or None if its bytes do not decode to one: for tools that
-    listen from outside the stations (which count and log what they drop)."""
+# a bare `Inbox` is an `Inbox[Message]`: the call sites not yet typed keep their own narrowing
+M = TypeVar("M", bound=Message, default=Message)
+
+
+@overload
+def message_of(sample: zenoh.Sample, message: type[M]) -> M | None: ...
+@overload
+def message_of(sample: zenoh.Sample, message: str) -> Message | None: ...
+def message_of(sample: zenoh.Sample, message: type[Message] | str) -> Message | None:
+    """The `message` (a class, or its name) a sample carries, or None if its bytes do not decode to
+    one: for tools that listen from outside the stations (which count and log what they drop)."""
     try:
         return decode(str(sample.key_expr), sample.payload.to_bytes(), message).message
     except BadMessage:
@@ -120,19 +93,16 @@ def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
         ) from None
 
 
-M = TypeVar("M", bound=Message)
-
-
 def messages_of(items: Iterable[Received], kind: type[M]) -> list[M]:
     """The messages of `items` as `kind` (what the bus decoded them as on their key)."""
     return [r.message for r in items if isinstance(r.message, kind)]
 
 
-class Inbox:
-    """Messages received on one key, newest last; bounded."""
+class Inbox(Generic[M]):
+    """Messages of type `M` received on one key, newest last; bounded."""
 
     def __init__(self, maxlen: int, clock: Clock = WALL) -> None:
-        self._items: deque[Received] = deque(maxlen=maxlen)
+        self._items: deque[Received[M]] = deque(maxlen=maxlen)
         self._lock = threading.Lock()
         self._clock = clock
         self._latest_received_s = -float("inf")  # this station's clock
@@ -141,17 +111,17 @@ class Inbox:
         self.shed = 0
         self._drained = False
 
-    def put(self, item: Received) -> None:
+    def put(self, item: Received[M]) -> None:
         with self._lock:
             self.shed += self._drained and len(self._items) == self._items.maxlen
             self._items.append(item)
             self._latest_received_s = self._clock.now_s()
 
-    def latest(self) -> Received | None:
+    def latest(self) -> Received[M] | None:
         with self._lock:
             return self._items[-1] if self._items else None
 
-    def fresh(self, max_age_s: float) -> Received | None:
+    def fresh(self, max_age_s: float) -> Received[M] | None:
         """The latest message if it arrived less than `max_age_s` ago by this station's
         clock (a sender's clock on another host may be off)."""
         with self._lock:
@@ -159,7 +129,7 @@ class Inbox:
                 return None
             return self._items[-1]
 
-    def drain(self) -> list[Received]:
+    def drain(self) -> list[Received[M]]:
         with self._lock:
             self._drained = True
             items = list(self._items)
@@ -215,7 +185,7 @@ class Bus:
         self._seq: Counter[str] = Counter()
         self._lock = threading.Lock()  # the counters, sequence numbers and reasons
         self._subscribers: list[Any] = []
-        self._inboxes: list[tuple[str, Inbox]] = []
+        self._inboxes: list[tuple[str, Inbox[Any]]] = []
         self._data_keys: set[str] = set()
         self._shed: Counter[str] = Counter()  # what the station let go unprocessed, by key
         self._loops: dict[str, Rate] = {}
@@ -241,7 +211,7 @@ class Bus:
         """Send on `abyss/<system>/<this station>/<topic>` over its hop; False if the link
         dropped it (queue full, congestion control DROP)."""
         out = self._outgoing.get(topic) or Outgoing.of(keys.spec(self.station, topic), self.system)
-        if out.spec.message != message.TYPE:
+        if type(message) is not out.spec.message_class:
             raise ConfigError(topic, f"carries {out.spec.message}, not {message.TYPE}")
         key = out.key
         with self._lock:  # stations publish from more than one thread
@@ -261,17 +231,36 @@ class Bus:
         """Put encoded bytes on the wire now (the egress's delivery)."""
         self._publishers[key].put(payload)
 
-    def subscribe(self, station: str, topic: str, maxlen: int = 64) -> Inbox:
-        """Receive what neighbour `station` publishes on `topic`."""
+    @overload
+    def subscribe(self, station: str, topic: str, message: type[M], maxlen: int = 64) -> Inbox[M]: ...
+    @overload
+    def subscribe(self, station: str, topic: str, *, maxlen: int = 64) -> Inbox[Message]: ...
+    def subscribe(
+        self, station: str, topic: str, message: type[Message] | None = None, maxlen: int = 64
+    ) -> Inbox[Any]:
+        """Receive what neighbour `station` publishes on `topic`: an `Inbox[message]` (the class
+        the key carries, as `keys.KEYS` says; ConfigError at once if it carries another). Without
+        `message`, an `Inbox[Message]` (the form of the call sites not yet converted)."""
         spec = keys.spec(station, topic)
         if spec.to != self.station:
             raise ConfigError(f"{station}/{topic}", f"is sent to {spec.to}, not to {self.station}")
-        return self.subscribe_key(spec.key(self.system), spec.message, maxlen, data=True)
+        if message is not None and message is not spec.message_class:
+            raise ConfigError(f"{station}/{topic}", f"carries {spec.message}, not {message.TYPE}")
+        return self.subscribe_key(spec.key(self.system), spec.message_class, maxlen, data=True)
 
-    def subscribe_key(self, key: str, message: str, maxlen: int = 64, data: bool = False) -> Inbox:
-        """Receive `message`s on any key, a control key included; validated and counted (`data`:
-        a neighbour's key, whose arrivals are counted for lockstep whether they decode or not)."""
-        inbox = Inbox(maxlen, self.clock)
+    @overload
+    def subscribe_key(self, key: str, message: type[M], maxlen: int = 64, data: bool = False) -> Inbox[M]: ...
+    @overload
+    def subscribe_key(
+        self, key: str, message: str, maxlen: int = 64, data: bool = False
+    ) -> Inbox[Message]: ...
+    def subscribe_key(
+        self, key: str, message: type[Message] | str, maxlen: int = 64, data: bool = False
+    ) -> Inbox[Any]:
+        """Receive `message`s (a class; its name gives an `Inbox[Message]`) on any key, a control
+        key included; validated and counted (`data`: a neighbour's key, whose arrivals are counted
+        for lockstep whether they decode or not)."""
+        inbox: Inbox[Any] = Inbox(maxlen, self.clock)
         self._inboxes.append((key, inbox))
         if data:
             with self._lock:
@@ -296,7 +285,9 @@ class Bus:
         with self._lock:
             return Counter(self._arrived)
 
-    def _on_sample(self, key: str, expected: str, payload: bytes, inbox: Inbox, data: bool = False) -> None:
+    def _on_sample(
+        self, key: str, expected: type[Message] | str, payload: bytes, inbox: Inbox[Any], data: bool = False
+    ) -> None:
         try:
             self._take(key, expected, payload, inbox)
         finally:
@@ -305,7 +296,7 @@ class Bus:
                     self._arrived[key] += 1
                 self.on_arrival()
 
-    def _take(self, key: str, expected: str, payload: bytes, inbox: Inbox) -> None:
+    def _take(self, key: str, expected: type[Message] | str, payload: bytes, inbox: Inbox[Any]) -> None:
         try:
             received = decode(key, payload, expected)
         except BadMessage as exc:

@@ -14,7 +14,7 @@ DEPTH_SCALE_M = 0.001  # one PNG count [m]
 
 
 def decode_image(image: Image) -> np.ndarray:
-    """RGB uint8 (H, W, 3), or depth [m] float32 (H, W); ValueError if the bytes do not decode
+    """RGB uint8 (H, W, 3), or depth [m] float32 (H, W); BadInput if the bytes do not decode
     to an image of the size the message states."""
     buffer = np.frombuffer(image.data, np.uint8)
     flags = cv2.IMREAD_UNCHANGED if image.encoding == "png16" else cv2.IMREAD_COLOR
@@ -40,7 +40,7 @@ def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
 
 def downscale(image: Image, scale: float, quality: int) -> Image:
     """An RGB frame at `scale` of its size, as JPEG of `quality`, its intrinsics scaled with it.
-    ValueError if it does not decode."""
+    BadInput if it does not decode."""
     rgb = decode_image(image)
     width_px, height_px = max(1, round(image.width_px * scale)), max(1, round(image.height_px * scale))
     small = cv2.resize(rgb, (width_px, height_px), interpolation=cv2.INTER_AREA)

@@ -13,6 +13,29 @@ from dataclasses import dataclass
 from typing import Literal
 
 from abyss.common.errors import ConfigError
+from abyss.common.messages import (
+    ArmGoal,
+    ArmVelocityRef,
+    CommandAck,
+    Heartbeat,
+    Image,
+    Intervention,
+    InterventionGoal,
+    JointState,
+    Message,
+    NavState,
+    OperatorMode,
+    PerceptionStatus,
+    PointCloud,
+    RecognisedObjects,
+    SceneAck,
+    SceneRequest,
+    SceneUpdate,
+    SonarImage,
+    Telemetry,
+    VelocityRef,
+    Waypoints,
+)
 
 PREFIX = "abyss"
 STATIONS: tuple[str, ...] = ("simulation", "onboard", "vessel", "onshore")
@@ -69,11 +92,16 @@ class KeySpec:
 
     station: str
     topic: str
-    message: str  # a message type name from abyss.common.messages
+    message_class: type[Message]  # what it carries: `bus.subscribe` hands out an inbox of it
     rate_hz: float  # nominal rate; 0 for event-driven keys
     reliability: Reliability  # reliable: congestion control BLOCK; best-effort: DROP
     to: str  # the neighbour that subscribes
     priority: Priority  # control: commands, navigation, heartbeats; telemetry; bulk: images, clouds, scene
+
+    @property
+    def message(self) -> str:
+        """The name of the message type it carries, as the tables and recordings write it."""
+        return self.message_class.TYPE
 
     @property
     def hop(self) -> str:
@@ -84,38 +112,38 @@ class KeySpec:
 
 
 KEYS: tuple[KeySpec, ...] = (
-    KeySpec("simulation", "nav", "NavState", 20.0, "best-effort", "onboard", "control"),
-    KeySpec("simulation", "joints", "JointState", 20.0, "best-effort", "onboard", "control"),
-    KeySpec("simulation", "camera/cam_left", "Image", 1.0, "best-effort", "onboard", "bulk"),
-    KeySpec("simulation", "camera/cam_right", "Image", 1.0, "best-effort", "onboard", "bulk"),
-    KeySpec("simulation", "camera/cam_depth", "Image", 1.0, "best-effort", "onboard", "bulk"),
-    KeySpec("simulation", "sonar", "SonarImage", 2.0, "best-effort", "onboard", "bulk"),
-    KeySpec("onboard", "cmd/vehicle_velocity", "VelocityRef", 20.0, "best-effort", "simulation", "control"),
-    KeySpec("onboard", "cmd/arm_velocity", "ArmVelocityRef", 20.0, "best-effort", "simulation", "control"),
-    KeySpec("onboard", "telemetry", "Telemetry", 10.0, "best-effort", "vessel", "telemetry"),
-    KeySpec("onboard", "cloud", "PointCloud", 2.0, "best-effort", "vessel", "bulk"),
-    KeySpec("onboard", "image", "Image", 1.0, "best-effort", "vessel", "bulk"),
-    KeySpec("onboard", "sonar", "SonarImage", 2.0, "best-effort", "vessel", "bulk"),
-    KeySpec("onboard", "ack", "CommandAck", 0.0, "reliable", "vessel", "control"),
-    KeySpec("vessel", "goal/waypoints", "Waypoints", 0.0, "reliable", "onboard", "control"),
-    KeySpec("vessel", "goal/arm", "ArmGoal", 0.0, "reliable", "onboard", "control"),
-    KeySpec("vessel", "goal/mode", "OperatorMode", 0.0, "reliable", "onboard", "control"),
-    KeySpec("vessel", "goal/intervene", "InterventionGoal", 0.0, "reliable", "onboard", "control"),
-    KeySpec("vessel", "heartbeat", "Heartbeat", 2.0, "best-effort", "onboard", "control"),
-    KeySpec("vessel", "telemetry", "Telemetry", 2.0, "best-effort", "onshore", "telemetry"),
-    KeySpec("vessel", "scene", "SceneUpdate", 0.0, "reliable", "onshore", "bulk"),
-    KeySpec("vessel", "objects", "RecognisedObjects", 0.5, "best-effort", "onshore", "bulk"),
-    KeySpec("vessel", "image", "Image", 0.2, "best-effort", "onshore", "bulk"),
-    KeySpec("vessel", "sonar", "SonarImage", 0.2, "best-effort", "onshore", "bulk"),
-    KeySpec("vessel", "perception", "PerceptionStatus", 0.5, "best-effort", "onshore", "telemetry"),
-    KeySpec("vessel", "ack", "CommandAck", 0.0, "reliable", "onshore", "control"),
-    KeySpec("onshore", "op/waypoints", "Waypoints", 0.0, "reliable", "vessel", "control"),
-    KeySpec("onshore", "op/arm", "ArmGoal", 0.0, "reliable", "vessel", "control"),
-    KeySpec("onshore", "op/mode", "OperatorMode", 0.0, "reliable", "vessel", "control"),
-    KeySpec("onshore", "op/intervene", "Intervention", 0.0, "reliable", "vessel", "control"),
-    KeySpec("onshore", "heartbeat", "Heartbeat", 1.0, "best-effort", "vessel", "control"),
-    KeySpec("onshore", "scene_request", "SceneRequest", 0.0, "reliable", "vessel", "control"),
-    KeySpec("onshore", "scene_ack", "SceneAck", 0.0, "reliable", "vessel", "control"),
+    KeySpec("simulation", "nav", NavState, 20.0, "best-effort", "onboard", "control"),
+    KeySpec("simulation", "joints", JointState, 20.0, "best-effort", "onboard", "control"),
+    KeySpec("simulation", "camera/cam_left", Image, 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "camera/cam_right", Image, 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "camera/cam_depth", Image, 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "sonar", SonarImage, 2.0, "best-effort", "onboard", "bulk"),
+    KeySpec("onboard", "cmd/vehicle_velocity", VelocityRef, 20.0, "best-effort", "simulation", "control"),
+    KeySpec("onboard", "cmd/arm_velocity", ArmVelocityRef, 20.0, "best-effort", "simulation", "control"),
+    KeySpec("onboard", "telemetry", Telemetry, 10.0, "best-effort", "vessel", "telemetry"),
+    KeySpec("onboard", "cloud", PointCloud, 2.0, "best-effort", "vessel", "bulk"),
+    KeySpec("onboard", "image", Image, 1.0, "best-effort", "vessel", "bulk"),
+    KeySpec("onboard", "sonar", SonarImage, 2.0, "best-effort", "vessel", "bulk"),
+    KeySpec("onboard", "ack", CommandAck, 0.0, "reliable", "vessel", "control"),
+    KeySpec("vessel", "goal/waypoints", Waypoints, 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "goal/arm", ArmGoal, 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "goal/mode", OperatorMode, 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "goal/intervene", InterventionGoal, 0.0, "reliable", "onboard", "control"),
+    KeySpec("vessel", "heartbeat", Heartbeat, 2.0, "best-effort", "onboard", "control"),
+    KeySpec("vessel", "telemetry", Telemetry, 2.0, "best-effort", "onshore", "telemetry"),
+    KeySpec("vessel", "scene", SceneUpdate, 0.0, "reliable", "onshore", "bulk"),
+    KeySpec("vessel", "objects", RecognisedObjects, 0.5, "best-effort", "onshore", "bulk"),
+    KeySpec("vessel", "image", Image, 0.2, "best-effort", "onshore", "bulk"),
+    KeySpec("vessel", "sonar", SonarImage, 0.2, "best-effort", "onshore", "bulk"),
+    KeySpec("vessel", "perception", PerceptionStatus, 0.5, "best-effort", "onshore", "telemetry"),
+    KeySpec("vessel", "ack", CommandAck, 0.0, "reliable", "onshore", "control"),
+    KeySpec("onshore", "op/waypoints", Waypoints, 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "op/arm", ArmGoal, 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "op/mode", OperatorMode, 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "op/intervene", Intervention, 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "heartbeat", Heartbeat, 1.0, "best-effort", "vessel", "control"),
+    KeySpec("onshore", "scene_request", SceneRequest, 0.0, "reliable", "vessel", "control"),
+    KeySpec("onshore", "scene_ack", SceneAck, 0.0, "reliable", "vessel", "control"),
 )
 
 

@@ -31,7 +31,7 @@ def encode_polar(polar: np.ndarray, encoding: str, jpeg_quality: int = 80) -> by
 
 
 def decode_polar(sonar: SonarImage) -> np.ndarray:
-    """The polar image (bins x beams, uint8); ValueError if the bytes are not one of that size."""
+    """The polar image (bins x beams, uint8); BadInput if the bytes are not one of that size."""
     buffer = np.frombuffer(sonar.data, np.uint8)
     polar = cv2.imdecode(buffer, cv2.IMREAD_GRAYSCALE) if len(buffer) else None
     if polar is None or polar.shape != (sonar.bins, sonar.beams):
@@ -91,7 +91,7 @@ def echo_arcs(
     sonar: SonarImage, spacing_m: float, min_db: float = ECHO_MIN_DB
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each beam's first echo as the arc it may lie on [m, world], and the sonar's position;
-    ValueError if the frame does not decode or is not placed in the world."""
+    BadInput if the frame does not decode or is not placed in the world."""
     if sonar.pose_frame != "world":
         raise BadInput(f"{sonar.sonar}: pose in the {sonar.pose_frame} frame, expected the world's")
     range_m, bearing_rad = first_echoes(sonar, decode_polar(sonar), min_db)

@@ -16,6 +16,8 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
+from abyss.common.errors import AbyssError
+
 log = logging.getLogger(__name__)
 JOIN_S = 3.0  # the part of a station's 5 s stop bound its threads may take
 # Bulk work (onboard's perception, the simulation's sensor processes) runs below a station's
@@ -121,7 +123,7 @@ def _schedule_all(policy: int, priority: int) -> None:
                 os.sched_setscheduler(thread, policy, os.sched_param(priority))
 
 
-class WorkerFailed(RuntimeError):
+class WorkerFailed(AbyssError):
     """A worker thread of a station raised."""
 
 

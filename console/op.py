@@ -13,14 +13,13 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BadInput, ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.common.messages import (
     OPERATOR_MODES,
     ArmGoal,
     CommandAck,
     Intervention,
-    Message,
     OperatorMode,
     Waypoints,
     encode,
@@ -56,12 +55,11 @@ def parse_arm(text: str) -> tuple[np.ndarray, np.ndarray]:
     return np.array([x, y, z]), quat_wxyz_of(rotation_of_rpy(roll, pitch, yaw))
 
 
+Command = Waypoints | ArmGoal | OperatorMode | Intervention  # what `abyss op` sends
 INTENTS = ("valve", "lever")  # `abyss op valve NAME --turn DEG`, `abyss op lever NAME --to STOP`
 
 
-def command_of(
-    kind: str, text: str, command_id: int, amount: str = ""
-) -> Waypoints | ArmGoal | OperatorMode | Intervention:
+def command_of(kind: str, text: str, command_id: int, amount: str = "") -> Command:
     """The command `abyss op KIND TEXT` sends; `amount`: a valve's turn [deg] or a lever's stop."""
     if kind in INTENTS:
         try:
@@ -79,15 +77,14 @@ def command_of(
     return OperatorMode(command_id, text)
 
 
-def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: float) -> CommandAck | None:
+def send(endpoint: str, system: str, command: Command, topic: str, timeout_s: float) -> CommandAck | None:
     """Hand `command` to the onshore station and wait for onboard's answer; None if none came."""
-    assert isinstance(command, (Waypoints, ArmGoal, OperatorMode, Intervention))
     answered = threading.Event()
     answer: list[CommandAck] = []
 
     def on_ack(sample: zenoh.Sample) -> None:
-        ack = message_of(sample, "CommandAck")
-        if isinstance(ack, CommandAck) and ack.command_id == command.command_id and ack.command == topic:
+        ack = message_of(sample, CommandAck)
+        if ack is not None and ack.command_id == command.command_id and ack.command == topic:
             answer.append(ack)
             answered.set()
 
@@ -108,7 +105,7 @@ def send(endpoint: str, system: str, command: Message, topic: str, timeout_s: fl
 def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float, amount: str = "") -> int:
     try:
         command = command_of(kind, text, new_id(), amount)
-    except ValueError as exc:  # numbers the message refuses (out of range)
+    except BadInput as exc:  # numbers the message refuses (out of range)
         raise ConfigError(kind, str(exc)) from None
     topic = "intervene" if kind in INTENTS else kind
     ack = send(endpoint, system, command, topic, timeout_s)

@@ -28,7 +28,7 @@ import time
 import tty
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Literal
 
 import numpy as np
 import zenoh
@@ -39,6 +39,7 @@ from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wr
 from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, encode, new_id
 from abyss.common.models import panel
 
+Target = Literal["vehicle", "arm"]  # what the keys drive: the vehicle's waypoint or the end-effector's goal
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
 KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
     "w": ((1, 0, 0), (0, 0, 0)),
@@ -90,7 +91,7 @@ class Goals:
             self.ee_position_m_world = np.array(t.ee_position_m_world)
             self.ee_rotation = rotation_of(t.ee_orientation_wxyz_world)
 
-    def move(self, target: str, translation: np.ndarray, rotation_rad: np.ndarray) -> Waypoints | ArmGoal:
+    def move(self, target: Target, translation: np.ndarray, rotation_rad: np.ndarray) -> Waypoints | ArmGoal:
         """Move one goal by steps in the vehicle's heading frame; the command to send."""
         assert self.vehicle is not None and self.ee_position_m_world is not None
         heading = rotation_of_rpy(0.0, 0.0, self.yaw_rad)
@@ -111,7 +112,7 @@ class Teleop:
         self.step_m, self.step_rad = step_m, step_rad
         self.out = out
         self.goals = Goals()
-        self.target = "vehicle"
+        self.target: Target = "vehicle"
         self.lock = threading.Lock()
         self.session = open_session(client_config(endpoint), "abyss teleop")
         self.subscriber = self.session.declare_subscriber(
@@ -122,8 +123,8 @@ class Teleop:
         self.sent = 0
 
     def _on_ack(self, sample: zenoh.Sample) -> None:
-        ack = message_of(sample, "CommandAck")
-        if not isinstance(ack, CommandAck):
+        ack = message_of(sample, CommandAck)
+        if ack is None:
             return
         with self.lock:
             asked = self.intents.pop(ack.command_id, None)
@@ -131,8 +132,8 @@ class Teleop:
             self.say(f"{asked}: {'taken by onboard' if ack.accepted else 'refused: ' + ack.reason}")
 
     def _on_telemetry(self, sample: zenoh.Sample) -> None:
-        message = message_of(sample, "Telemetry")
-        if not isinstance(message, Telemetry):
+        message = message_of(sample, Telemetry)
+        if message is None:
             return
         with self.lock:
             self.goals.start_from(message)

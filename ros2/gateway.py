@@ -32,16 +32,18 @@ from typing import Any
 import numpy as np
 
 from abyss.common import keys
-from abyss.common.bus import Bus, open_session, zenoh_config
+from abyss.common.bus import Bus, Inbox, open_session, zenoh_config
 from abyss.common.config import Config
 from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
 from abyss.common.rate import Rate
-from abyss.ros2 import rmw, types
+from abyss.ros2 import motion, msgs, rmw, status, types
+from abyss.ros2.session import Session
 
 log = logging.getLogger(__name__)
 
 LOOP_PERIOD_S = 0.005  # the latency the gateway adds, at most, to what goes down
+Command = Waypoints | ArmGoal | OperatorMode  # an operator command the gateway answers for
 COMMAND_KINDS = {Waypoints.TYPE: "waypoints", ArmGoal.TYPE: "arm", OperatorMode.TYPE: "mode"}
 INBOX_DEPTH = 64
 
@@ -60,7 +62,7 @@ def ros_session_config(listen: tuple[str, ...], connect: tuple[str, ...]) -> Any
 
 class Gateway:
     """`on_up`: per abyss topic of the station, what takes the node's message in place of the
-    bus (ValueError or BadInput: the message is refused with that reason)."""
+    bus (BadInput: the message is refused with that reason)."""
 
     def __init__(
         self, config: Config, bus: Bus, on_up: dict[str, Callable[[Any], object]] | None = None
@@ -69,10 +71,10 @@ class Gateway:
         self.bus, self.namespace = bus, cfg.namespace
         self.session = open_session(ros_session_config(cfg.listen, cfg.connect), "the ROS 2 gateway")
         self.node = rmw.Node(self.session, cfg.domain, cfg.namespace, node_name(bus.station))
-        self.convert = types.Session()
+        self.convert = Session()
         self._lock = threading.Lock()  # the conversions' session: the loop and Zenoh's callbacks
         self.publishers: dict[str, rmw.Publisher] = {}
-        self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Any]] = []
+        self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Inbox[Message]]] = []
         self.answers: dict[tuple[str, int], CommandAck] = {}
         self._waiting_logged: set[tuple[str, int]] = set()
         self.on_up = on_up or {}
@@ -80,7 +82,9 @@ class Gateway:
         for key in down:
             spec, mapping = keys.spec(*key.split("/", 1)), types.key_map(key)
             assert mapping is not None
-            self.downlinks.append((spec, mapping, bus.subscribe(spec.station, spec.topic, INBOX_DEPTH)))
+            self.downlinks.append(
+                (spec, mapping, bus.subscribe(spec.station, spec.topic, spec.message_class, INBOX_DEPTH))
+            )
             for t in mapping.topics:
                 name = self.topic(spec, t)
                 if name not in self.publishers:
@@ -96,9 +100,9 @@ class Gateway:
                     functools.partial(self._up, spec, t),
                     bus.reject,
                 )
-        self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", types.CLOCK_QOS)
+        self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", msgs.CLOCK_QOS)
         self.clock_s = -1.0
-        self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
+        self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
         self.camera_mounts: dict[str, np.ndarray] = {}
         self._publish_static()
         log.info(
@@ -124,7 +128,7 @@ class Gateway:
         while rate.sleep():
             for spec, mapping, inbox in self.downlinks:
                 for received in inbox.drain():
-                    if received.message.TYPE in COMMAND_KINDS:
+                    if isinstance(received.message, Command):
                         self._command(spec, mapping, received.message)
                     else:
                         self._down(spec, mapping, received.message)
@@ -136,16 +140,16 @@ class Gateway:
             stamp_s = types.stamp_of(message, self.convert.sim_time_s)
             for t in mapping.topics:
                 try:
-                    converted = t.convert(message, types.header(stamp_s, t.frame_id), self.convert)
-                except ValueError as exc:
+                    converted = t.convert(message, msgs.header(stamp_s, t.frame_id), self.convert)
+                except BadInput as exc:
                     self.bus.reject(spec.key(self.bus.system), f"not converted to {t.type}: {exc}")
                     continue
                 if converted is not None:
-                    self.publishers[self.topic(spec, t)].put(types.serialize(converted))
+                    self.publishers[self.topic(spec, t)].put(msgs.serialize(converted))
             if self.convert.sim_time_s > self.clock_s:
                 self.clock_s = self.convert.sim_time_s
-                clock = types.clock(None, types.header(self.clock_s, ""), self.convert)
-                self.clock.put(types.serialize(clock))
+                clock = status.clock(None, msgs.header(self.clock_s, ""), self.convert)
+                self.clock.put(msgs.serialize(clock))
         if (
             isinstance(message, Image)
             and message.pose_frame == "vehicle"
@@ -158,12 +162,11 @@ class Gateway:
         """/tf_static: the arm's fixed links and the cameras mounted so far, all in one message
         (the cache of a transient local publisher of depth 1 keeps the last)."""
         with self._lock:
-            static = types.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
-        self.static.put(types.serialize(static))
+            static = motion.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
+        self.static.put(msgs.serialize(static))
 
-    def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Message) -> None:
+    def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Command) -> None:
         """Hand an operator command over once the node subscribes to it, and answer for it."""
-        assert isinstance(command, (Waypoints, ArmGoal, OperatorMode))
         answered = self.answers.get((command.TYPE, command.command_id))
         if answered is None:
             topics = [self.topic(spec, t) for t in mapping.topics]
@@ -201,7 +204,7 @@ class Gateway:
                 message = t.parse(ros_message, self.convert)
             if message is not None and handler is not None:
                 handler(message)
-        except (ValueError, BadInput) as exc:
+        except BadInput as exc:
             self.bus.reject(rmw.topic_key(self.node.domain, self.topic(spec, t), t.type), str(exc))
             return
         if message is None or handler is not None:

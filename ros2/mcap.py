@@ -28,10 +28,11 @@ from rosbags.interfaces import Qos
 from rosbags.rosbag2.metadata import dump_qos_v9
 from ruamel.yaml import YAML
 
-from abyss.common.errors import AbyssError
+from abyss.common.errors import AbyssError, BadInput
 from abyss.common.messages import Image, NavState
 from abyss.recording.reader import Record, Recording, open_recording
-from abyss.ros2 import types
+from abyss.ros2 import motion, msgs, types
+from abyss.ros2.session import Session
 
 log = logging.getLogger(__name__)
 
@@ -86,7 +87,7 @@ class _Channels:
             return
         if type_name not in self.schemas:
             self.schemas[type_name] = self.writer.register_schema(
-                type_name, "ros2msg", types.msgdef(type_name).encode()
+                type_name, "ros2msg", msgs.msgdef(type_name).encode()
             )
         self.ids[topic] = self.writer.register_channel(
             topic, "cdr", self.schemas[type_name], {"offered_qos_profiles": qos_yaml(qos)}
@@ -97,7 +98,7 @@ class _Channels:
         self.writer.add_message(
             self.ids[topic],
             log_time=_ns(log_time_s),
-            data=types.serialize(message),
+            data=msgs.serialize(message),
             publish_time=_ns(publish_time_s),
             sequence=self.counts[topic] % 2**32,
         )
@@ -139,7 +140,7 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
     started_s = time.perf_counter()
     recording = open_recording(run_dir)
     exported = _exported(recording)
-    clock, session = sim_clock(recording), types.Session()
+    clock, session = sim_clock(recording), Session()
     part = out.with_name(out.name + ".part")
     skipped: Counter[str] = Counter()
     try:
@@ -151,9 +152,9 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
             for r, m in exported:  # every topic first, even one whose messages all fail to convert
                 for t in m.exported:
                     channels.add(t.topic(r.topic), t.type, m.qos(t))
-            channels.add(types.TF_STATIC, types.TF_MESSAGE, types.TF_STATIC_QOS)
+            channels.add(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
             first_s = exported[0][0].recorded_s if exported else time.time()
-            static = types.static_tf(session, clock(first_s), camera_mounts(recording))
+            static = motion.static_tf(session, clock(first_s), camera_mounts(recording))
             channels.write(types.TF_STATIC, static, first_s, first_s)
             reported_s = time.monotonic()
             for done, (r, m) in enumerate(exported, 1):
@@ -183,7 +184,7 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
 
 def _write_record(
     channels: _Channels,
-    session: types.Session,
+    session: Session,
     clock: SimClock,
     r: Record,
     m: types.KeyMap,
@@ -194,12 +195,12 @@ def _write_record(
     try:
         message = r.decode().message
         if m.message != message.TYPE:
-            raise ValueError(f"a {message.TYPE}, the table maps {m.message}")
+            raise BadInput(f"a {message.TYPE}, the table maps {m.message}")
         stamp_s = types.stamp_of(message, clock(r.sent_s))
         for t in m.exported:
-            converted = t.convert(message, types.header(stamp_s, t.frame_id), session)
+            converted = t.convert(message, msgs.header(stamp_s, t.frame_id), session)
             if converted is not None:
                 channels.write(t.topic(r.topic), converted, r.recorded_s, r.sent_s)
-    except (AbyssError, ValueError) as exc:
+    except AbyssError as exc:
         log.warning("%s at %.3f: not exported: %s", r.topic, r.recorded_s, exc)
         skipped[r.topic] += 1

@@ -34,7 +34,8 @@ import zenoh
 import zenoh.ext
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability
 
-from abyss.ros2.types import TYPESTORE
+from abyss.common.errors import BadInput
+from abyss.ros2.msgs import TYPESTORE
 
 log = logging.getLogger(__name__)
 
@@ -144,25 +145,25 @@ def attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
 
 
 def parse_attachment(data: bytes | None) -> tuple[int, int, bytes]:
-    """(sequence number, source timestamp [ns], GID); ValueError when missing or malformed."""
+    """(sequence number, source timestamp [ns], GID); BadInput when missing or malformed."""
     if data is None:
-        raise ValueError("no attachment (rmw_zenoh's sequence number, source timestamp and GID)")
+        raise BadInput("no attachment (rmw_zenoh's sequence number, source timestamp and GID)")
     if len(data) < ATTACHMENT.size + GID_BYTES:
-        raise ValueError(f"attachment of {len(data)} bytes; rmw_zenoh's is {ATTACHMENT.size + GID_BYTES}")
+        raise BadInput(f"attachment of {len(data)} bytes; rmw_zenoh's is {ATTACHMENT.size + GID_BYTES}")
     seq, stamp_ns, gid_length = ATTACHMENT.unpack_from(data)
     if gid_length != GID_BYTES:
-        raise ValueError(f"attachment's GID is {gid_length} bytes, not {GID_BYTES}")
+        raise BadInput(f"attachment's GID is {gid_length} bytes, not {GID_BYTES}")
     return seq, stamp_ns, data[ATTACHMENT.size : ATTACHMENT.size + GID_BYTES]
 
 
 def deserialize(payload: bytes, type_name: str) -> Any:
-    """A CDR payload as a message of `type_name`; ValueError when it does not decode to one."""
+    """A CDR payload as a message of `type_name`; BadInput when it does not decode to one."""
     if payload[:4] not in CDR_HEADERS:
-        raise ValueError(f"not CDR: encapsulation header {payload[:4].hex() or 'missing'}")
+        raise BadInput(f"not CDR: encapsulation header {payload[:4].hex() or 'missing'}")
     try:
         return TYPESTORE.deserialize_cdr(payload, type_name)
     except Exception as exc:  # bytes from the network: whatever the decoder trips on, it is the bytes
-        raise ValueError(f"CDR does not decode as {type_name}: {type(exc).__name__}: {exc}") from None
+        raise BadInput(f"CDR does not decode as {type_name}: {type(exc).__name__}: {exc}") from None
 
 
 def _reliability(qos: Qos) -> zenoh.Reliability:
@@ -250,16 +251,16 @@ class Subscription:
         try:
             got = tuple(key.rsplit("/", 2)[1:])
             if got[0] != self.expected[0]:
-                raise ValueError(f"type {got[0]}, the topic carries {self.expected[0]}")
+                raise BadInput(f"type {got[0]}, the topic carries {self.expected[0]}")
             if got[1] != self.expected[1]:
-                raise ValueError(
+                raise BadInput(
                     f"type hash {got[1]} is not {self.type_name}'s {self.expected[1]} "
                     "(another version of the message definition)"
                 )
             attached = sample.attachment
             parse_attachment(attached.to_bytes() if attached is not None else None)
             message = deserialize(sample.payload.to_bytes(), self.type_name)
-        except ValueError as exc:
+        except BadInput as exc:
             self.on_reject(self.key, str(exc))
             return
         self.on_message(message)

@@ -18,11 +18,13 @@ from abyss.common import keys
 from abyss.common.bus import Bus
 from abyss.common.clock import WALL, Holdback, SimClock
 from abyss.common.config import Config
+from abyss.common.errors import BadInput
 from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
 from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
 from abyss.common.workers import Realtime, Workers
 
 if TYPE_CHECKING:
+    from abyss.stations.simulation.offload import SensorKind
     from abyss.stations.simulation.world import World
 
 STATUS_PERIOD_S = 1.0
@@ -52,7 +54,11 @@ def run(config: Config, bus: Bus) -> None:
     blackout: set[str] = set()
     bus.realtime = Realtime(sim.realtime_priority, why_not=_no_realtime(config))
     with Workers(bus.stop) as workers:
-        for kind, rate_hz in (("cameras", sim.camera_rate_hz), ("sonar", sim.sonar_rate_hz)):
+        sensors: tuple[tuple[SensorKind, float], ...] = (
+            ("cameras", sim.camera_rate_hz),
+            ("sonar", sim.sonar_rate_hz),
+        )
+        for kind, rate_hz in sensors:
             if rate_hz > 0:
                 workers.start(kind, _sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
         _physics_loop(config, bus, world, lock, blackout)
@@ -72,10 +78,10 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     from abyss.stations.simulation.world import references
 
     sim = config.simulation
-    vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", maxlen=4)
-    arm = bus.subscribe("onboard", "cmd/arm_velocity", maxlen=4)
+    vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", VelocityRef, maxlen=4)
+    arm = bus.subscribe("onboard", "cmd/arm_velocity", ArmVelocityRef, maxlen=4)
     control_key = keys.simulation_control_key(bus.system)
-    controls = bus.subscribe_key(control_key, "SimulationControl")
+    controls = bus.subscribe_key(control_key, SimulationControl)
     keeper = Timekeeper(config, bus, world.data.time)
     rate = keeper.rate
     wall0, sim0 = time.monotonic(), world.data.time
@@ -84,17 +90,13 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         if not keeper.before_step(world.data.time):
             break
         for control in controls.drain():
-            assert isinstance(control.message, SimulationControl)
             try:
                 with lock:
                     world.apply_fault(control.message, blackout)
-            except ValueError as exc:
-                bus.reject(control_key, str(exc))
+            except BadInput as exc:
+                bus.reject(control_key, exc.reason)
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
-        refs = references(
-            v.message if v and isinstance(v.message, VelocityRef) else None,
-            a.message if a and isinstance(a.message, ArmVelocityRef) else None,
-        )
+        refs = references(v.message if v else None, a.message if a else None)
         stepped_from_s = world.data.time
         with lock:
             world.step(refs, sim.control_period_s)
@@ -206,7 +208,7 @@ def _sensor_loop(
     world: World,
     lock: threading.Lock,
     blackout: set[str],
-    kind: str,
+    kind: SensorKind,
     rate_hz: float,
 ) -> None:
     """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics

@@ -20,18 +20,20 @@ import struct
 import subprocess
 import sys
 import time
-from typing import IO, Any
+from typing import IO, Any, Literal
 
 import numpy as np
 
+from abyss.common.errors import AbyssError
 from abyss.common.workers import child_cpu, in_background
 
 STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the sensors' kinematics come from
 HEADER = struct.Struct("<Q")
+SensorKind = Literal["cameras", "sonar"]  # what a sensor process renders
 CLOSE_S = 2.0  # a child that has not gone this long after its stdin closed is killed
 
 
-class OffloadFailed(RuntimeError):
+class OffloadFailed(AbyssError):
     """The sensor's process died or failed on a request."""
 
 
@@ -59,7 +61,7 @@ class Offloaded:
     as simulation.encoding does) or "sonar" (a SonarImage), of `model` with the simulation's
     config and the sensor's own random stream `seed`."""
 
-    def __init__(self, kind: str, model: Any, config: Any, seed: list[int]) -> None:
+    def __init__(self, kind: SensorKind, model: Any, config: Any, seed: list[int]) -> None:
         self.kind = kind
         self.process = subprocess.Popen(
             [sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE
@@ -109,7 +111,7 @@ class Offloaded:
 class _Sensor:
     """The child's side: the sensor, and a scratch MjData the state is put into."""
 
-    def __init__(self, kind: str, model: Any, config: Any, seed: list[int]) -> None:
+    def __init__(self, kind: SensorKind, model: Any, config: Any, seed: list[int]) -> None:
         from abyss.stations.simulation.rendering import choose_gl_backend
 
         choose_gl_backend()

@@ -10,7 +10,7 @@ import mujoco
 import numpy as np
 
 from abyss.common.config_simulation import SimulationConfig
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import (
     ArmVelocityRef,
     JointState,
@@ -208,7 +208,7 @@ class World:
 
     # -- faults --------------------------------------------------------------------------
     def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:
-        """Raises ValueError with the allowed targets for an unknown one."""
+        """Raises BadInput with the allowed targets for an unknown one."""
         if fault.fault == "clear":
             self.faults.clear()
             self.model.jnt_range[self._part_joints] = self._part_range_rad
@@ -224,10 +224,10 @@ class World:
             "seize": self.parts,
         }[fault.fault]
         if fault.target not in allowed:
-            raise ValueError(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
+            raise BadInput(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
         if fault.fault == "thruster":
             if fault.value > 1.0:
-                raise ValueError("thruster efficiency must lie in [0, 1]")
+                raise BadInput("thruster efficiency must lie in [0, 1]")
             if self.controller.dynamics:
                 self.controller.thrusters.efficiency[self.vehicle.thrusters.names.index(fault.target)] = (
                     fault.value

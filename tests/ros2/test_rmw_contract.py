@@ -12,7 +12,8 @@ import pytest
 from abyss.common.clouds import pack_cloud, unpack_cloud
 from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, ArmVelocityRef, NavState, Waypoints
-from abyss.ros2 import rmw, types
+from abyss.ros2 import from_ros, motion, msgs, rmw, sensing, status
+from abyss.ros2.session import Session
 
 ZID = "aac3178e146ba6f1fc6e6a4085e77f21"
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
@@ -61,7 +62,7 @@ def test_liveliness_tokens_are_design_md_s() -> None:
         "listener",
         "/chatter",
         "std_msgs/msg/String",
-        types.RELIABLE_QOS,
+        msgs.RELIABLE_QOS,
     )
     assert subscription.token == (
         f"@ros2_lv/0/{ZID}/0/10/MS/%/%/listener/%chatter/"
@@ -72,17 +73,17 @@ def test_liveliness_tokens_are_design_md_s() -> None:
 
 
 def test_qos_strings_leave_rmw_zenoh_s_defaults_empty() -> None:
-    assert rmw.qos_string(types.RELIABLE_QOS) == "::,10:,:,:,,"  # rclcpp's default
-    assert rmw.qos_string(types.SENSOR_QOS) == "2::,5:,:,:,,"  # SensorDataQoS
-    assert rmw.qos_string(types.CLOCK_QOS) == "2::,1:,:,:,,"  # ClockQoS
-    assert rmw.qos_string(types.TF_STATIC_QOS) == ":1:,1:,:,:,,"  # tf2's static broadcaster
+    assert rmw.qos_string(msgs.RELIABLE_QOS) == "::,10:,:,:,,"  # rclcpp's default
+    assert rmw.qos_string(msgs.SENSOR_QOS) == "2::,5:,:,:,,"  # SensorDataQoS
+    assert rmw.qos_string(msgs.CLOCK_QOS) == "2::,1:,:,:,,"  # ClockQoS
+    assert rmw.qos_string(msgs.TF_STATIC_QOS) == ":1:,1:,:,:,,"  # tf2's static broadcaster
 
 
 def test_gids_are_rmw_zenoh_s_xxh3_of_the_token() -> None:
     zid = "c88f831a9a3a16ddecf065cebd5aa080"
     node = rmw.Endpoint(0, zid, 0, 0, rmw.NODE, "/", "teleop")
     publisher = rmw.Endpoint(
-        0, zid, 0, 3, rmw.PUBLISHER, "/", "teleop", "/cmd_vel", "geometry_msgs/msg/Twist", types.RELIABLE_QOS
+        0, zid, 0, 3, rmw.PUBLISHER, "/", "teleop", "/cmd_vel", "geometry_msgs/msg/Twist", msgs.RELIABLE_QOS
     )
     clock = rmw.Endpoint(
         0,
@@ -94,7 +95,7 @@ def test_gids_are_rmw_zenoh_s_xxh3_of_the_token() -> None:
         "sim_listener",
         "/clock",
         "rosgraph_msgs/msg/Clock",
-        types.CLOCK_QOS,
+        msgs.CLOCK_QOS,
     )
     assert node.gid.hex() == "c3aee7280179c53813730c7ac9dc33ff"
     assert publisher.gid.hex() == "c4051822192c37bc15f1812448d1f986"
@@ -106,36 +107,36 @@ def test_attachment_is_33_bytes_and_malformed_ones_are_named() -> None:
     data = rmw.attachment(1, 1732400000123456789, gid)
     assert data.hex() == "010000000000000015cd3e189fb80a1810c4051822192c37bc15f1812448d1f986"
     assert rmw.parse_attachment(data) == (1, 1732400000123456789, gid)
-    with pytest.raises(ValueError, match="no attachment"):
+    with pytest.raises(BadInput, match="no attachment"):
         rmw.parse_attachment(None)
-    with pytest.raises(ValueError, match="attachment of 20 bytes"):
+    with pytest.raises(BadInput, match="attachment of 20 bytes"):
         rmw.parse_attachment(data[:20])
-    with pytest.raises(ValueError, match="GID is 15 bytes"):
+    with pytest.raises(BadInput, match="GID is 15 bytes"):
         rmw.parse_attachment(data[:16] + b"\x0f" + gid)
     old = bytes.fromhex("0f73657175656e63655f6e756d626572")  # the pre-0.2.4 format's first field
-    with pytest.raises(ValueError):
+    with pytest.raises(BadInput):
         rmw.parse_attachment(old)
 
 
 def test_cdr_is_fast_cdr_s_and_bad_bytes_are_refused() -> None:
-    twist = types.TYPESTORE.types["geometry_msgs/msg/Twist"](
-        linear=types._vector((0.5, 0, 0)), angular=types._vector((0, 0, 0.25))
+    twist = msgs.TYPESTORE.types["geometry_msgs/msg/Twist"](
+        linear=msgs.vector_msg((0.5, 0, 0)), angular=msgs.vector_msg((0, 0, 0.25))
     )
-    payload = types.serialize(twist)
+    payload = msgs.serialize(twist)
     assert payload.hex() == ("00010000000000000000e03f" + "0000000000000000" * 4 + "000000000000d03f")
     assert rmw.deserialize(payload, "geometry_msgs/msg/Twist").angular.z == 0.25
-    clock = types.clock(None, types.header(12.5, ""), None)  # type: ignore[arg-type]
-    assert types.serialize(clock).hex() == "000100000c0000000065cd1d"
-    with pytest.raises(ValueError, match="not CDR"):
+    clock = status.clock(None, msgs.header(12.5, ""), None)  # type: ignore[arg-type]
+    assert msgs.serialize(clock).hex() == "000100000c0000000065cd1d"
+    with pytest.raises(BadInput, match="not CDR"):
         rmw.deserialize(b"\x07\x07garbage", "geometry_msgs/msg/Twist")
-    with pytest.raises(ValueError, match="does not decode"):
+    with pytest.raises(BadInput, match="does not decode"):
         rmw.deserialize(payload[:20], "geometry_msgs/msg/Twist")
 
 
 def _diagnostics(**values: str) -> object:
-    t = types.TYPESTORE.types
+    t = msgs.TYPESTORE.types
     return t["diagnostic_msgs/msg/DiagnosticArray"](
-        header=types.header(1.0, ""),
+        header=msgs.header(1.0, ""),
         status=[
             t["diagnostic_msgs/msg/DiagnosticStatus"](
                 level=0,
@@ -155,12 +156,14 @@ def _nav(sim_time_s: float) -> NavState:
 
 
 def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
-    session = types.Session()
-    assert types.telemetry_in(_diagnostics(mode="moving"), session) is None  # no navigation handed over yet
+    session = Session()
+    assert (
+        from_ros.telemetry_in(_diagnostics(mode="moving"), session) is None
+    )  # no navigation handed over yet
     session.handed(_nav(4.0))
     session.handed(Waypoints(7, np.array([[1.5, 0.0, -7.0, 0.0], [2.5, 0.8, -7.6, 0.3]])))
     session.handed(ArmGoal(9, np.array([2.0, 0.0, -7.0]), np.array([1.0, 0, 0, 0])))
-    telemetry = types.telemetry_in(_diagnostics(mode="moving", waypoint="1/2", arm_mode="idle"), session)
+    telemetry = from_ros.telemetry_in(_diagnostics(mode="moving", waypoint="1/2", arm_mode="idle"), session)
     assert telemetry is not None
     assert (telemetry.mode, telemetry.command_id, telemetry.waypoint_index, telemetry.waypoints_total) == (
         "moving",
@@ -170,58 +173,58 @@ def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
     )
     assert np.allclose(telemetry.position_error_m_world, [1.5, 0.8, -0.6]) and telemetry.arm_command_id == 9
     assert telemetry.sim_time_s == 4.0 and telemetry.boot_id == session.boot_id
-    with pytest.raises(ValueError, match="not one of"):
-        types.telemetry_in(_diagnostics(mode="flying"), session)
-    with pytest.raises(ValueError, match="waypoint 'x'"):
-        types.telemetry_in(_diagnostics(waypoint="x"), session)
+    with pytest.raises(BadInput, match="not one of"):
+        from_ros.telemetry_in(_diagnostics(mode="flying"), session)
+    with pytest.raises(BadInput, match="waypoint 'x'"):
+        from_ros.telemetry_in(_diagnostics(waypoint="x"), session)
 
 
 def test_velocity_commands_parse_back_within_abyss_s_bounds() -> None:
-    t = types.TYPESTORE.types
+    t = msgs.TYPESTORE.types
     twist = t["geometry_msgs/msg/TwistStamped"](
-        header=types.header(1.0, "base_link"),
+        header=msgs.header(1.0, "base_link"),
         twist=t["geometry_msgs/msg/Twist"](
-            linear=types._vector((0.2, 0, -0.1)), angular=types._vector((0, 0, 0.3))
+            linear=msgs.vector_msg((0.2, 0, -0.1)), angular=msgs.vector_msg((0, 0, 0.3))
         ),
     )
-    ref = types.twist_in(twist, types.Session())
+    ref = from_ros.twist_in(twist, Session())
     assert np.allclose(ref.linear_mps_body, [0.2, 0, -0.1]) and ref.yaw_rate_radps == pytest.approx(0.3)
     twist.header.frame_id = "world"
-    with pytest.raises(ValueError, match="frame_id 'world'"):
-        types.twist_in(twist, types.Session())
-    session, head = types.Session(), types.header(0, "")
-    sent = types.joint_velocities(ArmVelocityRef(np.arange(6) * 0.1, 0.02), head, session)
-    command = types.joint_velocities(types.joint_velocities_in(sent, session), head, session)
+    with pytest.raises(BadInput, match="frame_id 'world'"):
+        from_ros.twist_in(twist, Session())
+    session, head = Session(), msgs.header(0, "")
+    sent = motion.joint_velocities(ArmVelocityRef(np.arange(6) * 0.1, 0.02), head, session)
+    command = motion.joint_velocities(from_ros.joint_velocities_in(sent, session), head, session)
     assert np.allclose(command.data, [*(np.arange(6) * 0.1), 0.02])
     command.data = np.zeros(5)
-    with pytest.raises(ValueError, match="5 values, expected 7"):
-        types.joint_velocities_in(command, types.Session())
+    with pytest.raises(BadInput, match="5 values, expected 7"):
+        from_ros.joint_velocities_in(command, Session())
     command.data = np.full(7, 50.0)
-    with pytest.raises(ValueError, match="joint_velocities_radps"):
-        types.joint_velocities_in(command, types.Session())
+    with pytest.raises(BadInput, match="joint_velocities_radps"):
+        from_ros.joint_velocities_in(command, Session())
 
 
 def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
-    session = types.Session()
+    session = Session()
     points_m = np.array([[4.0, 0.1, -8.5], [4.2, -0.3, -8.6], [np.nan, 0.0, 0.0]])
     colors = np.array([[255, 0, 0], [0, 128, 255], [0, 0, 0]], np.uint8)
-    cloud = types.point_cloud(
+    cloud = sensing.point_cloud(
         pack_cloud("stereo", points_m[:2], colors[:2], np.zeros(3), 0.002, 1.0),
-        types.header(1.0, types.WORLD),
+        msgs.header(1.0, msgs.WORLD),
         session,
     )
-    assert types.point_cloud_in(cloud, session) is None  # no navigation yet: no sensor origin
+    assert from_ros.point_cloud_in(cloud, session) is None  # no navigation yet: no sensor origin
     session.handed(_nav(1.0))
-    back = types.point_cloud_in(cloud, session)
+    back = from_ros.point_cloud_in(cloud, session)
     assert back is not None and back.count == 2 and np.allclose(back.sensor_m_world, [1.0, 0.0, -7.0])
     got_m, got_colors = unpack_cloud(back)
     assert np.allclose(got_m, points_m[:2], atol=0.002) and (got_colors == colors[:2]).all()
     cloud.point_step = 8
-    with pytest.raises(ValueError, match="bytes for 2 points of 8"):
-        types.point_cloud_in(cloud, session)
+    with pytest.raises(BadInput, match="bytes for 2 points of 8"):
+        from_ros.point_cloud_in(cloud, session)
     cloud.fields = cloud.fields[1:]
-    with pytest.raises(ValueError, match="no float32 field 'x'"):
-        types.point_cloud_in(cloud, session)
+    with pytest.raises(BadInput, match="no float32 field 'x'"):
+        from_ros.point_cloud_in(cloud, session)
 
 
 def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
@@ -230,22 +233,22 @@ def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
 
     keys_m = np.array([[4.05, 0.05, -8.45], [4.35, 0.05, -8.45], [4.05, 0.35, -8.05]])
     binary = write_cells(cell_keys(keys_m, 0.1), np.array([True, True, False]), 0.1)
-    data = types.octree_data(binary)
-    octomap = types.TYPESTORE.types["octomap_msgs/msg/Octomap"](
-        header=types.header(2.0, types.WORLD),
+    data = sensing.octree_data(binary)
+    octomap = msgs.TYPESTORE.types["octomap_msgs/msg/Octomap"](
+        header=msgs.header(2.0, msgs.WORLD),
         binary=True,
         id="OcTree",
         resolution=0.1,
         data=np.frombuffer(data, np.int8),
     )
-    snapshot = types.octomap_in(octomap, types.Session())
+    snapshot = from_ros.octomap_in(octomap, Session())
     size = binary.split(b"\nsize ")[1].split(b"\n")[0]  # as OctoMap wrote it
     assert snapshot.octree.endswith(data) and b"\nsize " + size + b"\n" in snapshot.octree
     model = SceneModel(0.1, 10.0)
     assert model.adopt(snapshot.octree) >= 2  # leaves: OctoMap prunes
     update = model.next_update(2.0)
     assert update is not None and len(update.colors) == 2 and (update.colors == GREY).all()
-    with pytest.raises(ValueError, match="not OctoMap's binary stream"):
-        types.octree_file(data[:-2], 0.1)
+    with pytest.raises(BadInput, match="not OctoMap's binary stream"):
+        sensing.octree_file(data[:-2], 0.1)
     with pytest.raises(BadInput, match=r"tree resolution 0\.05"):
-        SceneModel(0.1, 10.0).adopt(types.octree_file(data, 0.05))
+        SceneModel(0.1, 10.0).adopt(sensing.octree_file(data, 0.05))

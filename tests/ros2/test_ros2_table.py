@@ -14,7 +14,7 @@ def test_docs_topic_table_is_the_generated_one() -> None:
 
 
 def test_docs_list_what_a_ros2_node_states_in_its_diagnostics() -> None:
-    from abyss.ros2.types import TELEMETRY_VALUES
+    from abyss.ros2.from_ros import TELEMETRY_VALUES
 
     page = (ROOT / "docs" / "ros2.md").read_text()
     for key, meaning in TELEMETRY_VALUES.items():

@@ -8,6 +8,7 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.config_simulation import SimulationConfig
+from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import SimulationControl
 from abyss.stations.simulation import _no_realtime
@@ -110,7 +111,7 @@ def test_a_failed_thruster_slows_the_vehicle_and_clear_restores_it() -> None:
         w.apply_fault(SimulationControl("thruster", thruster, 0.0), set())
     assert abs(surge_after(w)) < 0.01
     assert w.faults == {f"thruster/{t}": 0.0 for t in horizontal}
-    with pytest.raises(ValueError, match="thr_fl"):
+    with pytest.raises(BadInput, match="thr_fl"):
         w.apply_fault(SimulationControl("thruster", "thr_xx", 0.0), set())
     w.apply_fault(SimulationControl("clear", "", 0.0), set())
     assert w.faults == {} and np.all(w.controller.thrusters.efficiency == 1.0)

@@ -1,0 +1,104 @@
+"""The testbed's messages: faults, the simulation's status and clock, lockstep, the links,
+the panel's truth, replay."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from abyss.common.errors import BadInput
+from abyss.common.messages.schema import Message, array, scalar
+
+FAULTS = ("thruster", "camera", "noise", "seize", "clear")
+
+
+@dataclass(frozen=True)
+class SimulationControl(Message):
+    """A fault injected into the simulation (scenario runner, tests):
+    thruster NAME VALUE: that thruster's efficiency (0: failed, 0.5: weakened, 1: healthy);
+    camera NAME VALUE: 0 blacks the camera out, 1 restores it; noise SENSOR VALUE: that
+    navigation sensor's noise scale (usbl, depth, dvl, imu; 1 is nominal); seize PART VALUE: 1
+    seizes that valve or lever where it stands (it turns no further), 0 frees it; clear: undo all."""
+
+    fault: str = scalar(choices=FAULTS)
+    target: str = scalar()
+    value: float = scalar(0.0, 100.0)
+
+
+@dataclass(frozen=True)
+class SimulationStatus(Message):
+    """The simulation's clock against the wall clock, and the active faults; with simulated time,
+    the wall seconds it waited on each station (`held_s`: the one that limited the speed)."""
+
+    VERSION: ClassVar[int] = 2  # 2: held_s
+    sim_time_s: float = scalar(0.0)
+    realtime_factor: float = scalar(0.0, 1e6)
+    deadlines_met: float = scalar(0.0, 1.0)  # share of control periods that kept their deadline
+    faults: dict[str, float] = field(default_factory=dict)
+    held_s: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SimTime(Message):
+    """Simulated time (common.clock): the simulation's clock on `abyss/<system>/clock`, a
+    station's progress (how far its loops are done) on `abyss/<system>/<station>/progress`."""
+
+    sim_time_s: float = scalar(0.0)
+
+
+LOCKSTEP_PHASES = ("delivered", "done")
+
+
+@dataclass(frozen=True)
+class LockstepReport(Message):
+    """A station's progress through a lockstep period (common.lockstep) at `sim_time_s`: its links
+    delivered what was due (`delivered`: messages per key so far), or it is done with the period."""
+
+    sim_time_s: float = scalar(0.0)
+    phase: str = scalar(choices=LOCKSTEP_PHASES)
+    delivered: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PanelState(Message):
+    """The simulation's truth of the panel, for scoring only: each valve's and lever's joint
+    angle [rad], and the normal force [N] of the fingers' contacts with each (0: untouched)."""
+
+    names: tuple[str, ...] = scalar()
+    angles_rad: np.ndarray = array("f8", (None,), -10.0, 10.0, max_rows=64)
+    finger_force_n: np.ndarray = array("f8", (None,), 0.0, 1e6, max_rows=64)
+    sim_time_s: float = scalar(0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not len(self.names) == len(self.angles_rad) == len(self.finger_force_n):
+            raise BadInput("names, angles_rad and finger_force_n differ in length")
+
+
+@dataclass(frozen=True)
+class LinkControl(Message):
+    """A change of a hop's profile: a named profile, then field overrides ('20mbit', '5%')."""
+
+    profile: str = ""
+    overrides: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class LinkStats(Message):
+    """What one emulated link direction measured."""
+
+    hop: str = ""
+    direction: str = ""  # "<sender>-><receiver>"
+    profile: str = ""
+    fields: dict[str, str] = field(default_factory=dict)  # the profile as written
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ReplayStart(Message):
+    """When the replayed stations begin (`abyss replay`): the recorded run's first message is
+    published again at `start_s` (wall clock [s]), the rest at their recorded times after it."""
+
+    start_s: float = scalar(0.0)

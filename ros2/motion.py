@@ -1,0 +1,157 @@
+"""Conversions of the vehicle's and the arm's messages to ROS 2: navigation, joints and /tf,
+velocity references, goals, the operator mode, /tf_static. Each: (abyss message, header of the
+topic's frame, session) -> ROS 2 message or None."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from abyss.common.messages import (
+    ArmGoal,
+    ArmVelocityRef,
+    JointState,
+    NavState,
+    OperatorMode,
+    Telemetry,
+    VelocityRef,
+    Waypoints,
+)
+from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
+from abyss.ros2.msgs import (
+    BASE_LINK,
+    ROS,
+    WORLD,
+    Floats,
+    floats,
+    optical_frame,
+    pose_msg,
+    ros_time,
+    tf_msg,
+    transform_msg,
+    vector_msg,
+    yaw_wxyz,
+)
+from abyss.ros2.session import Session
+
+
+def odometry(nav: NavState, head: Any, session: Session) -> Any:
+    """On `simulation/nav` the pose is the latest USBL fix with the IMU's attitude, the twist the
+    DVL's and the gyro's. Odometry has no counterpart for the fix's measurement time
+    (`usbl_time_s`), the pressure sensor's depth (`depth_m`) nor the DVL's bottom lock
+    (`dvl_valid`): they do not cross to ROS 2."""
+    zeros = np.zeros(36)  # covariance unknown
+    return ROS["nav_msgs/msg/Odometry"](
+        header=head,
+        child_frame_id=BASE_LINK,
+        pose=ROS["geometry_msgs/msg/PoseWithCovariance"](
+            pose=pose_msg(nav.position_m_world, nav.orientation_wxyz_world), covariance=zeros
+        ),
+        twist=ROS["geometry_msgs/msg/TwistWithCovariance"](
+            twist=ROS["geometry_msgs/msg/Twist"](
+                linear=vector_msg(nav.velocity_mps_body), angular=vector_msg(nav.angular_velocity_radps_body)
+            ),
+            covariance=zeros,
+        ),
+    )
+
+
+def vehicle_tf(nav: NavState, head: Any, session: Session) -> Any:
+    return tf_msg(
+        [transform_msg(head.stamp, WORLD, BASE_LINK, nav.position_m_world, nav.orientation_wxyz_world)]
+    )
+
+
+def _joint_state(head: Any, positions: Floats, velocities: Floats) -> Any:
+    return ROS["sensor_msgs/msg/JointState"](
+        header=head,
+        name=[*ARM_JOINTS, *GRIPPER_JOINTS],
+        position=floats(positions),
+        velocity=floats(velocities),
+        effort=floats([]),
+    )
+
+
+def joint_state(joints: JointState, head: Any, session: Session) -> Any:
+    """The arm's joints and each finger at half the gripper's opening; the fingers' velocities are
+    not measured (NaN)."""
+    finger_m = joints.gripper_opening_m / 2
+    return _joint_state(
+        head, [*joints.positions_rad, finger_m, finger_m], [*joints.velocities_radps, math.nan, math.nan]
+    )
+
+
+def arm_tf(joints: JointState, head: Any, session: Session) -> Any:
+    links = session.arm.transforms(joints.positions_rad, joints.gripper_opening_m, moving=True)
+    return tf_msg([transform_msg(head.stamp, *link) for link in links])
+
+
+ARM_COMMAND_LABEL = "velocity: " + ", ".join((*ARM_JOINTS, "gripper_opening"))
+
+
+def joint_velocities(ref: ArmVelocityRef, head: Any, session: Session) -> Any:
+    """A velocity command as ros2_control's forward velocity controller takes it: a
+    Float64MultiArray of the six joints' velocities [rad/s] in model order, then the gripper's
+    opening speed [m/s]."""
+    dim = ROS["std_msgs/msg/MultiArrayDimension"](label=ARM_COMMAND_LABEL, size=7, stride=7)
+    return ROS["std_msgs/msg/Float64MultiArray"](
+        layout=ROS["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=0),
+        data=floats([*ref.joint_velocities_radps, ref.gripper_velocity_mps]),
+    )
+
+
+def twist(ref: VelocityRef, head: Any, session: Session) -> Any:
+    """The vehicle's velocity reference in base_link; the yaw rate about its z axis."""
+    return ROS["geometry_msgs/msg/TwistStamped"](
+        header=head,
+        twist=ROS["geometry_msgs/msg/Twist"](
+            linear=vector_msg(ref.linear_mps_body), angular=vector_msg((0.0, 0.0, ref.yaw_rate_radps))
+        ),
+    )
+
+
+def path(waypoints: Waypoints, head: Any, session: Session) -> Any:
+    """Each waypoint a pose: x, y, z and the heading as a rotation about z."""
+    return ROS["nav_msgs/msg/Path"](
+        header=head,
+        poses=[
+            ROS["geometry_msgs/msg/PoseStamped"](header=head, pose=pose_msg(row[:3], yaw_wxyz(float(row[3]))))
+            for row in waypoints.waypoints
+        ],
+    )
+
+
+def goal_pose(goal: ArmGoal, head: Any, session: Session) -> Any:
+    return ROS["geometry_msgs/msg/PoseStamped"](
+        header=head, pose=pose_msg(goal.position_m_world, goal.orientation_wxyz_world)
+    )
+
+
+def end_effector_pose(telemetry: Telemetry, head: Any, session: Session) -> Any:
+    """Where onboard sees the tool, in the world."""
+    return ROS["geometry_msgs/msg/PoseStamped"](
+        header=head, pose=pose_msg(telemetry.ee_position_m_world, telemetry.ee_orientation_wxyz_world)
+    )
+
+
+def operator_mode(mode: OperatorMode, head: Any, session: Session) -> Any:
+    return ROS["std_msgs/msg/String"](data=mode.mode)
+
+
+def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndarray]) -> Any:
+    """/tf_static: the arm's fixed links, and each camera's optical frame on the vehicle from its
+    mounting (`Image.pose_camera` as the simulation sends it: x, y, z, w, x, y, z in base_link)."""
+    stamp = ros_time(stamp_s)
+    arm = [
+        transform_msg(stamp, parent, child, translation, rotation)
+        for parent, child, translation, rotation in session.arm.transforms(
+            np.zeros(len(ARM_JOINTS)), 0.0, moving=False
+        )
+    ]
+    cameras = [
+        transform_msg(stamp, BASE_LINK, optical_frame(camera), pose[:3], pose[3:])
+        for camera, pose in sorted(camera_mounts.items())
+    ]
+    return tf_msg(arm + cameras)

@@ -15,10 +15,10 @@ import pytest
 from abyss.common.clouds import unpack_cloud
 from abyss.common.config_simulation import SimulationConfig
 from abyss.common.config_stations import STEREO_MODES, VesselConfig
-from abyss.common.errors import BadInput
+from abyss.common.errors import BadInput, BadMessage
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
-from abyss.common.messages import BadMessage, PointCloud, RecognisedObjects, SceneUpdate, decode, encode
+from abyss.common.messages import PointCloud, RecognisedObjects, SceneUpdate, decode, encode
 from abyss.common.models import CAMERAS, panel
 from abyss.scene.export import export
 from abyss.scene.model import SceneModel

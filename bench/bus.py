@@ -28,7 +28,7 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import Config
-from abyss.common.config_system import LinksConfig
+from abyss.common.config.system import LinksConfig
 from abyss.common.messages import Message, NavState, Waypoints, encode
 from abyss.common.qos import publisher_qos
 from abyss.common.samples import Samples

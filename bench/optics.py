@@ -16,7 +16,7 @@ from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
 
-from abyss.common.config_simulation import SimulationConfig  # noqa: E402
+from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.optics import range_of_depth  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402

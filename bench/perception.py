@@ -41,9 +41,9 @@ single_threaded_native_pools()  # as a station runs them
 import mujoco  # noqa: E402
 
 from abyss.common.clouds import unpack_cloud  # noqa: E402
-from abyss.common.config_simulation import SimulationConfig  # noqa: E402
-from abyss.common.config_stations import OnboardConfig, VesselConfig  # noqa: E402
-from abyss.common.config_system import MissionConfig  # noqa: E402
+from abyss.common.config.simulation import SimulationConfig  # noqa: E402
+from abyss.common.config.stations import OnboardConfig, VesselConfig  # noqa: E402
+from abyss.common.config.system import MissionConfig  # noqa: E402
 from abyss.common.geometry import rotation_of  # noqa: E402
 from abyss.common.models import CAMERAS  # noqa: E402
 from abyss.scene.model import SceneModel  # noqa: E402

@@ -23,8 +23,8 @@ choose_gl_backend()
 single_threaded_native_pools()  # as a station runs them
 
 from abyss.common.clouds import unpack_cloud, voxel_downsample  # noqa: E402
-from abyss.common.config_simulation import SimulationConfig  # noqa: E402
-from abyss.common.config_stations import VesselConfig  # noqa: E402
+from abyss.common.config.simulation import SimulationConfig  # noqa: E402
+from abyss.common.config.stations import VesselConfig  # noqa: E402
 from abyss.common.images import decode_image  # noqa: E402
 from abyss.common.messages import encode  # noqa: E402
 from abyss.common.models import CAMERAS  # noqa: E402

@@ -24,7 +24,7 @@ choose_gl_backend()
 
 from abyss.common import keys  # noqa: E402
 from abyss.common.bus import open_session, zenoh_config  # noqa: E402
-from abyss.common.config_simulation import SimulationConfig  # noqa: E402
+from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.messages import SimulationStatus, decode  # noqa: E402
 from abyss.common.models import CAMERAS  # noqa: E402
 from abyss.stations.runtime import free_port  # noqa: E402

@@ -10,7 +10,7 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
 from abyss.common.config import Config, load
-from abyss.common.config_system import TIME_MODES
+from abyss.common.config.system import TIME_MODES
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import FIELDS
 

@@ -20,8 +20,8 @@ from abyss.cli.args import (
 )
 from abyss.common import keys
 from abyss.common.config import Config
-from abyss.common.config_stations import VIEWERS, Viewer
-from abyss.common.config_system import RECORD_LEVELS, ROS2_STATIONS
+from abyss.common.config.stations import VIEWERS, Viewer
+from abyss.common.config.system import RECORD_LEVELS, ROS2_STATIONS
 from abyss.common.errors import ConfigError
 from abyss.common.security import TLS_DIR_ENV
 from abyss.linkemu.control import LINK_MODES

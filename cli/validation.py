@@ -14,7 +14,7 @@ from abyss.cli.args import (
     load_config,
 )
 from abyss.common import keys
-from abyss.common.config_system import TIME_MODES
+from abyss.common.config.system import TIME_MODES
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import profile
 

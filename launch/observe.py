@@ -18,7 +18,7 @@ from abyss.common import keys
 from abyss.common.clock import SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.errors import BadMessage
 from abyss.common.messages import MissionStatus, NavState, PanelState, SimulationStatus, Telemetry, decode
 from abyss.launch.record import ControlRecorder

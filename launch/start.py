@@ -16,8 +16,8 @@ from typing import Any, Protocol
 
 from abyss.common import keys
 from abyss.common.config import Config
-from abyss.common.config_stations import OnshoreConfig
-from abyss.common.config_system import Ros2Config, TimeConfig
+from abyss.common.config.stations import OnshoreConfig
+from abyss.common.config.system import Ros2Config, TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.common.runfiles import CARRIED_OVER
 from abyss.launch.cpu import CpuCaps

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.messages import PanelState, Telemetry
 from abyss.common.models import panel
 from abyss.launch.state import Verdict

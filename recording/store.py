@@ -30,7 +30,7 @@ from mcap.writer import Writer
 
 from abyss.common import keys
 from abyss.common.clock import WALL, Clock
-from abyss.common.config_system import RECORD_LEVELS
+from abyss.common.config.system import RECORD_LEVELS
 from abyss.common.errors import AbyssError, ConfigError
 from abyss.common.messages import MESSAGES, unwrap
 

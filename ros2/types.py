@@ -34,7 +34,7 @@ from typing import Any
 from rosbags.interfaces import Qos, QosDurability
 
 from abyss.common import keys
-from abyss.common.config_system import ROS2_STATIONS
+from abyss.common.config.system import ROS2_STATIONS
 from abyss.common.messages import (
     Message,
 )

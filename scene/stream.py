@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from abyss.common.config_stations import VesselConfig
+from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import downscale
 from abyss.common.messages import Image, Message, SceneAck, SonarImage, wire_bytes

@@ -16,7 +16,7 @@ import yaml
 
 from abyss.cli import parser
 from abyss.common import keys
-from abyss.common.config_system import LinksConfig
+from abyss.common.config.system import LinksConfig
 from abyss.common.linkprofile import load_profiles
 from abyss.launch.start import DEFAULT_PORT
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from abyss.common.config_stations import OnboardConfig
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.stations import OnboardConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import rotation_of
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
 from abyss.stations.onboard.modes import Mode

@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from abyss.common.config_system import Box, MissionConfig
+from abyss.common.config.system import Box, MissionConfig
 from abyss.common.geometry import rotation_of_rpy
 from abyss.common.messages import ArmGoal, CommandAck, InterventionGoal, Message, OperatorMode, Waypoints
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.config_stations import OnboardConfig
+from abyss.common.config.stations import OnboardConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image, encode_jpeg
 from abyss.common.messages import Image, PointCloud

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.common.config_stations import OnboardConfig
+from abyss.common.config.stations import OnboardConfig
 from abyss.common.geometry import quat_multiply, rotation_of, small_rotation_wxyz
 from abyss.common.messages import NavState
 

@@ -20,7 +20,7 @@ from abyss.common.messages import Image, PointCloud
 from abyss.stations.onboard.stereo import StereoFilter, stereo_depth
 
 if TYPE_CHECKING:
-    from abyss.common.config_stations import OnboardConfig
+    from abyss.common.config.stations import OnboardConfig
 
 log = logging.getLogger(__name__)
 

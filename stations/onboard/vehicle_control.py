@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.common.config_stations import OnboardConfig
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.stations import OnboardConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import wrap_rad
 from abyss.stations.onboard.modes import Mode
 

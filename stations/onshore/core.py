@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.messages import (
     ArmGoal,
     CommandAck,

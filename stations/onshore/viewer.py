@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 import rerun as rr
 
-from abyss.common.config_stations import OnshoreConfig
+from abyss.common.config.stations import OnshoreConfig
 from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import (

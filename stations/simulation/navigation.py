@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.geometry import quat_multiply, small_rotation_wxyz
 from abyss.common.messages import NavState
 from abyss.common.models import NAV_SENSORS

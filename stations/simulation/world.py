@@ -9,7 +9,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import (
     ArmVelocityRef,

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.config_stations import VesselConfig
+from abyss.common.config.stations import VesselConfig
 from abyss.common.messages import (
     CLOUD_SOURCES,
     PERCEPTION_SOURCES,

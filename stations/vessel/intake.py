@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abyss.common.clouds import unpack_cloud
-from abyss.common.config_stations import VesselConfig
+from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, Message, PointCloud, RecognisedObjects, SonarImage

@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
 from abyss.common.messages import SonarImage
 from abyss.common.models import panel

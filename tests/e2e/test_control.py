@@ -19,7 +19,7 @@ from conftest import ARM_MISSION, Up, abyss
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import wrap_rad, yaw_of
 from abyss.common.messages import NavState, decode
 from abyss.validation.plot import FIGURES

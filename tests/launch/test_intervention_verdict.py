@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.messages import PanelState
 from abyss.common.models import panel
 from abyss.launch.summary import interventions_summary, render_summary

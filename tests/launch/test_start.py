@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from abyss.common.config import Config
-from abyss.common.config_system import TimeConfig
+from abyss.common.config.system import TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.launch.start import (
     CONFIG_FILE,

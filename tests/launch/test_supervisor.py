@@ -21,7 +21,7 @@ import pytest
 
 from abyss.common import keys
 from abyss.common.config import Config
-from abyss.common.config_system import Ros2Config
+from abyss.common.config.system import Ros2Config
 from abyss.common.errors import ConfigError
 from abyss.common.messages import MissionStatus, SimulationStatus
 from abyss.launch import stop as stop_module

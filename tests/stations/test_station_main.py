@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from abyss.common.config import Config
-from abyss.common.config_system import Ros2Config
+from abyss.common.config.system import Ros2Config
 from abyss.ros2 import gateway
 from abyss.stations import onboard, onshore, runtime, vessel
 

@@ -13,7 +13,7 @@ from typing import Any, Literal, assert_never, get_args
 
 from abyss.common import keys
 from abyss.common.config import load
-from abyss.common.config_system import TimeConfig
+from abyss.common.config.system import TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import load_profiles
 from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES

@@ -10,8 +10,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import SimulationConfig
-from abyss.common.config_stations import OnboardConfig
+from abyss.common.config.simulation import SimulationConfig
+from abyss.common.config.stations import OnboardConfig
 from abyss.common.images import decode_image
 from abyss.common.messages import Image
 from abyss.common.models import CAMERAS

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import SimulationConfig
-from abyss.common.config_stations import OnboardConfig
+from abyss.common.config.simulation import SimulationConfig
+from abyss.common.config.stations import OnboardConfig
 from abyss.common.messages import NavState
 from abyss.stations.onboard.navigation import NavFilter
 from abyss.stations.simulation.lowlevel import References

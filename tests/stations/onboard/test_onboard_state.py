@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.config_stations import OnboardConfig
+from abyss.common.config.stations import OnboardConfig
 from abyss.common.messages import Heartbeat, NavState
 from abyss.stations.onboard.failsafe import Failsafe
 from abyss.stations.onboard.navigation import NavFilter, PoseHistory

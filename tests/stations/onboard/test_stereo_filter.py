@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 
-from abyss.common.config_stations import OnboardConfig
+from abyss.common.config.stations import OnboardConfig
 from abyss.common.errors import ConfigError
 from abyss.stations.onboard.perception import Camera
 from abyss.stations.onboard.stereo import StereoFilter, left_right_consistent, stereo_depth

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from abyss.common.config import Config
-from abyss.common.config_system import MissionConfig
+from abyss.common.config.system import MissionConfig
 from abyss.common.messages import (
     ArmGoal,
     CommandAck,

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import NavState, SimulationControl
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.navigation import SOUND_SPEED_MPS

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import Message
 from abyss.common.models import CAMERAS
 from abyss.common.workers import children_cpu_s

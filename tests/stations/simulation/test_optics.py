@@ -13,8 +13,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import WATER_TYPES as CONFIG_WATER_TYPES
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import WATER_TYPES as CONFIG_WATER_TYPES
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
 from abyss.common.models import WORLD_FILE, panel
 from abyss.stations.simulation.optics import WATER_TYPES, Optics, WaterType, range_of_depth

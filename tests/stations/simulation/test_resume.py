@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import ArmVelocityRef, VelocityRef
 from abyss.stations.simulation.world import World, references
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from abyss.common.config import load
-from abyss.common.config_simulation import SimulationConfig
+from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import SimulationControl

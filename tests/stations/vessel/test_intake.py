@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from abyss.common.clouds import pack_cloud, unpack_cloud
-from abyss.common.config_stations import VesselConfig
+from abyss.common.config.stations import VesselConfig
 from abyss.common.messages import Image, PerceptionStatus, PointCloud, SonarImage
 from abyss.common.sonar import echo_arcs, encode_polar
 from abyss.scene.model import SceneModel

@@ -13,8 +13,8 @@ import pyoctomap
 import pytest
 
 from abyss.common.clouds import unpack_cloud
-from abyss.common.config_simulation import SimulationConfig
-from abyss.common.config_stations import STEREO_MODES, VesselConfig
+from abyss.common.config.simulation import SimulationConfig
+from abyss.common.config.stations import STEREO_MODES, VesselConfig
 from abyss.common.errors import BadInput, BadMessage
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image

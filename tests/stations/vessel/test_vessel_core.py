@@ -13,7 +13,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from abyss.common.config_stations import VesselConfig
+from abyss.common.config.stations import VesselConfig
 from abyss.common.linkprofile import profile
 from abyss.common.messages import (
     CommandAck,

@@ -1,7 +1,7 @@
 """Typed configuration: frozen dataclasses loaded from TOML (or the JSON that `abyss up`
 hands its stations), overridable from the command line with `--set section.field=value`.
 Every error names the file, the field and what is allowed. The sections live beside this module
-(config_simulation, config_stations, config_system); this one holds the whole and its loading."""
+(simulation, stations, system, and the field checks in fields); this one holds the whole and its loading."""
 
 from __future__ import annotations
 
@@ -15,9 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from abyss.common import keys
-from abyss.common.config_simulation import SimulationConfig
-from abyss.common.config_stations import OnboardConfig, OnshoreConfig, VesselConfig
-from abyss.common.config_system import (
+from abyss.common.config.simulation import SimulationConfig
+from abyss.common.config.stations import OnboardConfig, OnshoreConfig, VesselConfig
+from abyss.common.config.system import (
     CpuConfig,
     LinksConfig,
     MissionConfig,

@@ -16,7 +16,7 @@ from abyss.cli.args import (
 )
 from abyss.common import keys
 from abyss.common.bus import message_of
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import (
     FAULTS,
     SimulationControl,
@@ -32,7 +32,7 @@ def cmd_fault(args: argparse.Namespace) -> int:
         raise ConfigError("fault target", f"{args.target!r} not one of {', '.join(targets)}")
     try:
         control = SimulationControl(args.fault, args.target, args.value)
-    except ValueError as exc:
+    except BadInput as exc:
         raise ConfigError("fault value", str(exc)) from None
     session = client(args)
     seen: list[SimulationStatus] = []

@@ -64,9 +64,9 @@ def command_of(kind: str, text: str, command_id: int, amount: str = "") -> Comma
     if kind in INTENTS:
         try:
             if panel.part_kind(text) != kind:
-                raise ValueError(f"{text} is a {panel.part_kind(text)}, not a {kind}")
+                raise BadInput(f"{text} is a {panel.part_kind(text)}, not a {kind}")
             return Intervention(command_id, text, *panel.intent(text, amount))
-        except ValueError as exc:
+        except BadInput as exc:
             raise ConfigError(kind, str(exc)) from None
     if kind == "waypoints":
         return Waypoints(command_id, parse_waypoints(text))

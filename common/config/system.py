@@ -15,7 +15,7 @@ import numpy as np
 
 from abyss.common import keys
 from abyss.common.config.fields import one_of, positive
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BadInput, ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.common.linkprofile import LinkProfile, load_profiles, profile
 from abyss.common.models import panel
@@ -228,7 +228,7 @@ class MissionConfig:
         for i, (part, amount) in enumerate(self.interventions):
             try:
                 panel.intent(part, amount)
-            except ValueError as exc:
+            except BadInput as exc:
                 raise ConfigError(f"mission.interventions[{i}]", str(exc)) from None
         positive("mission.waypoint_timeout_s", self.waypoint_timeout_s, allow_zero=True)
         for name in (

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from abyss.common.errors import BadInput
 from abyss.common.models import MODELS_DIR
 
 PANEL_POSITION_M_WORLD = (5.0, 0.0, -8.6)  # the panel's frame is the world's, translated
@@ -75,22 +76,22 @@ def part_kind(name: str) -> str:
         return "valve"
     if name in LEVERS:
         return "lever"
-    raise ValueError(f"{name!r} is not a part of the panel: {', '.join((*VALVES, *LEVERS))}")
+    raise BadInput(f"{name!r} is not a part of the panel: {', '.join((*VALVES, *LEVERS))}")
 
 
 def intent(name: str, amount: str) -> tuple[float, str]:
     """An operator's intent on a part as the messages carry it: (turn [rad], "") for a valve
-    and an angle [deg], (0, stop) for a lever and "up" or "down"; ValueError says what is allowed."""
+    and an angle [deg], (0, stop) for a lever and "up" or "down"; BadInput says what is allowed."""
     if part_kind(name) == "lever":
         if amount not in ("up", "down"):
-            raise ValueError(f"{name} is a lever: it is thrown up or down, not {amount!r}")
+            raise BadInput(f"{name} is a lever: it is thrown up or down, not {amount!r}")
         return 0.0, amount
     try:
         turn_deg = float(amount)
     except ValueError:
         turn_deg = float("nan")
     if not -180.0 <= turn_deg <= 180.0 or turn_deg == 0.0:
-        raise ValueError(f"{name} is a valve: it is turned by an angle in [-180, 180] deg, not {amount!r}")
+        raise BadInput(f"{name} is a valve: it is turned by an angle in [-180, 180] deg, not {amount!r}")
     return float(np.radians(turn_deg)), ""
 
 

@@ -209,59 +209,72 @@ class Operator:
             self.commands[topic].replace(message)
         for ack in inputs.acks:
             out.answers.append(ack)  # the tools pick their own out
-            entry = self.history.get((f"op/{ack.command}", ack.command_id))
-            if entry is not None:
-                entry.update(answered=True, accepted=ack.accepted, reason=ack.reason)
-            if self.commands[f"op/{ack.command}"].answered(ack):
-                log.info(
-                    "%s command %d %s",
-                    ack.command,
-                    ack.command_id,
-                    "taken" if ack.accepted else f"refused: {ack.reason}",
-                )
+            self._answered(ack)
         for t in inputs.telemetry:
             self._telemetry(t, now_s)
         if not self.joined and now_s - self.first_step_s >= JOIN_WAIT_S:
             self.joined = True  # no telemetry: send the mission anyway, resent until answered
-        # the satellite loses packets: resend each command until onboard's answer comes back
-        for command in self.commands.values() if self.joined else ():
-            due = now_s - command.sent_s > self.mission.resend_period_s
-            if command.message is not None and command.answer is None and due and not command.waiting():
-                entry = self.history.setdefault(
-                    (command.topic, command.message.command_id),
-                    {
-                        "command": command.topic.removeprefix("op/"),
-                        "command_id": command.message.command_id,
-                        "sends": 0,
-                        "answered": False,
-                        "accepted": False,
-                        "reason": "",
-                    },
-                )
-                entry["sends"] = int(entry["sends"]) + 1  # type: ignore[call-overload]
-                if command.sent_s == -float("inf"):
-                    out.first_sent.append(command.message)
-                out.messages.append((command.topic, command.message))
-                command.sent_s = now_s
+        if self.joined:
+            self._resend(out, now_s)
         if now_s - self.last_beat_s >= HEARTBEAT_PERIOD_S:
             out.messages.append(("heartbeat", Heartbeat(0.0, True)))
             self.last_beat_s = now_s
         if now_s - self.last_status_s >= STATUS_PERIOD_S:
-            out.status = self.status or MissionStatus(
-                mode="idle",
-                waypoint_index=0,
-                waypoints_total=len(self.mission.waypoints),
-                position_error_m=0.0,
-                heading_error_rad=0.0,
-                arm_mode="idle",
-                ee_position_error_m=0.0,
-                ee_orientation_error_rad=0.0,
-                failsafe="",
-                failsafe_events=0,
-                interventions_total=len(self.mission.interventions),
-            )
+            out.status = self.status or self._idle_status()
             self.last_status_s = now_s
         return out
+
+    def _answered(self, ack: CommandAck) -> None:
+        """Onboard's answer to a command: into the history, and the command stops resending."""
+        entry = self.history.get((f"op/{ack.command}", ack.command_id))
+        if entry is not None:
+            entry.update(answered=True, accepted=ack.accepted, reason=ack.reason)
+        if self.commands[f"op/{ack.command}"].answered(ack):
+            log.info(
+                "%s command %d %s",
+                ack.command,
+                ack.command_id,
+                "taken" if ack.accepted else f"refused: {ack.reason}",
+            )
+
+    def _resend(self, out: OperatorOutputs, now_s: float) -> None:
+        """The satellite loses packets: each command is resent until onboard's answer comes back."""
+        for command in self.commands.values():
+            due = now_s - command.sent_s > self.mission.resend_period_s
+            if command.message is None or command.answer is not None or not due or command.waiting():
+                continue
+            entry = self.history.setdefault(
+                (command.topic, command.message.command_id),
+                {
+                    "command": command.topic.removeprefix("op/"),
+                    "command_id": command.message.command_id,
+                    "sends": 0,
+                    "answered": False,
+                    "accepted": False,
+                    "reason": "",
+                },
+            )
+            entry["sends"] = int(entry["sends"]) + 1  # type: ignore[call-overload]
+            if command.sent_s == -float("inf"):
+                out.first_sent.append(command.message)
+            out.messages.append((command.topic, command.message))
+            command.sent_s = now_s
+
+    def _idle_status(self) -> MissionStatus:
+        """What shore shows before onboard's first status."""
+        return MissionStatus(
+            mode="idle",
+            waypoint_index=0,
+            waypoints_total=len(self.mission.waypoints),
+            position_error_m=0.0,
+            heading_error_rad=0.0,
+            arm_mode="idle",
+            ee_position_error_m=0.0,
+            ee_orientation_error_rad=0.0,
+            failsafe="",
+            failsafe_events=0,
+            interventions_total=len(self.mission.interventions),
+        )
 
 
 def mission_intervention(mission: MissionConfig, index: int, command_id: int | None = None) -> Intervention:

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 
+from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects
 from abyss.common.models import panel
@@ -27,7 +28,7 @@ def resolve(
     yet (the intent waits)."""
     try:
         kind = panel.part_kind(intent.target)
-    except ValueError as exc:
+    except BadInput as exc:
         return None, str(exc)
     if kind == "valve" and intent.to:
         return None, f"{intent.target} is a valve: it is turned by an angle, not thrown to a stop"

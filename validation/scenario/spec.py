@@ -14,7 +14,7 @@ from typing import Any, Literal, assert_never, get_args
 from abyss.common import keys
 from abyss.common.config import load
 from abyss.common.config.system import TimeConfig
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BadInput, ConfigError
 from abyss.common.linkprofile import load_profiles
 from abyss.common.messages import FAULTS, INTERVENTION_PHASES, PERCEPTION_SOURCES
 from abyss.common.models import panel
@@ -204,7 +204,7 @@ def _assertion(table: dict[str, Any], where: str) -> Assertion:
             raise ConfigError(f"{where}.part", "is required")
         try:
             panel.part_kind(args["part"])
-        except ValueError as exc:
+        except BadInput as exc:
             raise ConfigError(f"{where}.part", str(exc)) from None
     _no_more(table, where, list(fields))
     return Assertion(kind, args)

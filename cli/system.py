@@ -180,7 +180,7 @@ def _add_up(sub: Any) -> None:
         choices=ROS2_STATIONS,
         metavar="STATION",
         help="a ROS 2 node takes this station's place: a gateway speaks rmw_zenoh to it "
-        f"(choices: {', '.join(ROS2_STATIONS)}; README: ROS 2 nodes)",
+        f"(choices: {', '.join(ROS2_STATIONS)}; docs/ros2.md)",
     )
     p.add_argument("--ros-domain", type=int, metavar="N", help="with --ros2: ROS_DOMAIN_ID (default 0)")
     p.add_argument(

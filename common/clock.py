@@ -1,4 +1,4 @@
-"""One time source per system (DESIGN.md, Time).
+"""One time source per system (docs/architecture.md, Time).
 
 `real`: every station keeps time by its own monotonic clock and stamps with the wall clock, as
 stations on separate hosts do. `sim`: the simulation is the clock. It publishes its time after

@@ -1,4 +1,4 @@
-"""`--time lockstep`: simulated time that repeats bit for bit (DESIGN.md, Time).
+"""`--time lockstep`: simulated time that repeats bit for bit (docs/architecture.md, Time).
 
 Time moves in whole control periods, and only when the simulation says so (`SimTime` on
 `abyss/<system>/clock`). Each station runs each period T in three phases (`Lockstep.period`):

@@ -236,7 +236,7 @@ def viewer_line(cfg: OnshoreConfig) -> str:
 
 
 def ros2_line(ros2: Ros2Config) -> str:
-    """How a ROS 2 node joins the gateway that stands for a station (README: ROS 2 nodes)."""
+    """How a ROS 2 node joins the gateway that stands for a station (docs/ros2.md)."""
     endpoint = (ros2.connect or ros2.listen)[0]
     where = "its router" if not ros2.connect else "the router it joined"
     return (

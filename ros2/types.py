@@ -256,7 +256,7 @@ def stamp_of(message: Message, sent_sim_s: float) -> float:
 
 
 def topics_table() -> str:
-    """The Markdown table of the ROS 2 topics; the README holds it. `export`: in `abyss export
+    """The Markdown table of the ROS 2 topics; docs/ros2.md holds it. `export`: in `abyss export
     mcap`; `gateway`: what the ROS 2 gateway hands a node in a station's place, or takes from it."""
     rows = [
         "| abyss key | ROS 2 topic | type | frame_id | child_frame_id | QoS | export | gateway |",

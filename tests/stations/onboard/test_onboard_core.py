@@ -30,7 +30,7 @@ def test_a_cut_tether_trips_the_failsafe_by_heartbeats_alone_and_it_lets_go_afte
             tether.reconfigure(profile("tether"))
         if step % round(config.vessel.heartbeat_period_s / STEP_S) == 0:
             tether.offer(now_s, encode(Heartbeat(0.0, True), step, now_s))
-        beats = [decode("k", d.payload, "Heartbeat").message for d in tether.advance(now_s)]
+        beats = [decode("k", d.payload, Heartbeat).message for d in tether.advance(now_s)]
         nav = NavState(
             np.array([0.0, 0.0, -5.0]),
             np.array([1.0, 0.0, 0.0, 0.0]),

@@ -110,7 +110,7 @@ def bench_bus(case: Case) -> Result:
     sending = Shell(case.publisher, ideal, listen=[f"tcp/127.0.0.1:{port}"])
     receiving = Shell(spec.to, ideal, connect=[f"tcp/127.0.0.1:{port}"])
     sender, receiver = sending.bus, receiving.bus
-    receiver.subscribe(case.publisher, case.topic, maxlen=8)
+    receiver.subscribe(case.publisher, case.topic, spec.message_class, maxlen=8)
     key = spec.key(SYSTEM)
     receiver.latency_s[key] = latency = Samples()
     time.sleep(1.0)

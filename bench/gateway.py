@@ -131,7 +131,7 @@ def gateway_up(payload: bytes, attachment: bytes, session: Session) -> list[Samp
 
 
 def abyss_up(payload: bytes) -> list[Sample]:
-    message = decode("abyss/bench/onboard/cmd/vehicle_velocity", payload, "VelocityRef").message
+    message = decode("abyss/bench/onboard/cmd/vehicle_velocity", payload, VelocityRef).message
     return [("abyss/bench/onboard/cmd/vehicle_velocity", encode(message, 1, time.time()), None)]
 
 

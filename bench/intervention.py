@@ -65,26 +65,26 @@ class Watch:
         ]
 
     def _panel(self, sample: zenoh.Sample) -> None:
-        m = message_of(sample, "PanelState")
-        if isinstance(m, PanelState) and PART in m.names:
+        m = message_of(sample, PanelState)
+        if m is not None and PART in m.names:
             with self.lock:
                 self.angle_deg = math.degrees(m.angles_rad[m.names.index(PART)])
 
     def _ack(self, sample: zenoh.Sample) -> None:
-        m = message_of(sample, "CommandAck")
-        if isinstance(m, CommandAck) and not m.accepted:
+        m = message_of(sample, CommandAck)
+        if m is not None and not m.accepted:
             with self.lock:
                 self.refused[m.command_id] = m.reason
 
     def _mission(self, sample: zenoh.Sample) -> None:
-        m = message_of(sample, "MissionStatus")
-        if isinstance(m, MissionStatus):
+        m = message_of(sample, MissionStatus)
+        if m is not None:
             with self.lock:
                 self.done = m.done
 
     def _state(self, sample: zenoh.Sample) -> None:
-        m = message_of(sample, "Telemetry")
-        if isinstance(m, Telemetry):
+        m = message_of(sample, Telemetry)
+        if m is not None:
             with self.lock:
                 last = self.phases[-1][1:] if self.phases else None
                 if (m.intervention_id, m.intervention_phase) != last:

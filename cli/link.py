@@ -36,11 +36,10 @@ def query_links(session: zenoh.Session, system: str, hop: str | None) -> list[Li
         if reply.ok is None:
             continue
         try:
-            message = decode(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), "LinkStats").message
+            message = decode(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), LinkStats).message
         except BadMessage as exc:
             print(f"abyss: ignoring a bad reply: {exc}", file=sys.stderr)
             continue
-        assert isinstance(message, LinkStats)
         found.append(message)
     return sorted(found, key=lambda s: (list(keys.HOPS).index(s.hop), s.direction))
 

@@ -8,6 +8,7 @@ from typing import Any
 
 from abyss.common.errors import BadMessage, ConfigError
 from abyss.common.messages import (
+    SceneUpdate,
     decode,
 )
 from abyss.common.models import SEABED_CLOUD_FILE
@@ -55,13 +56,13 @@ def cmd_scene_export(args: argparse.Namespace) -> int:
             "or no scene reached shore in that run",
         )
     try:
-        update = decode(str(source), source.read_bytes(), "SceneUpdate").message
+        update = decode(str(source), source.read_bytes(), SceneUpdate).message
     except BadMessage as exc:
         raise ConfigError("RUN_DIR", f"{source}: {exc.reason}") from None
     for fmt in args.format:
         path = args.run_dir / f"scene.{fmt}"
-        cells = export(update, path, fmt)  # type: ignore[arg-type]
-        print(f"abyss: wrote {path} ({cells} occupied cells at {update.resolution_m:g} m)")  # type: ignore[attr-defined]
+        cells = export(update, path, fmt)
+        print(f"abyss: wrote {path} ({cells} occupied cells at {update.resolution_m:g} m)")
     return 0
 
 

@@ -38,8 +38,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
     seen: list[SimulationStatus] = []
 
     def on_status(sample: zenoh.Sample) -> None:
-        message = message_of(sample, "SimulationStatus")
-        if isinstance(message, SimulationStatus):
+        message = message_of(sample, SimulationStatus)
+        if message is not None:
             seen.append(message)
 
     try:

@@ -12,11 +12,10 @@ import logging
 import math
 import threading
 from collections import Counter, defaultdict, deque
-from collections.abc import Callable, Iterable, Sequence
-from typing import Any, Generic, NamedTuple, Protocol, overload
+from collections.abc import Callable, Sequence
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 import zenoh
-from typing_extensions import TypeVar
 
 from abyss.common import keys, security
 from abyss.common.certs import CertFiles
@@ -66,21 +65,27 @@ def client_config(endpoint: str) -> zenoh.Config:
     return zenoh_config(connect=[endpoint], mode="client", tls=security.tool_certificates(endpoint))
 
 
-# a bare `Inbox` is an `Inbox[Message]`: the call sites not yet typed keep their own narrowing
-M = TypeVar("M", bound=Message, default=Message)
+M = TypeVar("M", bound=Message)
 
 
-@overload
-def message_of(sample: zenoh.Sample, message: type[M]) -> M | None: ...
-@overload
-def message_of(sample: zenoh.Sample, message: str) -> Message | None: ...
-def message_of(sample: zenoh.Sample, message: type[Message] | str) -> Message | None:
-    """The `message` (a class, or its name) a sample carries, or None if its bytes do not decode to
-    one: for tools that listen from outside the stations (which count and log what they drop)."""
+def message_of(sample: zenoh.Sample, message: type[M]) -> M | None:
+    """The `message` a sample carries, or None if its bytes do not decode to one: for tools that
+    listen from outside the stations (which count and log what they drop)."""
     try:
         return decode(str(sample.key_expr), sample.payload.to_bytes(), message).message
     except BadMessage:
         return None
+
+
+def checked_class(key: str, message: object, carried: type[Message] | None = None) -> type[Message]:
+    """`message` if it is a message class (and `carried`, the class `keys.KEYS` gives the key, where
+    it has one); ConfigError naming the key and both classes otherwise."""
+    if not (isinstance(message, type) and issubclass(message, Message)):
+        want = f"a message class ({carried.__name__})" if carried else "a message class"
+        raise ConfigError(key, f"subscribed with {message!r}, not {want}")
+    if carried is not None and message is not carried:
+        raise ConfigError(key, f"carries {carried.TYPE}, not {message.TYPE}")
+    return message
 
 
 def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
@@ -91,11 +96,6 @@ def open_session(config: zenoh.Config, what: str) -> zenoh.Session:
             f"{what}: cannot open the Zenoh session ({exc}); check that the listen "
             "endpoints are free and of the form tcp/HOST:PORT"
         ) from None
-
-
-def messages_of(items: Iterable[Received], kind: type[M]) -> list[M]:
-    """The messages of `items` as `kind` (what the bus decoded them as on their key)."""
-    return [r.message for r in items if isinstance(r.message, kind)]
 
 
 class Inbox(Generic[M]):
@@ -231,36 +231,22 @@ class Bus:
         """Put encoded bytes on the wire now (the egress's delivery)."""
         self._publishers[key].put(payload)
 
-    @overload
-    def subscribe(self, station: str, topic: str, message: type[M], maxlen: int = 64) -> Inbox[M]: ...
-    @overload
-    def subscribe(self, station: str, topic: str, *, maxlen: int = 64) -> Inbox[Message]: ...
-    def subscribe(
-        self, station: str, topic: str, message: type[Message] | None = None, maxlen: int = 64
-    ) -> Inbox[Any]:
-        """Receive what neighbour `station` publishes on `topic`: an `Inbox[message]` (the class
-        the key carries, as `keys.KEYS` says; ConfigError at once if it carries another). Without
-        `message`, an `Inbox[Message]` (the form of the call sites not yet converted)."""
+    def subscribe(self, station: str, topic: str, message: type[M], maxlen: int = 64) -> Inbox[M]:
+        """Receive what neighbour `station` publishes on `topic`: an `Inbox[message]`, `message` being
+        the class the key carries as `keys.KEYS` says (ConfigError at once, naming the key and both
+        classes, if it is another)."""
         spec = keys.spec(station, topic)
         if spec.to != self.station:
             raise ConfigError(f"{station}/{topic}", f"is sent to {spec.to}, not to {self.station}")
-        if message is not None and message is not spec.message_class:
-            raise ConfigError(f"{station}/{topic}", f"carries {spec.message}, not {message.TYPE}")
-        return self.subscribe_key(spec.key(self.system), spec.message_class, maxlen, data=True)
+        key = spec.key(self.system)
+        checked_class(key, message, spec.message_class)
+        return self.subscribe_key(key, message, maxlen, data=True)
 
-    @overload
-    def subscribe_key(self, key: str, message: type[M], maxlen: int = 64, data: bool = False) -> Inbox[M]: ...
-    @overload
-    def subscribe_key(
-        self, key: str, message: str, maxlen: int = 64, data: bool = False
-    ) -> Inbox[Message]: ...
-    def subscribe_key(
-        self, key: str, message: type[Message] | str, maxlen: int = 64, data: bool = False
-    ) -> Inbox[Any]:
-        """Receive `message`s (a class; its name gives an `Inbox[Message]`) on any key, a control
-        key included; validated and counted (`data`: a neighbour's key, whose arrivals are counted
-        for lockstep whether they decode or not)."""
-        inbox: Inbox[Any] = Inbox(maxlen, self.clock)
+    def subscribe_key(self, key: str, message: type[M], maxlen: int = 64, data: bool = False) -> Inbox[M]:
+        """Receive `message`s on any key, a control key included; validated and counted (`data`: a
+        neighbour's key, whose arrivals are counted for lockstep whether they decode or not)."""
+        checked_class(key, message)
+        inbox: Inbox[M] = Inbox(maxlen, self.clock)
         self._inboxes.append((key, inbox))
         if data:
             with self._lock:
@@ -286,7 +272,7 @@ class Bus:
             return Counter(self._arrived)
 
     def _on_sample(
-        self, key: str, expected: type[Message] | str, payload: bytes, inbox: Inbox[Any], data: bool = False
+        self, key: str, expected: type[M], payload: bytes, inbox: Inbox[M], data: bool = False
     ) -> None:
         try:
             self._take(key, expected, payload, inbox)
@@ -296,7 +282,7 @@ class Bus:
                     self._arrived[key] += 1
                 self.on_arrival()
 
-    def _take(self, key: str, expected: type[Message] | str, payload: bytes, inbox: Inbox[Any]) -> None:
+    def _take(self, key: str, expected: type[M], payload: bytes, inbox: Inbox[M]) -> None:
         try:
             received = decode(key, payload, expected)
         except BadMessage as exc:

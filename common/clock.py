@@ -19,6 +19,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Iterable
+from typing import TypeVar
 
 import zenoh
 
@@ -31,10 +32,11 @@ POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this 
 SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
 
 
+M = TypeVar("M", bound=Message)
 Reject = Callable[[str, str], None]  # a malformed input's key and reason, counted (Bus.reject)
 
 
-def station_message(sample: zenoh.Sample, expected: str, reject: Reject) -> tuple[str, Message] | None:
+def station_message(sample: zenoh.Sample, expected: type[M], reject: Reject) -> tuple[str, M] | None:
     """The station a testbed sample comes from and the `expected` message it carries; None,
     rejected with the reason, if it does not decode."""
     key = str(sample.key_expr)
@@ -154,13 +156,12 @@ def follow(session: zenoh.Session, system: str, clock: SimClock) -> zenoh.Subscr
 
     def on_tick(sample: zenoh.Sample) -> None:
         try:
-            message = decode(key, sample.payload.to_bytes(), "SimTime").message
+            message = decode(key, sample.payload.to_bytes(), SimTime).message
         except BadMessage as exc:
             if not logged:
                 logged.append(exc.reason)
                 log.warning("dropped a clock tick: %s", exc.reason)
             return
-        assert isinstance(message, SimTime)
         clock.tick(message.sim_time_s)
 
     return session.declare_subscriber(key, on_tick)
@@ -242,11 +243,10 @@ class Holdback:
         log.warning("%s is gone: the simulation no longer waits for it", station)
 
     def _on_progress(self, sample: zenoh.Sample) -> None:
-        got = station_message(sample, "SimTime", self.reject)
+        got = station_message(sample, SimTime, self.reject)
         if got is None:
             return
         station, message = got
-        assert isinstance(message, SimTime)
         with self._cond:
             if station not in self.stations:
                 return

@@ -163,11 +163,10 @@ class Lockstep:
 
     # -- reports -------------------------------------------------------------------------
     def _on_report(self, sample: zenoh.Sample) -> None:
-        got = station_message(sample, "LockstepReport", self.reject)
+        got = station_message(sample, LockstepReport, self.reject)
         if got is None:
             return
         station, report = got
-        assert isinstance(report, LockstepReport)
         with self._cond:
             before = self._reports.get((station, report.phase))
             if before is None or report.sim_time_s >= before[0]:

@@ -186,8 +186,7 @@ class StationLinks:
         key = keys.link_key(self.system, hop)
         runner = self.runners[hop]
         try:
-            control = decode(key, payload, "LinkControl").message
-            assert isinstance(control, LinkControl)
+            control = decode(key, payload, LinkControl).message
             base = named_profile(control.profile) if control.profile else runner.profile
             runner.reconfigure(base.with_fields(control.overrides))
             if hop in self.shapers:

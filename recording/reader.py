@@ -56,8 +56,10 @@ class Record:
         """`<publisher>/<topic>`: the key without `abyss/<system>/`."""
         return self.key.split("/", 2)[2]
 
-    def decode(self) -> Received:
-        return decode(self.key, self.payload, self.message or None)
+    def decode(self) -> Received[Message]:
+        """The record's message, checked to be of the type it was recorded as (a name, as the file
+        writes it; none for a testbed key read without one)."""
+        return decode(self.key, self.payload, MESSAGES[self.message] if self.message else None)
 
 
 @dataclass

@@ -19,6 +19,7 @@ import logging
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 from abyss.common import keys
 from abyss.common.bus import Bus, Inbox
@@ -39,7 +40,9 @@ from abyss.recording.store import data_spec
 
 log = logging.getLogger(__name__)
 
-COMMAND_KIND: dict[type, str] = {Waypoints: "waypoints", ArmGoal: "arm", OperatorMode: "mode"}
+Command = Waypoints | ArmGoal | OperatorMode  # what a replay pairs with the live system's ids
+COMMAND_KIND: dict[type[Command], str] = {Waypoints: "waypoints", ArmGoal: "arm", OperatorMode: "mode"}
+M = TypeVar("M", bound=Message)
 START_WAIT_S = 120.0  # for `abyss up`'s start, which comes once every station is up
 START_DELAY_S = 1.0  # from all stations up to the replay's first message
 
@@ -65,18 +68,18 @@ class Commands:
     """The ids of the commands the replayed station was given in the recording, paired in order of
     arrival with those the live system gives it (per kind: waypoints, arm, mode)."""
 
-    def __init__(self, recorded: list[Message]) -> None:
+    def __init__(self, recorded: list[Command]) -> None:
         self.recorded: dict[str, list[int]] = {kind: [] for kind in COMMAND_KIND.values()}
         for message in recorded:
             ids = self.recorded[COMMAND_KIND[type(message)]]
-            if message.command_id not in ids:  # type: ignore[attr-defined]
-                ids.append(message.command_id)  # type: ignore[attr-defined]
+            if message.command_id not in ids:
+                ids.append(message.command_id)
         self.live: dict[str, list[int]] = {kind: [] for kind in COMMAND_KIND.values()}
         self.to_live: dict[tuple[str, int], int] = {}
 
-    def given(self, message: Message) -> tuple[str, int] | None:
+    def given(self, message: Command) -> tuple[str, int] | None:
         """A live command: its kind and the recorded id it stands for (None past the recording's)."""
-        kind, live_id = COMMAND_KIND[type(message)], message.command_id  # type: ignore[attr-defined]
+        kind, live_id = COMMAND_KIND[type(message)], message.command_id
         if live_id not in self.live[kind]:
             self.live[kind].append(live_id)
         n = self.live[kind].index(live_id)
@@ -116,25 +119,32 @@ def replayer(run_dir: Path, speed: float) -> Callable[[Config, Bus], None]:
     return run
 
 
+def _command_inboxes(
+    bus: Bus, given: list[keys.KeySpec]
+) -> list[Inbox[Waypoints] | Inbox[ArmGoal] | Inbox[OperatorMode]]:
+    """An inbox of its class for each key in `given` that carries a command."""
+
+    def of(cls: type[M]) -> list[Inbox[M]]:
+        return [bus.subscribe(s.station, s.topic, cls) for s in given if s.message_class is cls]
+
+    return [*of(Waypoints), *of(ArmGoal), *of(OperatorMode)]
+
+
 class Replay:
     def __init__(self, recording: Recording, bus: Bus, speed: float) -> None:
         check_replayable(recording, (bus.station,))
         self.bus, self.speed = bus, speed
         self.records = recording.published((bus.station,))
         self.origin_s = origin_s(recording)
-        commands = {c.__name__ for c in COMMAND_KIND}
-        given = [s for s in keys.KEYS if s.to == bus.station and s.message in commands]
+        given = [s for s in keys.KEYS if s.to == bus.station and s.message_class in COMMAND_KIND]
+        recorded = recording.messages([r for r in recording.published() if data_spec(r.key) in given])
+        # the recording is read as whatever it holds: its commands are the messages of a command class
         self.commands = Commands(
-            [
-                m
-                for _, m in recording.messages(
-                    [r for r in recording.published() if data_spec(r.key) in given]
-                )
-            ]
+            [m for _, m in recorded if isinstance(m, (Waypoints, ArmGoal, OperatorMode))]
         )
-        self.inboxes: dict[str, Inbox] = {s.key(bus.system): bus.subscribe(s.station, s.topic) for s in given}
+        self.inboxes = _command_inboxes(bus, given)
         self.acks: dict[tuple[str, int], CommandAck] = {}  # the recorded answers, once due
-        self.start = bus.subscribe_key(keys.replay_key(bus.system), ReplayStart.TYPE, maxlen=1)
+        self.start = bus.subscribe_key(keys.replay_key(bus.system), ReplayStart, maxlen=1)
         self.published = 0
 
     def run(self) -> None:
@@ -166,7 +176,6 @@ class Replay:
         while not self.bus.stop.wait(0.05):
             start = self.start.latest()
             if start is not None:
-                assert isinstance(start.message, ReplayStart)
                 return start.message.start_s
             if time.monotonic() > deadline_s:
                 log.error("no replay start on %s in %g s", keys.replay_key(self.bus.system), START_WAIT_S)
@@ -175,7 +184,7 @@ class Replay:
 
     def _take_commands(self) -> None:
         """Live commands: pair their ids; one whose recorded answer is past is answered again."""
-        for inbox in self.inboxes.values():
+        for inbox in self.inboxes:
             for item in inbox.drain():
                 paired = self.commands.given(item.message)
                 if paired is not None and paired in self.acks:

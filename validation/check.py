@@ -16,7 +16,7 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
 from abyss.common.errors import BadMessage
-from abyss.common.messages import decode
+from abyss.common.messages import Message, decode
 
 RATE_TOLERANCE = 0.5  # a periodic key within this share of its nominal rate passes
 
@@ -43,7 +43,7 @@ def check(endpoint: str, system: str, station: str, duration_s: float) -> list[K
     reasons: dict[str, str] = {}
     lock = threading.Lock()
 
-    def on_sample(sample: zenoh.Sample, message: str) -> None:
+    def on_sample(sample: zenoh.Sample, message: type[Message]) -> None:
         key = str(sample.key_expr)
         try:
             decode(key, sample.payload.to_bytes(), message)
@@ -57,7 +57,7 @@ def check(endpoint: str, system: str, station: str, duration_s: float) -> list[K
     session = open_session(client_config(endpoint), "abyss check")
     try:
         subscribers = [
-            session.declare_subscriber(s.key(system), functools.partial(on_sample, message=s.message))
+            session.declare_subscriber(s.key(system), functools.partial(on_sample, message=s.message_class))
             for s in specs
         ]
         time.sleep(duration_s)

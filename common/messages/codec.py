@@ -159,10 +159,11 @@ def _unpack_array(name: str, raw: Any, meta: Mapping[str, Any]) -> np.ndarray:
 @overload
 def decode(key: str, data: bytes, expected: type[M]) -> Received[M]: ...
 @overload
-def decode(key: str, data: bytes, expected: str | None = None) -> Received[Message]: ...
-def decode(key: str, data: bytes, expected: type[Message] | str | None = None) -> Received[Any]:
+def decode(key: str, data: bytes, expected: None = None) -> Received[Message]: ...
+def decode(key: str, data: bytes, expected: type[Message] | None = None) -> Received[Any]:
     """Decode and validate; raises BadMessage(key, reason) on anything malformed. `expected`: the
-    message class (or its name) the key carries; another is malformed too."""
+    message class the key carries (another is malformed too); None for whatever comes (a
+    recording's or an observer's reader, which looks at the type it gets)."""
     try:
         envelope = msgpack.unpackb(unwrap(data), raw=False, strict_map_key=True)
     except BadInput as exc:
@@ -175,9 +176,8 @@ def decode(key: str, data: bytes, expected: type[Message] | str | None = None) -
     cls = MESSAGES.get(name) if isinstance(name, str) else None
     if cls is None:
         raise BadMessage(key, f"unknown message type {name!r}")
-    want = expected.TYPE if isinstance(expected, type) else expected
-    if want is not None and name != want:
-        raise BadMessage(key, f"message type {name}, expected {want}")
+    if expected is not None and cls is not expected:
+        raise BadMessage(key, f"message type {name}, expected {expected.TYPE}")
     if envelope["version"] != cls.VERSION:
         raise BadMessage(key, f"{name} schema version {envelope['version']!r}, expected {cls.VERSION}")
     seq, stamp_s, body = envelope["seq"], envelope["stamp_s"], envelope["body"]

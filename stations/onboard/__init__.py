@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abyss.common import keys
-from abyss.common.bus import Bus, messages_of
+from abyss.common.bus import Bus
 from abyss.common.config import Config
 from abyss.common.messages import (
     ArmGoal,
@@ -64,24 +64,26 @@ def run(config: Config, bus: Bus) -> None:
 
 
 def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> None:
-    nav = bus.subscribe("simulation", "nav", maxlen=8)
-    joints = bus.subscribe("simulation", "joints", maxlen=4)
-    goals = [
-        bus.subscribe("vessel", topic)
-        for topic in ("goal/waypoints", "goal/arm", "goal/mode", "goal/intervene")
-    ]
-    heartbeats = bus.subscribe("vessel", "heartbeat", maxlen=4)
+    nav = bus.subscribe("simulation", "nav", NavState, maxlen=8)
+    joints = bus.subscribe("simulation", "joints", JointState, maxlen=4)
+    waypoints = bus.subscribe("vessel", "goal/waypoints", Waypoints)
+    arm_goals = bus.subscribe("vessel", "goal/arm", ArmGoal)
+    modes = bus.subscribe("vessel", "goal/mode", OperatorMode)
+    interventions = bus.subscribe("vessel", "goal/intervene", InterventionGoal)
+    heartbeats = bus.subscribe("vessel", "heartbeat", Heartbeat, maxlen=4)
     rate = bus.loop("control", config.onboard.control_period_s)
     while rate.sleep():
-        latest_joints = messages_of([r for r in (joints.latest(),) if r is not None], JointState)
-        commands = [r.message for inbox in goals for r in inbox.drain()]
+        latest_joints = joints.latest()
         inputs = OnboardInputs(
             commands=[
-                c for c in commands if isinstance(c, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))
+                *(r.message for r in waypoints.drain()),
+                *(r.message for r in arm_goals.drain()),
+                *(r.message for r in modes.drain()),
+                *(r.message for r in interventions.drain()),
             ],
-            heartbeats=messages_of(heartbeats.drain(), Heartbeat),
-            nav=messages_of(nav.drain(), NavState),
-            joints=latest_joints[-1] if latest_joints else None,
+            heartbeats=[r.message for r in heartbeats.drain()],
+            nav=[r.message for r in nav.drain()],
+            joints=latest_joints.message if latest_joints is not None else None,
         )
         out = core.step(inputs, bus.clock.now_s())
         if out.poses:  # this loop is the only one that writes them
@@ -106,16 +108,12 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets  # OpenCV's, on first use
 
     core = FrameSets(config.onboard)
-    inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", maxlen=4) for camera in CAMERAS}
+    inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in CAMERAS}
     key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
     # with simulated time, a frame set being worked on holds the simulation (common.clock)
     rate = Rate(0.05, bus.stop, bus.clock, "perception")
     while rate.sleep():
-        frames = [
-            (camera, frame)
-            for camera, inbox in inboxes.items()
-            for frame in messages_of(inbox.drain(), Image)
-        ]
+        frames = [(camera, frame.message) for camera, inbox in inboxes.items() for frame in inbox.drain()]
         inputs = FrameSetInputs(frames, shared.poses.get(), shared.arm_m_world.get())
         out = core.step(inputs, bus.clock.now_s())
         if out.shed:
@@ -133,12 +131,11 @@ def _sonar_loop(bus: Bus, shared: Shared) -> None:
     """The sonar's frames on to the vessel, its pose in the world as estimated when it pinged."""
     from abyss.stations.onboard.perception import mount_in_world
 
-    frames = bus.subscribe("simulation", "sonar", maxlen=2)
+    frames = bus.subscribe("simulation", "sonar", SonarImage, maxlen=2)
     rate = Rate(0.05, bus.stop, bus.clock, "sonar")
     while rate.sleep():
         for received in frames.drain():
             sonar = received.message
-            assert isinstance(sonar, SonarImage)
             if sonar.pose_frame != "vehicle":
                 bus.reject(
                     received.key,

@@ -11,7 +11,7 @@ import numpy as np
 
 from abyss.common.config.system import Box, MissionConfig
 from abyss.common.geometry import rotation_of_rpy
-from abyss.common.messages import ArmGoal, CommandAck, InterventionGoal, Message, OperatorMode, Waypoints
+from abyss.common.messages import ArmGoal, CommandAck, InterventionGoal, OperatorMode, Waypoints
 
 ANSWERS_KEPT = 64
 
@@ -33,12 +33,14 @@ class CommandGate:
         self.answers: OrderedDict[tuple[str, int], CommandAck] = OrderedDict()  # by (type, id)
 
     def answer(
-        self, command: Message, vehicle_goal: np.ndarray, arm_busy: str = ""
+        self,
+        command: Waypoints | ArmGoal | OperatorMode | InterventionGoal,
+        vehicle_goal: np.ndarray,
+        arm_busy: str = "",
     ) -> tuple[CommandAck, bool]:
         """The acknowledgement of `command`, and whether it is new and taken (to be applied).
         `vehicle_goal`: x, y, z [m, world], yaw [rad] where the vehicle will hold; `arm_busy`:
         why the arm takes no new goal now ('' when it does)."""
-        assert isinstance(command, (Waypoints, ArmGoal, OperatorMode, InterventionGoal))
         known = self.answers.get((command.TYPE, command.command_id))
         if known is not None:
             return known, False

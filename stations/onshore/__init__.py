@@ -16,14 +16,16 @@ import math
 from pathlib import Path
 
 from abyss.common import keys
-from abyss.common.bus import Bus, Inbox, messages_of
+from abyss.common.bus import Bus, Inbox
 from abyss.common.config import Config
 from abyss.common.messages import (
     ArmGoal,
     CommandAck,
     Image,
+    Intervention,
     LinkStats,
     Message,
+    OperatorMode,
     PerceptionStatus,
     Received,
     RecognisedObjects,
@@ -74,24 +76,28 @@ def run(config: Config, bus: Bus) -> None:
     sinks.close()
 
 
+# what the operator tools (`abyss teleop`, `abyss op`) send on operator/<topic>
+TOOL_COMMANDS: tuple[tuple[str, type[Message]], ...] = (
+    ("mode", OperatorMode),
+    ("waypoints", Waypoints),
+    ("arm", ArmGoal),
+    ("intervene", Intervention),
+)
+
+
 class _Inboxes:
     """What the operator's loop reads: the vessel's telemetry, answers and frames, the links'
     statistics, and the operator tools' commands."""
 
     def __init__(self, bus: Bus) -> None:
-        self.telemetry = bus.subscribe("vessel", "telemetry", maxlen=8)
-        self.acks = bus.subscribe("vessel", "ack")
-        self.images = bus.subscribe("vessel", "image", maxlen=2)
-        self.sonar = bus.subscribe("vessel", "sonar", maxlen=2)
-        self.link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), "LinkStats")
-        self.tools: dict[str, Inbox] = {  # op/<topic> <- operator/<topic>
+        self.telemetry = bus.subscribe("vessel", "telemetry", Telemetry, maxlen=8)
+        self.acks = bus.subscribe("vessel", "ack", CommandAck)
+        self.images = bus.subscribe("vessel", "image", Image, maxlen=2)
+        self.sonar = bus.subscribe("vessel", "sonar", SonarImage, maxlen=2)
+        self.link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), LinkStats)
+        self.tools: dict[str, Inbox[Message]] = {  # op/<topic> <- operator/<topic>
             f"op/{topic}": bus.subscribe_key(keys.operator_key(bus.system, topic), message)
-            for topic, message in (
-                ("mode", "OperatorMode"),
-                ("waypoints", "Waypoints"),
-                ("arm", "ArmGoal"),
-                ("intervene", "Intervention"),
-            )
+            for topic, message in TOOL_COMMANDS
         }
 
 
@@ -103,8 +109,8 @@ def _operate(bus: Bus, operator: Operator, inboxes: _Inboxes, viewer: Viewer | N
             tool_commands=[
                 (topic, r.message) for topic, inbox in inboxes.tools.items() for r in inbox.drain()
             ],
-            acks=messages_of(inboxes.acks.drain(), CommandAck),
-            telemetry=messages_of(received, Telemetry),
+            acks=[r.message for r in inboxes.acks.drain()],
+            telemetry=[r.message for r in received],
         ),
         now_s,
     )
@@ -115,8 +121,13 @@ def _operate(bus: Bus, operator: Operator, inboxes: _Inboxes, viewer: Viewer | N
     if out.status is not None:
         bus.observe(keys.mission_key(bus.system), out.status)
     if viewer:
-        others = [*inboxes.images.drain(), *inboxes.sonar.drain(), *inboxes.link_stats.drain()]
-        _show(viewer, bus.clock.stamp_s(), out.first_sent, received, others)
+        _show(viewer, bus.clock.stamp_s(), out.first_sent, received)
+        for image in inboxes.images.drain():
+            viewer.image(image.message, image.stamp_s)
+        for ping in inboxes.sonar.drain():
+            viewer.sonar(ping.message, ping.stamp_s)
+        for stats in inboxes.link_stats.drain():
+            viewer.link_stats(stats.message, stats.stamp_s)
 
 
 def _save(record_dir: Path, operator: Operator, saved: tuple[str, str]) -> tuple[str, str]:
@@ -132,38 +143,29 @@ def _show(
     viewer: Viewer,
     stamp_s: float,
     first_sent: list[Message],
-    telemetry: list[Received],
-    others: list[Received],
+    telemetry: list[Received[Telemetry]],
 ) -> None:
-    """What came in, at its sender's stamp, and each command when it is first sent (`stamp_s`)."""
+    """The telemetry, at its sender's stamp, and each command when it is first sent (`stamp_s`)."""
     for command in first_sent:
         if isinstance(command, Waypoints):
             viewer.waypoints(command, stamp_s)
         elif isinstance(command, ArmGoal):
             viewer.arm_goal(command, stamp_s)
     for r in telemetry:
-        if isinstance(r.message, Telemetry):
-            t = r.message
-            viewer.telemetry(t, r.stamp_s)
-            if t.intervention_target:
-                viewer.intervention(
-                    r.stamp_s,
-                    t.sim_time_s,
-                    t.intervention_target,
-                    t.intervention_phase,
-                    t.intervention_reason,
-                    math.degrees(t.turned_rad),
-                    math.degrees(t.turn_goal_rad),
-                    t.gripper_opening_m * 1e3,
-                    t.gripper_force_n,
-                )
-    for r in others:
-        if isinstance(r.message, Image):
-            viewer.image(r.message, r.stamp_s)
-        elif isinstance(r.message, SonarImage):
-            viewer.sonar(r.message, r.stamp_s)
-        elif isinstance(r.message, LinkStats):
-            viewer.link_stats(r.message, r.stamp_s)
+        t = r.message
+        viewer.telemetry(t, r.stamp_s)
+        if t.intervention_target:
+            viewer.intervention(
+                r.stamp_s,
+                t.sim_time_s,
+                t.intervention_target,
+                t.intervention_phase,
+                t.intervention_reason,
+                math.degrees(t.turned_rad),
+                math.degrees(t.turn_goal_rad),
+                t.gripper_opening_m * 1e3,
+                t.gripper_force_n,
+            )
 
 
 class Scene:
@@ -178,9 +180,9 @@ class Scene:
         self.viewer_period_s = viewer_period_s
         self._shown_s = -float("inf")  # when the whole scene last went to the viewer
         self._shown_applied = 0
-        self.updates = bus.subscribe("vessel", "scene", maxlen=256)
-        self.objects_inbox = bus.subscribe("vessel", "objects", maxlen=4)
-        self.perception_inbox = bus.subscribe("vessel", "perception", maxlen=8)
+        self.updates = bus.subscribe("vessel", "scene", SceneUpdate, maxlen=256)
+        self.objects_inbox = bus.subscribe("vessel", "objects", RecognisedObjects, maxlen=4)
+        self.perception_inbox = bus.subscribe("vessel", "perception", PerceptionStatus, maxlen=8)
         self.perception = PerceptionSeen()
         self.core = ShoreScene(request_period_s)
         self.receiver = self.core.receiver
@@ -188,7 +190,7 @@ class Scene:
 
     def step(self, now_s: float) -> bool:
         """Whether a new scene stream went onto the map held (a restarted vessel)."""
-        received = [(r, r.message) for r in self.updates.drain() if isinstance(r.message, SceneUpdate)]
+        received = [(r, r.message) for r in self.updates.drain()]
         out = self.core.step([update for _, update in received], now_s)
         for ack in out.acks:
             self.bus.publish("scene_ack", ack)  # the vessel paces by these
@@ -199,15 +201,13 @@ class Scene:
                 stamp_s = received[applied.index][0].stamp_s
                 self.viewer.scene_update(applied.centres_m_world, applied.colors, stamp_s, applied.sim_time_s)
         for r in self.objects_inbox.drain():
-            if isinstance(r.message, RecognisedObjects):
-                self.objects = r.message
-                if self.viewer:
-                    self.viewer.objects(r.message, r.stamp_s)
-        for r in self.perception_inbox.drain():
-            if isinstance(r.message, PerceptionStatus):
-                self.perception.add(r.message, r.stamp_s)
-                if self.viewer:
-                    self.viewer.perception(r.message, r.stamp_s)
+            self.objects = r.message
+            if self.viewer:
+                self.viewer.objects(r.message, r.stamp_s)
+        for status in self.perception_inbox.drain():
+            self.perception.add(status.message, status.stamp_s)
+            if self.viewer:
+                self.viewer.perception(status.message, status.stamp_s)
         self.show(now_s)
         if out.request is not None:
             self.bus.publish("scene_request", out.request)

@@ -14,14 +14,16 @@ from collections.abc import Callable
 from typing import Protocol
 
 from abyss.common import keys
-from abyss.common.bus import Bus, Inbox, messages_of
+from abyss.common.bus import Bus, Inbox
 from abyss.common.config import Config
 from abyss.common.messages import (
     CommandAck,
+    Heartbeat,
     Image,
     PointCloud,
     RecognisedObjects,
     SceneAck,
+    SceneRequest,
     SceneUpdate,
     SonarImage,
     Telemetry,
@@ -65,7 +67,7 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
     model = SceneModel(
         cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s
     )
-    images = bus.subscribe("onboard", "image", maxlen=2)
+    images = bus.subscribe("onboard", "image", Image, maxlen=2)
     intake = Intake(cfg, model, bus.clock.now_s(), maps=mapper is None)
     gateway = mapper(lambda update: model.adopt(update.octree)) if mapper is not None else None
     try:
@@ -82,20 +84,22 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
 
 def _relay_loop(config: Config, bus: Bus, objects: Latest[RecognisedObjects | None]) -> None:
     """The I/O shell of the relay (`core.Relay`)."""
-    telemetry = bus.subscribe("onboard", "telemetry", maxlen=8)
-    operator = {topic: bus.subscribe("onshore", topic) for topic in RELAYED_DOWN}
-    acks = bus.subscribe("onboard", "ack")
-    shore_beats = bus.subscribe("onshore", "heartbeat", maxlen=4)
+    telemetry = bus.subscribe("onboard", "telemetry", Telemetry, maxlen=8)
+    operator = {
+        topic: bus.subscribe("onshore", topic, keys.spec("onshore", topic).message_class)
+        for topic in RELAYED_DOWN
+    }
+    acks = bus.subscribe("onboard", "ack", CommandAck)
+    shore_beats = bus.subscribe("onshore", "heartbeat", Heartbeat, maxlen=4)
     rate = bus.loop("relay", POLL_PERIOD_S)
     relay = Relay(config.vessel, bus.clock.now_s())
     while True:
         latest = telemetry.latest()
-        onboard_state = latest.message if latest and isinstance(latest.message, Telemetry) else None
         inputs = RelayInputs(
             commands=[(topic, r.message) for topic, inbox in operator.items() for r in inbox.drain()],
-            acks=messages_of(acks.drain(), CommandAck),
+            acks=[r.message for r in acks.drain()],
             shore_heard=bool(shore_beats.drain()),
-            telemetry=(latest.seq, onboard_state) if latest and onboard_state else None,
+            telemetry=(latest.seq, latest.message) if latest else None,
             objects=objects.get(),
         )
         for topic, message in relay.step(inputs, bus.clock.now_s()):
@@ -104,19 +108,19 @@ def _relay_loop(config: Config, bus: Bus, objects: Latest[RecognisedObjects | No
             break
 
 
-def _scene_loop(bus: Bus, intake: Intake, images: Inbox) -> None:
+def _scene_loop(bus: Bus, intake: Intake, images: Inbox[Image]) -> None:
     """The I/O shell of the intake (`intake.Intake`); another thread (`_send_loop`) streams the
     result, so that a slow insertion (a second or more for a stereo cloud on a loaded machine)
     never holds the stream back."""
-    clouds = bus.subscribe("onboard", "cloud", maxlen=4)
-    pings = bus.subscribe("onboard", "sonar", maxlen=4)
+    clouds = bus.subscribe("onboard", "cloud", PointCloud, maxlen=4)
+    pings = bus.subscribe("onboard", "sonar", SonarImage, maxlen=4)
     rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene")  # with simulated time, an insertion holds it
     while rate.sleep():
         image = images.latest()
         inputs = IntakeInputs(
-            clouds=messages_of(clouds.drain(), PointCloud),
-            pings=messages_of(pings.drain(), SonarImage),
-            image=image.message if image and isinstance(image.message, Image) else None,
+            clouds=[r.message for r in clouds.drain()],
+            pings=[r.message for r in pings.drain()],
+            image=image.message if image else None,
         )
         _publish(bus, intake.step(inputs, bus.clock.now_s()))
 
@@ -129,20 +133,20 @@ def _publish(bus: Bus, out: IntakeOutputs | StreamOutputs) -> None:
         bus.publish(topic, message)
 
 
-def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox, intake: Intake) -> None:
+def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox[Image], intake: Intake) -> None:
     """The I/O shell of the scene stream (`abyss.scene.stream.SceneStream`), paced by shore's
     acknowledgements."""
-    requests = bus.subscribe("onshore", "scene_request")
-    acks = bus.subscribe("onshore", "scene_ack", maxlen=256)
+    requests = bus.subscribe("onshore", "scene_request", SceneRequest)
+    acks = bus.subscribe("onshore", "scene_ack", SceneAck, maxlen=256)
     stream = SceneStream(config.vessel, model)
     rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene send")
     while rate.sleep():
         image = images.latest()
-        frame = image.message if image and isinstance(image.message, Image) else None
+        frame = image.message if image else None
         out = stream.step(
             bus.clock.now_s(),
             intake.sim_time_s.get(),
-            messages_of(acks.drain(), SceneAck),
+            [r.message for r in acks.drain()],
             bool(requests.drain()),
             frame,
             intake.sonar.get(),

@@ -142,7 +142,7 @@ def _frame(content: bytes) -> bytes:
 def test_the_scene_stream_goes_compressed_and_comes_back_whole() -> None:
     wire = encode(SCENE, 3, 1.0)
     assert wire.startswith(ZSTD_MAGIC) and len(wire) < 0.3 * len(msgpack.packb(msgpack.unpackb(unwrap(wire))))
-    back = decode("k", wire, "SceneUpdate").message
+    back = decode("k", wire, SceneUpdate).message
     assert isinstance(back, SceneUpdate) and back.octree == SCENE.octree
     assert np.array_equal(back.colors, SCENE.colors) and abs(wire_bytes(SCENE) - len(wire)) <= 8  # seq, stamp
     assert not encode(GOOD, 0, 1.0).startswith(ZSTD_MAGIC)  # only the classes that say so
@@ -164,7 +164,7 @@ def test_bad_frames_are_refused_with_their_reason(data: bytes, reason: str) -> N
 
 def test_wrong_type_on_a_key_is_refused() -> None:
     with pytest.raises(BadMessage, match="expected Telemetry"):
-        decode("k", encode(GOOD, 0, 1.0), expected="Telemetry")
+        decode("k", encode(GOOD, 0, 1.0), Telemetry)
 
 
 def test_invalid_values_are_refused_at_construction() -> None:
@@ -278,7 +278,7 @@ def test_random_bodies_of_every_message_type_decode_or_are_refused(case: tuple[s
     a message's own checks see it."""
     name, data = case
     try:
-        received = decode("k", data, name)
+        received = decode("k", data, MESSAGES[name])
     except BadMessage as exc:
         assert exc.key == "k" and exc.reason
     else:

@@ -351,8 +351,8 @@ class Compose:
         reached = [-1]
 
         def on_status(sample: zenoh.Sample) -> None:
-            status = message_of(sample, "MissionStatus")
-            if isinstance(status, MissionStatus):
+            status = message_of(sample, MissionStatus)
+            if status is not None:
                 if status.waypoint_index != reached[0]:
                     reached[0] = status.waypoint_index
                     say(

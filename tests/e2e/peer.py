@@ -36,8 +36,8 @@ def watch(endpoint: str, system: str, timeout_s: float) -> dict[str, object]:
     done = threading.Event()
 
     def on_mission(sample: zenoh.Sample) -> None:
-        status = message_of(sample, "MissionStatus")
-        if isinstance(status, MissionStatus):
+        status = message_of(sample, MissionStatus)
+        if status is not None:
             seen["waypoint_index"] = status.waypoint_index
             if status.done:
                 seen["mission_done"] = True

@@ -25,7 +25,7 @@ from rerun.chunk import RrdReader
 from abyss.common import keys
 from abyss.common.clouds import unpack_cloud
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import Message, decode
+from abyss.common.messages import Message, SceneUpdate, decode
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, WORLD_FILE
 from abyss.recording.reader import Recording, open_recording
 
@@ -332,7 +332,7 @@ def test_images_clouds_scene_paths_and_diagnostics_hold_the_recorded_values(
     np.testing.assert_array_equal(np.column_stack((rgb >> 16 & 255, rgb >> 8 & 255, rgb & 255)), colors)
 
     # the scene: each message the whole map; the one after the update shore saved last is shore's map
-    saved = decode("scene.msgpack", (recorded_run / "scene.msgpack").read_bytes(), "SceneUpdate").message
+    saved = decode("scene.msgpack", (recorded_run / "scene.msgpack").read_bytes(), SceneUpdate).message
     updates, maps = recorded(recording, "vessel/scene"), decoded["/abyss/vessel/scene"]
     at = next(i for i, u in enumerate(updates) if u.scene_seq == saved.scene_seq)
     octomap = maps[at]

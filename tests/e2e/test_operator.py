@@ -33,7 +33,7 @@ class TelemetryOnShore:
         )
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        message = decode(str(sample.key_expr), sample.payload.to_bytes(), "Telemetry").message
+        message = decode(str(sample.key_expr), sample.payload.to_bytes(), Telemetry).message
         assert isinstance(message, Telemetry)
         with self.lock:
             self.latest = message

@@ -265,7 +265,7 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
         node.close()
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert mapper.maps >= 5 and summary["scene"]["occupied_cells"] > 100, summary["scene"]
-    snapshot = decode("scene", (tmp_path / "run" / SCENE_FILE).read_bytes(), "SceneUpdate").message
+    snapshot = decode("scene", (tmp_path / "run" / SCENE_FILE).read_bytes(), SceneUpdate).message
     assert isinstance(snapshot, SceneUpdate)
     centres, sizes, occupied = iterate_leaves(read_binary(snapshot.octree, 0.1))[:3]
     shore, owners = leaves_to_cells(centres, sizes, 0.1)

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 from conftest import ROOT
 
 from abyss.common import keys
@@ -50,8 +51,8 @@ class Vessel:
         self.thread = threading.Thread(target=self._telemetry, daemon=True)
         self.thread.start()
 
-    def _on_command(self, sample: object) -> None:
-        message = decode(str(sample.key_expr), sample.payload.to_bytes()).message  # type: ignore[attr-defined]
+    def _on_command(self, sample: zenoh.Sample) -> None:
+        message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
         if isinstance(message, CommandAck):  # its own answers, on the operator's ack key
             return
         with self.lock:

@@ -34,7 +34,7 @@ def updates(model: SceneModel) -> list[SceneUpdate]:
     """Everything the model has queued, as it arrives on shore (through the codec)."""
     out = []
     while (update := model.next_update(0.0)) is not None:
-        wire = decode("k", encode(update, update.scene_seq, 0.0), "SceneUpdate").message
+        wire = decode("k", encode(update, update.scene_seq, 0.0), SceneUpdate).message
         assert isinstance(wire, SceneUpdate)
         out.append(wire)
     return out

@@ -32,7 +32,7 @@ def updates(model: SceneModel, sim_time_s: float = 0.0) -> list[SceneUpdate]:
     """What the model has queued, as it arrives on shore (through the codec)."""
     out = []
     while (update := model.next_update(sim_time_s)) is not None:
-        wire = decode("k", encode(update, update.scene_seq, 0.0), "SceneUpdate").message
+        wire = decode("k", encode(update, update.scene_seq, 0.0), SceneUpdate).message
         assert isinstance(wire, SceneUpdate)
         out.append(wire)
     return out

@@ -186,8 +186,8 @@ class Timeline:
         return self.now_s() - self.up_s
 
     def on_state(self, sample: zenoh.Sample) -> None:
-        state = message_of(sample, "Telemetry")
-        if isinstance(state, Telemetry):
+        state = message_of(sample, Telemetry)
+        if state is not None:
             with self.lock:
                 self.run.states.append((self.since_up_s(), state))
 

@@ -13,6 +13,7 @@ from abyss.common.messages import (
     JointState,
     NavState,
     OperatorMode,
+    Telemetry,
     decode,
     encode,
 )
@@ -47,4 +48,4 @@ def test_the_operator_mode_comes_in_as_a_string_and_goes_out_as_one() -> None:
         "idle",
         "idle",
     )
-    assert decode("k", encode(out.telemetry, 0, 0.0), "Telemetry").message.operator_mode == "teleop"
+    assert decode("k", encode(out.telemetry, 0, 0.0), Telemetry).message.operator_mode == "teleop"

@@ -30,7 +30,7 @@ def test_a_cut_tether_trips_the_failsafe_by_heartbeats_alone_and_it_lets_go_afte
             tether.reconfigure(profile("tether"))
         if step % round(config.vessel.heartbeat_period_s / STEP_S) == 0:
             tether.offer(now_s, encode(Heartbeat(0.0, True), step, now_s))
-        beats = [decode("k", d.payload, "Heartbeat").message for d in tether.advance(now_s)]
+        beats = [decode("k", d.payload, Heartbeat).message for d in tether.advance(now_s)]
         nav = NavState(
             np.array([0.0, 0.0, -5.0]),
             np.array([1.0, 0.0, 0.0, 0.0]),
@@ -40,7 +40,7 @@ def test_a_cut_tether_trips_the_failsafe_by_heartbeats_alone_and_it_lets_go_afte
             usbl_time_s=now_s,
             depth_m=5.0,
         )
-        out = core.step(OnboardInputs(heartbeats=beats, nav=[nav], joints=joints), now_s)  # type: ignore[arg-type]
+        out = core.step(OnboardInputs(heartbeats=beats, nav=[nav], joints=joints), now_s)
         assert out.vehicle is not None and out.arm is not None
         if out.telemetry is not None:
             held.append((now_s, out.telemetry.failsafe))

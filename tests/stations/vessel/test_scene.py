@@ -200,7 +200,7 @@ def test_the_leaves_read_from_the_octree_are_pyoctomaps_own(start: View) -> None
 def stream(model: SceneModel, receiver: SceneReceiver, drop: int | None = None) -> list[str]:
     outcomes = []
     while (update := model.next_update(0.0)) is not None:
-        wire = decode("k", encode(update, update.scene_seq, 0.0), "SceneUpdate").message
+        wire = decode("k", encode(update, update.scene_seq, 0.0), SceneUpdate).message
         assert isinstance(wire, SceneUpdate)
         if update.scene_seq != drop:
             outcomes.append(receiver.apply(wire))
@@ -313,6 +313,6 @@ def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
         dataclasses.replace(cloud, count=cloud.count + 1)
     with pytest.raises(BadMessage, match="not zlib"):
         payload = encode(cloud, 0, 0.0).replace(cloud.data[:16], b"\x00" * 16)
-        decode("k", payload, "PointCloud")
+        decode("k", payload, PointCloud)
     with pytest.raises(BadInput, match="decodes to nothing"):
         decode_image(dataclasses.replace(start.frames["cam_left"], data=b"not a jpeg"))

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -40,25 +41,32 @@ JOIN_WAIT_S = 5.0  # how long a starting shore listens for onboard's state befor
 log = logging.getLogger(__name__)
 
 
+C = TypeVar("C", Waypoints, ArmGoal, OperatorMode, Intervention)
+
+
 @dataclass
-class Command:
+class Command(Generic[C]):
     """The latest command on one op key, resent until onboard answers it."""
 
     topic: str
-    message: Waypoints | ArmGoal | OperatorMode | Intervention | None = None
+    message: C | None = None
     answer: CommandAck | None = None
     sent_s: float = -float("inf")
-    after: Command | None = None  # a command it waits for the answer to before it goes
+    after: Command[Waypoints] | None = None  # a command it waits for the answer to before it goes
 
     def waiting(self) -> bool:
         """It waits for `after`'s answer (links reorder what is sent together)."""
         return self.after is not None and self.after.message is not None and self.after.answer is None
 
-    def replace(self, message: Message) -> None:
-        assert isinstance(message, (Waypoints, ArmGoal, OperatorMode, Intervention))
+    def replace(self, message: C) -> None:
         self.message, self.answer, self.sent_s = message, None, -float("inf")
 
-    def in_force(self, message: Waypoints | ArmGoal | OperatorMode | Intervention, now_s: float) -> None:
+    def again(self) -> None:
+        """Hand the command in force again (onboard rebooted): unanswered, to be sent."""
+        if self.message is not None:
+            self.answer, self.sent_s = None, -float("inf")
+
+    def in_force(self, message: C, now_s: float) -> None:
         """Take a command onboard already flies (found in its telemetry) as this one: answered,
         not to be sent."""
         self.message, self.sent_s = message, now_s
@@ -97,17 +105,20 @@ class Operator:
         """`history` and `events`: what an earlier run of this station left (a restart)."""
         self.mission = mission
         self.mode = Command("op/mode", OperatorMode(new_id(), "auto"))
-        self.waypoints = Command("op/waypoints", Waypoints(new_id(), np.array(mission.waypoints)))
+        self.mission_waypoints_m = np.array(mission.waypoints)  # [m, world]
+        self.waypoints = Command("op/waypoints", Waypoints(new_id(), self.mission_waypoints_m))
         # onboard judges an arm goal or an intervention where the vehicle will hold: the waypoints first
-        self.arm = Command("op/arm", after=self.waypoints)
+        self.arm: Command[ArmGoal] = Command("op/arm", after=self.waypoints)
         goal = mission.arm_goal()
         if goal is not None:
             self.arm.replace(ArmGoal(new_id(), *goal))
-        self.intervene = Command("op/intervene", after=self.waypoints)
+        self.intervene: Command[Intervention] = Command("op/intervene", after=self.waypoints)
         self.intervention_index = 0  # of the mission's interventions, the one in hand
         if mission.interventions:
             self.intervene.replace(mission_intervention(mission, 0))
-        self.commands = {c.topic: c for c in (self.mode, self.waypoints, self.arm, self.intervene)}
+        self.commands: dict[str, Command[Any]] = {
+            c.topic: c for c in (self.mode, self.waypoints, self.arm, self.intervene)
+        }
         self.history: dict[tuple[str, int], dict[str, object]] = {  # every command sent, and its fate
             (f"op/{e['command']}", int(e["command_id"])): e  # type: ignore[call-overload]
             for e in history or []
@@ -131,8 +142,8 @@ class Operator:
         self.joined = True
         if t.command_id < 0:
             return
-        assert isinstance(self.waypoints.message, Waypoints)
-        mission = self.waypoints.message.waypoints
+        sent = self.waypoints.message  # the mission's, or a tool's that came before onboard's state
+        mission = sent.waypoints if sent is not None else self.mission_waypoints_m
         total = t.waypoints_total if 0 < t.waypoints_total <= len(mission) else len(mission)
         self.waypoint_offset = len(mission) - total
         self.waypoints.in_force(Waypoints(t.command_id, mission[self.waypoint_offset :]), now_s)
@@ -159,7 +170,8 @@ class Operator:
     def _rehand(self, before: Telemetry | None, t: Telemetry) -> None:
         """Onboard rebooted: the goals in force again, the waypoints from the one it was flying."""
         flown = self.waypoints.message
-        assert isinstance(flown, Waypoints)
+        if flown is None:  # never: the waypoints are the mission's from the start
+            return
         reached = 0
         if before is not None and before.command_id == flown.command_id:
             reached = min(before.waypoint_index, len(flown.waypoints) - 1)
@@ -169,8 +181,7 @@ class Operator:
         else:
             self.waypoints.replace(flown)
         for command in (self.arm, self.mode, self.intervene):
-            if command.message is not None:
-                command.replace(command.message)
+            command.again()
         self.onboard = t
         self.event("onboard", f"restarted: goals handed again from waypoint {self.waypoint_offset}")
 
@@ -284,10 +295,10 @@ def mission_intervention(mission: MissionConfig, index: int, command_id: int | N
 
 def mission_status(
     t: Telemetry,
-    waypoints: Command,
-    arm: Command,
+    waypoints: Command[Waypoints],
+    arm: Command[ArmGoal],
     offset: int = 0,
-    intervene: Command | None = None,
+    intervene: Command[Intervention] | None = None,
     index: int = 0,
     total: int = 0,
 ) -> MissionStatus:
@@ -295,8 +306,8 @@ def mission_status(
     end-effector its goal and onboard says the last intervention is done, all of the commands
     this station sent last. Waypoints count from the mission's first: `offset` were reached
     before the list in force began; interventions: `index` of `total` is in hand."""
-    assert isinstance(waypoints.message, Waypoints)
-    flying = t.command_id == waypoints.message.command_id
+    sent = waypoints.message
+    flying = sent is not None and t.command_id == sent.command_id
     vehicle_done = flying and t.mode == "reached"
     arm_done = arm.message is None or (t.arm_command_id == arm.message.command_id and t.arm_mode == "reached")
     current = intervene.message if intervene is not None else None
@@ -308,7 +319,7 @@ def mission_status(
     return MissionStatus(
         mode=t.mode,
         waypoint_index=offset + t.waypoint_index if flying else offset,
-        waypoints_total=offset + len(waypoints.message.waypoints),
+        waypoints_total=offset + (len(sent.waypoints) if sent is not None else 0),
         position_error_m=t.position_error_m,
         heading_error_rad=abs(t.heading_error_rad),
         arm_mode=t.arm_mode,

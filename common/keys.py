@@ -3,7 +3,7 @@
 `abyss/<system>/<station>/<topic>`: `<station>` is the publisher. `key()` is the only
 function that formats a key; everything else asks it. `KEYS` is the one table of data
 keys: publisher, topic, message type, rate, reliability and the hop it crosses. The
-README's key table and `abyss keys` are both generated from it.
+The key table in docs/links.md and `abyss keys` are both generated from it.
 """
 
 from __future__ import annotations
@@ -299,7 +299,7 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
 
 
 def keys_table() -> str:
-    """The Markdown table of every key; `abyss keys` prints it, the README holds it."""
+    """The Markdown table of every key; `abyss keys` prints it, docs/links.md holds it."""
     rows = [
         "| key | message | rate | reliability | priority | hop |",
         "| --- | --- | --- | --- | --- | --- |",

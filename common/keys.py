@@ -2,8 +2,8 @@
 
 `abyss/<system>/<station>/<topic>`: `<station>` is the publisher. `key()` is the only
 function that formats a key; everything else asks it. `KEYS` is the one table of data
-keys: publisher, topic, message type, rate, reliability and the hop it crosses. The
-The key table in docs/links.md and `abyss keys` are both generated from it.
+keys: publisher, topic, message class, rate, reliability and the hop it crosses. The key
+table in docs/links.md and `abyss keys` are both generated from it.
 """
 
 from __future__ import annotations

@@ -6,42 +6,11 @@ one colour in the middle of a step of `COLOR_STEP` (what goes to shore)."""
 from __future__ import annotations
 
 import numpy as np
+from walls import RESOLUTION_M, SENSOR_M_WORLD, occupied, updates, wall, wall_model
 
-from abyss.common.messages import SceneUpdate, decode, encode
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import HYSTERESIS_LOG_ODDS, cell_keys, iterate_leaves, leaves_to_cells
 from abyss.scene.receiver import SceneReceiver
-
-RESOLUTION_M = 0.1
-SENSOR_M_WORLD = np.zeros(3)
-
-
-def wall(x_m: float, color: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Points of a 1 m square wall facing the sensor at x = `x_m`, all of one colour."""
-    grid = np.arange(-0.475, 0.5, 0.05)
-    y, z = np.meshgrid(grid, grid)
-    points = np.column_stack((np.full(y.size, x_m), y.ravel(), z.ravel()))
-    return points, np.tile(np.array(color, np.uint8), (len(points), 1))
-
-
-def model_of(x_m: float, color: tuple[int, int, int]) -> SceneModel:
-    model = SceneModel(RESOLUTION_M, 8.0, max_update_bytes=200)  # several updates per wall (compressed)
-    model.insert(*wall(x_m, color), SENSOR_M_WORLD)
-    return model
-
-
-def updates(model: SceneModel) -> list[SceneUpdate]:
-    """Everything the model has queued, as it arrives on shore (through the codec)."""
-    out = []
-    while (update := model.next_update(0.0)) is not None:
-        wire = decode("k", encode(update, update.scene_seq, 0.0), SceneUpdate).message
-        assert isinstance(wire, SceneUpdate)
-        out.append(wire)
-    return out
-
-
-def occupied(model: SceneModel) -> set[int]:
-    return set(model.published.keys[model.published.occupied].tolist())
 
 
 def test_each_scene_model_has_its_own_stream_id() -> None:
@@ -52,7 +21,7 @@ def test_each_scene_model_has_its_own_stream_id() -> None:
 
 
 def test_a_new_streams_updates_go_onto_the_map_shore_holds() -> None:
-    before, after = model_of(2.03, (200, 8, 8)), model_of(-2.03, (8, 8, 200))  # a restarted vessel
+    before, after = wall_model(2.03, (200, 8, 8)), wall_model(-2.03, (8, 8, 200))  # a restarted vessel
     receiver = SceneReceiver()
     assert {receiver.apply(u) for u in updates(before)} == {"applied"}
     cells_before = occupied(before)
@@ -73,7 +42,7 @@ def test_a_new_streams_updates_go_onto_the_map_shore_holds() -> None:
 
 
 def test_a_snapshot_of_the_same_stream_after_a_gap_replaces_the_map() -> None:
-    before, after = model_of(2.03, (200, 8, 8)), model_of(-2.03, (8, 8, 200))
+    before, after = wall_model(2.03, (200, 8, 8)), wall_model(-2.03, (8, 8, 200))
     receiver = SceneReceiver()
     for update in updates(before):
         receiver.apply(update)
@@ -93,7 +62,7 @@ def test_a_snapshot_of_the_same_stream_after_a_gap_replaces_the_map() -> None:
 
 
 def test_a_new_stream_whose_first_update_was_lost_is_a_gap() -> None:
-    before, after = model_of(2.03, (200, 8, 8)), model_of(-2.03, (8, 8, 200))
+    before, after = wall_model(2.03, (200, 8, 8)), wall_model(-2.03, (8, 8, 200))
     receiver = SceneReceiver()
     for u in updates(before):
         receiver.apply(u)
@@ -107,7 +76,7 @@ def test_a_published_cell_goes_again_only_once_its_log_odds_are_well_past_the_th
     """A wall seen three times, then seen through (rays to a wall beyond pass its middle, a miss
     each): while a cell's log-odds lie in the hysteresis band, where OctoMap's maximum likelihood
     already calls it free, shore keeps it as sent; once past the band it goes free."""
-    model = model_of(2.03, (200, 8, 8))
+    model = wall_model(2.03, (200, 8, 8))
     for _ in range(2):
         model.insert(*wall(2.03, (200, 8, 8)), SENSOR_M_WORLD)
     updates(model)

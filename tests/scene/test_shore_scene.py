@@ -7,39 +7,11 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
+from walls import occupied, updates, wall_model
 
-from abyss.common.messages import SceneUpdate, decode, encode
-from abyss.scene.model import SceneModel
 from abyss.scene.receiver import ShoreScene
 
-RESOLUTION_M = 0.1
-SENSOR_M_WORLD = np.zeros(3)
 REQUEST_PERIOD_S = 1.0
-
-
-def wall_model(x_m: float, color: tuple[int, int, int]) -> SceneModel:
-    """A vessel's model that has seen a 1 m square wall at x = `x_m` [m], all of one colour."""
-    grid = np.arange(-0.475, 0.5, 0.05)
-    y, z = np.meshgrid(grid, grid)
-    points = np.column_stack((np.full(y.size, x_m), y.ravel(), z.ravel()))
-    model = SceneModel(RESOLUTION_M, 8.0, max_update_bytes=200)  # several updates per wall
-    model.insert(points, np.tile(np.array(color, np.uint8), (len(points), 1)), SENSOR_M_WORLD)
-    return model
-
-
-def updates(model: SceneModel, sim_time_s: float = 0.0) -> list[SceneUpdate]:
-    """What the model has queued, as it arrives on shore (through the codec)."""
-    out = []
-    while (update := model.next_update(sim_time_s)) is not None:
-        wire = decode("k", encode(update, update.scene_seq, 0.0), SceneUpdate).message
-        assert isinstance(wire, SceneUpdate)
-        out.append(wire)
-    return out
-
-
-def occupied(model: SceneModel) -> set[int]:
-    return set(model.published.keys[model.published.occupied].tolist())
 
 
 def test_updates_are_acknowledged_and_applied_in_order() -> None:

@@ -1,5 +1,5 @@
 """`abyss`: the command line. It parses arguments and calls the testbed; each command group
-lives in a module of its own (`system`, `link`, `lab`, `operator`, `validation`, `models`)."""
+lives in a module of its own (`system`, `link`, `lab`, `operator`, `validation`, `campaign`, `models`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import argparse
 import sys
 from typing import Any
 
-from abyss.cli import export, lab, link, models, operator, record, system, validation
+from abyss.cli import campaign, export, lab, link, models, operator, record, system, validation
 from abyss.common.errors import AbyssError
 
 DESCRIPTION = (
@@ -19,7 +19,7 @@ DESCRIPTION = (
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="abyss", description=DESCRIPTION)
     sub = root.add_subparsers(dest="command", required=True)
-    for group in (system, link, lab, operator, record, export, validation, models):
+    for group in (system, link, lab, operator, record, export, validation, campaign, models):
         group.add_commands(sub)
     return root
 

@@ -1,0 +1,251 @@
+"""Campaigns on Ray as a team runs them: a small campaign on a local Ray judged as pass rates (its
+counts, Wilson intervals and JUnit), the same campaign as two shards, one of them with its driver
+SIGKILLed mid-way and resumed, merged into the one campaign's report; two Ray nodes in two
+network namespaces sharing a campaign, the worker killed mid-way and its run retried on the head;
+and a failing run with a fault and a kill replayed byte for byte."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, abyss
+
+from abyss.validation.campaign.stats import wilson
+
+pytestmark = [pytest.mark.e2e]
+SCENARIOS = Path(__file__).parent / "campaign"
+CAMPAIGN = """\
+name = "small"
+scenarios = ["scenarios/short-*.toml"]
+seeds = 3
+time = "lockstep"
+
+[matrix]
+"links.satellite" = ["satellite", "satellite-storm"]
+"""
+
+
+def campaign_dir(
+    tmp_path: Path, text: str = CAMPAIGN, names: tuple[str, ...] = ("short-links", "short-mission")
+) -> Path:
+    """A campaign file and its scenarios in a directory of the user's."""
+    (tmp_path / "scenarios").mkdir()
+    for name in names:
+        shutil.copy(SCENARIOS / f"{name}.toml", tmp_path / "scenarios")
+    (tmp_path / "small.toml").write_text(text)
+    return tmp_path
+
+
+def records(out: Path) -> list[dict[str, object]]:
+    lines = (out / "results.jsonl").read_text().splitlines() if (out / "results.jsonl").exists() else []
+    return [json.loads(line) for line in lines if line.endswith("}")]
+
+
+def driver(
+    here: Path, *args: str, env: dict[str, str] | None = None, prefix: tuple[str, ...] = ()
+) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [*prefix, sys.executable, "-P", "-m", "abyss.cli", "campaign", "run", *args],
+        cwd=here,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+    )
+
+
+def wait_for_records(
+    out: Path, count: int, process: subprocess.Popen[str], timeout_s: float
+) -> list[dict[str, object]]:
+    """The store once it holds `count` records (the driver still running)."""
+    deadline = time.monotonic() + timeout_s
+    while len(got := records(out)) < count:
+        assert process.poll() is None, process.stdout.read() if process.stdout else ""
+        assert time.monotonic() < deadline, f"{len(got)} of {count} records in {timeout_s} s"
+        time.sleep(0.2)
+    return got
+
+
+def comparable(report: Path) -> dict[str, object]:
+    data = json.loads((report / "report.json").read_text())
+    data.pop("cost")
+    return data
+
+
+@pytest.mark.timeout(900)
+def test_a_campaign_on_local_ray_then_two_shards_one_killed_and_resumed_merge_to_its_report(
+    tmp_path: Path,
+) -> None:
+    here = campaign_dir(tmp_path)
+    whole = abyss("campaign", "run", "small.toml", "--out", "whole", timeout_s=600, cwd=here)
+    assert whole.returncode == 1, whole.stdout + whole.stderr  # the storm fails short-links' delay bound
+    out = here / "whole"
+    got = records(out)
+    assert len(got) == 12 and len({r["run_id"] for r in got}) == 12
+    report = json.loads((out / "report.json").read_text())
+    groups = {(g["scenario"], g["variant"]): g for g in report["groups"]}
+    assert len(groups) == 4
+    for (scenario, variant), group in groups.items():
+        mine = [r for r in got if r["scenario"] == scenario and r["variant"] == variant]
+        passes = sum(bool(r["passed"]) for r in mine)
+        assert group["runs"] == 3 and group["passes"] == passes
+        low, high = wilson(passes, 3)
+        assert math.isclose(group["interval"][0], low) and math.isclose(group["interval"][1], high)
+        assert group["flaky"] == (0 < passes < 3)
+    storm = groups[("short-links", "links.satellite=satellite-storm")]
+    assert storm["passes"] == 0 and storm["assertion_failures"], storm
+    assert groups[("short-links", "links.satellite=satellite")]["passes"] == 3
+    cases = {
+        (c.get("classname"), c.get("name")): c for c in ET.parse(out / "junit.xml").getroot().iter("testcase")
+    }
+    assert len(cases) == 4
+    failed = {k for k, c in cases.items() if c.find("failure") is not None}
+    assert ("campaign.short-links", "links.satellite=satellite-storm") in failed
+    assert all(r["kept"] for r in got if not r["passed"]) and not any(r["kept"] for r in got if r["passed"])
+    failing = next(r for r in got if not r["passed"])
+    assert (out / str(failing["kept"]) / "control.csv").exists()
+    assert f"abyss campaign replay" in (out / "report.md").read_text()
+
+    # the same campaign in two shards; the first's driver SIGKILLed after its second result
+    first = driver(here, "small.toml", "--out", "s1", "--shard", "1/2")
+    wait_for_records(here / "s1", 2, first, 300)
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait()
+    kept = len(records(here / "s1"))
+    resumed = abyss(
+        "campaign", "run", "small.toml", "--out", "s1", "--shard", "1/2", "--resume", timeout_s=600, cwd=here
+    )
+    assert f"{kept} have results, {6 - kept} to run" in resumed.stdout, resumed.stdout + resumed.stderr
+    assert len(records(here / "s1")) == 6 and len({r["run_id"] for r in records(here / "s1")}) == 6
+    second = abyss("campaign", "run", "small.toml", "--out", "s2", "--shard", "2/2", timeout_s=600, cwd=here)
+    assert second.returncode in (0, 1), second.stdout + second.stderr
+    merged = abyss("campaign", "merge", "s1", "s2", "--out", "merged", timeout_s=120, cwd=here)
+    assert merged.returncode == whole.returncode, merged.stdout + merged.stderr
+    assert comparable(here / "merged") == comparable(out)
+
+
+class RayNodes:
+    """A Ray head and a Ray worker, each in a network namespace of its own, joined by a veth pair."""
+
+    def __init__(self) -> None:
+        tag = secrets.token_hex(3)
+        self.spaces = (f"rh-{tag}", f"rw-{tag}")
+        self.addresses = ("10.79.0.1", "10.79.0.2")
+        self.env = {**os.environ, "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
+        self.port = 6390
+
+    def ip(self, *args: str) -> None:
+        subprocess.run(["ip", *args], check=True, capture_output=True)
+
+    def make(self) -> RayNodes:
+        head, worker = self.spaces
+        for space in self.spaces:
+            self.ip("netns", "add", space)
+            self.ip("-n", space, "link", "set", "lo", "up")
+        self.ip("link", "add", "rv0", "netns", head, "type", "veth", "peer", "name", "rv1", "netns", worker)
+        for space, device, address in zip(self.spaces, ("rv0", "rv1"), self.addresses, strict=True):
+            self.ip("-n", space, "addr", "add", f"{address}/24", "dev", device)
+            self.ip("-n", space, "link", "set", device, "up")
+        ray = str(Path(sys.executable).with_name("ray"))
+        common = ["--num-cpus", "2", "--disable-usage-stats"]
+        self.start(
+            head,
+            [
+                ray,
+                "start",
+                "--head",
+                "--node-ip-address",
+                self.addresses[0],
+                "--port",
+                str(self.port),
+                "--include-dashboard",
+                "false",
+                *common,
+            ],
+        )
+        self.start(
+            worker,
+            [
+                ray,
+                "start",
+                "--address",
+                f"{self.addresses[0]}:{self.port}",
+                "--node-ip-address",
+                self.addresses[1],
+                *common,
+            ],
+        )
+        return self
+
+    def start(self, space: str, command: list[str]) -> None:
+        done = subprocess.run(
+            ["ip", "netns", "exec", space, *command],
+            env=self.env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.returncode == 0, done.stdout + done.stderr
+
+    def kill(self, space: str) -> None:
+        pids = subprocess.run(["ip", "netns", "pids", space], capture_output=True, text=True).stdout.split()
+        for pid in pids:
+            try:
+                os.kill(int(pid), signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+    def remove(self) -> None:
+        for space in self.spaces:
+            self.kill(space)
+            subprocess.run(["ip", "netns", "del", space], capture_output=True)
+
+
+@pytest.fixture
+def ray_nodes() -> Iterator[RayNodes]:
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        pytest.skip("two Ray nodes in network namespaces need root and iproute2")
+    nodes = RayNodes()
+    try:
+        yield nodes.make()
+    finally:
+        nodes.remove()
+
+
+@pytest.mark.timeout(900)
+def test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the_head(
+    tmp_path: Path, ray_nodes: RayNodes
+) -> None:
+    text = CAMPAIGN.replace("seeds = 3", "seeds = 6").replace(
+        'scenarios = ["scenarios/short-*.toml"]', 'scenarios = ["scenarios/short-mission.toml"]'
+    )
+    text = text.split("[matrix]")[0]
+    here = campaign_dir(tmp_path, text, ("short-mission",))
+    head, worker = ray_nodes.addresses
+    run = driver(here, "small.toml", "--out", "out", "--address", f"{head}:{ray_nodes.port}",
+                 env=ray_nodes.env, prefix=("ip", "netns", "exec", ray_nodes.spaces[0]))  # fmt: skip
+    deadline = time.monotonic() + 400
+    while not any(worker in str(r["node"]) for r in records(here / "out")):
+        assert run.poll() is None and time.monotonic() < deadline, run.stdout.read() if run.stdout else ""
+        time.sleep(0.2)
+    ray_nodes.kill(ray_nodes.spaces[1])  # the worker's node dies with the run it has just started
+    output, _ = run.communicate(timeout=600)
+    assert run.returncode == 0, output
+    got = records(here / "out")
+    assert len(got) == 6 and len({r["run_id"] for r in got}) == 6, got  # none lost, none twice
+    nodes = [str(r["node"]) for r in got]
+    assert any(head in n for n in nodes) and any(worker in n for n in nodes), nodes
+    assert "2 nodes" in output and "6/6 runs done" in output, output

@@ -1,0 +1,80 @@
+"""A campaign from its file to its report: the plan (a shard of it), the store in the campaign
+directory (refusing one that holds another campaign, going on in one with `--resume`), the runs
+without a result through Ray, then the report and the exit code."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import ray
+
+from abyss.common.errors import ConfigError
+from abyss.validation.campaign import execute
+from abyss.validation.campaign.plan import plan, shard
+from abyss.validation.campaign.report import Report, build_report
+from abyss.validation.campaign.spec import Campaign
+from abyss.validation.campaign.store import Store
+
+
+def run_campaign(
+    campaign: Campaign,
+    out: Path,
+    address: str | None,
+    resume: bool,
+    slice_: tuple[int, int] | None,
+    say: Callable[[str], None],
+) -> int:
+    """Run what has no result yet, report, and exit 0 when every scenario and variant reached
+    its minimum pass rate (1: one did not; 4: runs were lost and `--resume` goes on)."""
+    runs = plan(campaign)
+    if slice_ is not None:
+        runs = shard(runs, *slice_)
+    store = Store(out)
+    if store.has_plan() and not resume:
+        raise ConfigError(
+            "--out", f"{out} holds a campaign already: --resume goes on there, or give another --out"
+        )
+    if resume and not store.has_plan():
+        raise ConfigError("--resume", f"{out} holds no campaign to go on with")
+    store.write_plan(campaign, runs, slice_)  # on --resume: checks it is the same plan
+    have = store.records()
+    todo = [r for r in runs if r.run_id not in have]
+    say(
+        f"campaign {campaign.name}: {len(runs)} runs ({len({r.scenario_name for r in runs})} scenarios, "
+        f"{len({r.variant.name for r in runs})} variants, {len(campaign.seeds)} seeds)"
+        + (f", shard {slice_[0]}/{slice_[1]}" if slice_ else "")
+        + (f"; {len(have)} have results, {len(todo)} to run" if resume else "")
+        + f"; directory {out}"
+    )
+    lost: list[str] = []
+    started_s = time.monotonic()
+    if todo:
+        execute.connect(address)
+        try:
+            nodes = execute.check_versions()
+            say(f"Ray: {len(nodes)} node{'s' * (len(nodes) != 1)} ({', '.join(nodes)}), "
+                f"{ray.cluster_resources().get('CPU', 0):g} cores; each run asks for "
+                f"{execute.task_cores(todo):g}")  # fmt: skip
+            lost = execute.execute(todo, campaign.keep, store, say)
+        finally:
+            ray.shutdown()
+    store.add_wall(time.monotonic() - started_s)
+    for line in lost:
+        say(f"LOST {line}")
+    code = conclude(build_report(store), out, say)
+    if lost:
+        say(
+            f"{len(lost)} runs got no result: `abyss campaign run {campaign.path} --out {out} --resume` runs them"
+        )
+        return 4
+    return code
+
+
+def conclude(report: Report, out: Path, say: Callable[[str], None]) -> int:
+    """The report's lines a person reads first, and the exit code."""
+    for line in report.summary_lines():
+        say(line)
+    say(f"report {out / 'report.md'}, JUnit {out / 'junit.xml'}")
+    return 0 if report.passed() else 1

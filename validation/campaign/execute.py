@@ -1,0 +1,219 @@
+"""`abyss campaign run`: a campaign's runs as Ray tasks. With no address a local Ray starts inside
+the command; with one the driver joins that cluster. Each run is a task that asks for the cores a
+system costs (fractional, from what systems measured here cost, as `scenario run --parallel auto`
+reasons), runs the scenario as a whole isolated system on whichever node Ray gives it, and
+returns its record, with its run directory packed when the campaign keeps it. Ray retries a task
+whose worker or node dies; the driver stores each result as it arrives (`store.Store`), so a
+killed driver loses nothing and `--resume` runs only what has no result."""
+
+from __future__ import annotations
+
+import io
+import logging
+import math
+import os
+import shutil
+import socket
+import tarfile
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import ray
+from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+from abyss.common.errors import AbyssError, ConfigError
+from abyss.validation.campaign.plan import RunSpec
+from abyss.validation.campaign.store import RunRecord, Store, record_of
+from abyss.validation.campaign.version import abyss_version
+from abyss.validation.scenario import capacity
+from abyss.validation.scenario.runner import run_scenario
+
+PROGRESS_WALL_S = 10.0  # a line of progress at least this often
+TASK_RETRIES = 3  # a run whose worker or node dies is run again, this many times at most
+CONNECT_TIMEOUT_S = 30.0
+
+
+class VersionMismatch(AbyssError):
+    """A node runs other abyss code than the driver."""
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a run's task returns: its record, and its run directory as a gzipped tar where kept."""
+
+    record: RunRecord
+    archive: bytes
+
+
+def node_name() -> str:
+    """This node as a person finds it: host name and the address Ray knows it by."""
+    return f"{socket.gethostname()}/{ray.util.get_node_ip_address()}"
+
+
+def _pack(directory: Path) -> bytes:
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz", compresslevel=3) as tar:
+        tar.add(directory, arcname=".")
+    return buffer.getvalue()
+
+
+def run_one(spec: RunSpec, keep: str, driver_version: str) -> Outcome:
+    """A run on this node (a Ray task's body; the scenario runs as `scenario run` runs it)."""
+    here = abyss_version()
+    if here != driver_version:
+        raise VersionMismatch(f"node {node_name()} runs abyss {here}, the driver {driver_version}")
+    with tempfile.TemporaryDirectory(prefix="abyss-run-") as scratch:
+        result = run_scenario(spec.scenario, Path(scratch) / spec.run_id, 0, lambda _: None)
+        kept = keep == "all" or (keep == "failing" and not result.passed)
+        archive = _pack(result.out_dir) if kept else b""
+        record = record_of(spec, result, node_name(), f"runs/{spec.run_id}" if kept else "")
+    return Outcome(record, archive)
+
+
+def _version_of_node() -> tuple[str, str]:
+    return node_name(), abyss_version()
+
+
+def connect(address: str | None) -> None:
+    """Ray: a local instance on this machine's cores, or the cluster at `address`."""
+    logging.getLogger("ray").setLevel(logging.WARNING)
+    if address is None:
+        ray.init(
+            address="local",
+            num_cpus=max(1, math.floor(capacity.available_cores())),
+            include_dashboard=False,
+            log_to_driver=False,
+            logging_level=logging.WARNING,
+        )
+        return
+    try:
+        ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        raise ConfigError(
+            "--address",
+            f"no Ray cluster answers at {address} ({str(exc).splitlines()[0]}): start one with "
+            "`ray start --head` on the head node and give its GCS address (HOST:6379), or leave "
+            "--address out for a local Ray",
+        ) from None
+
+
+def check_versions() -> list[str]:
+    """Every live node's abyss against the driver's: the nodes, or VersionMismatch naming both."""
+    mine = abyss_version()
+    probe = ray.remote(num_cpus=0)(_version_of_node)
+    refs = [
+        probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote()
+        for n in ray.nodes()
+        if n["Alive"]
+    ]
+    nodes = ray.get(refs, timeout=CONNECT_TIMEOUT_S * 4)
+    for name, theirs in nodes:
+        if theirs != mine:
+            raise VersionMismatch(
+                f"node {name} runs abyss {theirs}, this driver {mine}: install the same abyss on every "
+                "node (the same commit, or the same image)"
+            )
+    return sorted(name for name, _ in nodes)
+
+
+def task_cores(runs: list[RunSpec]) -> float:
+    """The cores one run asks Ray for: a system's measured cost at the runs' speed, over the
+    headroom `--parallel auto` keeps (so a local campaign runs as many at once as it would)."""
+    speeds = {r.scenario.time.speed_factor if r.scenario.time.simulated else 1.0 for r in runs}
+    speed = max(speeds, default=1.0)
+    per_system, _ = capacity.measured_cores()
+    cores = per_system * speed if math.isfinite(speed) else 1.0
+    return round(cores / capacity.HEADROOM, 2)
+
+
+def gather(outcome: Outcome, store: Store) -> None:
+    """A finished run into the campaign directory: its kept directory unpacked (atomically, by a
+    rename), then its record. A directory that cannot be written (a full disk) leaves no record,
+    so that `--resume` runs it again."""
+    if outcome.archive:
+        final = store.directory / outcome.record.kept
+        partial = final.with_name(final.name + ".partial")
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        with tarfile.open(fileobj=io.BytesIO(outcome.archive), mode="r:gz") as tar:
+            tar.extractall(partial, filter="data")
+        shutil.rmtree(final, ignore_errors=True)
+        os.replace(partial, final)
+    store.add(outcome.record)
+
+
+@dataclass
+class Progress:
+    """Runs done, failed and running, the nodes and cores in use, and the time left."""
+
+    total: int
+    say: Callable[[str], None]
+    done: int = 0
+    failed: int = 0
+    started_s: float = time.monotonic()
+    last_s: float = 0.0
+
+    def line(self, running: int) -> str:
+        elapsed_s = time.monotonic() - self.started_s
+        left = self.total - self.done
+        eta = f"~{elapsed_s / self.done * left / 60:.1f} min left" if self.done else "time left unknown yet"
+        total_cpu = ray.cluster_resources().get("CPU", 0.0)
+        free_cpu = ray.available_resources().get("CPU", 0.0)
+        nodes = sum(1 for n in ray.nodes() if n["Alive"])
+        return (
+            f"{self.done}/{self.total} runs done ({self.failed} failed), {running} running on "
+            f"{nodes} node{'s' * (nodes != 1)}, {total_cpu - free_cpu:.1f}/{total_cpu:g} cores in use; {eta}"
+        )
+
+    def tick(self, running: int, force: bool = False) -> None:
+        now_s = time.monotonic()
+        if force or now_s - self.last_s >= PROGRESS_WALL_S:
+            self.last_s = now_s
+            self.say(self.line(running))
+
+
+def execute(todo: list[RunSpec], keep: str, store: Store, say: Callable[[str], None]) -> list[str]:
+    """Every run in `todo` through Ray, each stored as it arrives; the runs that got no result
+    (their task failed past its retries), each with why."""
+    task = ray.remote(max_retries=TASK_RETRIES, retry_exceptions=False)(run_one)
+    cores = task_cores(todo)
+    version = abyss_version()
+    pending = {task.options(num_cpus=cores).remote(spec, keep, version): spec for spec in todo}
+    progress = Progress(len(todo), say, started_s=time.monotonic())
+    lost: list[str] = []
+    while pending:
+        ready, _ = ray.wait(list(pending), num_returns=1, timeout=PROGRESS_WALL_S)
+        for ref in ready:
+            spec = pending.pop(ref)
+            try:
+                outcome: Outcome = ray.get(ref)
+            except ray.exceptions.RayError as exc:
+                cause = exc.cause if isinstance(exc, ray.exceptions.RayTaskError) else exc
+                if isinstance(cause, VersionMismatch):
+                    ray.cancel(list(pending), force=True)
+                    raise cause from None
+                lost.append(
+                    f"{spec.run_id} ({spec.scenario_name}, {spec.variant.name}, seed {spec.seed}): {cause}"
+                )
+                continue
+            try:
+                gather(outcome, store)
+            except OSError as exc:
+                lost.append(f"{spec.run_id}: its directory could not be kept ({exc}); --resume runs it again")
+                continue
+            progress.done += 1
+            progress.failed += not outcome.record.passed
+            say(
+                f"{'PASS' if outcome.record.passed else 'FAIL'} {spec.scenario_name} [{spec.variant.name}] "
+                f"seed {spec.seed} on {outcome.record.node} in {outcome.record.wall_s:.0f} s"
+                + (
+                    f": {outcome.record.error or '; '.join(outcome.record.wrong)}"
+                    if not outcome.record.passed
+                    else ""
+                )
+            )
+        progress.tick(len(pending), force=bool(ready) and progress.done == len(todo))
+    return lost

@@ -1,0 +1,98 @@
+"""`abyss campaign replay DIR RUN_ID`: one of a campaign's runs again, on this machine, from what
+the campaign directory holds (the plan carries each run's scenario, variant and seed, so neither
+the scenario file nor the cluster is needed), then compared with the run the campaign kept: in
+lockstep byte for byte (onboard's telemetry as recorded, `control.csv`, and every message each
+station sent, per boot), otherwise only its verdict, since a run on the wall clock repeats only
+statistically."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from abyss.common import keys
+from abyss.common.errors import ConfigError
+from abyss.recording.reader import read_file
+from abyss.validation.campaign.plan import RunSpec
+from abyss.validation.campaign.store import Store
+from abyss.validation.scenario.runner import run_scenario
+
+Sent = dict[tuple[str, str, int], bytes]  # (the life's recording, key, seq) -> payload
+
+
+def find(directory: Path, run_id: str) -> RunSpec:
+    """The planned run whose id starts with `run_id` (exactly one)."""
+    runs = Store(directory).read_plan().runs
+    matches = [r for r in runs if r.run_id.startswith(run_id)]
+    if len(matches) != 1:
+        some = ", ".join(r.run_id for r in (matches or runs)[:5])
+        raise ConfigError(
+            "RUN_ID", f"{run_id!r} names {len(matches)} of the campaign's {len(runs)} runs (e.g. {some})"
+        )
+    return matches[0]
+
+
+def sent_messages(run_dir: Path, station: str) -> Sent:
+    """Every message `station` sent in a run, in each of its lives (a restarted station records
+    to `<station>-<life>.mcap`), from its recordings (empty without one)."""
+    lives = sorted((run_dir / "record").glob(f"{station}.mcap")) + sorted(
+        (run_dir / "record").glob(f"{station}-*.mcap")
+    )
+    return {
+        (path.name, r.key, r.seq): r.payload
+        for path in lives
+        for r in read_file(path).records
+        if r.direction == "sent"
+    }
+
+
+def differences(original: Path, again: Path) -> tuple[list[str], int]:
+    """Where two runs' bytes differ (empty: identical), and the messages compared."""
+    found: list[str] = []
+    if (original / "control.csv").read_bytes() != (again / "control.csv").read_bytes():
+        found.append("control.csv differs")
+    compared = 0
+    for station in keys.STATIONS:
+        first, second = sent_messages(original, station), sent_messages(again, station)
+        compared += len(first)
+        if first.keys() != second.keys():
+            found.append(f"{station} sent {len(first)} messages, then {len(second)}")
+        elif changed := [k for k in first if first[k] != second[k]]:
+            life, key, seq = changed[0]
+            found.append(f"{station}: {len(changed)} messages differ, the first {key} #{seq} ({life})")
+    return found, compared
+
+
+def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
+    """Run it again and compare: 0 when it repeats (bit for bit in lockstep, else its verdict)."""
+    store = Store(directory)
+    spec = find(directory, run_id)
+    record = store.records().get(spec.run_id)
+    say(
+        f"replaying {spec.run_id}: {spec.scenario_name} [{spec.variant.name}] seed {spec.seed}, time {spec.time}"
+    )
+    attempt = (
+        sum(1 for _ in (directory / "replays").glob(f"{spec.run_id}-*"))
+        if (directory / "replays").exists()
+        else 0
+    )
+    out = directory / "replays" / f"{spec.run_id}-{attempt + 1}"
+    result = run_scenario(spec.scenario, out, 0, say)
+    say(
+        f"{'PASS' if result.passed else 'FAIL'} ({result.outcome}): {result.why_failed or 'every assertion held'}"
+    )
+    if record is not None and record.passed != result.passed:
+        say(f"the campaign's run {'passed' if record.passed else 'failed'}; this one did not")
+    original = directory / record.kept if record is not None and record.kept else None
+    if not spec.replayable:
+        say(f"not bit for bit: {spec.why_not_replayable}; its failures replay only statistically")
+        return 0 if record is None or record.passed == result.passed else 1
+    if original is None or not (original / "control.csv").exists():
+        say('the campaign kept no directory of this run to compare bytes with (keep = "all" keeps every run)')
+        return 0 if record is None or record.passed == result.passed else 1
+    found, compared = differences(original, out)
+    for line in found:
+        say(f"DIFFERS: {line}")
+    if not found:
+        say(f"byte-identical: control.csv and {compared} messages ({out})")
+    return 1 if found or (record is not None and record.passed != result.passed) else 0

@@ -45,7 +45,10 @@ class Variant:
 def variants(campaign: Campaign) -> list[Variant]:
     """The product of the matrix's lists, in order (the last key varies fastest)."""
     keys = [key for key, _ in campaign.matrix]
-    return [Variant(tuple(zip(keys, combo, strict=True))) for combo in itertools.product(*(v for _, v in campaign.matrix))]
+    return [
+        Variant(tuple(zip(keys, combo, strict=True)))
+        for combo in itertools.product(*(v for _, v in campaign.matrix))
+    ]
 
 
 def run_id(text: str, variant: Variant, seed: int, time: str, version: str) -> str:
@@ -96,7 +99,9 @@ class RunSpec:
             data["scenario_text"], Path(data["scenario_path"]), variant, data["seed"], data["time_asked"], ""
         )
         if spec.scenario_name != data["scenario_name"]:
-            raise ConfigError("scenario_name", f"{data['scenario_name']!r} but the text names {spec.scenario_name!r}")
+            raise ConfigError(
+                "scenario_name", f"{data['scenario_name']!r} but the text names {spec.scenario_name!r}"
+            )
         return dataclasses.replace(spec, run_id=data["run_id"])
 
 
@@ -130,7 +135,9 @@ def plan(campaign: Campaign) -> list[RunSpec]:
     for scenario in campaign.scenarios:
         text = scenario.path.read_text()
         for variant in variants(campaign):
-            runs += [spec_of(text, scenario.path, variant, seed, campaign.time, version) for seed in campaign.seeds]
+            runs += [
+                spec_of(text, scenario.path, variant, seed, campaign.time, version) for seed in campaign.seeds
+            ]
     return runs
 
 

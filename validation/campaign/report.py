@@ -265,6 +265,7 @@ def _case_lines(c: Case, out_dir: Path) -> list[str]:
     if failures:
         lines += ["", "| assertion | runs it failed in |", "| --- | --- |"]
         lines += [f"| `{a}` | {n} |" for a, n in failures.items()]
+    lines += [""] if c.failing() else []
     for r in c.failing():
         how = (
             f"`abyss campaign replay {out_dir} {r['run_id']}`"

@@ -309,7 +309,7 @@ def markdown(report: Report, path: Path, pictures: list[Path]) -> None:
         "",
         "## Cost",
         "",
-        f"{cost['core_hours']:.2f} core-hours; {cost['wall_s']:.0f} s of wall time; "
+        f"{cost['core_hours']:.3g} core-hours; {cost['wall_s']:.0f} s of wall time; "
         f"{cost['sim_s']:.0f} s simulated"
         + (f", {cost['sim_s_per_wall_s']:.2f} simulated s per wall s" if cost["sim_s_per_wall_s"] else "")
         + "; nodes: "

@@ -202,7 +202,7 @@ class Store:
         self.dir.mkdir(parents=True, exist_ok=True)
         planned = PlanFile(
             campaign=campaign.name,
-            path=str(campaign.path),
+            path=str(campaign.path.resolve()),
             version=version,
             shard=f"{shard_k_n[0]}/{shard_k_n[1]}" if shard_k_n else "",
             all_runs=tuple(runs),

@@ -1,6 +1,6 @@
-"""Which abyss this is, exactly: the package's version and a digest of its sources and models.
-A campaign's run ids contain it (results of different code never mix) and every Ray node must
-report the driver's (a node running other code is refused, naming both)."""
+"""The abyss a campaign's runs were made with: the package's version and a digest of its
+sources, so that results of different code never mix (a run's id hashes it) and a Ray node
+running other code is refused."""
 
 from __future__ import annotations
 
@@ -11,24 +11,36 @@ from pathlib import Path
 
 import abyss
 
-SOURCES = (".py", ".toml", ".xml")  # code, configuration and the models: what a run depends on
+SOURCE_SUFFIXES = (".py", ".toml", ".xml")
+NOT_PACKAGED = {"pyproject.toml"}  # at the root of a checkout, not in the wheel
+
+
+def _package_files(root: Path) -> list[Path]:
+    """The package's source files: those in `root` and in every folder under it that is a package
+    (holds an `__init__.py`), as the wheel has them; tests, benchmarks and environments are not."""
+    files: list[Path] = []
+    folders = [root]
+    while folders:
+        folder = folders.pop()
+        for path in sorted(folder.iterdir()):
+            if path.is_dir() and (path / "__init__.py").exists():
+                folders.append(path)
+            elif path.is_file() and path.suffix in SOURCE_SUFFIXES and path.name not in NOT_PACKAGED:
+                files.append(path)
+    return sorted(files)
 
 
 @functools.cache
 def abyss_version() -> str:
-    """`<package version>+<12 hex digits of the sources' SHA-256>`: the same for an editable
-    checkout and a wheel built from it."""
+    """`<package version>+<the first 12 hex digits of a SHA-256 of the package's .py, .toml and
+    .xml sources (their paths and contents)>`."""
     root = Path(abyss.__file__).resolve().parent
-    packages = [root, *(d for d in sorted(root.iterdir()) if (d / "__init__.py").is_file())]
     digest = hashlib.sha256()
-    for package in packages:
-        files = package.glob("*.py") if package == root else package.rglob("*")  # not pyproject.toml
-        for path in sorted(files):
-            if path.suffix in SOURCES and path.is_file() and "__pycache__" not in path.parts:
-                digest.update(path.relative_to(root).as_posix().encode() + b"\0")
-                digest.update(path.read_bytes() + b"\0")
+    for path in _package_files(root):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes() + b"\0")
     try:
-        release = metadata.version("abyss")
+        version = metadata.version("abyss")
     except metadata.PackageNotFoundError:
-        release = "0+unknown"
-    return f"{release}+{digest.hexdigest()[:12]}"
+        version = "0"
+    return f"{version}+{digest.hexdigest()[:12]}"

@@ -1,0 +1,321 @@
+"""A campaign file (TOML): which scenarios (paths or globs relative to the file), how many seeds,
+a matrix of variations over hop profiles, configuration fields and event parameters, the time
+source, the pass rates each scenario must reach and which runs to keep. A bad file is refused at
+load with the file, the field and what is allowed."""
+
+from __future__ import annotations
+
+import dataclasses
+import glob
+import json
+import os
+import re
+import tomllib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from abyss.common import keys
+from abyss.common.config import load
+from abyss.common.errors import ConfigError
+from abyss.common.linkprofile import load_profiles
+from abyss.validation.scenario.spec import Event, Scenario, load_scenario, scenario_of
+
+TIMES = ("lockstep", "sim", "real")  # the time source a campaign asks for
+KEEPS = ("failing", "all", "none")  # which runs' directories are kept whole
+FIELDS = (
+    "name",
+    "description",
+    "scenarios",
+    "exclude",
+    "seeds",
+    "time",
+    "min_pass_rate",
+    "min_pass_rate_of",
+    "keep",
+    "matrix",
+)
+RESERVED = {  # configuration fields the campaign sets itself: matrix key -> the campaign's field
+    "seed": "seeds",
+    "system": "name (each run gets a system id of its own)",
+    "time.mode": "time",
+}
+EVENT_KEY = re.compile(r"^events\[(\d+)\]\.(\w+)$")
+EVENT_FIELDS = tuple(f.name for f in dataclasses.fields(Event) if f.name != "action")
+ACTION_FIELDS = {"link": ("hop", "profile"), "fault": ("fault", "target", "value"), "kill": ("station",)}
+
+
+@dataclass(frozen=True)
+class Campaign:
+    name: str
+    path: Path
+    description: str
+    scenarios: tuple[Scenario, ...]
+    seeds: tuple[int, ...]
+    matrix: tuple[tuple[str, tuple[Any, ...]], ...]  # key -> its values, in the file's order
+    time: str  # lockstep | sim | real
+    min_pass_rate: float  # [0, 1], every scenario's unless min_pass_rate_of names it
+    min_pass_rate_of: dict[str, float]
+    keep: str  # failing | all | none
+
+    def min_rate(self, scenario_name: str) -> float:
+        """The pass rate [0, 1] the scenario must reach in each variant."""
+        return self.min_pass_rate_of.get(scenario_name, self.min_pass_rate)
+
+
+def set_text(value: Any) -> str:
+    """A matrix value as `--set section.field=value` reads it: a list as JSON, a boolean as
+    true/false, a number or a string as written."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list | dict):
+        return json.dumps(value)
+    return str(value)
+
+
+def apply_value(table: dict[str, Any], key: str, value: Any) -> None:
+    """One matrix value into a scenario's table (as its TOML file reads): `links.<hop>` its
+    profile, `events[i].<field>` that event's field, anything else a configuration item."""
+    if key.startswith("links."):
+        table.setdefault("links", {})[key.removeprefix("links.")] = value
+    elif m := EVENT_KEY.match(key):
+        table["events"][int(m[1])][m[2]] = value
+    else:
+        table.setdefault("config", {})[key] = set_text(value)
+
+
+def scenario_with(
+    text: str, path: Path, values: Iterable[tuple[str, Any]], seed: int | None = None
+) -> Scenario:
+    """The scenario of file `path` (its `text`) with the matrix `values` applied and, if given,
+    the configuration's `seed`."""
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("scenario", f"cannot read: {exc}", str(path)) from None
+    for key, value in values:
+        apply_value(table, key, value)
+    if seed is not None:
+        table.setdefault("config", {})["seed"] = str(seed)
+    return scenario_of(table, str(path))
+
+
+def load_campaign(path: Path) -> Campaign:
+    """The campaign file at `path`, every scenario it names loaded and every matrix key checked."""
+    try:
+        table = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError("campaign", f"cannot read: {exc}", str(path)) from None
+    try:
+        return _campaign(table, path)
+    except ConfigError as exc:
+        if exc.source:  # a scenario file's own error: its file and field
+            raise
+        raise ConfigError(exc.field, exc.reason, str(path)) from None
+
+
+def _campaign(table: dict[str, Any], path: Path) -> Campaign:
+    table = dict(table)
+    unknown = sorted(set(table) - set(FIELDS))
+    if unknown:
+        raise ConfigError(unknown[0], f"unknown field; allowed: {', '.join(FIELDS)}")
+    name = _take(table, "name", str, None)
+    try:
+        keys.check_system_id(name)
+    except ConfigError as exc:
+        raise ConfigError("name", exc.reason) from None
+    scenarios = _scenarios(path.parent, _strings(table, "scenarios", True), _strings(table, "exclude", False))
+    min_pass_rate = _rate(_take(table, "min_pass_rate", float, 1.0), "min_pass_rate")
+    return Campaign(
+        name=name,
+        path=path,
+        description=_take(table, "description", str, ""),
+        scenarios=scenarios,
+        seeds=_seeds(table.get("seeds")),
+        matrix=_matrix(table.get("matrix"), scenarios),
+        time=_choice(_take(table, "time", str, "lockstep"), TIMES, "time"),
+        min_pass_rate=min_pass_rate,
+        min_pass_rate_of=_rates_of(_take(table, "min_pass_rate_of", dict, {}), scenarios),
+        keep=_choice(_take(table, "keep", str, "failing"), KEEPS, "keep"),
+    )
+
+
+def _take(table: dict[str, Any], name: str, kind: type, default: Any) -> Any:
+    """The field's value, checked against `kind`; `default` where it is absent (None: required)."""
+    if name not in table:
+        if default is None:
+            raise ConfigError(name, "is required")
+        return default
+    value = table[name]
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
+        raise ConfigError(name, f"expected {kind.__name__}, got {value!r}")
+    return value
+
+
+def _choice(value: str, allowed: tuple[str, ...], field: str) -> str:
+    if value not in allowed:
+        raise ConfigError(field, f"{value!r} not one of {', '.join(allowed)}")
+    return value
+
+
+def _strings(table: dict[str, Any], name: str, required: bool) -> list[str]:
+    value = table.get(name, None if required else [])
+    if value is None:
+        raise ConfigError(name, "is required: a list of scenario files or globs, relative to this file")
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(name, f"expected a list of paths or globs, got {value!r}")
+    if required and not value:
+        raise ConfigError(name, "needs at least one path or glob")
+    return value
+
+
+def _matched(folder: Path, patterns: list[str], field: str) -> list[Path]:
+    """The files each of `patterns` names, relative to `folder` (the campaign file's), once each,
+    in the patterns' order and each pattern's matches sorted."""
+    found: list[Path] = []
+    for i, pattern in enumerate(patterns):
+        full = pattern if os.path.isabs(pattern) else os.path.join(glob.escape(str(folder)), pattern)
+        matches = sorted(Path(p).resolve() for p in glob.glob(full, recursive=True) if Path(p).is_file())
+        if not matches:
+            raise ConfigError(f"{field}[{i}]", f"{pattern!r} matches no file (relative to {folder})")
+        found += [m for m in matches if m not in found]
+    return found
+
+
+def _scenarios(folder: Path, patterns: list[str], excluded: list[str]) -> tuple[Scenario, ...]:
+    out = set(_matched(folder, excluded, "exclude"))
+    paths = [p for p in _matched(folder, patterns, "scenarios") if p not in out]
+    if not paths:
+        raise ConfigError("scenarios", "every file matched is excluded: nothing to run")
+    scenarios = tuple(load_scenario(p) for p in paths)
+    seen: dict[str, Path] = {}
+    for s in scenarios:
+        if s.name in seen:
+            raise ConfigError(
+                "scenarios", f"two files name the scenario {s.name!r}: {seen[s.name]}, {s.path}"
+            )
+        seen[s.name] = s.path
+    return scenarios
+
+
+def _seeds(value: Any) -> tuple[int, ...]:
+    allowed = "a count of at least 1 (5: seeds 0 to 4) or a non-empty list of distinct whole numbers >= 0"
+    if value is None:
+        raise ConfigError("seeds", f"is required: {allowed}")
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+        return tuple(range(value))
+    if (
+        isinstance(value, list)
+        and value
+        and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value)
+        and len(set(value)) == len(value)
+    ):
+        return tuple(value)
+    raise ConfigError("seeds", f"{value!r}: expected {allowed}")
+
+
+def _rate(value: float, field: str) -> float:
+    if not 0.0 <= value <= 1.0:
+        raise ConfigError(field, f"{value:g}: a pass rate from 0 to 1")
+    return value
+
+
+def _rates_of(table: dict[str, Any], scenarios: tuple[Scenario, ...]) -> dict[str, float]:
+    names = [s.name for s in scenarios]
+    rates = {}
+    for name in table:
+        if name not in names:
+            raise ConfigError(
+                f"min_pass_rate_of.{name}", f"names no scenario of the campaign: {', '.join(names)}"
+            )
+        rates[name] = _rate(_take(table, name, float, None), f"min_pass_rate_of.{name}")
+    return rates
+
+
+def _matrix(table: Any, scenarios: tuple[Scenario, ...]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
+    if table is None:
+        return ()
+    if not isinstance(table, dict) or not table:
+        raise ConfigError(
+            "matrix", "a table of keys, each with a list of values; leave it out for no variations"
+        )
+    matrix = []
+    for key, values in table.items():
+        where = f"matrix.{key}"
+        if not isinstance(values, list) or not values:
+            raise ConfigError(where, f"{values!r}: expected a list of at least one value")
+        if not all(_plain(v) for v in values):
+            raise ConfigError(where, f"{values!r}: values are strings, numbers, booleans or lists of them")
+        if len({json.dumps(v) for v in values}) != len(values):
+            raise ConfigError(where, f"{values!r}: a value twice")
+        _check_key(key, values, scenarios, where)
+        matrix.append((key, tuple(values)))
+    return tuple(matrix)
+
+
+def _plain(value: Any) -> bool:
+    if isinstance(value, list):
+        return all(_plain(v) for v in value)
+    return isinstance(value, str | int | float | bool)
+
+
+def _check_key(key: str, values: list[Any], scenarios: tuple[Scenario, ...], where: str) -> None:
+    """Refuse a matrix key that names no hop, event field or configuration field, or a value
+    that one does not take."""
+    kinds = (
+        f"a matrix key is links.<hop> ({', '.join(keys.HOPS)}), events[i].<field> "
+        f"({', '.join(EVENT_FIELDS)}) or a configuration field (section.field, as --set takes)"
+    )
+    if key in RESERVED:
+        raise ConfigError(where, f"set by the campaign's {RESERVED[key]}, not the matrix")
+    if key.startswith("links."):
+        hop = key.removeprefix("links.")
+        if hop not in keys.HOPS:
+            raise ConfigError(where, f"no hop {hop!r}; {kinds}")
+        profiles = sorted(load_profiles())
+        for value in values:
+            if value not in profiles:
+                raise ConfigError(where, f"{value!r} is no link profile; profiles: {', '.join(profiles)}")
+    elif m := EVENT_KEY.match(key):
+        _check_event(int(m[1]), m[2], key, values, scenarios, where)
+    elif key.startswith("events"):
+        raise ConfigError(where, kinds)
+    else:
+        for value in values:
+            try:
+                load(None, [f"{key}={set_text(value)}"])
+            except ConfigError as exc:
+                raise ConfigError(where, f"{value!r}: {exc.field}: {exc.reason}; {kinds}") from None
+
+
+def _check_event(
+    index: int, field: str, key: str, values: list[Any], scenarios: tuple[Scenario, ...], where: str
+) -> None:
+    """Every scenario has the event, its action takes the field, and each value is one it takes."""
+    if field not in EVENT_FIELDS:
+        raise ConfigError(where, f"no event field {field!r}; fields: {', '.join(EVENT_FIELDS)}")
+    for s in scenarios:
+        if index >= len(s.events):
+            raise ConfigError(
+                where, f"scenario {s.name} ({s.path}) has no events[{index}]: {len(s.events)} events"
+            )
+        action = s.events[index].action
+        if field not in ("at_s", "phase", *ACTION_FIELDS[action]):
+            raise ConfigError(
+                where,
+                f"scenario {s.name}'s events[{index}] is a {action} event: it takes no {field}, only "
+                f"at_s, phase, {', '.join(ACTION_FIELDS[action])}",
+            )
+        text = s.path.read_text()
+        for value in values:
+            try:
+                scenario_with(text, s.path, [(key, value)])
+            except ConfigError as exc:
+                raise ConfigError(
+                    where, f"{value!r} in scenario {s.name}: {exc.field}: {exc.reason}"
+                ) from None

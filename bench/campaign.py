@@ -97,8 +97,10 @@ def ray_cost(runs: int, duration_s: float, tmp: Path) -> None:
     seeded = []
     for seed in range(runs):
         path = tmp / f"seed-{seed}.toml"
-        path.write_text(scenario.read_text().replace('name = "bench-mission"', f'name = "bench-mission-{seed}"')
-                        + f'\n[config]\nseed = {seed}\n')  # fmt: skip
+        path.write_text(
+            scenario.read_text().replace('name = "bench-mission"', f'name = "bench-mission-{seed}"')
+            + f"\n[config]\nseed = {seed}\n"
+        )
         seeded.append(path)
     (tmp / "c.toml").write_text(
         f'name = "bench"\nscenarios = ["{scenario.name}"]\nseeds = {runs}\ntime = "lockstep"\n'
@@ -106,9 +108,20 @@ def ray_cost(runs: int, duration_s: float, tmp: Path) -> None:
     abyss = [sys.executable, "-P", "-m", "abyss.cli"]
     print(f"Ray's cost: {runs} runs of {duration_s:g} simulated s in lockstep, each way ...", flush=True)
     pool_wall, pool_cpu, _, pool_out = timed(
-        [*abyss, "scenario", "run", *map(str, seeded), "--parallel", "auto", "--time", "lockstep", "--report", str(tmp / "pool")],
+        [
+            *abyss,
+            "scenario",
+            "run",
+            *map(str, seeded),
+            "--parallel",
+            "auto",
+            "--time",
+            "lockstep",
+            "--report",
+            str(tmp / "pool"),
+        ],
         tmp,
-    )  # fmt: skip
+    )
     ray_wall, ray_cpu, commands, ray_out = timed(
         [*abyss, "campaign", "run", "c.toml", "--out", str(tmp / "ray")], tmp
     )
@@ -116,15 +129,18 @@ def ray_cost(runs: int, duration_s: float, tmp: Path) -> None:
     workers = sum(s for pid, s in ray_cpu.items() if RAY_WORKER.search(commands.get(pid, "")))
     cores = len(os.sched_getaffinity(0))
     print(
-        f"  scenario run --parallel auto: {pool_wall:.1f} s wall, {sum(pool_cpu.values()):.1f} CPU s ({pool_out.strip().splitlines()[-1]})"
+        f"  scenario run --parallel auto: {pool_wall:.1f} s wall, {sum(pool_cpu.values()):.1f} CPU s "
+        f"({pool_out.strip().splitlines()[-1]})"
     )
     print(f"  campaign run (local Ray):     {ray_wall:.1f} s wall, {sum(ray_cpu.values()):.1f} CPU s")
     print(f"  wall ratio campaign / pool: {ray_wall / pool_wall:.3f} (goal <= 1.05)")
     print(
-        f"  Ray's own processes: {own:.1f} CPU s = {own / (ray_wall * cores):.1%} of the machine's {cores} cores over the campaign"
+        f"  Ray's own processes: {own:.1f} CPU s = {own / (ray_wall * cores):.1%} of the machine's "
+        f"{cores} cores over the campaign"
     )
     print(
-        f"  Ray's task workers (the runner's work, and Ray's in them): {workers:.1f} CPU s = {workers / (ray_wall * cores):.1%}"
+        f"  Ray's task workers (the runner's work, and Ray's in them): {workers:.1f} CPU s = "
+        f"{workers / (ray_wall * cores):.1%}"
     )
     if "runs done" not in ray_out:
         print(ray_out[-3000:])
@@ -140,17 +156,39 @@ def throughput(names: list[str], seeds: int, sources: list[str], tmp: Path) -> l
         )
         print(f"throughput: {', '.join(names)} x {seeds} seeds on {source} time ...", flush=True)
         t0 = time.monotonic()
-        subprocess.run([sys.executable, "-P", "-m", "abyss.cli", "campaign", "run", f"tp-{source}.toml", "--out", str(out)],
-                       cwd=tmp, capture_output=True, text=True)  # fmt: skip
+        subprocess.run(
+            [
+                sys.executable,
+                "-P",
+                "-m",
+                "abyss.cli",
+                "campaign",
+                "run",
+                f"tp-{source}.toml",
+                "--out",
+                str(out),
+            ],
+            cwd=tmp,
+            capture_output=True,
+            text=True,
+        )
         wall_s = time.monotonic() - t0
         rows = [json.loads(line) for line in (out / "results.jsonl").read_text().splitlines() if line.strip()]
         sim_s = sum(r["sim_s"] for r in rows)
         core_s = sum(r["core_s"] for r in rows)
         passed = sum(r["passed"] for r in rows)
-        print(f"  {source}: {len(rows)} runs ({passed} passed), {sim_s:.0f} simulated s in {wall_s:.0f} wall s = "
-              f"{sim_s / wall_s:.2f} simulated s per wall s; {core_s / sim_s:.2f} core-s per simulated s")  # fmt: skip
-        costs.append({"source": source, "wall_per_run_s": wall_s / max(len(rows), 1), "core_s_per_run": core_s / max(len(rows), 1),
-                      "sim_s_per_run": sim_s / max(len(rows), 1)})  # fmt: skip
+        print(
+            f"  {source}: {len(rows)} runs ({passed} passed), {sim_s:.0f} simulated s in {wall_s:.0f} wall s = "
+            f"{sim_s / wall_s:.2f} simulated s per wall s; {core_s / sim_s:.2f} core-s per simulated s"
+        )
+        costs.append(
+            {
+                "source": source,
+                "wall_per_run_s": wall_s / max(len(rows), 1),
+                "core_s_per_run": core_s / max(len(rows), 1),
+                "sim_s_per_run": sim_s / max(len(rows), 1),
+            }
+        )
     return costs
 
 

@@ -6,6 +6,7 @@ and a failing run with a fault and a kill replayed byte for byte."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -20,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, abyss
+from conftest import abyss
 
 from abyss.validation.campaign.stats import wilson
 
@@ -96,14 +97,14 @@ def test_a_campaign_on_local_ray_then_two_shards_one_killed_and_resumed_merge_to
     got = records(out)
     assert len(got) == 12 and len({r["run_id"] for r in got}) == 12
     report = json.loads((out / "report.json").read_text())
-    groups = {(g["scenario"], g["variant"]): g for g in report["groups"]}
+    groups = {(g["scenario"], g["variant"]): g for g in report["cases"]}
     assert len(groups) == 4
     for (scenario, variant), group in groups.items():
         mine = [r for r in got if r["scenario"] == scenario and r["variant"] == variant]
         passes = sum(bool(r["passed"]) for r in mine)
         assert group["runs"] == 3 and group["passes"] == passes
         low, high = wilson(passes, 3)
-        assert math.isclose(group["interval"][0], low) and math.isclose(group["interval"][1], high)
+        assert math.isclose(group["wilson_95"][0], low) and math.isclose(group["wilson_95"][1], high)
         assert group["flaky"] == (0 < passes < 3)
     storm = groups[("short-links", "links.satellite=satellite-storm")]
     assert storm["passes"] == 0 and storm["assertion_failures"], storm
@@ -117,7 +118,7 @@ def test_a_campaign_on_local_ray_then_two_shards_one_killed_and_resumed_merge_to
     assert all(r["kept"] for r in got if not r["passed"]) and not any(r["kept"] for r in got if r["passed"])
     failing = next(r for r in got if not r["passed"])
     assert (out / str(failing["kept"]) / "control.csv").exists()
-    assert f"abyss campaign replay" in (out / "report.md").read_text()
+    assert "abyss campaign replay" in (out / "report.md").read_text()
 
     # the same campaign in two shards; the first's driver SIGKILLed after its second result
     first = driver(here, "small.toml", "--out", "s1", "--shard", "1/2")
@@ -203,10 +204,8 @@ class RayNodes:
     def kill(self, space: str) -> None:
         pids = subprocess.run(["ip", "netns", "pids", space], capture_output=True, text=True).stdout.split()
         for pid in pids:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(int(pid), signal.SIGKILL)
-            except ProcessLookupError:
-                pass
 
     def remove(self) -> None:
         for space in self.spaces:
@@ -235,8 +234,16 @@ def test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the
     text = text.split("[matrix]")[0]
     here = campaign_dir(tmp_path, text, ("short-mission",))
     head, worker = ray_nodes.addresses
-    run = driver(here, "small.toml", "--out", "out", "--address", f"{head}:{ray_nodes.port}",
-                 env=ray_nodes.env, prefix=("ip", "netns", "exec", ray_nodes.spaces[0]))  # fmt: skip
+    run = driver(
+        here,
+        "small.toml",
+        "--out",
+        "out",
+        "--address",
+        f"{head}:{ray_nodes.port}",
+        env=ray_nodes.env,
+        prefix=("ip", "netns", "exec", ray_nodes.spaces[0]),
+    )
     deadline = time.monotonic() + 400
     while not any(worker in str(r["node"]) for r in records(here / "out")):
         assert run.poll() is None and time.monotonic() < deadline, run.stdout.read() if run.stdout else ""

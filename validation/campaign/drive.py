@@ -13,9 +13,10 @@ import ray
 from abyss.common.errors import ConfigError
 from abyss.validation.campaign import execute
 from abyss.validation.campaign.plan import plan, shard
-from abyss.validation.campaign.report import Report, build_report
+from abyss.validation.campaign.report import Report, build_report, counts_text
 from abyss.validation.campaign.spec import Campaign
-from abyss.validation.campaign.store import Store
+from abyss.validation.campaign.store import PLAN_FILE, Store
+from abyss.validation.campaign.version import abyss_version
 
 
 def run_campaign(
@@ -28,18 +29,22 @@ def run_campaign(
 ) -> int:
     """Run what has no result yet, report, and exit 0 when every scenario and variant reached
     its minimum pass rate (1: one did not; 4: runs were lost and `--resume` goes on)."""
-    runs = plan(campaign)
-    if slice_ is not None:
-        runs = shard(runs, *slice_)
+    whole = plan(campaign)
+    runs = shard(whole, *slice_) if slice_ is not None else whole
     store = Store(out)
-    if store.has_plan() and not resume:
+    planned = (out / PLAN_FILE).exists()
+    if planned and not resume:
         raise ConfigError(
             "--out", f"{out} holds a campaign already: --resume goes on there, or give another --out"
         )
-    if resume and not store.has_plan():
+    if resume and not planned:
         raise ConfigError("--resume", f"{out} holds no campaign to go on with")
-    store.write_plan(campaign, runs, slice_)  # on --resume: checks it is the same plan
-    have = store.records()
+    if resume:
+        store.check_plan(whole, abyss_version(), slice_)
+    else:
+        store.write_plan(campaign, whole, abyss_version(), slice_)
+    mine = {r.run_id for r in runs}
+    have = {run_id: r for run_id, r in store.records().items() if run_id in mine}
     todo = [r for r in runs if r.run_id not in have]
     say(
         f"campaign {campaign.name}: {len(runs)} runs ({len({r.scenario_name for r in runs})} scenarios, "
@@ -54,19 +59,23 @@ def run_campaign(
         execute.connect(address)
         try:
             nodes = execute.check_versions()
-            say(f"Ray: {len(nodes)} node{'s' * (len(nodes) != 1)} ({', '.join(nodes)}), "
+            say(
+                f"Ray: {len(nodes)} node{'s' * (len(nodes) != 1)} ({', '.join(nodes)}), "
                 f"{ray.cluster_resources().get('CPU', 0):g} cores; each run asks for "
-                f"{execute.task_cores(todo):g}")  # fmt: skip
+                f"{execute.task_cores(todo):g}"
+            )
             lost = execute.execute(todo, campaign.keep, store, say)
         finally:
             ray.shutdown()
     store.add_wall(time.monotonic() - started_s)
     for line in lost:
         say(f"LOST {line}")
-    code = conclude(build_report(store), out, say)
+    report = build_report(runs, store.records(), out, campaign.min_rate, store.wall_s(), campaign.name)
+    code = conclude(report, out, say)
     if lost:
         say(
-            f"{len(lost)} runs got no result: `abyss campaign run {campaign.path} --out {out} --resume` runs them"
+            f"{len(lost)} runs got no result: `abyss campaign run {campaign.path} --out {out} "
+            "--resume` runs them"
         )
         return 4
     return code
@@ -74,7 +83,7 @@ def run_campaign(
 
 def conclude(report: Report, out: Path, say: Callable[[str], None]) -> int:
     """The report's lines a person reads first, and the exit code."""
-    for line in report.summary_lines():
-        say(line)
+    for case in report.cases:
+        say(f"{'ok  ' if case.ok else 'FAIL'} {case.scenario} [{case.variant}]: {counts_text(case)}")
     say(f"report {out / 'report.md'}, JUnit {out / 'junit.xml'}")
     return 0 if report.passed() else 1

@@ -13,12 +13,13 @@ import logging
 import math
 import os
 import shutil
+import signal
 import socket
 import tarfile
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import ray
@@ -65,12 +66,21 @@ def run_one(spec: RunSpec, keep: str, driver_version: str) -> Outcome:
     here = abyss_version()
     if here != driver_version:
         raise VersionMismatch(f"node {node_name()} runs abyss {here}, the driver {driver_version}")
-    with tempfile.TemporaryDirectory(prefix="abyss-run-") as scratch:
-        result = run_scenario(spec.scenario, Path(scratch) / spec.run_id, 0, lambda _: None)
-        kept = keep == "all" or (keep == "failing" and not result.passed)
-        archive = _pack(result.out_dir) if kept else b""
-        record = record_of(spec, result, node_name(), f"runs/{spec.run_id}" if kept else "")
-    return Outcome(record, archive)
+    # Ray's workers block SIGINT, and a blocked mask is inherited: `abyss up` could then never
+    # stop its stations (they stop on SIGINT). Unblocked for the run, as in a shell.
+    blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    try:
+        with tempfile.TemporaryDirectory(prefix="abyss-run-") as scratch:
+            return _run(spec, keep, Path(scratch))
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def _run(spec: RunSpec, keep: str, scratch: Path) -> Outcome:
+    result = run_scenario(spec.scenario, scratch / spec.run_id, 0, lambda _: None)
+    kept = keep == "all" or (keep == "failing" and not result.passed)
+    archive = _pack(result.out_dir) if kept else b""
+    return Outcome(record_of(spec, result, node_name(), f"runs/{spec.run_id}" if kept else ""), archive)
 
 
 def _version_of_node() -> tuple[str, str]:
@@ -134,7 +144,7 @@ def gather(outcome: Outcome, store: Store) -> None:
     rename), then its record. A directory that cannot be written (a full disk) leaves no record,
     so that `--resume` runs it again."""
     if outcome.archive:
-        final = store.directory / outcome.record.kept
+        final = store.dir / outcome.record.kept
         partial = final.with_name(final.name + ".partial")
         shutil.rmtree(partial, ignore_errors=True)
         partial.mkdir(parents=True)
@@ -150,22 +160,24 @@ class Progress:
     """Runs done, failed and running, the nodes and cores in use, and the time left."""
 
     total: int
+    cores_per_run: float
     say: Callable[[str], None]
     done: int = 0
     failed: int = 0
-    started_s: float = time.monotonic()
+    started_s: float = field(default_factory=time.monotonic)
     last_s: float = 0.0
 
     def line(self, running: int) -> str:
         elapsed_s = time.monotonic() - self.started_s
-        left = self.total - self.done
-        eta = f"~{elapsed_s / self.done * left / 60:.1f} min left" if self.done else "time left unknown yet"
-        total_cpu = ray.cluster_resources().get("CPU", 0.0)
-        free_cpu = ray.available_resources().get("CPU", 0.0)
+        if self.done == self.total:
+            return f"{self.done}/{self.total} runs done ({self.failed} failed) in {elapsed_s / 60:.1f} min"
+        left_min = elapsed_s / self.done * (self.total - self.done) / 60 if self.done else None
         nodes = sum(1 for n in ray.nodes() if n["Alive"])
         return (
-            f"{self.done}/{self.total} runs done ({self.failed} failed), {running} running on "
-            f"{nodes} node{'s' * (nodes != 1)}, {total_cpu - free_cpu:.1f}/{total_cpu:g} cores in use; {eta}"
+            f"{self.done}/{self.total} runs done ({self.failed} failed), {running} running on {nodes} "
+            f"node{'s' * (nodes != 1)}, {running * self.cores_per_run:.1f}/"
+            f"{ray.cluster_resources().get('CPU', 0.0):g} cores in use; "
+            + (f"~{left_min:.1f} min left" if left_min is not None else "time left unknown yet")
         )
 
     def tick(self, running: int, force: bool = False) -> None:
@@ -182,7 +194,7 @@ def execute(todo: list[RunSpec], keep: str, store: Store, say: Callable[[str], N
     cores = task_cores(todo)
     version = abyss_version()
     pending = {task.options(num_cpus=cores).remote(spec, keep, version): spec for spec in todo}
-    progress = Progress(len(todo), say, started_s=time.monotonic())
+    progress = Progress(len(todo), cores, say)
     lost: list[str] = []
     while pending:
         ready, _ = ray.wait(list(pending), num_returns=1, timeout=PROGRESS_WALL_S)
@@ -215,5 +227,5 @@ def execute(todo: list[RunSpec], keep: str, store: Store, say: Callable[[str], N
                     else ""
                 )
             )
-        progress.tick(len(pending), force=bool(ready) and progress.done == len(todo))
+        progress.tick(len(pending), force=bool(ready) and not pending)
     return lost

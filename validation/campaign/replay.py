@@ -22,7 +22,7 @@ Sent = dict[tuple[str, str, int], bytes]  # (the life's recording, key, seq) -> 
 
 def find(directory: Path, run_id: str) -> RunSpec:
     """The planned run whose id starts with `run_id` (exactly one)."""
-    runs = Store(directory).read_plan().runs
+    runs = list(Store(directory).read_plan().all_runs)
     matches = [r for r in runs if r.run_id.startswith(run_id)]
     if len(matches) != 1:
         some = ", ".join(r.run_id for r in (matches or runs)[:5])
@@ -69,17 +69,14 @@ def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
     spec = find(directory, run_id)
     record = store.records().get(spec.run_id)
     say(
-        f"replaying {spec.run_id}: {spec.scenario_name} [{spec.variant.name}] seed {spec.seed}, time {spec.time}"
+        f"replaying {spec.run_id}: {spec.scenario_name} [{spec.variant.name}] seed {spec.seed}, "
+        f"time {spec.time}"
     )
-    attempt = (
-        sum(1 for _ in (directory / "replays").glob(f"{spec.run_id}-*"))
-        if (directory / "replays").exists()
-        else 0
-    )
-    out = directory / "replays" / f"{spec.run_id}-{attempt + 1}"
+    out = directory / "replays" / f"{spec.run_id}-{len(list(directory.glob(f'replays/{spec.run_id}-*'))) + 1}"
     result = run_scenario(spec.scenario, out, 0, say)
     say(
-        f"{'PASS' if result.passed else 'FAIL'} ({result.outcome}): {result.why_failed or 'every assertion held'}"
+        f"{'PASS' if result.passed else 'FAIL'} ({result.outcome}): "
+        + (result.why_failed or "every assertion held")
     )
     if record is not None and record.passed != result.passed:
         say(f"the campaign's run {'passed' if record.passed else 'failed'}; this one did not")

@@ -178,8 +178,8 @@ def throughput(names: list[str], seeds: int, sources: list[str], tmp: Path) -> l
         core_s = sum(r["core_s"] for r in rows)
         passed = sum(r["passed"] for r in rows)
         print(
-            f"  {source}: {len(rows)} runs ({passed} passed), {sim_s:.0f} simulated s in {wall_s:.0f} wall s = "
-            f"{sim_s / wall_s:.2f} simulated s per wall s; {core_s / sim_s:.2f} core-s per simulated s"
+            f"  {source}: {len(rows)} runs ({passed} passed), {sim_s:.0f} simulated s in {wall_s:.0f} wall s "
+            f"= {sim_s / wall_s:.2f} simulated s per wall s; {core_s / sim_s:.2f} core-s per simulated s"
         )
         costs.append(
             {

@@ -8,8 +8,6 @@ import sys
 import time
 from typing import Any
 
-import zenoh
-
 from abyss.cli.args import (
     client,
     connect_args,
@@ -18,30 +16,14 @@ from abyss.cli.args import (
 )
 from abyss.common import keys
 from abyss.common.config import Config
-from abyss.common.errors import BadMessage, ConfigError
+from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import load_profiles, profile
 from abyss.common.messages import (
     LinkControl,
-    LinkStats,
-    decode,
     encode,
 )
+from abyss.linkemu.control import query_links
 from abyss.linkemu.netem import run_tc, tc_command
-
-
-def query_links(session: zenoh.Session, system: str, hop: str | None) -> list[LinkStats]:
-    selector = keys.link_key(system, hop) if hop else keys.key(system, "link", "*")
-    found = []
-    for reply in session.get(selector, consolidation=zenoh.ConsolidationMode.NONE, timeout=3.0):
-        if reply.ok is None:
-            continue
-        try:
-            message = decode(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), LinkStats).message
-        except BadMessage as exc:
-            print(f"abyss: ignoring a bad reply: {exc}", file=sys.stderr)
-            continue
-        found.append(message)
-    return sorted(found, key=lambda s: (list(keys.HOPS).index(s.hop), s.direction))
 
 
 def cmd_link_show(args: argparse.Namespace) -> int:

@@ -10,9 +10,20 @@ Time moves in whole control periods, and only when the simulation says so (`SimT
 3. its loops due by T run one at a time, in the order of their names (`LockstepClock`: a loop's
    `Rate` waits for its turn), and it says it is done with T (phase "done").
 
-The simulation, the master, steps to T + one period once every station is done with T. So no
-thread interleaving, process scheduling or wall-clock moment decides anything: the same seed and
-inputs give the same messages in the same periods, on any machine load. What is removed, and how:
+The simulation, the master, steps to T + one period once every station is done with T.
+
+Holds (`time.holds_s`) are where the testbed acts: before a hold's period the simulation waits,
+every station done with the period before, until the testbed releases it (`Holds`). In between,
+nothing moves: the testbed's fault lands on that period, a link changes there, a station killed
+there loses exactly what it had not delivered, and its restart (`ABYSS_BOOT` one more) runs its
+first period there. Counts are per epoch, from one hold to the next: at a hold's period every
+station counts its deliveries and its arrivals anew (from what it had verified by the period
+before), so a restarted station, whose counts start at zero, and its neighbours agree again.
+Each station flushes its recording before a hold, so that one killed in it leaves every message
+it sent.
+
+So no thread interleaving, process scheduling or wall-clock moment decides anything: the same
+seed and inputs give the same messages in the same periods, on any machine load. What is removed, and how:
 thread interleaving (one loop at a time, in name order), Zenoh's delivery timing (counted phases),
 wall-clock reads (every stamp, age and rate is the period's T), messages crossing a period
 (a message offered in period T is delivered in a later one, however short its link), Zenoh's own
@@ -33,10 +44,12 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.clock import POLL_WALL_S, Reject, SimClock, station_message
+from abyss.common.errors import AbyssError
 from abyss.common.messages import LockstepReport, encode
 
 log = logging.getLogger(__name__)
 TICK_TOLERANCE_S = 1e-6  # a loop due at T + this runs in period T (sums of periods in floats)
+TESTBED = "testbed"  # the holds' releases come on abyss/<system>/testbed/lockstep
 REPEAT_WALL_S = 0.5  # a report, or the clock, is told again this often while a station waits on it
 WAIT_WARN_WALL_S = 10.0  # a wait this long is logged (a station gone, or not up yet)
 
@@ -126,7 +139,9 @@ class Lockstep:
     returning what each key carried so far; `arrived()` what its bus received on each key;
     `expects()`: the neighbours whose deliveries it waits for, each with the keys it listens to;
     `loops`: the loops the station will have (it runs no period before all of them are there,
-    whatever their start-up takes)."""
+    whatever their start-up takes); `holds_s` and `period_s`: where the epochs begin (see the
+    module); `boot`: the station's; `before_hold`: what it does before a hold (its recording
+    flushed)."""
 
     def __init__(
         self,
@@ -140,8 +155,18 @@ class Lockstep:
         loops: Iterable[str],
         stop: threading.Event,
         reject: Reject,
+        holds_s: tuple[float, ...] = (),
+        period_s: float = 0.0,
+        boot: int = 0,
+        before_hold: Callable[[], None] = lambda: None,
     ) -> None:
         self.system, self.station, self.clock, self.stop = system, station, clock, stop
+        self.holds_s, self.period_s, self.boot, self.before_hold = holds_s, period_s, boot, before_hold
+        self._delivered_base: Counter[str] = Counter()  # this station's deliveries before the epoch
+        self._arrived_base: Counter[str] = Counter()  # and its neighbours', that it verified
+        self._last_delivered: Counter[str] = Counter()  # its deliveries so far
+        self._verified: dict[str, float] = {}  # per key: the neighbour's count it waited for, in the epoch
+        self._ran = False  # a period
         self.deliver_due, self.arrived, self.expects = deliver_due, arrived, expects
         self.loops = set(loops)
         self._cond = threading.Condition()
@@ -181,7 +206,11 @@ class Lockstep:
     def _send(self, phase: str) -> None:
         t_s, delivered = self._last[phase]
         self._publisher.put(
-            encode(LockstepReport(sim_time_s=t_s, phase=phase, delivered=delivered), self._seq, time.time())
+            encode(
+                LockstepReport(sim_time_s=t_s, phase=phase, delivered=delivered, boot=self.boot),
+                self._seq,
+                time.time(),
+            )
         )
         self._seq += 1
 
@@ -218,6 +247,40 @@ class Lockstep:
                 self._cond.wait(POLL_WALL_S)
         return True
 
+    # -- holds and epochs -----------------------------------------------------------------
+    def hold_at(self, t_s: float) -> bool:
+        """True if period `t_s` is a hold's: the first at or after one of `holds_s`."""
+        return any(
+            t_s - self.period_s + TICK_TOLERANCE_S < h_s <= t_s + TICK_TOLERANCE_S for h_s in self.holds_s
+        )
+
+    def _new_epoch(self) -> None:
+        """Count anew from here: what this station delivered so far, and what it verified of its
+        neighbours' deliveries by the period before (not what arrived: a neighbour already in
+        this period may have delivered more), become the bases."""
+        self._delivered_base = Counter(self._last_delivered)
+        for key, count in self._verified.items():
+            self._arrived_base[key] += int(count)
+        self._verified = {}
+
+    def hold(self, t_s: float, apply: Callable[[], int]) -> bool:
+        """The simulation, before a hold's period `t_s` (every station done with the one before):
+        its recording flushed, it says it is held and waits for the testbed's release, applying
+        what the testbed sends meanwhile (`apply`: the faults taken, counted in its report);
+        False once `stop` is set."""
+        self.before_hold()
+        applied = 0
+        self.report(t_s, "held", {"controls": 0.0})
+
+        def released() -> bool:
+            nonlocal applied
+            if taken := apply():
+                applied += taken
+                self.report(t_s, "held", {"controls": float(applied)})
+            return self.reported(TESTBED, "release")[0] >= t_s - TICK_TOLERANCE_S
+
+        return self.wait_for(f"the testbed's release at t={t_s:.2f} s", released)
+
     # -- a period ------------------------------------------------------------------------
     def period(self, t_s: float, waiting: Callable[[], None] = lambda: None) -> bool:
         """Phases 1-3 of period `t_s` (without the report that it is done: the simulation's
@@ -228,38 +291,144 @@ class Lockstep:
             waiting,
         ):
             return False
+        if self.hold_at(t_s):
+            self._new_epoch()
+        self._ran = True
         self.clock.set_period(t_s)
-        delivered = self.deliver_due(t_s)
-        self.report(t_s, "delivered", {key: float(n) for key, n in delivered.items()})
+        self._last_delivered = self.deliver_due(t_s)
+        self.report(
+            t_s,
+            "delivered",
+            {key: float(n - self._delivered_base[key]) for key, n in self._last_delivered.items()},
+        )
 
         expects = self.expects()
+        verified: dict[str, float] = {}
 
         def all_arrived() -> bool:
             arrived = self.arrived()
+            verified.clear()
             for neighbour, keys_ in expects.items():
                 at_s, counts = self._reports.get((neighbour, "delivered"), (-math.inf, {}))
                 if at_s < t_s - TICK_TOLERANCE_S:
                     return False
-                if any(arrived[key] < counts.get(key, 0.0) for key in keys_):
-                    return False
+                for key in keys_:
+                    if arrived[key] - self._arrived_base[key] < (count := counts.get(key, 0.0)):
+                        return False
+                    verified[key] = count
             return True
 
         if not self.wait_for(
             f"the deliveries of {', '.join(sorted(expects))} at t={t_s:.2f} s", all_arrived, waiting
         ):
             return False
+        self._verified = dict(verified)
         self.clock.run_loops(t_s, self.stop)
         return not self.stop.is_set()
 
     def run(self, end_s: float = 0.0) -> None:
-        """A station's driver: each period the simulation announces, in order, then done; none
-        from `end_s` on (the run's end: the simulation tells it, and holds still)."""
+        """A station's driver: ready once its loops are there, then each period the simulation
+        announces, in order, then done; none from `end_s` on (the run's end: the simulation
+        tells it, and holds still). A restarted station runs its first period at a hold (the
+        testbed lets it in there); its recording is flushed before each hold."""
+        if not self.wait_for("its loops", lambda: self.loops <= self.clock.loops()):
+            return
+        self.report(0.0, "ready")
         while (t_s := self.clock.next_tick(self.stop)) is not None:
             if end_s and t_s >= end_s - TICK_TOLERANCE_S:
                 continue
+            if self.boot and not self._ran and not self.hold_at(t_s):
+                continue  # restarted between holds: it waits for the next (see the module)
             if not self.period(t_s):
                 return
+            if self.hold_at(t_s + self.period_s):
+                self.before_hold()
             self.report(t_s, "done")
+
+    def close(self) -> None:
+        self._subscriber.undeclare()
+        self._publisher.undeclare()
+
+
+class Holds:
+    """The testbed's side of the holds (see the module): what each station reported last in each
+    phase, with its boot, and the release of a hold."""
+
+    def __init__(self, session: zenoh.Session, system: str, reject: Reject) -> None:
+        self._cond = threading.Condition()
+        self._latest: dict[tuple[str, str], LockstepReport] = {}
+        self._boot: Counter[str] = Counter()  # each station's latest boot heard
+        self.reject = reject
+        self._publisher = session.declare_publisher(
+            keys.lockstep_key(system, TESTBED), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
+        self._subscriber = session.declare_subscriber(keys.lockstep_key(system, "*"), self._on_report)
+        self._seq = 0
+
+    def _on_report(self, sample: zenoh.Sample) -> None:
+        got = station_message(sample, LockstepReport, self.reject)
+        if got is None:
+            return
+        station, report = got
+        with self._cond:
+            if report.boot >= self._boot[station]:
+                self._boot[station] = report.boot
+                self._latest[(station, report.phase)] = report
+                self._cond.notify_all()
+
+    def boot(self, station: str) -> int:
+        with self._cond:
+            return self._boot[station]
+
+    def reported(self, station: str, phase: str, min_boot: int = 0) -> LockstepReport | None:
+        """`station`'s latest report in `phase`, if one of boot `min_boot` or later came."""
+        with self._cond:
+            report = self._latest.get((station, phase))
+            return report if report is not None and report.boot >= min_boot else None
+
+    def wait(self, what: str, ready: Callable[[], bool], alive: Callable[[], bool], timeout_s: float) -> None:
+        """Until `ready()`; AbyssError naming `what` if the system ends (`alive` false) or
+        `timeout_s` passes first."""
+        deadline_s = time.monotonic() + timeout_s
+        with self._cond:
+            while not ready():
+                if not alive():
+                    raise AbyssError(f"the system ended while waiting for {what}")
+                if time.monotonic() > deadline_s:
+                    raise AbyssError(f"waited {timeout_s:g} s for {what}")
+                self._cond.wait(POLL_WALL_S * 5)
+
+    def held(
+        self, hold_s: float, min_boot: int, alive: Callable[[], bool], timeout_s: float
+    ) -> LockstepReport:
+        """The simulation's report that it is held at the hold `hold_s` (boot `min_boot` or later)."""
+
+        def held() -> LockstepReport | None:
+            report = self.reported("simulation", "held", min_boot)
+            return report if report is not None and report.sim_time_s >= hold_s - TICK_TOLERANCE_S else None
+
+        self.wait(f"the simulation held at t={hold_s:g} s", lambda: held() is not None, alive, timeout_s)
+        report = held()
+        assert report is not None
+        return report
+
+    def release(self, t_s: float, alive: Callable[[], bool], timeout_s: float) -> None:
+        """Let the simulation go on from its hold at `t_s`: told until it has delivered that period."""
+        told_s = -math.inf
+
+        def gone_on() -> bool:
+            nonlocal told_s
+            delivered = self.reported("simulation", "delivered", self._boot["simulation"])
+            if delivered is not None and delivered.sim_time_s >= t_s - TICK_TOLERANCE_S:
+                return True
+            if time.monotonic() - told_s >= REPEAT_WALL_S:
+                told_s = time.monotonic()
+                message = LockstepReport(sim_time_s=t_s, phase="release", boot=0)
+                self._publisher.put(encode(message, self._seq, time.time()))
+                self._seq += 1
+            return False
+
+        self.wait(f"the simulation to go on from t={t_s:g} s", gone_on, alive, timeout_s)
 
     def close(self) -> None:
         self._subscriber.undeclare()

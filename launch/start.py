@@ -111,11 +111,12 @@ def _check_simulated(
                 "a real component or a replay runs on the wall clock, which "
                 "--time sim cannot speed up; use --time real with it",
             )
-    if config.time.mode == "lockstep" and restart:
+    if config.time.mode == "lockstep" and restart and not config.time.holds_s:
         raise ConfigError(
             "--restart",
-            "a station restarted mid-period leaves lockstep's counted "
-            "periods behind: use --time sim or real with it",
+            "a station restarted mid-period leaves lockstep's counted periods behind: in lockstep "
+            "a station is restarted only at a hold (time.holds_s, as `abyss scenario run` sets for "
+            "a scenario's kills); use --time sim or real with it",
         )
     if config.cpu.capped():
         raise ConfigError(

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import sys
 import threading
 import time
 import typing
@@ -252,3 +253,22 @@ class StationLinks:
         self._stats_thread.join(timeout=max(0.0, deadline - time.monotonic()))
         for entity in self._entities:
             entity.undeclare()
+
+
+def query_links(
+    session: zenoh.Session, system: str, hop: str | None, timeout_s: float = 3.0
+) -> list[LinkStats]:
+    """Each station's statistics of `hop` (every hop: None), as its links answer on the control
+    key, in the hops' order; a bad reply is ignored, said on stderr."""
+    selector = keys.link_key(system, hop) if hop else keys.key(system, "link", "*")
+    found = []
+    for reply in session.get(selector, consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout_s):
+        if reply.ok is None:
+            continue
+        try:
+            message = decode(str(reply.ok.key_expr), reply.ok.payload.to_bytes(), LinkStats).message
+        except BadMessage as exc:
+            print(f"abyss: ignoring a bad reply: {exc}", file=sys.stderr)
+            continue
+        found.append(message)
+    return sorted(found, key=lambda s: (list(keys.HOPS).index(s.hop), s.direction))

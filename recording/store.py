@@ -125,7 +125,7 @@ class Recorder:
         self.bytes_written = 0
         self.writer_cpu_s = 0.0  # the writer thread's CPU time, as of its latest flush
         self._buckets: dict[tuple[str, str], _Bucket] = {}
-        self._queue: queue.SimpleQueue[_Item | None] = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[_Item | threading.Event | None] = queue.SimpleQueue()
         self._lock = threading.Lock()
         path.parent.mkdir(parents=True, exist_ok=True)
         self._file: IO[bytes] = path.open("wb")
@@ -185,6 +185,13 @@ class Recorder:
                 "writer_cpu_s": round(self.writer_cpu_s, 3),
             }
 
+    def flush(self, timeout_s: float = 10.0) -> None:
+        """Write what is queued and flush the file (lockstep, before a hold: a station killed in
+        it leaves every message it recorded)."""
+        written = threading.Event()
+        self._queue.put(written)
+        written.wait(timeout_s)
+
     def close(self) -> None:
         """Write what is queued, then the MCAP summary (a file without it reads all the same)."""
         self._queue.put(None)
@@ -225,6 +232,10 @@ class Recorder:
                 item = ("", "", b"", 0.0, "", None)  # nothing came: only the flush is due
             if item is None:
                 break
+            if isinstance(item, threading.Event):
+                self._file.flush()
+                item.set()
+                continue
             if item[0]:
                 self._write(*item)
             if time.monotonic() >= next_flush_s:

@@ -132,7 +132,9 @@ class Shell:
         self.bus.tap = self.recorder
         if isinstance(self.clock, LockstepClock):
             repeatable_ids([config.seed, keys.STATIONS.index(name), int(os.environ.get(BOOT_ENV, "0"))])
-            self.bus.lockstep = station_lockstep(self.session, config, name, self.clock, self.bus, self.links)
+            self.bus.lockstep = station_lockstep(
+                self.session, config, name, self.clock, self.bus, self.links, self.recorder
+            )
             self._clock_closers.append(self.bus.lockstep.close)
             if name != "simulation":  # the simulation's physics is lockstep's master, and runs its own
                 threading.Thread(
@@ -192,9 +194,16 @@ def station_clock(
 
 
 def station_lockstep(
-    session: zenoh.Session, config: Config, name: str, clock: LockstepClock, bus: Bus, links: StationLinks
+    session: zenoh.Session,
+    config: Config,
+    name: str,
+    clock: LockstepClock,
+    bus: Bus,
+    links: StationLinks,
+    recorder: Recorder | None,
 ) -> Lockstep:
-    """A station's periods in lockstep: its links' deliveries, its neighbours', its loops."""
+    """A station's periods in lockstep: its links' deliveries, its neighbours', its loops, its
+    holds (its recording flushed before each)."""
 
     def expects() -> dict[str, set[str]]:
         listened = bus.data_keys()
@@ -215,6 +224,10 @@ def station_lockstep(
         importlib.import_module(f"abyss.stations.{name}").loops(config),
         bus.stop,
         bus.reject,
+        holds_s=config.time.holds_s,
+        period_s=config.simulation.control_period_s,
+        boot=int(os.environ.get(BOOT_ENV, "0")),
+        before_hold=recorder.flush if recorder is not None else lambda: None,
     )
     bus.on_arrival = lockstep.notify
     return lockstep

@@ -106,9 +106,17 @@ class TimeConfig:
     # lockstep: the simulation stops advancing at this simulated time (abyss up's --duration), so
     # that a run ends on the same period whenever it is stopped; 0: never
     end_s: float = 0.0
+    # lockstep: simulated times at which the simulation holds, before their period, until the
+    # testbed releases it (the scenario runner's timed events: a fault, a link change, a station
+    # killed and restarted, each landing on its period; common.lockstep, Holds)
+    holds_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         one_of("time.mode", self.mode, TIME_MODES)
+        if self.holds_s and self.mode != "lockstep":
+            raise ConfigError("time.holds_s", f"only with time.mode lockstep ({self.mode} has no holds)")
+        for hold_s in self.holds_s:
+            positive("time.holds_s", hold_s, allow_zero=True)
         if self.speed != "max":
             try:
                 speed = float(self.speed)

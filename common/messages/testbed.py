@@ -48,17 +48,24 @@ class SimTime(Message):
     sim_time_s: float = scalar(0.0)
 
 
-LOCKSTEP_PHASES = ("delivered", "done")
+# a station's: its links delivered (counts per key in this epoch), done with the period, ready
+# (its loops are all there: a restarted station may be let in); the simulation's: held before a
+# hold's period (`delivered`: {"controls": faults applied in the hold}); the testbed's: release
+LOCKSTEP_PHASES = ("delivered", "done", "ready", "held", "release")
 
 
 @dataclass(frozen=True)
 class LockstepReport(Message):
     """A station's progress through a lockstep period (common.lockstep) at `sim_time_s`: its links
-    delivered what was due (`delivered`: messages per key so far), or it is done with the period."""
+    delivered what was due (`delivered`: messages per key in the epoch, since the last hold), it is
+    done with the period, or ready to run its first; the simulation held at a hold, and the
+    testbed's release of it. `boot`: the sender's (0, then one more each restart)."""
 
+    VERSION: ClassVar[int] = 2  # 2: boot, holds
     sim_time_s: float = scalar(0.0)
     phase: str = scalar(choices=LOCKSTEP_PHASES)
     delivered: dict[str, float] = field(default_factory=dict)
+    boot: int = field(default=0, metadata={"lo": 0, "hi": 2**31, "choices": ()})
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ import itertools
 import logging
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -86,15 +87,28 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     rate = keeper.rate
     wall0, sim0 = time.monotonic(), world.data.time
     saved_s = -float("inf")  # simulated time of the state last kept
-    for step in itertools.count():
-        if not keeper.before_step(world.data.time):
-            break
+
+    def apply_controls() -> int:
+        """The faults asked for since the last call, applied; how many."""
+        applied = 0
         for control in controls.drain():
             try:
                 with lock:
                     world.apply_fault(control.message, blackout)
+                applied += 1
             except BadInput as exc:
                 bus.reject(control_key, exc.reason)
+        return applied
+
+    def keep_state() -> None:
+        if sim.state_file:
+            with lock:
+                world.save_state(Path(sim.state_file))
+
+    for step in itertools.count():
+        if not keeper.before_step(world.data.time, keep_state, apply_controls):
+            break
+        apply_controls()
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
         refs = references(v.message if v else None, a.message if a else None)
         stepped_from_s = world.data.time
@@ -149,8 +163,8 @@ class Timekeeper:
             else None
         )
         self.waited_wall_s = 0.0  # lockstep: for the stations to finish their periods
-        if self.time.simulated:
-            self.tell(start_s)  # a resumed simulation starts where it was
+        if self.time.simulated and self.lockstep is None:
+            self.tell(start_s)  # a resumed simulation starts where it was (lockstep: at its period)
 
     def tell(self, sim_time_s: float) -> None:
         """The simulation's time to its own loops (cameras, sonar) and to every station."""
@@ -158,13 +172,19 @@ class Timekeeper:
             self.clock.tick(sim_time_s)
         self.bus.observe(keys.clock_key(self.bus.system), SimTime(sim_time_s=sim_time_s))
 
-    def before_step(self, t_s: float) -> bool:
-        """Wait until the physics may step from `t_s`; False once the station stops."""
+    def before_step(self, t_s: float, keep_state: Callable[[], None], apply: Callable[[], int]) -> bool:
+        """Wait until the physics may step from `t_s`; False once the station stops. Lockstep:
+        at a hold, the state kept first (a restart resumes on the hold's period), then held until
+        the testbed releases it, applying the faults it sends meanwhile (`apply`)."""
         if self.lockstep is not None:
             while self.time.end_s and t_s >= self.time.end_s - TICK_TOLERANCE_S:
                 if self.bus.stop.wait(0.5):  # the run's end: it holds still, telling its time
                     return False
                 self.tell(t_s)
+            if self.lockstep.hold_at(t_s):
+                keep_state()
+                if not self.lockstep.hold(t_s, apply):
+                    return False
             self.tell(t_s)
             return self.lockstep.period(t_s, lambda: self.tell(t_s))
         if self.holdback is not None and self.clock is not None:

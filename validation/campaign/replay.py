@@ -17,7 +17,7 @@ from abyss.validation.campaign.plan import RunSpec
 from abyss.validation.campaign.store import Store
 from abyss.validation.scenario.runner import run_scenario
 
-Sent = dict[tuple[str, str, int], bytes]  # (the life's recording, key, seq) -> payload
+Sent = dict[tuple[str, str, int], bytes]  # (the life's recording, key past the system, seq) -> payload
 
 
 def find(directory: Path, run_id: str) -> RunSpec:
@@ -39,28 +39,55 @@ def sent_messages(run_dir: Path, station: str) -> Sent:
         (run_dir / "record").glob(f"{station}-*.mcap")
     )
     return {
-        (path.name, r.key, r.seq): r.payload
+        (path.name, r.key.split("/", 2)[-1], r.seq): r.payload  # the key without the run's system id
         for path in lives
         for r in read_file(path).records
         if r.direction == "sent"
     }
 
 
-def differences(original: Path, again: Path) -> tuple[list[str], int]:
-    """Where two runs' bytes differ (empty: identical), and the messages compared."""
+def _tail_only(first: Sent, second: Sent) -> bool:
+    """True if the messages one run sent and the other did not all come after what both sent, each
+    key's in each life: the two ran alike, one of them on to a later end."""
+    last: dict[tuple[str, str], int] = {}
+    for life, key, seq in first.keys() & second.keys():
+        last[(life, key)] = max(seq, last.get((life, key), -1))
+    extra_first, extra_second = first.keys() - second.keys(), second.keys() - first.keys()
+    if extra_first and extra_second:
+        return False
+    return all(seq > last.get((life, key), -1) for life, key, seq in extra_first | extra_second)
+
+
+def differences(original: Path, again: Path) -> tuple[list[str], int, str]:
+    """Where two runs' bytes differ (empty: identical up to the end of the shorter), the messages
+    compared, and how their ends differ ('' where they end on the same period). In lockstep a run
+    that stops once its mission is done ends where the stop reaches the simulation, the one moment
+    left to the wall clock: what both sent is compared, and the tail said."""
     found: list[str] = []
-    if (original / "control.csv").read_bytes() != (again / "control.csv").read_bytes():
+    csv = [(run / "control.csv").read_bytes().splitlines(keepends=True) for run in (original, again)]
+    rows = min(map(len, csv))
+    if csv[0][:rows] != csv[1][:rows]:
         found.append("control.csv differs")
-    compared = 0
+    compared, tails = 0, []
     for station in keys.STATIONS:
         first, second = sent_messages(original, station), sent_messages(again, station)
-        compared += len(first)
-        if first.keys() != second.keys():
-            found.append(f"{station} sent {len(first)} messages, then {len(second)}")
-        elif changed := [k for k in first if first[k] != second[k]]:
+        both = first.keys() & second.keys()
+        compared += len(both)
+        if not _tail_only(first, second):
+            found.append(f"{station} sent {len(first)} messages, then {len(second)}, not just later")
+        elif changed := sorted(k for k in both if first[k] != second[k]):
             life, key, seq = changed[0]
             found.append(f"{station}: {len(changed)} messages differ, the first {key} #{seq} ({life})")
-    return found, compared
+        elif len(first) != len(second):
+            tails.append(f"{station} {len(first)} then {len(second)}")
+    note = (
+        f"the runs ended on different periods (control.csv {len(csv[0])} then {len(csv[1])} rows; sent: "
+        + ", ".join(tails)
+        + "): compared up to the shorter's end"
+        if tails or len(csv[0]) != len(csv[1])
+        else ""
+    )
+    return found, compared, note
 
 
 def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
@@ -87,9 +114,9 @@ def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
     if original is None or not (original / "control.csv").exists():
         say('the campaign kept no directory of this run to compare bytes with (keep = "all" keeps every run)')
         return 0 if record is None or record.passed == result.passed else 1
-    found, compared = differences(original, out)
+    found, compared, note = differences(original, out)
     for line in found:
         say(f"DIFFERS: {line}")
     if not found:
-        say(f"byte-identical: control.csv and {compared} messages ({out})")
+        say(f"byte-identical: control.csv and {compared} messages ({out})" + (f"; {note}" if note else ""))
     return 1 if found or (record is not None and record.passed != result.passed) else 0

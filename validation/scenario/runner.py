@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import re
 import signal
@@ -28,12 +29,16 @@ from abyss.common.bus import message_of, open_session, zenoh_config
 from abyss.common.clock import SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.errors import AbyssError
+from abyss.common.lockstep import Holds
 from abyss.common.messages import LinkControl, SimulationControl, Telemetry, encode
 from abyss.launch.state import RunState, wait_for_state
+from abyss.linkemu.control import query_links
 from abyss.validation.scenario.checks import Run, Verdict, judge, phase_began_s
 from abyss.validation.scenario.spec import Event, Scenario
 
+log = logging.getLogger(__name__)
 START_TIMEOUT_S = 60.0
+HOLD_TIMEOUT_S = 120.0  # lockstep: for a hold to come, an event to take effect, a station to restart
 SIM_CLOCK_HORIZON_S = 0.05  # the simulation's control period: its ticks' spacing
 EXTERNAL_TIMEOUT_S = 180.0
 SHOWN = ("waiting for external station", "died with exit code", "restarted")  # abyss up's lines passed on
@@ -102,6 +107,8 @@ class System:
             command += ["--profile", f"{hop}={profile}"]
         for item in scenario.config:
             command += ["--set", item]
+        if scenario.holds_s:
+            command += ["--set", f"time.holds_s=[{', '.join(f'{t!r}' for t in scenario.holds_s)}]"]
         self.process = subprocess.Popen(
             command,
             stdout=subprocess.PIPE,
@@ -166,6 +173,76 @@ def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> s
         case _:
             assert_never(event.action)
     return event.describe()
+
+
+class Held:
+    """Events carried out in lockstep, each on its period: the simulation held there (common.lockstep's
+    holds), the event applied and seen to take effect, then the hold released."""
+
+    def __init__(self, scenario: Scenario, session: zenoh.Session, system_id: str, up: System) -> None:
+        self.scenario, self.session, self.system_id, self.up = scenario, session, system_id, up
+        self.holds = Holds(session, system_id, lambda key, reason: log.warning("%s: %s", key, reason))
+        self.faults = 0  # applied in the holds so far, by the simulation's count
+
+    def run(self, run: Run, say: Callable[[str], None]) -> None:
+        """Every hold in order: held, its events, released. AbyssError if the system stops first."""
+        for hold_s in self.scenario.holds_s:
+            held = self.holds.held(hold_s, self.holds.boot("simulation"), self.up.running, HOLD_TIMEOUT_S)
+            self.faults = int(held.delivered.get("controls", 0.0))
+            for event in (e for e in self.scenario.events if e.at_s == hold_s):
+                say(
+                    f"{event.when()} (period t={held.sim_time_s:.2f} s): {self.apply(event, held.sim_time_s)}"
+                )
+                run.killed += event.action == "kill"
+            self.holds.release(held.sim_time_s, self.up.running, HOLD_TIMEOUT_S)
+
+    def apply(self, event: Event, t_s: float) -> str:
+        """One event in a hold at `t_s`, waited on until it took effect: the fault counted by the
+        simulation, the link's profile at both its ends, the station killed and started again."""
+        boot = self.holds.boot(event.station or "simulation")
+        done = apply(event, self.session, self.system_id, self.up)
+        alive = self.up.running
+        match event.action:
+            case "fault":
+                self.faults += 1
+                self.holds.wait(
+                    f"the simulation to apply {event.describe()}",
+                    lambda: (
+                        (r := self.holds.reported("simulation", "held")) is not None
+                        and r.delivered.get("controls", 0.0) >= self.faults
+                    ),
+                    alive,
+                    HOLD_TIMEOUT_S,
+                )
+            case "link":
+                self.holds.wait(
+                    f"both ends of {event.hop} on {event.profile}",
+                    lambda: (
+                        [s.profile for s in query_links(self.session, self.system_id, event.hop, 1.0)]
+                        == [event.profile] * 2
+                    ),
+                    alive,
+                    HOLD_TIMEOUT_S,
+                )
+            case "kill" if self.scenario.restart:
+                if event.station == "simulation":  # restarted, it resumes on this period and holds
+                    self.holds.held(t_s, boot + 1, alive, HOLD_TIMEOUT_S)
+                else:
+                    self.holds.wait(
+                        f"{event.station} restarted",
+                        lambda: self.holds.reported(event.station, "ready", boot + 1) is not None,
+                        alive,
+                        HOLD_TIMEOUT_S,
+                    )
+                done += ", restarted"
+            case "kill":
+                pass  # not restarted: abyss up ends the run, as in real time
+            case _:
+                assert_never(event.action)
+        return done
+
+    def close(self) -> None:
+        self.holds.close()
 
 
 class Timeline:
@@ -251,8 +328,11 @@ def _drive(
     ticks = clock_follow(session, system_id, timeline.clock) if timeline.clock is not None else None
     timeline.up_s = timeline.now_s()
     subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), timeline.on_state)
+    held = Held(scenario, session, system_id, up) if scenario.holds_s else None
     try:
-        for event in scenario.events:
+        if held is not None:
+            held.run(timeline.run, say)
+        for event in scenario.events if held is None else ():
             while up.process.poll() is None:
                 origin_s = timeline.phase_began_s(event.phase)
                 if origin_s is not None and timeline.since_up_s() >= origin_s + event.at_s:
@@ -268,7 +348,12 @@ def _drive(
     except subprocess.TimeoutExpired:
         up.kill()
         return "abyss up did not stop in time"
+    except AbyssError as exc:  # a hold not reached or not left (the system stopped, or a station hung)
+        up.kill()
+        return f"lockstep: {exc}"
     finally:
+        if held is not None:
+            held.close()
         subscriber.undeclare()
         if ticks is not None:
             ticks.undeclare()

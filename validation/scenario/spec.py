@@ -109,6 +109,12 @@ class Scenario:
         """The run's time source, from its configuration (`time.mode`, `time.speed`)."""
         return load(None, list(self.config)).time
 
+    @property
+    def holds_s(self) -> tuple[float, ...]:
+        """In lockstep, the simulated times its events land on (the simulation holds there while
+        the runner carries them out: common.lockstep); none on another time source."""
+        return tuple(sorted({e.at_s for e in self.events})) if self.time.mode == "lockstep" else ()
+
     def on_time(self, mode: str, speed: str | None) -> tuple[Scenario, str]:
         """This scenario on the time source `abyss scenario run --time` asks for, and why not where
         it cannot follow it (an external station, a real component, runs on the wall clock)."""
@@ -116,8 +122,11 @@ class Scenario:
             return self, f"runs in real time: external {', '.join(self.external)} keeps the wall clock"
         if mode != "real" and any(c.startswith("cpu.") for c in self.config):
             return self, "runs in real time: a CPU cap is a share of wall time"
-        if mode == "lockstep" and (self.restart or any(e.action == "kill" for e in self.events)):
-            return self, "runs in real time: a station killed mid-period leaves lockstep's counts behind"
+        if mode == "lockstep" and any(e.phase for e in self.events):
+            return (
+                self,
+                "runs in real time: an event timed on an intervention's phase lands when shore sees it",
+            )
         items = [f"time.mode={mode}", *([f"time.speed={speed}"] if speed is not None else [])]
         if mode == "real":
             items.append("time.speed=1")

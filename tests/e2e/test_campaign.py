@@ -10,6 +10,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import secrets
 import shutil
 import signal
@@ -256,3 +257,30 @@ def test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the
     nodes = [str(r["node"]) for r in got]
     assert any(head in n for n in nodes) and any(worker in n for n in nodes), nodes
     assert "2 nodes" in output and "6/6 runs done" in output, output
+
+
+@pytest.mark.timeout(600)
+def test_a_failing_run_with_a_fault_a_link_change_and_a_kill_replays_byte_for_byte(tmp_path: Path) -> None:
+    text = 'name = "replayed"\nscenarios = ["scenarios/short-faults.toml"]\nseeds = [7]\ntime = "lockstep"\n'
+    here = campaign_dir(tmp_path, text, ("short-faults",))
+    run = abyss("campaign", "run", "small.toml", "--out", "out", timeout_s=300, cwd=here)
+    assert run.returncode == 1, run.stdout + run.stderr  # it allows no restart: it fails
+    [record] = records(here / "out")
+    kept = here / "out" / str(record["kept"])
+    assert not record["passed"] and (kept / "record" / "onboard-1.mcap").exists()  # onboard's second life
+    assert "not bit for bit" not in (here / "out" / "report.md").read_text()
+
+    replayed = abyss("campaign", "replay", "out", str(record["run_id"])[:8], timeout_s=300, cwd=here)
+    said = replayed.stdout + replayed.stderr
+    assert replayed.returncode == 0, said
+    compared = re.search(r"byte-identical: control.csv and (\d+) messages", said)
+    assert compared and int(compared.group(1)) > 1000, said
+    assert "ended on different periods" not in said  # it runs to its duration: the same last period
+
+    rows = (kept / "control.csv").read_text().splitlines()
+    rows[len(rows) // 2] = rows[len(rows) // 2].replace("0", "1", 1)  # one digit of one row
+    (kept / "control.csv").write_text("\n".join(rows) + "\n")
+    again = abyss("campaign", "replay", "out", str(record["run_id"]), timeout_s=300, cwd=here)
+    assert again.returncode == 1 and "DIFFERS: control.csv differs" in again.stdout, (
+        again.stdout + again.stderr
+    )

@@ -143,11 +143,14 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
     for name, mode, said in (
         ("external-onboard", "sim", "external onboard keeps the wall clock"),
         ("onboard-starved", "lockstep", "a CPU cap is a share of wall time"),
-        ("vessel-crash", "lockstep", "a station killed mid-period"),
+        ("tether-outage", "lockstep", "an event timed on an intervention's phase"),
     ):
         scenario = load_scenario(root / f"{name}.toml")
         kept, why = scenario.on_time(mode, "4" if mode == "sim" else None)
         assert kept is scenario and not kept.time.simulated and said in why, why
+    assert not load_scenario(root / "vessel-crash.toml").holds_s  # real time: no holds
+    crash, why = load_scenario(root / "vessel-crash.toml").on_time("lockstep", None)
+    assert not why and crash.time.mode == "lockstep" and crash.holds_s == (6.0,)  # its kill's time
 
 
 def test_a_failed_scenario_says_which_assertions_came_out_wrong(tmp_path: Path) -> None:

@@ -82,8 +82,12 @@ def wait_for_records(
 
 
 def comparable(report: Path) -> dict[str, object]:
+    """A report without what each execution measures of itself (the cost, and the cores each run
+    took): the rest is the same for the same runs in lockstep, however they were spread."""
     data = json.loads((report / "report.json").read_text())
     data.pop("cost")
+    for case in data["cases"]:
+        case["figures"].pop("cores")
     return data
 
 
@@ -152,7 +156,7 @@ class RayNodes:
     def ip(self, *args: str) -> None:
         subprocess.run(["ip", *args], check=True, capture_output=True)
 
-    def make(self) -> RayNodes:
+    def make(self, worker_env: dict[str, str] | None = None) -> RayNodes:
         head, worker = self.spaces
         for space in self.spaces:
             self.ip("netns", "add", space)
@@ -189,13 +193,14 @@ class RayNodes:
                 self.addresses[1],
                 *common,
             ],
+            worker_env,
         )
         return self
 
-    def start(self, space: str, command: list[str]) -> None:
+    def start(self, space: str, command: list[str], env: dict[str, str] | None = None) -> None:
         done = subprocess.run(
             ["ip", "netns", "exec", space, *command],
-            env=self.env,
+            env={**self.env, **(env or {})},
             capture_output=True,
             text=True,
             timeout=120,
@@ -214,15 +219,45 @@ class RayNodes:
             subprocess.run(["ip", "netns", "del", space], capture_output=True)
 
 
-@pytest.fixture
-def ray_nodes() -> Iterator[RayNodes]:
+def other_abyss(tmp_path: Path) -> Path:
+    """A copy of abyss's package with one source line more: another version of abyss, importable
+    from the folder returned (on PYTHONPATH, ahead of the installed one)."""
+    import abyss
+    from abyss.validation.campaign.version import _package_files
+
+    root = Path(abyss.__file__).resolve().parent
+    site = tmp_path / "other-abyss"
+    for path in _package_files(root):
+        copy = site / "abyss" / path.relative_to(root)
+        copy.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, copy)
+    with (site / "abyss" / "__init__.py").open("a") as init:
+        init.write("# another abyss\n")
+    return site
+
+
+@contextlib.contextmanager
+def two_nodes(worker_env: dict[str, str] | None = None) -> Iterator[RayNodes]:
     if os.geteuid() != 0 or shutil.which("ip") is None:
         pytest.skip("two Ray nodes in network namespaces need root and iproute2")
     nodes = RayNodes()
     try:
-        yield nodes.make()
+        yield nodes.make(worker_env)
     finally:
         nodes.remove()
+
+
+@pytest.fixture
+def ray_nodes() -> Iterator[RayNodes]:
+    with two_nodes() as nodes:
+        yield nodes
+
+
+@pytest.fixture
+def ray_nodes_other_abyss(tmp_path: Path) -> Iterator[RayNodes]:
+    """Two Ray nodes, the worker running another version of abyss."""
+    with two_nodes({"PYTHONPATH": str(other_abyss(tmp_path))}) as nodes:
+        yield nodes
 
 
 @pytest.mark.timeout(900)
@@ -284,3 +319,29 @@ def test_a_failing_run_with_a_fault_a_link_change_and_a_kill_replays_byte_for_by
     assert again.returncode == 1 and "DIFFERS: control.csv differs" in again.stdout, (
         again.stdout + again.stderr
     )
+
+
+@pytest.mark.timeout(300)
+def test_a_node_with_another_abyss_is_refused_at_start_naming_both_versions(
+    tmp_path: Path, ray_nodes_other_abyss: RayNodes
+) -> None:
+    ray_nodes = ray_nodes_other_abyss
+    from abyss.validation.campaign.version import abyss_version
+
+    here = campaign_dir(tmp_path, CAMPAIGN.split("[matrix]")[0], ("short-mission",))
+    run = driver(
+        here,
+        "small.toml",
+        "--out",
+        "out",
+        "--address",
+        f"{ray_nodes.addresses[0]}:{ray_nodes.port}",
+        env=ray_nodes.env,
+        prefix=("ip", "netns", "exec", ray_nodes.spaces[0]),
+    )
+    output, _ = run.communicate(timeout=240)
+    assert run.returncode == 2, output
+    theirs = re.search(r"node \S+/10\.79\.0\.2 runs abyss (\S+), this driver (\S+):", output)
+    assert theirs, output
+    assert theirs.group(2) == abyss_version() and theirs.group(1) != abyss_version(), output
+    assert not records(here / "out")  # nothing ran

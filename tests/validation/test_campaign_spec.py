@@ -146,3 +146,27 @@ def test_the_shipped_library_campaign_loads_and_plans() -> None:
     assert len(runs) == len(names) * 2 * 5
     assert {r.scenario.links["satellite"] for r in runs} == {"satellite", "satellite-storm"}
     assert {r.scenario_name for r in runs if r.replayable} >= {"nominal", "sensor-noise", "turbid"}
+
+
+def test_a_ray_address_that_does_not_answer_fails_at_once_with_the_fix(tmp_path: Path) -> None:
+    """Ray itself would retry a dead address for minutes; the command says so at once, and leaves
+    no campaign directory behind (the same command with a right address then runs)."""
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as probe:  # a port nothing listens on once closed
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    path = write_files(tmp_path, CAMPAIGN)
+    address = f"127.0.0.1:{port}"
+    command = ["campaign", "run", str(path), "--address", address, "--out", str(tmp_path / "out")]
+    done = subprocess.run(
+        [sys.executable, "-P", "-m", "abyss.cli", *command],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert f"--address: no Ray cluster answers at 127.0.0.1:{port} (Connection refused)" in done.stderr
+    assert "`ray start --head`" in done.stderr and not (tmp_path / "out").exists()

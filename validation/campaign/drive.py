@@ -29,6 +29,7 @@ def run_campaign(
 ) -> int:
     """Run what has no result yet, report, and exit 0 when every scenario and variant reached
     its minimum pass rate (1: one did not; 4: runs were lost and `--resume` goes on)."""
+    execute.check_address(address)
     whole = plan(campaign)
     runs = shard(whole, *slice_) if slice_ is not None else whole
     store = Store(out)

@@ -35,6 +35,10 @@ from abyss.validation.scenario.runner import run_scenario
 PROGRESS_WALL_S = 10.0  # a line of progress at least this often
 TASK_RETRIES = 3  # a run whose worker or node dies is run again, this many times at most
 CONNECT_TIMEOUT_S = 30.0
+ADDRESS_FIX = (
+    "start one with `ray start --head` on the head node and give its GCS address (HOST:6379), "
+    "or leave --address out for a local Ray"
+)
 
 
 class VersionMismatch(AbyssError):
@@ -103,11 +107,30 @@ def connect(address: str | None) -> None:
         ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         raise ConfigError(
-            "--address",
-            f"no Ray cluster answers at {address} ({str(exc).splitlines()[0]}): start one with "
-            "`ray start --head` on the head node and give its GCS address (HOST:6379), or leave "
-            "--address out for a local Ray",
+            "--address", f"no Ray cluster answers at {address} ({str(exc).splitlines()[0]}): {ADDRESS_FIX}"
         ) from None
+
+
+def check_address(address: str | None) -> None:
+    """ConfigError with the fix, at once, where nothing answers at a Ray address (Ray itself would
+    retry for minutes)."""
+    if address is not None and (why := unanswered(address)):
+        raise ConfigError("--address", f"no Ray cluster answers at {address} ({why}): {ADDRESS_FIX}")
+
+
+def unanswered(address: str) -> str:
+    """Why nothing takes a TCP connection at a Ray address (`HOST:PORT`, `ray://HOST:PORT`; the
+    GCS's 6379 where the port is left out), or '' where something does (`auto`: Ray looks)."""
+    if address == "auto":
+        return ""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        host, port = address.removeprefix("ray://"), "6379"
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S / 3):
+            return ""
+    except OSError as exc:
+        return exc.strerror or str(exc)
 
 
 def check_versions() -> list[str]:

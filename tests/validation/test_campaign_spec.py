@@ -170,3 +170,12 @@ def test_a_ray_address_that_does_not_answer_fails_at_once_with_the_fix(tmp_path:
     assert done.returncode == 2, done.stdout + done.stderr
     assert f"--address: no Ray cluster answers at 127.0.0.1:{port} (Connection refused)" in done.stderr
     assert "`ray start --head`" in done.stderr and not (tmp_path / "out").exists()
+
+
+def test_the_shipped_kill_campaign_kills_every_station_over_the_mission_in_lockstep() -> None:
+    runs = plan(load_campaign(ROOT / "campaigns" / "kills.toml"))
+    kills = {(r.scenario.events[0].station, r.scenario.events[0].at_s) for r in runs}
+    assert {station for station, _ in kills} == {"simulation", "onboard", "vessel", "onshore"}
+    assert len(kills) == 24 and len(runs) == 72
+    assert all(r.replayable and r.scenario.holds_s == (r.scenario.events[0].at_s,) for r in runs)
+    assert all(r.scenario.restart for r in runs)

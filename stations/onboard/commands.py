@@ -1,6 +1,8 @@
 """The operator's commands as onboard takes them: each is checked against what the vehicle can
-do before it is flown, and answered with its fate. A command sent again (shore resends until
-it hears the answer) gets the same answer and changes nothing."""
+do before it is flown, and answered with its fate. A command taken and sent again (shore resends
+until it hears the answer) gets the same answer and changes nothing; a refused one sent again is
+judged again, so that a refusal whose cause has cleared (the arm busy, a goal out of reach from
+where the vehicle would have held) is not final."""
 
 from __future__ import annotations
 
@@ -23,14 +25,14 @@ def box_clearance_m(point_m_world: np.ndarray, box: Box) -> float:
 
 
 class CommandGate:
-    """Checks operator commands and remembers its answers."""
+    """Checks operator commands and remembers the ones it took."""
 
     def __init__(self, mission: MissionConfig, shoulder_m_vehicle: np.ndarray, reach_m: float) -> None:
         self.clearance_m = mission.vehicle_clearance_m
         self.obstacles: Sequence[Box] = mission.obstacles
         self.shoulder_m_vehicle = shoulder_m_vehicle
         self.reach_m = reach_m
-        self.answers: OrderedDict[tuple[str, int], CommandAck] = OrderedDict()  # by (type, id)
+        self.answers: OrderedDict[tuple[str, int], CommandAck] = OrderedDict()  # taken, by (type, id)
 
     def answer(
         self,
@@ -53,9 +55,10 @@ class CommandGate:
         else:
             kind, reason = "mode", ""
         ack = CommandAck(command.command_id, kind, reason)
-        self.answers[command.TYPE, command.command_id] = ack
-        while len(self.answers) > ANSWERS_KEPT:
-            self.answers.popitem(last=False)
+        if ack.accepted:
+            self.answers[command.TYPE, command.command_id] = ack
+            while len(self.answers) > ANSWERS_KEPT:
+                self.answers.popitem(last=False)
         return ack, ack.accepted
 
     def check_waypoints(self, waypoints: np.ndarray) -> str:

@@ -62,15 +62,17 @@ class Relay:
         self.resolved: dict[int, tuple[str, float]] = {}  # command id: the part, its angle then
         self.refining: tuple[Intervention, InterventionGoal] | None = None  # the latest sent, till it ends
 
+    def _placed(self) -> RecognisedObjects | None:
+        """The panel's estimate if a frame that saw its markers made it: the markers place the parts
+        along the panel's face (the shape alone slides along it, and a fit from the cloud alone can
+        lie half a metre off, as a restarted vessel's first estimates do). A goal and each of its
+        refinements wait for such an estimate: onboard would otherwise grasp beside the part."""
+        return self.objects if self.objects is not None and "texture" in self.objects.method else None
+
     def _intervention(self, intent: Intervention) -> tuple[str, Message] | None:
         believed = self.believed_rad.get(intent.target, 0.0)
         start_rad = self.resolved.get(intent.command_id, (intent.target, believed))[1]
-        # the markers place the parts along the panel's face (the shape alone slides along it, and a
-        # first fit from the cloud alone can lie half a metre off): a goal waits for an estimate
-        # from a frame that saw them, which onboard would otherwise judge, and refuse for good;
-        # its refinements then follow whatever sharpens the estimate
-        placed = self.objects if self.objects is not None and "texture" in self.objects.method else None
-        goal, reason = resolve(intent, placed, start_rad)
+        goal, reason = resolve(intent, self._placed(), start_rad)
         if goal is not None:
             self.resolved[intent.command_id] = (intent.target, start_rad)
             self.refining = intent, goal
@@ -86,7 +88,7 @@ class Relay:
         phase = t.intervention_phase if t is not None and t.intervention_id == intent.command_id else ""
         if phase and phase not in REFINABLE_PHASES:
             return None
-        goal, _ = resolve(intent, self.objects, self.resolved[intent.command_id][1])
+        goal, _ = resolve(intent, self._placed(), self.resolved[intent.command_id][1])
         if goal is None or np.linalg.norm(goal.grasp_m_world - sent.grasp_m_world) < REFINE_M:
             return None
         self.refining = intent, goal

@@ -49,8 +49,30 @@ def test_a_resent_command_gets_the_same_answer_and_is_not_taken_twice() -> None:
     assert not taken and not ack.accepted and ack.command == "arm" and ack.command_id == 7
     again, taken_again = g.answer(far, LAST_WAYPOINT)
     assert again == ack and not taken_again
+    near = ArmGoal(9, np.array([4.86, 0.0, -8.35]), IDENTITY)
+    assert g.answer(near, LAST_WAYPOINT)[1] and g.answer(near, LAST_WAYPOINT) == (
+        g.answers["ArmGoal", 9],
+        False,
+    )
     mode = OperatorMode(7, "hold")  # the same id on another kind of command is its own command
     ack, taken = g.answer(mode, LAST_WAYPOINT)
     assert taken and ack.accepted and ack.command == "mode"
     waypoints = Waypoints(8, np.array(MissionConfig().waypoints))
     assert g.answer(waypoints, LAST_WAYPOINT)[1] and not g.answer(waypoints, LAST_WAYPOINT)[1]
+
+
+def test_a_refusal_is_judged_again_once_its_cause_has_cleared() -> None:
+    """The arm busy with an intervention refuses a goal; the same goal sent again once the
+    intervention is over is taken (a refusal is not cached as final), and then only once."""
+    g = gate()
+    goal = ArmGoal(11, np.array([4.86, 0.0, -8.35]), IDENTITY)
+    busy = "the intervention on valve_1 is in progress (turn)"
+    ack, taken = g.answer(goal, LAST_WAYPOINT, busy)
+    assert not taken and ack.reason == busy
+    ack, taken = g.answer(goal, LAST_WAYPOINT)
+    assert taken and ack.accepted
+    assert g.answer(goal, LAST_WAYPOINT) == (ack, False)
+    # a goal out of reach from where the vehicle will hold, reachable once it holds elsewhere
+    far = ArmGoal(12, np.array([6.0, 0.0, -8.35]), IDENTITY)
+    assert not g.answer(far, LAST_WAYPOINT)[1]
+    assert g.answer(far, np.r_[4.0, LAST_WAYPOINT[1:]])[1]

@@ -203,13 +203,13 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
     relay = Relay(VesselConfig(), now_s=0.0)
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
-    def recognised(z_m: float) -> RecognisedObjects:
+    def recognised(z_m: float, method: str = "texture") -> RecognisedObjects:
         return RecognisedObjects(
             ("panel",),
             np.array([[5.0, 0.0, z_m, 1.0, 0.0, 0.0, 0.0]]),
             np.array([panel.PLATE_HALF_SIZE_M]),
             np.ones(1),
-            "texture",
+            method,
             1.0,
         )
 
@@ -224,6 +224,9 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
     assert len(first) == 1
     # recognition sharpens by 1 mm: not worth a resend; by 5 cm: the same command, resolved anew
     assert goals(relay.step(RelayInputs(objects=recognised(-8.659), telemetry=phase("approach")), 2.0)) == []
+    # an estimate from the shape alone (no marker seen: a restarted vessel's first) moves nothing
+    shape_only = recognised(-8.30, "shape")
+    assert goals(relay.step(RelayInputs(objects=shape_only, telemetry=phase("approach")), 2.5)) == []
     refined = goals(relay.step(RelayInputs(objects=recognised(-8.61), telemetry=phase("pre-grasp")), 3.0))
     assert len(refined) == 1 and refined[0].command_id == 5
     assert refined[0].grasp_m_world[2] - first[0].grasp_m_world[2] == pytest.approx(0.05)

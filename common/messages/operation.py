@@ -11,7 +11,8 @@ import numpy as np
 from abyss.common.errors import BadInput
 from abyss.common.messages.schema import Message, array, check_unit_quaternion, scalar
 
-MODES = ("idle", "moving", "reached", "hold", "missed")  # missed: a waypoint not reached in its time
+# missed: a waypoint not reached in its time; blocked: the arm stalled against something, it holds
+MODES = ("idle", "moving", "reached", "hold", "missed", "blocked")
 # hold: the vehicle holds station and the arm holds still; auto: the goals are flown, the arm
 # once the vehicle holds its last waypoint; teleop: the goals are flown, the arm at once
 OPERATOR_MODES = ("hold", "auto", "teleop")

@@ -24,6 +24,12 @@ CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
 XYZW = [1, 2, 3, 0]  # Pinocchio's quaternion order, from w, x, y, z
 VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, heave, yaw rate
+# a stall: the joints moved less than STALL_SHARE of what the controller commanded (along it) for
+# STALL_S, while it commanded at least STALL_MIN_RADPS; the arm then holds (blocked) instead of
+# pushing on, and the low level's servos wind nothing up to swing with once it comes free
+STALL_MIN_RADPS = 0.02
+STALL_SHARE = 0.25
+STALL_S = 0.5
 
 
 # -- the arm on the vehicle -----------------------------------------------------------------
@@ -145,6 +151,7 @@ class ArmController:
         self.goal_position_m_world: np.ndarray | None = None
         self.goal_rotation = np.eye(3)
         self.within_s = 0.0  # how long both errors have been within tolerance
+        self.stall = Stall()
         # the constraints' constant parts: each joint's lower then upper limit (h = +q, -q: linear in
         # the joints), then each clearance point against each obstacle
         kin, joints, margin_rad = self.kinematics, len(ARM_JOINTS), cfg.joint_limit_margin_rad
@@ -180,6 +187,7 @@ class ArmController:
         self.goal_position_m_world = np.array(position_m_world, dtype=float)
         self.goal_rotation = rotation_of(orientation_wxyz_world)
         self.within_s = 0.0
+        self.stall = Stall()  # a new goal may lead away from what blocked the last
         return True
 
     def errors(self) -> tuple[np.ndarray, np.ndarray]:
@@ -232,7 +240,10 @@ class ArmController:
         )
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         if not enabled:
+            self.stall.rest(arm_rad)
             return ArmOutput(zero, None, Mode.HOLD, position_error, angle, ())
+        if self.stall.judge(arm_rad, cfg.control_period_s):
+            return ArmOutput(zero, None, Mode.BLOCKED, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         tasks = [
             Task(
@@ -247,7 +258,9 @@ class ArmController:
             ),
         ]
         reached = self.within_s >= self.mission.arm_settle_s
-        return self._solve(tasks, arm_rad, Mode.REACHED if reached else Mode.MOVING, position_error, angle)
+        out = self._solve(tasks, arm_rad, Mode.REACHED if reached else Mode.MOVING, position_error, angle)
+        self.stall.commanded(out.joint_velocities_radps)
+        return out
 
     def _solve(
         self, tasks: list[Task], arm_rad: np.ndarray, mode: Mode, position_error: np.ndarray, angle: float
@@ -318,6 +331,39 @@ class ArmController:
         """Scale the whole solution (its direction kept) so that no variable exceeds its limit."""
         worst = float((np.abs(xdot) / self.speed_limits).max())
         return xdot / worst if worst > 1.0 else xdot
+
+
+class Stall:
+    """Commanded joint motion against measured, period by period (see STALL_S): once blocked, it
+    stays blocked until a new goal."""
+
+    def __init__(self) -> None:
+        self.velocities_radps: np.ndarray | None = None  # what the last period commanded
+        self.from_rad: np.ndarray | None = None  # the joints then
+        self.stalled_s = 0.0
+        self.blocked = False
+
+    def rest(self, arm_rad: np.ndarray) -> None:
+        """The arm holds for another reason (failsafe, operator): nothing commanded, nothing judged."""
+        self.velocities_radps, self.from_rad, self.stalled_s = None, arm_rad.copy(), 0.0
+
+    def commanded(self, velocities_radps: np.ndarray) -> None:
+        self.velocities_radps = velocities_radps.copy()
+
+    def judge(self, arm_rad: np.ndarray, dt_s: float) -> bool:
+        """True if the arm is blocked: the joints have not followed what was commanded."""
+        commanded, moved_from = self.velocities_radps, self.from_rad
+        self.from_rad = arm_rad.copy()
+        if self.blocked or commanded is None or moved_from is None:
+            return self.blocked
+        speed = _norm(commanded)
+        if speed < STALL_MIN_RADPS:
+            self.stalled_s = 0.0
+            return False
+        followed = float((arm_rad - moved_from) @ commanded) / (speed * speed * dt_s)
+        self.stalled_s = self.stalled_s + dt_s if followed < STALL_SHARE else 0.0
+        self.blocked = self.stalled_s >= STALL_S
+        return self.blocked
 
 
 def _limit(vector: np.ndarray, norm_max: float) -> np.ndarray:

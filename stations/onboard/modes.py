@@ -15,6 +15,7 @@ class Mode(StrEnum):
     REACHED = "reached"
     HOLD = "hold"  # holds still (the failsafe, the operator, or the arm waits for the vehicle)
     MISSED = "missed"  # a waypoint not reached in its time; it is held
+    BLOCKED = "blocked"  # the arm's joints do not follow what it commands (a stall): it holds
 
 
 class ControlMode(StrEnum):

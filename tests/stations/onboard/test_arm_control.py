@@ -8,7 +8,7 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD
-from abyss.stations.onboard.arm_control import ArmController, ArmKinematics, box_distance
+from abyss.stations.onboard.arm_control import STALL_S, ArmController, ArmKinematics, box_distance
 from abyss.stations.onboard.task_priority import Task, solve
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
@@ -138,3 +138,37 @@ def test_whole_body_moves_the_vehicle_toward_a_target_beyond_the_arm() -> None:
     assert out.vehicle_velocity is not None and out.vehicle_velocity.shape == (4,)
     assert out.vehicle_velocity[1] > 0.0  # sway towards the target at y = 0.9 m
     assert len(out.joint_velocities_radps) == len(ARM_JOINTS)
+
+
+def test_an_arm_whose_joints_do_not_follow_is_blocked_within_a_second_and_holds() -> None:
+    """The controller commands the joints towards the goal; they stay where they are (a stall):
+    after STALL_S the arm reports blocked and commands nothing, until a new goal. Joints that
+    follow are never blocked, however slowly the arm closes in."""
+    arm, world = setup()
+    goal = arm.mission.arm_goal()
+    assert goal is not None
+    arm.set_goal(1, *goal)
+    truth, stuck_rad = world.truth(), world.joints().positions_rad
+    modes = []
+    for _ in range(round(1.0 / PERIOD_S)):
+        out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, stuck_rad, enabled=True)
+        modes.append(out.mode)
+    blocked_at_s = modes.index("blocked") * PERIOD_S
+    assert STALL_S <= blocked_at_s <= STALL_S + 2 * PERIOD_S, modes
+    assert not out.joint_velocities_radps.any() and out.mode == "blocked"
+    arm.set_goal(2, *goal)  # a new goal: judged anew
+    assert (
+        arm.step(truth.position_m_world, truth.orientation_wxyz_world, stuck_rad, enabled=True).mode
+        == "moving"
+    )
+    # the same goal flown in the simulation: the joints follow, never blocked
+    arm.set_goal(3, *goal)
+    seen = []
+    for _ in range(round(10.0 / PERIOD_S)):
+        truth = world.truth()
+        out = arm.step(
+            truth.position_m_world, truth.orientation_wxyz_world, world.joints().positions_rad, True
+        )
+        world.step(References(np.zeros(4), out.joint_velocities_radps, 0.0), PERIOD_S)
+        seen.append(out.mode)
+    assert "blocked" not in seen and seen[-1] == "reached"

@@ -4,6 +4,7 @@ core is `abyss.scene.stream.SceneStream`; the intake's, `intake.Intake`)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -50,7 +51,12 @@ class Relay:
     panel is recognised by its markers (shore resends it meanwhile), or is refused here with the
     reason; as recognition sharpens (the vehicle closing in), it goes down again resolved anew
     until the fingers close (onboard takes it as a refinement); the parts' angles are believed as
-    the interventions onboard finished left them."""
+    the interventions onboard finished left them.
+
+    Onboard rebooted mid-intervention is handed it again by shore (the same command): it is then
+    resolved from where onboard last reported the part (the start of its run, plus its turn from
+    the moment it held the part), toward the same target, an absolute angle; never again from the
+    angle the part had before it was turned."""
 
     def __init__(self, cfg: VesselConfig, now_s: float) -> None:
         self.cfg = cfg
@@ -59,7 +65,14 @@ class Relay:
         self.forwarded_seq = -1
         self.objects: RecognisedObjects | None = None
         self.believed_rad: dict[str, float] = {}  # each part's angle, as the interventions left it
-        self.resolved: dict[int, tuple[str, float]] = {}  # command id: the part, its angle then
+        self.resolved: dict[
+            int, tuple[str, float]
+        ] = {}  # command id: the part, its angle as onboard's run began
+        self.target_rad: dict[int, float] = {}  # command id: the angle it turns the part to
+        self.turned_rad: dict[
+            int, float
+        ] = {}  # command id: onboard's turn so far, from when it held the part
+        self.boot_id: int | None = None  # onboard's, as its telemetry says
         self.refining: tuple[Intervention, InterventionGoal] | None = None  # the latest sent, till it ends
 
     def _placed(self) -> RecognisedObjects | None:
@@ -72,6 +85,8 @@ class Relay:
     def _intervention(self, intent: Intervention) -> tuple[str, Message] | None:
         believed = self.believed_rad.get(intent.target, 0.0)
         start_rad = self.resolved.get(intent.command_id, (intent.target, believed))[1]
+        target_rad = self.target_rad.setdefault(intent.command_id, start_rad + intent.turn_rad)
+        intent = dataclasses.replace(intent, turn_rad=target_rad - start_rad)  # the target stays where it was
         goal, reason = resolve(intent, self._placed(), start_rad)
         if goal is not None:
             self.resolved[intent.command_id] = (intent.target, start_rad)
@@ -88,11 +103,28 @@ class Relay:
         phase = t.intervention_phase if t is not None and t.intervention_id == intent.command_id else ""
         if phase and phase not in REFINABLE_PHASES:
             return None
-        goal, _ = resolve(intent, self._placed(), self.resolved[intent.command_id][1])
+        start_rad = self.resolved[intent.command_id][1]
+        intent = dataclasses.replace(intent, turn_rad=self.target_rad[intent.command_id] - start_rad)
+        goal, _ = resolve(intent, self._placed(), start_rad)
         if goal is None or np.linalg.norm(goal.grasp_m_world - sent.grasp_m_world) < REFINE_M:
             return None
         self.refining = intent, goal
         return "goal/intervene", goal
+
+    def _follow(self, t: Telemetry) -> None:
+        """Onboard's turn of the part it works, from the moment it held it; on a reboot, its runs
+        of the interventions begin anew where the parts were left."""
+        if self.boot_id is not None and t.boot_id != self.boot_id:
+            for command_id, turned_rad in self.turned_rad.items():
+                target, start_rad = self.resolved[command_id]
+                self.resolved[command_id] = (target, start_rad + turned_rad)
+            self.turned_rad = {}
+            self.refining = None  # handed again, it goes down resolved anew
+        self.boot_id = t.boot_id
+        if t.intervention_id in self.resolved and (
+            t.intervention_phase == "turn" or t.intervention_id in self.turned_rad
+        ):
+            self.turned_rad[t.intervention_id] = t.turned_rad
 
     def _believe(self, t: Telemetry) -> None:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
@@ -105,6 +137,7 @@ class Relay:
         out: Outgoing = []
         state = inputs.telemetry[1] if inputs.telemetry is not None else None
         if state is not None:
+            self._follow(state)
             self._believe(state)
         if inputs.objects is not None and inputs.objects is not self.objects:
             self.objects = inputs.objects

@@ -11,9 +11,11 @@ import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from abyss.common.config.stations import VesselConfig
+from abyss.common.geometry import rotation_of
 from abyss.common.linkprofile import profile
 from abyss.common.messages import (
     CommandAck,
@@ -255,3 +257,51 @@ def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> Non
     assert not perception.sonar_feeds(109.0) and perception.scene_source(109.0) == "cameras"
     later = perception.status(116.0, None, 16.0)  # the window slides past the first cloud
     assert later.points_per_s == pytest.approx({"depth": 1.0, "stereo": 0.0, "sonar": 30.0})
+
+
+def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_where_the_part_is() -> None:
+    """valve_1 to be turned by 90 deg; onboard turned it 40 deg and rebooted. Shore hands the same
+    intent again: it goes down resolved from 40 deg (the grasp where the bar now stands) for the 50
+    deg left, the target unchanged; once done, the part is believed at 90 deg."""
+    relay = Relay(VesselConfig(), now_s=0.0)
+    objects = RecognisedObjects(
+        ("panel",),
+        np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]]),
+        np.array([panel.PLATE_HALF_SIZE_M]),
+        np.ones(1),
+        "texture",
+        1.0,
+    )
+    intent = Intervention(5, "valve_1", math.radians(90), "")
+
+    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, object]:
+        t = dataclasses.replace(
+            sample_telemetry(),
+            boot_id=boot,
+            intervention_id=5,
+            intervention_target="valve_1",
+            intervention_phase=phase,
+            turned_rad=math.radians(turned_deg),
+        )
+        return boot * 100 + int(turned_deg), t
+
+    def goal(out: list) -> InterventionGoal:
+        [sent] = [m for t, m in out if t == "goal/intervene"]
+        return sent
+
+    first = goal(relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=objects), 1.0))
+    assert first.turn_rad == pytest.approx(math.radians(90))
+    relay.step(
+        RelayInputs(telemetry=telemetry(1, "approach", 170.0)), 2.0
+    )  # the tool's angle, not the part's
+    relay.step(RelayInputs(telemetry=telemetry(1, "turn", 40.0)), 3.0)
+    relay.step(RelayInputs(telemetry=telemetry(2, "", 0.0)), 4.0)  # a new boot: onboard rebooted
+    again = goal(relay.step(RelayInputs(commands=[("op/intervene", intent)]), 5.0))
+    assert again.command_id == 5 and again.turn_rad == pytest.approx(math.radians(50))
+    between = (
+        rotation_of(again.grasp_orientation_wxyz_world) @ rotation_of(first.grasp_orientation_wxyz_world).T
+    )
+    about_axis_deg = math.degrees(float(np.asarray(first.axis_world) @ pin.log3(between)))
+    assert about_axis_deg == pytest.approx(40.0, abs=0.5)  # the grasp where the bar now stands
+    relay.step(RelayInputs(telemetry=telemetry(2, "done", 50.0)), 6.0)
+    assert relay.believed_rad["valve_1"] == pytest.approx(math.radians(90))

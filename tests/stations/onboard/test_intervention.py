@@ -159,3 +159,51 @@ def test_a_refined_goal_is_taken_until_the_fingers_close() -> None:
     assert not run.refine(dataclasses.replace(moved, command_id=4))  # another intervention's
     run.phase = Phase.TURN
     assert not run.refine(goal) and np.allclose(run.grasp_m, moved.grasp_m_world)
+
+
+def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[InterventionRun, World]:
+    """valve_1 to 90 deg; onboard dies `at_deg` into the turn (the fingers stay closed on the bar),
+    and the rebooted onboard is handed the intervention again: resolved from where the part is
+    (the vessel's way since), or from the angle it had before the turn (its way before)."""
+    arm, world = setup("dynamic")
+    intent = Intervention(1, "valve_1", *panel.intent("valve_1", "90"))
+    goal, _ = resolve(intent, recognised())
+    assert goal is not None
+    run = InterventionRun(goal)
+    for _ in range(round(60.0 / PERIOD_S)):
+        command = run.step(tool_pose(arm, world), world.joints().gripper_opening_m, PERIOD_S, True)
+        if run.phase == Phase.TURN and run.turned_rad > math.radians(at_deg):
+            break
+        track(arm, world, command.reference, command.gripper_mps)
+    assert run.phase == Phase.TURN and world.joints().gripper_opening_m < 0.03  # holding the bar
+    for _ in range(round(3.0 / PERIOD_S)):  # onboard down: the low level's watchdog holds still
+        world.step(References(np.zeros(4), np.zeros(len(ARM_JOINTS)), 0.0), PERIOD_S)
+    turned = run.turned_rad if resolved_from_the_part else 0.0
+    again, reason = resolve(
+        dataclasses.replace(intent, turn_rad=goal.turn_rad - turned), recognised(), turned
+    )
+    assert again is not None, reason
+    rebooted = InterventionRun(again)
+    for _ in range(round(60.0 / PERIOD_S)):
+        command = rebooted.step(tool_pose(arm, world), world.joints().gripper_opening_m, PERIOD_S, True)
+        if not rebooted.active:
+            break
+        track(arm, world, command.reference, command.gripper_mps)
+    return rebooted, world
+
+
+@pytest.mark.parametrize("at_deg", [40.0, 70.0])
+def test_onboard_rebooted_mid_turn_finishes_the_turn_from_where_the_part_is(at_deg: float) -> None:
+    """Handed again from where the part stands, the rebooted onboard's intervention ends with the
+    valve at 90 deg on the truth."""
+    rebooted, world = reboot_mid_turn(at_deg, resolved_from_the_part=True)
+    assert rebooted.phase == "done", rebooted.reason
+    assert truth_deg(world, "valve_1") == pytest.approx(90.0, abs=5.0)
+
+
+def test_handed_again_from_the_angle_before_the_turn_the_fingers_meet_the_bar() -> None:
+    """The vessel's old way, for contrast: resolved from the part's angle before the turn, the
+    grasp is where the bar was, the fingers are blocked by it and the intervention fails."""
+    rebooted, world = reboot_mid_turn(40.0, resolved_from_the_part=False)
+    assert rebooted.phase == "failed" and "blocked short of the handle" in rebooted.reason, rebooted.reason
+    assert truth_deg(world, "valve_1") < 60.0

@@ -84,10 +84,11 @@ class Relay:
 
     def _intervention(self, intent: Intervention) -> tuple[str, Message] | None:
         believed = self.believed_rad.get(intent.target, 0.0)
+        again = intent.command_id in self.resolved
         start_rad = self.resolved.get(intent.command_id, (intent.target, believed))[1]
         target_rad = self.target_rad.setdefault(intent.command_id, start_rad + intent.turn_rad)
         intent = dataclasses.replace(intent, turn_rad=target_rad - start_rad)  # the target stays where it was
-        goal, reason = resolve(intent, self._placed(), start_rad)
+        goal, reason = resolve(intent, self._placed(), start_rad, again)
         if goal is not None:
             self.resolved[intent.command_id] = (intent.target, start_rad)
             self.refining = intent, goal
@@ -105,7 +106,7 @@ class Relay:
             return None
         start_rad = self.resolved[intent.command_id][1]
         intent = dataclasses.replace(intent, turn_rad=self.target_rad[intent.command_id] - start_rad)
-        goal, _ = resolve(intent, self._placed(), start_rad)
+        goal, _ = resolve(intent, self._placed(), start_rad, again=True)
         if goal is None or np.linalg.norm(goal.grasp_m_world - sent.grasp_m_world) < REFINE_M:
             return None
         self.refining = intent, goal

@@ -22,10 +22,12 @@ FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about i
 
 
 def resolve(
-    intent: Intervention, objects: RecognisedObjects | None, believed_rad: float = 0.0
+    intent: Intervention, objects: RecognisedObjects | None, believed_rad: float = 0.0, again: bool = False
 ) -> tuple[InterventionGoal | None, str]:
     """The goal, or None and why it is refused; None and "" while the panel is not recognised
-    yet (the intent waits)."""
+    yet (the intent waits). `again`: the intervention handed again (onboard rebooted during it),
+    which goes down even where the part is at its target already: the rebooted onboard grasps
+    it, turns it no further, lets go and backs off, and reports it done."""
     try:
         kind = panel.part_kind(intent.target)
     except BadInput as exc:
@@ -42,7 +44,7 @@ def resolve(
             f"{intent.target} turns between {low_deg:.0f} and {high_deg:.0f} deg; at {at_deg:.0f} "
             f"deg it can turn by {low_deg - at_deg:.0f} to {high_deg - at_deg:.0f} deg"
         )
-    if abs(target_rad - believed_rad) < ALREADY_RAD:
+    if abs(target_rad - believed_rad) < ALREADY_RAD and not again:
         return None, f"{intent.target} is at {math.degrees(believed_rad):.0f} deg already"
     if objects is None or "panel" not in objects.names:
         return None, ""

@@ -291,9 +291,8 @@ def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_whe
 
     first = goal(relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=objects), 1.0))
     assert first.turn_rad == pytest.approx(math.radians(90))
-    relay.step(
-        RelayInputs(telemetry=telemetry(1, "approach", 170.0)), 2.0
-    )  # the tool's angle, not the part's
+    approach = telemetry(1, "approach", 170.0)  # the tool's angle on its way, not the part's
+    relay.step(RelayInputs(telemetry=approach), 2.0)
     relay.step(RelayInputs(telemetry=telemetry(1, "turn", 40.0)), 3.0)
     relay.step(RelayInputs(telemetry=telemetry(2, "", 0.0)), 4.0)  # a new boot: onboard rebooted
     again = goal(relay.step(RelayInputs(commands=[("op/intervene", intent)]), 5.0))
@@ -303,5 +302,12 @@ def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_whe
     )
     about_axis_deg = math.degrees(float(np.asarray(first.axis_world) @ pin.log3(between)))
     assert about_axis_deg == pytest.approx(40.0, abs=0.5)  # the grasp where the bar now stands
-    relay.step(RelayInputs(telemetry=telemetry(2, "done", 50.0)), 6.0)
+    relay.step(RelayInputs(telemetry=telemetry(2, "turn", 30.0)), 5.5)
+    relay.step(RelayInputs(telemetry=telemetry(2, "release", 49.5)), 6.0)
+    # rebooted again while letting go, the part at its target: handed again, it still goes down
+    # (grasped, turned no further, let go: then done), not refused as "at 90 deg already"
+    relay.step(RelayInputs(telemetry=telemetry(3, "", 0.0)), 7.0)
+    last = goal(relay.step(RelayInputs(commands=[("op/intervene", intent)]), 8.0))
+    assert last.turn_rad == pytest.approx(math.radians(0.5))
+    relay.step(RelayInputs(telemetry=telemetry(3, "done", 0.5)), 9.0)
     assert relay.believed_rad["valve_1"] == pytest.approx(math.radians(90))

@@ -127,9 +127,11 @@ def test_a_campaign_on_local_ray_then_two_shards_one_killed_and_resumed_merge_to
 
     # the same campaign in two shards; the first's driver SIGKILLed after its second result
     first = driver(here, "small.toml", "--out", "s1", "--shard", "1/2")
-    wait_for_records(here / "s1", 2, first, 300)
-    os.killpg(first.pid, signal.SIGKILL)
-    first.wait()
+    try:
+        wait_for_records(here / "s1", 2, first, 300)
+    finally:
+        os.killpg(first.pid, signal.SIGKILL)
+        first.communicate()  # its output pipe closed with it
     kept = len(records(here / "s1"))
     resumed = abyss(
         "campaign", "run", "small.toml", "--out", "s1", "--shard", "1/2", "--resume", timeout_s=600, cwd=here
@@ -281,9 +283,13 @@ def test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the
         prefix=("ip", "netns", "exec", ray_nodes.spaces[0]),
     )
     deadline = time.monotonic() + 400
-    while not any(worker in str(r["node"]) for r in records(here / "out")):
-        assert run.poll() is None and time.monotonic() < deadline, run.stdout.read() if run.stdout else ""
-        time.sleep(0.2)
+    try:
+        while not any(worker in str(r["node"]) for r in records(here / "out")):
+            assert run.poll() is None and time.monotonic() < deadline, "no run on the worker in time"
+            time.sleep(0.2)
+    except AssertionError:
+        os.killpg(run.pid, signal.SIGKILL)
+        raise AssertionError(run.communicate()[0]) from None
     ray_nodes.kill(ray_nodes.spaces[1])  # the worker's node dies with the run it has just started
     output, _ = run.communicate(timeout=600)
     assert run.returncode == 0, output

@@ -125,7 +125,7 @@ class Onboard:
         for nav in inputs.nav:
             self.position_m_world, self.orientation_wxyz_world = self.nav_filter.update(nav)
             self.sim_time_s = nav.sim_time_s
-            if self.position_m_world is not None:
+            if self.position_m_world is not None and self.nav_filter.settled:  # else frames wait
                 out.poses.append((nav.sim_time_s, self.position_m_world.copy(), self.orientation_wxyz_world))
         if self.position_m_world is None or inputs.joints is None:
             return out
@@ -142,7 +142,7 @@ class Onboard:
         hold = self.failsafe.check(now_s) or ("operator hold" if operator_hold else "")
         v = vehicle.step(position, yaw_of(orientation), cfg.control_period_s, hold=bool(hold))
         arm_free = v.mode in (Mode.REACHED, Mode.IDLE) or self.operator_mode == ControlMode.TELEOP
-        enabled = not hold and arm_free
+        enabled = not hold and arm_free and self.nav_filter.settled  # the arm's goals are in the world
         run, reference, gripper_mps = self.intervention, None, None
         if run is not None:
             arm.kinematics.update(position, orientation, arm_rad)

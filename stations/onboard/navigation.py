@@ -33,6 +33,11 @@ COAST_SIGMA_MPS = 0.1  # [m/s per sqrt(s)] the position's uncertainty grows so w
 BIAS_WALK_MPS = 1e-5  # [m/s per sqrt(s)] how fast the DVL's bias (in the world frame) may wander
 BIAS_SIGMA_MPS = 0.005  # [m/s] the DVL's bias, as first assumed
 RESET_AFTER_REJECTED = 5  # fixes rejected in a row: the estimate, not the fixes, is wrong; start afresh
+# fixes that agree in a row (the first one included) before an estimate started afresh is trusted
+# to place what onboard sees and to steer the arm by: one fix alone may be an outlier (a rebooted
+# onboard started 0.34 m off on one, and its clouds laid a ghost of the panel's face that held the
+# vessel's estimate 20 cm short for 20 s)
+SETTLE_FIXES = 3
 # [s] each fix's correction reaches the output over this time constant, not in one step: an arm
 # holding a valve's handle through the output would be jerked by millimetres at every fix
 BLEND_S = 2.0
@@ -63,6 +68,8 @@ class NavFilter:
         self.history: deque[tuple[float, np.ndarray]] = deque()  # (sim time [s], x and y [m, world])
         self.pending_m = np.zeros(2)  # of the corrections, what the output has not taken up yet
         self._rejected_in_a_row = 0
+        self._agreed = 0  # fixes in a row that agreed with the estimate since it started
+        self.settled = False  # SETTLE_FIXES agreed since it started (until it starts afresh)
         self._fix_s = -1.0  # when the latest fix used was taken
         self._stamp_s: float | None = None
 
@@ -134,6 +141,7 @@ class NavFilter:
                 self.gate_sigmas * math.sqrt(spread_m2),
                 self.rejected,
             )
+            self._agreed = 0
             if self._rejected_in_a_row >= RESET_AFTER_REJECTED:
                 log.warning(
                     "%d USBL fixes rejected in a row: the estimate starts afresh from the fix",
@@ -142,6 +150,7 @@ class NavFilter:
                 self._start(nav)
             return
         self._rejected_in_a_row = 0
+        self._agree()
         self.accepted += 1
         gain = self.covariance[:, 0] / spread_m2  # position's, bias's
         correction = gain[0] * innovation
@@ -173,6 +182,12 @@ class NavFilter:
         self.bias_mps_world = np.zeros(2)
         self.history.clear()
         self._rejected_in_a_row = 0
+        self._agreed, self.settled = 0, False
+        self._agree()
+
+    def _agree(self) -> None:
+        self._agreed += 1
+        self.settled = self.settled or self._agreed >= SETTLE_FIXES
 
 
 def nlerp(a_wxyz: np.ndarray, b_wxyz: np.ndarray, fraction: float) -> np.ndarray:

@@ -190,24 +190,29 @@ class Progress:
     started_s: float = field(default_factory=time.monotonic)
     last_s: float = 0.0
 
-    def line(self, running: int) -> str:
+    def line(self, pending: int) -> str:
+        """`pending`: the runs submitted without a result, running or queued (Ray's CPU in use
+        tells how many run)."""
         elapsed_s = time.monotonic() - self.started_s
         if self.done == self.total:
             return f"{self.done}/{self.total} runs done ({self.failed} failed) in {elapsed_s / 60:.1f} min"
         left_min = elapsed_s / self.done * (self.total - self.done) / 60 if self.done else None
         nodes = sum(1 for n in ray.nodes() if n["Alive"])
+        total_cores = ray.cluster_resources().get("CPU", 0.0)
+        used_cores = max(0.0, total_cores - ray.available_resources().get("CPU", 0.0))
+        running = min(pending, round(used_cores / self.cores_per_run)) if self.cores_per_run else pending
         return (
             f"{self.done}/{self.total} runs done ({self.failed} failed), {running} running on {nodes} "
-            f"node{'s' * (nodes != 1)}, {running * self.cores_per_run:.1f}/"
-            f"{ray.cluster_resources().get('CPU', 0.0):g} cores in use; "
+            f"node{'s' * (nodes != 1)} ({pending - running} queued), {used_cores:.1f}/{total_cores:g} "
+            "cores in use; "
             + (f"~{left_min:.1f} min left" if left_min is not None else "time left unknown yet")
         )
 
-    def tick(self, running: int, force: bool = False) -> None:
+    def tick(self, pending: int, force: bool = False) -> None:
         now_s = time.monotonic()
         if force or now_s - self.last_s >= PROGRESS_WALL_S:
             self.last_s = now_s
-            self.say(self.line(running))
+            self.say(self.line(pending))
 
 
 def execute(todo: list[RunSpec], keep: str, store: Store, say: Callable[[str], None]) -> list[str]:

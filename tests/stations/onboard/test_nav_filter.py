@@ -9,7 +9,7 @@ import pytest
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.messages import NavState
-from abyss.stations.onboard.navigation import NavFilter
+from abyss.stations.onboard.navigation import RESET_AFTER_REJECTED, SETTLE_FIXES, NavFilter
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 
@@ -72,3 +72,40 @@ def test_an_outlier_moves_nothing_and_coasting_keeps_the_last_velocity_fading() 
     for i in range(1, 41):  # 2 s without bottom lock nor fixes: a fading 0.2 m/s
         position, _ = nav_filter.update(nav(10.0 + i * 0.05, 5.0, 10.0, dvl_valid=False))
     assert position is not None and 2.0 + 0.2 < position[0] < 2.0 + 0.4
+
+
+def test_an_estimate_is_settled_only_once_fixes_agree_so_an_outlier_first_fix_is_not_trusted() -> None:
+    """Started by a fix 0.34 m off (a rebooted onboard's first, as a kill campaign found), the
+    estimate is not settled while the true fixes disagree with it; it starts afresh after
+    RESET_AFTER_REJECTED of them and is settled once SETTLE_FIXES agree. Started by good fixes, it
+    is settled after SETTLE_FIXES, and a later outlier does not unsettle it."""
+    nav_filter = NavFilter(OnboardConfig())
+
+    def nav(t_s: float, fix_m: float) -> NavState:
+        return NavState(
+            np.array([fix_m, 0.0, -7.0]),
+            np.array([1.0, 0.0, 0.0, 0.0]),
+            np.zeros(3),
+            np.zeros(3),
+            t_s,
+            usbl_time_s=t_s,
+            depth_m=7.0,
+            dvl_valid=True,
+        )
+
+    settled = [nav_filter.update(nav(0.0, 0.34)) and nav_filter.settled]  # the outlier first
+    for second in range(1, 12):  # the truth is 0.0 from here on, a fix a second
+        nav_filter.update(nav(float(second), 0.0))
+        settled.append(nav_filter.settled)
+    first_settled = settled.index(True)
+    assert first_settled == RESET_AFTER_REJECTED + SETTLE_FIXES - 1, settled  # reset at 5, 3 agreed by 7
+    assert settled[first_settled:] == [True] * (len(settled) - first_settled)
+
+    good = NavFilter(OnboardConfig())
+    states = []
+    for second in range(5):
+        good.update(nav(float(second), 0.0))
+        states.append(good.settled)
+    assert states == [False, False, True, True, True]
+    good.update(nav(5.0, 3.0))  # an outlier, rejected
+    assert good.rejected == 1 and good.settled

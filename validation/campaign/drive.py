@@ -66,6 +66,12 @@ def run_campaign(
                 f"{execute.task_cores(todo):g}"
             )
             lost = execute.execute(todo, campaign.keep, store, say)
+        except KeyboardInterrupt:  # Ctrl-C: what is stored stays, the runs in flight are let go
+            say(
+                f"interrupted: {len(store.records())} results kept in {out}; `abyss campaign run "
+                f"{campaign.path} --out {out} --resume` goes on"
+            )
+            return 130
         finally:
             ray.shutdown()
     store.add_wall(time.monotonic() - started_s)

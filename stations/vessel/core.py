@@ -24,7 +24,7 @@ from abyss.common.messages import (
     RecognisedObjects,
     Telemetry,
 )
-from abyss.stations.vessel.intents import REFINE_M, resolve
+from abyss.stations.vessel.intents import REFINE_M, part_angle_rad, resolve
 
 RELAYED_DOWN = {
     "op/waypoints": "goal/waypoints",
@@ -118,7 +118,7 @@ class Relay:
         if self.boot_id is not None and t.boot_id != self.boot_id:
             for command_id, turned_rad in self.turned_rad.items():
                 target, start_rad = self.resolved[command_id]
-                self.resolved[command_id] = (target, start_rad + turned_rad)
+                self.resolved[command_id] = (target, part_angle_rad(target, start_rad + turned_rad))
             self.turned_rad = {}
             self.refining = None  # handed again, it goes down resolved anew
         self.boot_id = t.boot_id
@@ -130,7 +130,7 @@ class Relay:
     def _believe(self, t: Telemetry) -> None:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
             target, start_rad = self.resolved[t.intervention_id]
-            self.believed_rad[target] = start_rad + t.turned_rad
+            self.believed_rad[target] = part_angle_rad(target, start_rad + t.turned_rad)
             if self.refining is not None and self.refining[0].command_id == t.intervention_id:
                 self.refining = None
 

@@ -21,6 +21,13 @@ REFINE_M = 0.005
 FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
 
 
+def part_angle_rad(part: str, turned_rad: float) -> float:
+    """A part's angle from the tool's: the tool turns past a stop (a lever is pushed on into it,
+    the shaft twisting in the grip), the part does not."""
+    low, high = panel.part_range_rad(part)
+    return float(np.clip(turned_rad, low, high))
+
+
 def resolve(
     intent: Intervention, objects: RecognisedObjects | None, believed_rad: float = 0.0, again: bool = False
 ) -> tuple[InterventionGoal | None, str]:
@@ -46,6 +53,9 @@ def resolve(
         )
     if abs(target_rad - believed_rad) < ALREADY_RAD and not again:
         return None, f"{intent.target} is at {math.degrees(believed_rad):.0f} deg already"
+    turn_rad = target_rad - believed_rad
+    if kind == "lever" and abs(turn_rad) < ALREADY_RAD:  # at its stop already (handed again):
+        turn_rad = math.copysign(0.0, target_rad)  # the push goes on into the stop, never away
     if objects is None or "panel" not in objects.names:
         return None, ""
     pose = objects.poses_world[objects.names.index("panel")]
@@ -62,6 +72,6 @@ def resolve(
         axis_world=panel_rotation @ axis,
         grasp_m_world=panel_rotation @ (pivot + turned @ grasp) + panel_m_world,
         grasp_orientation_wxyz_world=quat_wxyz_of(panel_rotation @ turned @ grasp_rotation),
-        turn_rad=target_rad - believed_rad,
+        turn_rad=turn_rad,
         to_stop=kind == "lever",
     ), ""

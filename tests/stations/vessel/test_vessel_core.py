@@ -311,3 +311,46 @@ def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_whe
     assert last.turn_rad == pytest.approx(math.radians(0.5))
     relay.step(RelayInputs(telemetry=telemetry(3, "done", 0.5)), 9.0)
     assert relay.believed_rad["valve_1"] == pytest.approx(math.radians(90))
+
+
+def test_a_lever_thrown_past_its_stop_by_the_tool_is_believed_at_the_stop_and_pushed_on_into_it() -> None:
+    """lever_0 thrown down: the tool turns 55 deg (12 past the stop, the shaft twisting in the
+    grip), the lever stops at -45. Onboard reboots while backing off; handed again, the lever goes
+    down resolved from -45 with no turn left, its push toward the stop (negative), never up off
+    it (a kill campaign's false done: resolved from -55, the push went 20 deg up)."""
+    relay = Relay(VesselConfig(), now_s=0.0)
+    objects = RecognisedObjects(
+        ("panel",),
+        np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]]),
+        np.array([panel.PLATE_HALF_SIZE_M]),
+        np.ones(1),
+        "texture",
+        1.0,
+    )
+    intent = Intervention(8, "lever_0", 0.0, "down")
+
+    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, object]:
+        t = dataclasses.replace(
+            sample_telemetry(),
+            boot_id=boot,
+            intervention_id=8,
+            intervention_target="lever_0",
+            intervention_phase=phase,
+            turned_rad=math.radians(turned_deg),
+        )
+        return boot * 1000 + abs(int(turned_deg)), t
+
+    first = [m for t, m in relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=objects), 1.0)]
+    assert first[0].turn_rad == pytest.approx(math.radians(-45))
+    relay.step(RelayInputs(telemetry=telemetry(1, "turn", -30.0)), 2.0)
+    relay.step(RelayInputs(telemetry=telemetry(1, "retreat", -54.7)), 3.0)
+    relay.step(RelayInputs(telemetry=telemetry(2, "", 0.0)), 4.0)  # rebooted while backing off
+    [again] = [
+        m
+        for t, m in relay.step(RelayInputs(commands=[("op/intervene", intent)]), 5.0)
+        if t == "goal/intervene"
+    ]
+    assert again.turn_rad == 0.0 and math.copysign(1.0, again.turn_rad) == -1.0
+    relay.step(RelayInputs(telemetry=telemetry(2, "turn", -1.0)), 6.0)
+    relay.step(RelayInputs(telemetry=telemetry(2, "done", -12.0)), 7.0)
+    assert relay.believed_rad["lever_0"] == pytest.approx(math.radians(-45))

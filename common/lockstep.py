@@ -54,6 +54,17 @@ REPEAT_WALL_S = 0.5  # a report, or the clock, is told again this often while a 
 WAIT_WARN_WALL_S = 10.0  # a wait this long is logged (a station gone, or not up yet)
 
 
+def declare_reports(
+    session: zenoh.Session, system: str, station: str, on_report: Callable[[zenoh.Sample], None]
+) -> tuple[zenoh.Publisher, zenoh.Subscriber]:
+    """`station`'s publisher of lockstep reports (blocking, express: a report is never dropped nor
+    held back), and a subscriber to every station's."""
+    publisher = session.declare_publisher(
+        keys.lockstep_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+    )
+    return publisher, session.declare_subscriber(keys.lockstep_key(system, "*"), on_report)
+
+
 class LockstepClock(SimClock):
     """The period's time, exactly (no extrapolation), and the turns of the station's loops."""
 
@@ -173,10 +184,7 @@ class Lockstep:
         self._reports: dict[tuple[str, str], tuple[float, dict[str, float]]] = {}  # (station, phase)
         self._seq = 0
         self.reject = reject
-        self._publisher = session.declare_publisher(
-            keys.lockstep_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
-        )
-        self._subscriber = session.declare_subscriber(keys.lockstep_key(system, "*"), self._on_report)
+        self._publisher, self._subscriber = declare_reports(session, system, station, self._on_report)
         self._last: dict[str, tuple[float, dict[str, float]]] = {}  # per phase: the latest report
         self._repeater = threading.Thread(target=self._repeat, name="lockstep reports", daemon=True)
         self._repeater.start()
@@ -359,10 +367,7 @@ class Holds:
         self._latest: dict[tuple[str, str], LockstepReport] = {}
         self._boot: Counter[str] = Counter()  # each station's latest boot heard
         self.reject = reject
-        self._publisher = session.declare_publisher(
-            keys.lockstep_key(system, TESTBED), congestion_control=zenoh.CongestionControl.BLOCK, express=True
-        )
-        self._subscriber = session.declare_subscriber(keys.lockstep_key(system, "*"), self._on_report)
+        self._publisher, self._subscriber = declare_reports(session, system, TESTBED, self._on_report)
         self._seq = 0
 
     def _on_report(self, sample: zenoh.Sample) -> None:

@@ -209,6 +209,12 @@ class RayNodes:
         )
         assert done.returncode == 0, done.stdout + done.stderr
 
+    def driver(self, here: Path) -> subprocess.Popen[str]:
+        """`campaign run small.toml --out out` on the head's node, joined to its cluster."""
+        address = f"{self.addresses[0]}:{self.port}"
+        prefix = ("ip", "netns", "exec", self.spaces[0])
+        return driver(here, "small.toml", "--out", "out", "--address", address, env=self.env, prefix=prefix)
+
     def kill(self, space: str) -> None:
         pids = subprocess.run(["ip", "netns", "pids", space], capture_output=True, text=True).stdout.split()
         for pid in pids:
@@ -272,16 +278,7 @@ def test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the
     text = text.split("[matrix]")[0]
     here = campaign_dir(tmp_path, text, ("short-mission",))
     head, worker = ray_nodes.addresses
-    run = driver(
-        here,
-        "small.toml",
-        "--out",
-        "out",
-        "--address",
-        f"{head}:{ray_nodes.port}",
-        env=ray_nodes.env,
-        prefix=("ip", "netns", "exec", ray_nodes.spaces[0]),
-    )
+    run = ray_nodes.driver(here)
     deadline = time.monotonic() + 400
     try:
         while not any(worker in str(r["node"]) for r in records(here / "out")):
@@ -335,16 +332,7 @@ def test_a_node_with_another_abyss_is_refused_at_start_naming_both_versions(
     from abyss.validation.campaign.version import abyss_version
 
     here = campaign_dir(tmp_path, CAMPAIGN.split("[matrix]")[0], ("short-mission",))
-    run = driver(
-        here,
-        "small.toml",
-        "--out",
-        "out",
-        "--address",
-        f"{ray_nodes.addresses[0]}:{ray_nodes.port}",
-        env=ray_nodes.env,
-        prefix=("ip", "netns", "exec", ray_nodes.spaces[0]),
-    )
+    run = ray_nodes.driver(here)
     output, _ = run.communicate(timeout=240)
     assert run.returncode == 2, output
     theirs = re.search(r"node \S+/10\.79\.0\.2 runs abyss (\S+), this driver (\S+):", output)

@@ -26,6 +26,7 @@ from abyss.common.messages import (
     RecognisedObjects,
     SceneAck,
     SceneUpdate,
+    Telemetry,
     encode,
 )
 from abyss.common.models import panel
@@ -259,12 +260,9 @@ def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> Non
     assert later.points_per_s == pytest.approx({"depth": 1.0, "stereo": 0.0, "sonar": 30.0})
 
 
-def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_where_the_part_is() -> None:
-    """valve_1 to be turned by 90 deg; onboard turned it 40 deg and rebooted. Shore hands the same
-    intent again: it goes down resolved from 40 deg (the grasp where the bar now stands) for the 50
-    deg left, the target unchanged; once done, the part is believed at 90 deg."""
-    relay = Relay(VesselConfig(), now_s=0.0)
-    objects = RecognisedObjects(
+def marked_panel() -> RecognisedObjects:
+    """The panel recognised from a frame that saw its markers."""
+    return RecognisedObjects(
         ("panel",),
         np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]]),
         np.array([panel.PLATE_HALF_SIZE_M]),
@@ -272,18 +270,32 @@ def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_whe
         "texture",
         1.0,
     )
+
+
+def working(intent: Intervention, boot: int, phase: str, turned_deg: float) -> tuple[int, Telemetry]:
+    """Onboard's telemetry (boot `boot`) working `intent` in `phase`, the tool turned `turned_deg`
+    from its grasp; with a sequence number new for each."""
+    t = dataclasses.replace(
+        sample_telemetry(),
+        boot_id=boot,
+        intervention_id=intent.command_id,
+        intervention_target=intent.target,
+        intervention_phase=phase,
+        turned_rad=math.radians(turned_deg),
+    )
+    return boot * 1000 + round(abs(turned_deg) * 10), t
+
+
+def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_where_the_part_is() -> None:
+    """valve_1 to be turned by 90 deg; onboard turned it 40 deg and rebooted. Shore hands the same
+    intent again: it goes down resolved from 40 deg (the grasp where the bar now stands) for the 50
+    deg left, the target unchanged; once done, the part is believed at 90 deg."""
+    relay = Relay(VesselConfig(), now_s=0.0)
+    objects = marked_panel()
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
-    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, object]:
-        t = dataclasses.replace(
-            sample_telemetry(),
-            boot_id=boot,
-            intervention_id=5,
-            intervention_target="valve_1",
-            intervention_phase=phase,
-            turned_rad=math.radians(turned_deg),
-        )
-        return boot * 100 + int(turned_deg), t
+    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, Telemetry]:
+        return working(intent, boot, phase, turned_deg)
 
     def goal(out: list) -> InterventionGoal:
         [sent] = [m for t, m in out if t == "goal/intervene"]
@@ -319,26 +331,11 @@ def test_a_lever_thrown_past_its_stop_by_the_tool_is_believed_at_the_stop_and_pu
     down resolved from -45 with no turn left, its push toward the stop (negative), never up off
     it (a kill campaign's false done: resolved from -55, the push went 20 deg up)."""
     relay = Relay(VesselConfig(), now_s=0.0)
-    objects = RecognisedObjects(
-        ("panel",),
-        np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]]),
-        np.array([panel.PLATE_HALF_SIZE_M]),
-        np.ones(1),
-        "texture",
-        1.0,
-    )
+    objects = marked_panel()
     intent = Intervention(8, "lever_0", 0.0, "down")
 
-    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, object]:
-        t = dataclasses.replace(
-            sample_telemetry(),
-            boot_id=boot,
-            intervention_id=8,
-            intervention_target="lever_0",
-            intervention_phase=phase,
-            turned_rad=math.radians(turned_deg),
-        )
-        return boot * 1000 + abs(int(turned_deg)), t
+    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, Telemetry]:
+        return working(intent, boot, phase, turned_deg)
 
     first = [m for t, m in relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=objects), 1.0)]
     assert first[0].turn_rad == pytest.approx(math.radians(-45))

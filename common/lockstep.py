@@ -55,14 +55,25 @@ WAIT_WARN_WALL_S = 10.0  # a wait this long is logged (a station gone, or not up
 
 
 def declare_reports(
-    session: zenoh.Session, system: str, station: str, on_report: Callable[[zenoh.Sample], None]
+    session: zenoh.Session,
+    system: str,
+    station: str,
+    take: Callable[[str, LockstepReport], None],
+    reject: Reject,
 ) -> tuple[zenoh.Publisher, zenoh.Subscriber]:
     """`station`'s publisher of lockstep reports (blocking, express: a report is never dropped nor
-    held back), and a subscriber to every station's."""
+    held back), and a subscriber to every station's that hands each report that decodes to
+    `take(station, report)` (one that does not is rejected with its reason)."""
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        got = station_message(sample, LockstepReport, reject)
+        if got is not None:
+            take(*got)
+
     publisher = session.declare_publisher(
         keys.lockstep_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
     )
-    return publisher, session.declare_subscriber(keys.lockstep_key(system, "*"), on_report)
+    return publisher, session.declare_subscriber(keys.lockstep_key(system, "*"), on_sample)
 
 
 class LockstepClock(SimClock):
@@ -183,8 +194,7 @@ class Lockstep:
         self._cond = threading.Condition()
         self._reports: dict[tuple[str, str], tuple[float, dict[str, float]]] = {}  # (station, phase)
         self._seq = 0
-        self.reject = reject
-        self._publisher, self._subscriber = declare_reports(session, system, station, self._on_report)
+        self._publisher, self._subscriber = declare_reports(session, system, station, self._take, reject)
         self._last: dict[str, tuple[float, dict[str, float]]] = {}  # per phase: the latest report
         self._repeater = threading.Thread(target=self._repeat, name="lockstep reports", daemon=True)
         self._repeater.start()
@@ -195,11 +205,7 @@ class Lockstep:
             self._cond.notify_all()
 
     # -- reports -------------------------------------------------------------------------
-    def _on_report(self, sample: zenoh.Sample) -> None:
-        got = station_message(sample, LockstepReport, self.reject)
-        if got is None:
-            return
-        station, report = got
+    def _take(self, station: str, report: LockstepReport) -> None:
         with self._cond:
             before = self._reports.get((station, report.phase))
             if before is None or report.sim_time_s >= before[0]:
@@ -330,7 +336,7 @@ class Lockstep:
             f"the deliveries of {', '.join(sorted(expects))} at t={t_s:.2f} s", all_arrived, waiting
         ):
             return False
-        self._verified = dict(verified)
+        self._verified = verified
         self.clock.run_loops(t_s, self.stop)
         return not self.stop.is_set()
 
@@ -366,15 +372,10 @@ class Holds:
         self._cond = threading.Condition()
         self._latest: dict[tuple[str, str], LockstepReport] = {}
         self._boot: Counter[str] = Counter()  # each station's latest boot heard
-        self.reject = reject
-        self._publisher, self._subscriber = declare_reports(session, system, TESTBED, self._on_report)
+        self._publisher, self._subscriber = declare_reports(session, system, TESTBED, self._take, reject)
         self._seq = 0
 
-    def _on_report(self, sample: zenoh.Sample) -> None:
-        got = station_message(sample, LockstepReport, self.reject)
-        if got is None:
-            return
-        station, report = got
+    def _take(self, station: str, report: LockstepReport) -> None:
         with self._cond:
             if report.boot >= self._boot[station]:
                 self._boot[station] = report.boot
@@ -395,12 +396,12 @@ class Holds:
         """Until `ready()`; AbyssError naming `what` if the system ends (`alive` false) or
         `timeout_s` passes first."""
         deadline_s = time.monotonic() + timeout_s
-        with self._cond:
-            while not ready():
-                if not alive():
-                    raise AbyssError(f"the system ended while waiting for {what}")
-                if time.monotonic() > deadline_s:
-                    raise AbyssError(f"waited {timeout_s:g} s for {what}")
+        while not ready():  # without the lock: `ready` may query the system (a link's profile)
+            if not alive():
+                raise AbyssError(f"the system ended while waiting for {what}")
+            if time.monotonic() > deadline_s:
+                raise AbyssError(f"waited {timeout_s:g} s for {what}")
+            with self._cond:
                 self._cond.wait(POLL_WALL_S * 5)
 
     def held(

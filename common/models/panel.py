@@ -58,12 +58,14 @@ LEVER_RANGE_RAD = (-np.pi / 4, np.pi / 4)
 LEVER_LENGTH_M = 0.2
 HANDLE_THICKNESS_M = 0.04  # the valve's bar and the lever's shaft, across: what the fingers close on
 # where the tool point grasps each, at rest, from its pivot: the fingers (0.08 m long, their tips
-# 0.02 m beyond the tool point, the palm behind them) reach 10 mm over the bar (its front 30 mm
-# deep, 15 to 45 mm out of the pivot) and stop 15 mm short of the spindle's hub (20 mm out): at
-# 5 mm, and at 10 mm under the satellite storm's late refinements, they caught the hub's 80 mm
-# when the recognition and the navigation were 1-2 cm off; on a lever they hold the shaft's outer
-# part, the palm clear beyond its end
-VALVE_GRASP_M_PIVOT = (-0.055, 0.0, 0.0)
+# 0.02 m beyond the tool point, the palm behind them) reach 12.5 mm over the bar (its front 30 mm
+# deep, 15 to 45 mm out of the pivot) and stop 12.5 mm short of the spindle's hub (20 mm out),
+# the middle of what the depth may be off either way: at 5 mm short, and at 10 mm under the
+# satellite storm's late refinements, they caught the hub's 80 mm when the recognition and the
+# navigation were 1-2 cm off; at 10 mm over, the fingers slid off the bar as the navigation's
+# frame moved 5 mm out during a turn (seed 2); on a lever they hold the shaft's outer part, the
+# palm clear beyond its end
+VALVE_GRASP_M_PIVOT = (-0.0525, 0.0, 0.0)
 LEVER_GRASP_M_PIVOT = (-0.175, 0.0, 0.0)
 # the tool at the grasp, at rest: its x (the approach) into the panel, its y (the fingers' closing
 # direction) up, across the bar and the shaft: a roll of 90 degrees about x

@@ -14,7 +14,7 @@ vessel resolved (messages.InterventionGoal) and reports each phase in telemetry.
     done | failed
 
 A grasp that closes on nothing, or one lost during the turn (the opening collapses: the handle
-slipped out), is tried once more from the approach; the second time, or a part that does not
+slipped out), is tried again from the approach, twice; the third time, or a part that does not
 turn, ends failed with its reason, after the release and the retreat: the arm backs off and
 nothing is pushed further. The phases' clocks stop while the arm holds (failsafe, operator
 hold), and the gripper keeps squeezing what it holds meanwhile."""
@@ -55,7 +55,7 @@ AT_STOP_RAD = OVERTRAVEL_RAD + math.radians(3.0)  # a thrown lever that stalls t
 POSITION_TOLERANCE_M = 0.005
 ORIENTATION_TOLERANCE_RAD = 0.03
 SETTLE_S = 0.3
-ATTEMPTS = 2  # a failed grasp or a slip is tried once more
+ATTEMPTS = 3  # a failed grasp or a slip is tried twice more
 
 
 class Phase(StrEnum):
@@ -116,11 +116,18 @@ class InterventionRun:
         self.grasp_rotation = rotation_of(goal.grasp_orientation_wxyz_world)
 
     def refine(self, goal: InterventionGoal) -> bool:
-        """The same intervention resolved again from a better estimate of the panel (the vessel's
-        recognition sharpens as the vehicle closes in): taken until the fingers close."""
-        if goal.command_id != self.goal.command_id or self.phase not in REFINABLE:
+        """The same intervention resolved again from a newer estimate of the panel: taken whole
+        until the fingers close (recognition sharpens as the vehicle closes in); after, only the
+        pivot's shift, by which the part moves with the navigation's frame (its error wanders by
+        millimetres a second, and the vehicle and the arm move with it: 5 mm over a 4 s turn
+        pulled the fingers off the bar), while what the turn is measured from stays."""
+        if goal.command_id != self.goal.command_id or not self.active:
             return False
-        self._take(goal)
+        if self.phase in REFINABLE:
+            self._take(goal)
+            return True
+        shift_m = np.asarray(goal.pivot_m_world, float) - self.pivot
+        self.pivot, self.grasp_m = self.pivot + shift_m, self.grasp_m + shift_m
         return True
 
     @property
@@ -263,7 +270,7 @@ class InterventionRun:
     def _again(self, why: str) -> None:
         """Try the grasp once more, from where the part now stands, or fail."""
         if self.attempts >= ATTEMPTS:
-            self._fail(f"{self.goal.target}: {why}, and again on the retry")
+            self._fail(f"{self.goal.target}: {why}, on the last of {ATTEMPTS} attempts")
             return
         self.attempts += 1
         self.retry = why

@@ -14,7 +14,6 @@ from abyss.common.config.stations import VesselConfig
 from abyss.common.messages import (
     CLOUD_SOURCES,
     PERCEPTION_SOURCES,
-    REFINABLE_PHASES,
     CommandAck,
     Heartbeat,
     Intervention,
@@ -49,9 +48,10 @@ class Relay:
     telemetry up at `telemetry_period_s`, and a heartbeat to onboard that says whether shore
     is heard. An intervention goes down resolved in the world frame (intents.resolve) once the
     panel is recognised by its markers (shore resends it meanwhile), or is refused here with the
-    reason; as recognition sharpens (the vehicle closing in), it goes down again resolved anew
-    until the fingers close (onboard takes it as a refinement); the parts' angles are believed as
-    the interventions onboard finished left them.
+    reason; as the panel's estimate moves (recognition sharpening as the vehicle closes in, the
+    navigation's frame wandering), it goes down again resolved anew till it ends (onboard takes
+    it as a refinement); the parts' angles are believed as the interventions onboard finished
+    left them.
 
     Onboard rebooted mid-intervention is handed it again by shore (the same command): it is then
     resolved from where onboard last reported the part (the start of its run, plus its turn from
@@ -95,15 +95,13 @@ class Relay:
             return "goal/intervene", goal
         return ("ack", CommandAck(intent.command_id, "intervene", reason)) if reason else None
 
-    def _refined(self, t: Telemetry | None) -> tuple[str, Message] | None:
+    def _refined(self) -> tuple[str, Message] | None:
         """The intervention in hand resolved anew, when the panel's estimate has moved its grasp
-        by REFINE_M or more and onboard has not closed the fingers yet."""
+        by REFINE_M or more, till it ends: onboard takes it whole until the fingers close, then
+        the pivot's shift only (the panel moving in the navigation's frame)."""
         if self.refining is None:
             return None
         intent, sent = self.refining
-        phase = t.intervention_phase if t is not None and t.intervention_id == intent.command_id else ""
-        if phase and phase not in REFINABLE_PHASES:
-            return None
         start_rad = self.resolved[intent.command_id][1]
         intent = dataclasses.replace(intent, turn_rad=self.target_rad[intent.command_id] - start_rad)
         goal, _ = resolve(intent, self._placed(), start_rad, again=True)
@@ -142,7 +140,7 @@ class Relay:
             self._believe(state)
         if inputs.objects is not None and inputs.objects is not self.objects:
             self.objects = inputs.objects
-            refined = self._refined(state)
+            refined = self._refined()
             out += [refined] if refined else []
         for topic, command in inputs.commands:
             if isinstance(command, Intervention):

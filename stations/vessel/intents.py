@@ -14,10 +14,10 @@ from abyss.common.messages import Intervention, InterventionGoal, RecognisedObje
 from abyss.common.models import panel
 
 ALREADY_RAD = math.radians(1.0)
-# a new estimate of the panel that moves a grasp this far is sent down again: a third of what the
-# grasp tolerates (the fingers open 7 cm on a 4 cm handle), and above the estimate's jitter,
-# each resend holding the approach back until it settles anew
-REFINE_M = 0.005
+# a new estimate of the panel that moves a grasp this far is sent down again: under a third of
+# what the grasp tolerates along the approach (the fingers reach 10 mm over the bar) and across
+# (they open 7 cm on a 4 cm handle), above the estimate's jitter at working distance (1-2 mm)
+REFINE_M = 0.003
 FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
 
 

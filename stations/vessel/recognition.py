@@ -10,8 +10,8 @@
   ICP's fitness and residual;
 - fusion: each where it is strong: the plane's normal and distance from the shape, the position
   in the plane and the rotation about the normal from the markers (or, with none in view, from
-  the estimate so far); then a running average over frames, as the panel does not move, with
-  a confidence that follows the recent frames'.
+  the estimate so far); then a running average over frames that forgets at the rate the
+  navigation's error wanders (PanelTracker), with a confidence that follows the recent frames'.
 The valves and levers follow from the panel's pose and the model (common/models/panel.py).
 """
 
@@ -190,12 +190,23 @@ def fuse(poses: list[Pose]) -> Pose:
 
 
 CONFIDENCE_GAIN = 0.3  # of each frame's confidence in the tracker's: the last few frames' say
+# The panel does not move, but the frame its estimates are placed in does: each frame is placed
+# with the camera's pose from onboard's navigation, whose error wanders (dead reckoning between
+# USBL fixes) by millimetres a second, and the arm reaches for the panel with the same
+# navigation. What a grasp needs is the panel where the navigation places it now. Measured on the
+# default mission (seed 2): frames at working distance 1-2 mm apart once the navigation's error
+# at their moment is taken out, that error moving 10-15 mm in 10 s; an average with a fixed
+# memory of some 40 frames put the grasp 9-15 mm off the handle, and the fingers slipped off the
+# bar and closed on nothing. So the average's weight (the confidences summed, an inverse
+# variance) forgets as a random walk: its variance grows by this much per second of frames.
+NAV_DRIFT_PER_S = 10.0
 
 
 class PanelTracker:
     """The panel's pose over frames: each frame's fused estimate joins a running
-    confidence-weighted average. Its confidence follows the recent frames' (an exponential
-    average), and fades while frames find nothing: what murk or a lost camera does shows."""
+    confidence-weighted average that forgets at NAV_DRIFT_PER_S, so that close in it follows
+    the navigation's frame. Its confidence follows the recent frames' (an exponential average),
+    and fades while frames find nothing: what murk or a lost camera does shows."""
 
     def __init__(
         self,
@@ -210,6 +221,7 @@ class PanelTracker:
         self.weight = 0.0
         self.anchored = False  # the estimate has seen markers: the shape alone slides along the face
         self.method = ""
+        self.frame_s: float | None = None  # the sim time of the last image in the average
 
     def update(
         self, rgb: np.ndarray | None, image: Image | None, points_m_world: np.ndarray | None
@@ -242,21 +254,26 @@ class PanelTracker:
                 )
             return self.estimate
         self.method = "+".join(name for name, p in (("texture", texture), ("shape", shape)) if p is not None)
+        forget_s = 0.0
+        if image is not None:
+            forget_s = max(0.0, image.sim_time_s - (self.frame_s or image.sim_time_s))
+            self.frame_s = max(self.frame_s or 0.0, image.sim_time_s)
         if self.estimate is None or (texture is not None and not self.anchored):
             self.anchored = texture is not None
             self.estimate, self.weight = frame, frame.confidence
         else:
-            total = self.weight + frame.confidence
+            kept = 1.0 / (1.0 / max(self.weight, 1e-9) + NAV_DRIFT_PER_S * forget_s)
+            total = kept + frame.confidence
             blended = fuse(
                 [
-                    Pose(self.estimate.rotation, self.estimate.position_m_world, self.weight / total),
+                    Pose(self.estimate.rotation, self.estimate.position_m_world, kept / total),
                     Pose(frame.rotation, frame.position_m_world, frame.confidence / total),
                 ]
             )
             before = self.estimate.confidence
             confidence = before + CONFIDENCE_GAIN * (frame.confidence - before)
             self.estimate = Pose(blended.rotation, blended.position_m_world, confidence)
-            self.weight = min(total, 20.0)  # a bounded memory: a moved panel is found again
+            self.weight = total
         return self.estimate
 
     def objects(self, sim_time_s: float) -> RecognisedObjects | None:

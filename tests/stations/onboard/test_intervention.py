@@ -152,13 +152,62 @@ def test_a_panel_recognised_off_ends_in_a_failed_grasp_not_a_forced_one() -> Non
     assert abs(truth_deg(world, "valve_1")) < 5.0
 
 
-def test_a_refined_goal_is_taken_until_the_fingers_close() -> None:
+def test_a_refined_goal_is_taken_whole_until_the_fingers_close_then_as_the_pivots_shift() -> None:
     goal, moved = goal_of("valve_1", "90"), goal_of("valve_1", "90", (0.0, 0.0, 0.02))
     run = InterventionRun(goal)
     assert run.refine(moved) and np.allclose(run.grasp_m, moved.grasp_m_world)
     assert not run.refine(dataclasses.replace(moved, command_id=4))  # another intervention's
     run.phase = Phase.TURN
-    assert not run.refine(goal) and np.allclose(run.grasp_m, moved.grasp_m_world)
+    shifted = dataclasses.replace(
+        goal_of("valve_1", "90", (0.003, 0.0, 0.02)),
+        grasp_orientation_wxyz_world=np.array([1.0, 0.0, 0.0, 0.0]),
+    )
+    rotation = run.grasp_rotation.copy()
+    assert run.refine(shifted)  # held: the pivot moves, what the turn is measured from stays
+    assert np.allclose(run.pivot, shifted.pivot_m_world) and np.allclose(run.grasp_m, shifted.grasp_m_world)
+    assert np.array_equal(run.grasp_rotation, rotation)
+    run.phase = Phase.DONE
+    assert not run.refine(moved)
+
+
+def work_in_a_wandering_frame(follow: bool) -> tuple[InterventionRun, World]:
+    """valve_1 to 90 deg while onboard's navigation wanders out of the panel from the moment the
+    fingers hold the bar (what the tool is placed with, and so where the arm puts it on the
+    truth): with `follow`, the vessel's estimate of the panel, which its frames place with the
+    same navigation, comes down every second as a refinement. The wander is 6 mm/s, twice what
+    seed 2 of the default mission showed, as here the arm alone carries it (the vehicle, holding
+    station on the same navigation, carries it too in a mission): 3 mm/s did not pull it off."""
+    arm, world = setup("dynamic")
+    run, held_s, t_s = InterventionRun(goal_of("valve_1", "90")), None, 0.0
+    for _ in range(round(60.0 / PERIOD_S)):
+        held_s = t_s if held_s is None and run.phase == Phase.TURN else held_s
+        error_m = np.array([0.006 * (t_s - held_s), 0.0, 0.0]) if held_s is not None else np.zeros(3)
+        if follow and held_s is not None and round(t_s / PERIOD_S) % round(1.0 / PERIOD_S) == 0:
+            run.refine(goal_of("valve_1", "90", tuple(error_m)))
+        truth = world.truth()
+        position = truth.position_m_world + error_m
+        arm.kinematics.update(position, truth.orientation_wxyz_world, world.joints().positions_rad)
+        command = run.step(
+            arm.kinematics.pose(arm.kinematics.ee).copy(), world.joints().gripper_opening_m, PERIOD_S, True
+        )
+        if not run.active:
+            break
+        out = arm.step(
+            position, truth.orientation_wxyz_world, world.joints().positions_rad, True, command.reference
+        )
+        world.step(References(np.zeros(4), out.joint_velocities_radps, command.gripper_mps), PERIOD_S)
+        t_s += PERIOD_S
+    return run, world
+
+
+def test_a_turn_follows_the_panel_as_the_navigations_frame_wanders() -> None:
+    """Followed, the fingers stay on the bar and the turn ends at 90 deg on the truth at the first
+    attempt; not followed, the tool is pulled off the bar along the approach and slips."""
+    run, world = work_in_a_wandering_frame(follow=True)
+    assert run.phase == "done" and run.attempts == 1, (run.phase, run.reason, run.attempts)
+    assert truth_deg(world, "valve_1") == pytest.approx(90.0, abs=5.0)
+    lost, _ = work_in_a_wandering_frame(follow=False)
+    assert lost.attempts > 1, (lost.phase, lost.attempts)  # measured: slipped at 50 deg
 
 
 def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[InterventionRun, World]:

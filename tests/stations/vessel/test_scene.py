@@ -279,6 +279,30 @@ def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -
     assert again is not None and faded.confidence < again.confidence < confident
 
 
+def test_the_panel_estimate_follows_the_navigations_wandering_frame() -> None:
+    """Each frame is placed in the world with onboard's navigation, whose error wanders by
+    millimetres a second, and the arm reaches for the panel with that same navigation: at
+    working distance the estimate follows the frames (the navigation's frame), it does not
+    average the wander away: an average of every frame was 22 mm behind here, this 2 mm."""
+    working = view_from((3.2, 0.0, -8.0))  # the default mission's last waypoint
+    left = working.frames["cam_left"]
+    points = unpack_cloud(
+        clouds_of(working.frames, working.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    )[0]
+    truth = np.array(panel.PANEL_POSITION_M_WORLD)
+    tracker, wander_mps = PanelTracker(), np.array([0.0015, -0.0015, 0.0])
+    for second in range(20):
+        error_m = wander_mps * second  # the navigation's, at this frame
+        pose = (working.pose[0] + error_m, working.pose[1])
+        image = dataclasses.replace(
+            left, pose_frame="world", pose_camera=camera_in_world(left, pose), sim_time_s=float(second)
+        )
+        estimate = tracker.update(decode_image(image), image, points + error_m)
+        assert estimate is not None and tracker.method == "texture+shape"
+    behind_m = float(np.linalg.norm(estimate.position_m_world - (truth + error_m)))
+    assert behind_m < 0.005, behind_m
+
+
 def test_the_vessels_intake_recognises_the_panel_on_its_schedule(start: View) -> None:
     """The intake (stations.vessel.intake) runs recognition every `recognition_period_s` on the
     latest image and cloud, publishes what it found and keeps it for the relay."""

@@ -202,7 +202,7 @@ def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_
     assert isinstance(ack, CommandAck) and "is a lever" in ack.reason
 
 
-def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
+def test_a_moved_estimate_goes_down_again_till_the_intervention_ends() -> None:
     relay = Relay(VesselConfig(), now_s=0.0)
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
@@ -225,7 +225,7 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
     sent = RelayInputs(commands=[("op/intervene", intent)], objects=recognised(-8.66))
     first = goals(relay.step(sent, 1.0))
     assert len(first) == 1
-    # recognition sharpens by 1 mm: not worth a resend; by 5 cm: the same command, resolved anew
+    # recognition sharpens by 1 mm: not worth a resend (REFINE_M); by 5 cm: the same command, resolved anew
     assert goals(relay.step(RelayInputs(objects=recognised(-8.659), telemetry=phase("approach")), 2.0)) == []
     # an estimate from the shape alone (no marker seen: a restarted vessel's first) moves nothing
     shape_only = recognised(-8.30, "shape")
@@ -233,10 +233,12 @@ def test_a_sharper_estimate_goes_down_again_until_the_fingers_close() -> None:
     refined = goals(relay.step(RelayInputs(objects=recognised(-8.61), telemetry=phase("pre-grasp")), 3.0))
     assert len(refined) == 1 and refined[0].command_id == 5
     assert refined[0].grasp_m_world[2] - first[0].grasp_m_world[2] == pytest.approx(0.05)
-    # the fingers closed: the goal stays as it was taken, however the estimate moves
-    assert goals(relay.step(RelayInputs(objects=recognised(-8.55), telemetry=phase("grasp")), 4.0)) == []
+    # the fingers closed: onboard takes the pivot's shift (the navigation's frame wandering)
+    held = goals(relay.step(RelayInputs(objects=recognised(-8.605), telemetry=phase("turn")), 4.0))
+    assert len(held) == 1 and held[0].pivot_m_world[2] - refined[0].pivot_m_world[2] == pytest.approx(0.005)
     relay.step(RelayInputs(telemetry=phase("done")), 5.0)
     assert relay.refining is None
+    assert goals(relay.step(RelayInputs(objects=recognised(-8.55), telemetry=phase("done")), 6.0)) == []
 
 
 def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> None:

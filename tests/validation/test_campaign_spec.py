@@ -176,6 +176,6 @@ def test_the_shipped_kill_campaign_kills_every_station_over_the_mission_in_locks
     runs = plan(load_campaign(ROOT / "campaigns" / "kills.toml"))
     kills = {(r.scenario.events[0].station, r.scenario.events[0].at_s) for r in runs}
     assert {station for station, _ in kills} == {"simulation", "onboard", "vessel", "onshore"}
-    assert len(kills) == 24 and len(runs) == 72
+    assert len(kills) == 36 and len(runs) == 108
     assert all(r.replayable and r.scenario.holds_s == (r.scenario.events[0].at_s,) for r in runs)
     assert all(r.scenario.restart for r in runs)

@@ -54,7 +54,9 @@ class SceneAck(Message):
 class RecognisedObjects(Message):
     """What the vessel recognised: per object a name, its pose in the world frame (x, y, z [m],
     quaternion w, x, y, z), half sizes [m] and a confidence in [0, 1]. `method` says what found
-    the panel: "texture" (markers, PnP), "shape" (plane and ICP) or "texture+shape" (fused)."""
+    the panel: "texture" (markers, PnP), "shape" (plane and ICP) or "texture+shape" (fused). A
+    valve's or lever's pose is the panel's turned about the part's axis by the angle measured on
+    its handle in the image, and its confidence that measurement's (0: not measured, at rest)."""
 
     names: tuple[str, ...] = scalar()
     poses_world: np.ndarray = array("f8", (None, 7), -1e5, 1e5, max_rows=256)

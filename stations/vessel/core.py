@@ -5,6 +5,7 @@ core is `abyss.scene.stream.SceneStream`; the intake's, `intake.Intake`)."""
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -23,7 +24,9 @@ from abyss.common.messages import (
     RecognisedObjects,
     Telemetry,
 )
+from abyss.common.models import panel
 from abyss.stations.vessel.intents import REFINE_M, part_angle_rad, resolve
+from abyss.stations.vessel.recognition import seen_angles
 
 RELAYED_DOWN = {
     "op/waypoints": "goal/waypoints",
@@ -32,6 +35,7 @@ RELAYED_DOWN = {
     "op/intervene": "goal/intervene",
 }
 Outgoing = list[tuple[str, Message]]  # (topic, message) in the order to publish
+SEEN_MIN_CONFIDENCE = 0.5  # a part's angle measured with less is not believed
 
 
 @dataclass
@@ -125,6 +129,24 @@ class Relay:
         ):
             self.turned_rad[t.intervention_id] = t.turned_rad
 
+    def _see(self, objects: RecognisedObjects, t: Telemetry | None) -> None:
+        """The valves' angles as vision measures them (recognition.part_angles, within a degree
+        at working distance), for the parts no intervention is working: a bar at a and at a + 180
+        deg is one, taken nearest the belief. The levers' angles are seen to some 10 deg from in
+        front (their throw is along the line of sight): not believed."""
+        working = {self.refining[0].target} if self.refining is not None else set()
+        if t is not None and t.intervention_phase not in ("", "done", "failed"):
+            working.add(t.intervention_target)
+        for name, seen in seen_angles(objects).items():
+            if panel.part_kind(name) != "valve" or name in working or seen.confidence < SEEN_MIN_CONFIDENCE:
+                continue
+            believed = self.believed_rad.get(name, 0.0)
+            lo, hi = panel.VALVE_RANGE_RAD
+            candidates = [
+                a for a in (seen.angle_rad + k * math.pi for k in (-1, 0, 1)) if lo - 0.1 < a < hi + 0.1
+            ]
+            self.believed_rad[name] = part_angle_rad(name, min(candidates, key=lambda a: abs(a - believed)))
+
     def _believe(self, t: Telemetry) -> None:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
             target, start_rad = self.resolved[t.intervention_id]
@@ -140,6 +162,7 @@ class Relay:
             self._believe(state)
         if inputs.objects is not None and inputs.objects is not self.objects:
             self.objects = inputs.objects
+            self._see(inputs.objects, state)
             refined = self._refined()
             out += [refined] if refined else []
         for topic, command in inputs.commands:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from abyss.common.geometry import quat_wxyz_of, rotation_of
+from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
 from abyss.common.messages import Image, RecognisedObjects
 from abyss.common.models import panel
 
@@ -189,6 +189,131 @@ def fuse(poses: list[Pose]) -> Pose:
     return Pose(rotation_of(mean_quat / np.linalg.norm(mean_quat)), np.asarray(position), float(confidence))
 
 
+# -- the parts' angles, from the image: each part's handle is one colour (its hub's), drawn on
+# the panel's face; candidate angles are projected into the image through the panel's pose and
+# scored by how much of the handle they find in that colour
+VALVE_BAR_FRONT_M = 0.045  # the bar's front, out of the pivot (world.xml: the box at -0.03, 0.015 deep)
+# along the handle from the pivot [m]: on it, then past its end, where it must not be (a lever's
+# candidate angles project into one line seen from in front: only its end tells them apart)
+VALVE_BAR_M = (np.linspace(0.06, 0.11, 6), np.array([0.135, 0.15]))  # clear of the hub (0.04), 0.12 long
+LEVER_SHAFT_M = (np.linspace(0.08, 0.19, 8), np.array([0.235, 0.25]))  # its end at 0.22
+SWATCH_M = 0.025  # the part's own colour, sampled within this of its pivot (hub, shaft root)
+ANGLE_STEP_RAD = np.radians(0.5)
+MIN_CONTRAST = 0.25  # a peak that stands less above the other angles' scores is no measurement
+
+
+@dataclass(frozen=True)
+class PartAngle:
+    """A part's angle measured in one image [rad, about its axis, from rest] and its confidence."""
+
+    angle_rad: float
+    confidence: float
+
+
+def _seen(
+    rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world: np.ndarray, points_m_world: np.ndarray
+) -> np.ndarray:
+    """The image's colours where the points project (nearest pixel), NaN outside the image."""
+    in_camera = (points_m_world - pose_camera_in_world[:3]) @ rotation_of(pose_camera_in_world[3:])
+    uvw = in_camera @ camera_matrix.T
+    uv = np.round(uvw[..., :2] / np.maximum(uvw[..., 2:], 1e-6)).astype(int)
+    h, w = rgb.shape[:2]
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] < w) & (uv[..., 1] >= 0) & (uv[..., 1] < h) & (uvw[..., 2] > 0)
+    out = np.full((*uv.shape[:-1], 3), np.nan)
+    out[inside] = rgb[uv[..., 1][inside], uv[..., 0][inside]]
+    return out
+
+
+def _lobe(above: np.ndarray, peak: int, period: int | None) -> np.ndarray:
+    """The indices of the run of `above` that holds `peak` (wrapping round with a period)."""
+    n, run = len(above), [peak]
+    for step in (-1, 1):
+        k = peak + step
+        while len(run) < n and (0 <= k < n or period) and above[k % n]:
+            run.append(k % n)
+            k += step
+    return np.array(sorted(set(run)))
+
+
+def part_angles(
+    rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world: np.ndarray, panel_pose: Pose
+) -> dict[str, PartAngle]:
+    """Each valve's bar and each lever's shaft found in the image, where the panel's pose puts
+    them: candidate angles over the part's range are projected, and the one whose handle's
+    pixels are most like the part's own colour (sampled around its pivot), and the pixels past
+    its end least, wins; refined as the score-weighted mean of its lobe (the handle is as wide
+    as several candidates). A part out of view, hidden (the arm in front of it) or
+    not standing out of its background is left out."""
+    found = {}
+    for name in (*panel.VALVES, *panel.LEVERS):
+        pivot = np.asarray(panel.VALVES.get(name) or panel.LEVERS[name])
+        valve = panel.part_kind(name) == "valve"
+        lo, hi = panel.VALVE_RANGE_RAD if valve else panel.LEVER_RANGE_RAD
+        margin = 0.0 if valve else np.radians(5.0)
+        angles = np.arange(lo - margin, hi + margin + 1e-9, ANGLE_STEP_RAD)
+        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+        on, past = VALVE_BAR_M if valve else LEVER_SHAFT_M
+        r = np.r_[on, past]
+        sign = np.r_[np.full(len(on), 1.0 / len(on)), np.full(len(past), -1.0 / len(past))]
+        if valve:  # the bar across the spindle, both arms, on its front face
+            r, sign = np.r_[r, -r], np.r_[sign, sign] / 2
+            offsets = np.stack(np.broadcast_arrays(-VALVE_BAR_FRONT_M + 0 * r, r * c, r * s), axis=-1)
+            grid = np.linspace(-SWATCH_M, SWATCH_M, 5)
+            swatch = np.stack(
+                [np.full(25, -VALVE_BAR_FRONT_M), *(g.ravel() for g in np.meshgrid(grid, grid))], axis=1
+            )
+        else:  # the shaft out of the face, thrown about the panel's y (positive: up)
+            offsets = np.stack(np.broadcast_arrays(-r * c, 0 * r, r * s), axis=-1)
+            swatch = np.array([[-x, 0.0, 0.0] for x in np.linspace(0.005, 0.02, 5)])  # at any throw
+        colours, own = (
+            _seen(
+                rgb,
+                camera_matrix,
+                pose_camera_in_world,
+                (pivot + q) @ panel_pose.rotation.T + panel_pose.position_m_world,
+            )
+            for q in (offsets, swatch)
+        )
+        if np.isnan(colours).any() or np.isnan(own).any():
+            continue  # not all in view
+        reference = np.median(own, axis=0)
+        spread = max(20.0, float(np.median(np.linalg.norm(own - reference, axis=1))) * 3)
+        likeness = np.exp(-0.5 * (np.linalg.norm(colours - reference, axis=-1) / spread) ** 2)
+        score = likeness @ sign
+        best, floor = int(np.argmax(score)), float(np.median(score))
+        contrast = float(score[best]) - floor
+        if contrast < MIN_CONTRAST:
+            continue
+        # the handle is as wide as a few degrees of candidates: its lobe's centre, not its peak
+        period = len(angles) if valve else None  # a bar's angles wrap at half a turn
+        lobe = _lobe(score > floor + contrast / 2, best, period)
+        weights = score[lobe] - floor
+        if valve:  # a circular mean of the doubled angles (the bar at a and a + 180 deg is one)
+            doubled = weights @ np.exp(2j * angles[lobe])
+            angle = float(np.angle(doubled) / 2)
+        else:
+            angle = float(weights @ angles[lobe] / weights.sum())
+        angle = float(np.clip(angle, lo, hi))
+        found[name] = PartAngle(angle, float(np.clip(contrast, 0.0, 1.0)))
+    return found
+
+
+def seen_angles(objects: RecognisedObjects) -> dict[str, PartAngle]:
+    """The parts' angles measured in the image, as RecognisedObjects carries them (each part's
+    rotation from the panel's, about its axis), those measured only."""
+    panel_rotation = rotation_of(objects.poses_world[objects.names.index("panel"), 3:])
+    found = {}
+    for name, pose, confidence in zip(objects.names, objects.poses_world, objects.confidences, strict=True):
+        if name == "panel" or confidence <= 0.0:
+            continue
+        axis = np.asarray(
+            panel.VALVE_AXIS_PANEL if panel.part_kind(name) == "valve" else panel.LEVER_AXIS_PANEL
+        )
+        turn = panel_rotation.T @ rotation_of(pose[3:])
+        found[name] = PartAngle(float(axis @ cv2.Rodrigues(turn)[0].ravel()), float(confidence))
+    return found
+
+
 CONFIDENCE_GAIN = 0.3  # of each frame's confidence in the tracker's: the last few frames' say
 # The panel does not move, but the frame its estimates are placed in does: each frame is placed
 # with the camera's pose from onboard's navigation, whose error wanders (dead reckoning between
@@ -222,6 +347,7 @@ class PanelTracker:
         self.anchored = False  # the estimate has seen markers: the shape alone slides along the face
         self.method = ""
         self.frame_s: float | None = None  # the sim time of the last image in the average
+        self.angles: dict[str, PartAngle] = {}  # the parts' angles the last frame with markers measured
 
     def update(
         self, rgb: np.ndarray | None, image: Image | None, points_m_world: np.ndarray | None
@@ -274,6 +400,10 @@ class PanelTracker:
             confidence = before + CONFIDENCE_GAIN * (frame.confidence - before)
             self.estimate = Pose(blended.rotation, blended.position_m_world, confidence)
             self.weight = total
+        if texture is not None and rgb is not None and image is not None:
+            self.angles = part_angles(rgb, matrix, image.pose_camera, self.estimate)
+        else:  # the parts are placed by the markers: none seen, none measured
+            self.angles = {}
         return self.estimate
 
     def objects(self, sim_time_s: float) -> RecognisedObjects | None:
@@ -287,21 +417,30 @@ class PanelTracker:
         )
         names, poses, sizes = ["panel"], [pose.as_vector()], [panel.PLATE_HALF_SIZE_M]
         half_thickness_m = panel.HANDLE_THICKNESS_M / 2
+        confidences = [pose.confidence]
         for name, pivot in (*panel.VALVES.items(), *panel.LEVERS.items()):
-            # a valve's box holds its handle at any angle; a lever's is its shaft at rest
-            if panel.part_kind(name) == "valve":
+            # a valve's box holds its handle at any angle; a lever's is its shaft at rest, turned
+            # with it about the pivot by the angle measured (at rest, confidence 0: not measured)
+            valve = panel.part_kind(name) == "valve"
+            measured = self.angles.get(name, PartAngle(0.0, 0.0))
+            turn = rotation_about(
+                np.asarray(panel.VALVE_AXIS_PANEL if valve else panel.LEVER_AXIS_PANEL), measured.angle_rad
+            )
+            if valve:
                 centre, half_size = np.asarray(pivot), (0.04, 0.12, 0.12)
             else:
-                centre = np.asarray(pivot) - (panel.LEVER_LENGTH_M / 2, 0.0, 0.0)
+                centre = np.asarray(pivot) - turn @ (panel.LEVER_LENGTH_M / 2, 0.0, 0.0)
                 half_size = (panel.LEVER_LENGTH_M / 2 + half_thickness_m, half_thickness_m, half_thickness_m)
             names.append(name)
-            poses.append(np.r_[pose.rotation @ centre + pose.position_m_world, quat_wxyz_of(pose.rotation)])
+            rotation = pose.rotation @ turn
+            poses.append(np.r_[pose.rotation @ centre + pose.position_m_world, quat_wxyz_of(rotation)])
             sizes.append(half_size)
+            confidences.append(measured.confidence)
         return RecognisedObjects(
             names=tuple(names),
             poses_world=np.array(poses),
             half_sizes_m=np.array(sizes),
-            confidences=np.full(len(names), pose.confidence),
+            confidences=np.array(confidences),
             method=self.method,
             sim_time_s=sim_time_s,
         )

@@ -36,6 +36,7 @@ from abyss.scene.pacing import ScenePacer
 from abyss.scene.receiver import SceneReceiver
 from abyss.scene.stream import SceneStream
 from abyss.stations.vessel.core import Perception, Relay, RelayInputs
+from abyss.stations.vessel.recognition import PanelTracker, PartAngle, Pose
 from abyss.validation.stress import sample_telemetry
 
 STEP_S = 0.01
@@ -239,6 +240,37 @@ def test_a_moved_estimate_goes_down_again_till_the_intervention_ends() -> None:
     relay.step(RelayInputs(telemetry=phase("done")), 5.0)
     assert relay.refining is None
     assert goals(relay.step(RelayInputs(objects=recognised(-8.55), telemetry=phase("done")), 6.0)) == []
+
+
+def seen_turned(parts: dict[str, tuple[float, float]]) -> RecognisedObjects:
+    """The panel where world.xml puts it, its parts measured at (angle [deg], confidence)."""
+    tracker = PanelTracker()
+    tracker.estimate = Pose(np.eye(3), np.array(panel.PANEL_POSITION_M_WORLD), 0.9)
+    tracker.angles = {name: PartAngle(math.radians(a), c) for name, (a, c) in parts.items()}
+    objects = tracker.objects(1.0)
+    assert objects is not None
+    return dataclasses.replace(objects, method="texture+shape")
+
+
+def test_the_valves_vision_measures_are_believed_but_not_the_part_in_hand() -> None:
+    relay = Relay(VesselConfig(), now_s=0.0)
+    seen = {"valve_0": (30.0, 0.9), "valve_1": (-62.0, 0.9), "valve_2": (85.0, 0.2), "lever_0": (-45.0, 0.9)}
+    relay.step(RelayInputs(objects=seen_turned(seen)), 1.0)
+    believed = {name: math.degrees(a) for name, a in relay.believed_rad.items()}
+    assert believed == {
+        "valve_0": pytest.approx(30.0),
+        "valve_1": pytest.approx(-62.0),
+    }  # confident valves only
+    # valve_1 in hand (onboard turning it): what vision sees of it, half hidden by the arm, is not believed
+    turning = dataclasses.replace(
+        sample_telemetry(), intervention_id=5, intervention_target="valve_1", intervention_phase="turn"
+    )
+    relay.step(RelayInputs(objects=seen_turned({"valve_1": (-40.0, 0.9)}), telemetry=(1, turning)), 2.0)
+    assert math.degrees(relay.believed_rad["valve_1"]) == pytest.approx(-62.0)
+    # a bar at a and at a + 180 deg is one: taken nearest the belief
+    relay.believed_rad["valve_2"] = math.radians(80.0)
+    relay.step(RelayInputs(objects=seen_turned({"valve_2": (-88.0, 0.9)})), 3.0)
+    assert math.degrees(relay.believed_rad["valve_2"]) == pytest.approx(90.0)  # 92, held in its range
 
 
 def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> None:

@@ -5,6 +5,7 @@ core is `abyss.scene.stream.SceneStream`; the intake's, `intake.Intake`)."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -12,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abyss.common.config.stations import VesselConfig
+from abyss.common.geometry import rotation_of
 from abyss.common.messages import (
     CLOUD_SOURCES,
     PERCEPTION_SOURCES,
@@ -35,7 +37,9 @@ RELAYED_DOWN = {
     "op/intervene": "goal/intervene",
 }
 Outgoing = list[tuple[str, Message]]  # (topic, message) in the order to publish
+log = logging.getLogger(__name__)
 SEEN_MIN_CONFIDENCE = 0.5  # a part's angle measured with less is not believed
+ARM_CLEAR_M = 0.3  # nor one with the tool nearer its pivot than this (a rebooted onboard's arm on it)
 
 
 @dataclass
@@ -124,10 +128,41 @@ class Relay:
             self.turned_rad = {}
             self.refining = None  # handed again, it goes down resolved anew
         self.boot_id = t.boot_id
+        self._adopt(t)
         if t.intervention_id in self.resolved and (
             t.intervention_phase == "turn" or t.intervention_id in self.turned_rad
         ):
             self.turned_rad[t.intervention_id] = t.turned_rad
+
+    def _adopt(self, t: Telemetry) -> None:
+        """An intervention onboard works that this vessel did not resolve (it restarted since):
+        taken on from onboard's telemetry (its part and its turn), from where this vessel
+        believes the part stood before it (what it saw of it, else at rest), so that onboard's
+        turn is followed, the panel's estimate goes down as refinements, and a rebooted onboard
+        is handed it again from where the part stands, not from that belief."""
+        if (
+            t.intervention_id < 0
+            or t.intervention_id in self.resolved
+            or t.intervention_phase in ("", "done", "failed")
+        ):
+            return
+        lever = panel.part_kind(t.intervention_target) == "lever"
+        stop = ("down" if t.turn_goal_rad < 0 else "up") if lever else ""
+        intent = Intervention(
+            t.intervention_id, t.intervention_target, 0.0 if lever else t.turn_goal_rad, stop
+        )
+        if not lever:  # the target it was given, held within the part's range from this belief
+            believed = self.believed_rad.get(t.intervention_target, 0.0)
+            self.target_rad[t.intervention_id] = part_angle_rad(
+                t.intervention_target, believed + t.turn_goal_rad
+            )
+        self._intervention(intent)  # what it would send is not sent: onboard has the goal
+        if t.intervention_id in self.resolved:  # else it waits for the panel's markers
+            log.info(
+                "intervention %d on %s taken on from onboard's telemetry",
+                t.intervention_id,
+                t.intervention_target,
+            )
 
     def _see(self, objects: RecognisedObjects, t: Telemetry | None) -> None:
         """The valves' angles as vision measures them (recognition.part_angles, within a degree
@@ -137,9 +172,13 @@ class Relay:
         working = {self.refining[0].target} if self.refining is not None else set()
         if t is not None and t.intervention_phase not in ("", "done", "failed"):
             working.add(t.intervention_target)
+        panel_pose = objects.poses_world[objects.names.index("panel")]
         for name, seen in seen_angles(objects).items():
             if panel.part_kind(name) != "valve" or name in working or seen.confidence < SEEN_MIN_CONFIDENCE:
                 continue
+            pivot_m_world = rotation_of(panel_pose[3:]) @ np.asarray(panel.VALVES[name]) + panel_pose[:3]
+            if t is not None and np.linalg.norm(t.ee_position_m_world - pivot_m_world) < ARM_CLEAR_M:
+                continue  # the tool is at it: the arm hides the bar, or holds it still
             believed = self.believed_rad.get(name, 0.0)
             lo, hi = panel.VALVE_RANGE_RAD
             candidates = [

@@ -267,6 +267,13 @@ def test_the_valves_vision_measures_are_believed_but_not_the_part_in_hand() -> N
     )
     relay.step(RelayInputs(objects=seen_turned({"valve_1": (-40.0, 0.9)}), telemetry=(1, turning)), 2.0)
     assert math.degrees(relay.believed_rad["valve_1"]) == pytest.approx(-62.0)
+    # the tool at valve_0 (a rebooted onboard's arm still on it): its bar hidden or held, not believed
+    at_valve_0 = dataclasses.replace(
+        sample_telemetry(),
+        ee_position_m_world=np.add(panel.PANEL_POSITION_M_WORLD, panel.VALVES["valve_0"]) - (0.05, 0.0, 0.0),
+    )
+    relay.step(RelayInputs(objects=seen_turned({"valve_0": (-12.0, 0.9)}), telemetry=(2, at_valve_0)), 2.5)
+    assert math.degrees(relay.believed_rad["valve_0"]) == pytest.approx(30.0)
     # a bar at a and at a + 180 deg is one: taken nearest the belief
     relay.believed_rad["valve_2"] = math.radians(80.0)
     relay.step(RelayInputs(objects=seen_turned({"valve_2": (-88.0, 0.9)})), 3.0)
@@ -385,3 +392,25 @@ def test_a_lever_thrown_past_its_stop_by_the_tool_is_believed_at_the_stop_and_pu
     relay.step(RelayInputs(telemetry=telemetry(2, "turn", -1.0)), 6.0)
     relay.step(RelayInputs(telemetry=telemetry(2, "done", -12.0)), 7.0)
     assert relay.believed_rad["lever_0"] == pytest.approx(math.radians(-45))
+
+
+def test_a_restarted_vessel_takes_on_onboards_intervention_and_hands_it_again_from_the_part() -> None:
+    """The vessel restarted while onboard worked valve_1 (shore's intent was taken before: it is
+    not sent again). From onboard's telemetry the new vessel takes the intervention on and follows
+    the turn; onboard reboots 60 deg into it, shore hands it again: it goes down from 60 deg for
+    the 30 left (it went down from the rest angle, where the bar no longer is, and the fingers
+    were blocked by it: every-station-killed)."""
+    relay = Relay(VesselConfig(), now_s=0.0)
+    intent = Intervention(5, "valve_1", math.radians(90), "")
+
+    def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, Telemetry]:
+        seq, t = working(intent, boot, phase, turned_deg)
+        return seq, dataclasses.replace(t, turn_goal_rad=math.radians(90.4))  # from -0.4 deg, as seen
+
+    relay.believed_rad["valve_1"] = math.radians(-0.2)  # seen so before: the target is held at 90
+    relay.step(RelayInputs(objects=marked_panel(), telemetry=telemetry(1, "turn", 20.0)), 1.0)
+    relay.step(RelayInputs(telemetry=telemetry(1, "turn", 60.0)), 2.0)
+    relay.step(RelayInputs(telemetry=telemetry(2, "", 0.0)), 3.0)  # onboard rebooted
+    out = relay.step(RelayInputs(commands=[("op/intervene", intent)]), 4.0)
+    [again] = [m for t, m in out if t == "goal/intervene"]
+    assert isinstance(again, InterventionGoal) and again.turn_rad == pytest.approx(math.radians(30.2))

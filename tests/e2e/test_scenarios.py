@@ -106,10 +106,11 @@ def test_the_library_passes_with_systems_in_parallel(
         .joinpath("summary.json")
         .read_text()
     )
-    assert [r["station"] for r in killed["restarts"]] == ["simulation", "onboard", "vessel", "onshore"]
+    assert [r["station"] for r in killed["restarts"]] == ["simulation", "vessel", "onboard", "onshore"]
     assert all(r["down_s"] is not None for r in killed["restarts"]), killed["restarts"]
     assert {e["station"] for e in killed["events"]} == {"onboard", "vessel", "onshore"}, killed["events"]
     assert killed["verdict"] == "done" and killed["mission"]["done"]
+    assert [p["success"] for p in killed["interventions"]] == [True, True], killed["interventions"]
 
 
 @pytest.mark.timeout(300)
@@ -139,3 +140,31 @@ def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> No
         own.wait(timeout=30)
     assert result.passed, [(v.assertion.kind, v.detail) for v in result.verdicts] + [result.error]
     assert '"external": true' in (result.out_dir / "summary.json").read_text()
+
+
+PHASE_KILLS = sorted((ROOT / "campaigns" / "scenarios").glob("*-killed-in-*.toml"))
+
+
+@pytest.mark.timeout(600)
+def test_each_station_killed_inside_an_intervention_phase_and_both_interventions_end_done(
+    tmp_path: Path,
+) -> None:
+    """onboard in valve_1's turn, the vessel on the arm's approach, shore as the fingers close,
+    the simulation as they let go (events timed on the phase onboard reports, so in real time),
+    two systems at once: each station restarted once, the mission done, both parts at their
+    targets on the simulation's truth."""
+    done = abyss("scenario", "run", *map(str, PHASE_KILLS), "--parallel", "2", "--report", str(tmp_path),
+                 "--junit", str(tmp_path / "junit.xml"), timeout_s=560)  # fmt: skip
+    assert {p.stem.split("-killed-in-")[0] for p in PHASE_KILLS} == {
+        "onboard",
+        "vessel",
+        "onshore",
+        "simulation",
+    }
+    assert done.returncode == 0, done.stdout[-6000:] + done.stderr
+    assert set(verdicts(tmp_path / "junit.xml").values()) == {("passed",)}
+    for run in sorted((tmp_path / "runs").iterdir()):
+        summary = json.loads((run / "summary.json").read_text())
+        station = run.name.split("-", 1)[1].split("-killed-in-")[0]
+        assert [r["station"] for r in summary["restarts"]] == [station], summary["restarts"]
+        assert [p["success"] for p in summary["interventions"]] == [True, True], summary["interventions"]

@@ -124,6 +124,20 @@ def test_the_report_counts_rates_intervals_flaky_runs_and_failures(tmp_path: Pat
     }
 
 
+def test_the_margins_pool_each_axis_value_over_the_other_axes_and_scenarios(tmp_path: Path) -> None:
+    campaign, runs = _campaign(tmp_path)
+    report = build_report(runs, _records(runs), tmp_path / "c", campaign.min_rate)
+    margins = report.data()["margins"]
+    assert [(m["value"], m["passes"], m["runs"]) for m in margins["links.satellite"]] == [
+        ("satellite", 5 + 0, 10),  # alpha clear 5/5, beta clear 0/5
+        ("satellite-storm", 3 + 4, 9),  # alpha storm 3/5, beta storm 4/4 (one pending)
+    ]
+    assert margins["links.satellite"][1]["wilson_95"] == pytest.approx(list(wilson_apart(7, 9)), abs=1e-12)
+    assert [(m["value"], m["runs"]) for m in margins["simulation.current_sigma_mps"]] == [(0.0, 19)]
+    text = (tmp_path / "c" / "report.md").read_text()
+    assert "## By `links.satellite`" in text and "| satellite-storm | 9 | 7 | 78 % |" in text
+
+
 def test_a_report_whose_cases_all_reach_their_rates_passes(tmp_path: Path) -> None:
     campaign, runs = _campaign(tmp_path)
     report = build_report(runs, {r.run_id: record(r, True) for r in runs}, tmp_path / "c", campaign.min_rate)

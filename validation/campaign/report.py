@@ -1,6 +1,7 @@
 """A campaign's report: per scenario and variant the runs, the passes, the pass rate with its
 95 % Wilson interval, "flaky" where it is neither 0 nor 1, how often each assertion came out
-wrong and the failing runs (with how to replay them); per variant the figures' distributions
+wrong and the failing runs (with how to replay them); per value of each matrix axis the pass
+rate over the others (the margins: which station's kill, which moment); per variant the figures' distributions
 (plots); a heat map of the pass rate over the matrix's first two axes; JUnit with one test case
 per scenario and variant; and the campaign's cost. Deterministic: the same records give the
 same report.json (the cost, which holds wall times, aside), however many shards made them."""
@@ -127,6 +128,28 @@ class Report:
         """Every scenario and variant at or above its min pass rate."""
         return all(c.ok for c in self.cases)
 
+    def margins(self) -> dict[str, list[dict[str, Any]]]:
+        """Per matrix axis, per value (in the plan's order): the runs with that value, over every
+        other axis, scenario and seed: passes, pass rate and its 95 % Wilson interval."""
+        out: dict[str, list[dict[str, Any]]] = {}
+        for axis in self.axes:
+            tally: dict[str, list[int]] = {}
+            for c in self.cases:
+                counts = tally.setdefault(json.dumps(c.values[axis]), [0, 0])
+                counts[0] += c.passes
+                counts[1] += c.runs
+            out[axis] = [
+                {
+                    "value": json.loads(value),
+                    "runs": runs,
+                    "passes": passes,
+                    "pass_rate": passes / runs if runs else None,
+                    "wilson_95": list(wilson(passes, runs)),
+                }
+                for value, (passes, runs) in tally.items()
+            ]
+        return out
+
     def data(self) -> dict[str, Any]:
         """report.json's content: everything but "cost" is the same for the same records."""
         return {
@@ -137,6 +160,7 @@ class Report:
             "runs": sum(c.runs for c in self.cases),
             "pending": sum(c.planned - c.runs for c in self.cases),
             "cases": [c.data() for c in self.cases],
+            "margins": self.margins(),
             "cost": self.cost,
         }
 
@@ -298,6 +322,15 @@ def markdown(report: Report, path: Path, pictures: list[Path]) -> None:
             f"| {c.scenario} | {c.variant} | {c.runs} | {c.passes} | {percent(c.rate)} | "
             f"{percent(low)} to {percent(high)} | {percent(c.min_rate)} | {mark} |"
         )
+    for axis, rows in (data["margins"] if len(report.axes) > 1 else {}).items():
+        lines += ["", f"## By `{axis}`", "", "| value | runs | passes | pass rate | 95 % interval |"]
+        lines += ["| --- | --- | --- | --- | --- |"]
+        for row in rows:
+            low, high = row["wilson_95"]
+            lines.append(
+                f"| {row['value']} | {row['runs']} | {row['passes']} | {percent(row['pass_rate'])} | "
+                f"{percent(low)} to {percent(high)} |"
+            )
     lines += ["", "## Scenarios and variants"]
     for c in report.cases:
         lines += _case_lines(c, report.out_dir)

@@ -233,3 +233,22 @@ def test_the_pytest_fixture_takes_the_time_source_and_refuses_what_cannot_follow
     assert result.passed, [v.detail for v in result.verdicts]
     summary = json.loads((result.out_dir / "summary.json").read_text())
     assert summary["time"]["mode"] == "sim" and summary["time"]["sim_s"] >= 8.0
+
+
+def test_a_lockstep_event_past_the_runs_end_is_not_reached_and_the_verdict_stands(tmp_path: Path) -> None:
+    """A kill timed after the run ends (the kill campaign's latest moment, once a mission is done
+    before it) is not reached, as in real time: the run ends with its verdict, not an error
+    (it was "lockstep: the system ended while waiting for the simulation held at t=9 s")."""
+    scenario = tmp_path / "late-kill.toml"
+    scenario.write_text(
+        'name = "late-kill"\ndescription = "a kill after the end"\nuse = "fault-recovery"\n'
+        "duration_s = 5\nstop_when_done = false\nrestart = true\n"
+        '[[events]]\nat_s = 9\naction = "kill"\nstation = "vessel"\n'
+        '[[assert]]\nkind = "stations"\nmax_restarts = 0\n'
+    )
+    done = abyss("scenario", "run", str(scenario), "--time", "lockstep", "--report", str(tmp_path / "rep"),
+                 timeout_s=200)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr
+    assert "t=9 s: not reached (the run ended first), kill vessel not done" in done.stdout, done.stdout[
+        -3000:
+    ]

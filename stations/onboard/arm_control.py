@@ -24,10 +24,16 @@ CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
 XYZW = [1, 2, 3, 0]  # Pinocchio's quaternion order, from w, x, y, z
 VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, heave, yaw rate
-# a stall: the joints moved less than STALL_SHARE of what the controller commanded (along it) for
-# STALL_S, while it commanded at least STALL_MIN_RADPS; the arm then holds (blocked) instead of
-# pushing on, and the low level's servos wind nothing up to swing with once it comes free
+# a stall: the joints, or the tool in the vehicle's frame, moved less than STALL_SHARE of what the
+# controller commanded (along it) for STALL_S, while it commanded at least STALL_MIN_RADPS of the
+# joints or STALL_MIN_MPS of the tool; the arm then holds (blocked) instead of pushing on, and the
+# low level's servos wind nothing up to swing with once it comes free. The tool's own motion
+# catches what the joints' misses: the fingers held against a face while the wrist turns on. In
+# the vehicle's frame, not the world's: the vehicle's own motion is not the arm's (judged in the
+# world, a vehicle settling on its waypoint with a weakened thruster blocked a free arm); a
+# vehicle that yields to the arm's push is caught once it stops yielding
 STALL_MIN_RADPS = 0.02
+STALL_MIN_MPS = 0.01
 STALL_SHARE = 0.25
 STALL_S = 0.5
 
@@ -239,10 +245,12 @@ class ArmController:
             and angle < scale * self.mission.arm_orientation_tolerance_rad
         )
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
+        vehicle_rotation = rotation_of(orientation_wxyz_world)
+        tool_m_vehicle = vehicle_rotation.T @ (kin.pose(kin.ee).translation - position_m_world)
         if not enabled:
-            self.stall.rest(arm_rad)
+            self.stall.rest((arm_rad, tool_m_vehicle))
             return ArmOutput(zero, None, Mode.HOLD, position_error, angle, ())
-        if self.stall.judge(arm_rad, cfg.control_period_s):
+        if self.stall.judge((arm_rad, tool_m_vehicle), cfg.control_period_s):
             return ArmOutput(zero, None, Mode.BLOCKED, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         tasks = [
@@ -259,7 +267,9 @@ class ArmController:
         ]
         reached = self.within_s >= self.mission.arm_settle_s
         out = self._solve(tasks, arm_rad, Mode.REACHED if reached else Mode.MOVING, position_error, angle)
-        self.stall.commanded(out.joint_velocities_radps)
+        arm_velocities = out.joint_velocities_radps
+        tool_mps_vehicle = vehicle_rotation.T @ (jacobian[:3, : len(ARM_JOINTS)] @ arm_velocities)
+        self.stall.commanded((arm_velocities, tool_mps_vehicle))
         return out
 
     def _solve(
@@ -334,34 +344,36 @@ class ArmController:
 
 
 class Stall:
-    """Commanded joint motion against measured, period by period (see STALL_S): once blocked, it
-    stays blocked until a new goal."""
+    """Commanded motion against measured, period by period, of the joints [rad] and of the tool in
+    the vehicle's frame [m] (see STALL_S): once blocked, it stays blocked until a new goal."""
+
+    MINIMUMS = (STALL_MIN_RADPS, STALL_MIN_MPS)
 
     def __init__(self) -> None:
-        self.velocities_radps: np.ndarray | None = None  # what the last period commanded
-        self.from_rad: np.ndarray | None = None  # the joints then
+        self.velocities: tuple[np.ndarray, ...] | None = None  # what the last period commanded
+        self.from_positions: tuple[np.ndarray, ...] | None = None  # where they were then
         self.stalled_s = 0.0
         self.blocked = False
 
-    def rest(self, arm_rad: np.ndarray) -> None:
+    def rest(self, positions: tuple[np.ndarray, ...]) -> None:
         """The arm holds for another reason (failsafe, operator): nothing commanded, nothing judged."""
-        self.velocities_radps, self.from_rad, self.stalled_s = None, arm_rad.copy(), 0.0
+        self.velocities, self.from_positions, self.stalled_s = None, positions, 0.0
 
-    def commanded(self, velocities_radps: np.ndarray) -> None:
-        self.velocities_radps = velocities_radps.copy()
+    def commanded(self, velocities: tuple[np.ndarray, ...]) -> None:
+        self.velocities = velocities
 
-    def judge(self, arm_rad: np.ndarray, dt_s: float) -> bool:
-        """True if the arm is blocked: the joints have not followed what was commanded."""
-        commanded, moved_from = self.velocities_radps, self.from_rad
-        self.from_rad = arm_rad.copy()
+    def judge(self, positions: tuple[np.ndarray, ...], dt_s: float) -> bool:
+        """True if the arm is blocked: the joints or the tool have not followed what was commanded."""
+        commanded, moved_from = self.velocities, self.from_positions
+        self.from_positions = positions
         if self.blocked or commanded is None or moved_from is None:
             return self.blocked
-        speed = _norm(commanded)
-        if speed < STALL_MIN_RADPS:
-            self.stalled_s = 0.0
-            return False
-        followed = float((arm_rad - moved_from) @ commanded) / (speed * speed * dt_s)
-        self.stalled_s = self.stalled_s + dt_s if followed < STALL_SHARE else 0.0
+        stalled = False
+        for velocity, now, then, minimum in zip(commanded, positions, moved_from, self.MINIMUMS, strict=True):
+            speed = _norm(velocity)
+            if speed >= minimum:
+                stalled |= float((now - then) @ velocity) / (speed * speed * dt_s) < STALL_SHARE
+        self.stalled_s = self.stalled_s + dt_s if stalled else 0.0
         self.blocked = self.stalled_s >= STALL_S
         return self.blocked
 

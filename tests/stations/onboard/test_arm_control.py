@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from abyss.common.config import load
+from abyss.common.geometry import rotation_of
 from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD
 from abyss.stations.onboard.arm_control import STALL_S, ArmController, ArmKinematics, box_distance
 from abyss.stations.onboard.task_priority import Task, solve
@@ -172,3 +173,56 @@ def test_an_arm_whose_joints_do_not_follow_is_blocked_within_a_second_and_holds(
         world.step(References(np.zeros(4), out.joint_velocities_radps, 0.0), PERIOD_S)
         seen.append(out.mode)
     assert "blocked" not in seen and seen[-1] == "reached"
+
+
+def test_an_arm_driven_into_the_panel_is_blocked_within_a_second_of_its_stall_and_never_swings() -> None:
+    """The arm's goal 3 cm inside the panel's plate, between valves, with no obstacle known to its
+    controller: on the dynamic low level the fingers meet the face and slide along it towards the
+    goal, then stop closing on it (the stall: the goal's distance shrinks by under 2 mm in 0.25
+    s). "blocked" within a second of it (STALL_S plus the periods the slide takes to die away),
+    then nothing commanded, no joint faster than 0.05 rad/s and the tool within 2 cm of where
+    it stopped on the vehicle: no swing. Measured: stall 1.85 s after the first contact, blocked
+    0.75 s after the stall, the joints at 0.022 rad/s at most since."""
+    arm, world = setup(
+        "simulation.low_level=dynamic",
+        "mission.arm_target=[4.98, 0.25, -8.35, 1.5708, 0, 0]",
+        "mission.obstacles=[]",
+    )
+    goal = arm.mission.arm_goal()
+    assert goal is not None
+    arm.set_goal(1, *goal)
+    plate = {world.model.geom(name).id for name in ("panel_plate", "panel_face")}
+    touched_s = blocked_s = None
+    distances_m: list[float] = []
+    stopped_m, speeds_after, t_s = None, [], 0.0
+    for _ in range(round(30.0 / PERIOD_S)):
+        truth, joints = world.truth(), world.joints()
+        out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, joints.positions_rad, True)
+        world.step(References(np.zeros(4), out.joint_velocities_radps, 0.0), PERIOD_S)
+        t_s += PERIOD_S
+        distances_m.append(float(np.linalg.norm(goal[0] - world.data.site("ee").xpos)))
+        contacts = world.data.contact[: world.data.ncon]
+        if touched_s is None and any({int(c.geom1), int(c.geom2)} & plate for c in contacts):
+            touched_s = t_s
+        if blocked_s is None and out.mode == "blocked":
+            blocked_s, stopped_m = t_s, tool_in_vehicle(world)
+        elif blocked_s is not None:
+            assert out.mode == "blocked" and not out.joint_velocities_radps.any()
+            speeds_after.append(np.abs(world.joints().velocities_radps).max())
+            if t_s - blocked_s > 3.0:
+                break
+    assert touched_s is not None and blocked_s is not None, (touched_s, blocked_s)
+    window = round(0.25 / PERIOD_S)
+    stalled_s = next(
+        (k + 1) * PERIOD_S
+        for k in range(window, len(distances_m))
+        if (k + 1) * PERIOD_S >= touched_s and distances_m[k - window] - distances_m[k] < 0.002
+    )
+    assert 0.0 <= blocked_s - stalled_s <= 1.0, (touched_s, stalled_s, blocked_s)
+    assert max(speeds_after) < 0.05, max(speeds_after)
+    assert np.linalg.norm(tool_in_vehicle(world) - stopped_m) < 0.02  # the vehicle, pushed, drifts on
+
+
+def tool_in_vehicle(world: World) -> np.ndarray:
+    truth = world.truth()
+    return rotation_of(truth.orientation_wxyz_world).T @ (world.data.site("ee").xpos - truth.position_m_world)

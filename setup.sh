@@ -10,8 +10,9 @@ APT_PACKAGES="$(grep -v '^#' apt-packages.txt | xargs)"  # what a station needs;
 # the web viewer's test loads it in Chromium; the deployment's tests validate compose.yaml and run
 # it: Debian's engine (unless one is installed already, e.g. Docker's own docker-ce) and debootstrap
 # for the base image, as no container registry may be reachable (deploy/base-image.sh); ping for
-# the namespace lab's test
-TEST_APT_PACKAGES="chromium docker-compose debootstrap iputils-ping"
+# the namespace lab's test; user-mode Linux and kmod's insmod for a kernel with sch_netem, where
+# the host's has none (tests/linkemu/uml.py)
+TEST_APT_PACKAGES="chromium docker-compose debootstrap iputils-ping user-mode-linux kmod"
 command -v dockerd >/dev/null || TEST_APT_PACKAGES="$TEST_APT_PACKAGES docker.io"
 missing=""
 for p in $APT_PACKAGES $TEST_APT_PACKAGES; do

@@ -19,6 +19,8 @@ EXPECTED = {
     "rate 20mbit limit 1234",
     "satellite": "tc qdisc replace dev veth0 root netem delay 150ms 75ms distribution normal "
     "loss random 5% corrupt 0.1% rate 1mbit limit 238",
+    "satellite-geo": "tc qdisc replace dev veth0 root netem delay 280ms 20ms distribution normal "
+    "loss random 1% corrupt 0.01% rate 512kbit limit 216",
     "satellite-storm": "tc qdisc replace dev veth0 root netem delay 300ms 150ms distribution normal "
     "loss gemodel 2.8% 25% 100% 0% corrupt 0.5% rate 256kbit limit 120",
     "tether-degraded": "tc qdisc replace dev veth0 root netem delay 200ms 50ms distribution normal "

@@ -69,12 +69,14 @@ def cmd_link_show(args: argparse.Namespace) -> int:
         if "packets_forwarded" in st:  # the TUN shaper: packets, and the kernel's TCP retransmits
             print(
                 f"    TUN shaper: {st['packets_forwarded']:.0f}/{st['packets_sent']:.0f} packets out; "
-                f"queue drops {st['queue_drops']:.0f}, losses {st['losses']:.0f}, corrupted "
+                f"queue drops {st['queue_drops']:.0f}, losses {st['losses']:.0f}, "
+                f"outages {st.get('outages', 0):.0f}, corrupted "
                 f"{st['packets_corrupted']:.0f}, dropped at the TUN {st['tun_tx_dropped']:.0f}; {delays}"
             )
         else:
             print(
                 f"    queue drops {st.get('queue_drops', 0):.0f}, losses {st.get('losses', 0):.0f}, "
+                f"outages {st.get('outages', 0):.0f}, "
                 f"retransmissions {st.get('retransmissions', 0):.0f}; {delays}"
             )
     return 0

@@ -38,6 +38,8 @@ LossModel = Literal["bernoulli", "gilbert-elliott"]
 LOSS_MODELS: tuple[LossModel, ...] = typing.get_args(LossModel)
 Transport = Literal["tcp", "udp"]
 TRANSPORTS: tuple[Transport, ...] = typing.get_args(Transport)
+OutageTimes = Literal["exponential", "fixed"]
+OUTAGE_TIMES: tuple[OutageTimes, ...] = typing.get_args(OutageTimes)
 
 
 def _choice(allowed: tuple[str, ...]) -> Callable[[str, Any], str]:
@@ -96,6 +98,9 @@ FIELDS: dict[str, tuple[str, Callable[[str, Any], Any], Callable[[Any], str]]] =
     "mtu": ("mtu_bytes", parse_size_bytes, lambda v: f"{v}B"),
     "queue_limit": ("queue_limit_packets", _integer(1, 1_000_000), _str),
     "transport": ("transport", _choice(TRANSPORTS), _str),
+    "outage_up": ("outage_up_s", parse_time_s, format_time),
+    "outage_down": ("outage_down_s", parse_time_s, format_time),
+    "outage_times": ("outage_times", _choice(OUTAGE_TIMES), _str),
     "seed": ("seed", _integer(0, 2**63 - 1), _str),
 }
 
@@ -124,11 +129,20 @@ class LinkProfile:
     queue_limit_packets: int = 1000
     transport: Transport = "tcp"
     seed: int = 0
+    # on-off outages, as mahimahi's mm-onoff: the link is up for `outage_up_s`, then down (every
+    # packet lost) for `outage_down_s`, and so on, each time drawn from an exponential of that
+    # mean or `fixed`, seeded apart from the traffic; no outages while outage_down_s is 0
+    outage_up_s: float = 0.0
+    outage_down_s: float = 0.0
+    outage_times: OutageTimes = "exponential"
 
     def __post_init__(self) -> None:
         one_of("distribution", self.distribution, DISTRIBUTIONS)
         one_of("loss_model", self.loss_model, LOSS_MODELS)
         one_of("transport", self.transport, TRANSPORTS)
+        one_of("outage_times", self.outage_times, OUTAGE_TIMES)
+        if self.outage_down_s > 0.0 and self.outage_up_s <= 0.0:
+            raise ConfigError("outage_up", "must be above 0 s when outage_down is: how long the link is up")
         if self.mtu_bytes < 128 or self.mtu_bytes > 65535:
             raise ConfigError("mtu", f"{self.mtu_bytes}B outside [128B, 65535B]")
         if self.correlation >= 1.0:
@@ -147,6 +161,7 @@ class LinkProfile:
             and self.mean_loss == 0.0
             and self.corrupt == 0.0
             and self.duplicate == 0.0
+            and self.outage_down_s == 0.0
         )
 
     @property

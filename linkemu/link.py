@@ -256,6 +256,7 @@ COUNTERS = (
     "packets_sent",
     "queue_drops",
     "losses",
+    "outages",
     "packets_corrupted",
     "corrupt_delivered",
     "duplicates",

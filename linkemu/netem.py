@@ -28,7 +28,13 @@ log = logging.getLogger(__name__)
 
 
 def netem_args(profile: LinkProfile) -> list[str]:
-    """The netem options for `profile` (after `netem`)."""
+    """The netem options for `profile` (after `netem`); LinkError for what netem cannot express."""
+    if profile.outage_down_s > 0.0:
+        raise LinkError(
+            f"profile {profile.name}: netem has no on-off outages (outage_up, outage_down); "
+            "the emulated and tun links replay them (--link emulated or tun), or switch the hop "
+            "to the outage profile at run time (abyss link set HOP outage)"
+        )
     args: list[str] = []
     if profile.delay_s or profile.jitter_s:
         args += ["delay", format_time(profile.delay_s)]

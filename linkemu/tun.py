@@ -52,6 +52,7 @@ COUNTERS = (
     "bytes_forwarded",
     "queue_drops",
     "losses",
+    "outages",
     "packets_corrupted",
     "duplicates",
     "not_ipv4",

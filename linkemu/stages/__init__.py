@@ -8,14 +8,16 @@ from abyss.linkemu.stages.corrupt import Corrupt
 from abyss.linkemu.stages.delay import Delay
 from abyss.linkemu.stages.duplicate import Duplicate
 from abyss.linkemu.stages.loss import Loss
+from abyss.linkemu.stages.outage import Outage
 from abyss.linkemu.stages.serialise import Serialise
 
 STAGES: dict[str, type[Stage]] = {
     "duplicate": Duplicate,
     "serialise": Serialise,
+    "outage": Outage,
     "loss": Loss,
     "corrupt": Corrupt,
     "delay": Delay,
 }
 
-__all__ = ["STAGES", "Corrupt", "Delay", "Duplicate", "Loss", "Packet", "Serialise", "Stage"]
+__all__ = ["STAGES", "Corrupt", "Delay", "Duplicate", "Loss", "Outage", "Packet", "Serialise", "Stage"]

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from abyss.common.errors import LinkError
 from abyss.common.linkprofile import LinkProfile, profile
 from abyss.linkemu.link import HEADER_BYTES, Link, Offer
+from abyss.linkemu.netem import tc_command
 
 
 def link(**fields: str) -> Link:
@@ -112,6 +113,56 @@ def test_gilbert_elliott_bursts() -> None:
     assert abs(lost.mean() - p / (p + r)) < 0.015  # stationary loss: p / (p + r)
     assert abs(runs.mean() - 1 / r) < 0.4  # mean burst: 1 / r packets
     assert lost.mean() == pytest.approx(lnk.profile.mean_loss, abs=0.015)
+
+
+def runs_of(lost: np.ndarray, gap_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The up and down spells [s] of a loss record taken every `gap_s`, the first and last cut off."""
+    edges = np.flatnonzero(np.diff(lost.astype(int))) + 1
+    spells = np.diff(edges) * gap_s
+    starts_down = bool(lost[edges[0]])
+    return (spells[1::2], spells[0::2]) if starts_down else (spells[0::2], spells[1::2])
+
+
+@pytest.mark.parametrize("times", ["exponential", "fixed"])
+def test_on_off_outages_keep_their_up_and_down_times(times: str) -> None:
+    """Up 2 s, down 0.5 s, over 2000 s of a packet every 10 ms (UDP: nothing resent): the spells'
+    means within 4 standard errors of the profile's (exponential: each spell's deviation is its
+    mean), or each spell to a packet's spacing (fixed); every packet lost counted as an outage."""
+    gap_s, n = 0.01, 200_000
+    lnk = link(outage_up="2s", outage_down="500ms", outage_times=times, transport="udp", seed="3")
+    out = drive(lnk, numbered(n, gap_s=gap_s))
+    lost = np.ones(n, bool)
+    lost[ids(out)] = False
+    up, down = runs_of(lost, gap_s)
+    assert lnk.counters["outages"] == int(lost.sum())
+    if times == "fixed":
+        assert np.allclose(up, 2.0, atol=gap_s) and np.allclose(down, 0.5, atol=gap_s), (up[:5], down[:5])
+    else:
+        for spells, mean_s in ((up, 2.0), (down, 0.5)):
+            assert abs(spells.mean() - mean_s) < 4 * mean_s / math.sqrt(len(spells)) + gap_s, spells.mean()
+    assert lost.mean() == pytest.approx(0.5 / 2.5, abs=0.03)
+
+
+def test_outages_follow_the_seed_not_the_traffic() -> None:
+    """The same seed gives the same outages with packets 10 or 3 ms apart (the timeline is drawn
+    apart from the traffic's draws); another seed, others."""
+
+    def down_at(seed: str, gap_s: float) -> np.ndarray:
+        n = round(100.0 / gap_s)
+        lnk = link(outage_up="1s", outage_down="300ms", transport="udp", loss="2%", seed=seed)
+        lost = np.ones(n, bool)
+        lost[ids(drive(lnk, numbered(n, gap_s=gap_s)))] = False
+        every_30ms = np.arange(0, n, round(0.03 / gap_s))
+        return lost[every_30ms][: round(100.0 / 0.03) - 1]
+
+    same, other = down_at("5", 0.01), down_at("5", 0.003)
+    # the 2 % random losses differ with the traffic; the outages (runs of 10 and more) do not
+    assert np.mean(same == other) > 0.95 and np.mean(down_at("6", 0.01) == same) < 0.8
+
+
+def test_netem_cannot_express_outages_and_says_what_can() -> None:
+    with pytest.raises(LinkError, match=r"netem has no on-off outages.*emulated and tun"):
+        tc_command("veth0", profile("satellite", {"outage_up": "10s", "outage_down": "2s"}))
 
 
 def test_corruption_is_caught_by_the_checksum() -> None:

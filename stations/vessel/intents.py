@@ -14,8 +14,12 @@ from abyss.common.messages import Intervention, InterventionGoal, RecognisedObje
 from abyss.common.models import panel
 
 ALREADY_RAD = math.radians(1.0)
+# a turn that would end this little past a stop ends at the stop: the part's angle is believed to a
+# degree or two (vision measures it, or onboard's turn), and "turn by 90" of a valve seen at 0.4 deg
+# means to its stop (refused as past it, a restarted vessel's resend stopped a mission)
+STOP_SLACK_RAD = math.radians(5.0)
 # a new estimate of the panel that moves a grasp this far is sent down again: under a third of
-# what the grasp tolerates along the approach (the fingers reach 10 mm over the bar) and across
+# what the grasp tolerates along the approach (the fingers reach 12.5 mm over the bar) and across
 # (they open 7 cm on a 4 cm handle), above the estimate's jitter at working distance (1-2 mm)
 REFINE_M = 0.003
 FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
@@ -45,7 +49,9 @@ def resolve(
         return None, f"{intent.target} is a lever: it is thrown to its stop, up or down"
     low, high = panel.part_range_rad(intent.target)
     target_rad = believed_rad + intent.turn_rad if kind == "valve" else (high if intent.to == "up" else low)
-    if not low - 1e-9 <= target_rad <= high + 1e-9:
+    if low - STOP_SLACK_RAD <= target_rad <= high + STOP_SLACK_RAD:
+        target_rad = float(np.clip(target_rad, low, high))
+    else:
         low_deg, high_deg, at_deg = math.degrees(low), math.degrees(high), math.degrees(believed_rad)
         return None, (
             f"{intent.target} turns between {low_deg:.0f} and {high_deg:.0f} deg; at {at_deg:.0f} "

@@ -414,3 +414,21 @@ def test_a_restarted_vessel_takes_on_onboards_intervention_and_hands_it_again_fr
     out = relay.step(RelayInputs(commands=[("op/intervene", intent)]), 4.0)
     [again] = [m for t, m in out if t == "goal/intervene"]
     assert isinstance(again, InterventionGoal) and again.turn_rad == pytest.approx(math.radians(30.2))
+
+
+def test_a_turn_ending_a_little_past_its_stop_ends_at_the_stop() -> None:
+    """valve_1 seen at 0.4 deg (vision's noise about its rest) and asked to turn by 90: the goal
+    turns it to its stop at 90 (it was refused as past it, and a restarted vessel's mission
+    stopped there); 6 deg past is still refused."""
+    relay = Relay(VesselConfig(), now_s=0.0)
+    relay.believed_rad["valve_1"] = math.radians(0.4)
+    intent = Intervention(5, "valve_1", math.radians(90), "")
+    out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=marked_panel()), 1.0)
+    [goal] = [m for t, m in out if t == "goal/intervene"]
+    assert isinstance(goal, InterventionGoal) and math.degrees(goal.turn_rad) == pytest.approx(89.6)
+    relay.believed_rad["valve_2"] = math.radians(6.0)
+    out = relay.step(
+        RelayInputs(commands=[("op/intervene", Intervention(6, "valve_2", math.radians(90), ""))]), 2.0
+    )
+    [ack] = [m for t, m in out if t == "ack"]
+    assert isinstance(ack, CommandAck) and "turns between -90 and 90" in ack.reason

@@ -32,6 +32,7 @@ from abyss.common.units import (
 )
 
 PROFILES_FILE = Path(__file__).with_name("profiles.toml")
+TRACES_DIR = Path(__file__).with_name("traces")  # the shipped delivery traces, NAME.trace
 Distribution = Literal["normal", "uniform", "pareto", "paretonormal"]
 DISTRIBUTIONS: tuple[Distribution, ...] = typing.get_args(Distribution)
 LossModel = Literal["bernoulli", "gilbert-elliott"]
@@ -74,6 +75,37 @@ def _boolean(field: str, value: Any) -> bool:
     raise ConfigError(field, f"{value!r} is not true or false")
 
 
+@functools.cache
+def load_trace(name: str) -> tuple[float, ...]:
+    """A delivery trace in mahimahi's format (mm-link): one packet delivery opportunity of 1500
+    bytes per line, its time in whole milliseconds, ascending; it repeats with the last line's
+    time as its period. `name`: a shipped trace (common/traces/NAME.trace) or a file's path.
+    Returns the times [s]; ConfigError naming the line that is wrong."""
+    path = TRACES_DIR / f"{name}.trace" if "/" not in name and not name.endswith(".trace") else Path(name)
+    shipped = ", ".join(sorted(p.stem for p in TRACES_DIR.glob("*.trace")))
+    try:
+        lines = path.read_text().split()
+    except OSError as exc:
+        raise ConfigError("trace", f"{name!r}: {exc.strerror or exc}; shipped: {shipped}") from None
+    times_ms: list[int] = []
+    for number, line in enumerate(lines, 1):
+        if not line.isdigit() or (times_ms and int(line) < times_ms[-1]):
+            raise ConfigError(
+                "trace", f"{path} line {number}: {line!r} is not a whole number of ms, ascending"
+            )
+        times_ms.append(int(line))
+    if not times_ms or times_ms[-1] <= 0:
+        raise ConfigError("trace", f"{path}: no delivery opportunity after 0 ms")
+    return tuple(t / 1000.0 for t in times_ms)
+
+
+def _trace(field: str, value: Any) -> str:
+    name = str(value)
+    if name:
+        load_trace(name)  # refused here, at start, naming the field
+    return name
+
+
 def _str(value: Any) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
@@ -101,6 +133,7 @@ FIELDS: dict[str, tuple[str, Callable[[str, Any], Any], Callable[[Any], str]]] =
     "outage_up": ("outage_up_s", parse_time_s, format_time),
     "outage_down": ("outage_down_s", parse_time_s, format_time),
     "outage_times": ("outage_times", _choice(OUTAGE_TIMES), _str),
+    "trace": ("trace", _trace, _str),
     "seed": ("seed", _integer(0, 2**63 - 1), _str),
 }
 
@@ -135,6 +168,8 @@ class LinkProfile:
     outage_up_s: float = 0.0
     outage_down_s: float = 0.0
     outage_times: OutageTimes = "exponential"
+    # the hop's capacity replayed from a delivery trace (load_trace), in place of `rate`; "" none
+    trace: str = ""
 
     def __post_init__(self) -> None:
         one_of("distribution", self.distribution, DISTRIBUTIONS)
@@ -162,6 +197,7 @@ class LinkProfile:
             and self.corrupt == 0.0
             and self.duplicate == 0.0
             and self.outage_down_s == 0.0
+            and not self.trace
         )
 
     @property

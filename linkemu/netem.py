@@ -35,6 +35,11 @@ def netem_args(profile: LinkProfile) -> list[str]:
             "the emulated and tun links replay them (--link emulated or tun), or switch the hop "
             "to the outage profile at run time (abyss link set HOP outage)"
         )
+    if profile.trace:
+        raise LinkError(
+            f"profile {profile.name}: netem cannot replay a delivery trace ({profile.trace}); "
+            "the emulated and tun links do (--link emulated or tun)"
+        )
     args: list[str] = []
     if profile.delay_s or profile.jitter_s:
         args += ["delay", format_time(profile.delay_s)]

@@ -19,6 +19,8 @@ class Outage(Stage):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self.shape: tuple[Any, ...] | None = None  # the outage fields the timeline was drawn for
+        self.up = True
+        self.until_s: float | None = None  # when the state ends [s]; None: from the next packet
         super().__init__(*args, **kwargs)
 
     def configure(self, profile: LinkProfile) -> None:

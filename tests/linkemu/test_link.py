@@ -11,7 +11,7 @@ from drive import drive, ids, numbered
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from abyss.common.errors import LinkError
+from abyss.common.errors import ConfigError, LinkError
 from abyss.common.linkprofile import LinkProfile, profile
 from abyss.linkemu.link import HEADER_BYTES, Link, Offer
 from abyss.linkemu.netem import tc_command
@@ -163,6 +163,37 @@ def test_outages_follow_the_seed_not_the_traffic() -> None:
 def test_netem_cannot_express_outages_and_says_what_can() -> None:
     with pytest.raises(LinkError, match=r"netem has no on-off outages.*emulated and tun"):
         tc_command("veth0", profile("satellite", {"outage_up": "10s", "outage_down": "2s"}))
+
+
+@pytest.mark.parametrize(
+    ("trace", "window_s", "expected_bps"),
+    [("vsat-geo", (5.0, 115.0), 512e3), ("vsat-rain-fade", (36.0, 44.0), 51.2e3)],
+)
+def test_a_trace_driven_hop_delivers_at_its_traces_rate(
+    trace: str, window_s: tuple[float, float], expected_bps: float
+) -> None:
+    """A flood of full packets through a hop replaying a shipped delivery trace (mahimahi's
+    format; the trace repeats after 60 s): the bytes delivered per second over the window within
+    2 % of the trace's rate there (vsat-geo: 512 kbit/s throughout; vsat-rain-fade: a tenth of
+    it at the fade's floor, 35 to 45 s)."""
+    lnk = link(trace=trace, transport="udp", queue_limit="100000")
+    n = round(120.0 * 512e3 / (8 * 1500)) + 200
+    out = drive(lnk, numbered(n, size=lnk.payload_per_packet, gap_s=0.0))
+    times = np.array([d.delivered_s for d in out])
+    inside = (times >= window_s[0]) & (times < window_s[1])
+    delivered_bps = inside.sum() * 1500 * 8 / (window_s[1] - window_s[0])
+    assert delivered_bps == pytest.approx(expected_bps, rel=0.02)
+
+
+def test_a_trace_that_is_not_one_is_refused_naming_the_line(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    bad = tmp_path / "bad.trace"
+    bad.write_text("5\n3\n")
+    with pytest.raises(ConfigError, match=r"bad.trace line 2: '3' is not a whole number of ms, ascending"):
+        link(trace=str(bad))
+    with pytest.raises(ConfigError, match="shipped: vsat-geo, vsat-rain-fade"):
+        link(trace="nope")
+    with pytest.raises(LinkError, match="netem cannot replay a delivery trace"):
+        tc_command("veth0", profile("satellite", {"trace": "vsat-geo"}))
 
 
 def test_corruption_is_caught_by_the_checksum() -> None:

@@ -294,7 +294,13 @@ def part_angles(
         else:
             angle = float(weights @ angles[lobe] / weights.sum())
         angle = float(np.clip(angle, lo, hi))
-        found[name] = PartAngle(angle, float(np.clip(contrast, 0.0, 1.0)))
+        # a pixel is an angle that grows with the distance: weighed as an inverse variance, by the
+        # distance squared (seen from 4 m as the mission's intent is resolved, a bar's angle was
+        # 4.5 deg off, and the grasp made on it turned the valve to 82 deg, reported done)
+        pivot_m_world = panel_pose.rotation @ pivot + panel_pose.position_m_world
+        distance_m = float(np.linalg.norm(pivot_m_world - pose_camera_in_world[:3]))
+        confidence = min(1.0, contrast) * min(1.0, (NEAR_M / distance_m) ** 2)
+        found[name] = PartAngle(angle, float(confidence))
     return found
 
 

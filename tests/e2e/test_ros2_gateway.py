@@ -3,11 +3,13 @@
 the node discovers the gateway's endpoints, flies the mission's waypoints with velocity
 commands, and meanwhile bad samples on every topic the gateway takes are counted and dropped,
 and `abyss check onboard` judges the node's keys through the gateway. `--ros2 vessel`: the node
-maps onboard's clouds, and shore's scene is its map."""
+maps onboard's clouds, and shore's scene is its map. And the node under each Zenoh release the
+supported rmw_zenoh releases bundle, against the gateway on abyss's own Zenoh."""
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -276,3 +278,58 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
     assert rejected.get(data_key(0, mapper.scene, rosnode.Octomap), 0) >= len(wrong), rejected
     log = (tmp_path / "run" / "vessel.log").read_text()
     assert "tree resolution 0.05" in log and "a full 'OcTree' map" in log and "not OctoMap's binary" in log
+
+
+# the Zenoh releases that rmw_zenoh's releases bundle (its zenoh_cpp_vendor): 1.4.0 in Humble
+# 0.1.2-0.1.7, Jazzy 0.2.5-0.2.8 and Kilted 0.6.2; 1.6.2 in Humble 0.1.8 and Jazzy 0.2.9
+RMW_ZENOH_ZENOH = ("1.4.0", "1.6.2")
+
+
+def zenoh_release(version: str) -> Path:
+    """eclipse-zenoh `version` in a directory of its own for a PYTHONPATH, installed from PyPI
+    once and cached (~/.cache/abyss)."""
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    target = cache / "abyss" / f"eclipse-zenoh-{version}"
+    if not (target / "zenoh").is_dir():
+        subprocess.run(
+            [sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target),
+             f"eclipse-zenoh=={version}"],
+            check=True, timeout=300,
+        )  # fmt: skip
+    return target
+
+
+def test_nodes_on_the_zenoh_releases_rmw_zenoh_bundles_fly_through_the_gateway(tmp_path: Path) -> None:
+    """The contract node, run under zenoh-python 1.4.0 and then 1.6.2 (each in a process of its
+    own, that release first on its path) for 8 s each against `abyss up --ros2 onboard` on
+    abyss's own Zenoh: each finds the gateway in the ROS graph (liveliness), reads odometry and
+    the clock, takes /tf_static from the gateway's cache as a late subscriber (transient local;
+    1.6.2 only: zenoh-python has advanced subscribers from 1.5 on), and its velocity commands
+    reach the simulation."""
+    here = Path(__file__).parent
+    releases = {version: zenoh_release(version) for version in RMW_ZENOH_ZENOH}
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = Up(tmp_path / "run", "--ros2", "onboard", "--set", f'ros2.listen=["{endpoint}"]',
+            "--set", "mission.interventions=[]", "--duration", "45", "--viewer", "none",
+            "--record", "none")  # fmt: skip
+    up.wait_for(r"onboard is a ROS 2 gateway")
+    up.wait_up()
+    seen = {}
+    for version, path in releases.items():
+        done = subprocess.run(
+            [sys.executable, str(here / "rosnode_versions.py"), endpoint, "8"],
+            env={**os.environ, "PYTHONPATH": f"{path}{os.pathsep}{here}"},
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+        seen[version] = json.loads(done.stdout.strip().splitlines()[-1])
+    assert up.wait(120) == 3, up.output()  # incomplete: 16 s of flying do not finish the mission
+    for version, s in seen.items():
+        assert s["zenoh"] == version and str(releases[version]) in s["zenoh_file"], s
+        assert s["gateway_endpoints"] >= 4, (version, s)
+        assert s["tf_static"] is None or s["tf_static"] >= 1, (version, s)  # None: 1.4's python has no way
+        assert s["odometry"] > 50 and s["clock"] > 20 and s["commands"] > 100, (version, s)
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    received = summary["stations"]["simulation"]["received"]["abyss/default/onboard/cmd/vehicle_velocity"]
+    assert received > 0.8 * sum(s["commands"] for s in seen.values()), (received, seen)
+    assert seen["1.6.2"]["tf_static"] >= 1  # the one release whose python can ask the cache

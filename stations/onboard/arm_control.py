@@ -158,6 +158,7 @@ class ArmController:
         self.goal_rotation = np.eye(3)
         self.within_s = 0.0  # how long both errors have been within tolerance
         self.stall = Stall()
+        self.joints_s = 0.0  # the simulated time of the joint states last stepped on
         # the constraints' constant parts: each joint's lower then upper limit (h = +q, -q: linear in
         # the joints), then each clearance point against each obstacle
         kin, joints, margin_rad = self.kinematics, len(ARM_JOINTS), cfg.joint_limit_margin_rad
@@ -226,8 +227,10 @@ class ArmController:
         arm_rad: np.ndarray,
         enabled: bool,
         reference: PoseReference | None = None,
+        joints_s: float | None = None,
     ) -> ArmOutput:
-        """One period towards the goal, or with `reference` along it instead (the goal kept)."""
+        """One period towards the goal, or with `reference` along it instead (the goal kept).
+        `joints_s`: the simulated time of `arm_rad` (None: one control period after the last)."""
         kin, cfg = self.kinematics, self.cfg
         kin.update(position_m_world, orientation_wxyz_world, arm_rad)
         zero = np.zeros(len(ARM_JOINTS))
@@ -247,10 +250,11 @@ class ArmController:
         self.within_s = self.within_s + cfg.control_period_s if within and enabled else 0.0
         vehicle_rotation = rotation_of(orientation_wxyz_world)
         tool_m_vehicle = vehicle_rotation.T @ (kin.pose(kin.ee).translation - position_m_world)
+        self.joints_s = self.joints_s + cfg.control_period_s if joints_s is None else joints_s
         if not enabled:
-            self.stall.rest((arm_rad, tool_m_vehicle))
+            self.stall.rest((arm_rad, tool_m_vehicle), self.joints_s)
             return ArmOutput(zero, None, Mode.HOLD, position_error, angle, ())
-        if self.stall.judge((arm_rad, tool_m_vehicle), cfg.control_period_s):
+        if self.stall.judge((arm_rad, tool_m_vehicle), self.joints_s):
             return ArmOutput(zero, None, Mode.BLOCKED, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         tasks = [
@@ -345,29 +349,35 @@ class ArmController:
 
 class Stall:
     """Commanded motion against measured, period by period, of the joints [rad] and of the tool in
-    the vehicle's frame [m] (see STALL_S): once blocked, it stays blocked until a new goal."""
+    the vehicle's frame [m] (see STALL_S), over the simulated time between the joint states
+    judged: a simulation running behind the wall clock (an overloaded machine) moves the arm
+    less per control period, and is no stall. Once blocked, it stays blocked until a new goal."""
 
     MINIMUMS = (STALL_MIN_RADPS, STALL_MIN_MPS)
 
     def __init__(self) -> None:
         self.velocities: tuple[np.ndarray, ...] | None = None  # what the last period commanded
         self.from_positions: tuple[np.ndarray, ...] | None = None  # where they were then
+        self.from_s = 0.0  # and when [s, the joint states' simulated time]
         self.stalled_s = 0.0
         self.blocked = False
 
-    def rest(self, positions: tuple[np.ndarray, ...]) -> None:
+    def rest(self, positions: tuple[np.ndarray, ...], t_s: float) -> None:
         """The arm holds for another reason (failsafe, operator): nothing commanded, nothing judged."""
-        self.velocities, self.from_positions, self.stalled_s = None, positions, 0.0
+        self.velocities, self.from_positions, self.from_s, self.stalled_s = None, positions, t_s, 0.0
 
     def commanded(self, velocities: tuple[np.ndarray, ...]) -> None:
         self.velocities = velocities
 
-    def judge(self, positions: tuple[np.ndarray, ...], dt_s: float) -> bool:
-        """True if the arm is blocked: the joints or the tool have not followed what was commanded."""
-        commanded, moved_from = self.velocities, self.from_positions
-        self.from_positions = positions
-        if self.blocked or commanded is None or moved_from is None:
+    def judge(self, positions: tuple[np.ndarray, ...], t_s: float) -> bool:
+        """True if the arm is blocked: the joints or the tool have not followed what was commanded
+        since the last judgement, `t_s` the joint states' simulated time."""
+        commanded, moved_from, dt_s = self.velocities, self.from_positions, t_s - self.from_s
+        if self.blocked or dt_s <= 0.0:  # no newer joint state: nothing to judge yet
             return self.blocked
+        self.from_positions, self.from_s = positions, t_s
+        if commanded is None or moved_from is None:
+            return False
         stalled = False
         for velocity, now, then, minimum in zip(commanded, positions, moved_from, self.MINIMUMS, strict=True):
             speed = _norm(velocity)

@@ -153,7 +153,7 @@ class Onboard:
                 enabled,
             )
             reference, gripper_mps = command.reference, command.gripper_mps
-        a = arm.step(position, orientation, arm_rad, enabled, reference)
+        a = arm.step(position, orientation, arm_rad, enabled, reference, joints.sim_time_s)
         if run is not None and not run.active and a.mode == Mode.MOVING:
             a = dataclasses.replace(a, mode=Mode.REACHED)
         out.arm_m_world = arm.kinematics.chain_m_world()

@@ -1,7 +1,8 @@
 """The kill campaign's figures (issue #39): from a finished `abyss campaign run campaigns/kills.toml`
 directory, the pass rate per station killed with its 95 % Wilson interval, and per phase of the
 mission in which the kill landed; and every run in which an intervention was reported done while
-the simulation's truth had the part out of tolerance (a false "done").
+the simulation's truth had the part out of tolerance (a false "done"). A run that did not complete
+(the harness's error, not the system's verdict) is listed and left out of the rates.
 
 The phase a kill landed in comes from a run of the same seed without the kill: in lockstep a run
 is the same, bit for bit, up to its first event, so the no-kill run's onboard states
@@ -66,7 +67,7 @@ def main() -> None:
     lines = timelines(args.timelines)
     by_station: dict[str, list[bool]] = defaultdict(list)
     by_phase: dict[str, list[bool]] = defaultdict(list)
-    not_landed, false_done = [], []
+    not_landed, false_done, unfinished = [], [], []
     for r in sorted(
         results, key=lambda r: (r["values"]["events[0].station"], r["values"]["events[0].at_s"], r["seed"])
     ):
@@ -74,6 +75,9 @@ def main() -> None:
         phase = phase_at(lines[r["seed"]], at_s)
         if phase == AFTER:
             not_landed.append(f"{station} at {at_s} s seed {r['seed']}")
+            continue
+        if r["error"]:  # the run did not complete: no verdict on the system (rerun it: --resume)
+            unfinished.append(f"{station} at {at_s} s seed {r['seed']}: {r['error']}")
             continue
         by_station[station].append(r["passed"])
         by_phase[phase].append(r["passed"])
@@ -89,6 +93,9 @@ def main() -> None:
     table("Per phase the kill landed in", dict(sorted(by_phase.items())))
     table("All", {"every station": landed})
     print(f"\nNot landed (the mission was done first): {len(not_landed)}")
+    print(f"Did not complete (no verdict; left out of the rates): {len(unfinished)}")
+    for line in unfinished:
+        print("  " + line)
     print(f"False 'done' (onboard said done, the truth out of tolerance): {len(false_done)}")
     for line in false_done:
         print("  " + line)

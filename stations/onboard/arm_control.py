@@ -33,7 +33,7 @@ VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, h
 # world, a vehicle settling on its waypoint with a weakened thruster blocked a free arm); a
 # vehicle that yields to the arm's push is caught once it stops yielding
 STALL_MIN_RADPS = 0.02
-STALL_MIN_MPS = 0.01
+STALL_MIN_MPS = 0.03
 STALL_SHARE = 0.25
 STALL_S = 0.5
 

@@ -100,7 +100,11 @@ def load_trace(name: str) -> tuple[float, ...]:
 
 
 def _trace(field: str, value: Any) -> str:
+    """A shipped trace's name, or a file's path made absolute here, where the user typed it (a
+    station that replays it runs in a directory of its own)."""
     name = str(value)
+    if "/" in name or name.endswith(".trace"):
+        name = str(Path(name).resolve())
     if name:
         load_trace(name)  # refused here, at start, naming the field
     return name

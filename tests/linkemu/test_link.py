@@ -185,11 +185,15 @@ def test_a_trace_driven_hop_delivers_at_its_traces_rate(
     assert delivered_bps == pytest.approx(expected_bps, rel=0.02)
 
 
-def test_a_trace_that_is_not_one_is_refused_naming_the_line(tmp_path) -> None:  # type: ignore[no-untyped-def]
+def test_a_trace_that_is_not_one_is_refused_naming_the_line(tmp_path, monkeypatch) -> None:  # type: ignore[no-untyped-def]
     bad = tmp_path / "bad.trace"
     bad.write_text("5\n3\n")
     with pytest.raises(ConfigError, match=r"bad.trace line 2: '3' is not a whole number of ms, ascending"):
         link(trace=str(bad))
+    good = tmp_path / "good.trace"
+    good.write_text("3\n5\n")
+    monkeypatch.chdir(tmp_path)  # a path as typed in the user's shell, relative to it
+    assert link(trace="good.trace").profile.trace == str(good)
     with pytest.raises(ConfigError, match="shipped: vsat-geo, vsat-rain-fade"):
         link(trace="nope")
     with pytest.raises(LinkError, match="netem cannot replay a delivery trace"):

@@ -22,6 +22,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
+from abyss.common.messages import IDLE_PHASES
 from abyss.validation.campaign.stats import wilson
 
 AFTER = "after the mission's end"
@@ -44,7 +45,7 @@ def phase_at(rows: list[dict[str, str]], t_s: float) -> str:
         return AFTER
     row = next(r for r in rows if float(r["sim_time_s"]) >= t_s)
     phase, target = row["intervention_phase"], row["intervention_target"]
-    if phase in ("", "done", "failed"):
+    if phase in IDLE_PHASES:
         return "waypoints" if not target else f"between ({target} {phase or 'next'})"
     return f"{target} {phase}"
 

@@ -18,6 +18,7 @@ from abyss.common.messages.codec import (
 from abyss.common.messages.ids import new_id, repeatable_ids
 from abyss.common.messages.operation import (
     COMMANDS,
+    IDLE_PHASES,
     INTERVENTION_PHASES,
     LEVER_STOPS,
     MODES,
@@ -75,6 +76,7 @@ __all__ = [
     "CLOUD_SOURCES",
     "COMMANDS",
     "FAULTS",
+    "IDLE_PHASES",
     "IMAGE_ENCODINGS",
     "INTERVENTION_PHASES",
     "LEVER_STOPS",

@@ -20,6 +20,7 @@ COMMANDS = ("waypoints", "arm", "mode", "intervene")  # what an operator command
 LEVER_STOPS = ("up", "down")
 # an intervention's phases, in order; it ends done or failed (its reason says why); "" none yet
 INTERVENTION_PHASES = ("", "approach", "pre-grasp", "grasp", "turn", "release", "retreat", "done", "failed")
+IDLE_PHASES = ("", "done", "failed")  # no intervention in hand: none yet, or it ended
 # before the fingers close, a goal resent is a refinement taken whole; after, its pivot's shift only
 REFINABLE_PHASES = ("approach", "pre-grasp")
 

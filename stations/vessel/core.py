@@ -16,6 +16,7 @@ from abyss.common.config.stations import VesselConfig
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import (
     CLOUD_SOURCES,
+    IDLE_PHASES,
     PERCEPTION_SOURCES,
     CommandAck,
     Heartbeat,
@@ -140,11 +141,7 @@ class Relay:
         believes the part stood before it (what it saw of it, else at rest), so that onboard's
         turn is followed, the panel's estimate goes down as refinements, and a rebooted onboard
         is handed it again from where the part stands, not from that belief."""
-        if (
-            t.intervention_id < 0
-            or t.intervention_id in self.resolved
-            or t.intervention_phase in ("", "done", "failed")
-        ):
+        if t.intervention_id < 0 or t.intervention_id in self.resolved or t.intervention_phase in IDLE_PHASES:
             return
         lever = panel.part_kind(t.intervention_target) == "lever"
         stop = ("down" if t.turn_goal_rad < 0 else "up") if lever else ""
@@ -170,7 +167,7 @@ class Relay:
         deg is one, taken nearest the belief. The levers' angles are seen to some 10 deg from in
         front (their throw is along the line of sight): not believed."""
         working = {self.refining[0].target} if self.refining is not None else set()
-        if t is not None and t.intervention_phase not in ("", "done", "failed"):
+        if t is not None and t.intervention_phase not in IDLE_PHASES:
             working.add(t.intervention_target)
         panel_pose = objects.poses_world[objects.names.index("panel")]
         for name, seen in seen_angles(objects).items():

@@ -61,7 +61,7 @@ class Telemetry(Message):
     intervention_id: int = field(default=-1, metadata={"lo": -1, "hi": 2**53, "choices": ()})
     intervention_target: str = ""
     intervention_phase: str = field(default="", metadata={"choices": INTERVENTION_PHASES})
-    intervention_reason: str = ""
+    intervention_reason: str = ""  # why it failed, or, while a grasp is tried again, why
     turned_rad: float = field(default=0.0, metadata={"lo": -10.0, "hi": 10.0, "choices": ()})
     turn_goal_rad: float = field(default=0.0, metadata={"lo": -10.0, "hi": 10.0, "choices": ()})
     gripper_opening_m: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1.0, "choices": ()})
@@ -172,4 +172,4 @@ class MissionStatus(Message):
     interventions_total: int = field(default=0, metadata={"lo": 0, "hi": 1000, "choices": ()})
     intervention_target: str = ""  # the one in hand, or the last
     intervention_phase: str = field(default="", metadata={"choices": INTERVENTION_PHASES})
-    intervention_reason: str = ""  # why it failed
+    intervention_reason: str = ""  # why it failed, or why a grasp is tried again

@@ -142,7 +142,7 @@ class Onboard:
         hold = self.failsafe.check(now_s) or ("operator hold" if operator_hold else "")
         v = vehicle.step(position, yaw_of(orientation), cfg.control_period_s, hold=bool(hold))
         arm_free = v.mode in (Mode.REACHED, Mode.IDLE) or self.operator_mode == ControlMode.TELEOP
-        enabled = not hold and arm_free and self.nav_filter.settled  # the arm's goals are in the world
+        enabled = not hold and arm_free and self.nav_filter.steady  # the arm's goals are in the world
         run, reference, gripper_mps = self.intervention, None, None
         if run is not None:
             arm.kinematics.update(position, orientation, arm_rad)
@@ -185,7 +185,7 @@ class Onboard:
                 run.goal.command_id,
                 run.goal.target,
                 run.phase.value,
-                run.reason,
+                run.reason or run.retry,
                 float(np.clip(run.turned_rad, -10.0, 10.0)),
                 run.goal.turn_rad,
             )

@@ -16,11 +16,13 @@ vessel resolved (messages.InterventionGoal) and reports each phase in telemetry.
 A grasp that closes on nothing, or one lost during the turn (the opening collapses: the handle
 slipped out), is tried again from the approach, twice; the third time, or a part that does not
 turn, ends failed with its reason, after the release and the retreat: the arm backs off and
-nothing is pushed further. The phases' clocks stop while the arm holds (failsafe, operator
+nothing is pushed further. Handed an intervention with the fingers already on the part (a rebooted
+onboard), it lets go first and says so. The phases' clocks stop while the arm holds (failsafe, operator
 hold), and the gripper keeps squeezing what it holds meanwhile."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -39,6 +41,8 @@ OPEN_M = 0.07  # the gripper's opening on the way in and out [m]
 OPEN_GAIN_PER_S = 2.0
 SQUEEZE_MPS = 0.05  # the fingers close, and squeeze what they hold, at this speed [m/s]
 HOLD_MIN_M = 0.008  # the fingers meet the 0.04 m handle at 0.016 m: below this they hold nothing
+HELD_MAX_M = 0.024  # squeezing a handle they stand at 13-14 mm (measured); reaching, at 30 mm
+NEAR_M = 0.03  # the tool this close to where the part's grasp would put it: on the handle
 PRIED_M = 0.006  # the fingers forced open this far past their hold: the part resists the turn
 OPENING_STILL_M = 0.0005  # the opening moved less than this over SETTLE_S: the fingers stopped
 SLIDE_MPS = 0.05  # in and out along the approach [m/s]
@@ -56,6 +60,7 @@ POSITION_TOLERANCE_M = 0.005
 ORIENTATION_TOLERANCE_RAD = 0.03
 SETTLE_S = 0.3
 ATTEMPTS = 3  # a failed grasp or a slip is tried twice more
+log = logging.getLogger(__name__)
 
 
 class Phase(StrEnum):
@@ -107,6 +112,7 @@ class InterventionRun:
         self.slide_m = 0.0  # along the approach, in the slides
         self.openings: list[tuple[float, float]] = []  # (phase_s, opening) while closing
         self.hold_opening_m = 0.0  # where the fingers stopped on the handle
+        self.started = False  # the first period seen: what the arm holds is looked at then
 
     def _take(self, goal: InterventionGoal) -> None:
         self.goal = goal
@@ -155,6 +161,9 @@ class InterventionRun:
     def step(self, tool: pin.SE3, opening_m: float, dt_s: float, enabled: bool) -> Command:
         """One control period: the tool's pose and the gripper's opening as measured now."""
         self.turned_rad = self.measure(tool)
+        if not self.started:
+            self.started = True
+            self._found(tool, opening_m)
         if not self.active:  # backed off: the arm stays at the pre-grasp pose
             return Command(PoseReference(*self.pose_at(self.from_rad, PRE_GRASP_M)), 0.0)
         if not enabled:  # the arm holds: so does the primitive, and the grip
@@ -172,6 +181,16 @@ class InterventionRun:
             Phase.RETREAT: self.slide_m,
         }.get(self.phase, PRE_GRASP_M)
         return self.pose_at(self.from_rad, back)
+
+    def _found(self, tool: pin.SE3, opening_m: float) -> None:
+        """Handed the intervention with the fingers already closed on the part (a rebooted
+        onboard's arm, as the kill left it): let go where it stands, back out, and grasp again
+        from there; the target stays the goal's, which is absolute. Said as the retry's reason."""
+        on_handle = float(np.linalg.norm(self.pose_at(self.turned_rad)[0] - tool.translation)) < NEAR_M
+        if on_handle and HOLD_MIN_M <= opening_m <= HELD_MAX_M:
+            self.retry = f"found holding {self.goal.target} (rebooted?): let go, to grasp it again"
+            log.warning("intervention %d: %s", self.goal.command_id, self.retry)
+            self._next(Phase.RELEASE)
 
     def _next(self, phase: Phase) -> None:
         self.phase, self.phase_s, self.settled_s, self.slide_m = phase, 0.0, 0.0, 0.0

@@ -38,6 +38,11 @@ RESET_AFTER_REJECTED = 5  # fixes rejected in a row: the estimate, not the fixes
 # onboard started 0.34 m off on one, and its clouds laid a ghost of the panel's face that held the
 # vessel's estimate 20 cm short for 20 s)
 SETTLE_FIXES = 3
+# [m/s] the arm steers by the estimate only once its velocity bias is known this well: one learned
+# from a few fixes carries the estimate off at millimetres a second (a rebooted onboard's swung
+# 4 cm in 5 s, 2.5 s into a lever's pre-grasp, and the fingers met the handle); a fresh estimate
+# gets there about 17 s after its first fix
+ARM_BIAS_SIGMA_MPS = 0.001
 # [s] each fix's correction reaches the output over this time constant, not in one step: an arm
 # holding a valve's handle through the output would be jerked by millimetres at every fix
 BLEND_S = 2.0
@@ -72,6 +77,11 @@ class NavFilter:
         self.settled = False  # SETTLE_FIXES agreed since it started (until it starts afresh)
         self._fix_s = -1.0  # when the latest fix used was taken
         self._stamp_s: float | None = None
+
+    @property
+    def steady(self) -> bool:
+        """Settled, and its drift known well enough for the arm's millimetres (ARM_BIAS_SIGMA_MPS)."""
+        return self.settled and float(self.covariance[1, 1]) <= ARM_BIAS_SIGMA_MPS**2
 
     def update(self, nav: NavState) -> tuple[np.ndarray | None, np.ndarray]:
         """The estimate after one message: position [m, world] (None before the first fix),

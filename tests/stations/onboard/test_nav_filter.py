@@ -111,6 +111,15 @@ def test_an_estimate_is_settled_only_once_fixes_agree_so_an_outlier_first_fix_is
     assert good.rejected == 1 and good.settled
 
 
+def swing_m(times_s: np.ndarray, errors_m: np.ndarray, start_s: float, end_s: float) -> float:
+    """The largest change of the error [m] over 5 s within [start_s, end_s) [s]."""
+    inside = (times_s >= start_s) & (times_s < end_s)
+    t, e = times_s[inside], errors_m[inside]
+    later = np.searchsorted(t, t + 5.0)
+    ok = later < len(t)
+    return float(np.max(np.linalg.norm(e[later[ok]] - e[ok], axis=1)))
+
+
 def test_the_arm_waits_till_a_fresh_estimate_knows_its_drift() -> None:
     """A fresh estimate (a rebooted onboard's) learns the DVL's bias from its first few fixes, and
     that learning carries it off by centimetres in seconds, more than a grasp's 12.5 mm window: a
@@ -135,14 +144,6 @@ def test_the_arm_waits_till_a_fresh_estimate_knows_its_drift() -> None:
             errors_m.append(position[:2] - world.truth().position_m_world[:2])
         assert settled_s is not None and steady_s is not None and steady_s - settled_s > 10.0
         times, errors = np.array(times_s), np.array(errors_m)
-
-        def swing_m(start_s: float, end_s: float) -> float:
-            """The largest change of the error [m] over 5 s within [start_s, end_s)."""
-            inside = (times >= start_s) & (times < end_s)
-            t, e = times[inside], errors[inside]
-            later = np.searchsorted(t, t + 5.0)
-            ok = later < len(t)
-            return float(np.max(np.linalg.norm(e[later[ok]] - e[ok], axis=1)))
-
-        before, after = swing_m(settled_s, steady_s), swing_m(steady_s, 40.0)
+        before = swing_m(times, errors, settled_s, steady_s)
+        after = swing_m(times, errors, steady_s, 40.0)
         assert after < before and after < 0.025, (seed, before, after)

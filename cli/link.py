@@ -73,6 +73,12 @@ def cmd_link_show(args: argparse.Namespace) -> int:
                 f"outages {st.get('outages', 0):.0f}, corrupted "
                 f"{st['packets_corrupted']:.0f}, dropped at the TUN {st['tun_tx_dropped']:.0f}; {delays}"
             )
+        elif "netem_drops" in st:  # netem: the kernel's counters of the packets
+            print(
+                f"    netem: {st['packets_sent']:.0f} packets ({st['bytes_sent']:.0f} B) out; dropped "
+                f"{st['netem_drops']:.0f} (losses and over its limit), backlog "
+                f"{st['netem_backlog_packets']:.0f} packets"
+            )
         else:
             print(
                 f"    queue drops {st.get('queue_drops', 0):.0f}, losses {st.get('losses', 0):.0f}, "

@@ -15,6 +15,7 @@ netem differs from the in-process emulator in ways it cannot be told out of:
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import shutil
@@ -111,6 +112,37 @@ def run_tc(command: list[str]) -> None:
     raise LinkError(f"{' '.join(command)} failed: {message}")
 
 
+# netem's counters as `tc -s -j qdisc show` names them, and as the link statistics do. netem
+# counts its random losses among its drops, with what overflowed its limit.
+NETEM_COUNTERS = {
+    "packets": "packets_sent",
+    "bytes": "bytes_sent",
+    "drops": "netem_drops",
+    "overlimits": "netem_overlimits",
+    "requeues": "netem_requeues",
+    "backlog": "netem_backlog_bytes",
+    "qlen": "netem_backlog_packets",
+}
+
+
+def netem_counters(dev: str) -> dict[str, float]:
+    """The root netem qdisc's counters on `dev` (this namespace's), as NETEM_COUNTERS names
+    them; empty when there is none or tc cannot say (logged)."""
+    done = subprocess.run(
+        ["tc", "-s", "-j", "qdisc", "show", "dev", dev], capture_output=True, text=True, check=False
+    )
+    try:
+        qdiscs = json.loads(done.stdout) if done.returncode == 0 else []
+    except json.JSONDecodeError as exc:
+        log.warning("tc's counters on %s unreadable: %s", dev, exc)
+        return {}
+    for qdisc in qdiscs:
+        if qdisc.get("kind") == "netem" and qdisc.get("root"):
+            return {ours: float(qdisc.get(theirs, 0)) for theirs, ours in NETEM_COUNTERS.items()}
+    log.info("no netem on %s to count (%s)", dev, done.stderr.strip() or "another qdisc")
+    return {}
+
+
 class NetemShaper:
     """A hop's profile as tc/netem on the interface towards the neighbour; removed at close."""
 
@@ -124,7 +156,8 @@ class NetemShaper:
         log.info("netem on %s (%s): %s", self.device, self.name, " ".join(netem_args(profile)))
 
     def snapshot(self) -> dict[str, float]:
-        return {}  # the kernel's own counters: `tc -s qdisc show dev DEVICE`
+        """netem's own counters on the device (`tc -s qdisc show`); none if tc cannot say."""
+        return netem_counters(self.device)
 
     def close(self) -> None:
         try:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from abyss.common.config.fields import one_of, positive
+from abyss.common.fields import one_of, positive
 from abyss.common.errors import ConfigError
 
 LowLevel = Literal["kinematic", "dynamic"]

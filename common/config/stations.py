@@ -9,7 +9,7 @@ import typing
 from dataclasses import dataclass
 from typing import Literal
 
-from abyss.common.config.fields import one_of, positive
+from abyss.common.fields import one_of, positive
 from abyss.common.errors import ConfigError
 from abyss.common.messages import CLOUD_SOURCES
 

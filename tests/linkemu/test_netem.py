@@ -11,7 +11,7 @@ import pytest
 
 from abyss.common.errors import LinkError
 from abyss.common.linkprofile import load_profiles, profile
-from abyss.linkemu.netem import netem_limit, run_tc, tc_command
+from abyss.linkemu.netem import netem_counters, netem_limit, run_tc, tc_command
 
 EXPECTED = {
     "ideal": "tc qdisc replace dev veth0 root netem limit 1000",
@@ -73,3 +73,11 @@ def test_apply_change_and_clear_in_a_namespace(netns: str) -> None:
 def test_missing_interface_is_a_clear_error(netns: str) -> None:
     with pytest.raises(LinkError, match=r"sch_netem|no such interface"):
         run_tc(tc_command("nope0", profile("satellite"), netns))
+
+
+def test_no_netem_on_an_interface_counts_nothing() -> None:
+    """Counters come from the root netem qdisc only (inside UML, test_netem_uml.py reads them off
+    a running hop): loopback's noqueue and a missing interface give none, and no error."""
+    if shutil.which("tc") is None:
+        pytest.skip("needs iproute2's tc")
+    assert netem_counters("lo") == {} and netem_counters("nope0") == {}

@@ -7,6 +7,7 @@ pair between two namespaces, netem's own counters, pings through it against the 
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 from pathlib import Path
@@ -19,7 +20,9 @@ from abyss.common.linkprofile import profile
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(400)]
 PINGS, SPACING_S = 60, 0.5
-ROOT = Path(__file__).resolve().parents[2]
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+PORT = 7450  # the vessel's links' Zenoh session, inside namespace a
 
 
 @pytest.fixture(scope="module")
@@ -29,6 +32,7 @@ def inside(tmp_path_factory: pytest.TempPathFactory) -> str:
         pytest.skip(why)
     abyss = f"{Path(sys.executable).parent}/abyss"
     here = tmp_path_factory.mktemp("uml")
+    connect = f"--connect tcp/127.0.0.1:{PORT} --system uml"
     return uml.boot(
         f"""cd {ROOT}
 echo "== pytest"; {sys.executable} -m pytest -q -p no:cacheprovider -p no:dash -o addopts= \\
@@ -42,7 +46,21 @@ echo "== apply"; {abyss} link netem satellite --dev va --netns a --apply; echo "
 echo "== ping"; ip netns exec a ping -c {PINGS} -i {SPACING_S} 10.79.0.2
 echo "== counters"; ip netns exec a tc -s qdisc show dev va
 echo "== clear"; {abyss} link netem satellite --dev va --netns a --clear; echo "rc=$?"
-ip netns exec a tc qdisc show dev va""",
+ip netns exec a tc qdisc show dev va
+ip link add vc type veth peer name vd; ip link set vc netns a; ip link set vd netns b
+ip -n a addr add 10.79.1.1/24 dev vc; ip -n b addr add 10.79.1.2/24 dev vd
+ip -n a link set vc up; ip -n b link set vd up; ip -n a link set lo up
+ip netns exec a {sys.executable} {HERE}/netem_links.py auto {PORT} 10.79.1.2 10.79.0.2 {here}/stop \
+    > {here}/links.txt 2>&1 &
+for i in $(seq 120); do grep -q "link mode" {here}/links.txt && break; sleep 0.5; done
+echo "== station"; cat {here}/links.txt
+ip netns exec a tc qdisc show dev va; ip netns exec a tc qdisc show dev vc
+ip netns exec a ping -q -c 20 -i 0.2 10.79.0.2 | tail -2
+echo "== set"; ip netns exec a {abyss} link set satellite --loss 20% {connect}; echo "rc=$?"
+ip netns exec a tc qdisc show dev va
+echo "== show"; ip netns exec a {abyss} link show satellite --json {connect}; echo "rc=$?"
+touch {here}/stop; wait
+echo "== closed"; tail -1 {here}/links.txt; ip netns exec a tc qdisc show dev va""",
         here,
     )
 
@@ -84,3 +102,25 @@ def test_pings_through_netem_match_the_profile(inside: str) -> None:
     loss = 1 - int(sent.group(2)) / int(sent.group(1))
     assert loss <= 0.25, stats
     assert float(np.median(rtts)) == pytest.approx(2e3 * one_way.delay_s, rel=0.2), stats
+
+
+def test_a_stations_links_take_netem_and_are_changed_and_counted_while_running(inside: str) -> None:
+    """The vessel's links as a station makes them, `--link auto` on a kernel with netem: netem is
+    taken, one qdisc per hop on the interface its neighbour is routed through; `abyss link set`
+    changes the running satellite hop's qdisc; `abyss link show` reports netem's own counters
+    (the 20 pings, sent or dropped); closing the links removes the qdiscs."""
+    station = section(inside, "station")
+    assert "link mode netem" in station, inside
+    assert re.search(r"^qdisc netem .* delay 150ms\s+75ms loss 5% corrupt 0.1% rate 1Mbit", station, re.M)
+    assert re.search(r"^qdisc netem .* delay 100ms\s+10ms rate 20Mbit", station, re.M), station
+    changed = section(inside, "set")
+    assert "rc=0" in changed, changed
+    assert re.search(r"^qdisc netem .* delay 150ms\s+75ms loss 20% corrupt", changed, re.M), changed
+    shown = section(inside, "show")
+    hops = json.loads(shown.split("rc=")[0])
+    assert [h["hop"] for h in hops] == ["satellite"] and hops[0]["fields"]["loss"] == "20%", shown
+    stats = hops[0]["stats"]
+    assert stats["packets_sent"] + stats["netem_drops"] >= 20, stats  # the pings, sent or lost
+    assert stats["bytes_sent"] >= 84 * stats["packets_sent"] and "netem_backlog_packets" in stats, stats
+    closed = section(inside, "closed")
+    assert "closed" in closed and "netem" not in closed, closed

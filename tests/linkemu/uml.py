@@ -35,7 +35,7 @@ def boot(commands: str, directory: Path, timeout_s: float = 300.0, mem: str = "1
         "#!/bin/sh\n"
         "export PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root\n"
         "mount -t proc proc /proc; mount -t sysfs sys /sys; mount -t tmpfs run /run\n"
-        "mount -t tmpfs shm /dev/shm\n"
+        "mkdir -p /dev/shm; mount -t tmpfs shm /dev/shm\n"  # devtmpfs has no shm/: Zenoh wants one
         f"M=/usr/lib/uml/modules/$(uname -r); {modules}\n"
         f"( {commands}\n) > {out} 2>&1\n"
         "sync\npoweroff -f\n"

@@ -1,5 +1,5 @@
-"""Checks shared by the configuration's sections: each raises `ConfigError` naming the field and
-what is allowed."""
+"""Checks shared by the configuration's sections and the link profiles: each raises `ConfigError`
+naming the field and what is allowed."""
 
 from __future__ import annotations
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from abyss.common.fields import one_of
 from abyss.common.errors import ConfigError, UnknownProfile
+from abyss.common.fields import one_of
 from abyss.common.units import (
     format_fraction,
     format_rate,

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from abyss.common.fields import one_of, positive
 from abyss.common.errors import ConfigError
+from abyss.common.fields import one_of, positive
 
 LowLevel = Literal["kinematic", "dynamic"]
 LOW_LEVELS: tuple[LowLevel, ...] = typing.get_args(LowLevel)

@@ -9,8 +9,8 @@ import typing
 from dataclasses import dataclass
 from typing import Literal
 
-from abyss.common.fields import one_of, positive
 from abyss.common.errors import ConfigError
+from abyss.common.fields import one_of, positive
 from abyss.common.messages import CLOUD_SOURCES
 
 # onboard.stereo_mode: OpenCV's semi-global matcher's modes

@@ -14,8 +14,8 @@ from typing import Literal
 import numpy as np
 
 from abyss.common import keys
-from abyss.common.fields import one_of, positive
 from abyss.common.errors import BadInput, ConfigError
+from abyss.common.fields import one_of, positive
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.common.linkprofile import LinkProfile, load_profiles, profile
 from abyss.common.models import panel

@@ -147,7 +147,7 @@ def main() -> int:
             for r in json.loads(args.kernel_from.read_text())["runs"]
             if r["way"] in variants and (r["case"], r["phase"]) in wanted
         ]
-    elif reason := kernel_unusable():
+    elif reason := kernel_unusable(variants):
         print(f"bench/tcp_model.py: {reason}", file=sys.stderr)
         return 2
     jobs = [

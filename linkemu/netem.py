@@ -18,8 +18,10 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import shutil
 import subprocess
+from pathlib import Path
 
 from abyss.common.errors import LinkError
 from abyss.common.linkprofile import LinkProfile
@@ -125,11 +127,20 @@ NETEM_COUNTERS = {
 }
 
 
-def netem_counters(dev: str) -> dict[str, float]:
-    """The root netem qdisc's counters on `dev` (this namespace's), as NETEM_COUNTERS names
-    them; empty when there is none or tc cannot say (logged)."""
+def netem_available() -> bool:
+    """Whether this kernel has sch_netem (loaded, or a module to load)."""
+    if Path("/sys/module/sch_netem").exists():
+        return True
+    modules = Path("/lib/modules") / os.uname().release
+    return any(modules.glob("kernel/net/sched/sch_netem.ko*"))
+
+
+def netem_counters(dev: str, netns: str | None = None) -> dict[str, float]:
+    """The root netem qdisc's counters on `dev` (in `netns`, else this namespace), as
+    NETEM_COUNTERS names them; empty when there is none or tc cannot say (logged)."""
+    prefix = ["ip", "netns", "exec", netns] if netns else []
     done = subprocess.run(
-        ["tc", "-s", "-j", "qdisc", "show", "dev", dev], capture_output=True, text=True, check=False
+        [*prefix, "tc", "-s", "-j", "qdisc", "show", "dev", dev], capture_output=True, text=True, check=False
     )
     try:
         qdiscs = json.loads(done.stdout) if done.returncode == 0 else []

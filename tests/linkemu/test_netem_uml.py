@@ -17,12 +17,16 @@ import pytest
 import uml
 
 from abyss.common.linkprofile import profile
+from abyss.validation.tcpcheck.compare import agreement
+from abyss.validation.tcpcheck.model import run_model
+from abyss.validation.tcpcheck.workload import CASES
 
 pytestmark = [pytest.mark.e2e, pytest.mark.timeout(400)]
 PINGS, SPACING_S = 60, 0.5
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]
 PORT = 7450  # the vessel's links' Zenoh session, inside namespace a
+TCP_SEEDS = 4  # kernel TCP runs through netem per phase, all at once on UML's one CPU
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +64,8 @@ echo "== set"; ip netns exec a {abyss} link set satellite --loss 20% {connect}; 
 ip netns exec a tc qdisc show dev va
 echo "== show"; ip netns exec a {abyss} link show satellite --json {connect}; echo "rc=$?"
 touch {here}/stop; wait
-echo "== closed"; tail -1 {here}/links.txt; ip netns exec a tc qdisc show dev va""",
+echo "== closed"; tail -1 {here}/links.txt; ip netns exec a tc qdisc show dev va
+echo "== tcp"; {sys.executable} -P {HERE}/netem_tcp.py {TCP_SEEDS} 2>{here}/tcp.log | tail -1""",
         here,
     )
 
@@ -124,3 +129,29 @@ def test_a_stations_links_take_netem_and_are_changed_and_counted_while_running(i
     assert stats["bytes_sent"] >= 84 * stats["packets_sent"] and "netem_backlog_packets" in stats, stats
     closed = section(inside, "closed")
     assert "closed" in closed and "netem" not in closed, closed
+
+
+@pytest.mark.parametrize(
+    ("phase", "metric"),
+    [
+        ("bulk", "goodput_bps"),
+        ("bulk", "retrans_per_packet"),
+        ("1kB", "latency_p50_s"),
+        ("1kB", "latency_p95_s"),
+    ],
+)
+def test_kernel_tcp_through_netem_agrees_with_the_model(inside: str, phase: str, metric: str) -> None:
+    """The third shaper against the same bound: the TCP model (the emulated link's transport)
+    against kernel TCP (Reno as it ships) through netem on the satellite, as test_tcp_model.py
+    holds it against kernel TCP through the TUN shaper: means within 25 % of the kernel's plus
+    twice the standard error of their difference (`tcpcheck.Agreement`). netem's own numbers
+    are not seeded: its runs are drawn afresh each time."""
+    kernel = [r for r in json.loads(section(inside, "tcp").strip()) if r["phase"] == phase]
+    assert len(kernel) == TCP_SEEDS, inside[-3000:]
+    case = CASES["satellite"]
+    model = [run_model(case, case.phase(phase), seed).metrics() for seed in range(20)]
+    a = agreement(metric, model, kernel)
+    assert a.agrees, (
+        f"{phase} {metric}: model {np.mean(a.model):.4g}, kernel through netem {np.mean(a.kernel):.4g}: "
+        f"they may differ by {a.allowed:.4g} (model / kernel {a.ratio:.2f})"
+    )

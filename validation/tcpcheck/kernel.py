@@ -1,5 +1,6 @@
 """The TCP comparison's kernel side: a phase through kernel TCP between two namespaces of a lab
-of its own, each direction shaped by its sender's TUN shaper, the `programs` at either end."""
+of its own, each direction shaped at its sender by the TUN shaper or by tc/netem (the variant's
+`shaper`), the `programs` at either end."""
 
 from __future__ import annotations
 
@@ -11,11 +12,13 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from collections.abc import Iterable
 from typing import Any
 
 from abyss.common import keys
 from abyss.common.errors import LinkError
 from abyss.launch.lab import Lab, usable
+from abyss.linkemu.netem import netem_available, netem_counters, run_tc, tc_command
 from abyss.validation.tcpcheck import programs
 from abyss.validation.tcpcheck.programs import START_TIMEOUT_S
 from abyss.validation.tcpcheck.workload import COMMON_SYSCTLS, VARIANTS, Case, Phase, Run
@@ -23,14 +26,17 @@ from abyss.validation.tcpcheck.workload import COMMON_SYSCTLS, VARIANTS, Case, P
 ACK_SEED_OFFSET = 1_000_003  # the acknowledgement direction's shaper draws its own numbers
 
 
-def kernel_unusable() -> str:
-    """Why kernel runs cannot be made here ('' when they can)."""
+def kernel_unusable(variants: Iterable[str] = ("reno",)) -> str:
+    """Why kernel runs of `variants` cannot be made here ('' when they can)."""
     if reason := usable():
         return reason
-    if not Path("/dev/net/tun").exists():
+    shapers = {VARIANTS[v].shaper for v in variants}
+    if "netem" in shapers and not netem_available():
+        return "no sch_netem in this kernel (netem variants run inside UML: bench/shapers.py)"
+    if "tun" in shapers and not Path("/dev/net/tun").exists():
         return "no /dev/net/tun (modprobe tun) for the TUN shaper"
     available = Path("/proc/sys/net/ipv4/tcp_available_congestion_control").read_text().split()
-    wanted = {v.congestion_control for v in VARIANTS.values()}
+    wanted = {VARIANTS[v].congestion_control for v in variants}
     if missing := wanted - set(available):
         return f"congestion control {', '.join(sorted(missing))} not loaded (modprobe tcp_{min(missing)})"
     return ""
@@ -58,13 +64,22 @@ def run_kernel(case: Case, variant: str, phase: Phase, seed: int, timeout_s: flo
             sysctls = [f"net.ipv4.{k}={v}" for k, v in (*COMMON_SYSCTLS, *VARIANTS[variant].sysctls)]
             for station in (sender, receiver):
                 _check([*lab.prefix(station), "sysctl", "-q", "-w", *sysctls])
-            shapers = [start(command) for command in _shaper_commands(lab, case, seed, timeout_s)]
+            netem = VARIANTS[variant].shaper == "netem"
+            if netem:
+                for station in (sender, receiver):  # netem draws its own numbers: no seed
+                    device = lab.device(station, case.hop)
+                    run_tc(tc_command(device, case.link_profile(seed), lab.netns(station)))
+            shapers = [] if netem else [start(c) for c in _shaper_commands(lab, case, seed, timeout_s)]
             listening = start(
                 [*lab.prefix(receiver), *_program("receive", f"--timeout={timeout_s}", *window)]
             )
         report = _send(lab, case, variant, phase, timeout_s, window)
         received = json.loads(_finish(listening)[-1])
-        shaped = [json.loads(_finish(shaper, signal.SIGTERM)[-1]) for shaper in shapers]
+        shaped = (
+            [_netem_shaped(lab, station, case.hop) for station in (sender, receiver)]
+            if netem
+            else [json.loads(_finish(shaper, signal.SIGTERM)[-1]) for shaper in shapers]
+        )
     finally:
         for process in started:
             if process.poll() is None:
@@ -72,6 +87,17 @@ def run_kernel(case: Case, variant: str, phase: Phase, seed: int, timeout_s: flo
                 process.wait()
         lab.remove()
     return _kernel_run(phase, report, received, shaped)
+
+
+def _netem_shaped(lab: Lab, station: str, hop: str) -> dict[str, float]:
+    """netem's counts in the TUN shaper's names: netem's drops are its losses and its queue's."""
+    counters = netem_counters(lab.device(station, hop), lab.netns(station))
+    return {
+        "losses": counters.get("netem_drops", 0.0),
+        "queue_drops": 0.0,
+        "packets_corrupted": 0.0,
+        "tun_tx_dropped": 0.0,
+    }
 
 
 def _program(*args: str) -> list[str]:

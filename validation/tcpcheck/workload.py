@@ -16,10 +16,12 @@ BULK_MESSAGE_BYTES = 14_600  # ten whole model packets
 @dataclass(frozen=True)
 class Variant:
     """A kernel TCP: the sender's congestion control (set on its socket: a namespace may only
-    default to the host's allowed ones) and net.ipv4 sysctls in both namespaces."""
+    default to the host's allowed ones) and net.ipv4 sysctls in both namespaces; and what shapes
+    its packets: the TUN shaper, or tc/netem where the kernel has it (in UML on this machine)."""
 
     congestion_control: str
     sysctls: tuple[tuple[str, str], ...] = ()
+    shaper: str = "tun"  # or "netem"
 
 
 VARIANTS: dict[str, Variant] = {
@@ -39,6 +41,9 @@ VARIANTS: dict[str, Variant] = {
     # the kernel's loss recovery as it ships (SACK, RACK-TLP, PRR, F-RTO), Reno's window
     "reno": Variant("reno"),
     "cubic": Variant("cubic"),
+    # the same through tc/netem (the third of the shapers: the emulated link is the model)
+    "reno-netem": Variant("reno", shaper="netem"),
+    "cubic-netem": Variant("cubic", shaper="netem"),
 }
 COMMON_SYSCTLS = (("tcp_no_metrics_save", "1"),)  # each connection starts afresh, as each model link
 

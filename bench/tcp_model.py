@@ -2,11 +2,13 @@
 
 Every case of abyss.validation.tcpcheck (tether, satellite, satellite at 1 % loss, tether at 10 %)
 and phase (bulk; 1, 10, 100 kB messages), through the model (--model-seeds seeds) and each
-kernel variant (reno-textbook, reno, cubic; --kernel-seeds seeds, a throw-away lab each).
+kernel variant (reno-textbook, reno, cubic through the TUN shaper; reno-netem, cubic-netem
+through netem where the kernel has it: bench/shapers.py runs them inside UML; --kernel-seeds
+seeds, a throw-away lab each).
 Prints progress, then each metric's means and the ratio model / kernel (marked * where the two
 differ by more than tcpcheck's TOLERANCE, widened by their spread); writes tcp_model.json (every
 run's figures) and tcp_model.png (the ratios) to --out. As root, with /dev/net/tun; about 15
-minutes. --kernel-from an earlier tcp_model.json runs only the model against its kernel runs.
+minutes. --kernel-from an earlier tcp_model.json takes its kernel runs instead of running them.
 Run: .venv/bin/python bench/tcp_model.py [--out DIR] [--case NAME]... [--variant NAME]..."""
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from abyss.validation.tcpcheck import compare
 from abyss.validation.tcpcheck.compare import TOLERANCE, agreement, run_all
 from abyss.validation.tcpcheck.kernel import kernel_unusable
 from abyss.validation.tcpcheck.workload import CASES, VARIANTS, Job, Run
@@ -70,13 +73,27 @@ def rows(records: list[dict[str, Any]], variants: list[str]) -> list[dict[str, A
                 a = agreement(metric, of["model"], of[variant]) if of[variant] else None
                 row[f"model/{variant}"] = a.ratio if a else math.nan
                 row[f"agrees/{variant}"] = a.agrees if a else False
+            for netem, tun in shaper_pairs(variants):  # the two real shapers against each other
+                a = agreement(metric, of[netem], of[tun]) if of[netem] and of[tun] else None
+                row[f"{netem}/{tun}"] = a.ratio if a else math.nan
+                row[f"agrees/{netem}/{tun}"] = a.agrees if a else False
             table.append(row)
     return table
 
 
+def shaper_pairs(variants: list[str]) -> list[tuple[str, str]]:
+    """(netem variant, its TUN-shaped twin) for each pair among `variants`."""
+    return [
+        (v, v.removesuffix("-netem"))
+        for v in variants
+        if v.endswith("-netem") and v.removesuffix("-netem") in variants
+    ]
+
+
 def print_table(table: list[dict[str, Any]], variants: list[str]) -> None:
+    pairs = [f"{netem}/{tun}" for netem, tun in shaper_pairs(variants)]
     head = f"{'case':<13}{'phase':<7}{'metric':<22}{'model':>10}" + "".join(f"{v:>15}" for v in variants)
-    print(head + "".join(f"{'model/' + v:>20}" for v in variants))
+    print(head + "".join(f"{'model/' + v:>20}" for v in variants) + "".join(f"{p:>20}" for p in pairs))
     for row in table:
         scale, unit = UNITS[str(row["metric"])]
         figures = "".join(
@@ -85,9 +102,10 @@ def print_table(table: list[dict[str, Any]], variants: list[str]) -> None:
         ratios = "".join(
             f"{float(str(row['model/' + v])):>19.2f}{' ' if row['agrees/' + v] else '*'}" for v in variants
         )
+        ratios += "".join(f"{float(str(row[p])):>19.2f}{' ' if row['agrees/' + p] else '*'}" for p in pairs)
         label = f"{row['metric']} [{unit}]"
         print(f"{row['case']:<13}{row['phase']:<7}{label:<22}{figures}{ratios}")
-    print(f"* the model and that kernel differ by more than {TOLERANCE:.0%} plus twice their standard error")
+    print(f"* the two differ by more than {TOLERANCE:.0%} plus twice their standard error")
 
 
 def plot(table: list[dict[str, Any]], variants: list[str], path: Path) -> None:
@@ -126,14 +144,16 @@ def main() -> int:
     parser.add_argument("--phase", action="append", dest="phases", help="bulk, 1kB, 10kB, 100kB")
     parser.add_argument("--kernel-seeds", type=int, default=5)
     parser.add_argument("--model-seeds", type=int, default=10)
+    parser.add_argument("--labs", type=int, default=compare.MAX_LABS, help="kernel runs at once, at most")
     parser.add_argument(
         "--kernel-from",
         type=Path,
         metavar="JSON",
-        help="the kernel's runs from an earlier tcp_model.json: run only the model",
+        help="kernel runs from an earlier tcp_model.json: its variants are not run again",
     )
     args = parser.parse_args()
-    cases, variants = args.cases or list(CASES), args.variants or list(VARIANTS)
+    cases = args.cases or list(CASES)
+    variants = args.variants or [v for v in VARIANTS if VARIANTS[v].shaper == "tun"]
     wanted = [
         (case, phase)
         for case in cases
@@ -147,15 +167,17 @@ def main() -> int:
             for r in json.loads(args.kernel_from.read_text())["runs"]
             if r["way"] in variants and (r["case"], r["phase"]) in wanted
         ]
-    elif reason := kernel_unusable(variants):
+    to_run = [v for v in variants if v not in {r["way"] for r in earlier}]
+    if to_run and (reason := kernel_unusable(to_run)):
         print(f"bench/tcp_model.py: {reason}", file=sys.stderr)
         return 2
     jobs = [
         Job(way, case, phase, seed)
         for case, phase in wanted
-        for way in ["model", *([] if args.kernel_from else variants)]
+        for way in ["model", *to_run]
         for seed in range(args.model_seeds if way == "model" else args.kernel_seeds)
     ]
+    compare.MAX_LABS = args.labs
     started_s = time.monotonic()
     runs = run_all(jobs, echo=lambda line: print(line, flush=True))
     print(f"{len(jobs)} runs in {time.monotonic() - started_s:.0f} s\n")

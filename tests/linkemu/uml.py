@@ -13,7 +13,7 @@ import subprocess
 from pathlib import Path
 
 UML = shutil.which("linux.uml")
-MODULES = ("kernel/net/sched/sch_netem.ko", "kernel/drivers/net/veth.ko")
+MODULES = ("kernel/net/sched/sch_netem.ko", "kernel/drivers/net/veth.ko", "kernel/drivers/net/tun.ko")
 
 
 def why_not() -> str:

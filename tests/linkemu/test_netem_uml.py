@@ -53,7 +53,7 @@ echo "== clear"; {abyss} link netem satellite --dev va --netns a --clear; echo "
 ip netns exec a tc qdisc show dev va; ip netns exec b tc qdisc del dev vb root
 ip netns exec a {abyss} link shape satellite --peer 10.79.0.2 --seed 1 > {here}/tun-a.txt 2>&1 & A=$!
 ip netns exec b {abyss} link shape satellite --peer 10.79.0.1 --seed 2 > {here}/tun-b.txt 2>&1 & B=$!
-for i in $(seq 120); do grep -q shaping {here}/tun-a.txt && grep -q shaping {here}/tun-b.txt && break; sleep 0.5; done
+for i in $(seq 120); do cat {here}/tun-?.txt | grep -c shaping | grep -q 2 && break; sleep 0.5; done
 echo "== tun ping"; ip netns exec a ping -c {PINGS} -i {SPACING_S} 10.79.0.2
 kill $A $B; wait $A $B
 ip link add vc type veth peer name vd; ip link set vc netns a; ip link set vd netns b

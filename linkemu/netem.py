@@ -160,6 +160,8 @@ class NetemShaper:
     def __init__(self, name: str, device: str, profile: LinkProfile) -> None:
         self.name = name
         self.device = device
+        self.counters: dict[str, float] = {}
+        self.closed = False
         self.reconfigure(profile)
 
     def reconfigure(self, profile: LinkProfile) -> None:
@@ -167,10 +169,15 @@ class NetemShaper:
         log.info("netem on %s (%s): %s", self.device, self.name, " ".join(netem_args(profile)))
 
     def snapshot(self) -> dict[str, float]:
-        """netem's own counters on the device (`tc -s qdisc show`); none if tc cannot say."""
-        return netem_counters(self.device)
+        """netem's own counters on the device (`tc -s qdisc show`): the last read once closed;
+        none if tc cannot say."""
+        if not self.closed:
+            self.counters = netem_counters(self.device) or self.counters
+        return dict(self.counters)
 
     def close(self) -> None:
+        self.snapshot()  # the final counts, before the qdisc and its counters go
+        self.closed = True
         try:
             run_tc(tc_command(self.device, None))
         except LinkError as exc:

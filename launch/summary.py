@@ -215,11 +215,13 @@ def _link_lines(summary: dict[str, Any]) -> list[str]:
     ]
     for hop, directions in summary["links"].items():
         for direction, st in directions.items():
-            lines.append(  # with a shaper, delays and losses are its packets' (netem: its drops); the kernel retransmits
+            # with a shaper, delays and losses are its packets' (netem's: its drops); the kernel retransmits
+            lines.append(
                 f"  {hop + ' ' + direction:<28} {st.get('mode', 'emulated'):<8} "
                 f"{int(st['messages_delivered']):>6}/{int(st['messages_offered']):<6} "
                 f"{st.get('delay_p50_ms', 0.0):>7.1f} {st.get('delay_p99_ms', 0.0):>7.1f} "
-                f"{int(st.get('losses', st.get('netem_drops', 0))):>5} {int(st.get('retransmissions', 0)):>5}"
+                f"{int(st.get('losses', st.get('netem_drops', 0))):>5} "
+                f"{int(st.get('retransmissions', 0)):>5}"
             )
     return lines
 

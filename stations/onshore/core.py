@@ -21,6 +21,7 @@ import numpy as np
 
 from abyss.common.config.system import MissionConfig
 from abyss.common.messages import (
+    IDLE_PHASES,
     ArmGoal,
     CommandAck,
     Heartbeat,
@@ -191,6 +192,7 @@ class Operator:
         elif self.onboard is not None and t.boot_id != self.onboard.boot_id:
             self._rehand(self.onboard, t)
         self.onboard = t
+        self._take_onboards(t, now_s)
         self._next_intervention(t)
         self.status = mission_status(
             t,
@@ -200,6 +202,30 @@ class Operator:
             self.intervene,
             self.intervention_index,
             len(self.mission.interventions),
+        )
+
+    def _take_onboards(self, t: Telemetry, now_s: float) -> None:
+        """Onboard works the mission's part in hand under another command, and refused this
+        station's as it did: the command a shore sent before its restart, begun after the restarted
+        shore joined from older telemetry. That command is taken as this one (in force), so the
+        mission follows onboard's run of it to its end rather than waiting on a refused one."""
+        current, answer = self.intervene.message, self.intervene.answer
+        refused = answer is not None and not answer.accepted
+        if (
+            current is None
+            or not refused
+            or t.intervention_id < 0
+            or t.intervention_id == current.command_id
+            or t.intervention_target != current.target
+            or t.intervention_phase in IDLE_PHASES  # one that ended is no answer to a refusal
+        ):
+            return
+        taken = mission_intervention(self.mission, self.intervention_index, t.intervention_id)
+        self.intervene.in_force(taken, now_s)
+        self.event(
+            "onshore",
+            f"took onboard's intervention on {t.intervention_target} ({t.intervention_id}) as the "
+            f"mission's: its own ({current.command_id}) was refused ({answer.reason})",
         )
 
     def _next_intervention(self, t: Telemetry) -> None:

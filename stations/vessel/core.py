@@ -207,7 +207,14 @@ class Relay:
                 out += [resolved] if resolved else []
             else:
                 out.append((RELAYED_DOWN[topic], command))
-        out += [("ack", ack) for ack in inputs.acks]
+        for ack in inputs.acks:
+            out.append(("ack", ack))
+            refused = ack.command == "intervene" and not ack.accepted
+            if refused and self.refining is not None and self.refining[0].command_id == ack.command_id:
+                # not taken (onboard busy with another): its refinements would be resends, and one
+                # onboard judged again once free would work the part twice (a restarted shore's
+                # intent, refused while onboard turned the part for the shore before it)
+                self.refining = None
         if inputs.shore_heard:
             self.shore_heard_s = now_s
         if now_s - self.last_beat_s >= self.cfg.heartbeat_period_s:

@@ -301,3 +301,39 @@ def test_the_missions_interventions_go_one_after_the_other_and_end_it(mission: M
     thrown = telemetry(**flown, intervention_id=second.command_id, intervention_phase="done")
     status = operator.step(OperatorInputs(telemetry=[thrown]), 4.0).status
     assert status is not None and status.done and status.interventions_done == 2
+
+
+def test_a_restarted_shore_refused_as_onboard_works_the_part_takes_that_run_and_goes_on(
+    mission: MissionConfig,
+) -> None:
+    """Shore killed just as onboard began valve_1 (kill campaign, 6.7 s): the restarted shore
+    joined from telemetry older than the run, sent its own intent, and onboard refused it as busy.
+    Shore takes onboard's run (the old shore's command) as the mission's, says so, and goes on to
+    lever_0 when it is done; its refused command is not sent again."""
+    mission = dataclasses.replace(
+        mission, arm_target=(), interventions=(("valve_1", "90"), ("lever_0", "down"))
+    )
+    operator = Operator(mission)
+    operator.step(OperatorInputs(telemetry=[telemetry()]), 0.0)
+    own = waypoints_taken(operator, 0.0)["op/intervene"]
+    assert isinstance(own, Intervention)
+    waypoints = operator.waypoints.message
+    assert isinstance(waypoints, Waypoints)
+    flown = {"command_id": waypoints.command_id, "mode": "reached", "waypoints_total": 3, "waypoint_index": 2}
+    old = 4850217519377534  # the shore before the restart sent it
+    busy = "the intervention on valve_1 is in progress (approach)"
+    approach = telemetry(
+        **flown, intervention_id=old, intervention_target="valve_1", intervention_phase="approach"
+    )
+    out = operator.step(
+        OperatorInputs(acks=[CommandAck(own.command_id, "intervene", busy)], telemetry=[approach]), 1.0
+    )
+    current = operator.intervene.message
+    assert current is not None and current.command_id == old and operator.intervene.answer is not None
+    assert "took onboard's intervention on valve_1" in str(operator.events[-1]["event"]), operator.events
+    assert "op/intervene" not in commands(operator.step(OperatorInputs(), 1.0 + 2 * mission.resend_period_s))
+    done = telemetry(**flown, intervention_id=old, intervention_target="valve_1", intervention_phase="done")
+    out = operator.step(OperatorInputs(telemetry=[done]), 30.0)
+    second = commands(out)["op/intervene"]
+    assert isinstance(second, Intervention) and second.target == "lever_0"
+    assert out.status is not None and out.status.interventions_done == 1

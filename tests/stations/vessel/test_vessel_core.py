@@ -240,6 +240,14 @@ def test_a_moved_estimate_goes_down_again_till_the_intervention_ends() -> None:
     relay.step(RelayInputs(telemetry=phase("done")), 5.0)
     assert relay.refining is None
     assert goals(relay.step(RelayInputs(objects=recognised(-8.55), telemetry=phase("done")), 6.0)) == []
+    # one onboard refused (busy with another, a restarted shore's intent) is not refined: a resend
+    # would be judged again once onboard is free, and the part worked twice
+    other = Intervention(6, "valve_1", math.radians(90), "")
+    assert len(goals(relay.step(RelayInputs(commands=[("op/intervene", other)]), 7.0))) == 1
+    busy = CommandAck(6, "intervene", "the intervention on valve_1 is in progress (approach)")
+    relay.step(RelayInputs(acks=[busy]), 8.0)
+    assert relay.refining is None
+    assert goals(relay.step(RelayInputs(objects=recognised(-8.50), telemetry=phase("done")), 9.0)) == []
 
 
 def seen_turned(parts: dict[str, tuple[float, float]]) -> RecognisedObjects:

@@ -1,5 +1,23 @@
-"""Pick an offscreen GL backend before any test imports MuJoCo's rendering."""
+"""Pick an offscreen GL backend before any test imports MuJoCo's rendering; run the whole-system
+tests last, and start what a test module asks to begin early (its `begin()`: UML's boot) as
+collection ends, so that it runs beside the unit tests."""
+
+from __future__ import annotations
+
+import pytest
 
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
+
+
+@pytest.hookimpl(trylast=True)  # after -m and -k have deselected
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: item.get_closest_marker("e2e") is not None)  # stable: otherwise as found
+    begun: set[object] = set()
+    for item in items:
+        module = getattr(item, "module", None)
+        begin = getattr(module, "begin", None)
+        if callable(begin) and module not in begun:
+            begun.add(module)
+            begin()

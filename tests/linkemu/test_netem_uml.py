@@ -3,13 +3,16 @@ kernels most users have: this machine's has no sch_netem, so without UML the net
 only render command lines. One boot runs it all: the namespace test of test_netem.py, which
 skips on the host, passed inside; `abyss link netem satellite --apply` on both ends of a veth
 pair between two namespaces, netem's own counters, pings through it against the profile, and
-`--clear`."""
+`--clear`. The boot starts as the suite's collection ends (`begin`, from tests/conftest.py) and
+runs beside the unit tests."""
 
 from __future__ import annotations
 
 import json
 import re
 import sys
+import tempfile
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -29,16 +32,11 @@ PORT = 7450  # the vessel's links' Zenoh session, inside namespace a
 TCP_SEEDS = 4  # kernel TCP runs through netem per phase, all at once on UML's one CPU
 
 
-@pytest.fixture(scope="module")
-def inside(tmp_path_factory: pytest.TempPathFactory) -> str:
-    why = uml.why_not()
-    if why:
-        pytest.skip(why)
+def script(here: Path) -> str:
+    """What runs inside UML, its output in sections ("== NAME")."""
     abyss = f"{Path(sys.executable).parent}/abyss"
-    here = tmp_path_factory.mktemp("uml")
     connect = f"--connect tcp/127.0.0.1:{PORT} --system uml"
-    return uml.boot(
-        f"""cd {ROOT}
+    return f"""cd {ROOT}
 echo "== pytest"; {sys.executable} -m pytest -q -p no:cacheprovider -p no:dash -o addopts= \\
     tests/linkemu/test_netem.py -k "namespace or missing_interface" -rs 2>&1 | tail -3
 ip link add va type veth peer name vb; ip netns add a; ip netns add b
@@ -70,9 +68,29 @@ ip netns exec a tc qdisc show dev va
 echo "== show"; ip netns exec a {abyss} link show satellite --json {connect}; echo "rc=$?"
 touch {here}/stop; wait
 echo "== closed"; tail -1 {here}/links.txt; ip netns exec a tc qdisc show dev va
-echo "== tcp"; {sys.executable} -P {HERE}/netem_tcp.py {TCP_SEEDS} 2>{here}/tcp.log | tail -1""",
-        here,
-    )
+echo "== tcp"; {sys.executable} -P {HERE}/netem_tcp.py {TCP_SEEDS} 2>{here}/tcp.log | tail -1"""
+
+
+_boot: Future[str] | None = None
+
+
+def begin() -> None:
+    """Boot UML now, in the background: the suite's conftest calls this as collection ends, so
+    that UML's minutes (mostly pings and paced TCP, waiting) pass beside the unit tests."""
+    global _boot
+    if _boot is None and not uml.why_not():
+        here = Path(tempfile.mkdtemp(prefix="abyss-uml-"))
+        _boot = ThreadPoolExecutor(1, thread_name_prefix="uml").submit(uml.boot, script(here), here)
+
+
+@pytest.fixture(scope="module")
+def inside() -> str:
+    why = uml.why_not()
+    if why:
+        pytest.skip(why)
+    begin()
+    assert _boot is not None
+    return _boot.result(timeout=400)
 
 
 def section(text: str, name: str) -> str:

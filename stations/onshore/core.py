@@ -210,10 +210,10 @@ class Operator:
         shore joined from older telemetry. That command is taken as this one (in force), so the
         mission follows onboard's run of it to its end rather than waiting on a refused one."""
         current, answer = self.intervene.message, self.intervene.answer
-        refused = answer is not None and not answer.accepted
         if (
             current is None
-            or not refused
+            or answer is None
+            or answer.accepted  # only a refused one is replaced
             or t.intervention_id < 0
             or t.intervention_id == current.command_id
             or t.intervention_target != current.target

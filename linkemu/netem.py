@@ -83,9 +83,14 @@ def netem_limit(profile: LinkProfile) -> int:
     return profile.queue_limit_packets + in_flight
 
 
+def in_netns(netns: str | None) -> list[str]:
+    """What runs a command in `netns` (nothing: this namespace)."""
+    return ["ip", "netns", "exec", netns] if netns else []
+
+
 def tc_command(dev: str, profile: LinkProfile | None, netns: str | None = None) -> list[str]:
     """`tc qdisc replace dev DEV root netem ...`, or `tc qdisc del dev DEV root` for None."""
-    prefix = ["ip", "netns", "exec", netns] if netns else []
+    prefix = in_netns(netns)
     if profile is None:
         return [*prefix, "tc", "qdisc", "del", "dev", dev, "root"]
     return [*prefix, "tc", "qdisc", "replace", "dev", dev, "root", "netem", *netem_args(profile)]
@@ -138,9 +143,11 @@ def netem_available() -> bool:
 def netem_counters(dev: str, netns: str | None = None) -> dict[str, float]:
     """The root netem qdisc's counters on `dev` (in `netns`, else this namespace), as
     NETEM_COUNTERS names them; empty when there is none or tc cannot say (logged)."""
-    prefix = ["ip", "netns", "exec", netns] if netns else []
     done = subprocess.run(
-        [*prefix, "tc", "-s", "-j", "qdisc", "show", "dev", dev], capture_output=True, text=True, check=False
+        [*in_netns(netns), "tc", "-s", "-j", "qdisc", "show", "dev", dev],
+        capture_output=True,
+        text=True,
+        check=False,
     )
     try:
         qdiscs = json.loads(done.stdout) if done.returncode == 0 else []

@@ -29,6 +29,7 @@ from abyss.common.messages import Message, SimTime, decode, encode
 
 log = logging.getLogger(__name__)
 POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this often [wall s]
+GUARD_WALL_S = 0.1  # a wait woken by ticks looks at its stop event at least this often [wall s]
 SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
 
 
@@ -89,8 +90,10 @@ WALL = Clock()
 class SimClock(Clock):
     """The simulation's time, from its ticks, extrapolated between two ticks at the speed seen so
     far but never past `horizon_s` after the latest (one control period: never past the next
-    tick), so that it never runs ahead of the simulation nor goes back. Before the first tick it
-    stands at 0: the stations' loops wait for the simulation to start."""
+    tick), so that it never runs ahead of the simulation nor goes back; with `horizon_s` 0 (`--speed
+    max`) it moves in whole periods, as lockstep's does. Before the first tick it stands at 0: the
+    stations' loops wait for the simulation to start. A wait on it is woken by the tick that ends
+    it (and the conditions given to `wake_on_tick` are notified on every tick), not by polling."""
 
     mode = "sim"
 
@@ -102,6 +105,8 @@ class SimClock(Clock):
         self._tick_wall_s: float | None = None
         self._latest_s = 0.0
         self._lock = threading.Lock()
+        self._ticked = threading.Condition()  # notified on every tick
+        self._woken: list[threading.Condition] = []  # others' conditions, notified on every tick
         self._loops: dict[str, float] = {}  # done up to, per loop [sim s]
         self.on_progress: Callable[[float], None] | None = None  # the slowest loop moved on
 
@@ -114,6 +119,13 @@ class SimClock(Clock):
                 seen = (sim_time_s - self._tick_s) / (wall_s - self._tick_wall_s)
                 self.speed += SPEED_SMOOTHING * (seen - self.speed)
             self._tick_s, self._tick_wall_s = sim_time_s, wall_s
+        for condition in (self._ticked, *self._woken):
+            with condition:
+                condition.notify_all()
+
+    def wake_on_tick(self, condition: threading.Condition) -> None:
+        """Notify `condition` on every tick (a thread that waits on it for this clock's time)."""
+        self._woken.append(condition)
 
     def now_s(self) -> float:
         with self._lock:
@@ -127,13 +139,17 @@ class SimClock(Clock):
 
     def wait(self, event: threading.Event, timeout_s: float) -> bool:
         deadline_s = self.now_s() + timeout_s
-        while (remaining_s := deadline_s - self.now_s()) > 0:
-            if event.wait(self.wall_timeout_s(remaining_s)):
-                return True
+        with self._ticked:
+            while not event.is_set() and (remaining_s := deadline_s - self.now_s()) > 0:
+                self._ticked.wait(self.wall_timeout_s(remaining_s))
         return event.is_set()
 
     def wall_timeout_s(self, timeout_s: float) -> float:
-        return min(max(0.0, timeout_s) / max(self.speed, 1e-3), POLL_WALL_S)
+        """Until the time extrapolated at the speed asked gets there (a tick wakes the waiter
+        sooner), at most GUARD_WALL_S; with no extrapolation, only a tick moves the time."""
+        if self.horizon_s > 0 and self._fixed_speed:
+            return min(max(0.0, timeout_s) / self.speed, GUARD_WALL_S)
+        return GUARD_WALL_S
 
     def progress_s(self) -> float:
         """How far every loop on this clock is done (the slowest's next tick)."""
@@ -290,8 +306,13 @@ class Holdback:
                 if now_wall_s >= repeat_s:
                     waiting()
                     repeat_s = now_wall_s + ProgressReport.REPEAT_WALL_S
-                self._cond.wait(POLL_WALL_S)
+                self._cond.wait(GUARD_WALL_S)  # woken by a report (notify), or to look at the silent
                 self.held_wall_s[laggard] += time.monotonic() - now_wall_s
+
+    def notify(self) -> None:
+        """Something `hold` waits for may have come (the simulation's own loops moved on)."""
+        with self._cond:
+            self._cond.notify_all()
 
     def status(self) -> dict[str, float]:
         with self._cond:

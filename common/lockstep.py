@@ -12,6 +12,13 @@ Time moves in whole control periods, and only when the simulation says so (`SimT
 
 The simulation, the master, steps to T + one period once every station is done with T.
 
+Phase 1 of T + one period does not wait for its tick: a station done with T delivers the next
+period's at once, as soon as each neighbour is done with T too (`Lockstep.deliver_ahead`: nothing
+is offered to it before then, and no neighbour reads an inbox for T any more), and the simulation
+says it is done with T once its physics has read its inputs, before it steps. So onboard's commands
+for the next period cross while the physics steps, and the tick's round trip is off the period's
+critical path; what is delivered, and when in simulated time, is what it was.
+
 Holds (`time.holds_s`) are where the testbed acts: before a hold's period the simulation waits,
 every station done with the period before, until the testbed releases it (`Holds`). In between,
 nothing moves: the testbed's fault lands on that period, a link changes there, a station killed
@@ -60,10 +67,12 @@ def declare_reports(
     station: str,
     take: Callable[[str, LockstepReport], None],
     reject: Reject,
-) -> tuple[zenoh.Publisher, zenoh.Subscriber]:
+    listens: Iterable[str] = ("*",),
+) -> tuple[zenoh.Publisher, list[zenoh.Subscriber]]:
     """`station`'s publisher of lockstep reports (blocking, express: a report is never dropped nor
-    held back), and a subscriber to every station's that hands each report that decodes to
-    `take(station, report)` (one that does not is rejected with its reason)."""
+    held back), and subscribers to the reports of `listens` (stations, or "*": every one's) that
+    hand each report that decodes to `take(station, report)` (one that does not is rejected with
+    its reason)."""
 
     def on_sample(sample: zenoh.Sample) -> None:
         got = station_message(sample, LockstepReport, reject)
@@ -73,7 +82,7 @@ def declare_reports(
     publisher = session.declare_publisher(
         keys.lockstep_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
     )
-    return publisher, session.declare_subscriber(keys.lockstep_key(system, "*"), on_sample)
+    return publisher, [session.declare_subscriber(keys.lockstep_key(system, s), on_sample) for s in listens]
 
 
 class LockstepClock(SimClock):
@@ -162,8 +171,9 @@ class Lockstep:
     `expects()`: the neighbours whose deliveries it waits for, each with the keys it listens to;
     `loops`: the loops the station will have (it runs no period before all of them are there,
     whatever their start-up takes); `holds_s` and `period_s`: where the epochs begin (see the
-    module); `boot`: the station's; `before_hold`: what it does before a hold (its recording
-    flushed)."""
+    module); `end_s`: the run's end; `boot`: the station's; `before_hold`: what it does before a
+    hold (its recording flushed); `listens`: the stations whose reports it hears (its
+    neighbours; the simulation, which waits for every station, all of them)."""
 
     def __init__(
         self,
@@ -179,11 +189,15 @@ class Lockstep:
         reject: Reject,
         holds_s: tuple[float, ...] = (),
         period_s: float = 0.0,
+        end_s: float = 0.0,
         boot: int = 0,
         before_hold: Callable[[], None] = lambda: None,
+        listens: Iterable[str] = ("*",),
     ) -> None:
         self.system, self.station, self.clock, self.stop = system, station, clock, stop
-        self.holds_s, self.period_s, self.boot, self.before_hold = holds_s, period_s, boot, before_hold
+        self.holds_s, self.period_s, self.end_s = holds_s, period_s, end_s
+        self.boot, self.before_hold = boot, before_hold
+        self._ahead_s = -math.inf  # the period whose deliveries were made ahead (deliver_ahead)
         self._delivered_base: Counter[str] = Counter()  # this station's deliveries before the epoch
         self._arrived_base: Counter[str] = Counter()  # and its neighbours', that it verified
         self._last_delivered: Counter[str] = Counter()  # its deliveries so far
@@ -194,7 +208,9 @@ class Lockstep:
         self._cond = threading.Condition()
         self._reports: dict[tuple[str, str], tuple[float, dict[str, float]]] = {}  # (station, phase)
         self._seq = 0
-        self._publisher, self._subscriber = declare_reports(session, system, station, self._take, reject)
+        self._publisher, self._subscribers = declare_reports(
+            session, system, station, self._take, reject, listens
+        )
         self._last: dict[str, tuple[float, dict[str, float]]] = {}  # per phase: the latest report
         self._repeater = threading.Thread(target=self._repeat, name="lockstep reports", daemon=True)
         self._repeater.start()
@@ -296,6 +312,37 @@ class Lockstep:
         return self.wait_for(f"the testbed's release at t={t_s:.2f} s", released)
 
     # -- a period ------------------------------------------------------------------------
+    def _deliver(self, t_s: float) -> None:
+        """Phase 1 of period `t_s`: the links deliver what is due by then, and say how much."""
+        self._last_delivered = self.deliver_due(t_s)
+        self.report(
+            t_s,
+            "delivered",
+            {key: float(n - self._delivered_base[key]) for key, n in self._last_delivered.items()},
+        )
+
+    def deliver_ahead(self, t_s: float) -> bool:
+        """Done with period `t_s`, deliver the next one's now rather than on its tick, once every
+        neighbour is done with `t_s` too (none then reads an inbox for `t_s` any more, and this
+        station offers nothing more before the next period): the tick's round trip leaves the
+        critical path, and a neighbour's inputs are there when its period begins. Not into a
+        hold's period (the testbed acts there first) nor past the run's end; False once `stop`
+        is set."""
+        next_s = t_s + self.period_s
+        if self.hold_at(next_s) or (self.end_s and next_s >= self.end_s - TICK_TOLERANCE_S):
+            return not self.stop.is_set()
+        neighbours = sorted(self.expects())
+        if not self.wait_for(
+            f"{', '.join(neighbours)} done at t={t_s:.2f} s",
+            lambda: all(
+                self._reports.get((n, "done"), (-math.inf,))[0] >= t_s - TICK_TOLERANCE_S for n in neighbours
+            ),
+        ):
+            return False
+        self._deliver(next_s)
+        self._ahead_s = next_s
+        return True
+
     def period(self, t_s: float, waiting: Callable[[], None] = lambda: None) -> bool:
         """Phases 1-3 of period `t_s` (without the report that it is done: the simulation's
         physics comes after its loops); False once `stop` is set."""
@@ -309,12 +356,8 @@ class Lockstep:
             self._new_epoch()
         self._ran = True
         self.clock.set_period(t_s)
-        self._last_delivered = self.deliver_due(t_s)
-        self.report(
-            t_s,
-            "delivered",
-            {key: float(n - self._delivered_base[key]) for key, n in self._last_delivered.items()},
-        )
+        if abs(self._ahead_s - t_s) > TICK_TOLERANCE_S:  # not delivered ahead (deliver_ahead)
+            self._deliver(t_s)
 
         expects = self.expects()
         verified: dict[str, float] = {}
@@ -340,16 +383,17 @@ class Lockstep:
         self.clock.run_loops(t_s, self.stop)
         return not self.stop.is_set()
 
-    def run(self, end_s: float = 0.0) -> None:
+    def run(self) -> None:
         """A station's driver: ready once its loops are there, then each period the simulation
-        announces, in order, then done; none from `end_s` on (the run's end: the simulation
-        tells it, and holds still). A restarted station runs its first period at a hold (the
-        testbed lets it in there); its recording is flushed before each hold."""
+        announces, in order, then done, and the next period's deliveries made ahead; none from
+        `end_s` on (the run's end: the simulation tells it, and holds still). A restarted
+        station runs its first period at a hold (the testbed lets it in there); its recording
+        is flushed before each hold."""
         if not self.wait_for("its loops", lambda: self.loops <= self.clock.loops()):
             return
         self.report(0.0, "ready")
         while (t_s := self.clock.next_tick(self.stop)) is not None:
-            if end_s and t_s >= end_s - TICK_TOLERANCE_S:
+            if self.end_s and t_s >= self.end_s - TICK_TOLERANCE_S:
                 continue
             if self.boot and not self._ran and not self.hold_at(t_s):
                 continue  # restarted between holds: it waits for the next (see the module)
@@ -358,9 +402,12 @@ class Lockstep:
             if self.hold_at(t_s + self.period_s):
                 self.before_hold()
             self.report(t_s, "done")
+            if not self.deliver_ahead(t_s):
+                return
 
     def close(self) -> None:
-        self._subscriber.undeclare()
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
         self._publisher.undeclare()
 
 
@@ -372,7 +419,7 @@ class Holds:
         self._cond = threading.Condition()
         self._latest: dict[tuple[str, str], LockstepReport] = {}
         self._boot: Counter[str] = Counter()  # each station's latest boot heard
-        self._publisher, self._subscriber = declare_reports(session, system, TESTBED, self._take, reject)
+        self._publisher, self._subscribers = declare_reports(session, system, TESTBED, self._take, reject)
         self._seq = 0
 
     def _take(self, station: str, report: LockstepReport) -> None:
@@ -437,5 +484,6 @@ class Holds:
         self.wait(f"the simulation to go on from t={t_s:g} s", gone_on, alive, timeout_s)
 
     def close(self) -> None:
-        self._subscriber.undeclare()
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
         self._publisher.undeclare()

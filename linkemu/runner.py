@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.clock import WALL, Clock
+from abyss.common.clock import WALL, Clock, SimClock
 from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
 from abyss.linkemu.link import Delivery, Link, Offer
@@ -50,6 +50,8 @@ class LinkRunner:
         self._cond = threading.Condition()
         self._closed = False
         self._thread = threading.Thread(target=self._loop, name=f"link-{name}", daemon=True)
+        if isinstance(clock, SimClock) and not self.driven:
+            clock.wake_on_tick(self._cond)  # a delivery due by a tick is made on it
         if not self.driven:
             self._thread.start()
 

@@ -7,6 +7,7 @@ import faulthandler
 import importlib
 import json
 import logging
+import math
 import os
 import signal
 import socket
@@ -137,9 +138,7 @@ class Shell:
             )
             self._clock_closers.append(self.bus.lockstep.close)
             if name != "simulation":  # the simulation's physics is lockstep's master, and runs its own
-                threading.Thread(
-                    target=self.bus.lockstep.run, args=(config.time.end_s,), name="lockstep", daemon=True
-                ).start()
+                threading.Thread(target=self.bus.lockstep.run, name="lockstep", daemon=True).start()
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
 
     def status(self) -> dict[str, Any]:
@@ -183,7 +182,10 @@ def station_clock(
     clock = (
         LockstepClock()
         if config.time.mode == "lockstep"
-        else SimClock(config.simulation.control_period_s, config.time.speed_factor)
+        else SimClock(
+            config.simulation.control_period_s if math.isfinite(config.time.speed_factor) else 0.0,
+            config.time.speed_factor,
+        )
     )
     if name == "simulation":
         return clock, []
@@ -226,8 +228,10 @@ def station_lockstep(
         bus.reject,
         holds_s=config.time.holds_s,
         period_s=config.simulation.control_period_s,
+        end_s=config.time.end_s,
         boot=int(os.environ.get(BOOT_ENV, "0")),
         before_hold=recorder.flush if recorder is not None else lambda: None,
+        listens=("*",) if name == "simulation" else tuple(keys.hops_of(name).values()),
     )
     bus.on_arrival = lockstep.notify
     return lockstep

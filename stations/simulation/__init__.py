@@ -112,6 +112,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         v, a = vehicle.fresh(sim.command_timeout_s), arm.fresh(sim.command_timeout_s)  # watchdog
         refs = references(v.message if v else None, a.message if a else None)
         stepped_from_s = world.data.time
+        keeper.inputs_taken(stepped_from_s)
         with lock:
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
@@ -162,6 +163,9 @@ class Timekeeper:
             if self.clock is not None
             else None
         )
+        if self.holdback is not None and self.clock is not None:
+            holdback = self.holdback
+            self.clock.on_progress = lambda _t_s: holdback.notify()  # its own cameras' and sonar's
         self.waited_wall_s = 0.0  # lockstep: for the stations to finish their periods
         if self.time.simulated and self.lockstep is None:
             self.tell(start_s)  # a resumed simulation starts where it was (lockstep: at its period)
@@ -191,6 +195,12 @@ class Timekeeper:
             self.holdback.hold(t_s, self.bus.stop, self.clock, lambda: self.tell(t_s))
             self.rate.forgive()  # its deadlines: keeping the speed asked while it is not held back
         return not self.bus.stop.is_set()
+
+    def inputs_taken(self, t_s: float) -> None:
+        """Lockstep: the physics has read its inputs for the period `t_s`, so onboard may deliver
+        the next period's while it steps (Lockstep.deliver_ahead)."""
+        if self.lockstep is not None:
+            self.lockstep.report(t_s, "done")
 
     def after_step(self, from_s: float, to_s: float) -> bool:
         """The step from `from_s` to `to_s` is done: tell, or wait until every station is done with

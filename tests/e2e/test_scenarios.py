@@ -43,6 +43,20 @@ VERDICTS: dict[str, set[str]] = {
 }
 
 
+# the library on `--time sim --speed max` (lag window: time.max_lag_s): one of each kind the
+# simulated clock runs (a mission done, a station killed and restarted, links changed by timed
+# events, a mission meant to stay incomplete), two systems at once
+SIM_MAX = ("nominal", "vessel-crash", "satellite-storm", "valve-seized")
+
+
+def words_of(junit: Path) -> dict[str, str]:
+    """Per scenario: its run's verdict word."""
+    return {
+        c.get("name", ""): c.find("properties/property[@name='verdict']").get("value", "")  # type: ignore[union-attr]
+        for c in ET.parse(junit).getroot().iter("testcase")
+    }
+
+
 def verdicts(junit: Path) -> dict[str, tuple[str, ...]]:
     """Per scenario: 'passed', or the messages of its failure."""
     cases = ET.parse(junit).getroot().iter("testcase")
@@ -74,10 +88,7 @@ def test_the_library_passes_with_systems_in_parallel(
     assert done.returncode == 0, done.stdout[-6000:] + done.stderr
     assert f"{len(SELF_CONTAINED)}/{len(SELF_CONTAINED)} scenarios passed" in done.stdout
     assert set(verdicts(out / "junit.xml").values()) == {("passed",)}
-    words = {
-        c.get("name"): c.find("properties/property[@name='verdict']").get("value")  # type: ignore[union-attr]
-        for c in ET.parse(out / "junit.xml").getroot().iter("testcase")
-    }
+    words = words_of(out / "junit.xml")
     assert set(words) == set(VERDICTS), sorted(words)
     assert all(words[name] in verdicts for name, verdicts in VERDICTS.items()), words
     # the scenario meant to fail failed on exactly the assertions it names, and the others held
@@ -142,6 +153,19 @@ def test_an_external_station_started_by_hand(abyss_system, tmp_path: Path) -> No
         own.wait(timeout=30)
     assert result.passed, [(v.assertion.kind, v.detail) for v in result.verdicts] + [result.error]
     assert '"external": true' in (result.out_dir / "summary.json").read_text()
+
+
+@pytest.mark.timeout(600)
+def test_the_library_at_max_simulated_speed_ends_with_real_times_verdicts(tmp_path: Path) -> None:
+    files = [str(ROOT / "scenarios" / f"{name}.toml") for name in SIM_MAX]
+    done = abyss("scenario", "run", *files, "--time", "sim", "--speed", "max", "--parallel", "2",
+                 "--report", "rep", "--junit", "rep/junit.xml", timeout_s=560, cwd=tmp_path)  # fmt: skip
+    assert done.returncode == 0, done.stdout[-6000:] + done.stderr
+    words = words_of(tmp_path / "rep" / "junit.xml")
+    assert all(words[name] in VERDICTS[name] for name in SIM_MAX), words
+    for summary in (tmp_path / "rep" / "runs").glob("*/summary.json"):  # each on the simulated clock
+        timing = json.loads(summary.read_text())["time"]
+        assert timing["mode"] == "sim" and timing["speed"] == "max", (summary, timing)
 
 
 PHASE_KILLS = sorted((ROOT / "campaigns" / "scenarios").glob("*-killed-in-*.toml"))

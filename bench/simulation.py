@@ -1,18 +1,22 @@
 """Simulation figures: physics step time and real-time factor (headless, no cameras; the
-dynamic low level with Fossen's marine model and with MuJoCo's ellipsoids, each against its
-floor, a bare mj_step of the same model, in the same run), stereo + depth rendering time at
-640x480 and the camera rate it allows, and the station loop with cameras at several rates, as the
-share of control deadlines met.
+dynamic low level with each marine model: Fossen's on the hull with the strip model on the arm (the
+default) or MuJoCo's ellipsoids on the arm, and MuJoCo's ellipsoids on both, each against its floor,
+a bare mj_step of the same model, in the same run), the arm's reference trajectories under the strip
+model against MuJoCo's ellipsoids (tests/stations/simulation/test_arm_hydrodynamics.py's, and those
+where the two differ by construction), stereo + depth rendering time at 640x480 and the camera rate
+it allows, and the station loop with cameras at several rates, as the share of control deadlines met.
 Run: .venv/bin/python bench/simulation.py [--physics] (--physics: the physics figures alone).
 Prints figures; asserts nothing."""
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -26,7 +30,7 @@ from abyss.common import keys  # noqa: E402
 from abyss.common.bus import open_session, zenoh_config  # noqa: E402
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.messages import SimulationStatus, decode  # noqa: E402
-from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.common.models import ARM_JOINTS, CAMERAS  # noqa: E402
 from abyss.stations.runtime import free_port  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.lowlevel import References  # noqa: E402
@@ -34,11 +38,17 @@ from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
 
 
-def physics(low_level: str, hydrodynamics: str = "fossen", seconds: float = 20.0, chunks: int = 10) -> float:
-    """Wall time per physics step [s]: the fastest of `chunks` slices of the run (the least disturbed
-    by other work), each followed by as many bare mj_step calls of the same model from the same
-    state (the dynamic low level's floor: MuJoCo alone, no Python per step)."""
-    config = SimulationConfig(low_level=low_level, hydrodynamics=hydrodynamics)
+def physics(
+    low_level: str,
+    hydrodynamics: str = "fossen",
+    arm: str = "strips",
+    seconds: float = 10.0,
+    chunks: int = 10,
+) -> tuple[float, float]:
+    """Wall time per physics step [s], and that of a bare mj_step of the same model (the dynamic low
+    level's floor: MuJoCo alone, no Python per step): the fastest of `chunks` slices of the run (the
+    least disturbed by other work), each followed by as many bare mj_step calls from the same state."""
+    config = SimulationConfig(low_level=low_level, hydrodynamics=hydrodynamics, arm_hydrodynamics=arm)
     world = World(config, np.random.default_rng(0))
     refs = References(np.array([0.3, 0.1, 0.0, 0.1]), np.full(6, 0.05), 0.0)
     periods = round(seconds / chunks / config.control_period_s)
@@ -56,21 +66,37 @@ def physics(low_level: str, hydrodynamics: str = "fossen", seconds: float = 20.0
             mujoco.mj_step(world.model, bare_data)
         bare_s.append((time.perf_counter() - t0) / steps)
     per_step, bare = min(step_s), min(bare_s)
-    marine = f", {hydrodynamics}" if low_level == "dynamic" else ""
+    dt = config.physics_step_s
+    marine = f", {hydrodynamics} + {arm}" if low_level == "dynamic" else ""
     floor = (
-        (
-            f"; bare mj_step {bare * 1e6:.1f} us (real-time factor {config.physics_step_s / bare:.1f}), "
-            f"ratio {per_step / bare:.2f}x"
-        )
+        f"; bare mj_step {bare * 1e6:.1f} us (real-time factor {dt / bare:.1f}), ratio {per_step / bare:.2f}x"
         if low_level == "dynamic"
         else ""
     )
     print(
-        f"physics, {low_level + marine:<18}: {per_step * 1e6:7.1f} us per "
-        f"{config.physics_step_s * 1e3:g} ms step, real-time factor {config.physics_step_s / per_step:6.1f}"
-        f"{floor} (headless, no cameras)"
+        f"physics, {low_level + marine:<30}: {per_step * 1e6:6.1f} us per {dt * 1e3:g} ms step, "
+        f"real-time factor {dt / per_step:6.1f}{floor} (headless, no cameras)"
     )
-    return per_step
+    return per_step, bare
+
+
+def arm_trajectories() -> None:
+    """The arm's reference trajectories, the strip model against MuJoCo's ellipsoids: per case the
+    largest difference of a joint's angle against the trajectory's range (the test's metric)."""
+    path = Path(__file__).parents[1] / "tests" / "stations" / "simulation" / "test_arm_hydrodynamics.py"
+    spec = importlib.util.spec_from_file_location("test_arm_hydrodynamics", path)
+    assert spec is not None and spec.loader is not None
+    reference = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(reference)
+    for title, cases in (
+        ("held to 5 % by the test", reference.REFERENCE_SET),
+        ("different by construction", reference.DIFFERENT_BY_CONSTRUCTION),
+    ):
+        figures = []
+        for name, case in cases.items():
+            error = reference.differences(case)
+            figures.append(f"{name} {error.max():.1%} ({ARM_JOINTS[int(np.argmax(error))]})")
+        print(f"  arm trajectories, strips against ellipsoids, {title}: " + "; ".join(figures))
 
 
 def rendering(frames: int = 20) -> float:
@@ -145,9 +171,12 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--physics", action="store_true", help="the physics figures alone")
     args = parser.parse_args()
-    fossen, ellipsoid = physics("dynamic", "fossen"), physics("dynamic", "ellipsoid")
-    print(f"  Fossen's model costs {fossen / ellipsoid:.2f}x MuJoCo's ellipsoids per step")
+    strips, _ = physics("dynamic", "fossen", "strips")
+    ellipsoids, _ = physics("dynamic", "fossen", "ellipsoid")
+    physics("dynamic", "ellipsoid", "ellipsoid")
+    print(f"  the strip model on the arm costs {strips / ellipsoids:.2f}x MuJoCo's ellipsoids per step")
     physics("kinematic")
+    arm_trajectories()
     if args.physics:
         sys.exit(0)
     rendering()

@@ -19,6 +19,8 @@ Water = Literal["none", "I", "IA", "IB", "II", "III", "1C", "3C", "5C", "7C", "9
 WATER_TYPES: tuple[Water, ...] = typing.get_args(Water)
 Hydrodynamics = Literal["fossen", "ellipsoid"]
 HYDRODYNAMICS: tuple[Hydrodynamics, ...] = typing.get_args(Hydrodynamics)
+ArmHydrodynamics = Literal["strips", "ellipsoid"]
+ARM_HYDRODYNAMICS: tuple[ArmHydrodynamics, ...] = typing.get_args(ArmHydrodynamics)
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,9 @@ class SimulationConfig:
     # the vehicle's marine model: "fossen" (the vehicle file's coefficients) or "ellipsoid"
     # (MuJoCo's fluid model of its hull's geoms); the vehicle file also describes its thrusters
     hydrodynamics: Hydrodynamics = "fossen"
+    # the arm's (and gripper's) marine model: "strips" (strip theory per link, the testbed's own:
+    # stations/simulation/links.py) or "ellipsoid" (MuJoCo's fluid model of their geoms, slower)
+    arm_hydrodynamics: ArmHydrodynamics = "strips"
     vehicle_file: str = ""  # "" is robot.xml's own, common/models/robot.toml
     # the current: a profile of rows (z [m, world], vx, vy, vz [m/s, world]), linear in between and
     # held beyond its ends, plus a first-order Gauss-Markov process on each horizontal component
@@ -93,6 +98,7 @@ class SimulationConfig:
                 raise ConfigError("simulation.vehicle_file", f"no such file: {vehicle_file.resolve()}")
             object.__setattr__(self, "vehicle_file", str(vehicle_file.resolve()))
         one_of("simulation.hydrodynamics", self.hydrodynamics, HYDRODYNAMICS)
+        one_of("simulation.arm_hydrodynamics", self.arm_hydrodynamics, ARM_HYDRODYNAMICS)
         for row in self.current_profile:
             if len(row) != 4 or not all(math.isfinite(v) and abs(v) < 1e4 for v in row):
                 raise ConfigError("simulation.current_profile", f"{list(row)}: rows of [z_m, vx, vy, vz]")

@@ -1,7 +1,7 @@
-"""What MuJoCo's fluid model leaves out: buoyancy at the centre of volume of each wet body (the
-arm's links; the hull's too under the ellipsoid model, hydrodynamics.py carries it under Fossen's),
-and the current: the water's velocity, which MuJoCo's drag uses as its `wind` and Fossen's model as
-the water the vehicle moves relative to."""
+"""The water, and what no drag model carries: its density; buoyancy at the centre of volume of each wet
+body (the arm's links; the hull's too under MuJoCo's ellipsoid model, hydrodynamics.py carries it
+under Fossen's); and the current: the water's velocity, which Fossen's model of the hull and the
+links' strip model (links.py) move relative to, and MuJoCo's ellipsoids take as their `wind`."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ import math
 
 import mujoco
 import numpy as np
+
+WATER_DENSITY_KGPM3 = 1025.0  # sea water; world.xml's option density for MuJoCo's ellipsoids says the same
 
 
 def geom_volume_m3(kind: int, size: np.ndarray) -> float:
@@ -26,19 +28,27 @@ def geom_volume_m3(kind: int, size: np.ndarray) -> float:
     return 0.0
 
 
-class Buoyancy:
-    """rho * g * V upwards at the centre of volume of every body with wet geoms (those
-    with MuJoCo's ellipsoid fluid model enabled), but the `dry` bodies (whose buoyancy is
-    another model's)."""
+def wet_geoms(model: mujoco.MjModel) -> np.ndarray:
+    """(ngeom,) bool: the wet geoms, those of robot.xml's class "wet" (MuJoCo's ellipsoid fluid
+    shape is on for them, whichever model then carries their drag)."""
+    return model.geom_fluid[:, 0] > 0.0
 
-    def __init__(self, model: mujoco.MjModel, dry: tuple[str, ...] = ()) -> None:
-        self.rho_kgpm3 = float(model.opt.density)
+
+class Buoyancy:
+    """rho * g * V upwards at the centre of volume of every body with wet geoms, but the `dry`
+    bodies (whose buoyancy is another model's)."""
+
+    def __init__(
+        self, model: mujoco.MjModel, dry: tuple[str, ...] = (), rho_kgpm3: float = WATER_DENSITY_KGPM3
+    ) -> None:
+        self.rho_kgpm3 = rho_kgpm3
         self.g_mps2 = float(-model.opt.gravity[2])
         volumes = np.zeros(model.nbody)
         moments = np.zeros((model.nbody, 3))
         dry_bodies = {model.body(name).id for name in dry}
+        wet = wet_geoms(model)
         for g in range(model.ngeom):
-            if model.geom_fluid[g, 0] <= 0.0 or model.geom_bodyid[g] in dry_bodies:  # not wet
+            if not wet[g] or model.geom_bodyid[g] in dry_bodies:
                 continue
             v = geom_volume_m3(model.geom_type[g], model.geom_size[g])
             b = model.geom_bodyid[g]
@@ -81,6 +91,8 @@ class Current:
         rows = np.array(sorted(profile) or [(0.0, 0.0, 0.0, 0.0)], dtype=float)
         self.depths_m, self.mean_mps = rows[:, 0], rows[:, 1:]
         self._mean_by_axis = [self.mean_mps[:, k].copy() for k in range(3)]
+        # the same mean at every depth (no profile, the default, or a uniform one): no interpolation
+        self._uniform = self.mean_mps[0].copy() if np.all(self.mean_mps == self.mean_mps[0]) else None
         self.sigma_mps = sigma_mps
         self.time_constant_s = time_constant_s
         self.rng = rng
@@ -88,7 +100,10 @@ class Current:
         self._time_s = 0.0
 
     def velocity_mps_world(self, z_m_world: float) -> np.ndarray:
-        velocity = np.array([np.interp(z_m_world, self.depths_m, mean) for mean in self._mean_by_axis])
+        if self._uniform is not None:
+            velocity = self._uniform.copy()
+        else:
+            velocity = np.array([np.interp(z_m_world, self.depths_m, mean) for mean in self._mean_by_axis])
         velocity[:2] += self.gauss_markov_mps
         return velocity
 

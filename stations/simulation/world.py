@@ -31,8 +31,9 @@ from abyss.common.models import (
 )
 from abyss.common.runfiles import write_whole
 from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
+from abyss.stations.simulation.links import Links
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
-from abyss.stations.simulation.marine import Buoyancy, Current
+from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
 from abyss.stations.simulation.navigation import DvlBeams, Navigation
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
@@ -75,10 +76,38 @@ class World:
             )
         self.controller = LOW_LEVELS[config.low_level](self.model, gains, self.vehicle)
         self.plant = self.controller.plant
+        rho = WATER_DENSITY_KGPM3
         self.hydrodynamics: Fossen | None = None
         if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
-            self.hydrodynamics = Fossen(self.model, self.vehicle)
-        self.buoyancy = Buoyancy(self.model, dry=() if self.hydrodynamics is None else ("vehicle",))
+            self.hydrodynamics = Fossen(self.model, self.vehicle, rho_kgpm3=rho)
+        self.buoyancy = Buoyancy(
+            self.model, dry=() if self.hydrodynamics is None else ("vehicle",), rho_kgpm3=rho
+        )
+        self.links: Links | None = None
+        wet = wet_geoms(self.model)
+        if config.arm_hydrodynamics == "strips":  # the strip model replaces the links' ellipsoids
+            vehicle = self.model.body("vehicle").id
+            arm = sorted({int(b) for b in self.model.geom_bodyid[wet]} - {vehicle})
+            try:
+                self.links = Links(self.model, arm, self.buoyancy, wet)
+            except ValueError as exc:  # a wet geom of a shape it has no member for
+                raise ConfigError(
+                    "simulation.arm_hydrodynamics", f"strips: {exc} ('ellipsoid' takes any)"
+                ) from exc
+            # kept off MuJoCo's fluid model; their fluid shape stays on, so that they do not fall back
+            # to its inertia-box drag where the hull keeps MuJoCo's model
+            self.model.geom_fluid[np.isin(self.model.geom_bodyid, arm) & wet, 1:] = 0.0
+        # the links' model applies their buoyancy with their drag, in one pass
+        self._buoyancy_apart = self.links is None or not set(self.buoyancy.bodies) <= set(self.links.bodies)
+        # MuJoCo's fluid model, where it still carries a part: its passive forces and their
+        # derivatives cost more than the rest of a physics step, so it is off entirely otherwise
+        # (the panel's valves and levers, with no fluid shape, lose its inertia-box drag then: 0.005
+        # and 0.02 N m at 2 rad/s, against their friction of 1.5 and 3 N m)
+        self._mujoco_fluid = self.hydrodynamics is None or self.links is None
+        if self._mujoco_fluid:
+            self.model.opt.density = rho
+        else:
+            self.model.opt.density = self.model.opt.viscosity = 0.0
         self.current = Current(
             config.current_profile, config.current_sigma_mps, config.current_time_constant_s, rng
         )
@@ -112,29 +141,47 @@ class World:
 
     def step(self, refs: References, period_s: float) -> None:
         """Advance by `period_s` [s] (a whole number of physics steps)."""
-        dt = self.model.opt.timestep
+        m, d = self.model, self.data
+        dt = m.opt.timestep
         every = round(self.config.low_level_period_s / dt)
+        if not self.controller.dynamics:  # kinematic: positions follow the velocities exactly
+            for i in range(round(period_s / dt)):
+                if i % every == 0:
+                    self.controller.apply(d, refs, dt * every)
+                d.qvel[self._passive_dofs] = 0.0  # nothing else moves
+                mujoco.mj_integratePos(m, d.qpos, d.qvel, dt)
+                d.time += dt
+            mujoco.mj_forward(m, d)
+            return
+        fossen, links = self.hydrodynamics, self.links
+        step1, factor, step2 = mujoco.mj_step1, mujoco.mj_factorM, mujoco.mj_step2
         for i in range(round(period_s / dt)):
             if i % every == 0:  # the low level runs at its own rate; its outputs hold between
-                self.controller.apply(self.data, refs, dt * every)
-                if self.controller.dynamics:
-                    self.current.advance(self.data.time)
-                    depth_z_m = self.data.qpos[self.plant.qpos + 2]
-                    self.water_mps_world = self.current.velocity_mps_world(depth_z_m)
-                    self.model.opt.wind[:] = self.water_mps_world  # for the arm's drag
-                    self.buoyancy.apply(self.data)
-            if self.hydrodynamics is not None and self.controller.dynamics:
-                mujoco.mj_step1(self.model, self.data)
-                self.hydrodynamics.apply(self.model, self.data, self.water_mps_world)
-                mujoco.mj_step2(self.model, self.data)
-            elif self.controller.dynamics:
-                mujoco.mj_step(self.model, self.data)
-            else:  # kinematic: positions follow the velocities exactly; nothing else moves
-                self.data.qvel[self._passive_dofs] = 0.0
-                mujoco.mj_integratePos(self.model, self.data.qpos, self.data.qvel, dt)
-                self.data.time += dt
-        if not self.controller.dynamics:
-            mujoco.mj_forward(self.model, self.data)
+                self._low_level(refs, dt * every)
+            if fossen is None and links is None:  # MuJoCo's fluid model alone: no Python per step
+                mujoco.mj_step(m, d)
+                continue
+            # the added masses go into MuJoCo's inertia between its two halves of a step
+            step1(m, d)
+            if fossen is not None:
+                fossen.apply(m, d, self.water_mps_world, factor=False)
+            if links is not None:
+                links.add_mass(d)
+            factor(m, d)
+            step2(m, d)
+
+    def _low_level(self, refs: References, period_s: float) -> None:
+        """The controllers, the current, and the marine forces held until the next update."""
+        d = self.data
+        self.controller.apply(d, refs, period_s)
+        self.current.advance(d.time)
+        self.water_mps_world = self.current.velocity_mps_world(d.qpos[self.plant.qpos + 2])
+        if self._mujoco_fluid:
+            self.model.opt.wind[:] = self.water_mps_world  # for MuJoCo's drag
+        if self._buoyancy_apart:
+            self.buoyancy.apply(d)
+        if self.links is not None:  # after the buoyancy: it sets its links' whole xfrc_applied
+            self.links.apply(d, self.water_mps_world)
 
     # -- outputs -------------------------------------------------------------------------
     def truth(self) -> NavState:

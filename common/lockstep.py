@@ -50,7 +50,7 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from abyss.common import keys
-from abyss.common.clock import POLL_WALL_S, Reject, SimClock, station_message
+from abyss.common.clock import GUARD_WALL_S, POLL_WALL_S, Reject, SimClock, station_message
 from abyss.common.errors import AbyssError
 from abyss.common.messages import LockstepReport, encode
 
@@ -92,7 +92,11 @@ class LockstepClock(SimClock):
 
     def __init__(self) -> None:
         super().__init__(horizon_s=0.0)
-        self._turns = threading.Condition()
+        # one lock; the driver waits on _turns (a tick, a loop handing its turn back), each loop on
+        # a condition of its own, so that a turn wakes the one thread it is for
+        self._turn_lock = threading.RLock()
+        self._turns = threading.Condition(self._turn_lock)
+        self._turn_of: dict[str, threading.Condition] = {}
         self._due_s: dict[str, float] = {}  # each loop: the time it waits for
         self._turn: str | None = None  # the loop whose turn it is
         self.ticks: list[float] = []  # the periods the simulation announced, not yet run
@@ -123,17 +127,25 @@ class LockstepClock(SimClock):
     def enter(self, loop: str, t_s: float, stop: threading.Event) -> None:
         self.sleep_until(loop, t_s, stop)
 
+    def _condition_of(self, loop: str) -> threading.Condition:
+        """`loop`'s own condition (under the one lock: call with it held)."""
+        condition = self._turn_of.get(loop)
+        if condition is None:
+            condition = self._turn_of[loop] = threading.Condition(self._turn_lock)
+        return condition
+
     def sleep_until(self, loop: str, t_s: float, stop: threading.Event) -> bool:
         """Wait for `loop`'s turn in the first period at or after `t_s`: False once `stop` is set."""
         with self._turns:
             self._due_s[loop] = t_s
+            own = self._condition_of(loop)
             if self._turn == loop:
                 self._turn = None
-                self._turns.notify_all()
+                self._turns.notify_all()  # the driver
             while not stop.is_set():
                 if self._turn == loop:
                     return True
-                self._turns.wait(POLL_WALL_S)
+                own.wait(GUARD_WALL_S)
             return False
 
     def loops(self) -> set[str]:
@@ -150,9 +162,9 @@ class LockstepClock(SimClock):
                     return
                 loop = due[0]
                 self._turn = loop
-                self._turns.notify_all()
+                self._condition_of(loop).notify_all()
                 while self._turn == loop and not stop.is_set():
-                    self._turns.wait(POLL_WALL_S)
+                    self._turns.wait(GUARD_WALL_S)
                 self._turn = None
 
     def next_tick(self, stop: threading.Event) -> float | None:
@@ -161,7 +173,7 @@ class LockstepClock(SimClock):
             while not self.ticks:
                 if stop.is_set():
                     return None
-                self._turns.wait(POLL_WALL_S)
+                self._turns.wait(GUARD_WALL_S)
             return self.ticks.pop(0)
 
 
@@ -259,7 +271,7 @@ class Lockstep:
     def wait_for(
         self, what: str, ready: Callable[[], bool], waiting: Callable[[], None] = lambda: None
     ) -> bool:
-        """Block until `ready()` (checked on every report and every POLL_WALL_S), calling `waiting`
+        """Block until `ready()` (checked on every report and every GUARD_WALL_S), calling `waiting`
         every REPEAT_WALL_S; False once `stop` is set. A long wait is logged once."""
         started_s = time.monotonic()
         repeat_s, warned = started_s + REPEAT_WALL_S, False
@@ -274,7 +286,7 @@ class Lockstep:
                 if not warned and now_s - started_s > WAIT_WARN_WALL_S:
                     warned = True
                     log.warning("%s: waiting %.0f s for %s", self.station, WAIT_WARN_WALL_S, what)
-                self._cond.wait(POLL_WALL_S)
+                self._cond.wait(GUARD_WALL_S)
         return True
 
     # -- holds and epochs -----------------------------------------------------------------

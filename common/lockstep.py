@@ -70,9 +70,9 @@ def declare_reports(
     listens: Iterable[str] = ("*",),
 ) -> tuple[zenoh.Publisher, list[zenoh.Subscriber]]:
     """`station`'s publisher of lockstep reports (blocking, express: a report is never dropped nor
-    held back), and subscribers to the reports of `listens` (stations, or "*": every one's) that
-    hand each report that decodes to `take(station, report)` (one that does not is rejected with
-    its reason)."""
+    held back; to the other sessions only), and subscribers to the reports of `listens`
+    (stations, or "*": every one's) that hand each report that decodes to `take(station,
+    report)` (one that does not is rejected with its reason)."""
 
     def on_sample(sample: zenoh.Sample) -> None:
         got = station_message(sample, LockstepReport, reject)
@@ -80,7 +80,10 @@ def declare_reports(
             take(*got)
 
     publisher = session.declare_publisher(
-        keys.lockstep_key(system, station), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        keys.lockstep_key(system, station),
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        express=True,
+        allowed_destination=zenoh.Locality.REMOTE,  # not back to its own subscribers: a callback saved
     )
     return publisher, [session.declare_subscriber(keys.lockstep_key(system, s), on_sample) for s in listens]
 

@@ -1,9 +1,10 @@
-"""The cost of a simulated second: the default mission (`abyss up`) on each time source, the CPU
-each station spent (its sensor processes included: the summary's `cpu_s`) per simulated second,
-split into its start-up (to the first tick) and its run, and the speed achieved; alone and at two
-systems at once. With --baseline REV, the same runs of that revision (`git archive REV`) in the
-same sitting, and the ratios, so that a change is measured against what it changed and not
-against another day's load.
+"""The cost of a simulated second: the default mission (`abyss up`, as a user runs it, rerun's
+recording saved) on each time source, the CPU each station spent per simulated second from its
+session's opening (its sensor processes included: the summary's `cpu_s`), their total, the whole
+run's process tree's (the launcher, imports and start-up too: what a campaign pays per run), and
+the speed achieved; alone and at two systems at once. With --baseline REV, the same runs of that
+revision (`git archive REV`) in the same sitting, and the ratios, so that a change is measured
+against what it changed and not against another day's load.
 
 Run: .venv/bin/python bench/cost.py [--times lockstep,max,real] [--systems 1,2] [--baseline REV]
      [--duration S]. Prints figures; asserts nothing."""
@@ -55,7 +56,7 @@ def source_tree(revision: str, into: Path) -> Path:
 
 def one_run(python_path: Path | None, time_source: str, out: Path, port: int, duration_s: float) -> Run:
     """The default mission on `time_source` (real, lockstep or max: `--time sim --speed max`)."""
-    command = [sys.executable, "-m", "abyss.cli", "up", "--viewer", "none", "--out", str(out)]
+    command = [sys.executable, "-m", "abyss.cli", "up", "--out", str(out)]  # as a user runs it: rerun saved
     command += ["--port", str(port), "--system", f"cost-{port}", "--duration", f"{duration_s:g}"]
     command += {"real": [], "lockstep": ["--time", "lockstep"], "max": ["--time", "sim", "--speed", "max"]}[
         time_source

@@ -105,6 +105,47 @@ def test_a_named_loop_on_simulated_time_keeps_its_period_and_says_how_far_it_is(
     assert reported[-1] <= ticks_at_s[-1] < reported[-1] + 0.1
 
 
+def test_at_max_speed_the_time_moves_on_ticks_alone_and_each_wakes_what_waits_for_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`--speed max`: whole periods, no extrapolation; a wait (a loop's, an emulated link's) is
+    ended by the tick that reaches it, not found by polling: with the guard set to a minute,
+    only a tick can wake them."""
+    monkeypatch.setattr("abyss.common.clock.GUARD_WALL_S", 60.0)
+    clock = SimClock(0.0, speed=float("inf"))
+    stop = threading.Event()
+    clock.tick(1.0)
+    time.sleep(0.1)
+    assert clock.now_s() == 1.0  # no extrapolation between ticks
+    woke: list[float] = []
+
+    def wait_a_tenth() -> None:  # of a simulated second, as a loop does
+        clock.wait(stop, 0.1)
+        woke.append(clock.now_s())
+
+    waiter = threading.Thread(target=wait_a_tenth, daemon=True)
+    waiter.start()
+    delivered: list[float] = []
+    runner = LinkRunner(
+        "tether", profile("tether"), lambda _tag, _payload: delivered.append(clock.now_s()),
+        np.random.default_rng(1), clock=clock,
+    )  # fmt: skip
+    try:
+        runner.send(b"x" * 100, block=True, tag=0)  # due 90-110 ms on
+        clock.tick(1.05)
+        time.sleep(0.3)
+        assert not woke and not delivered  # neither is due at 1.05
+        clock.tick(1.15)
+        waiter.join(5.0)
+        deadline = time.monotonic() + 5.0
+        while not delivered and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert woke == [1.15] and delivered == [1.15]  # each on the tick that reached it
+    finally:
+        stop.set()
+        runner.close()
+
+
 def test_an_emulated_link_on_simulated_time_delays_by_its_profile_in_simulated_time(
     ticking: tuple[SimClock, Ticker],
 ) -> None:

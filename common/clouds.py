@@ -18,16 +18,33 @@ def voxel_downsample(
     """One point per occupied voxel: the mean of its points and of their colours."""
     if len(points_m) == 0:
         return points_m.reshape(0, 3), colors.reshape(0, 3)
-    cells = np.floor(points_m / voxel_m).astype(np.int64)
-    cells -= cells.min(axis=0)
-    if np.any(cells.max(axis=0) >= 1 << 21):
+    columns = np.ascontiguousarray(points_m.T)  # x, y, z each contiguous: the passes below run along them
+    cells = np.floor(columns / voxel_m).astype(np.int64)
+    cells -= cells.min(axis=1, keepdims=True)
+    if np.any(cells.max(axis=1) >= 1 << 21):
         raise ValueError(f"a cloud spans more than {(1 << 21) * voxel_m:g} m; split it first")
-    packed = (cells[:, 0] << 42) | (cells[:, 1] << 21) | cells[:, 2]  # one int64 per voxel
-    _, inverse, counts = np.unique(packed, return_inverse=True, return_counts=True)
-    columns = np.column_stack((points_m, colors.astype(np.float64)))
-    sums = np.column_stack([np.bincount(inverse, weights=c, minlength=len(counts)) for c in columns.T])
+    packed = (cells[0] << 42) | (cells[1] << 21) | cells[2]  # one int64 per voxel
+    inverse, counts = _voxels_of(packed)
+    sums = np.column_stack(
+        [np.bincount(inverse, weights=c, minlength=len(counts)) for c in (*columns, *colors.T)]
+    )
     means = sums / counts[:, None]
     return means[:, :3], np.round(means[:, 3:]).astype(np.uint8)
+
+
+def _voxels_of(packed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """np.unique(packed, return_inverse=True, return_counts=True) less the values: each key's
+    index among the sorted distinct keys, and each distinct key's count. By a stable sort, which
+    runs through a cloud made from an image's rows (runs of one voxel) several times faster
+    than np.unique's."""
+    order = np.argsort(packed, kind="stable")
+    ordered = packed[order]
+    first = np.empty(len(packed), bool)
+    first[0] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=first[1:])
+    inverse = np.empty(len(packed), np.intp)
+    inverse[order] = np.cumsum(first) - 1
+    return inverse, np.diff(np.append(np.flatnonzero(first), len(packed)))
 
 
 def pack_cloud(

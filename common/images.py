@@ -26,7 +26,9 @@ def decode_image(image: Image) -> np.ndarray:
     if image.encoding == "png16":
         if pixels.dtype != np.uint16 or pixels.ndim != 2:
             raise BadInput(f"{image.camera}: depth is not a 16-bit single-channel PNG")
-        return pixels.astype(np.float32) * DEPTH_SCALE_M
+        depth_m = pixels.astype(np.float32)
+        depth_m *= DEPTH_SCALE_M
+        return depth_m
     return cv2.cvtColor(pixels, cv2.COLOR_BGR2RGB)
 
 

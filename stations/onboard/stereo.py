@@ -84,8 +84,10 @@ def texture_of(grey: np.ndarray, block_px: int, smoothing_px: int = 5) -> np.nda
         image = cv2.GaussianBlur(image, (smoothing_px, smoothing_px), 0)
     size = (block_px, block_px)
     mean = cv2.boxFilter(image, -1, size, borderType=cv2.BORDER_REFLECT)
-    mean_of_squares = cv2.boxFilter(image * image, -1, size, borderType=cv2.BORDER_REFLECT)
-    return np.sqrt(np.maximum(mean_of_squares - mean * mean, 0.0))
+    variance: np.ndarray = cv2.boxFilter(image * image, -1, size, borderType=cv2.BORDER_REFLECT)
+    variance -= np.multiply(mean, mean, out=mean)
+    np.maximum(variance, 0.0, out=variance)
+    return np.sqrt(variance, out=variance)
 
 
 def disparity_edges(disparity_px: np.ndarray, valid: np.ndarray, block_px: int, step_px: float) -> np.ndarray:
@@ -146,11 +148,17 @@ def left_right_consistent(
 ) -> np.ndarray:
     """Where the right image's disparity (of the pair `ratio` times smaller, in its pixels) at
     the pixel each left disparity [px] points to is found and within `max_diff_px` of it [px]."""
-    rows, cols = np.indices(disparity_px.shape)
     height_px, width_px = right_disparity_px.shape
-    # a pixel's centre x lies at (x + 0.5) / ratio - 0.5 in the shrunk image (Camera.scaled)
-    target = np.rint((cols - disparity_px + 0.5) / ratio - 0.5).astype(np.int64)
-    back_px = right_disparity_px[np.minimum(rows // ratio, height_px - 1), np.clip(target, 0, width_px - 1)]
+    # a pixel's centre x lies at (x + 0.5) / ratio - 0.5 in the shrunk image (Camera.scaled);
+    # the column index broadcast along the rows, the row index along the columns, in place
+    target = np.arange(disparity_px.shape[1], dtype=np.float64) - disparity_px
+    target += 0.5
+    target /= ratio
+    target -= 0.5
+    np.rint(target, out=target)
+    np.clip(target, 0, width_px - 1, out=target)
+    rows = np.minimum(np.arange(disparity_px.shape[0]) // ratio, height_px - 1)
+    back_px = right_disparity_px[rows[:, None], target.astype(np.intp)]
     return (back_px > 0.5) & (np.abs(ratio * back_px - disparity_px) <= max_diff_px)
 
 

@@ -13,7 +13,9 @@ from abyss.stations.simulation.rendering import Cameras
 def encode_image(cameras: Cameras, data: object, camera: str, jpeg_quality: int) -> Image:
     intrinsics = cameras.intrinsics(camera)
     if camera == "cam_depth":
-        depth_mm = np.clip(cameras.depth_m(data, camera) / DEPTH_SCALE_M, 0, 65535).astype(np.uint16)
+        depth = cameras.depth_m(data, camera)  # a fresh array: to millimetres in place
+        np.divide(depth, DEPTH_SCALE_M, out=depth)
+        depth_mm = np.clip(depth, 0, 65535, out=depth).astype(np.uint16)
         ok, buffer = cv2.imencode(".png", depth_mm)
         if not ok:
             raise RuntimeError(f"OpenCV could not encode the {camera} frame")

@@ -171,8 +171,8 @@ class Fossen:
         if np.count_nonzero(vehicle.added_mass - np.diag(np.diag(vehicle.added_mass))) == 0:
             self._diagonal = np.diag(vehicle.added_mass).tolist()
             pairs = list(zip(self._rows, self._columns, strict=True))
-            wanted = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2), (3, 3), (4, 4), (5, 5)]
-            self._diagonal_entries = self._entries[[pairs.index(p) for p in wanted]]
+            changed = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2), (3, 3), (4, 4), (5, 5)]
+            self._diagonal_entries = self._entries[[pairs.index(p) for p in changed]]
         rho = float(model.opt.density) if rho_kgpm3 is None else rho_kgpm3
         self.buoyancy_n = float(rho * -model.opt.gravity[2] * vehicle.volume_m3)
         # MuJoCo's own fluid forces kept off the body: a body with no ellipsoid geom falls back to

@@ -225,9 +225,9 @@ class Links:
         for i, b in enumerate(self.bodies):
             for g in np.flatnonzero((model.geom_bodyid == b) & wet):
                 axis, strips = _member(int(model.geom_type[g]), model.geom_size[g], rho, coefficients)
-                rotation = np.empty(9)
-                mujoco.mju_quat2Mat(rotation, model.geom_quat[g])
-                rotation = rotation.reshape(3, 3)  # geom to body
+                flat_rotation = np.empty(9)
+                mujoco.mju_quat2Mat(flat_rotation, model.geom_quat[g])
+                rotation = flat_rotation.reshape(3, 3)  # geom to body
                 order = [(axis + 1) % 3, (axis + 2) % 3, axis]  # the strip frame: across, across, along
                 frame = rotation[:, order].T  # rows e_1, e_2, a in the body frame
                 share = 1.0 / len(strips.s_m)  # of the axial terms: the strips all move alike along it
@@ -243,8 +243,8 @@ class Links:
         self.strips = n
         self._drag = np.array(drag)  # (n, 3) [N s^2/m^2]
         q = np.zeros((3 * n, 6 * nb))  # all strips' Q_k, block by block
-        for k, (row, i) in enumerate(zip(rows, owner, strict=True)):
-            q[3 * k : 3 * k + 3, 6 * i : 6 * i + 6] = row
+        for k, (strip_rows, i) in enumerate(zip(rows, owner, strict=True)):
+            q[3 * k : 3 * k + 3, 6 * i : 6 * i + 6] = strip_rows
         self._q, self._q_t = q, np.ascontiguousarray(q.T)
         m = np.array(mass).ravel()
         self._added_mass = q.T @ (m[:, None] * q)  # sum_k Q_k^T diag(m_k) Q_k: block-diagonal
@@ -252,7 +252,7 @@ class Links:
             [self._added_mass[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(nb)]
         )
         self.added_inertia = added_inertia
-        self._kirchhoff = np.array([_kirchhoff(a) for a in self.added_mass])  # (nb, 6, 36)
+        self._kirchhoff = np.array([_kirchhoff(m) for m in self.added_mass])  # (nb, 6, 36)
         # buoyancy, rho g V up at the centre of volume c: (f, c x f) = G (rho g V R^T e_z), about the
         # centre of mass
         index = [list(buoyancy.bodies).index(b) for b in self.bodies]
@@ -273,12 +273,12 @@ class Links:
             row = int(self.dofs[a])
             start, count = model.M_rowadr[row], model.M_rownnz[row]
             columns = list(model.M_colind[start : start + count])
-            for c in range(a + 1):
-                column = int(self.dofs[c])
+            for k in range(a + 1):
+                column = int(self.dofs[k])
                 if column in columns:
                     entries.append(start + columns.index(column))
-                    flat.append(a * nd + c)
-                elif (self._mask[:, 0, a] * self._mask[:, 0, c]).any():
+                    flat.append(a * nd + k)
+                elif (self._mask[:, 0, a] * self._mask[:, 0, k]).any():
                     raise ValueError(
                         f"dofs {row} and {column} move one link but share no entry of MuJoCo's inertia"
                     )

@@ -36,6 +36,7 @@ scene: bright near the lamps, a few pixels across, denser in turbid types) and s
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -110,13 +111,60 @@ class Lamp:
     def irradiance(self, points_m_camera: np.ndarray, attenuation_per_m: np.ndarray) -> np.ndarray:
         """Irradiance at the points (..., 3) per channel (..., 3), relative to that at REFERENCE_M
         on the axis in air: cone, inverse square, the water on the way."""
-        to_point = points_m_camera - np.asarray(self.position_m_camera, np.float32)
-        distance_m = np.maximum(np.sqrt(np.einsum("...i,...i->...", to_point, to_point)), np.float32(0.05))
-        cos = (to_point @ np.asarray(self.direction_camera, np.float32)) / distance_m
+        geometric, distance_m = self._falloff(points_m_camera)
+        water = distance_m[..., None] * attenuation_per_m
+        np.negative(water, out=water)
+        np.exp(water, out=water)
+        water *= geometric[..., None]
+        return water.astype(np.float32, copy=False)
+
+    def irradiance_planes(self, points_m_camera: np.ndarray, attenuation_per_m: np.ndarray) -> np.ndarray:
+        """The same per channel first (3, ...): each channel's plane in one contiguous pass."""
+        geometric, distance_m = self._falloff(points_m_camera)
+        water = np.multiply.outer(attenuation_per_m, distance_m)
+        np.negative(water, out=water)
+        np.exp(water, out=water)
+        water *= geometric
+        return water.astype(np.float32, copy=False)
+
+    def _falloff(self, points_m_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cone and the inverse square (relative to REFERENCE_M) at each point (...), and its
+        distance from the lamp [m]; each step in place where the arrays allow it."""
+        position = np.asarray(self.position_m_camera, np.float32)
+        to_point = np.empty(points_m_camera.shape, np.result_type(points_m_camera, position))
+        for i in range(3):  # a component at a time: no broadcast over the three
+            np.subtract(points_m_camera[..., i], position[i], out=to_point[..., i])
+        x, y, z = to_point[..., 0], to_point[..., 1], to_point[..., 2]
+        distance_m = x * x  # the squares summed in order, as np.einsum("...i,...i->...") sums them
+        distance_m += y * y
+        distance_m += z * z
+        np.sqrt(distance_m, out=distance_m)
+        np.maximum(distance_m, np.float32(0.05), out=distance_m)
+        cos = to_point @ np.asarray(self.direction_camera, np.float32)
+        del to_point
+        cos /= distance_m
         inside = cos > np.float32(np.cos(self.cutoff_rad))
-        cone = np.where(inside, np.maximum(cos, 0) ** np.float32(self.exponent), 0)
-        geometric = (cone * (np.float32(REFERENCE_M) / distance_m) ** 2)[..., None]
-        return (geometric * np.exp(-distance_m[..., None] * attenuation_per_m)).astype(np.float32)
+        cone = np.maximum(cos, 0, out=cos)
+        cone **= np.float32(self.exponent)
+        cone[~inside] = 0
+        geometric = np.float32(REFERENCE_M) / distance_m
+        geometric **= 2
+        geometric *= cone
+        return geometric, distance_m
+
+
+def lit(
+    lamps: tuple[Lamp, ...], points_m_camera: np.ndarray, attenuation_per_m: np.ndarray, planes: bool = False
+) -> np.ndarray | int:
+    """The lamps' irradiance summed (Lamp.irradiance, or irradiance_planes), 0 without lamps."""
+    total: np.ndarray | int = 0
+    for i, lamp in enumerate(lamps):
+        each = (lamp.irradiance_planes if planes else lamp.irradiance)(points_m_camera, attenuation_per_m)
+        if i == 0:
+            total = each
+        else:
+            total += each
+    return total
 
 
 def rays(intrinsics: Intrinsics, step_px: int = 1) -> np.ndarray:
@@ -129,9 +177,17 @@ def rays(intrinsics: Intrinsics, step_px: int = 1) -> np.ndarray:
     return (xyz / np.linalg.norm(xyz, axis=-1, keepdims=True)).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=8)
+def _rays_z(intrinsics: Intrinsics) -> np.ndarray:
+    """The rays' optical-axis components (h, w), made once per camera (read-only)."""
+    z = np.ascontiguousarray(rays(intrinsics)[..., 2])
+    z.flags.writeable = False
+    return z
+
+
 def range_of_depth(depth_m: np.ndarray, intrinsics: Intrinsics) -> np.ndarray:
     """Range [m] along each pixel's ray from depth [m] along the optical axis."""
-    return (depth_m / rays(intrinsics)[..., 2]).astype(np.float32)
+    return (depth_m / _rays_z(intrinsics)).astype(np.float32, copy=False)
 
 
 class Optics:
@@ -153,6 +209,8 @@ class Optics:
         self.beta_d = np.asarray(water.attenuation_per_m, np.float32)
         self.rays = rays(intrinsics)
         self.backscatter_inf, self.beta_b = self._backscatter(backscatter_step_px)
+        self._backscatter_inf_planes = np.ascontiguousarray(np.moveaxis(self.backscatter_inf, -1, 0))
+        self._minus_beta_b_planes = np.ascontiguousarray(np.moveaxis(-self.beta_b, -1, 0))
 
     def _backscatter(self, step_px: int) -> tuple[np.ndarray, np.ndarray]:
         """B_inf and beta_B per pixel and channel: the lamps' beams scattered into each ray,
@@ -161,7 +219,7 @@ class Optics:
         edges_m = np.geomspace(0.02, 60.0, 97, dtype=np.float32)
         s_m, ds_m = 0.5 * (edges_m[1:] + edges_m[:-1]), np.diff(edges_m)
         points = coarse[:, :, None, :] * s_m[:, None]  # (h, w, k, 3)
-        irradiance = sum(lamp.irradiance(points, self.beta_d) for lamp in self.lamps)
+        irradiance = lit(self.lamps, points, self.beta_d)
         scatter = (
             np.asarray(self.water.scattering_per_m, np.float32) * BACKSCATTER_PHASE_PER_SR / LAMBERT_WHITE
         )
@@ -179,22 +237,45 @@ class Optics:
     def radiance(self, rgb: np.ndarray, range_m: np.ndarray) -> np.ndarray:
         """The underwater radiance (h, w, 3) [1: a white face at REFERENCE_M in air] of the render
         `rgb` (h, w, 3, uint8) with `range_m` (h, w) along each ray."""
-        r = range_m.astype(np.float32)[..., None]
-        points = self.rays * r
-        irradiance = sum(lamp.irradiance(points, self.beta_d) for lamp in self.lamps)
-        direct = rgb.astype(np.float32) * (1.0 / 255) * irradiance * np.exp(-self.beta_d * r)
-        return direct + self.backscatter_inf * (1.0 - np.exp(-self.beta_b * r))
+        # I = J * E * exp(-beta_D r) + B_inf * (1 - exp(-beta_B r)), in that order, a channel's
+        # plane at a time (3, h, w) and in place: per-pixel factors broadcast over a contiguous
+        # plane, not over pixels' three channels (numpy's slowest case, 2-3 ms a pass here)
+        r = range_m.astype(np.float32, copy=False)
+        points = np.empty(self.rays.shape, np.result_type(self.rays, r))
+        for i in range(3):
+            np.multiply(self.rays[..., i], r, out=points[..., i])
+        irradiance = lit(self.lamps, points, self.beta_d, planes=True)
+        del points
+        direct = np.moveaxis(rgb, -1, 0).astype(np.float32)
+        direct *= 1.0 / 255
+        direct *= irradiance
+        del irradiance
+        attenuated = np.multiply.outer(-self.beta_d, r)
+        direct *= np.exp(attenuated, out=attenuated)
+        veil = self._minus_beta_b_planes * r
+        np.exp(veil, out=veil)
+        np.subtract(1.0, veil, out=veil)
+        veil *= self._backscatter_inf_planes
+        direct += veil
+        return np.ascontiguousarray(np.moveaxis(direct, 0, -1))
 
     def image(self, rgb: np.ndarray, range_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """What the camera takes (h, w, 3, uint8): the radiance with marine snow, exposed, with
         sensor noise."""
-        radiance = self.radiance(rgb, range_m) + self.snow(range_m, rng)
-        mean = float(radiance[::4, ::4].mean())
+        exposed = self.radiance(rgb, range_m)
+        exposed += self.snow(range_m, rng)
+        mean = float(exposed[::4, ::4].mean())
         gain = float(np.clip(EXPOSURE_TARGET / max(mean, 1e-6), *EXPOSURE_GAIN))
-        exposed = radiance * gain
-        sigma = np.sqrt((READ_NOISE * gain) ** 2 + SHOT_NOISE * exposed)
-        noisy = exposed + sigma * rng.standard_normal(exposed.shape, dtype=np.float32)
-        return np.clip(noisy * 255 + 0.5, 0, 255).astype(np.uint8)
+        exposed *= gain
+        sigma = exposed * SHOT_NOISE
+        sigma += (READ_NOISE * gain) ** 2
+        np.sqrt(sigma, out=sigma)
+        noisy = rng.standard_normal(exposed.shape, dtype=np.float32)
+        noisy *= sigma
+        noisy += exposed
+        noisy *= 255
+        noisy += 0.5
+        return np.clip(noisy, 0, 255, out=noisy).astype(np.uint8)
 
     def snow(self, range_m: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Marine snow (h, w, 3) in radiance: particles uniform in the view's volume out to
@@ -218,17 +299,18 @@ class Optics:
         points = np.stack((x, y, z), axis=1).astype(np.float32)
         distance_m = np.linalg.norm(points, axis=1)
         seen = distance_m < range_m[v, u]
-        lit = sum(lamp.irradiance(points, self.beta_d) for lamp in self.lamps)
-        brightness = 0.7 * lit * np.exp(-self.beta_d * distance_m[:, None])  # a pale particle
+        # a pale particle
+        brightness = 0.7 * lit(self.lamps, points, self.beta_d) * np.exp(-self.beta_d * distance_m[:, None])
         footprint_px = k.fx_px * diameter_m / z
         small = seen & (footprint_px < 2.0)
         big = seen & ~small
         # a small particle spreads over a pixel and its blur; a big one over its own footprint
         area = np.minimum(footprint_px[small], 1.0)[:, None] ** 2
         np.add.at(layer, (v[small], u[small]), brightness[small] * area)
-        layer = cv2.GaussianBlur(layer, (3, 3), 0.7) * 2.0
+        blurred: np.ndarray = cv2.GaussianBlur(layer, (3, 3), 0.7)
+        blurred *= 2.0
         if big.any():
             near_layer = np.zeros_like(layer)
             np.add.at(near_layer, (v[big], u[big]), brightness[big] * (footprint_px[big] ** 2)[:, None])
-            layer += cv2.GaussianBlur(near_layer, (0, 0), float(np.median(footprint_px[big])) / 2.5)
-        return layer
+            blurred += cv2.GaussianBlur(near_layer, (0, 0), float(np.median(footprint_px[big])) / 2.5)
+        return blurred

@@ -74,7 +74,11 @@ class Cameras:
     """RGB for the stereo pair, depth [m along the optical axis] for the depth camera. With a
     `water` type (optics.WATER_TYPES), each RGB frame goes through the underwater optics, with
     its range from a depth render of the same camera, instead of MuJoCo's fog; the depth camera
-    is a range sensor, which the water leaves alone."""
+    is a range sensor, which the water leaves alone.
+
+    One renderer (one GL context) makes every pass, its offscreen buffer the frames' size rather
+    than the model's offwidth x offheight (4x multisampled: clearing and resolving it cost more
+    than the frames' own pixels)."""
 
     def __init__(
         self,
@@ -88,12 +92,18 @@ class Cameras:
         import mujoco
 
         self.model = model
-        self.renderer = mujoco.Renderer(model, height_px, width_px)
-        self.depth_renderer = mujoco.Renderer(model, height_px, width_px)
-        self.depth_renderer.enable_depth_rendering()
-        for renderer in (self.renderer, self.depth_renderer):  # murky water: fog to the haze
-            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = water == "none"
-            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_HAZE] = water == "none"
+        self.width_px, self.height_px = width_px, height_px
+        visual = model.vis.global_  # type: ignore[attr-defined]
+        size = visual.offwidth, visual.offheight
+        visual.offwidth, visual.offheight = width_px, height_px  # read as the renderer makes its buffer
+        try:
+            self.renderer = mujoco.Renderer(model, height_px, width_px)
+        finally:
+            visual.offwidth, visual.offheight = size
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = (
+            water == "none"
+        )  # murky water: fog to the haze
+        self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_HAZE] = water == "none"
         self.blackout: set[str] = set()
         self.scene_option = mujoco.MjvOption()
         self.water, self.marine_snow = water, marine_snow
@@ -102,8 +112,8 @@ class Cameras:
 
     def intrinsics(self, camera: str) -> Intrinsics:
         return Intrinsics.from_fovy(
-            self.renderer.width,
-            self.renderer.height,
+            self.width_px,
+            self.height_px,
             float(self.model.camera(camera).fovy[0]),  # type: ignore[attr-defined]
         )
 
@@ -135,12 +145,13 @@ class Cameras:
 
     def plain_rgb(self, data: object, camera: str) -> np.ndarray:
         """MuJoCo's render, lit by the scene's lights, in air (or MuJoCo's fog without a water type)."""
+        self.renderer.disable_depth_rendering()
         self.renderer.update_scene(data, camera=camera, scene_option=self.scene_option)
-        return self.renderer.render().copy()
+        return self.renderer.render()
 
     def rgb(self, data: object, camera: str) -> np.ndarray:
         if camera in self.blackout:
-            return np.zeros((self.renderer.height, self.renderer.width, 3), np.uint8)
+            return np.zeros((self.height_px, self.width_px, 3), np.uint8)
         optics = self.optics(camera)
         if optics is None:
             return self.plain_rgb(data, camera)
@@ -150,14 +161,15 @@ class Cameras:
         return optics.image(self.plain_rgb(data, camera), range_m, self.rng)
 
     def depth_m(self, data: object, camera: str) -> np.ndarray:
+        """Depth [m along the optical axis], float32."""
         if camera in self.blackout:
-            return np.zeros((self.renderer.height, self.renderer.width), np.float32)
-        self.depth_renderer.update_scene(data, camera=camera, scene_option=self.scene_option)
-        return self.depth_renderer.render().astype(np.float32)
+            return np.zeros((self.height_px, self.width_px), np.float32)
+        self.renderer.enable_depth_rendering()
+        self.renderer.update_scene(data, camera=camera, scene_option=self.scene_option)
+        return self.renderer.render()
 
     def close(self) -> None:
         self.renderer.close()
-        self.depth_renderer.close()
 
 
 def lamps_of(model: object, camera: str) -> tuple[Lamp, ...]:

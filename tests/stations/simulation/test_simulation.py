@@ -165,6 +165,30 @@ def test_blacked_out_camera_renders_black(cameras: tuple[World, Cameras]) -> Non
     assert cams.rgb(w.data, "cam_right").max() > 0
 
 
+@pytest.mark.parametrize("water", ["none", "I"])
+def test_the_cameras_passes_are_mujocos_renderers_pixel_for_pixel(water: str) -> None:
+    """Cameras renders every pass with one renderer whose offscreen buffer is the frames' size:
+    what it reads back is what mujoco.Renderer makes with the model's own buffer, its RGB (with
+    the fog and haze the water type sets) and its depth pass, bit for bit."""
+    w = world()
+    cams = Cameras(w.model, 320, 240, water)
+    rgb, depth = mujoco.Renderer(w.model, 240, 320), mujoco.Renderer(w.model, 240, 320)
+    depth.enable_depth_rendering()
+    try:
+        for renderer in (rgb, depth):
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = water == "none"
+            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_HAZE] = water == "none"
+        for camera in ("cam_left", "cam_depth"):
+            for renderer in (rgb, depth):
+                renderer.update_scene(w.data, camera=camera)
+            assert np.array_equal(cams.plain_rgb(w.data, camera), rgb.render())
+            assert np.array_equal(cams.depth_m(w.data, camera), depth.render())
+    finally:
+        cams.close()
+        rgb.close()
+        depth.close()
+
+
 def camera_frame_point(w: World, cams: Cameras, camera: str, point_world: np.ndarray) -> np.ndarray:
     """The point in the camera's OpenCV frame, from the published extrinsics."""
     pose = cams.pose_in_vehicle(camera)

@@ -94,11 +94,11 @@ def main() -> None:
         model.insert(points, colors, first.sensor_m_world)
         insert_s = time.perf_counter() - t0
         vessel = SceneModel(resolution_m, 8.0, track_period_s=VesselConfig().scene_track_period_s)
-        vessel.insert(*clouds[0], now_s=0.0)  # the first walk: nothing is tracked yet
+        vessel.insert(*clouds[0], stamp_s=0.0)  # the first walk: nothing is tracked yet
         t0 = time.perf_counter()
         for i, cloud in enumerate(clouds[1:], start=1):
-            vessel.insert(*cloud, now_s=float(i))
-        vessel.track(now_s=float(len(clouds)))
+            vessel.insert(*cloud, stamp_s=float(i))
+        vessel.track(stamp_s=float(len(clouds)))
         amortised_s = (time.perf_counter() - t0) / (len(clouds) - 1)
         # the vessel's tree against pyoctomap's plain insertion of the same clouds
         ours, plain = iterate_leaves(vessel.tree, colors=True), iterate_leaves(bare(len(clouds)), colors=True)

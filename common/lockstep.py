@@ -219,6 +219,7 @@ class Lockstep:
         self._verified: dict[str, float] = {}  # per key: the neighbour's count it waited for, in the epoch
         self._ran = False  # a period
         self.deliver_due, self.arrived, self.expects = deliver_due, arrived, expects
+        self._neighbours = sorted(expects())  # the hop's stations: fixed, whatever keys it listens to
         self.loops = set(loops)
         self._cond = threading.Condition()
         self._reports: dict[tuple[str, str], tuple[float, dict[str, float]]] = {}  # (station, phase)
@@ -346,11 +347,11 @@ class Lockstep:
         next_s = t_s + self.period_s
         if self.hold_at(next_s) or (self.end_s and next_s >= self.end_s - TICK_TOLERANCE_S):
             return not self.stop.is_set()
-        neighbours = sorted(self.expects())
         if not self.wait_for(
-            f"{', '.join(neighbours)} done at t={t_s:.2f} s",
+            f"{', '.join(self._neighbours)} done at t={t_s:.2f} s",
             lambda: all(
-                self._reports.get((n, "done"), (-math.inf,))[0] >= t_s - TICK_TOLERANCE_S for n in neighbours
+                self._reports.get((n, "done"), (-math.inf,))[0] >= t_s - TICK_TOLERANCE_S
+                for n in self._neighbours
             ),
         ):
             return False

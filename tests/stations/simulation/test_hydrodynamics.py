@@ -268,3 +268,26 @@ def test_current_profile_and_gauss_markov_process() -> None:
     repeat = Current((), sigma, tau, np.random.default_rng(1))
     repeat.advance(0.5)
     assert np.allclose(repeat.velocity_mps_world(-8.0)[:2], x[0])
+
+
+def test_the_diagonal_added_masss_fast_path_is_the_general_equations() -> None:
+    """Fossen.apply on Python floats for a diagonal M_A gives the force and inertia of the
+    general path (wrench_n_body and the 6x6 products), turning, moving and in a current."""
+    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
+    fast, general = Fossen(model, vehicle), Fossen(model, vehicle)
+    general._diagonal = None  # the matrix path, as a vehicle with off-diagonal terms takes
+    assert fast._diagonal is not None
+    data = mujoco.MjData(model)
+    data.qpos[3:7] = np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3])
+    data.qvel[:6] = [0.4, -0.3, 0.2, 0.1, -0.15, 0.25]
+    current = np.array([0.2, -0.1, 0.05])
+    results = []
+    for fossen in (fast, general):
+        mujoco.mj_step1(model, data)
+        fossen.apply(model, data, current)
+        results.append((data.qfrc_applied[:6].copy(), data.M.copy()))
+    (f_fast, m_fast), (f_general, m_general) = results
+    assert f_fast == pytest.approx(f_general, rel=1e-12, abs=1e-9)
+    assert m_fast == pytest.approx(m_general, rel=1e-12, abs=1e-9)
+    assert np.abs(f_fast).max() > 1.0  # the state moves the water: a force to compare

@@ -16,3 +16,12 @@ THRUSTERS = ("thr_fl", "thr_fr", "thr_rl", "thr_rr", "thr_vl", "thr_vr")
 CAMERAS = ("cam_left", "cam_right", "cam_depth")
 NAV_SENSORS = ("usbl", "depth", "dvl", "imu")  # navigation sensors, as faults name them
 END_EFFECTOR_SITE = "ee"
+
+
+def stereo_set(sim_time_s: float, camera_rate_hz: float, stereo_every: int) -> bool:
+    """Whether the frame set taken at `sim_time_s` [s] is one the stereo matcher uses: every
+    `stereo_every`-th by the set's index on the simulated clock (sets at `camera_rate_hz`, the
+    index `round(t * rate)`, so a set taken a little early or late keeps its index), from the set
+    at index 1, the first onboard can place (at 0 s it has no navigation estimate yet). The
+    simulation renders cam_right for these sets alone, and onboard waits for it on these alone."""
+    return round(sim_time_s * camera_rate_hz) % stereo_every == 1 % stereo_every

@@ -107,7 +107,7 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     camera's image out, bad frames rejected and shed sets counted on the left camera's key."""
     from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets  # OpenCV's, on first use
 
-    core = FrameSets(config.onboard)
+    core = FrameSets(config.onboard, config.simulation.camera_rate_hz)
     inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in CAMERAS}
     key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
     # with simulated time, a frame set being worked on holds the simulation (common.clock)

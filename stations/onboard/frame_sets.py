@@ -2,13 +2,14 @@
 they were taken, each complete set made into clouds in the world frame with the navigation pose
 estimated for that instant, and the left frame sent on to the vessel at its own rate.
 
-A set is complete once it holds every frame the cloud sources need (cam_left, and cam_depth and
-cam_right for the depth and stereo sources). Only the newest complete set is worked on: complete
-sets not processed when a newer one came are shed, the oldest first, and counted. A set with no
-navigation estimate near its time is skipped. The stereo source runs on every `stereo_every`-th
-set taken. After each set the core rests in proportion to its work, so that it is busy
-`perception_max_busy` of the time at most (frames that come meanwhile wait; the newest set is
-taken)."""
+A set is complete once it holds every frame the cloud sources need: cam_left, cam_depth for the
+depth source, and cam_right for the stereo source on the sets it runs on, every `stereo_every`-th
+by the set's index on the simulated clock (common.models.stereo_set: the simulation renders
+cam_right on those alone). Only the newest complete set is worked on: complete sets not
+processed when a newer one came are shed, the oldest first, and counted. A set with no
+navigation estimate near its time is skipped. After each set the core rests in proportion to
+its work, so that it is busy `perception_max_busy` of the time at most (frames that come
+meanwhile wait; the newest set is taken)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from abyss.common.config.stations import OnboardConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image, encode_jpeg
 from abyss.common.messages import Image, PointCloud
+from abyss.common.models import stereo_set
 from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
@@ -52,16 +54,11 @@ class FrameSetOutputs:
 class FrameSets:
     """One perception step at a time: frames in, clouds and the camera image out."""
 
-    def __init__(self, cfg: OnboardConfig) -> None:
-        self.cfg = cfg
+    def __init__(self, cfg: OnboardConfig, camera_rate_hz: float) -> None:
+        self.cfg, self.camera_rate_hz = cfg, camera_rate_hz
         self.settings = CloudSettings.of(cfg)
-        self.needed = (
-            {"cam_left"}
-            | ({"cam_depth"} if "depth" in cfg.cloud_sources else set())
-            | ({"cam_right"} if "stereo" in cfg.cloud_sources else set())
-        )
+        self.needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set())
         self.sets: dict[float, dict[str, Image]] = {}  # sim time [s] -> camera -> frame
-        self.sets_taken = 0
         self.last_image_s = -float("inf")  # [s, this station's clock]
         self.resting_until_s = -float("inf")
         self._started_s: float | None = None  # when the set being worked on was taken
@@ -84,9 +81,7 @@ class FrameSets:
             out.skipped_s = t
             return out
         out.taken_s, self._started_s = t, now_s
-        stereo_now = self.sets_taken % self.cfg.stereo_every == 0
-        sources = tuple(s for s in self.cfg.cloud_sources if s != "stereo" or stereo_now)
-        self.sets_taken += 1
+        sources = tuple(s for s in self.cfg.cloud_sources if s != "stereo" or self._stereo(t))
         try:
             out.clouds = clouds_of(frames, pose, inputs.arm_m_world, sources, self.settings)
             out.image = self._image(frames["cam_left"], pose, now_s)
@@ -105,7 +100,7 @@ class FrameSets:
     def _newest_complete(self, out: FrameSetOutputs) -> float | None:
         """The sim time of the newest complete set, those older let go (complete ones counted
         as shed); None if none is complete."""
-        complete = [t for t, frames in self.sets.items() if self.needed <= set(frames)]
+        complete = [t for t, frames in self.sets.items() if self._needed(t) <= set(frames)]
         if not complete:
             for t in sorted(self.sets)[:-INCOMPLETE_KEPT]:
                 del self.sets[t]
@@ -115,6 +110,16 @@ class FrameSets:
         for older in [s for s in self.sets if s < newest]:
             del self.sets[older]
         return newest
+
+    def _stereo(self, t_s: float) -> bool:
+        """Whether the stereo source runs on the set taken at `t_s` [s]."""
+        return "stereo" in self.cfg.cloud_sources and stereo_set(
+            t_s, self.camera_rate_hz, self.cfg.stereo_every
+        )
+
+    def _needed(self, t_s: float) -> set[str]:
+        """The cameras the set taken at `t_s` [s] must hold to be complete."""
+        return self.needed | {"cam_right"} if self._stereo(t_s) else self.needed
 
     def _image(self, left: Image, pose: tuple[np.ndarray, np.ndarray], now_s: float) -> Image | None:
         """The left frame for the vessel, re-encoded with its pose in the world, at its rate."""

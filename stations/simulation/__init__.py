@@ -22,6 +22,7 @@ from abyss.common.config import Config
 from abyss.common.errors import BadInput
 from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
 from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
+from abyss.common.models import CAMERAS, stereo_set
 from abyss.common.workers import Realtime, Workers
 
 if TYPE_CHECKING:
@@ -252,7 +253,18 @@ def _sensor_loop(
         while rate.sleep():
             with lock:
                 state = state_of(world.data)
-            for topic, message in sensor.messages(state, blackout):
+            for topic, message in sensor.messages(state, blackout, cameras_of_set(config, state["time"])):
                 bus.publish(topic, message)
     finally:
         sensor.close()
+
+
+def cameras_of_set(config: Config, sim_time_s: float) -> tuple[str, ...]:
+    """The cameras rendered for the frame set taken at `sim_time_s` [s]: each at the rate it is
+    consumed, cam_right only on the sets onboard's stereo matcher uses (common.images.stereo_set),
+    and not at all without the stereo source."""
+    onboard = config.onboard
+    right = "stereo" in onboard.cloud_sources and stereo_set(
+        sim_time_s, config.simulation.camera_rate_hz, onboard.stereo_every
+    )
+    return tuple(camera for camera in CAMERAS if camera != "cam_right" or right)

@@ -83,18 +83,21 @@ class Offloaded:
             raise OffloadFailed(f"the {self.kind} process failed: {result}")
         return result
 
-    def frames(self, state: dict[str, Any], blackout: set[str]) -> Any:
-        """The cameras' Image messages at `state` (cameras in `blackout` dark)."""
-        return self._call("frames", state, set(blackout))
+    def frames(self, state: dict[str, Any], blackout: set[str], cameras: tuple[str, ...]) -> Any:
+        """The Image messages of `cameras` at `state` (cameras in `blackout` dark)."""
+        return self._call("frames", state, set(blackout), cameras)
 
     def ping(self, state: dict[str, Any]) -> Any:
         """The sonar's SonarImage at `state`."""
         return self._call("ping", state)
 
-    def messages(self, state: dict[str, Any], blackout: set[str]) -> list[tuple[str, Any]]:
-        """The sensor's messages at `state`, each with the topic it goes out on."""
+    def messages(
+        self, state: dict[str, Any], blackout: set[str], cameras: tuple[str, ...] = ()
+    ) -> list[tuple[str, Any]]:
+        """The sensor's messages at `state`, each with the topic it goes out on (the cameras':
+        those of `cameras`)."""
         if self.kind == "cameras":
-            return [(f"camera/{image.camera}", image) for image in self.frames(state, blackout)]
+            return [(f"camera/{image.camera}", image) for image in self.frames(state, blackout, cameras)]
         return [("sonar", self.ping(state))]
 
     def close(self) -> None:
@@ -138,13 +141,12 @@ class _Sensor:
         self.mujoco.mj_forward(self.model, self.data)
         return self.data
 
-    def frames(self, state: dict[str, Any], blackout: set[str]) -> list[Any]:
-        from abyss.common.models import CAMERAS
+    def frames(self, state: dict[str, Any], blackout: set[str], cameras: tuple[str, ...]) -> list[Any]:
         from abyss.stations.simulation.encoding import encode_image
 
         self.cameras.blackout = blackout
         data = self._at(state)
-        return [encode_image(self.cameras, data, camera, self.config.jpeg_quality) for camera in CAMERAS]
+        return [encode_image(self.cameras, data, camera, self.config.jpeg_quality) for camera in cameras]
 
     def ping(self, state: dict[str, Any]) -> Any:
         return self.sonar.message(self._at(state), self.rng)

@@ -1,7 +1,8 @@
 """Onboard's frame sets without Zenoh (frame_sets.FrameSets), on frames MuJoCo renders at the
 default mission's start, the panel ahead: the newest complete set is worked on and the older
-ones shed, a set with no pose estimate skipped, stereo every N sets, the image at its rate, the
-core resting after its work, frames that do not decode rejected with their reason."""
+ones shed, a set with no pose estimate skipped, stereo on every N-th set by its index (cam_right
+rendered for those alone), the image at its rate, the core resting after its work, frames that
+do not decode rejected with their reason."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from abyss.common.config import Config
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.images import decode_image
@@ -17,11 +19,13 @@ from abyss.common.messages import Image
 from abyss.common.models import CAMERAS
 from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets
 from abyss.stations.onboard.navigation import PoseHistory
+from abyss.stations.simulation import cameras_of_set
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
 
 DEPTH_ONLY = OnboardConfig(cloud_sources=("depth",))
+RATE_HZ = 1.0  # the cameras' (simulation.camera_rate_hz): a set's index is its time [s]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,7 +55,7 @@ def frames_at(scene: Scene, sim_time_s: float, cameras: tuple[str, ...] = CAMERA
 
 
 def test_of_several_complete_sets_only_the_newest_is_worked_on_and_the_others_are_shed(scene: Scene) -> None:
-    core = FrameSets(DEPTH_ONLY)
+    core = FrameSets(DEPTH_ONLY, RATE_HZ)
     frames = [
         *frames_at(scene, 1.0),
         *frames_at(scene, 1.1),
@@ -72,7 +76,7 @@ def test_of_several_complete_sets_only_the_newest_is_worked_on_and_the_others_ar
 
 
 def test_sets_that_never_complete_are_let_go_but_the_newest_few(scene: Scene) -> None:
-    core = FrameSets(DEPTH_ONLY)
+    core = FrameSets(DEPTH_ONLY, RATE_HZ)
     lonely = [frame for t in np.arange(1.0, 2.0, 0.1) for frame in frames_at(scene, float(t), ("cam_left",))]
     out = core.step(FrameSetInputs(lonely, scene.poses), 0.0)
     assert out.taken_s is None and out.shed == 0 and not out.clouds
@@ -80,32 +84,47 @@ def test_sets_that_never_complete_are_let_go_but_the_newest_few(scene: Scene) ->
 
 
 def test_a_set_without_a_navigation_estimate_is_skipped(scene: Scene) -> None:
-    core = FrameSets(OnboardConfig(stereo_every=2))
+    core = FrameSets(OnboardConfig(stereo_every=2), RATE_HZ)
     out = core.step(FrameSetInputs(frames_at(scene, 150.0), scene.poses), 0.0)  # the estimate ends at 99.5 s
     assert out.skipped_s == 150.0 and out.taken_s is None
     assert not out.clouds and out.image is None and not out.rejected and not core.sets
     out = core.step(FrameSetInputs(frames_at(scene, 99.6), scene.poses), 0.1)  # within the tolerance
     assert out.taken_s == 99.6 and out.skipped_s is None
-    assert [c.source for c in out.clouds] == ["depth", "stereo"]  # the skipped set was not counted
+    assert [c.source for c in out.clouds] == ["depth"]  # set 100: not one of the stereo matcher's
     out = core.step(FrameSetInputs(frames_at(scene, 5.0), PoseHistory()), 0.2)  # no estimate at all yet
     assert out.skipped_s == 5.0 and not out.clouds
 
 
-def test_stereo_runs_on_every_nth_set_taken(scene: Scene) -> None:
-    core = FrameSets(OnboardConfig(stereo_every=3))
+def test_stereo_runs_on_every_nth_set_by_its_index_and_only_those_sets_wait_for_the_right_camera(
+    scene: Scene,
+) -> None:
+    config = Config(
+        onboard=OnboardConfig(stereo_every=3), simulation=SimulationConfig(camera_rate_hz=RATE_HZ)
+    )
+    core = FrameSets(config.onboard, RATE_HZ)
     sources, counts = [], []
     for i in range(6):
-        out = core.step(FrameSetInputs(frames_at(scene, 1.0 + i), scene.poses), float(i))
+        t = 1.0 + i
+        rendered = cameras_of_set(config, t)  # what the simulation renders for the set
+        assert ("cam_right" in rendered) == (round(t) % 3 == 1)
+        without_right = [frame for frame in frames_at(scene, t, rendered) if frame[0] != "cam_right"]
+        out = core.step(FrameSetInputs(without_right, scene.poses), float(i))
+        if "cam_right" in rendered:  # a stereo set waits for its right frame
+            assert out.taken_s is None and set(core.sets) == {t}
+            out = core.step(FrameSetInputs(frames_at(scene, t, ("cam_right",)), scene.poses), float(i))
+        assert out.taken_s == t
         core.finished(float(i))
         sources.append(tuple(cloud.source for cloud in out.clouds))
         counts += [cloud.count for cloud in out.clouds]
     stereo_and_depth, depth = ("depth", "stereo"), ("depth",)
     assert sources == [stereo_and_depth, depth, depth, stereo_and_depth, depth, depth]
     assert min(counts) > 100  # the stereo clouds as well as the depth ones hold the panel's face
+    no_stereo = Config(onboard=DEPTH_ONLY)
+    assert all("cam_right" not in cameras_of_set(no_stereo, float(t)) for t in range(6))  # never consumed
 
 
 def test_the_image_goes_on_at_its_rate_placed_in_the_world(scene: Scene) -> None:
-    core = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=2.0))
+    core = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=2.0), RATE_HZ)
     sent = []
     for i, now_s in enumerate((0.0, 0.2, 0.4, 0.5, 0.9, 1.0, 1.1)):
         out = core.step(FrameSetInputs(frames_at(scene, 1.0 + i), scene.poses), now_s)
@@ -121,12 +140,12 @@ def test_the_image_goes_on_at_its_rate_placed_in_the_world(scene: Scene) -> None
     # the camera sits on the vehicle, which is where the pose estimate says
     position_m_world, _ = scene.poses.at(6.0)  # type: ignore[misc]
     assert 0.05 < np.linalg.norm(image.pose_camera[:3] - position_m_world) < 2.0
-    quiet = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=0.0))
+    quiet = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=0.0), RATE_HZ)
     assert quiet.step(FrameSetInputs(frames_at(scene, 1.0), scene.poses), 0.0).image is None
 
 
 def test_the_core_rests_after_a_set_so_as_to_be_busy_its_share_of_the_time(scene: Scene) -> None:
-    core = FrameSets(dataclasses.replace(DEPTH_ONLY, perception_max_busy=0.25))
+    core = FrameSets(dataclasses.replace(DEPTH_ONLY, perception_max_busy=0.25), RATE_HZ)
     assert core.step(FrameSetInputs(frames_at(scene, 1.0), scene.poses), 10.0).taken_s == 1.0
     core.finished(10.1)  # 0.1 s of work: rest until 10.4
     for now_s, t in ((10.2, 1.1), (10.35, 1.2)):
@@ -139,7 +158,7 @@ def test_the_core_rests_after_a_set_so_as_to_be_busy_its_share_of_the_time(scene
 def test_frames_that_do_not_decode_or_sit_in_the_wrong_frame_are_rejected_with_the_reason(
     scene: Scene,
 ) -> None:
-    core = FrameSets(DEPTH_ONLY)
+    core = FrameSets(DEPTH_ONLY, RATE_HZ)
     frames = frames_at(scene, 1.0)
     garbled = [(c, dataclasses.replace(f, data=b"not a jpeg") if c == "cam_left" else f) for c, f in frames]
     out = core.step(FrameSetInputs(garbled, scene.poses), 0.0)

@@ -62,10 +62,10 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
     offloaded = Offloaded("cameras", world.model, config, [7, 1])
     sonar = Offloaded("sonar", world.model, config, [7, 2])
     try:
-        there = offloaded.frames(state, set())
+        there = offloaded.frames(state, set(), CAMERAS)
         sonar.process.send_signal(signal.SIGINT)  # a Ctrl-C in the station's terminal: its station ends it
         ping_there = sonar.ping(state)
-        dark = offloaded.frames(state, {"cam_left"})
+        dark = offloaded.frames(state, {"cam_left"}, ("cam_left", "cam_depth"))  # a set without stereo
     finally:
         offloaded.close()
         sonar.close()
@@ -74,6 +74,7 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
     assert fields(ping_there) == fields(ping_here)
     assert there[0].sim_time_s == pytest.approx(world.data.time) and there[0].sim_time_s > 0
     assert dark[0].data != there[0].data  # a blacked-out camera is dark there too
+    assert [image.camera for image in dark] == ["cam_left", "cam_depth"]  # the cameras asked for alone
     assert children_cpu_s() > before_cpu_s  # what the children used counts in the station's CPU
     assert offloaded.process.returncode == 0 and sonar.process.returncode == 0  # closed, not killed
 

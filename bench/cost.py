@@ -7,7 +7,8 @@ revision (`git archive REV`) in the same sitting, and the ratios, so that a chan
 against what it changed and not against another day's load.
 
 Run: .venv/bin/python bench/cost.py [--times lockstep,max,real] [--systems 1,2] [--baseline REV]
-     [--duration S]. Prints figures; asserts nothing."""
+     [--duration S] [--repeats N] [--variant SECTION.FIELD=VALUE ...]. Prints figures; asserts
+     nothing."""
 
 from __future__ import annotations
 
@@ -25,6 +26,14 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 STATIONS = ("simulation", "onboard", "vessel", "onshore")
+
+
+@dataclass(frozen=True)
+class Tree:
+    """What runs: a package directory on PYTHONPATH (None: this checkout), with these settings."""
+
+    python_path: Path | None
+    fields: tuple[str, ...] = ()  # `abyss up --set` SECTION.FIELD=VALUE
 
 
 @dataclass(frozen=True)
@@ -54,14 +63,15 @@ def source_tree(revision: str, into: Path) -> Path:
     return into
 
 
-def one_run(python_path: Path | None, time_source: str, out: Path, port: int, duration_s: float) -> Run:
+def one_run(tree: Tree, time_source: str, out: Path, port: int, duration_s: float) -> Run:
     """The default mission on `time_source` (real, lockstep or max: `--time sim --speed max`)."""
     command = [sys.executable, "-m", "abyss.cli", "up", "--out", str(out)]  # as a user runs it: rerun saved
+    command += [arg for field in tree.fields for arg in ("--set", field)]
     command += ["--port", str(port), "--system", f"cost-{port}", "--duration", f"{duration_s:g}"]
     command += {"real": [], "lockstep": ["--time", "lockstep"], "max": ["--time", "sim", "--speed", "max"]}[
         time_source
     ]
-    env = dict(os.environ, **({"PYTHONPATH": str(python_path)} if python_path else {}))
+    env = dict(os.environ, **({"PYTHONPATH": str(tree.python_path)} if tree.python_path else {}))
     out.parent.mkdir(parents=True, exist_ok=True)
     process = subprocess.Popen(
         command, cwd=out.parent, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
@@ -77,13 +87,13 @@ def one_run(python_path: Path | None, time_source: str, out: Path, port: int, du
     return Run(summary["verdict"], sim_s, wall_s, cpu_s, usage.ru_utime + usage.ru_stime)
 
 
-def runs(python_path: Path | None, time_source: str, systems: int, tmp: Path, duration_s: float) -> list[Run]:
+def runs(tree: Tree, time_source: str, systems: int, tmp: Path, duration_s: float) -> list[Run]:
     """`systems` default missions at once."""
     outs = [tmp / f"{time_source}-{systems}-{i}-{time.monotonic_ns()}" for i in range(systems)]
     with ThreadPoolExecutor(systems) as pool:
         return list(
             pool.map(
-                lambda i: one_run(python_path, time_source, outs[i], 17447 + 10 * i, duration_s),
+                lambda i: one_run(tree, time_source, outs[i], 17447 + 10 * i, duration_s),
                 range(systems),
             )
         )
@@ -98,7 +108,7 @@ def line(label: str, results: list[Run]) -> dict[str, float]:
     speeds = ", ".join(f"x{r.speed:.2f}" for r in results)
     verdicts = ", ".join(r.verdict for r in results)
     cells = "  ".join(f"{per[s]:6.3f}" for s in STATIONS)
-    print(f"  {label:24s} {cells}  {total:6.3f}  {whole:6.3f}   {speeds} ({verdicts})", flush=True)
+    print(f"  {label:52s} {cells}  {total:6.3f}  {whole:6.3f}   {speeds} ({verdicts})", flush=True)
     return {**per, "total": total, "whole": whole, "speed": sum(r.speed for r in results) / len(results)}
 
 
@@ -108,29 +118,48 @@ def main() -> None:
     parser.add_argument("--systems", default="1,2", help="systems at once, e.g. 1,2")
     parser.add_argument("--baseline", default="", help="a git revision to measure in the same sitting")
     parser.add_argument("--duration", type=float, default=90.0, help="--duration of each run [s]")
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each, interleaved, pooled")
+    parser.add_argument(
+        "--variant",
+        action="append",
+        default=[],
+        metavar="SECTION.FIELD=VALUE",
+        help="also this checkout with this setting (`abyss up --set`), in the same sitting; repeatable",
+    )
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="abyss-cost-") as tmp_dir:
         tmp = Path(tmp_dir)
-        trees: dict[str, Path | None] = {"now": None}  # the installed package: this checkout
+        trees = {"now": Tree(None)}  # the installed package: this checkout
+        trees |= {f"now, {field}": Tree(None, (field,)) for field in args.variant}
         if args.baseline:
-            trees[args.baseline] = source_tree(args.baseline, tmp / "baseline")
+            trees[args.baseline] = Tree(source_tree(args.baseline, tmp / "baseline"))
         print(
             "core-s per simulated second: each station from its session's opening, with its sensor "
             "processes (summary.json's cpu_s), their total, and the whole run's process tree (the "
             "launcher, every import and start-up):"
         )
         print(
-            f"  {'':24s} "
+            f"  {'':52s} "
             + "  ".join(f"{s[:6]:>6s}" for s in STATIONS)
             + "   total   whole   speed (verdict)"
         )
         figures: dict[tuple[str, str, int], dict[str, float]] = {}
         for time_source in args.times.split(","):
             for systems in map(int, args.systems.split(",")):
-                for name, tree in trees.items():
+                done: dict[str, list[Run]] = {name: [] for name in trees}
+                for _ in range(args.repeats):  # interleaved: the machine's drift lands on each alike
+                    for name, tree in trees.items():
+                        done[name] += runs(tree, time_source, systems, tmp, args.duration)
+                for name, results in done.items():
                     label = f"{time_source}, {systems} at once, {name}"
-                    figures[(name, time_source, systems)] = line(
-                        label, runs(tree, time_source, systems, tmp, args.duration)
+                    figures[(name, time_source, systems)] = line(label, results)
+                now = figures[("now", time_source, systems)]
+                for name in (n for n in trees if n.startswith("now, ")):
+                    variant = figures[(name, time_source, systems)]
+                    print(
+                        f"  {'':52s} {name[5:]}/now: cost {variant['total'] / now['total']:.2f}, "
+                        f"speed {variant['speed'] / now['speed']:.2f}",
+                        flush=True,
                     )
                 if args.baseline:
                     now, before = (
@@ -138,7 +167,7 @@ def main() -> None:
                         figures[(args.baseline, time_source, systems)],
                     )
                     print(
-                        f"  {'':24s} now/before: cost {now['total'] / before['total']:.2f} (whole "
+                        f"  {'':52s} now/before: cost {now['total'] / before['total']:.2f} (whole "
                         f"{now['whole'] / before['whole']:.2f}), speed {now['speed'] / before['speed']:.2f}",
                         flush=True,
                     )

@@ -55,7 +55,7 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
     sim = config.simulation
     world = World(sim, np.random.default_rng(config.seed))
     path = np.array([[*sim.start_position_m_world, sim.start_yaw_rad], *config.mission.waypoints])
-    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px)
+    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, samples=sim.camera_samples)
     settings = CloudSettings(config.onboard.cloud_voxel_m, config.onboard.cloud_max_range_m)
     frames = []
     p = world.plant.qpos

@@ -21,6 +21,8 @@ Hydrodynamics = Literal["fossen", "ellipsoid"]
 HYDRODYNAMICS: tuple[Hydrodynamics, ...] = typing.get_args(Hydrodynamics)
 ArmHydrodynamics = Literal["strips", "ellipsoid"]
 ARM_HYDRODYNAMICS: tuple[ArmHydrodynamics, ...] = typing.get_args(ArmHydrodynamics)
+CameraSamples = Literal[0, 2, 4, 8]
+CAMERA_SAMPLES: tuple[CameraSamples, ...] = typing.get_args(CameraSamples)
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,10 @@ class SimulationConfig:
     camera_width_px: int = 640
     camera_height_px: int = 480
     jpeg_quality: int = 90
+    # the render's samples per pixel (multisampling: an edge's pixel mixes both sides, as a
+    # sensor's pixel integrates its area); 0: one, at about half the render's CPU on a software
+    # rasteriser, edges aliased (docs/performance.md has what it moves)
+    camera_samples: CameraSamples = 4
     # underwater optics on the RGB frames (stations/simulation/optics.py): a Jerlov water type
     # (WATER_TYPES, clearest first), or "none" for the plain render in MuJoCo's fog; marine snow
     # is a multiple of the water type's own (0: none)
@@ -151,6 +157,7 @@ class SimulationConfig:
         if not 1 <= self.jpeg_quality <= 100:
             raise ConfigError("simulation.jpeg_quality", f"{self.jpeg_quality} outside [1, 100]")
         one_of("simulation.water", self.water, WATER_TYPES)
+        one_of("simulation.camera_samples", self.camera_samples, CAMERA_SAMPLES)
         positive("simulation.marine_snow", self.marine_snow, allow_zero=True)
 
     def _check_periods(self) -> None:

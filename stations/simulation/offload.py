@@ -127,7 +127,13 @@ class _Sensor:
             from abyss.stations.simulation.rendering import Cameras
 
             self.cameras = Cameras(
-                model, config.camera_width_px, config.camera_height_px, config.water, config.marine_snow, rng
+                model,
+                config.camera_width_px,
+                config.camera_height_px,
+                config.water,
+                config.marine_snow,
+                rng,
+                config.camera_samples,
             )
         else:
             from abyss.stations.simulation.sonar import ImagingSonar

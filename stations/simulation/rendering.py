@@ -77,8 +77,8 @@ class Cameras:
     is a range sensor, which the water leaves alone.
 
     One renderer (one GL context) makes every pass, its offscreen buffer the frames' size rather
-    than the model's offwidth x offheight (4x multisampled: clearing and resolving it cost more
-    than the frames' own pixels)."""
+    than the model's offwidth x offheight (clearing and resolving that cost more than the frames'
+    own pixels), with `samples` per pixel (simulation.camera_samples)."""
 
     def __init__(
         self,
@@ -88,18 +88,20 @@ class Cameras:
         water: str = "none",
         marine_snow: float = 1.0,
         rng: np.random.Generator | None = None,
+        samples: int = 4,
     ) -> None:
         import mujoco
 
         self.model = model
         self.width_px, self.height_px = width_px, height_px
-        visual = model.vis.global_  # type: ignore[attr-defined]
-        size = visual.offwidth, visual.offheight
-        visual.offwidth, visual.offheight = width_px, height_px  # read as the renderer makes its buffer
+        visual, quality = model.vis.global_, model.vis.quality  # type: ignore[attr-defined]
+        kept = visual.offwidth, visual.offheight, quality.offsamples
+        # read as the renderer makes its buffer
+        visual.offwidth, visual.offheight, quality.offsamples = width_px, height_px, samples
         try:
             self.renderer = mujoco.Renderer(model, height_px, width_px)
         finally:
-            visual.offwidth, visual.offheight = size
+            visual.offwidth, visual.offheight, quality.offsamples = kept
         self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = (
             water == "none"
         )  # murky water: fog to the haze

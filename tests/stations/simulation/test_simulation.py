@@ -165,13 +165,16 @@ def test_blacked_out_camera_renders_black(cameras: tuple[World, Cameras]) -> Non
     assert cams.rgb(w.data, "cam_right").max() > 0
 
 
-@pytest.mark.parametrize("water", ["none", "I"])
-def test_the_cameras_passes_are_mujocos_renderers_pixel_for_pixel(water: str) -> None:
+@pytest.mark.parametrize(("water", "samples"), [("none", 4), ("I", 4), ("none", 0)])
+def test_the_cameras_passes_are_mujocos_renderers_pixel_for_pixel(water: str, samples: int) -> None:
     """Cameras renders every pass with one renderer whose offscreen buffer is the frames' size:
-    what it reads back is what mujoco.Renderer makes with the model's own buffer, its RGB (with
-    the fog and haze the water type sets) and its depth pass, bit for bit."""
+    what it reads back is what mujoco.Renderer makes with the model's own buffer at the same
+    samples per pixel, its RGB (with the fog and haze the water type sets) and its depth pass,
+    bit for bit; the model's own buffer settings are left as they were."""
     w = world()
-    cams = Cameras(w.model, 320, 240, water)
+    cams = Cameras(w.model, 320, 240, water, samples=samples)
+    assert w.model.vis.quality.offsamples == 4 and w.model.vis.global_.offwidth != 320  # the model's, kept
+    w.model.vis.quality.offsamples = samples
     rgb, depth = mujoco.Renderer(w.model, 240, 320), mujoco.Renderer(w.model, 240, 320)
     depth.enable_depth_rendering()
     try:
@@ -187,6 +190,19 @@ def test_the_cameras_passes_are_mujocos_renderers_pixel_for_pixel(water: str) ->
         cams.close()
         rgb.close()
         depth.close()
+
+
+def test_fewer_samples_per_pixel_alias_the_edges_and_leave_the_rest() -> None:
+    w = world()
+    images = {}
+    for samples in (4, 0):
+        cams = Cameras(w.model, 320, 240, samples=samples)
+        try:
+            images[samples] = cams.plain_rgb(w.data, "cam_left").astype(int)
+        finally:
+            cams.close()
+    differs = np.abs(images[4] - images[0]).max(axis=2) > 8
+    assert 0.001 < differs.mean() < 0.1  # the edges' pixels, not the faces'
 
 
 def camera_frame_point(w: World, cams: Cameras, camera: str, point_world: np.ndarray) -> np.ndarray:

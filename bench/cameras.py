@@ -20,10 +20,12 @@ its cost), with its share of all the stages. Then the whole offloaded sensor cyc
 runs it (Offloaded("cameras").messages: the child renders, encodes and pickles, the parent waits
 on the pipe), per frame set, wall time, the median of 2 * REPEATS. The stations' configuration
 (SimulationConfig(), OnboardConfig(), VesselConfig()) and their single-threaded native pools.
-Run: .venv/bin/python bench/cameras.py. Prints figures; asserts nothing."""
+Run: .venv/bin/python bench/cameras.py [--samples N (simulation.camera_samples)]. Prints figures;
+asserts nothing."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
 import pickle
@@ -64,6 +66,7 @@ EVERY_SET = tuple(camera for camera in CAMERAS if camera != "cam_right")  # the 
 
 REPEATS = 5  # frame sets timed, after one to warm up; stages and cycles: their median
 WATERS = ("none", "I")
+SAMPLES = [SimulationConfig().camera_samples]  # the render's samples per pixel (--samples)
 ARM_BODIES = ("arm_base", "arm_link1", "arm_link2", "arm_link3", "arm_link4", "arm_link5", "arm_link6")
 
 
@@ -219,7 +222,9 @@ def frame_set(
     position: tuple[float, float, float], yaw_rad: float, water: str
 ) -> dict[str, tuple[float, float]]:
     """Each stage's ms and calls per frame set at the pose."""
-    sim = SimulationConfig(water=water, start_position_m_world=position, start_yaw_rad=yaw_rad)
+    sim = SimulationConfig(
+        water=water, start_position_m_world=position, start_yaw_rad=yaw_rad, camera_samples=SAMPLES[0]
+    )
     onboard, vessel = OnboardConfig(), VesselConfig()
     world = World(sim, np.random.default_rng(0))
     state = state_of(world.data)
@@ -323,7 +328,9 @@ def offloaded_ms(position: tuple[float, float, float], yaw_rad: float, water: st
     the others in their shares) [ms]: its wall time, and its child's CPU time (Mesa's software
     rasteriser renders on several threads)."""
     sim, onboard = (
-        SimulationConfig(water=water, start_position_m_world=position, start_yaw_rad=yaw_rad),
+        SimulationConfig(
+            water=water, start_position_m_world=position, start_yaw_rad=yaw_rad, camera_samples=SAMPLES[0]
+        ),
         OnboardConfig(),
     )
     stereo_share = 1.0 / onboard.stereo_every if "stereo" in onboard.cloud_sources else 0.0
@@ -351,11 +358,14 @@ def process_cpu_s(pid: int) -> float:
 
 
 def main() -> None:
-    sim, onboard, vessel = SimulationConfig(), OnboardConfig(), VesselConfig()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--samples", type=int, default=SAMPLES[0], help="simulation.camera_samples")
+    SAMPLES[0] = parser.parse_args().samples
+    sim, onboard, vessel = SimulationConfig(camera_samples=SAMPLES[0]), OnboardConfig(), VesselConfig()
     *_, (x, y, z, yaw_rad) = MissionConfig().waypoints
     print(
-        f"per frame set: {sim.camera_width_px}x{sim.camera_height_px} px, cam_left RGB, cam_right RGB on the "
-        f"stereo sets, "
+        f"per frame set: {sim.camera_width_px}x{sim.camera_height_px} px at {sim.camera_samples} samples per "
+        f"pixel, cam_left RGB, cam_right RGB on the stereo sets, "
         f"cam_depth depth at {sim.camera_rate_hz:g} Hz; the sonar at {sim.sonar_rate_hz:g} Hz; stereo on 1 "
         f"set in {onboard.stereo_every}; recognition every {vessel.recognition_period_s:g} s; "
         f"calls per set after each figure; the median of {REPEATS} sets after one"

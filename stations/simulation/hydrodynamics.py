@@ -163,16 +163,16 @@ class Fossen:
         self._flat = np.array(self._rows) * 6 + np.array(self._columns)  # the entries in a 6 x 6, flat
         self._turn = np.eye(6)  # diag(R, I): body velocities to the free joint's (world linear, body angular)
         self._added_mass_linear = vehicle.added_mass[:, :3].copy()
-        self._damping = vehicle.linear_damping.tolist(), vehicle.quadratic_damping.tolist()
-        self._centre_of_buoyancy = vehicle.centre_of_buoyancy_m_body.tolist()
+        self.damping = vehicle.linear_damping.tolist(), vehicle.quadratic_damping.tolist()
+        self.centre_of_buoyancy_m_body = vehicle.centre_of_buoyancy_m_body.tolist()
         # a diagonal M_A (both shipped vehicles'): `apply` in Python's floats alone, on the entries of
         # the inertia that it changes (the linear block, turned, and the angular diagonal)
-        self._diagonal: list[float] | None = None
+        self.diagonal: list[float] | None = None
         if np.count_nonzero(vehicle.added_mass - np.diag(np.diag(vehicle.added_mass))) == 0:
-            self._diagonal = np.diag(vehicle.added_mass).tolist()
+            self.diagonal = np.diag(vehicle.added_mass).tolist()
             pairs = list(zip(self._rows, self._columns, strict=True))
             changed = [(0, 0), (1, 0), (1, 1), (2, 0), (2, 1), (2, 2), (3, 3), (4, 4), (5, 5)]
-            self._diagonal_entries = self._entries[[pairs.index(p) for p in changed]]
+            self.diagonal_entries = self._entries[[pairs.index(p) for p in changed]]
         rho = float(model.opt.density) if rho_kgpm3 is None else rho_kgpm3
         self.buoyancy_n = float(rho * -model.opt.gravity[2] * vehicle.volume_m3)
         # MuJoCo's own fluid forces kept off the body: a body with no ellipsoid geom falls back to
@@ -201,14 +201,14 @@ class Fossen:
             wr * a1u - ur * a1w + r * a2p - p * a2r,
             ur * a1v - vr * a1u + p * a2q - q * a2p,
         ]
-        linear, quadratic = self._damping
+        linear, quadratic = self.damping
         damping = [(dl + dq * abs(x)) * x for dl, dq, x in zip(linear, quadratic, nu_r, strict=True)]
         # M_A nu_r_dot: MuJoCo's inertia holds M_A T qacc, the rest of nu_r_dot is -(omega x v_r, 0)
         # (the body frame turning under the free joint's world-frame velocity, and the current)
         turning = (self._added_mass_linear @ [q * wr - r * vr, r * ur - p * wr, p * vr - q * ur]).tolist()
         b = self.buoyancy_n
         fx, fy, fz = (b * x for x in rotation[2].tolist())  # R^T (0, 0, B)
-        bx, by, bz = self._centre_of_buoyancy
+        bx, by, bz = self.centre_of_buoyancy_m_body
         restoring = [fx, fy, fz, by * fz - bz * fy, bz * fx - bx * fz, bx * fy - by * fx]
         terms = zip(restoring, coriolis, damping, turning, strict=True)
         return np.array([g - c - d + t for g, c, d, t in terms])
@@ -219,7 +219,7 @@ class Fossen:
         """Between mj_step1 and mj_step2: the generalised force and the added mass (`factor`: and
         MuJoCo's factorisation of the inertia redone; False leaves that to the caller, who adds
         more to the inertia first)."""
-        if self._diagonal is not None:
+        if self.diagonal is not None:
             self._apply_diagonal(data, current_mps_world)
             if factor:
                 mujoco.mj_factorM(model, data)
@@ -247,12 +247,12 @@ class Fossen:
         ur = r00 * vx + r10 * vy + r20 * vz - (r00 * cx + r10 * cy + r20 * cz)  # R^T (v - v_c)
         vr = r01 * vx + r11 * vy + r21 * vz - (r01 * cx + r11 * cy + r21 * cz)
         wr = r02 * vx + r12 * vy + r22 * vz - (r02 * cx + r12 * cy + r22 * cz)
-        m1, m2, m3, m4, m5, m6 = self._diagonal  # type: ignore[misc]
+        m1, m2, m3, m4, m5, m6 = self.diagonal  # type: ignore[misc]
         a1u, a1v, a1w, a2p, a2q, a2r = m1 * ur, m2 * vr, m3 * wr, m4 * p, m5 * q, m6 * r
-        (l1, l2, l3, l4, l5, l6), (q1, q2, q3, q4, q5, q6) = self._damping
+        (l1, l2, l3, l4, l5, l6), (q1, q2, q3, q4, q5, q6) = self.damping
         b = self.buoyancy_n
         fx, fy, fz = b * r20, b * r21, b * r22  # R^T (0, 0, B)
-        bx, by, bz = self._centre_of_buoyancy
+        bx, by, bz = self.centre_of_buoyancy_m_body
         # restoring - C_A(nu_r) nu_r - D(nu_r) nu_r + the turning part of M_A nu_r_dot, as in wrench_n_body
         t1 = fx - (q * a1w - r * a1v) - (l1 + q1 * abs(ur)) * ur + m1 * (q * wr - r * vr)
         t2 = fy - (r * a1u - p * a1w) - (l2 + q2 * abs(vr)) * vr + m2 * (r * ur - p * wr)
@@ -269,7 +269,7 @@ class Fossen:
             t6,
         )
         # T^T M_A T: R diag(m1, m2, m3) R^T and the angular diagonal
-        data.M[self._diagonal_entries] += (
+        data.M[self.diagonal_entries] += (
             m1 * r00 * r00 + m2 * r01 * r01 + m3 * r02 * r02,
             m1 * r10 * r00 + m2 * r11 * r01 + m3 * r12 * r02,
             m1 * r10 * r10 + m2 * r11 * r11 + m3 * r12 * r12,

@@ -282,9 +282,9 @@ class Links:
                     raise ValueError(
                         f"dofs {row} and {column} move one link but share no entry of MuJoCo's inertia"
                     )
-        self._entries = np.array(entries, dtype=int)
+        self.entries = np.array(entries, dtype=int)
         self._flat = np.array(flat, dtype=int)
-        self._values = np.zeros(len(entries))
+        self.values = np.zeros(len(entries))
         self._b, self._d = _span(self.bodies), _span(self.dofs)
         self._x = np.zeros((nb, 6, 6))  # com-based (omega, v) to each link's (v, omega), see `jacobians`
         self.jacobian = np.zeros((nb, 6, nd))  # body frame, about the centre of mass, at the last `apply`
@@ -354,8 +354,8 @@ class Links:
             jacobian *= self._mask
             flat = jacobian.reshape(6 * nb, -1)
             self.mass_q = flat.T @ (self._added_mass @ flat)
-            self._values = self.mass_q.ravel().take(self._flat)
+            self.values = self.mass_q.ravel().take(self._flat)
 
     def add_mass(self, data: mujoco.MjData) -> None:
         """Between mj_step1 and mj_step2, before mj_factorM: the added mass into the inertia."""
-        data.M[self._entries] += self._values
+        data.M[self.entries] += self.values

@@ -34,6 +34,7 @@ from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
 from abyss.stations.simulation.links import Links
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
+from abyss.stations.simulation.native import Marine
 from abyss.stations.simulation.navigation import DvlBeams, Navigation
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
@@ -108,6 +109,10 @@ class World:
             self.model.opt.density = rho
         else:
             self.model.opt.density = self.model.opt.viscosity = 0.0
+        # the per-step marine terms in C where it is built (native.py), else in Python: alike bit for bit
+        self.marine = (
+            Marine.of(self.data, self.hydrodynamics, self.links) if self.controller.dynamics else None
+        )
         self.current = Current(
             config.current_profile, config.current_sigma_mps, config.current_time_constant_s, rng
         )
@@ -153,9 +158,15 @@ class World:
                 d.time += dt
             mujoco.mj_forward(m, d)
             return
+        steps = round(period_s / dt)
+        if self.marine is not None:  # the marine terms in C: a low-level period's steps in one call
+            for start in range(0, steps, every):
+                self._low_level(refs, dt * every)
+                self.marine.step(m, self.water_mps_world, min(every, steps - start))
+            return
         fossen, links = self.hydrodynamics, self.links
         step1, factor, step2 = mujoco.mj_step1, mujoco.mj_factorM, mujoco.mj_step2
-        for i in range(round(period_s / dt)):
+        for i in range(steps):
             if i % every == 0:  # the low level runs at its own rate; its outputs hold between
                 self._low_level(refs, dt * every)
             if fossen is None and links is None:  # MuJoCo's fluid model alone: no Python per step

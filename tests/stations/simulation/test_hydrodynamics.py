@@ -276,8 +276,8 @@ def test_the_diagonal_added_masss_fast_path_is_the_general_equations() -> None:
     model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
     vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
     fast, general = Fossen(model, vehicle), Fossen(model, vehicle)
-    general._diagonal = None  # the matrix path, as a vehicle with off-diagonal terms takes
-    assert fast._diagonal is not None
+    general.diagonal = None  # the matrix path, as a vehicle with off-diagonal terms takes
+    assert fast.diagonal is not None
     data = mujoco.MjData(model)
     data.qpos[3:7] = np.array([0.9, 0.1, -0.2, 0.3]) / np.linalg.norm([0.9, 0.1, -0.2, 0.3])
     data.qvel[:6] = [0.4, -0.3, 0.2, 0.1, -0.15, 0.25]

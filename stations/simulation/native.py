@@ -54,7 +54,11 @@ def library() -> ctypes.CDLL | None:
     if not LIBRARY.is_file():
         log.info("%s not built (setup.sh builds it): the marine terms step in Python", LIBRARY.name)
         return None
-    lib = ctypes.CDLL(str(LIBRARY))
+    try:
+        lib = ctypes.CDLL(str(LIBRARY))
+    except OSError as exc:  # built against another MuJoCo than this environment's
+        log.warning("%s does not load (%s): the marine terms step in Python; run setup.sh", LIBRARY.name, exc)
+        return None
     lib.abyss_marine_register.argtypes = [ctypes.POINTER(_Terms)]
     lib.abyss_marine_register.restype = ctypes.c_int
     lib.abyss_marine_unregister.argtypes = [ctypes.c_int]

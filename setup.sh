@@ -48,9 +48,10 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
 fi
 # the marine terms in C, against the MuJoCo in .venv (its wheel's headers and library), with
 # floating-point contraction off so that its arithmetic is Python's bit for bit
-native=stations/simulation/_native_marine.so
+native=.venv/lib/abyss/libabyss_marine.so  # stations/simulation/native.py loads it from there
 if command -v cc >/dev/null \
   && { [ ! -f "$native" ] || [ stations/simulation/native_marine.c -nt "$native" ] || [ "$stamp" -nt "$native" ]; }; then
+  mkdir -p "$(dirname "$native")"
   mujoco_dir="$(.venv/bin/python -c 'import mujoco, os; print(os.path.dirname(mujoco.__file__))')"
   library="$(cd "$mujoco_dir" && ls libmujoco.so.* | head -1)"
   cc -O2 -fPIC -shared -ffp-contract=off -I"$mujoco_dir/include" stations/simulation/native_marine.c \

@@ -1,17 +1,17 @@
-"""The physics step's marine terms in C (native_marine.c, built by setup.sh into
-_native_marine.so): the hull's Fossen terms and the arm's added mass, put into MuJoCo's step by
-its control callback, so that a whole low-level period of steps is one `mj_step(nstep=...)` with
-no Python between them. The
-same equations in the same order as the Python path (Fossen._apply_diagonal, Links.add_mass), so
-the two step bit for bit alike (tests/stations/simulation/test_native_marine.py holds it). Where
-the library is not built (an image without a compiler), `Marine.of` is None and World steps in
-Python."""
+"""The physics step's marine terms in C (native_marine.c, which setup.sh compiles into the
+environment: .venv/lib/abyss/libabyss_marine.so): the hull's Fossen terms and the arm's added
+mass, put into MuJoCo's step by its control callback, so that a whole low-level period of steps
+is one `mj_step(nstep=...)` with no Python between them. The same equations in the same order as
+the Python path (Fossen._apply_diagonal, Links.add_mass), so the two step bit for bit alike
+(tests/stations/simulation/test_native_marine.py holds it). Where the library is not built (an
+image without a compiler), `Marine.of` is None and World steps in Python."""
 
 from __future__ import annotations
 
 import ctypes
 import functools
 import logging
+import sys
 import weakref
 from pathlib import Path
 
@@ -21,7 +21,7 @@ import numpy as np
 from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.links import Links
 
-LIBRARY = Path(__file__).with_name("_native_marine.so")
+LIBRARY = Path(sys.prefix) / "lib" / "abyss" / "libabyss_marine.so"  # a build output, not a module
 log = logging.getLogger(__name__)
 _double6 = ctypes.c_double * 6
 

@@ -5,7 +5,8 @@
  * callback (mjcb_control: after the velocity stage, where mj_step1 ends) on every step of every
  * model in the process; it acts on the MjData registered and active, and on no other. Built by
  * setup.sh with the compiler's floating-point contraction off, so that its arithmetic is Python's
- * bit for bit (stations/simulation/native.py loads it; without it, the steps run in Python). */
+ * bit for bit, into .venv/lib/abyss/libabyss_marine.so (stations/simulation/native.py loads it;
+ * without it, the steps run in Python). */
 #include <math.h>
 #include <string.h>
 

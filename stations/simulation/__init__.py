@@ -261,7 +261,7 @@ def _sensor_loop(
 
 def cameras_of_set(config: Config, sim_time_s: float) -> tuple[str, ...]:
     """The cameras rendered for the frame set taken at `sim_time_s` [s]: each at the rate it is
-    consumed, cam_right only on the sets onboard's stereo matcher uses (common.images.stereo_set),
+    consumed, cam_right only on the sets onboard's stereo matcher uses (common.models.stereo_set),
     and not at all without the stereo source."""
     onboard = config.onboard
     right = "stereo" in onboard.cloud_sources and stereo_set(

@@ -32,7 +32,6 @@ class _Terms(ctypes.Structure):
     _fields_ = (
         ("data", ctypes.c_void_p),
         ("active", ctypes.c_int),
-        ("hull", ctypes.c_int),
         ("body", ctypes.c_int),
         ("dof", ctypes.c_int),
         ("added_mass", _double6),
@@ -89,7 +88,6 @@ class Marine:
         linear, quadratic = fossen.damping
         terms = self._terms = _Terms(
             data=data._address,
-            hull=1,
             body=fossen.body,
             dof=fossen.dof,
             added_mass=_double6(*fossen.diagonal),

@@ -17,7 +17,6 @@
 typedef struct {
   const mjData* data;  /* whose steps these terms are */
   int active;          /* set around the steps it must act on */
-  int hull;            /* the hull's terms: 1 with a diagonal added mass, else 0 */
   int body, dof;       /* the hull's body and its free joint's first dof */
   double added_mass[6], linear[6], quadratic[6];  /* diagonal M_A; D's linear and quadratic */
   double buoyancy_n, centre_of_buoyancy_m_body[3];
@@ -98,7 +97,7 @@ void abyss_marine_control(const mjModel* m, mjData* d) {
   for (int i = 0; i < used; i++) {
     const AbyssMarine* w = worlds[i];
     if (!w || w->data != d || !w->active) continue;
-    if (w->hull) hull(w, d);
+    hull(w, d);
     for (int k = 0; k < w->links; k++) d->M[w->link_entries[k]] += w->link_values[k];
     mj_factorM(m, d);
     return;

@@ -4,11 +4,20 @@ collection ends, so that it runs beside the unit tests."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
+E2E = Path(__file__).parent / "e2e"
+
+
+def pytest_itemcollected(item: pytest.Item) -> None:
+    """Everything under tests/e2e starts whole systems: the folder is the tier (`-m "not e2e"`)."""
+    if E2E in item.path.parents:
+        item.add_marker(pytest.mark.e2e)
 
 
 @pytest.hookimpl(trylast=True)  # after -m and -k have deselected

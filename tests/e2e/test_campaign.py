@@ -26,12 +26,12 @@ from conftest import abyss
 
 from abyss.validation.campaign.stats import wilson
 
-pytestmark = [pytest.mark.e2e]
 SCENARIOS = Path(__file__).parent / "campaign"
-CAMPAIGN = """\
+SEEDS = 2
+CAMPAIGN = f"""\
 name = "small"
 scenarios = ["scenarios/short-*.toml"]
-seeds = 3
+seeds = {SEEDS}
 time = "lockstep"
 
 [matrix]
@@ -100,20 +100,21 @@ def test_a_campaign_on_local_ray_then_two_shards_one_killed_and_resumed_merge_to
     assert whole.returncode == 1, whole.stdout + whole.stderr  # the storm fails short-links' delay bound
     out = here / "whole"
     got = records(out)
-    assert len(got) == 12 and len({r["run_id"] for r in got}) == 12
+    runs = 4 * SEEDS  # two scenarios by two variants
+    assert len(got) == runs and len({r["run_id"] for r in got}) == runs
     report = json.loads((out / "report.json").read_text())
     groups = {(g["scenario"], g["variant"]): g for g in report["cases"]}
     assert len(groups) == 4
     for (scenario, variant), group in groups.items():
         mine = [r for r in got if r["scenario"] == scenario and r["variant"] == variant]
         passes = sum(bool(r["passed"]) for r in mine)
-        assert group["runs"] == 3 and group["passes"] == passes
-        low, high = wilson(passes, 3)
+        assert group["runs"] == SEEDS and group["passes"] == passes
+        low, high = wilson(passes, SEEDS)
         assert math.isclose(group["wilson_95"][0], low) and math.isclose(group["wilson_95"][1], high)
-        assert group["flaky"] == (0 < passes < 3)
+        assert group["flaky"] == (0 < passes < SEEDS)
     storm = groups[("short-links", "links.satellite=satellite-storm")]
     assert storm["passes"] == 0 and storm["assertion_failures"], storm
-    assert groups[("short-links", "links.satellite=satellite")]["passes"] == 3
+    assert groups[("short-links", "links.satellite=satellite")]["passes"] == SEEDS
     cases = {
         (c.get("classname"), c.get("name")): c for c in ET.parse(out / "junit.xml").getroot().iter("testcase")
     }
@@ -136,8 +137,13 @@ def test_a_campaign_on_local_ray_then_two_shards_one_killed_and_resumed_merge_to
     resumed = abyss(
         "campaign", "run", "small.toml", "--out", "s1", "--shard", "1/2", "--resume", timeout_s=600, cwd=here
     )
-    assert f"{kept} have results, {6 - kept} to run" in resumed.stdout, resumed.stdout + resumed.stderr
-    assert len(records(here / "s1")) == 6 and len({r["run_id"] for r in records(here / "s1")}) == 6
+    assert f"{kept} have results, {runs // 2 - kept} to run" in resumed.stdout, (
+        resumed.stdout + resumed.stderr
+    )
+    assert (
+        len(records(here / "s1")) == runs // 2
+        and len({r["run_id"] for r in records(here / "s1")}) == runs // 2
+    )
     second = abyss("campaign", "run", "small.toml", "--out", "s2", "--shard", "2/2", timeout_s=600, cwd=here)
     assert second.returncode in (0, 1), second.stdout + second.stderr
     merged = abyss("campaign", "merge", "s1", "s2", "--out", "merged", timeout_s=120, cwd=here)
@@ -272,7 +278,7 @@ def ray_nodes_other_abyss(tmp_path: Path) -> Iterator[RayNodes]:
 def test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the_head(
     tmp_path: Path, ray_nodes: RayNodes
 ) -> None:
-    text = CAMPAIGN.replace("seeds = 3", "seeds = 6").replace(
+    text = CAMPAIGN.replace(f"seeds = {SEEDS}", "seeds = 6").replace(
         'scenarios = ["scenarios/short-*.toml"]', 'scenarios = ["scenarios/short-mission.toml"]'
     )
     text = text.split("[matrix]")[0]

@@ -29,8 +29,6 @@ SYSTEM = "e2e-compose"
 HEALTHY_TIMEOUT_S = 120.0
 MISSION_TIMEOUT_S = 180.0
 
-pytestmark = pytest.mark.e2e
-
 
 HOP_ENDS = {hop: tuple(s for s in keys.STATIONS if hop in keys.hops_of(s)) for hop in keys.HOPS}
 

@@ -24,7 +24,7 @@ from abyss.common.geometry import wrap_rad, yaw_of
 from abyss.common.messages import NavState, decode
 from abyss.validation.plot import FIGURES
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+pytestmark = pytest.mark.timeout(240)
 LAST_WAYPOINT = MissionConfig().waypoints[-1]
 
 

@@ -29,7 +29,7 @@ from abyss.common.messages import Message, SceneUpdate, decode
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, WORLD_FILE
 from abyss.recording.reader import Recording, open_recording
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+pytestmark = pytest.mark.timeout(240)
 
 RERUN = Path(sys.executable).parent / "rerun"
 TF, TF_STATIC, CLOCK = "/tf", "/tf_static", "/clock"

@@ -19,7 +19,6 @@ from hosts import PORT, Hosts, usable
 from abyss.common import certs, keys
 from abyss.common.security import TLS_DIR_ENV
 
-pytestmark = pytest.mark.e2e
 SYSTEM = "e2e-hosts"
 MISSION_TIMEOUT_S = 120.0
 

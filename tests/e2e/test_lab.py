@@ -23,7 +23,6 @@ from abyss.common import keys
 from abyss.common.linkprofile import LinkProfile, profile
 from abyss.launch.lab import Lab
 
-pytestmark = pytest.mark.e2e
 Z_99 = 2.576  # two-sided 99 % quantile of the normal distribution
 PING_BYTES = 84  # IPv4 + ICMP headers + ping's 56 bytes
 ABYSS = [sys.executable, "-P", "-m", "abyss.cli"]

@@ -17,7 +17,7 @@ from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.messages import Telemetry, decode
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
+pytestmark = pytest.mark.timeout(150)
 SYSTEM = "e2e-op"
 
 

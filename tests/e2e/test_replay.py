@@ -18,7 +18,7 @@ from abyss.common import keys
 from abyss.recording.reader import open_recording
 from abyss.recording.store import data_spec
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+pytestmark = pytest.mark.timeout(240)
 
 
 def test_every_data_key_is_recorded_as_sent_and_as_received(recorded_run: Path) -> None:

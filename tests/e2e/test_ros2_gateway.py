@@ -115,7 +115,7 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
     up_endpoint = up.wait_for(r"Zenoh endpoint (\S+)").group(1)
     up.wait_up()
     node = RosNode(endpoint)
-    stop = threading.Event()
+    stop, workers = threading.Event(), list[threading.Thread]()
     try:
         graph = _gateway_graph(
             node,
@@ -146,8 +146,8 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
         } <= set(by_topic)
 
         pilot = WaypointPilot(node)
-        flying = threading.Thread(target=pilot.fly, args=(stop,), daemon=True)
-        flying.start()
+        workers.append(threading.Thread(target=pilot.fly, args=(stop,), daemon=True))
+        workers[-1].start()
         check = subprocess.run(
             [
                 sys.executable,
@@ -178,6 +178,8 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
         late.undeclare()
     finally:
         stop.set()
+        for worker in workers:  # no publish in flight while the node's entities go
+            worker.join()
         node.close()
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["verdict"] == "done" and summary["mission"]["done"], summary["mission"]
@@ -241,7 +243,7 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
     )
     up.wait_up()
     node = RosNode(endpoint, name="team_mapper")
-    stop = threading.Event()
+    stop, workers = threading.Event(), list[threading.Thread]()
     try:
         graph = _gateway_graph(
             node,
@@ -251,8 +253,8 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
         mine = {(t.kind, t.topic) for t in graph if t.node == "abyss_vessel_gateway"}
         assert ("MP", "/abyss/simulation/nav") not in mine  # the vessel is handed clouds only
         mapper = rosnode.Mapper(node, 0.1)  # vessel.octree_resolution_m
-        mapping = threading.Thread(target=mapper.run, args=(stop,), daemon=True)
-        mapping.start()
+        workers.append(threading.Thread(target=mapper.run, args=(stop,), daemon=True))
+        workers[-1].start()
         head = rosnode.Header(rosnode.Time(0, 0), "world")
         wrong = [
             rosnode.Octomap(head, True, "OcTree", 0.05, [0, 0]),  # another resolution
@@ -264,6 +266,8 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
         assert up.wait(90) == 0, up.output()
     finally:
         stop.set()
+        for worker in workers:
+            worker.join()
         node.close()
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert mapper.maps >= 5 and summary["scene"]["occupied_cells"] > 100, summary["scene"]

@@ -20,7 +20,6 @@ from conftest import ROOT, abyss
 
 from abyss.common import keys
 
-pytestmark = [pytest.mark.e2e]
 PARALLEL = 3  # whole systems at once on this 2-core machine (four overload it: 2.2 cores)
 LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))
 SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from conftest import ARM_MISSION
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
+pytestmark = pytest.mark.timeout(150)
 
 # every top-level name abyss imports under, and the import package itself
 SHADOWS = ("abyss", "common", "stations", "linkemu", "launch", "cli", "console", "validation")

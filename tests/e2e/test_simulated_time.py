@@ -14,7 +14,7 @@ from conftest import ROOT, Up, abyss
 from abyss.common import keys
 from abyss.recording.reader import read_file
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+pytestmark = pytest.mark.timeout(240)
 
 
 def test_a_whole_system_on_simulated_time(tmp_path: Path) -> None:

@@ -33,7 +33,7 @@ from abyss.common.messages import (
 from abyss.common.workers import BACKGROUND_NICE
 from abyss.stations.runtime import free_port
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(120)]
+pytestmark = pytest.mark.timeout(120)
 SYSTEM = "e2e-sim"
 REALTIME_ALLOWED = os.geteuid() == 0  # CAP_SYS_NICE; CI runs as root
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from conftest import abyss
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(200)]
+pytestmark = pytest.mark.timeout(200)
 
 
 def test_stress_satellite_reports_consistent_figures(tmp_path: Path) -> None:

@@ -23,7 +23,6 @@ from abyss.validation.tcpcheck.compare import agreement, run_all
 from abyss.validation.tcpcheck.kernel import kernel_unusable
 from abyss.validation.tcpcheck.workload import Job, Run
 
-pytestmark = pytest.mark.e2e
 # the kernel's side: through the TUN shaper here; through netem inside UML (test_netem_uml.py sets
 # ABYSS_TCP_VARIANT=reno-netem), so that the model, tun and netem are held to the same bounds
 VARIANT = os.environ.get("ABYSS_TCP_VARIANT", "reno")

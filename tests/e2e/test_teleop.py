@@ -32,7 +32,7 @@ from abyss.common.messages import (
 from abyss.console.teleop import JS_AXIS, JS_EVENT
 from abyss.stations.runtime import free_port
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(90)]
+pytestmark = pytest.mark.timeout(90)
 SYSTEM = "e2e-teleop"
 POSITION = np.array([3.3, 0.0, -7.9])
 EE_POSITION = np.array([4.86, 0.0, -8.35])

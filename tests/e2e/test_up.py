@@ -18,7 +18,7 @@ from rerun.chunk import RrdReader
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(150)]
+pytestmark = pytest.mark.timeout(150)
 
 
 def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:

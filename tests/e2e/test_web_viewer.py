@@ -16,7 +16,7 @@ from conftest import Up
 from abyss.common import keys
 from abyss.stations.runtime import free_port
 
-pytestmark = [pytest.mark.e2e, pytest.mark.timeout(240)]
+pytestmark = pytest.mark.timeout(240)
 COLOURFUL_PX = 1500  # the hull, the path, the voxels: more saturated pixels than the UI's accents
 # the 3D view at 1280 x 800, on the left under the tabs, both before the operator's layout
 # collapses the web viewer's side panels and after (not the blueprint panel's blue selection):

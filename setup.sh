@@ -13,7 +13,7 @@ APT_PACKAGES="$(grep -v '^#' apt-packages.txt | xargs)"  # what a station needs;
 # the namespace lab's test; user-mode Linux and kmod's insmod for a kernel with sch_netem, where
 # the host's has none (tests/linkemu/uml.py)
 TEST_APT_PACKAGES="chromium docker-compose debootstrap iputils-ping user-mode-linux kmod"
-# a C compiler for the physics step's marine terms (stations/simulation/native_marine.c; without
+# a C compiler for the physics step's marine terms (stations/simulation/native_physics.c; without
 # it they step in Python, alike bit for bit but slower)
 TEST_APT_PACKAGES="$TEST_APT_PACKAGES gcc libc6-dev"
 command -v dockerd >/dev/null || TEST_APT_PACKAGES="$TEST_APT_PACKAGES docker.io"
@@ -48,12 +48,12 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
 fi
 # the marine terms in C, against the MuJoCo in .venv (its wheel's headers and library), with
 # floating-point contraction off so that its arithmetic is Python's bit for bit
-native=.venv/lib/abyss/libabyss_marine.so  # stations/simulation/native.py loads it from there
+native=.venv/lib/abyss/libabyss_physics.so  # stations/simulation/native.py loads it from there
 if command -v cc >/dev/null \
-  && { [ ! -f "$native" ] || [ stations/simulation/native_marine.c -nt "$native" ] || [ "$stamp" -nt "$native" ]; }; then
+  && { [ ! -f "$native" ] || [ stations/simulation/native_physics.c -nt "$native" ] || [ "$stamp" -nt "$native" ]; }; then
   mkdir -p "$(dirname "$native")"
   mujoco_dir="$(.venv/bin/python -c 'import mujoco, os; print(os.path.dirname(mujoco.__file__))')"
   library="$(cd "$mujoco_dir" && ls libmujoco.so.* | head -1)"
-  cc -O2 -fPIC -shared -ffp-contract=off -I"$mujoco_dir/include" stations/simulation/native_marine.c \
+  cc -O2 -fPIC -shared -ffp-contract=off -I"$mujoco_dir/include" stations/simulation/native_physics.c \
     -L"$mujoco_dir" -l:"$library" -Wl,-rpath,"$mujoco_dir" -o "$native"
 fi

@@ -44,15 +44,18 @@ def physics(
     arm: str = "strips",
     seconds: float = 10.0,
     chunks: int = 10,
-    in_python: bool = False,
+    in_c: str = "all",
 ) -> tuple[float, float]:
     """Wall time per physics step [s], and that of a bare mj_step of the same model (the dynamic low
     level's floor: MuJoCo alone, no Python per step): the fastest of `chunks` slices of the run (the
     least disturbed by other work), each followed by as many bare mj_step calls from the same state.
-    `in_python`: the per-step marine terms in Python, not C (stations/simulation/native.py)."""
+    `in_c` (stations/simulation/native.py): "all" the per-step marine terms and the low level in C
+    where it is built, "steps" the per-step terms alone, "none" all in Python."""
     config = SimulationConfig(low_level=low_level, hydrodynamics=hydrodynamics, arm_hydrodynamics=arm)
     world = World(config, np.random.default_rng(0))
-    if in_python:
+    if in_c != "all":
+        world.native_low_level = None
+    if in_c == "none":
         world.marine = None
     refs = References(np.array([0.3, 0.1, 0.0, 0.1]), np.full(6, 0.05), 0.0)
     periods = round(seconds / chunks / config.control_period_s)
@@ -72,14 +75,15 @@ def physics(
     per_step, bare = min(step_s), min(bare_s)
     dt = config.physics_step_s
     marine = f", {hydrodynamics} + {arm}" if low_level == "dynamic" else ""
-    marine += ", in Python" if in_python else (", in C" if world.marine is not None else "")
+    if low_level == "dynamic":
+        marine += {"all": ", in C", "steps": ", per-step terms in C", "none": ", in Python"}[in_c]
     floor = (
         f"; bare mj_step {bare * 1e6:.1f} us (real-time factor {dt / bare:.1f}), ratio {per_step / bare:.2f}x"
         if low_level == "dynamic"
         else ""
     )
     print(
-        f"physics, {low_level + marine:<40}: {per_step * 1e6:6.1f} us per {dt * 1e3:g} ms step, "
+        f"physics, {low_level + marine:<52}: {per_step * 1e6:6.1f} us per {dt * 1e3:g} ms step, "
         f"real-time factor {dt / per_step:6.1f}{floor} (headless, no cameras)"
     )
     return per_step, bare
@@ -177,9 +181,11 @@ if __name__ == "__main__":
     parser.add_argument("--physics", action="store_true", help="the physics figures alone")
     args = parser.parse_args()
     strips, _ = physics("dynamic", "fossen", "strips")
-    strips_in_python, _ = physics("dynamic", "fossen", "strips", in_python=True)
+    steps_in_c, _ = physics("dynamic", "fossen", "strips", in_c="steps")
+    strips_in_python, _ = physics("dynamic", "fossen", "strips", in_c="none")
     print(
-        f"  the marine terms in C take {strips / strips_in_python:.2f}x the time per step they take in Python"
+        f"  in C a step takes {strips / strips_in_python:.2f}x its time in Python "
+        f"({steps_in_c / strips_in_python:.2f}x with the per-step terms alone in C)"
     )
     ellipsoids, _ = physics("dynamic", "fossen", "ellipsoid")
     physics("dynamic", "ellipsoid", "ellipsoid")

@@ -241,6 +241,7 @@ class Links:
             raise ValueError("no wet geoms on the links")
         n = len(rows)
         self.strips = n
+        self.owner = np.array(owner)  # each strip's link (they come link by link)
         self._drag = np.array(drag)  # (n, 3) [N s^2/m^2]
         q = np.zeros((3 * n, 6 * nb))  # all strips' Q_k, block by block
         for k, (strip_rows, i) in enumerate(zip(rows, owner, strict=True)):
@@ -263,7 +264,7 @@ class Links:
         )
         # joint space: the dofs that move a link, and where their pairs sit in MuJoCo's sparse
         # lower inertia (every link hangs from the same root)
-        self._root = int(model.body_rootid[self.bodies[0]])
+        self.root = int(model.body_rootid[self.bodies[0]])
         chains = [self._chain(model, b) for b in self.bodies]
         self.dofs = np.array(sorted(set().union(*chains)), dtype=int)
         self._mask = np.array([[d in chain for d in self.dofs] for chain in chains], dtype=float)[:, None, :]
@@ -283,7 +284,7 @@ class Links:
                         f"dofs {row} and {column} move one link but share no entry of MuJoCo's inertia"
                     )
         self.entries = np.array(entries, dtype=int)
-        self._flat = np.array(flat, dtype=int)
+        self.flat = np.array(flat, dtype=int)  # per entry: its index in the dofs x dofs matrix
         self.values = np.zeros(len(entries))
         self._b, self._d = _span(self.bodies), _span(self.dofs)
         self._x = np.zeros((nb, 6, 6))  # com-based (omega, v) to each link's (v, omega), see `jacobians`
@@ -299,6 +300,22 @@ class Links:
             ]
         )
         self._speed = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # |u_n|^2, |u_n|^2, u_a^2
+
+    def tables(self) -> dict[str, np.ndarray]:
+        """The model's constant tables, each C-contiguous, as native_physics.c takes them: per
+        strip its Q_k (3, 6) and drag (3,), per link its Kirchhoff form (6, 36), buoyancy (6, 3),
+        added mass (6, 6) and dof mask, per inertia entry its index in the dofs x dofs matrix."""
+        n, nb = self.strips, len(self.bodies)
+        q = np.array([self._q[3 * k : 3 * k + 3, 6 * i : 6 * i + 6] for k, i in enumerate(self.owner)])
+        tables = {
+            "q": q.reshape(n, 18),
+            "drag": self._drag,
+            "kirchhoff": self._kirchhoff.reshape(nb, 216),
+            "buoyancy": self._buoyancy.reshape(nb, 18),
+            "added_mass": self.added_mass.reshape(nb, 36),
+            "mask": self._mask.reshape(nb, -1),
+        }
+        return {name: np.ascontiguousarray(table, dtype=float) for name, table in tables.items()}
 
     @staticmethod
     def _chain(model: mujoco.MjModel, body: int) -> set[int]:
@@ -316,7 +333,7 @@ class Links:
         X_b = [[-R^T [p_b - c]x, R^T], [R^T, 0]] (p_b the link's centre of mass, R its rotation)."""
         b, nb = self._b, len(self.bodies)
         rotation_t = data.xmat[b].reshape(nb, 3, 3).transpose(0, 2, 1)
-        lever = data.xipos[b] - data.subtree_com[self._root]
+        lever = data.xipos[b] - data.subtree_com[self.root]
         x = self._x
         x[:, :3, :3] = rotation_t @ (lever @ _SKEW).reshape(nb, 3, 3)
         x[:, :3, 3:] = rotation_t
@@ -341,7 +358,7 @@ class Links:
         rotation = data.xmat[b].reshape(nb, 3, 3)
         x = self._x  # X_b, as in `jacobians`
         x[:, :3, 3:] = x[:, 3:, :3] = rotation_t = rotation.transpose(0, 2, 1)
-        lever = data.xipos[b] - data.subtree_com[self._root]
+        lever = data.xipos[b] - data.subtree_com[self.root]
         x[:, :3, :3] = rotation_t @ (lever @ _SKEW).reshape(nb, 3, 3)
         relative = data.cvel[b].copy()
         relative[:, 3:] -= water_mps_world  # the current: a uniform translation
@@ -354,7 +371,7 @@ class Links:
             jacobian *= self._mask
             flat = jacobian.reshape(6 * nb, -1)
             self.mass_q = flat.T @ (self._added_mass @ flat)
-            self.values = self.mass_q.ravel().take(self._flat)
+            self.mass_q.ravel().take(self.flat, out=self.values)
 
     def add_mass(self, data: mujoco.MjData) -> None:
         """Between mj_step1 and mj_step2, before mj_factorM: the added mass into the inertia."""

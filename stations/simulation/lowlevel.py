@@ -84,17 +84,17 @@ class Dynamic:
     def __init__(self, model: mujoco.MjModel, gains: PidGains, vehicle: VehicleModel) -> None:
         self.plant = Plant(model)
         self.thrusters = Thrusters(model, vehicle.thrusters)
-        self._damping = (vehicle.linear_damping[ACTUATED], vehicle.quadratic_damping[ACTUATED])
+        self.damping = (vehicle.linear_damping[ACTUATED], vehicle.quadratic_damping[ACTUATED])
         self.gains = gains
         self._vehicle_kp, self._vehicle_ki, self._vehicle_kd = (
             np.array(gains.vehicle_kp),
             np.array(gains.vehicle_ki),
             np.array(gains.vehicle_kd),
         )
-        self._vehicle_integral = np.zeros(4)
-        self._vehicle_error = np.zeros(4)
-        self._arm_integral = np.zeros(6)
-        self._arm_force_limit = model.actuator_forcerange[self.plant.arm_motors, 1]
+        self.vehicle_integral = np.zeros(4)
+        self.vehicle_error = np.zeros(4)
+        self.arm_integral = np.zeros(6)
+        self.arm_force_limit = model.actuator_forcerange[self.plant.arm_motors, 1]
         servos = ((self.plant.arm_motors, gains.arm_kp), (self.plant.gripper_motors, gains.gripper_kp))
         for motors, kv in servos:
             model.actuator_gainprm[motors, 0] = kv  # velocity servo: kv * ctrl - kv * qdot
@@ -104,27 +104,27 @@ class Dynamic:
         p, g = self.plant, self.gains
         velocity = p.vehicle_velocity_body(data)[ACTUATED]
         error = ref.vehicle_body - velocity
-        derivative = (error - self._vehicle_error) / dt_s
-        self._vehicle_error = error
+        derivative = (error - self.vehicle_error) / dt_s
+        self.vehicle_error[:] = error
         # feed-forward of the vehicle file's damping at the reference: the integral is left only
         # the model's error and the current to take up, not the whole drag (a slow pole otherwise)
-        linear, quadratic = self._damping
+        linear, quadratic = self.damping
         feed_forward = (linear + quadratic * np.abs(ref.vehicle_body)) * ref.vehicle_body
         wrench4 = feed_forward + self._vehicle_kp * error + self._vehicle_kd * derivative
-        candidate = self._vehicle_integral + error * dt_s
+        candidate = self.vehicle_integral + error * dt_s
         wrench4 = wrench4 + self._vehicle_ki * candidate
         thrust = self.thrusters.allocate_actuated(wrench4)
         shortfall = np.abs(self.thrusters.actuated_allocation @ thrust - wrench4)
         if (shortfall <= 1e-6 + 1e-6 * np.abs(wrench4)).all():  # np.allclose's test, rtol = atol = 1e-6
-            self._vehicle_integral = candidate  # anti-windup: integrate only when not saturated
+            self.vehicle_integral[:] = candidate  # anti-windup: integrate only when not saturated
         self.thrusters.apply(data, thrust, dt_s)
         # arm: the proportional part is MuJoCo's implicit velocity servo (kv = arm_kp); the
         # integral part shifts its set point, so torque = kp e + ki integral(e)
         arm_error = ref.arm_radps - data.qvel[p.arm_dofs]
-        candidate = self._arm_integral + arm_error * dt_s
-        if (np.abs(g.arm_kp * arm_error + g.arm_ki * candidate) < self._arm_force_limit).all():
-            self._arm_integral = candidate  # anti-windup
-        data.ctrl[p.arm_motors] = ref.arm_radps + g.arm_ki / g.arm_kp * self._arm_integral
+        candidate = self.arm_integral + arm_error * dt_s
+        if (np.abs(g.arm_kp * arm_error + g.arm_ki * candidate) < self.arm_force_limit).all():
+            self.arm_integral[:] = candidate  # anti-windup
+        data.ctrl[p.arm_motors] = ref.arm_radps + g.arm_ki / g.arm_kp * self.arm_integral
         data.ctrl[p.gripper_motors] = ref.gripper_mps
 
 

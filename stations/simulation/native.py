@@ -1,9 +1,9 @@
-"""The physics step's marine terms in C (native_marine.c, which setup.sh compiles into the
-environment: .venv/lib/abyss/libabyss_marine.so): the hull's Fossen terms and the arm's added
+"""The physics step's marine terms in C (native_physics.c, which setup.sh compiles into the
+environment: .venv/lib/abyss/libabyss_physics.so): the hull's Fossen terms and the arm's added
 mass, put into MuJoCo's step by its control callback, so that a whole low-level period of steps
 is one `mj_step(nstep=...)` with no Python between them. The same equations in the same order as
 the Python path (Fossen._apply_diagonal, Links.add_mass), so the two step bit for bit alike
-(tests/stations/simulation/test_native_marine.py holds it). Where the library is not built (an
+(tests/stations/simulation/test_native_physics.py holds it). Where the library is not built (an
 image without a compiler), `Marine.of` is None and World steps in Python."""
 
 from __future__ import annotations
@@ -20,14 +20,15 @@ import numpy as np
 
 from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.links import Links
+from abyss.stations.simulation.lowlevel import Dynamic, References
 
-LIBRARY = Path(sys.prefix) / "lib" / "abyss" / "libabyss_marine.so"  # a build output, not a module
+LIBRARY = Path(sys.prefix) / "lib" / "abyss" / "libabyss_physics.so"  # a build output, not a module
 log = logging.getLogger(__name__)
 _double6 = ctypes.c_double * 6
 
 
 class _Terms(ctypes.Structure):
-    """native_marine.c's AbyssMarine."""
+    """native_physics.c's AbyssMarine."""
 
     _fields_ = (
         ("data", ctypes.c_void_p),
@@ -47,9 +48,68 @@ class _Terms(ctypes.Structure):
     )
 
 
+_int6, _double4 = ctypes.c_int * 6, ctypes.c_double * 4
+_pointer = ctypes.c_void_p
+
+
+class _LowLevelTerms(ctypes.Structure):
+    """native_physics.c's AbyssLowLevel."""
+
+    _fields_ = (
+        ("qpos", ctypes.c_int),
+        ("qvel", ctypes.c_int),
+        ("kp", _double4),
+        ("ki", _double4),
+        ("kd", _double4),
+        ("linear", _double4),
+        ("quadratic", _double4),
+        ("integral", _pointer),
+        ("error", _pointer),
+        ("thrusters", ctypes.c_int),
+        ("actuators", _pointer),
+        ("pinv", _pointer),
+        ("allocation", _pointer),
+        ("forward_max_n", ctypes.c_double),
+        ("reverse_max_n", ctypes.c_double),
+        ("deadband", ctypes.c_double),
+        ("time_constant_s", ctypes.c_double),
+        ("efficiency", _pointer),
+        ("rotor_speed", _pointer),
+        ("arm_dofs", _int6),
+        ("arm_motors", _int6),
+        ("grippers", ctypes.c_int),
+        ("gripper_motors", ctypes.c_int * 2),
+        ("arm_kp", ctypes.c_double),
+        ("arm_ki", ctypes.c_double),
+        ("arm_force_limit", _double6),
+        ("arm_integral", _pointer),
+        ("references", _pointer),
+        ("current_mps_world", _pointer),
+        ("links", ctypes.c_int),
+        ("strips", ctypes.c_int),
+        ("dofs", ctypes.c_int),
+        ("root", ctypes.c_int),
+        ("added_inertia", ctypes.c_int),
+        ("entries", ctypes.c_int),
+        ("bodies", _pointer),
+        ("owner", _pointer),
+        ("dof", _pointer),
+        ("flat", _pointer),
+        ("q", _pointer),
+        ("drag", _pointer),
+        ("kirchhoff", _pointer),
+        ("buoyancy", _pointer),
+        ("added_mass", _pointer),
+        ("mask", _pointer),
+        ("jacobian", _pointer),
+        ("mass_q", _pointer),
+        ("values", _pointer),
+    )
+
+
 @functools.cache
 def library() -> ctypes.CDLL | None:
-    """native_marine.c's library, its callback installed as MuJoCo's control callback; None if not built."""
+    """native_physics.c's library, its callback installed as MuJoCo's control callback; None if not built."""
     if not LIBRARY.is_file():
         log.info("%s not built (setup.sh builds it): the marine terms step in Python", LIBRARY.name)
         return None
@@ -61,6 +121,8 @@ def library() -> ctypes.CDLL | None:
     lib.abyss_marine_register.argtypes = [ctypes.POINTER(_Terms)]
     lib.abyss_marine_register.restype = ctypes.c_int
     lib.abyss_marine_unregister.argtypes = [ctypes.c_int]
+    lib.abyss_low_level.argtypes = [ctypes.POINTER(_LowLevelTerms), ctypes.c_void_p, ctypes.c_void_p]
+    lib.abyss_low_level.restype = None
     if mujoco.get_mjcb_control() is not None:
         raise RuntimeError("MuJoCo's control callback is taken: the marine terms need it")
     mujoco.set_mjcb_control(lib.abyss_marine_control)
@@ -118,3 +180,109 @@ class Marine:
             mujoco.mj_step(model, self._data, nstep=nstep)
         finally:
             self._terms.active = 0
+
+
+class LowLevel:
+    """One World's dynamic low level in C (native_physics.c's abyss_low_level): the controllers,
+    the thrusters and the links' strip model, once per control period, in one call. The Python's
+    equations (lowlevel.Dynamic.apply, Links.apply) summed in C's order rather than numpy's BLAS's:
+    alike to rounding, not bit for bit (tests/stations/simulation/test_native_physics.py). The
+    state both keep (the integrals, the rotors, the faults' efficiencies, the links' inertia
+    entries) is the Python objects' own arrays, so either path can take over from the other."""
+
+    LIMIT = 64  # thrusters, and dofs that move the links: C's scratch
+
+    @staticmethod
+    def of(controller: object, links: Links | None) -> LowLevel | None:
+        """For this controller and these links, or None where C does not have them (the library
+        not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs)."""
+        lib = library()
+        if lib is None or not isinstance(controller, Dynamic) or links is None:
+            return None
+        if len(controller.thrusters.actuators) > LowLevel.LIMIT or len(links.dofs) > LowLevel.LIMIT:
+            return None
+        return LowLevel(lib, controller, links)
+
+    def __init__(self, lib: ctypes.CDLL, controller: Dynamic, links: Links) -> None:
+        plant, gains, thrusters = controller.plant, controller.gains, controller.thrusters
+        spec = thrusters.spec
+        self.references = np.zeros(12)  # vehicle 4, arm 6, gripper, the period [s]
+        self.current_mps_world = np.zeros(3)
+        self.jacobian = np.zeros((len(links.bodies), 6, len(links.dofs)))
+        self.mass_q = np.zeros((len(links.dofs), len(links.dofs)))
+
+        def ints(values: object) -> np.ndarray:
+            return np.ascontiguousarray(values, dtype=np.int32)
+
+        held = {  # arrays C reads or writes through its pointers, kept alive here
+            "integral": controller.vehicle_integral,
+            "error": controller.vehicle_error,
+            "actuators": ints(thrusters.actuators),
+            "pinv": np.ascontiguousarray(thrusters.pseudo_inverse),
+            "allocation": np.ascontiguousarray(thrusters.actuated_allocation),
+            "efficiency": thrusters.efficiency,
+            "rotor_speed": thrusters.rotor_speed,
+            "arm_integral": controller.arm_integral,
+            "references": self.references,
+            "current_mps_world": self.current_mps_world,
+            "bodies": ints(links.bodies),
+            "owner": ints(links.owner),
+            "dof": ints(links.dofs),
+            "flat": ints(links.flat),
+            **links.tables(),
+            "jacobian": self.jacobian,
+            "mass_q": self.mass_q,
+            "values": links.values,
+        }
+        for name, array in held.items():
+            if not (array.flags.c_contiguous and array.dtype in (np.float64, np.int32)):
+                raise TypeError(f"{name}: C takes contiguous float64 or int32 arrays")
+        self._held = held
+        linear, quadratic = controller.damping
+        self._terms = _LowLevelTerms(
+            qpos=plant.qpos,
+            qvel=plant.qvel,
+            kp=_double4(*gains.vehicle_kp),
+            ki=_double4(*gains.vehicle_ki),
+            kd=_double4(*gains.vehicle_kd),
+            linear=_double4(*linear),
+            quadratic=_double4(*quadratic),
+            thrusters=len(thrusters.actuators),
+            forward_max_n=spec.forward_max_n,
+            reverse_max_n=spec.reverse_max_n,
+            deadband=spec.deadband,
+            time_constant_s=spec.time_constant_s,
+            arm_dofs=_int6(*plant.arm_dofs),
+            arm_motors=_int6(*plant.arm_motors),
+            grippers=len(plant.gripper_motors),
+            gripper_motors=(ctypes.c_int * 2)(*plant.gripper_motors),
+            arm_kp=gains.arm_kp,
+            arm_ki=gains.arm_ki,
+            arm_force_limit=_double6(*controller.arm_force_limit),
+            links=len(links.bodies),
+            strips=links.strips,
+            dofs=len(links.dofs),
+            root=links.root,
+            added_inertia=int(links.added_inertia),
+            entries=len(links.entries),
+            **{name: array.ctypes.data for name, array in held.items()},
+        )
+        self._call = functools.partial(lib.abyss_low_level, ctypes.byref(self._terms))
+
+    def apply(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        refs: References,
+        current_mps_world: np.ndarray,
+        period_s: float,
+    ) -> None:
+        """The controllers' outputs and the links' forces for the next `period_s` [s], from the
+        current kinematics (as lowlevel.Dynamic.apply, then Links.apply, do)."""
+        r = self.references
+        r[:4] = refs.vehicle_body
+        r[4:10] = refs.arm_radps
+        r[10] = refs.gripper_mps
+        r[11] = period_s
+        self.current_mps_world[:] = current_mps_world
+        self._call(model._address, data._address)

@@ -36,7 +36,7 @@ class Thrusters:
             columns.append(np.r_[axis, np.cross(site.pos - com, axis)])
         self.allocation = np.array(columns).T  # 6 x n: wrench about the centre of mass per N
         self.actuated_allocation = self.allocation[ACTUATED]  # 4 x n
-        self._pinv = np.linalg.pinv(self.actuated_allocation)
+        self.pseudo_inverse = np.linalg.pinv(self.actuated_allocation)
         n = len(spec.names)
         self.efficiency = np.ones(n)  # faults: 0 failed, <1 weakened
         self.rotor_speed = np.zeros(n)  # fraction of full, signed
@@ -48,7 +48,7 @@ class Thrusters:
 
     def allocate_actuated(self, wrench_actuated: np.ndarray) -> np.ndarray:
         """As `allocate`, from the actuated part of the wrench alone (surge, sway, heave, yaw)."""
-        thrust = self._pinv @ wrench_actuated
+        thrust = self.pseudo_inverse @ wrench_actuated
         excess = (np.abs(thrust) / self.max_thrust_n(thrust)).max()
         return thrust / max(1.0, float(excess))
 
@@ -77,5 +77,5 @@ class Thrusters:
         db = self.spec.deadband
         command = np.clip(command, -1.0, 1.0)
         target = np.sign(command) * np.maximum(np.abs(command) - db, 0.0) / (1.0 - db)
-        self.rotor_speed = target + (self.rotor_speed - target) * np.exp(-dt_s / self.spec.time_constant_s)
+        self.rotor_speed[:] = target + (self.rotor_speed - target) * np.exp(-dt_s / self.spec.time_constant_s)
         data.ctrl[self.actuators] = self.thrust_n()

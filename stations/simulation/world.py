@@ -34,7 +34,7 @@ from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
 from abyss.stations.simulation.links import Links
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
-from abyss.stations.simulation.native import Marine
+from abyss.stations.simulation.native import LowLevel, Marine
 from abyss.stations.simulation.navigation import DvlBeams, Navigation
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
@@ -113,6 +113,13 @@ class World:
         self.marine = (
             Marine.of(self.data, self.hydrodynamics, self.links) if self.controller.dynamics else None
         )
+        # the dynamic low level in C too where the links' model carries the whole arm (native.py):
+        # alike to rounding, not bit for bit
+        self.native_low_level = (
+            LowLevel.of(self.controller, self.links)
+            if self.marine is not None and not self._buoyancy_apart and not self._mujoco_fluid
+            else None
+        )
         self.current = Current(
             config.current_profile, config.current_sigma_mps, config.current_time_constant_s, rng
         )
@@ -184,9 +191,12 @@ class World:
     def _low_level(self, refs: References, period_s: float) -> None:
         """The controllers, the current, and the marine forces held until the next update."""
         d = self.data
-        self.controller.apply(d, refs, period_s)
         self.current.advance(d.time)
         self.water_mps_world = self.current.velocity_mps_world(d.qpos[self.plant.qpos + 2])
+        if self.native_low_level is not None:  # the controllers and the links' forces, one call
+            self.native_low_level.apply(self.model, d, refs, self.water_mps_world, period_s)
+            return
+        self.controller.apply(d, refs, period_s)
         if self._mujoco_fluid:
             self.model.opt.wind[:] = self.water_mps_world  # for MuJoCo's drag
         if self._buoyancy_apart:

@@ -1,0 +1,140 @@
+"""The physics in C (stations/simulation/native.py, native_physics.c as setup.sh builds it): with
+the per-step marine terms in C a World steps bit for bit as the Python path does, with a current,
+the vehicle turning and the arm moving, over whole and partial low-level periods; the callback acts
+on the MjData registered and active alone. The low level in C gives the Python's outputs to
+rounding, period by period and over a flight, faults and saturation included."""
+
+from __future__ import annotations
+
+import shutil
+
+import mujoco
+import numpy as np
+import pytest
+
+from abyss.common.config.simulation import SimulationConfig
+from abyss.common.messages import SimulationControl
+from abyss.stations.simulation import native
+from abyss.stations.simulation.lowlevel import References
+from abyss.stations.simulation.world import World
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("cc") is None, reason="no C compiler: setup.sh leaves the marine terms in Python"
+)
+CONFIG = SimulationConfig(current_profile=((0.0, 0.2, -0.1, 0.0),), current_sigma_mps=0.05)
+MOVING = References(np.array([0.3, 0.1, -0.05, 0.2]), np.array([0.2, -0.3, 0.25, 0.1, -0.2, 0.3]), 0.01)
+
+
+def flown(in_c: bool) -> World:
+    world = World(CONFIG, np.random.default_rng(3))
+    world.native_low_level = None  # the low level in Python in both: these are the per-step terms
+    if not in_c:
+        world.marine = None  # the Python path
+    for _ in range(30):
+        world.step(MOVING, 0.05)  # whole low-level periods (5 steps each)
+    world.step(MOVING, 0.012)  # one and a fifth
+    return world
+
+
+def test_setup_built_the_library_and_worlds_step_with_it() -> None:
+    assert native.library() is not None, f"{native.LIBRARY} missing: run setup.sh"
+    world = World(CONFIG, np.random.default_rng(0))
+    assert world.marine is not None and world.native_low_level is not None
+
+
+def test_the_marine_terms_in_c_step_bit_for_bit_as_python_does() -> None:
+    in_c, in_python = flown(True), flown(False)
+    assert in_c.data.time == pytest.approx(1.512)
+    moved = np.linalg.norm(in_c.data.qpos[:3] - np.asarray(CONFIG.start_position_m_world))
+    assert moved > 0.1  # it flew, in a current
+    for field in ("qpos", "qvel", "qfrc_applied", "xfrc_applied", "M"):
+        assert np.array_equal(getattr(in_c.data, field), getattr(in_python.data, field)), field
+
+
+def test_the_callback_leaves_other_data_and_other_steps_alone() -> None:
+    world = World(CONFIG, np.random.default_rng(0))
+    assert world.marine is not None
+    other = mujoco.MjData(world.model)  # the same model, not registered
+    mujoco.mj_step(world.model, other, nstep=10)
+    assert not other.qfrc_applied.any()
+    mujoco.mj_forward(world.model, world.data)  # registered, but not stepping: inactive
+    assert not world.data.qfrc_applied.any()
+    world.step(MOVING, 0.01)
+    assert world.data.qfrc_applied.any()  # the hull's terms, in its steps
+
+
+LOW_LEVEL_OUTPUTS = ("ctrl", "xfrc_applied")
+
+
+def outputs(world: World) -> dict[str, np.ndarray]:
+    """What a low-level period leaves for the steps, and the state it carries to the next."""
+    controller = world.controller
+    return {
+        **{field: getattr(world.data, field).copy() for field in LOW_LEVEL_OUTPUTS},
+        "inertia": world.links.values.copy(),  # type: ignore[union-attr]
+        "vehicle_integral": controller.vehicle_integral.copy(),  # type: ignore[attr-defined]
+        "vehicle_error": controller.vehicle_error.copy(),  # type: ignore[attr-defined]
+        "arm_integral": controller.arm_integral.copy(),  # type: ignore[attr-defined]
+        "rotors": controller.thrusters.rotor_speed.copy(),  # type: ignore[attr-defined]
+    }
+
+
+def assert_alike(c: dict[str, np.ndarray], python: dict[str, np.ndarray], rtol: float) -> None:
+    for name, value in python.items():
+        scale = max(1.0, float(np.abs(value).max()))
+        assert np.abs(c[name] - value).max() <= rtol * scale, (name, c[name], value)
+
+
+@pytest.mark.parametrize(
+    "refs",
+    [
+        MOVING,
+        # beyond the thrusters: the allocation scales down, the integral holds (anti-windup)
+        References(np.array([3.0, -2.0, 1.0, 2.0]), np.array([3.0, -3.0, 3.0, 3.0, -3.0, 3.0]), -0.05),
+    ],
+    ids=["moving", "saturated"],
+)
+def test_the_low_level_in_c_gives_the_pythons_outputs_period_by_period(refs: References) -> None:
+    """From the same state, each period's controls, the links' forces and inertia entries and the
+    controllers' state alike to rounding; a weakened thruster reaches C through the fault's array."""
+    world = World(CONFIG, np.random.default_rng(3))
+    native_low_level = world.native_low_level
+    assert native_low_level is not None
+    for period in range(40):
+        if period == 20:
+            world.apply_fault(SimulationControl("thruster", "thr_fl", 0.5), set())
+        before = outputs(world)
+        world.native_low_level = native_low_level
+        world._low_level(refs, 0.01)
+        in_c = outputs(world)
+        restore(world, before)  # the Python's turn from the same state
+        world.native_low_level = None
+        world._low_level(refs, 0.01)
+        assert_alike(in_c, outputs(world), rtol=1e-12)
+        world.marine.step(world.model, world.water_mps_world, 5)  # type: ignore[union-attr]
+    assert world.controller.thrusters.efficiency.min() == 0.5  # type: ignore[attr-defined]
+
+
+def restore(world: World, state: dict[str, np.ndarray]) -> None:
+    controller = world.controller
+    for field in LOW_LEVEL_OUTPUTS:
+        getattr(world.data, field)[:] = state[field]
+    world.links.values[:] = state["inertia"]  # type: ignore[union-attr]
+    controller.vehicle_integral[:] = state["vehicle_integral"]  # type: ignore[attr-defined]
+    controller.vehicle_error[:] = state["vehicle_error"]  # type: ignore[attr-defined]
+    controller.arm_integral[:] = state["arm_integral"]  # type: ignore[attr-defined]
+    controller.thrusters.rotor_speed[:] = state["rotors"]  # type: ignore[attr-defined]
+
+
+def test_a_flight_with_the_low_level_in_c_follows_the_pythons_to_rounding() -> None:
+    """Ten seconds of flight in a current, the arm moving: the two paths part by rounding alone
+    (they would part by far more on any changed term: a thruster's efficiency of 0.999 moves the
+    vehicle by millimetres)."""
+    in_c, in_python = World(CONFIG, np.random.default_rng(3)), World(CONFIG, np.random.default_rng(3))
+    in_python.native_low_level = None
+    for _ in range(200):
+        in_c.step(MOVING, 0.05)
+        in_python.step(MOVING, 0.05)
+    assert np.linalg.norm(in_c.data.qpos[:3] - np.asarray(CONFIG.start_position_m_world)) > 1.0
+    assert np.abs(in_c.data.qpos - in_python.data.qpos).max() < 1e-9
+    assert np.abs(in_c.data.qvel - in_python.data.qvel).max() < 1e-9

@@ -13,7 +13,7 @@ COPY pyproject.toml /tmp/pyproject.toml
 RUN python3 -c 'import tomllib; p = tomllib.load(open("/tmp/pyproject.toml", "rb")); \
 print("\n".join(p["build-system"]["requires"] + p["project"]["dependencies"]))' > /tmp/requirements.txt
 
-FROM ${BASE}
+FROM ${BASE} AS runtime
 COPY apt-packages.txt /tmp/apt-packages.txt
 RUN apt-get update \
  && grep -v '^#' /tmp/apt-packages.txt | xargs apt-get install -y --no-install-recommends \
@@ -52,3 +52,14 @@ RUN pip install --disable-pip-version-check --no-cache-dir --no-deps --no-build-
 EXPOSE 7447
 ENTRYPOINT ["abyss"]
 CMD ["--help"]
+
+# the physics in C, built against the MuJoCo installed above (stations/simulation/native.py) in a
+# stage of its own, so that the compiler stays out of the image: the same physics as a host's
+# setup.sh builds, and a run replays alike in either
+FROM runtime AS native
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends gcc libc6-dev \
+ && python3 -m abyss.stations.simulation.native
+
+FROM runtime
+COPY --from=native /opt/abyss/lib/abyss /opt/abyss/lib/abyss

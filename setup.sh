@@ -13,8 +13,8 @@ APT_PACKAGES="$(grep -v '^#' apt-packages.txt | xargs)"  # what a station needs;
 # the namespace lab's test; user-mode Linux and kmod's insmod for a kernel with sch_netem, where
 # the host's has none (tests/linkemu/uml.py)
 TEST_APT_PACKAGES="chromium docker-compose debootstrap iputils-ping user-mode-linux kmod"
-# a C compiler for the physics step's marine terms (stations/simulation/native_physics.c; without
-# it they step in Python, alike bit for bit but slower)
+# a C compiler for the physics in C (stations/simulation/native_physics.c; without it the physics
+# steps in Python: the per-step terms alike bit for bit, the low level to rounding, slower)
 TEST_APT_PACKAGES="$TEST_APT_PACKAGES gcc libc6-dev"
 command -v dockerd >/dev/null || TEST_APT_PACKAGES="$TEST_APT_PACKAGES docker.io"
 missing=""
@@ -46,14 +46,10 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/python -m pip install -q -e '.[test]'
   touch "$stamp"
 fi
-# the marine terms in C, against the MuJoCo in .venv (its wheel's headers and library), with
-# floating-point contraction off so that its arithmetic is Python's bit for bit
+# the physics in C (stations/simulation/native.py builds native_physics.c against the MuJoCo in
+# .venv), when it is newer than the library or the packages are
 native=.venv/lib/abyss/libabyss_physics.so  # stations/simulation/native.py loads it from there
 if command -v cc >/dev/null \
   && { [ ! -f "$native" ] || [ stations/simulation/native_physics.c -nt "$native" ] || [ "$stamp" -nt "$native" ]; }; then
-  mkdir -p "$(dirname "$native")"
-  mujoco_dir="$(.venv/bin/python -c 'import mujoco, os; print(os.path.dirname(mujoco.__file__))')"
-  library="$(cd "$mujoco_dir" && ls libmujoco.so.* | head -1)"
-  cc -O2 -fPIC -shared -ffp-contract=off -I"$mujoco_dir/include" stations/simulation/native_physics.c \
-    -L"$mujoco_dir" -l:"$library" -Wl,-rpath,"$mujoco_dir" -o "$native"
+  .venv/bin/python -m abyss.stations.simulation.native
 fi

@@ -9,9 +9,11 @@ rasteriser's or a GL driver's included), the mean of SETS sets after WARMUP. JPE
 the state's mj_forward are left out: they cost the same on any GL backend.
 
 Self-contained, for a machine where abyss is not installed: it imports numpy, mujoco (and PyOpenGL,
-which mujoco's EGL and OSMesa contexts use, for the GL vendor string) and, of abyss, only
-stations/simulation/rendering.py, common/config/simulation.py and common/models; the packages'
-__init__ modules (the station, the bus: zenoh, msgpack, zstandard, cryptography) are not run.
+which mujoco's EGL and OSMesa contexts use, for the GL vendor string), cv2 (Cameras.rgb imports
+stations/simulation/optics.py, even in clear water) and, of abyss, only stations/simulation/
+rendering.py and optics.py, common/config/simulation.py (errors.py, fields.py) and common/models;
+the packages' __init__ modules (the station, the bus: zenoh, msgpack, zstandard, cryptography)
+are not run.
 Where `abyss` is not importable as this checkout, a temporary folder with a link abyss -> the
 repository goes first on sys.path.
 Run: MUJOCO_GL=egl python3 bench/render_gpu.py [--sets N] [--warmup N] (MUJOCO_GL unset: the
@@ -20,10 +22,12 @@ simulation's own choice, rendering.choose_gl_backend). Prints one table; asserts
 from __future__ import annotations
 
 import argparse
+import atexit
 import importlib.machinery
 import importlib.util
 import os
 import platform
+import shutil
 import sys
 import tempfile
 import time
@@ -50,6 +54,7 @@ def _use_this_checkout() -> None:
         del sys.modules[name]
     folder = tempfile.mkdtemp(prefix="abyss-path-")
     os.symlink(REPO, os.path.join(folder, "abyss"))
+    atexit.register(shutil.rmtree, folder, True)  # the link itself, not the repository
     sys.path.insert(0, folder)
     import abyss
 
@@ -109,11 +114,13 @@ def gl_strings() -> str:
 
         vendor, renderer = GL.glGetString(GL.GL_VENDOR), GL.glGetString(GL.GL_RENDERER)
         return f"{vendor.decode()} / {renderer.decode()}"
-    except Exception as exc:  # noqa: BLE001  (a figure without its label beats none)
+    except Exception as exc:  # a figure without its label beats none
         return f"? ({type(exc).__name__})"
 
 
-def measure(model: mujoco.MjModel, data: mujoco.MjData, sim: SimulationConfig, samples: int, sets: int, warmup: int):
+def measure(
+    model: mujoco.MjModel, data: mujoco.MjData, sim: SimulationConfig, samples: int, sets: int, warmup: int
+):
     cameras = Cameras(
         model,
         sim.camera_width_px,
@@ -156,7 +163,10 @@ def main() -> None:
         gl, wall, cpu = measure(model, data, sim, samples, args.sets, args.warmup)
         rows.append((BACKEND, gl, samples, wall, cpu))
     width = max(len(r[1]) for r in rows)
-    print(f"{'backend':8} {'GL vendor / renderer':{width}} {'samples':>7} {'wall ms/set':>11} {'p50':>7} {'max':>7} {'CPU ms/set':>10}")
+    print(
+        f"{'backend':8} {'GL vendor / renderer':{width}} {'samples':>7} {'wall ms/set':>11} {'p50':>7} "
+        f"{'max':>7} {'CPU ms/set':>10}"
+    )
     for backend, gl, samples, wall, cpu in rows:
         print(
             f"{backend:8} {gl:{width}} {samples:7d} {1e3 * wall.mean():11.2f} {1e3 * np.median(wall):7.2f} "

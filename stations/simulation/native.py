@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import logging
+import subprocess
 import sys
 import weakref
 from pathlib import Path
@@ -105,6 +106,22 @@ class _LowLevelTerms(ctypes.Structure):
         ("mass_q", _pointer),
         ("values", _pointer),
     )
+
+
+def build(out: Path = LIBRARY, compiler: str = "cc") -> Path:
+    """Compile native_physics.c against this environment's MuJoCo (its wheel's headers and library)
+    into `out`, floating-point contraction off so that the per-step terms are Python's bit for bit:
+    setup.sh and the image's build stage run it (`python -m abyss.stations.simulation.native`)."""
+    mujoco_dir = Path(mujoco.__file__).parent
+    shared = sorted(mujoco_dir.glob("libmujoco.so.*"))
+    if not shared:
+        raise FileNotFoundError(f"no libmujoco.so.* in {mujoco_dir}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    source = Path(__file__).with_name("native_physics.c")
+    flags = ["-O2", "-fPIC", "-shared", "-ffp-contract=off", f"-I{mujoco_dir / 'include'}"]
+    link = [f"-L{mujoco_dir}", f"-l:{shared[0].name}", f"-Wl,-rpath,{mujoco_dir}"]
+    subprocess.run([compiler, *flags, str(source), *link, "-o", str(out)], check=True)
+    return out
 
 
 @functools.cache
@@ -286,3 +303,7 @@ class LowLevel:
         r[11] = period_s
         self.current_mps_world[:] = current_mps_world
         self._call(model._address, data._address)
+
+
+if __name__ == "__main__":
+    print(f"built {build()}")

@@ -204,6 +204,17 @@ class World:
         if self.links is not None:  # after the buoyancy: it sets its links' whole xfrc_applied
             self.links.apply(d, self.water_mps_world)
 
+    @property
+    def physics(self) -> str:
+        """Where the physics runs, for summary.json: "c" (the per-step terms and the low level),
+        "c-steps" (the per-step terms alone), "python", "kinematic" (no forces); runs replay alike
+        only on the same."""
+        if not self.controller.dynamics:
+            return "kinematic"
+        if self.marine is None:
+            return "python"
+        return "c" if self.native_low_level is not None else "c-steps"
+
     # -- outputs -------------------------------------------------------------------------
     def truth(self) -> NavState:
         p = self.plant.qpos

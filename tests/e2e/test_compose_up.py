@@ -69,6 +69,24 @@ def image() -> Iterator[str]:
     yield engine.IMAGE
 
 
+PHYSICS_PROBE = """
+import shutil
+import numpy as np
+from abyss.common.config.simulation import SimulationConfig
+from abyss.stations.simulation.world import World
+print(World(SimulationConfig(), np.random.default_rng(0)).physics, shutil.which("cc"))
+"""
+
+
+@pytest.mark.timeout(1500)  # a cold cache: the base image, ~1 GB of wheels, then the mission
+def test_the_image_runs_the_physics_in_c_and_holds_no_compiler(image: str) -> None:
+    """Its build stage compiled the physics against the image's MuJoCo and left the compiler
+    behind: a run in a container is a host's run (setup.sh builds the same), step for step."""
+    done = engine.docker("run", "--rm", "--entrypoint", "/opt/abyss/bin/python", image, "-c", PHYSICS_PROBE)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["c", "None"], done.stdout + done.stderr
+
+
 @pytest.mark.timeout(1500)  # a cold cache: the base image, ~1 GB of wheels, then the mission
 def test_compose_up_runs_the_mission(image: str, tmp_path: Path) -> None:
     port = free_port()

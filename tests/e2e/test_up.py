@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import threading
 import time
@@ -29,6 +30,8 @@ def test_up_runs_every_station_and_counts_every_hop(tmp_path: Path) -> None:
     for name, station in summary["stations"].items():
         assert station["exit_code"] == 0 and station["alive_seen"], name
         assert 0.0 < station["cpu"]["cores"] < 2.0 and station["cpu"]["wall_s"] > 20.0, (name, station["cpu"])
+    # the physics in C where setup.sh had a compiler to build it (stations/simulation/native.py)
+    assert summary["stations"]["simulation"]["physics"] == ("c" if shutil.which("cc") else "python")
     if os.geteuid() == 0:  # CAP_SYS_NICE: the physics at real-time priority, said in the summary
         assert summary["stations"]["simulation"]["scheduler"] == "fifo 10"
         assert "(scheduler: fifo 10)" in up.output()

@@ -109,17 +109,9 @@ class World:
             self.model.opt.density = rho
         else:
             self.model.opt.density = self.model.opt.viscosity = 0.0
-        # the per-step marine terms in C where it is built (native.py), else in Python: alike bit for bit
-        self.marine = (
-            Marine.of(self.data, self.hydrodynamics, self.links) if self.controller.dynamics else None
-        )
-        # the dynamic low level in C too where the links' model carries the whole arm (native.py):
-        # alike to rounding, not bit for bit
-        self.native_low_level = (
-            LowLevel.of(self.controller, self.links)
-            if self.marine is not None and not self._buoyancy_apart and not self._mujoco_fluid
-            else None
-        )
+        self.marine: Marine | None = None
+        self.native_low_level: LowLevel | None = None
+        self._bind_native()
         self.current = Current(
             config.current_profile, config.current_sigma_mps, config.current_time_constant_s, rng
         )
@@ -150,6 +142,24 @@ class World:
         self.dvl = DvlBeams(
             self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
         )
+
+    def _bind_native(self) -> None:
+        """The physics in C where it is built (native.py): the per-step marine terms (alike bit for
+        bit), and the dynamic low level where the links' model carries the whole arm (alike to
+        rounding); each None where it runs in Python."""
+        self.marine = (
+            Marine.of(self.data, self.hydrodynamics, self.links) if self.controller.dynamics else None
+        )
+        self.native_low_level = (
+            LowLevel.of(self.controller, self.links)
+            if self.marine is not None and not self._buoyancy_apart and not self._mujoco_fluid
+            else None
+        )
+
+    def use_links(self, links: Links) -> None:
+        """Another strip model of the arm (other coefficients: tests, benches), C's with it."""
+        self.links = links
+        self._bind_native()
 
     def step(self, refs: References, period_s: float) -> None:
         """Advance by `period_s` [s] (a whole number of physics steps)."""

@@ -52,13 +52,15 @@ def world(
     for name, angle_rad in zip(ARM_JOINTS, pose, strict=True):
         w.data.qpos[w.model.joint(name).qposadr[0]] = angle_rad
     if w.links is not None and (coefficients is not None or not inertia):
-        w.links = Links(
-            w.model,
-            list(w.links.bodies),
-            w.buoyancy,
-            wet_geoms(w.model),
-            coefficients or Coefficients(),
-            inertia,
+        w.use_links(
+            Links(
+                w.model,
+                list(w.links.bodies),
+                w.buoyancy,
+                wet_geoms(w.model),
+                coefficients or Coefficients(),
+                inertia,
+            )
         )
     mujoco.mj_forward(w.model, w.data)
     return w

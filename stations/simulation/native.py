@@ -1,10 +1,13 @@
-"""The physics step's marine terms in C (native_physics.c, which setup.sh compiles into the
-environment: .venv/lib/abyss/libabyss_physics.so): the hull's Fossen terms and the arm's added
-mass, put into MuJoCo's step by its control callback, so that a whole low-level period of steps
-is one `mj_step(nstep=...)` with no Python between them. The same equations in the same order as
-the Python path (Fossen._apply_diagonal, Links.add_mass), so the two step bit for bit alike
-(tests/stations/simulation/test_native_physics.py holds it). Where the library is not built (an
-image without a compiler), `Marine.of` is None and World steps in Python."""
+"""The physics in C (native_physics.c, which setup.sh, or the image's build stage, compiles into
+the environment: .venv/lib/abyss/libabyss_physics.so; `build`):
+- `Marine`: the hull's Fossen terms and the arm's added mass, put into MuJoCo's step by its control
+  callback, so that a whole low-level period of steps is one `mj_step(nstep=...)` with no Python
+  between them. The same equations in the same order as the Python path (Fossen._apply_diagonal,
+  Links.add_mass), so the two step bit for bit alike;
+- `LowLevel`: the dynamic low level (the controllers, the thrusters, the links' strip model) as one
+  call per control period, alike to the Python's to rounding.
+tests/stations/simulation/test_native_physics.py holds both. Where the library is not built (no
+compiler), `Marine.of` and `LowLevel.of` are None and World runs it all in Python."""
 
 from __future__ import annotations
 
@@ -128,18 +131,19 @@ def build(out: Path = LIBRARY, compiler: str = "cc") -> Path:
 def library() -> ctypes.CDLL | None:
     """native_physics.c's library, its callback installed as MuJoCo's control callback; None if not built."""
     if not LIBRARY.is_file():
-        log.info("%s not built (setup.sh builds it): the marine terms step in Python", LIBRARY.name)
+        log.info("%s not built (setup.sh builds it): the physics runs in Python", LIBRARY.name)
         return None
     try:
         lib = ctypes.CDLL(str(LIBRARY))
-    except OSError as exc:  # built against another MuJoCo than this environment's
-        log.warning("%s does not load (%s): the marine terms step in Python; run setup.sh", LIBRARY.name, exc)
+        low_level = lib.abyss_low_level
+    except (OSError, AttributeError) as exc:  # built against another MuJoCo, or from another source
+        log.warning("%s does not load (%s): the physics runs in Python; run setup.sh", LIBRARY.name, exc)
         return None
     lib.abyss_marine_register.argtypes = [ctypes.POINTER(_Terms)]
     lib.abyss_marine_register.restype = ctypes.c_int
     lib.abyss_marine_unregister.argtypes = [ctypes.c_int]
-    lib.abyss_low_level.argtypes = [ctypes.POINTER(_LowLevelTerms), ctypes.c_void_p, ctypes.c_void_p]
-    lib.abyss_low_level.restype = None
+    low_level.argtypes = [ctypes.POINTER(_LowLevelTerms), ctypes.c_void_p]
+    low_level.restype = None
     if mujoco.get_mjcb_control() is not None:
         raise RuntimeError("MuJoCo's control callback is taken: the marine terms need it")
     mujoco.set_mjcb_control(lib.abyss_marine_control)
@@ -288,7 +292,6 @@ class LowLevel:
 
     def apply(
         self,
-        model: mujoco.MjModel,
         data: mujoco.MjData,
         refs: References,
         current_mps_world: np.ndarray,
@@ -302,7 +305,7 @@ class LowLevel:
         r[10] = refs.gripper_mps
         r[11] = period_s
         self.current_mps_world[:] = current_mps_world
-        self._call(model._address, data._address)
+        self._call(data._address)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,17 @@
-/* The marine terms a physics step needs between MuJoCo's position and acceleration stages, in C:
- * the hull's Fossen terms for a diagonal added mass (hydrodynamics.Fossen._apply_diagonal, the
- * same equations in the same order of operations) and the arm's added mass (links.Links.add_mass)
- * into the inertia, then its factorisation again. MuJoCo calls abyss_marine_control as its control
+/* The physics in C (stations/simulation/native.py loads it; without it, all runs in Python).
+ *
+ * The marine terms a physics step needs between MuJoCo's position and acceleration stages: the
+ * hull's Fossen terms for a diagonal added mass (hydrodynamics.Fossen._apply_diagonal, the same
+ * equations in the same order of operations) and the arm's added mass (links.Links.add_mass) into
+ * the inertia, then its factorisation again. MuJoCo calls abyss_marine_control as its control
  * callback (mjcb_control: after the velocity stage, where mj_step1 ends) on every step of every
- * model in the process; it acts on the MjData registered and active, and on no other. Built by
- * setup.sh with the compiler's floating-point contraction off, so that its arithmetic is Python's
- * bit for bit, into .venv/lib/abyss/libabyss_physics.so (stations/simulation/native.py loads it;
- * without it, the steps run in Python). */
+ * model in the process; it acts on the MjData registered and active, and on no other. Built with
+ * the compiler's floating-point contraction off, so that its arithmetic is Python's bit for bit.
+ *
+ * The dynamic low level, once per control period (abyss_low_level, below): alike to rounding.
+ *
+ * native.build compiles it (setup.sh, the image's build stage) into the environment:
+ * .venv/lib/abyss/libabyss_physics.so. */
 #include <math.h>
 #include <string.h>
 
@@ -153,7 +158,7 @@ static double max_thrust(const AbyssLowLevel* c, double thrust_n) {
   return thrust_n >= 0.0 ? c->forward_max_n : c->reverse_max_n;
 }
 
-static void vehicle(AbyssLowLevel* c, const mjModel* m, mjData* d) {
+static void vehicle(AbyssLowLevel* c, mjData* d) {
   const double* ref = c->references;
   double dt = c->references[11];
   double rotation[9];
@@ -201,7 +206,6 @@ static void vehicle(AbyssLowLevel* c, const mjModel* m, mjData* d) {
     c->rotor_speed[k] = rotor;
     d->ctrl[c->actuators[k]] = max_thrust(c, rotor) * rotor * fabs(rotor) * c->efficiency[k];
   }
-  (void)m;
 }
 
 static void arm(AbyssLowLevel* c, mjData* d) {
@@ -312,8 +316,8 @@ static void links(AbyssLowLevel* c, mjData* d) {
 
 /* One control period's low level: the controllers, then the links' marine forces from the
  * current kinematics. */
-void abyss_low_level(AbyssLowLevel* c, const mjModel* m, mjData* d) {
-  vehicle(c, m, d);
+void abyss_low_level(AbyssLowLevel* c, mjData* d) {
+  vehicle(c, d);
   arm(c, d);
   links(c, d);
 }

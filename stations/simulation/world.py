@@ -204,7 +204,7 @@ class World:
         self.current.advance(d.time)
         self.water_mps_world = self.current.velocity_mps_world(d.qpos[self.plant.qpos + 2])
         if self.native_low_level is not None:  # the controllers and the links' forces, one call
-            self.native_low_level.apply(self.model, d, refs, self.water_mps_world, period_s)
+            self.native_low_level.apply(d, refs, self.water_mps_world, period_s)
             return
         self.controller.apply(d, refs, period_s)
         if self._mujoco_fluid:

@@ -200,7 +200,9 @@ class Bus:
         self.on_arrival: Callable[[], None] = lambda: None
         self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
         self.realtime = Realtime(0)  # the station's scheduling (the simulation's physics asks for more)
-        self.about: dict[str, str] = {}  # what the station says of itself (the simulation: its physics)
+        self.about: dict[
+            str, str
+        ] = {}  # what the station says of itself in summary.json (the simulation: its physics)
 
     def route(self, hop: str, egress: Egress) -> None:
         """Send what goes across `hop` through `egress` (the testbed's link emulator), which
@@ -329,8 +331,8 @@ class Bus:
             self._shed[key] += count
 
     def status(self) -> dict[str, Any]:
-        """What this station sent, received, rejected and shed, its loops' deadlines met, the
-        scheduler they run on and what it says of itself (`about`), for summary.json."""
+        """What this station sent, received, rejected and shed, its loops' deadlines met and the
+        scheduler they run on, for summary.json."""
         with self._lock:
             latency = {
                 key: samples.percentiles("latency", 1e3, "ms") for key, samples in self.latency_s.items()
@@ -351,7 +353,7 @@ class Bus:
                     for name, rate in self._loops.items()
                 },
                 "scheduler": self.realtime.scheduler,
-                "about": dict(self.about),
+                **self.about,
             }
 
     def close(self) -> None:

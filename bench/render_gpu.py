@@ -82,19 +82,15 @@ BACKEND = choose_gl_backend()  # MUJOCO_GL, else the simulation's choice; before
 import mujoco  # noqa: E402
 
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD, CAMERAS, WORLD_FILE  # noqa: E402
+from abyss.common.models import CAMERAS, WORLD_FILE, place_at_start  # noqa: E402
 
 DEPTH_CAMERA = "cam_depth"  # encoding.encode_image: its depth; the others' RGB
 
 
 def start_pose(model: mujoco.MjModel, sim: SimulationConfig) -> mujoco.MjData:
-    """World's initial state: the vehicle at the start position and yaw, the arm stowed."""
+    """World's initial state (common.models.place_at_start)."""
     data = mujoco.MjData(model)
-    p = model.joint("vehicle").qposadr[0]
-    data.qpos[p : p + 3] = sim.start_position_m_world
-    data.qpos[p + 3 : p + 7] = [np.cos(sim.start_yaw_rad / 2), 0.0, 0.0, np.sin(sim.start_yaw_rad / 2)]
-    for name, angle_rad in zip(ARM_JOINTS, ARM_STOWED_RAD, strict=True):
-        data.qpos[model.joint(name).qposadr[0]] = angle_rad
+    place_at_start(model, data.qpos, sim.start_position_m_world, sim.start_yaw_rad)
     mujoco.mj_forward(model, data)
     return data
 

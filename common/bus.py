@@ -200,9 +200,7 @@ class Bus:
         self.on_arrival: Callable[[], None] = lambda: None
         self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
         self.realtime = Realtime(0)  # the station's scheduling (the simulation's physics asks for more)
-        self.about: dict[
-            str, str
-        ] = {}  # what the station says of itself in summary.json (the simulation: its physics)
+        self.about: dict[str, str] = {}  # what the station says of itself (the simulation: its physics)
 
     def route(self, hop: str, egress: Egress) -> None:
         """Send what goes across `hop` through `egress` (the testbed's link emulator), which
@@ -331,8 +329,8 @@ class Bus:
             self._shed[key] += count
 
     def status(self) -> dict[str, Any]:
-        """What this station sent, received, rejected and shed, its loops' deadlines met and the
-        scheduler they run on, for summary.json."""
+        """What this station sent, received, rejected and shed, its loops' deadlines met, the
+        scheduler they run on and what it says of itself (`about`), for summary.json."""
         with self._lock:
             latency = {
                 key: samples.percentiles("latency", 1e3, "ms") for key, samples in self.latency_s.items()
@@ -353,7 +351,7 @@ class Bus:
                     for name, rate in self._loops.items()
                 },
                 "scheduler": self.realtime.scheduler,
-                **self.about,
+                "about": dict(self.about),
             }
 
     def close(self) -> None:

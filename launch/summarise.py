@@ -37,7 +37,7 @@ def station_summary(
         "log": str(station.log_path),
         **{k: status.get(k, {}) for k in COUNTS},
         "scheduler": status.get("scheduler", ""),
-        **({"physics": status["physics"]} if "physics" in status else {}),
+        **status.get("about", {}),  # the station's own facts (the simulation: its physics)
     }
     if station.name in cpu.caps:
         summary["cpu"] = {

@@ -2,6 +2,9 @@
 included by `world.xml` (the panel and the seabed too, read by MuJoCo), and the names both use."""
 
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 MODELS_DIR = Path(__file__).parent
 WORLD_FILE = MODELS_DIR / "world.xml"
@@ -25,3 +28,15 @@ def stereo_set(sim_time_s: float, camera_rate_hz: float, stereo_every: int) -> b
     at index 1, the first onboard can place (at 0 s it has no navigation estimate yet). The
     simulation renders cam_right for these sets alone, and onboard waits for it on these alone."""
     return round(sim_time_s * camera_rate_hz) % stereo_every == 1 % stereo_every
+
+
+def place_at_start(
+    model: Any, qpos: Any, position_m_world: tuple[float, float, float], yaw_rad: float
+) -> None:
+    """A world's first positions in `qpos` (a MuJoCo model's of world.xml): the vehicle at
+    `position_m_world` [m] heading `yaw_rad` [rad] about the world's z, level, the arm stowed."""
+    p = model.joint("vehicle").qposadr[0]
+    qpos[p : p + 3] = position_m_world
+    qpos[p + 3 : p + 7] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
+    for name, angle_rad in zip(ARM_JOINTS, ARM_STOWED_RAD, strict=True):
+        qpos[model.joint(name).qposadr[0]] = angle_rad

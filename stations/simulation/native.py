@@ -164,10 +164,10 @@ class Marine:
 
     def __init__(self, lib: ctypes.CDLL, data: mujoco.MjData, fossen: Fossen, links: Links | None) -> None:
         assert fossen.diagonal is not None
-        self.links = links
         self.current_mps_world = np.zeros(3)  # held here: C reads it through its pointer
         self._link_entries = np.ascontiguousarray(links.entries if links else [], dtype=np.int32)
-        self._link_values = np.zeros(len(self._link_entries))
+        # the links' own array, which their low level (Python's or C's) updates in place
+        self._link_values = links.values if links else np.zeros(0)
         linear, quadratic = fossen.damping
         terms = self._terms = _Terms(
             data=data._address,
@@ -194,8 +194,6 @@ class Marine:
         """`nstep` physics steps with the current and the arm's added mass held, as the low level
         last set them."""
         self.current_mps_world[:] = current_mps_world
-        if self.links is not None:
-            self._link_values[:] = self.links.values
         self._terms.active = 1
         try:
             mujoco.mj_step(model, self._data, nstep=nstep)

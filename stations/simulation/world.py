@@ -21,13 +21,13 @@ from abyss.common.messages import (
 )
 from abyss.common.models import (
     ARM_JOINTS,
-    ARM_STOWED_RAD,
     CAMERAS,
     GRIPPER_JOINTS,
     NAV_SENSORS,
     VEHICLE_FILE,
     WORLD_FILE,
     panel,
+    place_at_start,
 )
 from abyss.common.runfiles import write_whole
 from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
@@ -128,16 +128,7 @@ class World:
             np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs, self.plant.gripper_dofs
         ]
         self._passive_dofs = np.setdiff1d(np.arange(self.model.nv), robot_dofs)
-        p = self.plant.qpos
-        self.data.qpos[p : p + 3] = config.start_position_m_world
-        self.data.qpos[p + 3 : p + 7] = [
-            np.cos(config.start_yaw_rad / 2),
-            0.0,
-            0.0,
-            np.sin(config.start_yaw_rad / 2),
-        ]
-        for name, angle_rad in zip(ARM_JOINTS, ARM_STOWED_RAD, strict=True):
-            self.data.qpos[self.model.joint(name).qposadr[0]] = angle_rad
+        place_at_start(self.model, self.data.qpos, config.start_position_m_world, config.start_yaw_rad)
         mujoco.mj_forward(self.model, self.data)
         self.dvl = DvlBeams(
             self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m, config.dvl_max_altitude_m

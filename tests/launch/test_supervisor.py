@@ -332,6 +332,7 @@ def status_file(name: str, system_id: str = "unit") -> dict[str, object]:
             }
         },
         "scheduler": "fifo 10" if name == "simulation" else "normal (not asked for)",
+        "about": {"physics": "c"} if name == "simulation" else {},
     }
 
 
@@ -409,6 +410,8 @@ def test_summary_of_a_clean_run_is_done(system: Callable[..., System]) -> None:
         "  simulation: 29.5 s simulated, real-time factor 0.98, deadlines met 99.5% (scheduler: fifo 10)"
     ) in text
     assert summary["stations"]["simulation"]["scheduler"] == "fifo 10"
+    assert summary["stations"]["simulation"]["physics"] == "c"  # what the station said of itself
+    assert "physics" not in summary["stations"]["vessel"]
 
 
 def test_render_summary_of_every_section() -> None:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ from abyss.common.config.system import (
     TimeConfig,
 )
 from abyss.common.errors import ConfigError
+from abyss.common.reading import read_table
 
 
 @dataclass(frozen=True)
@@ -53,66 +53,6 @@ class Config:
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2)
-
-
-def _coerce(name: str, kind: Any, value: Any) -> Any:
-    """Check `value` against the type hint `kind`, converting CLI strings."""
-    origin = typing.get_origin(kind)
-    if dataclasses.is_dataclass(kind):
-        return _build(kind, value, name)
-    if origin is typing.Literal:  # a mode: read as its values' type, checked by its section
-        return _coerce(name, type(typing.get_args(kind)[0]), value)
-    if origin is tuple:
-        args = typing.get_args(kind)
-        if isinstance(value, str):
-            value = json.loads(value)
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(name, f"expected a list, got {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(f"{name}[{i}]", args[0], v) for i, v in enumerate(value))
-        if len(value) != len(args):
-            raise ConfigError(name, f"expected {len(args)} values, got {len(value)}")
-        return tuple(_coerce(f"{name}[{i}]", a, v) for i, (a, v) in enumerate(zip(args, value, strict=True)))
-    if kind is float:
-        try:
-            number = float(value) if not isinstance(value, bool) else math.nan
-        except (TypeError, ValueError):
-            number = math.nan
-        if not math.isfinite(number):
-            raise ConfigError(name, f"expected a finite number, got {value!r}")
-        return number
-    if kind is int:
-        if isinstance(value, str) and value.strip().lstrip("-").isdigit():
-            value = int(value)
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(name, f"expected a whole number, got {value!r}")
-        return value
-    if kind is bool:
-        if isinstance(value, str) and value.lower() in ("true", "false"):
-            value = value.lower() == "true"
-        if not isinstance(value, bool):
-            raise ConfigError(name, f"expected true or false, got {value!r}")
-        return value
-    if kind is str:
-        if not isinstance(value, str):
-            raise ConfigError(name, f"expected a string, got {value!r}")
-        return value
-    raise ConfigError(name, f"unsupported type {kind}")
-
-
-def _build(cls: Any, table: Any, prefix: str = "") -> Any:
-    if not isinstance(table, dict):
-        raise ConfigError(prefix or "config", f"expected a table, got {table!r}")
-    hints = typing.get_type_hints(cls)
-    allowed = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(table) - allowed
-    if unknown:
-        raise ConfigError(
-            f"{prefix}{'.' if prefix else ''}{sorted(unknown)[0]}",
-            f"unknown field; allowed: {', '.join(sorted(allowed))}",
-        )
-    values = {n: _coerce(f"{prefix}{'.' if prefix else ''}{n}", hints[n], v) for n, v in table.items()}
-    return cls(**values)
 
 
 def load(
@@ -146,7 +86,7 @@ def load(
         node[leaf] = value
         overridden[name] = (options or {}).get(name, "--set")
     try:
-        return typing.cast(Config, _build(Config, table))
+        return typing.cast(Config, read_table(Config, table))
     except ConfigError as exc:
         raise ConfigError(exc.field, exc.reason, overridden.get(exc.field, source)) from None
     except json.JSONDecodeError as exc:

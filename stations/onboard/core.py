@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,13 +42,14 @@ from abyss.stations.onboard.vehicle_control import ControlOutput, VehicleControl
 GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
 GRIPPER_GAIN_PER_S = 2.0
 log = logging.getLogger(__name__)
+Command = Waypoints | ArmGoal | OperatorMode | InterventionGoal  # an operator's
 
 
 @dataclass
 class OnboardInputs:
     """What reached onboard since the last step, oldest first."""
 
-    commands: list[Waypoints | ArmGoal | OperatorMode | InterventionGoal] = field(default_factory=list)
+    commands: list[Command] = field(default_factory=list)
     heartbeats: list[Heartbeat] = field(default_factory=list)
     nav: list[NavState] = field(default_factory=list)
     joints: JointState | None = None  # the latest
@@ -79,6 +81,7 @@ class Onboard:
         self.tick = 0
         self.boot_id = new_id()  # shore sees a reboot by it, and hands the goals in force again
         self.intervention: InterventionRun | None = None  # the latest, once taken
+        self.waiting: dict[tuple[str, int], Command] = {}  # arm goals judged once navigation settles
 
     def _arm_busy(self) -> str:
         run = self.intervention
@@ -94,10 +97,29 @@ class Onboard:
             return np.r_[self.position_m_world, yaw_of(self.orientation_wxyz_world)]
         return np.zeros(4)
 
+    def _judged_now(self, commands: Sequence[Command]) -> list[Command]:
+        """The commands to judge in this period. An arm's or an intervention's goal waits,
+        unanswered, while navigation has not settled: where the vehicle will hold is not known yet
+        (a restarted onboard judged the first intervene from nowhere, "out of reach: 8.68 m"), and
+        a goal refused there would not be sent again. It is judged once navigation settles."""
+        if self.nav_filter.settled:
+            judged, self.waiting = [*self.waiting.values(), *commands], {}
+            return judged
+        judged = []
+        for command in commands:
+            known = (command.TYPE, command.command_id) in self.gate.answers
+            if isinstance(command, ArmGoal | InterventionGoal) and not known:
+                if (command.TYPE, command.command_id) not in self.waiting:
+                    log.info("%s command %d waits for navigation to settle", command.TYPE, command.command_id)
+                self.waiting[command.TYPE, command.command_id] = command
+            else:
+                judged.append(command)
+        return judged
+
     def step(self, inputs: OnboardInputs, now_s: float) -> OnboardOutputs:
         """One control period at `now_s` [s, this station's monotonic clock]."""
         out = OnboardOutputs()
-        for command in inputs.commands:
+        for command in self._judged_now(inputs.commands):
             ack, taken = self.gate.answer(command, self._holding_at(), self._arm_busy())
             out.acks.append(ack)
             if (

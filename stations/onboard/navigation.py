@@ -4,7 +4,8 @@ fix's noise against what the integration has gathered since. A fix arrives a fra
 second after it was taken: it is compared with the estimate of that moment, kept in a short
 history, and the correction is applied now (`delay_compensation`; without it the fix is read
 as if taken now, and a moving vehicle's estimate trails by its speed times the delay). A fix
-too far off for the uncertainty (the innovation gate) is rejected and counted. Without bottom
+too far off for the uncertainty (the innovation gate) is rejected and counted; an estimate not
+yet settled (one fix, which may have been the outlier) starts afresh from it instead. Without bottom
 lock the DVL's last velocity fades out and the uncertainty grows (coasting). The output takes
 each correction up over a couple of seconds (BLEND_S) rather than in one step. Depth is the
 pressure sensor's, and attitude the IMU's, each smoothed by integrating the DVL's heave and the
@@ -32,7 +33,11 @@ COAST_FADE_S = 2.0  # [s] without bottom lock, the last velocity fades with this
 COAST_SIGMA_MPS = 0.1  # [m/s per sqrt(s)] the position's uncertainty grows so while coasting
 BIAS_WALK_MPS = 1e-5  # [m/s per sqrt(s)] how fast the DVL's bias (in the world frame) may wander
 BIAS_SIGMA_MPS = 0.005  # [m/s] the DVL's bias, as first assumed
-RESET_AFTER_REJECTED = 5  # fixes rejected in a row: the estimate, not the fixes, is wrong; start afresh
+# fixes rejected in a row: the estimate, not the fixes, is wrong; start afresh. An estimate not yet
+# settled starts afresh at its first rejection: its start is one fix, and that fix may have been the
+# outlier (a restarted onboard started 3 m off on one, then rejected five good fixes in a row while
+# an intervention ran on the shifted frame)
+RESET_AFTER_REJECTED = 5
 # fixes that agree in a row (the first one included) before an estimate started afresh is trusted
 # to place what onboard sees and to steer the arm by: one fix alone may be an outlier (a rebooted
 # onboard started 0.34 m off on one, and its clouds laid a ghost of the panel's face that held the
@@ -152,7 +157,10 @@ class NavFilter:
                 self.rejected,
             )
             self._agreed = 0
-            if self._rejected_in_a_row >= RESET_AFTER_REJECTED:
+            if not self.settled:  # a start that no second fix confirmed may be the outlier
+                log.info("the unsettled estimate starts afresh from the fix taken at %.2f s", nav.usbl_time_s)
+                self._start(nav)
+            elif self._rejected_in_a_row >= RESET_AFTER_REJECTED:
                 log.warning(
                     "%d USBL fixes rejected in a row: the estimate starts afresh from the fix",
                     self._rejected_in_a_row,

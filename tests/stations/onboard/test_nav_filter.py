@@ -3,6 +3,8 @@ ray casts): the delay compensation, the outliers' rejection, coasting without bo
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -76,9 +78,11 @@ def test_an_outlier_moves_nothing_and_coasting_keeps_the_last_velocity_fading() 
 
 def test_an_estimate_is_settled_only_once_fixes_agree_so_an_outlier_first_fix_is_not_trusted() -> None:
     """Started by a fix 0.34 m off (a rebooted onboard's first, as a kill campaign found), the
-    estimate is not settled while the true fixes disagree with it; it starts afresh after
-    RESET_AFTER_REJECTED of them and is settled once SETTLE_FIXES agree. Started by good fixes, it
-    is settled after SETTLE_FIXES, and a later outlier does not unsettle it."""
+    estimate is not settled; the first true fix disagrees with it and it starts afresh from that
+    one (not after RESET_AFTER_REJECTED), settled once SETTLE_FIXES agree: as soon, counted from
+    the first true fix, as a good start. Started by good fixes, it is settled after SETTLE_FIXES,
+    and a later outlier does not unsettle it; a settled estimate starts afresh only after
+    RESET_AFTER_REJECTED in a row."""
     nav_filter = NavFilter(OnboardConfig())
 
     def nav(t_s: float, fix_m: float) -> NavState:
@@ -98,7 +102,7 @@ def test_an_estimate_is_settled_only_once_fixes_agree_so_an_outlier_first_fix_is
         nav_filter.update(nav(float(second), 0.0))
         settled.append(nav_filter.settled)
     first_settled = settled.index(True)
-    assert first_settled == RESET_AFTER_REJECTED + SETTLE_FIXES - 1, settled  # reset at 5, 3 agreed by 7
+    assert first_settled == SETTLE_FIXES, settled  # afresh at the first true fix (1), 3 agreed by 3
     assert settled[first_settled:] == [True] * (len(settled) - first_settled)
 
     good = NavFilter(OnboardConfig())
@@ -109,6 +113,46 @@ def test_an_estimate_is_settled_only_once_fixes_agree_so_an_outlier_first_fix_is
     assert states == [False, False, True, True, True]
     good.update(nav(5.0, 3.0))  # an outlier, rejected
     assert good.rejected == 1 and good.settled
+    for second in range(6, 4 + RESET_AFTER_REJECTED):  # the vehicle really is 3 m on: the estimate is wrong
+        good.update(nav(float(second), 3.0))
+        assert good.settled and good.position_m_world is not None and good.position_m_world[0] < 1.0
+    good.update(nav(float(4 + RESET_AFTER_REJECTED), 3.0))  # the fifth in a row
+    assert good.position_m_world is not None and good.position_m_world[0] == pytest.approx(3.0)
+    assert not good.settled  # afresh, and settled again only once fixes agree with the new start
+
+
+def test_a_restart_onto_an_outlier_settles_on_the_truth_as_fast_as_a_good_start() -> None:
+    """The recorded failure: a restarted onboard's first USBL fix was a seeded outlier 3 m off,
+    and the five good fixes after it were rejected ("3.01, 2.96, 3.02, 2.94, 2.98 m off") while
+    an intervention ran on the shifted frame. Replayed on the real model's sensors: started on
+    that outlier, the estimate settles on the truth as soon after the first good fix as an
+    estimate started on a good fix does, and never rejects a good fix."""
+
+    def settle(outlier_first: bool) -> tuple[float, float, int]:
+        w = World(SimulationConfig(low_level="kinematic"), np.random.default_rng(3))
+        nav_filter, first_good_s, last_fix_s = NavFilter(OnboardConfig()), None, -1.0
+        for i in range(round(40.0 / 0.05)):
+            w.step(References(np.array([0.1, 0.05, 0.0, 0.0]), np.zeros(6), 0.0), 0.05)
+            nav = w.nav()
+            fresh_fix, last_fix_s = nav.usbl_time_s > last_fix_s, max(last_fix_s, nav.usbl_time_s)
+            if outlier_first and nav_filter.position_m_world is None:
+                nav = dataclasses.replace(
+                    nav, position_m_world=nav.position_m_world + np.array([3.0, 0.0, 0.0])
+                )
+            elif first_good_s is None and fresh_fix:
+                first_good_s = nav.usbl_time_s
+            position, _ = nav_filter.update(nav)
+            if nav_filter.settled:
+                assert position is not None and first_good_s is not None
+                error_m = float(np.linalg.norm(position[:2] - w.truth().position_m_world[:2]))
+                return i * 0.05 - first_good_s, error_m, nav_filter.rejected
+        raise AssertionError("never settled")
+
+    good_s, _, _ = settle(outlier_first=False)
+    after_outlier_s, error_m, rejected = settle(outlier_first=True)
+    assert rejected == 1  # the outlier's start, found by the first good fix: no good fix lost
+    assert after_outlier_s <= good_s + 0.1, (after_outlier_s, good_s)
+    assert error_m < 0.1  # on the truth, not 3 m off
 
 
 def swing_m(times_s: np.ndarray, errors_m: np.ndarray, start_s: float, end_s: float) -> float:

@@ -8,9 +8,18 @@ import numpy as np
 
 from abyss.common.config import Config
 from abyss.common.linkprofile import profile
-from abyss.common.messages import Heartbeat, JointState, NavState, decode, encode
+from abyss.common.messages import (
+    CommandAck,
+    Heartbeat,
+    InterventionGoal,
+    JointState,
+    NavState,
+    decode,
+    encode,
+)
 from abyss.linkemu.link import Link
 from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.stations.onboard.navigation import SETTLE_FIXES
 
 STEP_S = 0.05
 
@@ -54,3 +63,29 @@ def test_a_cut_tether_trips_the_failsafe_by_heartbeats_alone_and_it_lets_go_afte
     left = next(t for t, reason in held if t > restored_s and not reason)
     assert left < restored_s + 8.0  # the tether's TCP resumes after a backed-off retransmission timeout
     assert core.failsafe.events == 1
+
+
+def test_an_intervention_sent_before_navigation_settles_waits_and_is_judged_once_it_has() -> None:
+    """A restarted onboard hears shore's goals again before its navigation has a settled estimate:
+    judged from nowhere, the intervention was refused ("out of reach: 8.68 m from the shoulder")
+    and not sent again. It waits unanswered, resends do not multiply it, and it is answered once
+    navigation settles, judged from where the vehicle is."""
+    core = Onboard(Config())
+    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
+    near_m_world = np.array([1.0, 0.0, -5.5])  # about an arm's length ahead of the vehicle
+    goal = InterventionGoal(
+        7, "valve_1", near_m_world, np.array([0.0, 1.0, 0.0]), near_m_world, np.array([1.0, 0, 0, 0]), 0.5
+    )
+    answers: list[tuple[float, CommandAck]] = []
+    for step in range(int(6.0 / STEP_S)):
+        now_s = step * STEP_S
+        resend = step % 20 == 0  # shore resends every second until answered
+        here = NavState(np.array([0.0, 0.0, -5.0]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3),
+                        sim_time_s=now_s, usbl_time_s=np.floor(now_s), depth_m=5.0)  # fmt: skip
+        nav = [here] if now_s >= 1.0 else []  # no estimate for the first second
+        out = core.step(OnboardInputs(commands=[goal] if resend else [], nav=nav, joints=joints), now_s)
+        answers += [(now_s, ack) for ack in out.acks]
+    answered_s = answers[0][0]  # the first answer: none while it waited, however often sent
+    assert all(a.accepted for _, a in answers), answers
+    settled_s = 1.0 + SETTLE_FIXES - 1  # a fix a second from 1 s
+    assert settled_s <= answered_s <= settled_s + 1.0 + STEP_S

@@ -14,26 +14,41 @@ from abyss.cli.args import (
     client,
     connect_args,
 )
-from abyss.common import keys
+from abyss.common import faults, keys
 from abyss.common.bus import message_of
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import (
-    FAULTS,
     SimulationControl,
     SimulationStatus,
     encode,
 )
-from abyss.common.models import CAMERAS, NAV_SENSORS, THRUSTERS
+
+
+def fault_control(fault: str, target: str, value: float) -> SimulationControl:
+    """The message of `abyss fault`, checked against the fault table and the robot's model as the
+    simulation checks it; ConfigError with the allowed targets or the value's range."""
+    if not faults.row(fault).targets and target:
+        raise ConfigError("fault target", f"{fault} takes no target (got {target!r})")
+    try:
+        faults.check(fault, target, value, faults.model_names())
+        return SimulationControl(fault, target, value)
+    except BadInput as exc:
+        raise ConfigError("fault", exc.reason) from None
+
+
+def fault_help() -> str:
+    """`abyss fault`'s description: the fault table, each fault's targets on the robot's model."""
+    names = faults.model_names()
+    lines = ["Faults (common/faults.py), each with its targets on this robot:"]
+    for row in faults.FAULT_TABLE.values():
+        allowed = faults.targets(row.name, names)
+        where = f"targets: {', '.join(allowed)}; " if allowed else ""
+        lines += [f"  {row.line()}", f"      {where}value: {row.value_range()}"]
+    return "\n".join(lines)
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
-    targets = {"thruster": THRUSTERS, "camera": CAMERAS, "noise": NAV_SENSORS, "clear": ("",)}[args.fault]
-    if args.target not in targets:
-        raise ConfigError("fault target", f"{args.target!r} not one of {', '.join(targets)}")
-    try:
-        control = SimulationControl(args.fault, args.target, args.value)
-    except BadInput as exc:
-        raise ConfigError("fault value", str(exc)) from None
+    control = fault_control(args.fault, args.target, args.value)
     session = client(args)
     seen: list[SimulationStatus] = []
 
@@ -100,21 +115,14 @@ def add_commands(sub: Any) -> None:
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
 
-    p = sub.add_parser("fault", help="inject a fault into a running simulation")
-    p.add_argument("fault", choices=FAULTS)
-    p.add_argument(
-        "target",
-        nargs="?",
-        default="",
-        help=f"thruster ({', '.join(THRUSTERS)}), camera ({', '.join(CAMERAS)}), "
-        f"navigation sensor ({', '.join(NAV_SENSORS)}) or a part of the panel to seize",
+    p = sub.add_parser(
+        "fault",
+        help="inject a fault into a running simulation",
+        description=fault_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument(
-        "value",
-        nargs="?",
-        type=float,
-        default=0.0,
-        help="thruster efficiency, camera on (1) / off (0), noise scale, or seized (1) / freed (0)",
-    )
+    p.add_argument("fault", choices=faults.fault_names())
+    p.add_argument("target", nargs="?", default="", help="the part it acts on (below, by fault)")
+    p.add_argument("value", nargs="?", type=float, default=0.0, help="its setting (below, by fault)")
     connect_args(p)
     p.set_defaults(func=cmd_fault)

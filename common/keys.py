@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass
 from typing import Literal
 
+from abyss.common import faults
 from abyss.common.errors import ConfigError
 from abyss.common.messages import (
     ArmGoal,
@@ -265,7 +266,7 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
         "abyss/<system>/simulation/control",
         "SimulationControl",
         "event",
-        "faults: thruster, camera, noise, seize, clear",
+        faults.key_note(),
     ),
     ("abyss/<system>/simulation/status", "SimulationStatus", "1 Hz", "sim time, real-time factor, faults"),
     ("abyss/<system>/clock", "SimTime", "20 Hz simulated", "the simulation's clock, with --time sim"),

@@ -3,28 +3,30 @@ the panel's truth, replay."""
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
 
+from abyss.common import faults
 from abyss.common.errors import BadInput
 from abyss.common.messages.schema import Message, array, scalar
 
-FAULTS = ("thruster", "camera", "noise", "seize", "clear")
+FAULTS = faults.fault_names()  # the fault table's names (common/faults.py) as imported
 
 
 @dataclass(frozen=True)
 class SimulationControl(Message):
-    """A fault injected into the simulation (scenario runner, tests):
-    thruster NAME VALUE: that thruster's efficiency (0: failed, 0.5: weakened, 1: healthy);
-    camera NAME VALUE: 0 blacks the camera out, 1 restores it; noise SENSOR VALUE: that
-    navigation sensor's noise scale (usbl, depth, dvl, imu; 1 is nominal); seize PART VALUE: 1
-    seizes that valve or lever where it stands (it turns no further), 0 frees it; clear: undo all."""
+    """A fault injected into the simulation (scenario runner, tests): `fault` a row of the fault
+    table (common/faults.py), `target` the part it acts on, `value` its setting. The faults:"""
 
-    fault: str = scalar(choices=FAULTS)
+    fault: str = field(metadata={"choices": faults.NAMES})  # the table's names, a row registered later too
     target: str = scalar()
-    value: float = scalar(0.0, 100.0)
+    value: float = scalar(0.0, faults.VALUE_MAX)
+
+
+SimulationControl.__doc__ = f"{SimulationControl.__doc__}\n{textwrap.indent(faults.doc_lines(), '    ')}"
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,8 @@ import numpy as np
 
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput, ConfigError
+from abyss.common.faults import ModelNames
+from abyss.common.faults import check as check_fault
 from abyss.common.messages import (
     ArmVelocityRef,
     JointState,
@@ -30,6 +32,7 @@ from abyss.common.models import (
     place_at_start,
 )
 from abyss.common.runfiles import write_whole
+from abyss.stations.simulation.faults import ACTIONS as FAULT_ACTIONS
 from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
 from abyss.stations.simulation.links import Links
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
@@ -38,7 +41,6 @@ from abyss.stations.simulation.native import LowLevel, Marine
 from abyss.stations.simulation.navigation import DvlBeams, Navigation
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
-SEIZED_PLAY_RAD = 0.005  # a seized valve or lever moves no further than this either way
 
 
 def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> References:
@@ -287,38 +289,16 @@ class World:
         return True
 
     # -- faults --------------------------------------------------------------------------
+    def model_names(self) -> ModelNames:
+        """The names of this world's parts that faults target (its vehicle file's thrusters)."""
+        return ModelNames(tuple(self.vehicle.thrusters.names), CAMERAS, NAV_SENSORS, self.parts)
+
     def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:
-        """Raises BadInput with the allowed targets for an unknown one."""
-        if fault.fault == "clear":
-            self.faults.clear()
-            self.model.jnt_range[self._part_joints] = self._part_range_rad
-            cameras.clear()
-            self.navigation.scale = dict.fromkeys(NAV_SENSORS, 1.0)
-            if self.controller.dynamics:
-                self.controller.thrusters.efficiency[:] = 1.0
-            return
-        allowed = {
-            "thruster": self.vehicle.thrusters.names,
-            "camera": CAMERAS,
-            "noise": NAV_SENSORS,
-            "seize": self.parts,
-        }[fault.fault]
-        if fault.target not in allowed:
-            raise BadInput(f"{fault.fault} target {fault.target!r} not one of {', '.join(allowed)}")
-        if fault.fault == "thruster":
-            if fault.value > 1.0:
-                raise BadInput("thruster efficiency must lie in [0, 1]")
-            if self.controller.dynamics:
-                self.controller.thrusters.efficiency[self.vehicle.thrusters.names.index(fault.target)] = (
-                    fault.value
-                )
-        elif fault.fault == "seize":  # stuck where it stands: its stops close in on it
-            i = self.parts.index(fault.target)
-            angle_rad = float(self.data.qpos[self._part_qpos[i]])
-            seized = (angle_rad - SEIZED_PLAY_RAD, angle_rad + SEIZED_PLAY_RAD)
-            self.model.jnt_range[self._part_joints[i]] = seized if fault.value else self._part_range_rad[i]
-        elif fault.fault == "camera":
-            (cameras.add if fault.value == 0.0 else cameras.discard)(fault.target)
-        else:
-            self.navigation.scale[fault.target] = fault.value
-        self.faults[f"{fault.fault}/{fault.target}"] = fault.value
+        """Apply a row of the fault table through the simulation's action for it (faults.py);
+        `cameras`: the blacked-out ones. Raises BadInput with the allowed targets for an unknown
+        one, or with the range for a value outside its fault's."""
+        check_fault(fault.fault, fault.target, fault.value, self.model_names())
+        if fault.fault not in FAULT_ACTIONS:
+            raise BadInput(f"fault {fault.fault!r} has no action in the simulation")
+        self.faults[f"{fault.fault}/{fault.target}"] = fault.value  # clear's action empties it
+        FAULT_ACTIONS[fault.fault].apply(self, fault.target, fault.value, cameras)

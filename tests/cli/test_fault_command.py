@@ -1,0 +1,39 @@
+"""`abyss fault`: its choices, targets and help generated from the fault table, checked as the
+simulation checks a fault. No Zenoh."""
+
+from __future__ import annotations
+
+import pytest
+
+from abyss.cli import parser
+from abyss.cli.operator import fault_control, fault_help
+from abyss.common import faults
+from abyss.common.errors import ConfigError
+from abyss.common.models import panel
+
+
+def test_the_choices_and_the_help_are_the_table(capsys: pytest.CaptureFixture[str]) -> None:
+    args = parser().parse_args(["fault", "seize", "valve_1", "1"])
+    assert (args.fault, args.target, args.value) == ("seize", "valve_1", 1.0)
+    for name in faults.fault_names():
+        assert parser().parse_args(["fault", name]).fault == name
+    with pytest.raises(SystemExit):
+        parser().parse_args(["fault", "spin"])
+    assert "invalid choice: 'spin'" in capsys.readouterr().err
+    text = fault_help()
+    names = faults.model_names()
+    for row in faults.FAULT_TABLE.values():
+        assert row.line() in text and row.value_range() in text
+        assert all(target in text for target in faults.targets(row.name, names))
+
+
+def test_a_fault_is_checked_against_the_table_and_the_model() -> None:
+    for part in (*panel.VALVES, *panel.LEVERS):
+        assert fault_control("seize", part, 1.0).target == part
+    assert fault_control("clear", "", 0.0).fault == "clear"
+    with pytest.raises(ConfigError, match="seize target 'thr_fl' not one of valve_0, valve_1"):
+        fault_control("seize", "thr_fl", 1.0)
+    with pytest.raises(ConfigError, match=r"camera value 2 not in \[0, 1\]"):
+        fault_control("camera", "cam_left", 2.0)
+    with pytest.raises(ConfigError, match="clear takes no target"):
+        fault_control("clear", "thr_fl", 0.0)

@@ -7,8 +7,13 @@ envelope."""
 
 from __future__ import annotations
 
+import ctypes
+import logging
 import math
+import signal
+import socket
 import subprocess
+import time
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -64,10 +69,32 @@ def rerun_command() -> str:
     return str(Path(rerun_cli.__file__).parent / "rerun")
 
 
+SERVER_START_S = 60.0  # [s] for rerun's web server to listen (a loaded machine took seconds)
+SERVER_LOG = "rerun-server.log"  # the web server's output, in the record directory
+log = logging.getLogger(__name__)
+
+
+def listening(port: int) -> bool:
+    """Whether something accepts connections on 127.0.0.1:`port`."""
+    with socket.socket() as s:
+        s.settimeout(0.5)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def _die_with_parent() -> None:  # in the child, before exec: SIGTERM when its parent dies
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
 class Sinks:
     """The recording stream and what it goes to, per `cfg.viewer`: `onshore.rrd` in
     `cfg.record_dir` (every mode but `none`), and for `web` rerun's web viewer and gRPC proxy
-    (its own process, on 127.0.0.1 only), for `spawn` the native viewer."""
+    (its own process, on 127.0.0.1 only, ended with shore even if shore is killed), for `spawn`
+    the native viewer. The gRPC sink connects only once the server listens: a sink that finds
+    nobody there gives up for good, and the browser saw the recording's properties alone. A
+    viewer that goes away costs shore nothing: what it misses is in the file."""
 
     def __init__(self, cfg: OnshoreConfig, system: str) -> None:
         self.recording: rr.RecordingStream | None = None
@@ -79,24 +106,57 @@ class Sinks:
         if cfg.record_dir:
             sinks.append(rr.FileSink(str(Path(cfg.record_dir) / RECORDING_FILE)))
         proxy = f"rerun+http://127.0.0.1:{cfg.viewer_grpc_port}/proxy"
-        if cfg.viewer == "web":
-            self.server = subprocess.Popen(
-                [rerun_command(), "--serve-web", "--bind", "127.0.0.1", "--port", str(cfg.viewer_grpc_port),
-                 "--web-viewer-port", str(cfg.viewer_web_port)],
-                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        if cfg.viewer == "web" and self._serve_web(cfg):
             sinks.append(rr.GrpcSink(proxy))
         elif cfg.viewer == "spawn":
             self.recording.spawn(port=cfg.viewer_grpc_port, connect=False)
             sinks.append(rr.GrpcSink(proxy))
         self.recording.set_sinks(*sinks)
 
+    def _serve_web(self, cfg: OnshoreConfig) -> bool:
+        """Start rerun's web server and wait till it listens; False (said in the log) if it
+        does not: the run goes on, recorded to the file."""
+        ports = (cfg.viewer_grpc_port, cfg.viewer_web_port)
+        held = [p for p in ports if listening(p)]
+        if held:
+            log.error("the web viewer's port %s is held by another process; no web viewer", held)
+            return False
+        output = open(Path(cfg.record_dir) / SERVER_LOG, "ab") if cfg.record_dir else subprocess.DEVNULL  # noqa: SIM115
+        self.server = subprocess.Popen(
+            [rerun_command(), "--serve-web", "--bind", "127.0.0.1", "--port", str(cfg.viewer_grpc_port),
+             "--web-viewer-port", str(cfg.viewer_web_port)],
+            stdout=output, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)  # fmt: skip
+        if output is not subprocess.DEVNULL:
+            output.close()  # the server has its own
+        deadline_s = time.monotonic() + SERVER_START_S
+        while not all(map(listening, ports)):
+            if self.server.poll() is not None or time.monotonic() > deadline_s:
+                log.error("rerun's web server did not listen on %s (exit code %s); no web viewer",
+                          ports, self.server.poll())  # fmt: skip
+                self._stop_server()
+                return False
+            time.sleep(0.1)
+        return True
+
     def close(self) -> None:
-        if self.recording is not None:
-            self.recording.flush()
-            self.recording.disconnect()
+        try:
+            if self.recording is not None:
+                self.recording.flush()
+                self.recording.disconnect()
+        except Exception as exc:  # a viewer gone is no fault of the run
+            log.warning("the viewer's stream ended early: %s", exc)
+        finally:
+            self._stop_server()
+
+    def _stop_server(self) -> None:
         if self.server is not None:
             self.server.terminate()
-            self.server.wait(timeout=10)
+            try:
+                self.server.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.server.kill()
+                self.server.wait()
+            self.server = None
 
 
 def xyzw(quat_wxyz: np.ndarray) -> rr.Quaternion:

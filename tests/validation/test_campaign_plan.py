@@ -11,7 +11,6 @@ from pathlib import Path
 import pytest
 from campaign_files import CAMPAIGN, write_files
 
-from abyss.common.config import load
 from abyss.common.errors import ConfigError
 from abyss.validation.campaign.plan import RunSpec, Variant, parse_shard, plan, run_id, shard, spec_of
 from abyss.validation.campaign.spec import load_campaign
@@ -107,7 +106,7 @@ def test_each_variant_lands_in_the_scenario_its_run_gets(tmp_path: Path) -> None
         scenario = run.scenario
         assert scenario.links["tether"] == "tether-degraded"
         assert scenario.events[0].at_s == 7.5
-        config = load(None, list(scenario.config))  # as `abyss up --set` reads them
+        config = scenario.configuration  # as `abyss up --config` reads it
         assert config.simulation.current_sigma_mps == 0.25
         assert config.simulation.current_profile == ((-8.0, 0.1, 0.0, 0.0),)
         assert config.simulation.water == "IB"
@@ -118,7 +117,7 @@ def test_the_time_source_a_run_really_has(tmp_path: Path) -> None:
     runs = plan(load_campaign(write_files(tmp_path)))
     alpha, beta = runs[0], runs[3]
     assert (alpha.time, alpha.replayable, alpha.why_not_replayable) == ("lockstep", True, "")
-    assert load(None, list(alpha.scenario.config)).time.mode == "lockstep"
+    assert alpha.scenario.configuration.time.mode == "lockstep"
     assert (beta.time, beta.replayable) == ("real", False)  # an external station keeps the wall clock
     assert "external onboard" in beta.why_not_replayable
     sim = plan(load_campaign(write_files(tmp_path, CAMPAIGN + 'time = "sim"\n')))

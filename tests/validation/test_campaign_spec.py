@@ -59,7 +59,7 @@ BAD = [
     ("[matrix]\n", "matrix", "leave it out"),
     ('[matrix]\n"events[0].colour" = [1]\n', "matrix.events[0].colour", "at_s, phase, hop"),
     ('[matrix]\n"events[1].at_s" = [1.0]\n', "matrix.events[1].at_s", "scenario alpha"),
-    ('[matrix]\n"events[0].at_s" = ["soon"]\n', "matrix.events[0].at_s", "expected float"),
+    ('[matrix]\n"events[0].at_s" = ["soon"]\n', "matrix.events[0].at_s", "expected a finite number"),
     (
         '[matrix]\n"events[0].station" = ["vessel"]\n',
         "matrix.events[0].station",
@@ -124,7 +124,7 @@ def test_a_bad_scenario_fails_naming_its_own_file(tmp_path: Path) -> None:
     bad.write_text('name = "gamma"\nuse = "fun"\nduration_s = 1\n[[assert]]\nkind = "stations"\n')
     with pytest.raises(ConfigError) as error:
         load_campaign(tmp_path / "campaigns" / "small.toml")
-    assert (error.value.field, error.value.source) == ("use", str(bad.resolve()))
+    assert (error.value.field, error.value.source) == ("scenario.use", str(bad.resolve()))
 
 
 def test_an_unreadable_campaign_names_itself(tmp_path: Path) -> None:

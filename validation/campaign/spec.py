@@ -5,7 +5,6 @@ load with the file, the field and what is allowed."""
 
 from __future__ import annotations
 
-import dataclasses
 import glob
 import json
 import os
@@ -17,10 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from abyss.common import keys
-from abyss.common.config import load
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import load_profiles
-from abyss.validation.scenario.spec import Event, Scenario, load_scenario, scenario_of
+from abyss.validation.scenario.events import EVENTS, action_of, fields_of
+from abyss.validation.scenario.fields import configured
+from abyss.validation.scenario.spec import Scenario, load_scenario, scenario_of
 
 TIMES = ("lockstep", "sim", "real")  # the time source a campaign asks for
 KEEPS = ("failing", "all", "none")  # which runs' directories are kept whole
@@ -42,8 +42,6 @@ RESERVED = {  # configuration fields the campaign sets itself: matrix key -> the
     "time.mode": "time",
 }
 EVENT_KEY = re.compile(r"^events\[(\d+)\]\.(\w+)$")
-EVENT_FIELDS = tuple(f.name for f in dataclasses.fields(Event) if f.name != "action")
-ACTION_FIELDS = {"link": ("hop", "profile"), "fault": ("fault", "target", "value"), "kill": ("station",)}
 
 
 @dataclass(frozen=True)
@@ -64,25 +62,21 @@ class Campaign:
         return self.min_pass_rate_of.get(scenario_name, self.min_pass_rate)
 
 
-def set_text(value: Any) -> str:
-    """A matrix value as `--set section.field=value` reads it: a list as JSON, a boolean as
-    true/false, a number or a string as written."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, list | dict):
-        return json.dumps(value)
-    return str(value)
+def event_fields() -> tuple[str, ...]:
+    """Every field an event kind takes (scenario.events.EVENTS), each once, the common first."""
+    return tuple(dict.fromkeys(f for kind in EVENTS.values() for f in fields_of(kind)))
 
 
 def apply_value(table: dict[str, Any], key: str, value: Any) -> None:
     """One matrix value into a scenario's table (as its TOML file reads): `links.<hop>` its
-    profile, `events[i].<field>` that event's field, anything else a configuration item."""
+    profile, `events[i].<field>` that event's field, anything else a configuration field, the
+    value as typed (the scenario's [config] reads `section.field` keys)."""
     if key.startswith("links."):
         table.setdefault("links", {})[key.removeprefix("links.")] = value
     elif m := EVENT_KEY.match(key):
         table["events"][int(m[1])][m[2]] = value
     else:
-        table.setdefault("config", {})[key] = set_text(value)
+        table.setdefault("config", {})[key] = value
 
 
 def scenario_with(
@@ -97,7 +91,7 @@ def scenario_with(
     for key, value in values:
         apply_value(table, key, value)
     if seed is not None:
-        table.setdefault("config", {})["seed"] = str(seed)
+        table.setdefault("config", {})["seed"] = seed
     return scenario_of(table, str(path))
 
 
@@ -269,7 +263,7 @@ def _check_key(key: str, values: list[Any], scenarios: tuple[Scenario, ...], whe
     that one does not take."""
     kinds = (
         f"a matrix key is links.<hop> ({', '.join(keys.HOPS)}), events[i].<field> "
-        f"({', '.join(EVENT_FIELDS)}) or a configuration field (section.field, as --set takes)"
+        f"({', '.join(event_fields())}) or a configuration field (section.field, as --set takes)"
     )
     if key in RESERVED:
         raise ConfigError(where, f"set by the campaign's {RESERVED[key]}, not the matrix")
@@ -288,7 +282,7 @@ def _check_key(key: str, values: list[Any], scenarios: tuple[Scenario, ...], whe
     else:
         for value in values:
             try:
-                load(None, [f"{key}={set_text(value)}"])
+                configured({key: value})
             except ConfigError as exc:
                 raise ConfigError(where, f"{value!r}: {exc.field}: {exc.reason}; {kinds}") from None
 
@@ -297,19 +291,20 @@ def _check_event(
     index: int, field: str, key: str, values: list[Any], scenarios: tuple[Scenario, ...], where: str
 ) -> None:
     """Every scenario has the event, its action takes the field, and each value is one it takes."""
-    if field not in EVENT_FIELDS:
-        raise ConfigError(where, f"no event field {field!r}; fields: {', '.join(EVENT_FIELDS)}")
+    if field not in event_fields():
+        raise ConfigError(where, f"no event field {field!r}; fields: {', '.join(event_fields())}")
     for s in scenarios:
         if index >= len(s.events):
             raise ConfigError(
                 where, f"scenario {s.name} ({s.path}) has no events[{index}]: {len(s.events)} events"
             )
-        action = s.events[index].action
-        if field not in ("at_s", "phase", *ACTION_FIELDS[action]):
+        action = action_of(s.events[index])
+        takes = fields_of(EVENTS[action])
+        if field not in takes:
             raise ConfigError(
                 where,
                 f"scenario {s.name}'s events[{index}] is a {action} event: it takes no {field}, only "
-                f"at_s, phase, {', '.join(ACTION_FIELDS[action])}",
+                f"{', '.join(takes)}",
             )
         text = s.path.read_text()
         for value in values:

@@ -1,19 +1,51 @@
 """The assertions of a scenario, each a function of what the run left: the summary, onboard's
 state over time (from its scoring key, so a link outage does not hide it) and the commands
-shore sent. Each returns whether it held and the figure that says why."""
+shore sent. Each returns whether it held and the figure that says why. A check's keyword
+parameters, with their type hints and defaults, are its `[[assert]]` table's fields; `CHECKS`
+registers each by its `kind`, so adding one is a function and a line there."""
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import inspect
 import math
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
 
-from abyss.common.messages import Telemetry
-from abyss.common.models import ARM_JOINTS, WORLD_FILE
-from abyss.validation.scenario.spec import OUTCOMES, Assertion
+from abyss.common import keys
+from abyss.common.errors import BadInput, ConfigError
+from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
+from abyss.common.models import ARM_JOINTS, WORLD_FILE, panel
+from abyss.validation.scenario.fields import OneOf
+
+Outcome = Literal["done", "failed"]  # of an intervention
+OUTCOMES: tuple[Outcome, ...] = typing.get_args(Outcome)
+Station = Annotated[str, OneOf(keys.STATIONS)]
+Phase = Annotated[str, OneOf(INTERVENTION_PHASES[1:], blank=True)]  # "": from all up
+
+
+class PanelPart:
+    """A rule: the name of a part of the panel (models.panel)."""
+
+    def check(self, name: str, value: Any) -> None:
+        try:
+            panel.part_kind(value)
+        except BadInput as exc:
+            raise ConfigError(name, str(exc)) from None
+
+
+@dataclass(frozen=True)
+class Assertion:
+    kind: str
+    args: dict[str, Any]  # the fields its table gives, as read
+
+    def describe(self) -> str:
+        return self.kind + "".join(f" {k}={v}" for k, v in self.args.items())
 
 
 @dataclass
@@ -77,7 +109,7 @@ def failsafe(
     to_s: float,
     enter_within_s: float = 3.0,
     leave_within_s: float = 5.0,
-    phase: str = "",
+    phase: Phase = "",
 ) -> tuple[bool, str]:
     """Entered within `enter_within_s` of `from_s`, and left within `leave_within_s` of `to_s`;
     both counted from when onboard first reported the intervention `phase`, if one is named."""
@@ -155,7 +187,9 @@ def stations(run: Run, max_restarts: float = 0, max_drift_m: float = math.inf) -
     )
 
 
-def intervention(run: Run, part: str, outcome: str = "done", reason: str = "") -> tuple[bool, str]:
+def intervention(
+    run: Run, part: Annotated[str, PanelPart()], outcome: Outcome = "done", reason: str = ""
+) -> tuple[bool, str]:
     """The intervention on `part` ended `outcome` as onboard reported it, with `reason` in its
     reason (a failure's), and the simulation's truth agrees: the part at its target when done,
     short of it when failed."""
@@ -205,7 +239,7 @@ def arm_ranges_rad() -> tuple[np.ndarray, np.ndarray]:
     return ranges[:, 0], ranges[:, 1]
 
 
-def deadlines(run: Run, min_met: float, station: str = "simulation", loop: str = "") -> tuple[bool, str]:
+def deadlines(run: Run, min_met: float, station: Station = "simulation", loop: str = "") -> tuple[bool, str]:
     """A station's `loop` (else its worst) kept at least `min_met` of its deadlines."""
     loops = run.summary.get("stations", {}).get(station, {}).get("loops") or {}
     if loop:
@@ -217,7 +251,7 @@ def deadlines(run: Run, min_met: float, station: str = "simulation", loop: str =
     return met >= min_met, f"{station} {name} deadlines met {met:.1%} (at least {min_met:.0%})"
 
 
-def shed(run: Run, station: str, min: float = 0, max: float = math.inf) -> tuple[bool, str]:
+def shed(run: Run, station: Station, min: float = 0, max: float = math.inf) -> tuple[bool, str]:
     """The frames `station` let go unprocessed for newer ones, within [min, max]."""
     count = sum((run.summary.get("stations", {}).get(station, {}).get("shed") or {}).values())
     return min <= count <= max, f"{station} shed {count} frames (allowed [{min:g}, {max:g}])"
@@ -230,7 +264,7 @@ def _perception(run: Run) -> dict[str, Any]:
 
 def perception(
     run: Run,
-    source: str,
+    source: Annotated[str, OneOf(PERCEPTION_SOURCES)],
     min_points_per_s: float = -math.inf,
     max_points_per_s: float = math.inf,
     min_mapped_s: float = 0.0,
@@ -279,6 +313,24 @@ CHECKS: dict[str, Callable[..., tuple[bool, str]]] = {
     "perception": perception,
     "recognition": recognition,
 }
+
+
+@functools.cache
+def fields_of(check: Callable[..., tuple[bool, str]]) -> type:
+    """The frozen dataclass of a check's table: its parameters after `run`, with their type
+    hints and defaults (what common.reading reads a table into)."""
+    hints = typing.get_type_hints(check, include_extras=True)
+    parameters = list(inspect.signature(check).parameters.values())[1:]
+    return dataclasses.make_dataclass(
+        f"{check.__name__}_fields",
+        [
+            (p.name, hints[p.name], dataclasses.field(default=p.default))
+            if p.default is not inspect.Parameter.empty
+            else (p.name, hints[p.name])
+            for p in parameters
+        ],
+        frozen=True,
+    )
 
 
 def judge(run: Run, assertions: tuple[Assertion, ...]) -> list[Verdict]:

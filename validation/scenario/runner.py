@@ -20,7 +20,6 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import assert_never
 
 import zenoh
 
@@ -30,11 +29,11 @@ from abyss.common.clock import SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.errors import AbyssError
 from abyss.common.lockstep import Holds
-from abyss.common.messages import LinkControl, SimulationControl, Telemetry, encode
+from abyss.common.messages import Telemetry
 from abyss.launch.state import RunState, wait_for_state
-from abyss.linkemu.control import query_links
 from abyss.validation.scenario.checks import Run, Verdict, judge, phase_began_s
-from abyss.validation.scenario.spec import Event, Scenario
+from abyss.validation.scenario.events import Context, Event
+from abyss.validation.scenario.spec import Scenario
 
 log = logging.getLogger(__name__)
 START_TIMEOUT_S = 60.0
@@ -45,6 +44,7 @@ HOLD_WALL_PER_SIM_S = 10.0
 SIM_CLOCK_HORIZON_S = 0.05  # the simulation's control period: its ticks' spacing
 EXTERNAL_TIMEOUT_S = 180.0
 SHOWN = ("waiting for external station", "died with exit code", "restarted")  # abyss up's lines passed on
+CONFIG_FILE = "scenario-config.json"  # the run's configuration, as `abyss up --config` reads it
 
 
 @dataclass
@@ -85,12 +85,16 @@ class System:
     def __init__(self, scenario: Scenario, system_id: str, out_dir: Path, say: Callable[[str], None]) -> None:
         self.say = say
         self.out_dir = out_dir
+        config_path = out_dir / CONFIG_FILE
+        config_path.write_text(json.dumps(scenario.up_table(), indent=2) + "\n")
         command = [
             sys.executable,
             "-P",  # the current directory never shadows abyss's modules
             "-m",
             "abyss.cli",
             "up",
+            "--config",
+            str(config_path),
             "--port",
             "0",
             "--out",
@@ -106,12 +110,6 @@ class System:
         command += ["--restart"] if scenario.restart else []
         for name in scenario.external:
             command += ["--external", name]
-        for hop, profile in scenario.links.items():
-            command += ["--profile", f"{hop}={profile}"]
-        for item in scenario.config:
-            command += ["--set", item]
-        if scenario.holds_s:
-            command += ["--set", f"time.holds_s=[{', '.join(f'{t!r}' for t in scenario.holds_s)}]"]
         self.process = subprocess.Popen(
             command,
             stdout=subprocess.PIPE,
@@ -158,36 +156,23 @@ class System:
             os.killpg(self.process.pid, signal.SIGKILL)
 
 
-def apply(event: Event, session: zenoh.Session, system_id: str, up: System) -> str:
-    """Carry out one event; a line saying what was done."""
-    match event.action:
-        case "link":
-            control: LinkControl | SimulationControl = LinkControl(event.profile, {})
-            session.put(keys.link_key(system_id, event.hop), encode(control, 0, time.time()))
-        case "fault":
-            control = SimulationControl(event.fault, event.target, event.value)
-            session.put(keys.simulation_control_key(system_id), encode(control, 0, time.time()))
-        case "kill":
-            state = up.state()
-            pid = state.stations[event.station].pid if state and event.station in state.stations else None
-            if pid is None:
-                return f"kill {event.station}: no pid (an external station?)"
-            os.kill(pid, signal.SIGKILL)
-        case _:
-            assert_never(event.action)
-    return event.describe()
+def carry_out(event: Event, ctx: Context) -> str:
+    """One event carried out and, in lockstep (`ctx.holds`), waited on until it took effect;
+    a line saying what was done."""
+    done = event.apply(ctx)
+    return done + (event.settled(ctx) if ctx.holds is not None else "")
 
 
 class Held:
     """Events carried out in lockstep, each on its period: the simulation held there (common.lockstep's
     holds), the event applied and seen to take effect, then the hold released."""
 
-    def __init__(self, scenario: Scenario, session: zenoh.Session, system_id: str, up: System) -> None:
-        self.scenario, self.session, self.system_id, self.up = scenario, session, system_id, up
-        self.holds = Holds(session, system_id, lambda key, reason: log.warning("%s: %s", key, reason))
-        self.faults = 0  # applied in the holds so far, by the simulation's count
+    def __init__(self, scenario: Scenario, ctx: Context) -> None:
+        self.scenario, self.ctx, self.up = scenario, ctx, ctx.up
+        self.holds = Holds(ctx.session, ctx.system_id, lambda key, reason: log.warning("%s: %s", key, reason))
+        ctx.holds = self.holds
 
-    def run(self, run: Run, say: Callable[[str], None]) -> None:
+    def run(self, say: Callable[[str], None]) -> None:
         """Every hold in order: held, its events, released. A system that ended before a hold (a
         mission done before its time: the run stops when done) did not reach its events, as in
         real time; AbyssError if a hold is not reached or not left while it runs."""
@@ -203,58 +188,10 @@ class Held:
                 for event in (e for e in self.scenario.events if e.at_s >= hold_s):
                     say(f"{event.when()}: not reached (the run ended first), {event.describe()} not done")
                 return
-            self.faults = int(held.delivered.get("controls", 0.0))
+            self.ctx.t_s, self.ctx.controls = held.sim_time_s, int(held.delivered.get("controls", 0.0))
             for event in (e for e in self.scenario.events if e.at_s == hold_s):
-                say(
-                    f"{event.when()} (period t={held.sim_time_s:.2f} s): {self.apply(event, held.sim_time_s)}"
-                )
-                run.killed += event.action == "kill"
+                say(f"{event.when()} (period t={held.sim_time_s:.2f} s): {carry_out(event, self.ctx)}")
             self.holds.release(held.sim_time_s, self.up.running, HOLD_TIMEOUT_S)
-
-    def apply(self, event: Event, t_s: float) -> str:
-        """One event in a hold at `t_s`, waited on until it took effect: the fault counted by the
-        simulation, the link's profile at both its ends, the station killed and started again."""
-        boot = self.holds.boot(event.station or "simulation")
-        done = apply(event, self.session, self.system_id, self.up)
-        alive = self.up.running
-        match event.action:
-            case "fault":
-                self.faults += 1
-                self.holds.wait(
-                    f"the simulation to apply {event.describe()}",
-                    lambda: (
-                        (r := self.holds.reported("simulation", "held")) is not None
-                        and r.delivered.get("controls", 0.0) >= self.faults
-                    ),
-                    alive,
-                    HOLD_TIMEOUT_S,
-                )
-            case "link":
-                self.holds.wait(
-                    f"both ends of {event.hop} on {event.profile}",
-                    lambda: (
-                        [s.profile for s in query_links(self.session, self.system_id, event.hop, 1.0)]
-                        == [event.profile] * 2
-                    ),
-                    alive,
-                    HOLD_TIMEOUT_S,
-                )
-            case "kill" if self.scenario.restart:
-                if event.station == "simulation":  # restarted, it resumes on this period and holds
-                    self.holds.held(t_s, boot + 1, alive, HOLD_TIMEOUT_S)
-                else:
-                    self.holds.wait(
-                        f"{event.station} restarted",
-                        lambda: self.holds.reported(event.station, "ready", boot + 1) is not None,
-                        alive,
-                        HOLD_TIMEOUT_S,
-                    )
-                done += ", restarted"
-            case "kill":
-                pass  # not restarted: abyss up ends the run, as in real time
-            case _:
-                assert_never(event.action)
-        return done
 
     def close(self) -> None:
         self.holds.close()
@@ -343,10 +280,11 @@ def _drive(
     ticks = clock_follow(session, system_id, timeline.clock) if timeline.clock is not None else None
     timeline.up_s = timeline.now_s()
     subscriber = session.declare_subscriber(keys.onboard_state_key(system_id), timeline.on_state)
-    held = Held(scenario, session, system_id, up) if scenario.holds_s else None
+    ctx = Context(session, system_id, up, scenario.restart, HOLD_TIMEOUT_S)
+    held = Held(scenario, ctx) if scenario.holds_s else None
     try:
         if held is not None:
-            held.run(timeline.run, say)
+            held.run(say)
         for event in scenario.events if held is None else ():
             while up.process.poll() is None:
                 origin_s = timeline.phase_began_s(event.phase)
@@ -357,8 +295,7 @@ def _drive(
                 say(f"{event.when()}: not reached, {event.describe()} not done")
                 break
             at_s = timeline.since_up_s()
-            say(f"{event.when()} (t={at_s:.1f} s): {apply(event, session, system_id, up)}")
-            timeline.run.killed += event.action == "kill"
+            say(f"{event.when()} (t={at_s:.1f} s): {carry_out(event, ctx)}")
         up.process.wait(timeout=scenario.duration_s + 90.0)
     except subprocess.TimeoutExpired:
         up.kill()
@@ -367,6 +304,7 @@ def _drive(
         up.kill()
         return f"lockstep: {exc}"
     finally:
+        timeline.run.killed = ctx.killed
         if held is not None:
             held.close()
         subscriber.undeclare()

@@ -4,6 +4,7 @@ Debian Chromium, shows the live system: its 3D view is not blank, and the operat
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -14,6 +15,7 @@ from browser import Browser, chromium
 from conftest import Up
 
 from abyss.common import keys
+from abyss.stations.onshore.viewer import listening
 from abyss.stations.runtime import free_port
 
 pytestmark = pytest.mark.timeout(240)
@@ -65,5 +67,9 @@ def test_the_web_viewer_shows_the_live_system_in_a_browser(tmp_path: Path) -> No
     assert colourful_px_in_3d_view(blank) < COLOURFUL_PX
     assert seen >= COLOURFUL_PX, f"the 3D view stayed blank ({seen} colourful pixels); see {tmp_path}"
     assert not missing, f"the viewer has no view named {missing}; see {tmp_path}"
-    up.interrupt()
+    up.interrupt()  # and no failure: shore's last flush to the viewer cost it nothing
     assert (tmp_path / "run" / "onshore.rrd").stat().st_size > 0  # saved as well as served
+    ports = [int(p) for p in re.findall(r"(?:127\.0\.0\.1:|%3A)(\d+)", url)]
+    assert len(ports) == 2 and not any(map(listening, ports)), (
+        f"the viewer's server outlived the run: {ports}"
+    )

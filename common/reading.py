@@ -1,8 +1,9 @@
 """The one typed reader: a value checked against its type hint, a table read into a frozen
-dataclass. The configuration, scenarios, their events and assertions, campaigns and link
-profiles all read through it, so that every error says the same thing the same way: the field
-(dotted, with list indices), and what is allowed. Strings from the command line (`--set`) are
-converted; TOML and JSON values are taken as they are typed."""
+dataclass, and what an `Annotated` hint adds (`OneOf`: the values a string field takes, checked
+once read and named when the field is missing). The configuration, scenarios, their events and
+assertions, campaigns and link profiles all read through it, so that every error says the same
+thing the same way: the field (dotted, with list indices), and what is allowed. Strings from the
+command line (`--set`) are converted; TOML and JSON values are taken as they are typed."""
 
 from __future__ import annotations
 
@@ -11,9 +12,13 @@ import json
 import math
 import types
 import typing
-from typing import Any
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Annotated, Any, Protocol, TypeVar
 
 from abyss.common.errors import ConfigError
+
+T = TypeVar("T")
 
 
 def read_value(name: str, kind: Any, value: Any) -> Any:
@@ -21,6 +26,8 @@ def read_value(name: str, kind: Any, value: Any) -> Any:
     union with None, float, int, bool or str), CLI strings converted; `name` is the field's
     dotted name for the error."""
     origin = typing.get_origin(kind)
+    if typing.get_origin(kind) is Annotated:
+        return read_value(name, typing.get_args(kind)[0], value)
     if dataclasses.is_dataclass(kind):
         return read_table(kind, value, name)
     if origin is typing.Literal:
@@ -33,9 +40,13 @@ def read_value(name: str, kind: Any, value: Any) -> Any:
         options = [a for a in typing.get_args(kind) if a is not type(None)]
         if value is None and len(options) < len(typing.get_args(kind)):
             return None
-        if len(options) == 1:
-            return read_value(name, options[0], value)
-        raise ConfigError(name, f"unsupported type {kind}")
+        errors = []
+        for option in options:  # the first that reads it
+            try:
+                return read_value(name, option, value)
+            except ConfigError as exc:
+                errors.append(exc.reason)
+        raise ConfigError(name, " or ".join(errors))
     if origin in (tuple, list):
         return _sequence(name, kind, value)
     if origin is dict:
@@ -117,3 +128,58 @@ def read_table(cls: Any, table: Any, prefix: str = "") -> Any:
             raise ConfigError(dotted(f.name), "is required")
     values = {n: read_value(dotted(n), hints[n], v) for n, v in table.items()}
     return cls(**values)
+
+
+class Rule(Protocol):
+    """What a field's `Annotated` hint asks of its value beyond its type."""
+
+    def check(self, name: str, value: Any) -> None: ...
+
+
+@dataclass(frozen=True)
+class OneOf:
+    """The values a string field takes (a callable: looked up when read); `blank`: "" too."""
+
+    allowed: Iterable[str] | Callable[[], Iterable[str]]
+    blank: bool = False
+
+    def values(self) -> tuple[str, ...]:
+        return tuple(self.allowed() if callable(self.allowed) else self.allowed)
+
+    def check(self, name: str, value: Any) -> None:
+        if not (self.blank and value == "") and value not in self.values():
+            raise ConfigError(name, f"{value!r} not one of {', '.join(self.values())}")
+
+
+def read(cls: type[T], table: Any, where: str) -> T:
+    """The dataclass `cls` from `table` (read_table), then each field given checked against the
+    rules of its `Annotated` hint; errors name `where`.field."""
+    hints = typing.get_type_hints(cls, include_extras=True)
+    try:
+        value = read_table(cls, table, where)
+    except ConfigError as exc:
+        allowed = allowed_of(hints.get(exc.field.rpartition(".")[2]))
+        if exc.reason == "is required" and allowed:
+            raise ConfigError(exc.field, f"is required: one of {', '.join(allowed)}") from None
+        raise
+    for name in table:
+        _check(f"{where}.{name}" if where else name, hints[name], getattr(value, name))
+    return value
+
+
+def allowed_of(hint: Any) -> tuple[str, ...]:
+    """The values a `Literal` or `Annotated[..., OneOf]` hint allows; () for another."""
+    if typing.get_origin(hint) is typing.Literal:
+        return tuple(map(str, typing.get_args(hint)))
+    if typing.get_origin(hint) is Annotated:
+        return next((r.values() for r in hint.__metadata__ if isinstance(r, OneOf)), ())
+    return ()
+
+
+def _check(name: str, hint: Any, value: Any) -> None:
+    if typing.get_origin(hint) is Annotated:
+        for rule in hint.__metadata__:
+            rule.check(name, value)
+    elif typing.get_origin(hint) in (tuple, list):
+        for i, item in enumerate(value):
+            _check(f"{name}[{i}]", typing.get_args(hint)[0], item)

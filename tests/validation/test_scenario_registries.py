@@ -14,10 +14,10 @@ from typing import Annotated, Any, cast
 import pytest
 
 from abyss.common.errors import ConfigError
+from abyss.common.reading import OneOf
 from abyss.validation.campaign.spec import event_fields, scenario_with
 from abyss.validation.scenario.checks import CHECKS, Run, judge
 from abyss.validation.scenario.events import EVENTS, Context, Event, action_of
-from abyss.validation.scenario.fields import OneOf
 from abyss.validation.scenario.runner import carry_out, run_scenario
 from abyss.validation.scenario.spec import load_scenario, scenario_of
 

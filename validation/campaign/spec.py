@@ -5,6 +5,7 @@ load with the file, the field and what is allowed."""
 
 from __future__ import annotations
 
+import dataclasses
 import glob
 import json
 import os
@@ -13,29 +14,22 @@ import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 from abyss.common import keys
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import load_profiles
+from abyss.common.reading import OneOf, read
 from abyss.validation.scenario.events import EVENTS, action_of, fields_of
 from abyss.validation.scenario.fields import configured
 from abyss.validation.scenario.spec import Scenario, load_scenario, scenario_of
 
 TIMES = ("lockstep", "sim", "real")  # the time source a campaign asks for
 KEEPS = ("failing", "all", "none")  # which runs' directories are kept whole
-FIELDS = (
-    "name",
-    "description",
-    "scenarios",
-    "exclude",
-    "seeds",
-    "time",
-    "min_pass_rate",
-    "min_pass_rate_of",
-    "keep",
-    "matrix",
-)
+REQUIRED = {  # what a required field takes, said when it is missing
+    "scenarios": "a list of scenario files or globs, relative to this file",
+    "seeds": "a count of at least 1 (5: seeds 0 to 4) or a non-empty list of distinct whole numbers >= 0",
+}
 RESERVED = {  # configuration fields the campaign sets itself: matrix key -> the campaign's field
     "seed": "seeds",
     "system": "name (each run gets a system id of its own)",
@@ -109,63 +103,55 @@ def load_campaign(path: Path) -> Campaign:
         raise ConfigError(exc.field, exc.reason, str(path)) from None
 
 
+@dataclass(frozen=True)
+class CampaignFile:
+    """A campaign file's fields as written, read by the one typed reader (common.reading)."""
+
+    name: str
+    scenarios: list[str] | str  # paths or globs, relative to the file
+    seeds: int | list[int]  # a count (5: seeds 0 to 4) or the seeds themselves
+    description: str = ""
+    exclude: list[str] | str = dataclasses.field(default_factory=list)
+    time: Annotated[str, OneOf(TIMES)] = "lockstep"
+    min_pass_rate: float = 1.0
+    min_pass_rate_of: dict[str, float] = dataclasses.field(default_factory=dict)
+    keep: Annotated[str, OneOf(KEEPS)] = "failing"
+    matrix: dict[str, Any] | None = None
+
+
 def _campaign(table: dict[str, Any], path: Path) -> Campaign:
-    table = dict(table)
-    unknown = sorted(set(table) - set(FIELDS))
-    if unknown:
-        raise ConfigError(unknown[0], f"unknown field; allowed: {', '.join(FIELDS)}")
-    name = _take(table, "name", str, None)
     try:
-        keys.check_system_id(name)
+        fields = read(CampaignFile, table, "")
+    except ConfigError as exc:
+        if exc.field in ("scenarios", "seeds") and exc.reason == "is required":
+            raise ConfigError(exc.field, f"is required: {REQUIRED[exc.field]}") from None
+        raise
+    try:
+        keys.check_system_id(fields.name)
     except ConfigError as exc:
         raise ConfigError("name", exc.reason) from None
-    scenarios = _scenarios(path.parent, _strings(table, "scenarios", True), _strings(table, "exclude", False))
-    min_pass_rate = _rate(_take(table, "min_pass_rate", float, 1.0), "min_pass_rate")
+    scenarios = _scenarios(
+        path.parent, _paths(fields.scenarios, "scenarios"), _paths(fields.exclude, "exclude")
+    )
     return Campaign(
-        name=name,
+        name=fields.name,
         path=path,
-        description=_take(table, "description", str, ""),
+        description=fields.description,
         scenarios=scenarios,
-        seeds=_seeds(table.get("seeds")),
-        matrix=_matrix(table.get("matrix"), scenarios),
-        time=_choice(_take(table, "time", str, "lockstep"), TIMES, "time"),
-        min_pass_rate=min_pass_rate,
-        min_pass_rate_of=_rates_of(_take(table, "min_pass_rate_of", dict, {}), scenarios),
-        keep=_choice(_take(table, "keep", str, "failing"), KEEPS, "keep"),
+        seeds=_seeds(fields.seeds),
+        matrix=_matrix(fields.matrix, scenarios),
+        time=fields.time,
+        min_pass_rate=_rate(fields.min_pass_rate, "min_pass_rate"),
+        min_pass_rate_of=_rates_of(fields.min_pass_rate_of, scenarios),
+        keep=fields.keep,
     )
 
 
-def _take(table: dict[str, Any], name: str, kind: type, default: Any) -> Any:
-    """The field's value, checked against `kind`; `default` where it is absent (None: required)."""
-    if name not in table:
-        if default is None:
-            raise ConfigError(name, "is required")
-        return default
-    value = table[name]
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
-    if not isinstance(value, kind) or (isinstance(value, bool) and kind is not bool):
-        raise ConfigError(name, f"expected {kind.__name__}, got {value!r}")
-    return value
-
-
-def _choice(value: str, allowed: tuple[str, ...], field: str) -> str:
-    if value not in allowed:
-        raise ConfigError(field, f"{value!r} not one of {', '.join(allowed)}")
-    return value
-
-
-def _strings(table: dict[str, Any], name: str, required: bool) -> list[str]:
-    value = table.get(name, None if required else [])
-    if value is None:
-        raise ConfigError(name, "is required: a list of scenario files or globs, relative to this file")
-    if isinstance(value, str):
-        value = [value]
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise ConfigError(name, f"expected a list of paths or globs, got {value!r}")
-    if required and not value:
+def _paths(value: list[str] | str, name: str) -> list[str]:
+    paths = [value] if isinstance(value, str) else value
+    if name == "scenarios" and not paths:
         raise ConfigError(name, "needs at least one path or glob")
-    return value
+    return paths
 
 
 def _matched(folder: Path, patterns: list[str], field: str) -> list[Path]:
@@ -197,20 +183,12 @@ def _scenarios(folder: Path, patterns: list[str], excluded: list[str]) -> tuple[
     return scenarios
 
 
-def _seeds(value: Any) -> tuple[int, ...]:
-    allowed = "a count of at least 1 (5: seeds 0 to 4) or a non-empty list of distinct whole numbers >= 0"
-    if value is None:
-        raise ConfigError("seeds", f"is required: {allowed}")
-    if isinstance(value, int) and not isinstance(value, bool) and value >= 1:
+def _seeds(value: int | list[int]) -> tuple[int, ...]:
+    if isinstance(value, int) and value >= 1:
         return tuple(range(value))
-    if (
-        isinstance(value, list)
-        and value
-        and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value)
-        and len(set(value)) == len(value)
-    ):
+    if isinstance(value, list) and value and all(v >= 0 for v in value) and len(set(value)) == len(value):
         return tuple(value)
-    raise ConfigError("seeds", f"{value!r}: expected {allowed}")
+    raise ConfigError("seeds", f"{value!r}: expected {REQUIRED['seeds']}")
 
 
 def _rate(value: float, field: str) -> float:
@@ -227,7 +205,7 @@ def _rates_of(table: dict[str, Any], scenarios: tuple[Scenario, ...]) -> dict[st
             raise ConfigError(
                 f"min_pass_rate_of.{name}", f"names no scenario of the campaign: {', '.join(names)}"
             )
-        rates[name] = _rate(_take(table, name, float, None), f"min_pass_rate_of.{name}")
+        rates[name] = _rate(table[name], f"min_pass_rate_of.{name}")
     return rates
 
 

@@ -21,7 +21,7 @@ from abyss.common import keys
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
 from abyss.common.models import ARM_JOINTS, WORLD_FILE, panel
-from abyss.validation.scenario.fields import OneOf
+from abyss.common.reading import OneOf
 
 Outcome = Literal["done", "failed"]  # of an intervention
 OUTCOMES: tuple[Outcome, ...] = typing.get_args(Outcome)

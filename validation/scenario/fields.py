@@ -1,76 +1,13 @@
-"""A scenario's tables read through the one typed reader (common.reading), with what a type hint
-adds for a scenario: `Annotated[str, OneOf(...)]` names a field's allowed values (checked once
-read), and a required field's error names them too. Also the configuration's partial tables:
-`section.field` keys nested, merged, and typed as a Config reads them."""
+"""The configuration's partial tables as scenarios and campaigns carry them: `section.field` keys
+nested, merged, and typed as a Config reads them."""
 
 from __future__ import annotations
 
 import dataclasses
-import typing
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
-from typing import Annotated, Any, Protocol, TypeVar
+from typing import Any
 
 from abyss.common.config import Config, load
 from abyss.common.errors import ConfigError
-from abyss.common.reading import read_table
-
-T = TypeVar("T")
-
-
-class Rule(Protocol):
-    """What a field's `Annotated` hint asks of its value beyond its type."""
-
-    def check(self, name: str, value: Any) -> None: ...
-
-
-@dataclass(frozen=True)
-class OneOf:
-    """The values a string field takes (a callable: looked up when read); `blank`: "" too."""
-
-    allowed: Iterable[str] | Callable[[], Iterable[str]]
-    blank: bool = False
-
-    def values(self) -> tuple[str, ...]:
-        return tuple(self.allowed() if callable(self.allowed) else self.allowed)
-
-    def check(self, name: str, value: Any) -> None:
-        if not (self.blank and value == "") and value not in self.values():
-            raise ConfigError(name, f"{value!r} not one of {', '.join(self.values())}")
-
-
-def read(cls: type[T], table: Any, where: str) -> T:
-    """The dataclass `cls` from `table` (common.reading.read_table), then each field given
-    checked against the rules of its `Annotated` hint; errors name `where`.field."""
-    hints = typing.get_type_hints(cls, include_extras=True)
-    try:
-        value = read_table(cls, table, where)
-    except ConfigError as exc:
-        allowed = allowed_of(hints.get(exc.field.rpartition(".")[2]))
-        if exc.reason == "is required" and allowed:
-            raise ConfigError(exc.field, f"is required: one of {', '.join(allowed)}") from None
-        raise
-    for name in table:
-        _check(f"{where}.{name}", hints[name], getattr(value, name))
-    return value
-
-
-def allowed_of(hint: Any) -> tuple[str, ...]:
-    """The values a `Literal` or `Annotated[..., OneOf]` hint allows; () for another."""
-    if typing.get_origin(hint) is typing.Literal:
-        return tuple(map(str, typing.get_args(hint)))
-    if typing.get_origin(hint) is Annotated:
-        return next((r.values() for r in hint.__metadata__ if isinstance(r, OneOf)), ())
-    return ()
-
-
-def _check(name: str, hint: Any, value: Any) -> None:
-    if typing.get_origin(hint) is Annotated:
-        for rule in hint.__metadata__:
-            rule.check(name, value)
-    elif typing.get_origin(hint) in (tuple, list):
-        for i, item in enumerate(value):
-            _check(f"{name}[{i}]", typing.get_args(hint)[0], item)
 
 
 def nested(table: dict[str, Any]) -> dict[str, Any]:

@@ -16,9 +16,10 @@ from abyss.common import keys
 from abyss.common.config import Config
 from abyss.common.config.system import TimeConfig
 from abyss.common.errors import ConfigError
+from abyss.common.reading import OneOf, read
 from abyss.validation.scenario.checks import CHECKS, OUTCOMES, Assertion, fields_of
 from abyss.validation.scenario.events import EVENTS, Event
-from abyss.validation.scenario.fields import OneOf, configuration, configured, merge, read
+from abyss.validation.scenario.fields import configuration, configured, merge
 
 Use = Literal["distributed", "interface", "degradation", "parallel", "fault-recovery"]
 USES: tuple[Use, ...] = get_args(Use)

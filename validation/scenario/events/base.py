@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Protocol
 
 from abyss.common.errors import AbyssError
 from abyss.common.messages import INTERVENTION_PHASES
-from abyss.validation.scenario.fields import OneOf
+from abyss.common.reading import OneOf
 
 if TYPE_CHECKING:
     import zenoh

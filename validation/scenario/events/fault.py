@@ -6,8 +6,8 @@ from typing import Annotated
 
 from abyss.common import keys
 from abyss.common.messages import FAULTS, SimulationControl, encode
+from abyss.common.reading import OneOf
 from abyss.validation.scenario.events.base import Context, Event
-from abyss.validation.scenario.fields import OneOf
 
 
 @dataclass(frozen=True, kw_only=True)

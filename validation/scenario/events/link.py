@@ -7,9 +7,9 @@ from typing import Annotated
 from abyss.common import keys
 from abyss.common.linkprofile import load_profiles
 from abyss.common.messages import LinkControl, encode
+from abyss.common.reading import OneOf
 from abyss.linkemu.control import query_links
 from abyss.validation.scenario.events.base import Context, Event
-from abyss.validation.scenario.fields import OneOf
 
 
 @dataclass(frozen=True, kw_only=True)

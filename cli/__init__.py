@@ -8,7 +8,8 @@ import sys
 from typing import Any
 
 from abyss.cli import campaign, export, lab, link, models, operator, record, system, validation
-from abyss.common.errors import AbyssError
+from abyss.cli.args import NoSystem
+from abyss.common.errors import AbyssError, BusError
 
 DESCRIPTION = (
     "abyss: a testbed for deep-sea ROV software: the vehicle, its onboard computer, the support "
@@ -30,6 +31,10 @@ def main(argv: list[str] | None = None) -> int:
         args.format = ["bt", "ply"]
     try:
         return int(args.func(args))
+    except BusError as exc:  # a tool's session (abyss op's, teleop's) that found no system to join
+        shown = NoSystem(args.connect, args.system) if getattr(args, "talks_to_system", False) else exc
+        print(f"abyss: {shown}", file=sys.stderr)
+        return 2
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)
         return 2

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -11,7 +12,7 @@ from abyss.common import keys
 from abyss.common.bus import client_config, open_session
 from abyss.common.config import Config, load
 from abyss.common.config.system import TIME_MODES
-from abyss.common.errors import ConfigError
+from abyss.common.errors import AbyssError, BusError, ConfigError
 from abyss.common.linkprofile import FIELDS
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -75,9 +76,11 @@ def pairs(option: str, items: list[str]) -> list[tuple[str, str]]:
     return pairs
 
 
-def load_config(args: argparse.Namespace, default: Path | None = None) -> Config:
-    """--config (else `default`, else the defaults), then --set, --system, --seed,
-    --time, --speed, --profile and --cpu on top."""
+def load_config(
+    args: argparse.Namespace, default: Path | None = None, base: dict[str, Any] | None = None
+) -> Config:
+    """--config (else `default`, else the table `base`, else the defaults), then --set, --system,
+    --seed, --time, --speed, --profile and --cpu on top."""
     overrides = list(args.set)
     options: dict[str, str] = {}  # a field -> the option that set it, for its error
 
@@ -97,7 +100,7 @@ def load_config(args: argparse.Namespace, default: Path | None = None) -> Config
         option("--profile", f"links.{keys.check_hop(hop)}", name)
     for station, cores in pairs("--cpu", getattr(args, "cpu", [])):
         option("--cpu", f"cpu.{keys.check_station(station)}", cores)
-    return load(args.config or default, overrides, options=options)
+    return load(args.config or default, overrides, base=base, options=options)
 
 
 def profile_args(p: argparse.ArgumentParser) -> None:
@@ -109,11 +112,29 @@ def profile_fields(args: argparse.Namespace) -> dict[str, str]:
     return {n: getattr(args, f"field_{n}") for n in FIELDS if getattr(args, f"field_{n}") is not None}
 
 
+class NoSystem(AbyssError):
+    """A tool's session found nothing at its endpoint: no system runs there."""
+
+    def __init__(self, endpoint: str, system: str) -> None:
+        super().__init__(
+            f"no system is running at {endpoint} (system {system}): start one with `abyss up`, or give "
+            "--connect the endpoint a running one printed (its run directory's state.json says it)"
+        )
+        self.endpoint = endpoint
+        self.system = system
+
+
 def client(args: argparse.Namespace) -> zenoh.Session:
-    return open_session(client_config(args.connect), "abyss")
+    """A tool's session with the running system at --connect; NoSystem where none answers."""
+    try:
+        return open_session(client_config(args.connect), "abyss")
+    except BusError:
+        raise NoSystem(args.connect, args.system) from None
 
 
 def connect_args(p: argparse.ArgumentParser) -> None:
-    """--connect and --system of a tool that talks to a running system."""
+    """--connect and --system of a tool that talks to a running system (`talks_to_system`: a
+    session it cannot open means that no system runs there, cli.main says so)."""
     p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
     p.add_argument("--system", default="default")
+    p.set_defaults(talks_to_system=True)

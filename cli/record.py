@@ -12,6 +12,7 @@ from typing import Any
 from abyss.cli.args import load_config
 from abyss.cli.system import run_args, up_config
 from abyss.common import keys
+from abyss.common.config import Config
 from abyss.common.errors import ConfigError
 
 COMPARE_FILE = "compare.json"
@@ -20,10 +21,62 @@ COMPARE_FILE = "compare.json"
 def cmd_view(args: argparse.Namespace) -> int:
     from abyss.console.view import view
 
-    return view(args.run_dir, args.web_port)
+    return view(run_directory(args.run_dir), args.web_port)
+
+
+def run_directory(path: Path) -> Path:
+    """RUN_DIR as given: a run's directory (`abyss up`'s, a scenario's, one a campaign kept), or
+    the one campaign run whose id starts with its name (`runs/<campaign>/<run id>`); ConfigError
+    saying what it is instead (nothing, or a campaign directory)."""
+    from abyss.validation.campaign.store import PLAN_FILE, RUNS_DIR
+
+    def kept(campaign: Path, prefix: str = "") -> list[Path]:
+        runs = campaign / RUNS_DIR
+        return (
+            sorted(p for p in runs.iterdir() if p.is_dir() and p.name.startswith(prefix))
+            if runs.is_dir()
+            else []
+        )
+
+    if (path / PLAN_FILE).is_file():
+        some = ", ".join(p.name for p in kept(path)[:3]) or "it kept none"
+        raise ConfigError(
+            "RUN_DIR",
+            f"{path} is a campaign directory: give one of the runs it kept, {path / RUNS_DIR}/<run id> "
+            f"({some}), or run one again with `abyss campaign replay {path} RUN_ID`",
+        )
+    if path.is_dir():
+        return path
+    if (path.parent / PLAN_FILE).is_file() and len(matches := kept(path.parent, path.name)) == 1:
+        return matches[0]  # runs/<campaign>/<run id>, as the campaign's report names a run
+    raise ConfigError("RUN_DIR", f"no such run directory: {path}")
+
+
+def replay_config(args: argparse.Namespace, run_dir: Path) -> Config:
+    """The recorded run's configuration (its `config.json`; --config in its place), --set and the
+    other options on top, on the wall clock: a replay plays the recording back in real time,
+    however the run kept its time (a scenario's or a campaign's lockstep, with its holds)."""
+    from abyss.launch.start import CONFIG_FILE
+
+    recorded = run_dir / CONFIG_FILE
+    if args.config is not None or not recorded.is_file():
+        return load_config(args)
+    try:
+        table = json.loads(recorded.read_text())
+    except (OSError, ValueError) as exc:
+        raise ConfigError("config", f"cannot read: {exc}", str(recorded)) from None
+    mode = table.pop("time", {}).get("mode", "real")
+    if mode != "real" and args.time is None:
+        print(
+            f"abyss: {run_dir} ran in {mode} time; its replay runs on the wall clock, the recording's "
+            "seconds as seconds",
+            flush=True,
+        )
+    return load_config(args, base=table)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    args.run_dir = run_directory(args.run_dir)
     if not args.as_station and not args.compare:  # what `abyss replay` was before recordings
         print(
             f"abyss: `abyss replay RUN_DIR` opening the rerun recording is now "
@@ -31,7 +84,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return cmd_view(args)
-    from abyss.launch.start import CONFIG_FILE, Replayed
+    from abyss.launch.start import Replayed
     from abyss.launch.up import run_up
     from abyss.recording.compare import compare, differing, render
     from abyss.recording.reader import open_recording
@@ -46,8 +99,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     recording = open_recording(run_dir)
     stations = tuple(dict.fromkeys(args.as_station))
     check_replayable(recording, stations)
-    base = run_dir / CONFIG_FILE
-    config = up_config(args, load_config(args, base if base.is_file() else None))
+    config = up_config(args, replay_config(args, run_dir))
     out = args.out or Path("runs") / f"{config.system}-replay-{time.strftime('%Y%m%d-%H%M%S')}"
     if out.resolve() == run_dir:
         raise ConfigError("--out", f"{out} is the recorded run; give the replay a run directory of its own")

@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 from abyss.common.errors import ConfigError, UnknownProfile
 from abyss.common.fields import one_of
+from abyss.common.reading import read_table
 from abyss.common.units import (
     format_fraction,
     format_rate,
@@ -41,38 +42,6 @@ Transport = Literal["tcp", "udp"]
 TRANSPORTS: tuple[Transport, ...] = typing.get_args(Transport)
 OutageTimes = Literal["exponential", "fixed"]
 OUTAGE_TIMES: tuple[OutageTimes, ...] = typing.get_args(OutageTimes)
-
-
-def _choice(allowed: tuple[str, ...]) -> Callable[[str, Any], str]:
-    def parse(field: str, value: Any) -> str:
-        if value not in allowed:
-            raise ConfigError(field, f"{value!r} not one of {', '.join(allowed)}")
-        return str(value)
-
-    return parse
-
-
-def _integer(lo: int, hi: int) -> Callable[[str, Any], int]:
-    def parse(field: str, value: Any) -> int:
-        try:
-            number = int(str(value), 0) if not isinstance(value, bool) else None
-        except ValueError:
-            number = None
-        if number is None or not lo <= number <= hi:
-            raise ConfigError(field, f"{value!r} is not a whole number in [{lo}, {hi}]")
-        return number
-
-    return parse
-
-
-def _boolean(field: str, value: Any) -> bool:
-    if isinstance(value, bool):
-        return value
-    if str(value).lower() in ("true", "on", "yes", "1"):
-        return True
-    if str(value).lower() in ("false", "off", "no", "0"):
-        return False
-    raise ConfigError(field, f"{value!r} is not true or false")
 
 
 @functools.cache
@@ -114,32 +83,71 @@ def _str(value: Any) -> str:
     return str(value).lower() if isinstance(value, bool) else str(value)
 
 
-# profile field as written (TOML, CLI) -> (dataclass attribute, parser, formatter)
+@dataclass(frozen=True)
+class WrittenProfile:
+    """A profile's fields as written in `profiles.toml`, `abyss link set` or a config (each left
+    out keeps the profile's own), read by `common.reading` against these hints. A value with a
+    unit (`Any` here: a number without its unit is refused by `common.units`, with the unit to
+    write) is then converted by its parser in `FIELDS`."""
+
+    rate: Any = None  # "20mbit", "unlimited"
+    delay: Any = None  # "100ms"
+    jitter: Any = None  # "10ms"
+    distribution: Distribution | None = None
+    correlation: Any = None  # "25%"
+    loss_model: LossModel | None = None
+    loss: Any = None  # "5%"
+    ge_p: Any = None
+    ge_r: Any = None
+    ge_loss_bad: Any = None
+    ge_loss_good: Any = None
+    corrupt: Any = None
+    deliver_corrupt: bool | None = None
+    duplicate: Any = None
+    reorder: Any = None
+    mtu: Any = None  # "1500B"
+    queue_limit: int | None = None  # [packets]
+    transport: Transport | None = None
+    outage_up: Any = None  # "60s"
+    outage_down: Any = None
+    outage_times: OutageTimes | None = None
+    trace: str | None = None  # a shipped trace's name or a file's path
+    seed: int | None = None
+
+
+def _same(field: str, value: Any) -> Any:
+    return value
+
+
+# profile field as written (TOML, CLI) -> (dataclass attribute, the parser of its unit or its
+# path (`_same`: the type hint read it whole), formatter)
 FIELDS: dict[str, tuple[str, Callable[[str, Any], Any], Callable[[Any], str]]] = {
     "rate": ("rate_bps", parse_rate_bps, format_rate),
     "delay": ("delay_s", parse_time_s, format_time),
     "jitter": ("jitter_s", parse_time_s, format_time),
-    "distribution": ("distribution", _choice(DISTRIBUTIONS), _str),
+    "distribution": ("distribution", _same, _str),
     "correlation": ("correlation", parse_fraction, format_fraction),
-    "loss_model": ("loss_model", _choice(LOSS_MODELS), _str),
+    "loss_model": ("loss_model", _same, _str),
     "loss": ("loss", parse_fraction, format_fraction),
     "ge_p": ("ge_p", parse_fraction, format_fraction),
     "ge_r": ("ge_r", parse_fraction, format_fraction),
     "ge_loss_bad": ("ge_loss_bad", parse_fraction, format_fraction),
     "ge_loss_good": ("ge_loss_good", parse_fraction, format_fraction),
     "corrupt": ("corrupt", parse_fraction, format_fraction),
-    "deliver_corrupt": ("deliver_corrupt", _boolean, _str),
+    "deliver_corrupt": ("deliver_corrupt", _same, _str),
     "duplicate": ("duplicate", parse_fraction, format_fraction),
     "reorder": ("reorder", parse_fraction, format_fraction),
     "mtu": ("mtu_bytes", parse_size_bytes, lambda v: f"{v}B"),
-    "queue_limit": ("queue_limit_packets", _integer(1, 1_000_000), _str),
-    "transport": ("transport", _choice(TRANSPORTS), _str),
+    "queue_limit": ("queue_limit_packets", _same, _str),
+    "transport": ("transport", _same, _str),
     "outage_up": ("outage_up_s", parse_time_s, format_time),
     "outage_down": ("outage_down_s", parse_time_s, format_time),
-    "outage_times": ("outage_times", _choice(OUTAGE_TIMES), _str),
+    "outage_times": ("outage_times", _same, _str),
     "trace": ("trace", _trace, _str),
-    "seed": ("seed", _integer(0, 2**63 - 1), _str),
+    "seed": ("seed", _same, _str),
 }
+MAX_QUEUE_PACKETS = 1_000_000
+MAX_SEED = 2**63 - 1
 
 
 @dataclass(frozen=True)
@@ -186,6 +194,12 @@ class LinkProfile:
             raise ConfigError("mtu", f"{self.mtu_bytes}B outside [128B, 65535B]")
         if self.correlation >= 1.0:
             raise ConfigError("correlation", "must be below 100%")
+        if not 1 <= self.queue_limit_packets <= MAX_QUEUE_PACKETS:
+            raise ConfigError(
+                "queue_limit", f"{self.queue_limit_packets} is not a whole number in [1, {MAX_QUEUE_PACKETS}]"
+            )
+        if not 0 <= self.seed <= MAX_SEED:
+            raise ConfigError("seed", f"{self.seed} is not a whole number in [0, {MAX_SEED}]")
         for attr in ("delay_s", "jitter_s"):
             if not 0.0 <= getattr(self, attr) <= 60.0:
                 raise ConfigError(attr, f"{getattr(self, attr)} s outside [0 s, 60 s]")
@@ -215,17 +229,18 @@ class LinkProfile:
         return bad * self.ge_loss_bad + (1.0 - bad) * self.ge_loss_good
 
     def with_fields(self, fields: Mapping[str, Any], source: str = "") -> LinkProfile:
-        """A copy with fields as written in TOML or on the command line (`rate='20mbit'`)."""
-        changes: dict[str, Any] = {}
-        for name, value in fields.items():
-            if name not in FIELDS:
-                raise ConfigError(name, f"unknown profile field; allowed: {', '.join(FIELDS)}", source)
-            attr, parse, _ = FIELDS[name]
-            try:
-                changes[attr] = parse(name, value)
-            except ConfigError as exc:
-                raise ConfigError(name, exc.reason, source) from None
-        return dataclasses.replace(self, **changes)
+        """A copy with fields as written in TOML or on the command line (`rate='20mbit'`): read
+        through `common.reading` (an unknown field first, with the allowed ones, then each value
+        against its hint), then each unit by its parser; errors name `source` and the field."""
+        try:
+            written = read_table(WrittenProfile, dict(fields))
+            changes = {}
+            for name in fields:
+                attr, parse, _ = FIELDS[name]
+                changes[attr] = parse(name, getattr(written, name))
+            return dataclasses.replace(self, **changes)
+        except ConfigError as exc:
+            raise ConfigError(exc.field, exc.reason, source or exc.source) from None
 
     def fields(self) -> dict[str, str]:
         """Every field as written, units included; `with_fields(fields())` is the identity."""

@@ -47,6 +47,7 @@ class Supervisor:
     mission_done_wall_s: float | None = None
     watch_from: tuple[float, float] | None = None  # (the run's time, monotonic) when watched from
     replay_start: ReplayStart | None = None
+    never_came: tuple[str, ...] = ()  # external stations still away when the duration passed
 
     # -- deaths and restarts -------------------------------------------------------------------
     def check_deaths(self) -> list[Station]:
@@ -99,8 +100,10 @@ class Supervisor:
             if name == self.config.ros2.station:
                 self.echo(ros2_line(self.config.ros2))
 
-    def wait_until_up(self, t0: float) -> str:
-        """'' once every station is alive (or on an interrupt), else why not."""
+    def wait_until_up(self, t0: float, duration_s: float | None = None) -> str:
+        """'' once every station is alive (or on an interrupt, or once `duration_s` [s, wall] has
+        passed with every station up but an external one: `never_came` names it, and the run
+        ends incomplete), else why not."""
         shown: set[str] = set()
         timeout_s = STARTUP_TIMEOUT_S + (EXTERNAL_TIMEOUT_S if self.external else 0.0)
         while time.monotonic() - t0 < timeout_s:
@@ -111,6 +114,20 @@ class Supervisor:
                 self.echo(f"abyss:   {name} up (pid {pid}, {time.monotonic() - t0:.1f} s)")
             shown |= alive
             if alive >= set(keys.STATIONS):
+                return ""
+            away = tuple(name for name in keys.STATIONS if name not in alive)
+            # once the stations it started are up (one stopped while it boots dies of the SIGINT)
+            if (
+                set(away) <= set(self.external)
+                and duration_s is not None
+                and time.monotonic() - t0 >= duration_s
+            ):
+                self.never_came = away
+                self.echo(
+                    f"abyss: external station {', '.join(away)} never came: nothing joined as "
+                    f"{'it' if len(away) == 1 else 'them'} at {self.starter.endpoint} within the run's "
+                    f"--duration of {duration_s:g} s; stopping"
+                )
                 return ""
             for station in self.check_deaths():
                 self.report_death(station)

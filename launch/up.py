@@ -134,10 +134,11 @@ class Up:
             f"(connect your own client here); run directory {self.out_dir}"
         )
         self.supervisor.start_all()
-        failure = self.supervisor.wait_until_up(t0)
+        # an external station may never come: the run's duration bounds the wait for it too
+        failure = self.supervisor.wait_until_up(t0, duration_s if not self.config.time.simulated else None)
         startup_s = time.monotonic() - t0
         self.supervisor.up_s = time.monotonic()
-        if not failure and not self.interrupted.is_set():
+        if not failure and not self.interrupted.is_set() and not self.supervisor.never_came:
             self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
             viewer = viewer_line(self.config.onshore)
             self.echo(viewer)

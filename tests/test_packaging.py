@@ -65,9 +65,10 @@ def _clean_env() -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The wheel, built by pip from a copy of the working tree (a build in the tree itself writes
-    build/ and abyss.egg-info there, and a stale build/lib can leak deleted modules into it).
+def build(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """The wheel and what its build printed, built by pip from a copy of the working tree (a
+    build in the tree itself writes build/ and abyss.egg-info there, and a stale build/lib can
+    leak deleted modules into it).
     With build isolation: the development environment's setuptools (65.5, and no `wheel`)
     is older than the >=68 that [build-system] asks for, so --no-build-isolation fails there."""
     tmp = tmp_path_factory.mktemp("wheel")
@@ -84,7 +85,19 @@ def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert built.returncode == 0, built.stdout + built.stderr
     wheels = list(out.glob("*.whl"))
     assert [w.name for w in wheels] == [WHEEL_NAME], wheels
-    return wheels[0]
+    return wheels[0], built.stdout + built.stderr
+
+
+@pytest.fixture(scope="module")
+def wheel(build: tuple[Path, str]) -> Path:
+    return build[0]
+
+
+def test_the_build_warns_of_nothing(build: tuple[Path, str]) -> None:
+    """A data folder left out of `packages` (common/traces) makes setuptools print a screen of
+    warning at every install, setup.sh's included."""
+    _, output = build
+    assert "warn" not in output.lower(), output
 
 
 @pytest.fixture(scope="module")

@@ -95,7 +95,7 @@ def test_profiles_parse_with_units_and_refuse_bad_values() -> None:
         ({"loss": "120%"}, r"\[0%, 100%\]"),
         ({"delay": 5}, "no unit"),
         ({"transport": "sctp"}, "tcp, udp"),
-        ({"warp": "1"}, "unknown profile field"),
+        ({"warp": "1"}, "warp: unknown field; allowed: .*rate"),
     ]:
         with pytest.raises(ConfigError, match=match):
             profile("tether", fields)

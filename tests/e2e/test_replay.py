@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -205,3 +206,45 @@ def test_bad_replays_fail_at_start_with_the_fix(tmp_path: Path, recorded_run: Pa
     assert compare.returncode == 2 and "--as STATION" in compare.stderr
     alias = abyss("replay", str(tmp_path))
     assert "is now `abyss view" in alias.stderr
+
+
+def test_a_run_a_campaign_kept_replays_on_the_wall_clock(tmp_path: Path) -> None:
+    """A lockstep run, in the shape a campaign keeps it (`<campaign>/runs/<run id>/`, its
+    config.json with the scenario's holds and every path under the worker's run directory):
+    `abyss replay` plays its simulation and vessel back to a live onboard and shore, in real
+    time, named by the campaign's directory and a prefix of the run's id."""
+    worker = tmp_path / "worker" / "run"
+    worker.parent.mkdir()
+    up = Up(worker, "--time", "lockstep", "--duration", "6", "--viewer", "none", "--system", "small-1")
+    assert up.wait(120) == 3, up.output()  # incomplete: lockstep ends at its duration
+    run = tmp_path / "campaign" / "runs" / "3f9a1c0d5e6b7a81"
+    shutil.copytree(worker, run)
+    (tmp_path / "campaign" / "plan.json").write_text("{}")
+    config = json.loads((run / "config.json").read_text())
+    config["time"]["holds_s"] = [2.0, 3.0]  # as a scenario's timed events leave it
+    (run / "config.json").write_text(json.dumps(config))
+    shutil.rmtree(worker)
+    done = abyss(
+        "replay",
+        str(tmp_path / "campaign" / "3f9a1c0d"),
+        "--as",
+        "simulation",
+        "--as",
+        "vessel",
+        "--duration",
+        "8",
+        "--viewer",
+        "none",
+        "--port",
+        "0",
+        "--out",
+        str(tmp_path / "replay"),
+        timeout_s=120,
+    )
+    assert done.returncode == 3, done.stdout + done.stderr  # incomplete: a live shore, 8 s
+    assert "ran in lockstep time; its replay runs on the wall clock" in done.stdout
+    assert f"replaying simulation, vessel of {run}" in done.stdout
+    summary = json.loads((tmp_path / "replay" / "summary.json").read_text())
+    assert summary["time"]["mode"] == "real", summary["time"]
+    received = summary["stations"]["onboard"]["received"]
+    assert received.get("abyss/small-1/simulation/nav", 0) > 50, received  # 20 Hz, replayed

@@ -129,6 +129,30 @@ def test_a_satellite_outage_all_run_long_is_incomplete_and_every_station_stops(t
     assert "abyss: e2e-outage: incomplete;" in up.output()
 
 
+def test_an_external_station_that_never_comes_ends_the_run_at_its_duration(tmp_path: Path) -> None:
+    """`--external onboard --duration 5` with no onboard ever started: the duration bounds the
+    wait for it too (not the 180 s start-up bound, nor the user's Ctrl-C)."""
+    t0 = time.monotonic()
+    up = Up(
+        tmp_path / "run",
+        "--external",
+        "onboard",
+        "--duration",
+        "5",
+        "--system",
+        "e2e-never",
+        "--viewer",
+        "none",
+    )
+    assert up.wait(60) == 3, up.output()  # incomplete
+    assert time.monotonic() - t0 < 40, up.output()
+    assert "external station onboard never came" in up.output() and "--duration of 5 s" in up.output()
+    assert "all 4 stations up" not in up.output()
+    summary = up.summary()
+    assert summary["verdict"] == "incomplete" and summary["failure"] == "", up.output()
+    assert all(s["exit_code"] == 0 for n, s in summary["stations"].items() if n != "onboard"), summary
+
+
 def test_ctrl_c_is_interrupted_and_everything_is_written(tmp_path: Path) -> None:
     up = Up(tmp_path / "run", "--duration", "60", "--system", "e2e-ctrl-c", "--viewer", "none")
     up.wait_up()

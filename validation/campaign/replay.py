@@ -15,7 +15,7 @@ from abyss.common.errors import ConfigError
 from abyss.recording.reader import read_file
 from abyss.validation.campaign.plan import RunSpec
 from abyss.validation.campaign.store import Store
-from abyss.validation.scenario.runner import run_scenario
+from abyss.validation.scenario.runner import Result, run_scenario
 
 Sent = dict[tuple[str, str, int], bytes]  # (the life's recording, key past the system, seq) -> payload
 
@@ -90,6 +90,16 @@ def differences(original: Path, again: Path) -> tuple[list[str], int, str]:
     return found, compared, note
 
 
+def outcome_line(result: Result) -> str:
+    """PASS or FAIL by the scenario's assertions, the run's own verdict as `abyss up` gave it
+    (done, incomplete, interrupted, failed; none where the run ended without one), and why it
+    failed."""
+    verdict = result.run_verdict or "none"
+    return f"{'PASS' if result.passed else 'FAIL'} (verdict {verdict}): " + (
+        result.why_failed or "every assertion held"
+    )
+
+
 def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
     """Run it again and compare: 0 when it repeats (bit for bit in lockstep, else its verdict)."""
     store = Store(directory)
@@ -101,10 +111,7 @@ def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
     )
     out = directory / "replays" / f"{spec.run_id}-{len(list(directory.glob(f'replays/{spec.run_id}-*'))) + 1}"
     result = run_scenario(spec.scenario, out, 0, say)
-    say(
-        f"{'PASS' if result.passed else 'FAIL'} ({result.outcome}): "
-        + (result.why_failed or "every assertion held")
-    )
+    say(outcome_line(result))
     if record is not None and record.passed != result.passed:
         say(f"the campaign's run {'passed' if record.passed else 'failed'}; this one did not")
     original = directory / record.kept if record is not None and record.kept else None

@@ -11,7 +11,7 @@ from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import downscale
 from abyss.common.messages import Image, Message, SceneAck, SonarImage, wire_bytes
-from abyss.common.sonar import decode_polar, encode_polar
+from abyss.common.sonar_frames import decode_polar, encode_polar
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer
 

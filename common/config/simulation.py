@@ -47,7 +47,7 @@ class SimulationConfig:
     # (MuJoCo's fluid model of its hull's geoms); the vehicle file also describes its thrusters
     hydrodynamics: Hydrodynamics = "fossen"
     # the arm's (and gripper's) marine model: "strips" (strip theory per link, the testbed's own:
-    # stations/simulation/links.py) or "ellipsoid" (MuJoCo's fluid model of their geoms, slower)
+    # stations/simulation/strips.py) or "ellipsoid" (MuJoCo's fluid model of their geoms, slower)
     arm_hydrodynamics: ArmHydrodynamics = "strips"
     vehicle_file: str = ""  # "" is robot.xml's own, common/models/robot.toml
     # the current: a profile of rows (z [m, world], vx, vy, vz [m/s, world]), linear in between and
@@ -58,7 +58,7 @@ class SimulationConfig:
     usbl_sigma_m: float = 0.02  # [m] a short-range USBL: 0.2 % of a 10 m slant range
     dvl_sigma_mps: float = 0.005
     imu_sigma_rad: float = 0.002
-    # navigation sensors as real ones are (stations/simulation/navigation.py)
+    # navigation sensors as real ones are (stations/simulation/nav_sensors.py)
     pressure_sigma_pa: float = 100.0  # the depth sensor's noise [Pa]: 1 cm of sea water
     usbl_rate_hz: float = 1.0  # fixes taken [Hz]
     usbl_processing_s: float = 0.3  # [s] a fix is delivered this long after its ping came back

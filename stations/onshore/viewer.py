@@ -355,7 +355,7 @@ class Viewer:
     def sonar(self, frame: SonarImage, stamp_s: float) -> None:
         """The sonar's fan seen from above, and its first echoes in the world as the arcs they may
         lie on (the sonar measures no elevation); a frame that does not decode is not shown."""
-        from abyss.common.sonar import ECHO_RGB, decode_polar, echo_arcs, fan
+        from abyss.common.sonar_frames import ECHO_RGB, decode_polar, echo_arcs, fan
 
         try:
             polar = decode_polar(frame)

@@ -21,7 +21,16 @@ from abyss.common.clock import WALL, Holdback, SimClock
 from abyss.common.config import Config
 from abyss.common.errors import BadInput
 from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
-from abyss.common.messages import ArmVelocityRef, SimTime, SimulationControl, SimulationStatus, VelocityRef
+from abyss.common.messages import (
+    ArmVelocityRef,
+    JointState,
+    NavState,
+    PanelState,
+    SimTime,
+    SimulationControl,
+    SimulationStatus,
+    VelocityRef,
+)
 from abyss.common.models import CAMERAS, stereo_set
 from abyss.common.workers import Realtime, Workers
 
@@ -87,7 +96,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     controls = bus.subscribe_key(control_key, SimulationControl)
     keeper = Timekeeper(config, bus, world.data.time)
     rate = keeper.rate
-    wall0, sim0 = time.monotonic(), world.data.time
+    status_since = time.monotonic(), world.data.time  # wall [s], simulated [s] of the last status
     saved_s = -float("inf")  # simulated time of the state last kept
 
     def apply_controls() -> int:
@@ -119,32 +128,48 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
             panel = world.panel() if step % PANEL_EVERY == 0 else None
-        bus.publish("nav", world.nav())
-        bus.publish("joints", joints)
-        bus.observe(keys.truth_key(bus.system), truth)
-        if panel is not None:
-            bus.observe(keys.panel_truth_key(bus.system), panel)
+        _publish(bus, world, truth, joints, panel)
         if sim.state_file and truth.sim_time_s - saved_s >= sim.state_period_s:
             with lock:
                 world.save_state(Path(sim.state_file))
             saved_s = truth.sim_time_s
-        wall = time.monotonic()
-        if wall - wall0 >= STATUS_PERIOD_S:
-            bus.observe(
-                keys.simulation_status_key(bus.system),
-                SimulationStatus(
-                    sim_time_s=truth.sim_time_s,
-                    realtime_factor=(truth.sim_time_s - sim0) / (wall - wall0),
-                    deadlines_met=rate.deadlines_met,
-                    faults=dict(world.faults),
-                    held_s=keeper.held_s(),
-                ),
-            )
-            wall0, sim0 = wall, truth.sim_time_s
+        status_since = _report_status(bus, world, keeper, truth.sim_time_s, status_since)
         if not keeper.after_step(stepped_from_s, truth.sim_time_s):
             break
         bus.realtime.tick(rate.late)
     keeper.close()
+
+
+def _publish(bus: Bus, world: World, truth: NavState, joints: JointState, panel: PanelState | None) -> None:
+    """A control period's outputs: the navigation sensors' readings and the joints to onboard,
+    the truth (and the panel's, when due) to the testbed."""
+    bus.publish("nav", world.nav())
+    bus.publish("joints", joints)
+    bus.observe(keys.truth_key(bus.system), truth)
+    if panel is not None:
+        bus.observe(keys.panel_truth_key(bus.system), panel)
+
+
+def _report_status(
+    bus: Bus, world: World, keeper: Timekeeper, sim_time_s: float, since: tuple[float, float]
+) -> tuple[float, float]:
+    """The station's status to the testbed once STATUS_PERIOD_S of the wall clock has passed
+    `since` (the wall [s] and simulated [s] times of the last); the new `since`."""
+    wall0, sim0 = since
+    wall = time.monotonic()
+    if wall - wall0 < STATUS_PERIOD_S:
+        return since
+    bus.observe(
+        keys.simulation_status_key(bus.system),
+        SimulationStatus(
+            sim_time_s=sim_time_s,
+            realtime_factor=(sim_time_s - sim0) / (wall - wall0),
+            deadlines_met=keeper.rate.deadlines_met,
+            faults=dict(world.faults),
+            held_s=keeper.held_s(),
+        ),
+    )
+    return wall, sim_time_s
 
 
 class Timekeeper:

@@ -1,7 +1,7 @@
 """The water, and what no drag model carries: its density; buoyancy at the centre of volume of each wet
 body (the arm's links; the hull's too under MuJoCo's ellipsoid model, hydrodynamics.py carries it
 under Fossen's); and the current: the water's velocity, which Fossen's model of the hull and the
-links' strip model (links.py) move relative to, and MuJoCo's ellipsoids take as their `wind`."""
+arm's strip model (strips.py) move relative to, and MuJoCo's ellipsoids take as their `wind`."""
 
 from __future__ import annotations
 

@@ -3,8 +3,8 @@ the environment: .venv/lib/abyss/libabyss_physics.so; `build`):
 - `Marine`: the hull's Fossen terms and the arm's added mass, put into MuJoCo's step by its control
   callback, so that a whole low-level period of steps is one `mj_step(nstep=...)` with no Python
   between them. The same equations in the same order as the Python path (Fossen._apply_diagonal,
-  Links.add_mass), so the two step bit for bit alike;
-- `LowLevel`: the dynamic low level (the controllers, the thrusters, the links' strip model) as one
+  ArmStrips.add_mass), so the two step bit for bit alike;
+- `LowLevel`: the dynamic low level (the controllers, the thrusters, the arm's strip model) as one
   call per control period, alike to the Python's to rounding.
 tests/stations/simulation/test_native_physics.py holds both. Where the library is not built (no
 compiler), `Marine.of` and `LowLevel.of` are None and World runs it all in Python."""
@@ -23,8 +23,8 @@ import mujoco
 import numpy as np
 
 from abyss.stations.simulation.hydrodynamics import Fossen
-from abyss.stations.simulation.links import Links
 from abyss.stations.simulation.lowlevel import Dynamic, References
+from abyss.stations.simulation.strips import ArmStrips
 
 LIBRARY = Path(sys.prefix) / "lib" / "abyss" / "libabyss_physics.so"  # a build output, not a module
 log = logging.getLogger(__name__)
@@ -32,7 +32,8 @@ _double6 = ctypes.c_double * 6
 
 
 class _Terms(ctypes.Structure):
-    """native_physics.c's AbyssMarine."""
+    """native_physics.c's AbyssMarine, field for field under C's names (`links`, `link_entries`,
+    `link_values`: the arm's strip model's inertia entries, their count and values)."""
 
     _fields_ = (
         ("data", ctypes.c_void_p),
@@ -57,7 +58,8 @@ _pointer = ctypes.c_void_p
 
 
 class _LowLevelTerms(ctypes.Structure):
-    """native_physics.c's AbyssLowLevel."""
+    """native_physics.c's AbyssLowLevel, field for field under C's names (`links`: the strip
+    model's bodies, the arm's links; `strips` its strips)."""
 
     _fields_ = (
         ("qpos", ctypes.c_int),
@@ -154,20 +156,22 @@ class Marine:
     """One World's marine terms in C: `step` runs `nstep` physics steps with them."""
 
     @staticmethod
-    def of(data: mujoco.MjData, fossen: Fossen | None, links: Links | None) -> Marine | None:
+    def of(data: mujoco.MjData, fossen: Fossen | None, strips: ArmStrips | None) -> Marine | None:
         """For these terms, or None where C does not have them (the library not built; a hull
         with a full added-mass matrix, which steps in Python)."""
         lib = library()
         if lib is None or fossen is None or fossen.diagonal is None:
             return None
-        return Marine(lib, data, fossen, links)
+        return Marine(lib, data, fossen, strips)
 
-    def __init__(self, lib: ctypes.CDLL, data: mujoco.MjData, fossen: Fossen, links: Links | None) -> None:
+    def __init__(
+        self, lib: ctypes.CDLL, data: mujoco.MjData, fossen: Fossen, strips: ArmStrips | None
+    ) -> None:
         assert fossen.diagonal is not None
         self.current_mps_world = np.zeros(3)  # held here: C reads it through its pointer
-        self._link_entries = np.ascontiguousarray(links.entries if links else [], dtype=np.int32)
-        # the links' own array, which their low level (Python's or C's) updates in place
-        self._link_values = links.values if links else np.zeros(0)
+        self._strip_entries = np.ascontiguousarray(strips.entries if strips else [], dtype=np.int32)
+        # the strip model's own array, which its low level (Python's or C's) updates in place
+        self._strip_values = strips.values if strips else np.zeros(0)
         linear, quadratic = fossen.damping
         terms = self._terms = _Terms(
             data=data._address,
@@ -180,9 +184,9 @@ class Marine:
             centre_of_buoyancy_m_body=(ctypes.c_double * 3)(*fossen.centre_of_buoyancy_m_body),
             hull_entries=(ctypes.c_int * 9)(*fossen.diagonal_entries),
             current_mps_world=self.current_mps_world.ctypes.data,
-            links=len(self._link_entries),
-            link_entries=self._link_entries.ctypes.data,
-            link_values=self._link_values.ctypes.data,
+            links=len(self._strip_entries),
+            link_entries=self._strip_entries.ctypes.data,
+            link_values=self._strip_values.ctypes.data,
         )
         slot = lib.abyss_marine_register(ctypes.byref(terms))
         if slot < 0:
@@ -203,37 +207,43 @@ class Marine:
 
 class LowLevel:
     """One World's dynamic low level in C (native_physics.c's abyss_low_level): the controllers,
-    the thrusters and the links' strip model, once per control period, in one call. The Python's
-    equations (lowlevel.Dynamic.apply, Links.apply) summed in C's order rather than numpy's BLAS's:
+    the thrusters and the arm's strip model, once per control period, in one call. The Python's
+    equations (lowlevel.Dynamic.apply, ArmStrips.apply) summed in C's order rather than numpy's BLAS's:
     alike to rounding, not bit for bit (tests/stations/simulation/test_native_physics.py). The
-    state both keep (the integrals, the rotors, the faults' efficiencies, the links' inertia
+    state both keep (the integrals, the rotors, the faults' efficiencies, the strips' inertia
     entries) is the Python objects' own arrays, so either path can take over from the other."""
 
-    LIMIT = 64  # thrusters, and dofs that move the links: C's scratch
+    LIMIT = 64  # thrusters, and dofs that move the arm's links: C's scratch
 
     @staticmethod
-    def of(controller: object, links: Links | None) -> LowLevel | None:
-        """For this controller and these links, or None where C does not have them (the library
+    def of(controller: object, strips: ArmStrips | None) -> LowLevel | None:
+        """For this controller and this strip model, or None where C does not have them (the library
         not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs)."""
         lib = library()
-        if lib is None or not isinstance(controller, Dynamic) or links is None:
+        if lib is None or not isinstance(controller, Dynamic) or strips is None:
             return None
-        if len(controller.thrusters.actuators) > LowLevel.LIMIT or len(links.dofs) > LowLevel.LIMIT:
+        if len(controller.thrusters.actuators) > LowLevel.LIMIT or len(strips.dofs) > LowLevel.LIMIT:
             return None
-        return LowLevel(lib, controller, links)
+        return LowLevel(lib, controller, strips)
 
-    def __init__(self, lib: ctypes.CDLL, controller: Dynamic, links: Links) -> None:
-        plant, gains, thrusters = controller.plant, controller.gains, controller.thrusters
-        spec = thrusters.spec
+    def __init__(self, lib: ctypes.CDLL, controller: Dynamic, strips: ArmStrips) -> None:
         self.references = np.zeros(12)  # vehicle 4, arm 6, gripper, the period [s]
         self.current_mps_world = np.zeros(3)
-        self.jacobian = np.zeros((len(links.bodies), 6, len(links.dofs)))
-        self.mass_q = np.zeros((len(links.dofs), len(links.dofs)))
+        self.jacobian = np.zeros((len(strips.bodies), 6, len(strips.dofs)))
+        self.mass_q = np.zeros((len(strips.dofs), len(strips.dofs)))
+        self._held = self._held_arrays(controller, strips)
+        self._terms = self._low_level_terms(controller, strips)
+        self._call = functools.partial(lib.abyss_low_level, ctypes.byref(self._terms))
+
+    def _held_arrays(self, controller: Dynamic, strips: ArmStrips) -> dict[str, np.ndarray]:
+        """The arrays C reads or writes through its pointers, by their field's name, kept alive here:
+        the controller's and the thrusters' state, the strip model's tables and its inertia entries."""
+        thrusters = controller.thrusters
 
         def ints(values: object) -> np.ndarray:
             return np.ascontiguousarray(values, dtype=np.int32)
 
-        held = {  # arrays C reads or writes through its pointers, kept alive here
+        held = {
             "integral": controller.vehicle_integral,
             "error": controller.vehicle_error,
             "actuators": ints(thrusters.actuators),
@@ -244,21 +254,27 @@ class LowLevel:
             "arm_integral": controller.arm_integral,
             "references": self.references,
             "current_mps_world": self.current_mps_world,
-            "bodies": ints(links.bodies),
-            "owner": ints(links.owner),
-            "dof": ints(links.dofs),
-            "flat": ints(links.flat),
-            **links.tables(),
+            "bodies": ints(strips.bodies),
+            "owner": ints(strips.owner),
+            "dof": ints(strips.dofs),
+            "flat": ints(strips.flat),
+            **strips.tables(),
             "jacobian": self.jacobian,
             "mass_q": self.mass_q,
-            "values": links.values,
+            "values": strips.values,
         }
         for name, array in held.items():
             if not (array.flags.c_contiguous and array.dtype in (np.float64, np.int32)):
                 raise TypeError(f"{name}: C takes contiguous float64 or int32 arrays")
-        self._held = held
+        return held
+
+    def _low_level_terms(self, controller: Dynamic, strips: ArmStrips) -> _LowLevelTerms:
+        """C's struct: the gains, the thrusters' spec, the arm's dofs and motors, the strip model's
+        sizes, and the held arrays' addresses."""
+        plant, gains, thrusters = controller.plant, controller.gains, controller.thrusters
+        spec = thrusters.spec
         linear, quadratic = controller.damping
-        self._terms = _LowLevelTerms(
+        return _LowLevelTerms(
             qpos=plant.qpos,
             qvel=plant.qvel,
             kp=_double4(*gains.vehicle_kp),
@@ -278,15 +294,14 @@ class LowLevel:
             arm_kp=gains.arm_kp,
             arm_ki=gains.arm_ki,
             arm_force_limit=_double6(*controller.arm_force_limit),
-            links=len(links.bodies),
-            strips=links.strips,
-            dofs=len(links.dofs),
-            root=links.root,
-            added_inertia=int(links.added_inertia),
-            entries=len(links.entries),
-            **{name: array.ctypes.data for name, array in held.items()},
+            links=len(strips.bodies),
+            strips=strips.strip_count,
+            dofs=len(strips.dofs),
+            root=strips.root,
+            added_inertia=int(strips.added_inertia),
+            entries=len(strips.entries),
+            **{name: array.ctypes.data for name, array in self._held.items()},
         )
-        self._call = functools.partial(lib.abyss_low_level, ctypes.byref(self._terms))
 
     def apply(
         self,
@@ -295,8 +310,8 @@ class LowLevel:
         current_mps_world: np.ndarray,
         period_s: float,
     ) -> None:
-        """The controllers' outputs and the links' forces for the next `period_s` [s], from the
-        current kinematics (as lowlevel.Dynamic.apply, then Links.apply, do)."""
+        """The controllers' outputs and the arm's forces for the next `period_s` [s], from the
+        current kinematics (as lowlevel.Dynamic.apply, then ArmStrips.apply, do)."""
         r = self.references
         r[:4] = refs.vehicle_body
         r[4:10] = refs.arm_radps

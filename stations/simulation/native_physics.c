@@ -2,8 +2,8 @@
  *
  * The marine terms a physics step needs between MuJoCo's position and acceleration stages: the
  * hull's Fossen terms for a diagonal added mass (hydrodynamics.Fossen._apply_diagonal, the same
- * equations in the same order of operations) and the arm's added mass (links.Links.add_mass) into
- * the inertia, then its factorisation again. MuJoCo calls abyss_marine_control as its control
+ * equations in the same order of operations) and the arm's added mass (strips.ArmStrips.add_mass)
+ * into the inertia, then its factorisation again. MuJoCo calls abyss_marine_control as its control
  * callback (mjcb_control: after the velocity stage, where mj_step1 ends) on every step of every
  * model in the process; it acts on the MjData registered and active, and on no other. Built with
  * the compiler's floating-point contraction off, so that its arithmetic is Python's bit for bit.
@@ -110,8 +110,8 @@ void abyss_marine_control(const mjModel* m, mjData* d) {
 }
 
 /* ---- the dynamic low level, once per control period (lowlevel.Dynamic.apply with
- * thrusters.Thrusters, then links.Links.apply): the same equations as the Python, summed in C's
- * order rather than numpy's BLAS's, so alike to rounding, not bit for bit. */
+ * thrusters.Thrusters, then strips.ArmStrips.apply): the same equations as the Python, summed in
+ * C's order rather than numpy's BLAS's, so alike to rounding, not bit for bit. */
 
 typedef struct {
   /* the vehicle's velocity controller: PID on the actuated axes (surge, sway, heave, yaw) with a

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from abyss.common.messages import SonarImage
-from abyss.common.sonar import encode_polar
+from abyss.common.sonar_frames import encode_polar
 
 
 @dataclass(frozen=True)

@@ -33,12 +33,12 @@ from abyss.common.models import (
 )
 from abyss.common.runfiles import write_whole
 from abyss.stations.simulation.faults import ACTIONS as FAULT_ACTIONS
-from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
-from abyss.stations.simulation.links import Links
+from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
 from abyss.stations.simulation.native import LowLevel, Marine
-from abyss.stations.simulation.navigation import DvlBeams, Navigation
+from abyss.stations.simulation.nav_sensors import DvlBeams, Navigation
+from abyss.stations.simulation.strips import ArmStrips
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
 
@@ -53,64 +53,56 @@ def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> Refer
     )
 
 
+def _gains(config: SimulationConfig) -> PidGains:
+    return PidGains(
+        config.vehicle_kp,
+        config.vehicle_ki,
+        config.vehicle_kd,
+        config.arm_kp,
+        config.arm_ki,
+        config.gripper_kp,
+    )
+
+
+def _load_vehicle(model: mujoco.MjModel, config: SimulationConfig) -> VehicleModel:
+    """The vehicle file (the configuration's, or robot.xml's own), its thrusters the MJCF's motors."""
+    vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else VEHICLE_FILE)
+    missing = [
+        n for n in vehicle.thrusters.names if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0
+    ]
+    if missing:
+        raise ConfigError(
+            "simulation.vehicle_file", f"thrusters.names: {', '.join(missing)} not motors of the MJCF"
+        )
+    return vehicle
+
+
+def _arm_strips(model: mujoco.MjModel, buoyancy: Buoyancy) -> ArmStrips:
+    """The strip model of the arm (every wet body but the vehicle), in place of MuJoCo's fluid
+    model of its geoms; ConfigError where a wet geom has a shape it has no member for."""
+    wet = wet_geoms(model)
+    vehicle = model.body("vehicle").id
+    arm = sorted({int(b) for b in model.geom_bodyid[wet]} - {vehicle})
+    try:
+        strips = ArmStrips(model, arm, buoyancy, wet)
+    except ValueError as exc:  # a wet geom of a shape it has no member for
+        raise ConfigError("simulation.arm_hydrodynamics", f"strips: {exc} ('ellipsoid' takes any)") from exc
+    # kept off MuJoCo's fluid model; their fluid shape stays on, so that they do not fall back
+    # to its inertia-box drag where the hull keeps MuJoCo's model
+    model.geom_fluid[np.isin(model.geom_bodyid, arm) & wet, 1:] = 0.0
+    return strips
+
+
 class World:
     def __init__(self, config: SimulationConfig, rng: np.random.Generator) -> None:
         self.config = config
         self.model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
-        gains = PidGains(
-            config.vehicle_kp,
-            config.vehicle_ki,
-            config.vehicle_kd,
-            config.arm_kp,
-            config.arm_ki,
-            config.gripper_kp,
-        )
-        self.vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else VEHICLE_FILE)
-        missing = [
-            n
-            for n in self.vehicle.thrusters.names
-            if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0
-        ]
-        if missing:
-            raise ConfigError(
-                "simulation.vehicle_file", f"thrusters.names: {', '.join(missing)} not motors of the MJCF"
-            )
-        self.controller = LOW_LEVELS[config.low_level](self.model, gains, self.vehicle)
+        self.vehicle = _load_vehicle(self.model, config)
+        self.controller = LOW_LEVELS[config.low_level](self.model, _gains(config), self.vehicle)
         self.plant = self.controller.plant
-        rho = WATER_DENSITY_KGPM3
-        self.hydrodynamics: Fossen | None = None
-        if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
-            self.hydrodynamics = Fossen(self.model, self.vehicle, rho_kgpm3=rho)
-        self.buoyancy = Buoyancy(
-            self.model, dry=() if self.hydrodynamics is None else ("vehicle",), rho_kgpm3=rho
-        )
-        self.links: Links | None = None
-        wet = wet_geoms(self.model)
-        if config.arm_hydrodynamics == "strips":  # the strip model replaces the links' ellipsoids
-            vehicle = self.model.body("vehicle").id
-            arm = sorted({int(b) for b in self.model.geom_bodyid[wet]} - {vehicle})
-            try:
-                self.links = Links(self.model, arm, self.buoyancy, wet)
-            except ValueError as exc:  # a wet geom of a shape it has no member for
-                raise ConfigError(
-                    "simulation.arm_hydrodynamics", f"strips: {exc} ('ellipsoid' takes any)"
-                ) from exc
-            # kept off MuJoCo's fluid model; their fluid shape stays on, so that they do not fall back
-            # to its inertia-box drag where the hull keeps MuJoCo's model
-            self.model.geom_fluid[np.isin(self.model.geom_bodyid, arm) & wet, 1:] = 0.0
-        # the links' model applies their buoyancy with their drag, in one pass
-        self._buoyancy_apart = self.links is None or not set(self.buoyancy.bodies) <= set(self.links.bodies)
-        # MuJoCo's fluid model, where it still carries a part: its passive forces and their
-        # derivatives cost more than the rest of a physics step, so it is off entirely otherwise
-        # (the panel's valves and levers, with no fluid shape, lose its inertia-box drag then: 0.005
-        # and 0.02 N m at 2 rad/s, against their friction of 1.5 and 3 N m)
-        self._mujoco_fluid = self.hydrodynamics is None or self.links is None
-        if self._mujoco_fluid:
-            self.model.opt.density = rho
-        else:
-            self.model.opt.density = self.model.opt.viscosity = 0.0
+        self._marine_models(config)
         self.marine: Marine | None = None
         self.native_low_level: LowLevel | None = None
         self._bind_native()
@@ -120,6 +112,40 @@ class World:
         self.water_mps_world = np.zeros(3)  # the current where the vehicle is
         self.navigation = Navigation(config, rng)
         self.faults: dict[str, float] = {}
+        self._index_parts()
+        place_at_start(self.model, self.data.qpos, config.start_position_m_world, config.start_yaw_rad)
+        mujoco.mj_forward(self.model, self.data)
+        self.dvl = DvlBeams(
+            self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
+        )
+
+    def _marine_models(self, config: SimulationConfig) -> None:
+        """The hull's model (Fossen's or MuJoCo's), the buoyancy, the arm's (the strips or MuJoCo's),
+        and MuJoCo's fluid model on where one of them is its."""
+        rho = WATER_DENSITY_KGPM3
+        self.hydrodynamics: Fossen | None = None
+        if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
+            self.hydrodynamics = Fossen(self.model, self.vehicle, rho_kgpm3=rho)
+        self.buoyancy = Buoyancy(
+            self.model, dry=() if self.hydrodynamics is None else ("vehicle",), rho_kgpm3=rho
+        )
+        self.strips: ArmStrips | None = None
+        if config.arm_hydrodynamics == "strips":  # the strip model replaces the arm's ellipsoids
+            self.strips = _arm_strips(self.model, self.buoyancy)
+        # the strip model applies the arm's buoyancy with its drag, in one pass
+        self._buoyancy_apart = self.strips is None or not set(self.buoyancy.bodies) <= set(self.strips.bodies)
+        # MuJoCo's fluid model, where it still carries a part: its passive forces and their
+        # derivatives cost more than the rest of a physics step, so it is off entirely otherwise
+        # (the panel's valves and levers, with no fluid shape, lose its inertia-box drag then: 0.005
+        # and 0.02 N m at 2 rad/s, against their friction of 1.5 and 3 N m)
+        self._mujoco_fluid = self.hydrodynamics is None or self.strips is None
+        if self._mujoco_fluid:
+            self.model.opt.density = rho
+        else:
+            self.model.opt.density = self.model.opt.viscosity = 0.0
+
+    def _index_parts(self) -> None:
+        """Where the panel's parts, the fingers and the dofs that move of themselves sit in the model."""
         self.parts = (*panel.VALVES, *panel.LEVERS)
         self._part_qpos = np.array([self.model.joint(n).qposadr[0] for n in self.parts])
         self._part_joints = np.array([self.model.joint(n).id for n in self.parts])
@@ -130,28 +156,23 @@ class World:
             np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs, self.plant.gripper_dofs
         ]
         self._passive_dofs = np.setdiff1d(np.arange(self.model.nv), robot_dofs)
-        place_at_start(self.model, self.data.qpos, config.start_position_m_world, config.start_yaw_rad)
-        mujoco.mj_forward(self.model, self.data)
-        self.dvl = DvlBeams(
-            self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
-        )
 
     def _bind_native(self) -> None:
         """The physics in C where it is built (native.py): the per-step marine terms (alike bit for
-        bit), and the dynamic low level where the links' model carries the whole arm (alike to
+        bit), and the dynamic low level where the strip model carries the whole arm (alike to
         rounding); each None where it runs in Python."""
         self.marine = (
-            Marine.of(self.data, self.hydrodynamics, self.links) if self.controller.dynamics else None
+            Marine.of(self.data, self.hydrodynamics, self.strips) if self.controller.dynamics else None
         )
         self.native_low_level = (
-            LowLevel.of(self.controller, self.links)
+            LowLevel.of(self.controller, self.strips)
             if self.marine is not None and not self._buoyancy_apart and not self._mujoco_fluid
             else None
         )
 
-    def use_links(self, links: Links) -> None:
+    def use_strips(self, strips: ArmStrips) -> None:
         """Another strip model of the arm (other coefficients: tests, benches), C's with it."""
-        self.links = links
+        self.strips = strips
         self._bind_native()
 
     def step(self, refs: References, period_s: float) -> None:
@@ -174,20 +195,20 @@ class World:
                 self._low_level(refs, dt * every)
                 self.marine.step(m, self.water_mps_world, min(every, steps - start))
             return
-        fossen, links = self.hydrodynamics, self.links
+        fossen, strips = self.hydrodynamics, self.strips
         step1, factor, step2 = mujoco.mj_step1, mujoco.mj_factorM, mujoco.mj_step2
         for i in range(steps):
             if i % every == 0:  # the low level runs at its own rate; its outputs hold between
                 self._low_level(refs, dt * every)
-            if fossen is None and links is None:  # MuJoCo's fluid model alone: no Python per step
+            if fossen is None and strips is None:  # MuJoCo's fluid model alone: no Python per step
                 mujoco.mj_step(m, d)
                 continue
             # the added masses go into MuJoCo's inertia between its two halves of a step
             step1(m, d)
             if fossen is not None:
                 fossen.apply(m, d, self.water_mps_world, factor=False)
-            if links is not None:
-                links.add_mass(d)
+            if strips is not None:
+                strips.add_mass(d)
             factor(m, d)
             step2(m, d)
 
@@ -196,7 +217,7 @@ class World:
         d = self.data
         self.current.advance(d.time)
         self.water_mps_world = self.current.velocity_mps_world(d.qpos[self.plant.qpos + 2])
-        if self.native_low_level is not None:  # the controllers and the links' forces, one call
+        if self.native_low_level is not None:  # the controllers and the arm's forces, one call
             self.native_low_level.apply(d, refs, self.water_mps_world, period_s)
             return
         self.controller.apply(d, refs, period_s)
@@ -204,8 +225,8 @@ class World:
             self.model.opt.wind[:] = self.water_mps_world  # for MuJoCo's drag
         if self._buoyancy_apart:
             self.buoyancy.apply(d)
-        if self.links is not None:  # after the buoyancy: it sets its links' whole xfrc_applied
-            self.links.apply(d, self.water_mps_world)
+        if self.strips is not None:  # after the buoyancy: it sets its links' whole xfrc_applied
+            self.strips.apply(d, self.water_mps_world)
 
     @property
     def physics(self) -> str:

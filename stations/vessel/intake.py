@@ -16,7 +16,7 @@ from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, Message, PointCloud, RecognisedObjects, SonarImage
 from abyss.common.shared import Latest
-from abyss.common.sonar import ECHO_RGB, echo_arcs
+from abyss.common.sonar_frames import ECHO_RGB, echo_arcs
 from abyss.scene.model import SceneModel
 from abyss.stations.vessel.core import Perception
 from abyss.stations.vessel.recognition import PanelTracker

@@ -15,7 +15,7 @@ from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
 from abyss.common.messages import SonarImage
 from abyss.common.models import panel
-from abyss.common.sonar import (
+from abyss.common.sonar_frames import (
     arc_points,
     bearings_rad,
     decode_polar,

@@ -31,7 +31,7 @@ from abyss.common.messages import (
     Waypoints,
 )
 from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
-from abyss.common.sonar import encode_polar
+from abyss.common.sonar_frames import encode_polar
 from abyss.stations.onshore.layout import blueprint
 from abyss.stations.onshore.viewer import Viewer
 

@@ -1,4 +1,4 @@
-"""The arm's strip model (stations/simulation/links.py) against MuJoCo's ellipsoid fluid model that it
+"""The arm's strip model (stations/simulation/strips.py) against MuJoCo's ellipsoid fluid model that it
 replaces, on a reference set of joint trajectories in water; its drag against closed forms and its
 added mass against an independent computation. Real MuJoCo, the whole World (dynamic low level,
 the vehicle free and holding station under its own low level, Fossen's model on the hull).
@@ -31,9 +31,9 @@ import pytest
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
 from abyss.common.models import ARM_JOINTS
-from abyss.stations.simulation.links import Coefficients, Links
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, geom_volume_m3, wet_geoms
+from abyss.stations.simulation.strips import ArmStrips, Coefficients
 from abyss.stations.simulation.world import World
 
 PERIOD_S = 0.05
@@ -51,11 +51,11 @@ def world(
     w = World(SimulationConfig(arm_hydrodynamics=arm, **fields), np.random.default_rng(0))  # type: ignore[arg-type]
     for name, angle_rad in zip(ARM_JOINTS, pose, strict=True):
         w.data.qpos[w.model.joint(name).qposadr[0]] = angle_rad
-    if w.links is not None and (coefficients is not None or not inertia):
-        w.use_links(
-            Links(
+    if w.strips is not None and (coefficients is not None or not inertia):
+        w.use_strips(
+            ArmStrips(
                 w.model,
-                list(w.links.bodies),
+                list(w.strips.bodies),
                 w.buoyancy,
                 wet_geoms(w.model),
                 coefficients or Coefficients(),
@@ -164,17 +164,17 @@ def test_the_strips_integrate_the_cross_flow_along_a_link(kind: str) -> None:
     a cylinder's moment is rho C_D D L^4 omega^2 / 8 (the strip drag integrated along it)."""
     length, radius = 0.5, 0.05
     model = mujoco.MjModel.from_xml_string(LINK.format(kind=kind, length=length, radius=radius))
-    links = Links(model, [1], Buoyancy(model), wet_geoms(model))
+    strips = ArmStrips(model, [1], Buoyancy(model), wet_geoms(model))
     rho, c_d = WATER_DENSITY_KGPM3, Coefficients().cross_flow_drag
     area = 2.0 * radius * length + (np.pi * radius**2 if kind == "capsule" else 0.0)
     up = np.zeros((1, 3))  # no buoyancy: the world's z taken as zero
-    across = links.wrenches_n_body(np.array([[0.0, 0.4, 0.0, 0.0, 0.0, 0.0]]), up)[0]
+    across = strips.wrenches_n_body(np.array([[0.0, 0.4, 0.0, 0.0, 0.0, 0.0]]), up)[0]
     assert across[1] == pytest.approx(-0.5 * rho * c_d * area * 0.4**2, rel=1e-9)
     np.testing.assert_allclose(across[[0, 2, 3, 4, 5]], 0.0, atol=1e-12)
     if kind == "cylinder":
         omega = 1.5
         centre = model.body_ipos[1]  # the twist and wrench are about the centre of mass
-        turning = links.wrenches_n_body(np.array([[0.0, omega * centre[0], 0.0, 0.0, 0.0, omega]]), up)[0]
+        turning = strips.wrenches_n_body(np.array([[0.0, omega * centre[0], 0.0, 0.0, 0.0, omega]]), up)[0]
         about_hinge = turning[5] + centre[0] * turning[1]
         assert about_hinge == pytest.approx(-rho * c_d * 2 * radius * length**4 * omega**2 / 8, rel=1e-9)
 
@@ -186,37 +186,37 @@ def test_the_added_mass_is_in_the_joint_inertia() -> None:
     arm as (M + M_A)^-1 tau (the joints' damping and servos off, so that the implicit integrator has
     no velocity term to fold in)."""
     w = world("strips", OPEN)
-    m, d, links = w.model, w.data, w.links
-    assert links is not None
-    links.apply(d, np.zeros(3))
-    expected = np.zeros((len(links.dofs), len(links.dofs)))
-    for i, b in enumerate(links.bodies):
+    m, d, strips = w.model, w.data, w.strips
+    assert strips is not None
+    strips.apply(d, np.zeros(3))
+    expected = np.zeros((len(strips.dofs), len(strips.dofs)))
+    for i, b in enumerate(strips.bodies):
         jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
         mujoco.mj_jac(m, d, jacp, jacr, d.xipos[b], b)
         rotation = d.xmat[b].reshape(3, 3)
-        jacobian = np.vstack([rotation.T @ jacp, rotation.T @ jacr])[:, links.dofs]
-        expected += jacobian.T @ links.added_mass[i] @ jacobian
-    np.testing.assert_allclose(links.mass_q, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+        jacobian = np.vstack([rotation.T @ jacp, rotation.T @ jacr])[:, strips.dofs]
+        expected += jacobian.T @ strips.added_mass[i] @ jacobian
+    np.testing.assert_allclose(strips.mass_q, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
     for name in ("arm_link2", "arm_link3"):  # capsules along their x: y and z are across
         b = m.body(name).id
         g = int(np.flatnonzero(m.geom_bodyid == b)[0])
-        across = links.added_mass[list(links.bodies).index(b)][1, 1]
+        across = strips.added_mass[list(strips.bodies).index(b)][1, 1]
         assert across == pytest.approx(1025.0 * geom_volume_m3(m.geom_type[g], m.geom_size[g]), rel=1e-9)
 
     m.dof_damping[:] = 0.0
     m.actuator_gainprm[:, 0] = 0.0
     m.actuator_biasprm[:] = 0.0
     d.qfrc_applied[:] = 0.0
-    d.xfrc_applied[:] = 0.0  # links.apply's buoyancy too: gravity alone, in the bias force
+    d.xfrc_applied[:] = 0.0  # strips.apply's buoyancy too: gravity alone, in the bias force
     elbow = m.joint("elbow").dofadr[0]
     d.qfrc_applied[elbow] = 10.0  # [N m]
     mujoco.mj_step1(m, d)
     rigid, inertia = np.zeros((m.nv, m.nv)), np.zeros((m.nv, m.nv))
     mujoco.mj_fullM(m, d, rigid)
     added = np.zeros((m.nv, m.nv))
-    added[np.ix_(links.dofs, links.dofs)] = links.mass_q
+    added[np.ix_(strips.dofs, strips.dofs)] = strips.mass_q
     force = d.qfrc_applied + d.qfrc_passive - d.qfrc_bias
-    links.add_mass(d)
+    strips.add_mass(d)
     mujoco.mj_fullM(m, d, inertia)
     np.testing.assert_allclose(inertia, rigid + added, rtol=0, atol=1e-12 * np.abs(rigid).max())
     mujoco.mj_factorM(m, d)

@@ -71,7 +71,7 @@ def outputs(world: World) -> dict[str, np.ndarray]:
     controller = world.controller
     return {
         **{field: getattr(world.data, field).copy() for field in LOW_LEVEL_OUTPUTS},
-        "inertia": world.links.values.copy(),  # type: ignore[union-attr]
+        "inertia": world.strips.values.copy(),  # type: ignore[union-attr]
         "vehicle_integral": controller.vehicle_integral.copy(),  # type: ignore[attr-defined]
         "vehicle_error": controller.vehicle_error.copy(),  # type: ignore[attr-defined]
         "arm_integral": controller.arm_integral.copy(),  # type: ignore[attr-defined]
@@ -95,7 +95,7 @@ def assert_alike(c: dict[str, np.ndarray], python: dict[str, np.ndarray], rtol: 
     ids=["moving", "saturated"],
 )
 def test_the_low_level_in_c_gives_the_pythons_outputs_period_by_period(refs: References) -> None:
-    """From the same state, each period's controls, the links' forces and inertia entries and the
+    """From the same state, each period's controls, the arm's forces and inertia entries and the
     controllers' state alike to rounding; a weakened thruster reaches C through the fault's array."""
     world = World(CONFIG, np.random.default_rng(3))
     native_low_level = world.native_low_level
@@ -119,7 +119,7 @@ def restore(world: World, state: dict[str, np.ndarray]) -> None:
     controller = world.controller
     for field in LOW_LEVEL_OUTPUTS:
         getattr(world.data, field)[:] = state[field]
-    world.links.values[:] = state["inertia"]  # type: ignore[union-attr]
+    world.strips.values[:] = state["inertia"]  # type: ignore[union-attr]
     controller.vehicle_integral[:] = state["vehicle_integral"]  # type: ignore[attr-defined]
     controller.vehicle_error[:] = state["vehicle_error"]  # type: ignore[attr-defined]
     controller.arm_integral[:] = state["arm_integral"]  # type: ignore[attr-defined]

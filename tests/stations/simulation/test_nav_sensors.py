@@ -11,7 +11,7 @@ import pytest
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import NavState, SimulationControl
 from abyss.stations.simulation.lowlevel import References
-from abyss.stations.simulation.navigation import SOUND_SPEED_MPS
+from abyss.stations.simulation.nav_sensors import SOUND_SPEED_MPS
 from abyss.stations.simulation.world import World
 
 pytestmark = pytest.mark.timeout(120)

@@ -14,7 +14,7 @@ import pytest
 from abyss.common.clouds import pack_cloud, unpack_cloud
 from abyss.common.config.stations import VesselConfig
 from abyss.common.messages import Image, PerceptionStatus, PointCloud, SonarImage
-from abyss.common.sonar import echo_arcs, encode_polar
+from abyss.common.sonar_frames import echo_arcs, encode_polar
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_keys
 from abyss.stations.vessel.intake import Intake, IntakeInputs

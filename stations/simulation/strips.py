@@ -193,7 +193,79 @@ def _span(ids: np.ndarray) -> slice | np.ndarray:
     return ids
 
 
-class Links:
+def _strip_rows(
+    model: mujoco.MjModel, bodies: np.ndarray, wet: np.ndarray, rho: float, coefficients: Coefficients
+) -> tuple[list[np.ndarray], list[list[float]], list[list[float]], list[int]]:
+    """Every strip of the wet geoms of `bodies`, link by link: its Q_k (3, 6) (body frame, about the
+    centre of mass), drag and added mass per axis of the strip frame, and its link's index."""
+    rows: list[np.ndarray] = []  # Q_k (3, 6), body frame about the centre of mass
+    drag: list[list[float]] = []
+    mass: list[list[float]] = []
+    owner: list[int] = []
+    for i, b in enumerate(bodies):
+        for g in np.flatnonzero((model.geom_bodyid == b) & wet):
+            axis, strips = _member(int(model.geom_type[g]), model.geom_size[g], rho, coefficients)
+            flat_rotation = np.empty(9)
+            mujoco.mju_quat2Mat(flat_rotation, model.geom_quat[g])
+            rotation = flat_rotation.reshape(3, 3)  # geom to body
+            order = [(axis + 1) % 3, (axis + 2) % 3, axis]  # the strip frame: across, across, along
+            frame = rotation[:, order].T  # rows e_1, e_2, a in the body frame
+            share = 1.0 / len(strips.s_m)  # of the axial terms: the strips all move alike along it
+            for s, d, m in zip(strips.s_m, strips.drag_n, strips.mass_kg, strict=True):
+                r = model.geom_pos[g] + s * rotation[:, axis] - model.body_ipos[b]
+                rows.append(frame @ np.hstack([np.eye(3), -_skew(r)]))
+                drag.append([d[order[0]], d[order[1]], strips.axial_drag * share])
+                mass.append([m[order[0]], m[order[1]], strips.axial_mass_kg * share])
+                owner.append(i)
+    if not rows:
+        raise ValueError("no wet geoms on the links")
+    return rows, drag, mass, owner
+
+
+def _buoyancy_terms(model: mujoco.MjModel, bodies: np.ndarray, buoyancy: Buoyancy) -> np.ndarray:
+    """(nb, 6, 3): each link's buoyancy, rho g V up at its centre of volume c, as
+    (f, c x f) = G (rho g V R^T e_z), about its centre of mass."""
+    index = [list(buoyancy.bodies).index(b) for b in bodies]
+    lift_n = buoyancy.rho_kgpm3 * buoyancy.g_mps2 * buoyancy.volume_m3[index]
+    levers = buoyancy.centre_m_body[index] - model.body_ipos[bodies]
+    return np.array([f * np.vstack([np.eye(3), _skew(r)]) for f, r in zip(lift_n, levers, strict=True)])
+
+
+def _chain(model: mujoco.MjModel, body: int) -> set[int]:
+    """The dofs that move `body`: its own and its ancestors'."""
+    dofs: set[int] = set()
+    while body > 0:
+        start, count = model.body_dofadr[body], model.body_dofnum[body]
+        dofs.update(range(start, start + count))
+        body = int(model.body_parentid[body])
+    return dofs
+
+
+def _inertia_entries(
+    model: mujoco.MjModel, dofs: np.ndarray, mask: np.ndarray
+) -> tuple[list[int], list[int]]:
+    """Where the pairs of `dofs` sit in MuJoCo's sparse lower inertia (M's entries), and each
+    one's index in the dofs x dofs matrix; raises ValueError for a pair that moves one link
+    (`mask`: (nb, 1, nd), which dofs move each) but has no entry."""
+    entries, flat = [], []
+    nd = len(dofs)
+    for a in range(nd):
+        row = int(dofs[a])
+        start, count = model.M_rowadr[row], model.M_rownnz[row]
+        columns = list(model.M_colind[start : start + count])
+        for k in range(a + 1):
+            column = int(dofs[k])
+            if column in columns:
+                entries.append(start + columns.index(column))
+                flat.append(a * nd + k)
+            elif (mask[:, 0, a] * mask[:, 0, k]).any():
+                raise ValueError(
+                    f"dofs {row} and {column} move one link but share no entry of MuJoCo's inertia"
+                )
+    return entries, flat
+
+
+class ArmStrips:
     """The strip model of the wet links `bodies` (body ids) of a MuJoCo model: see the module's text.
 
     `apply` (at the low level's rate) sets each link's xfrc_applied to its drag, the added mass's
@@ -214,33 +286,29 @@ class Links:
         its bodies); `wet`: (ngeom,) which geoms are wet, each body's wet geoms make its members.
         `added_inertia` False leaves the added mass's inertial term -M_A nu_dot out (MuJoCo's
         ellipsoid model has none: for comparisons with it)."""
-        rho = buoyancy.rho_kgpm3
         self.coefficients = coefficients
         self.bodies = np.array(bodies, dtype=int)
+        self.added_inertia = added_inertia
+        self._strip_terms(model, buoyancy, wet)
+        self._joint_space(model)
+        # the wrenches' three parts in one product: the strips' drag forces, the velocities' products
+        # and the vertical in the body frame to each link's (force, moment)
+        self._wrench = np.hstack(
+            [
+                -self._q.T,
+                _block_diagonal(list(self._kirchhoff)),
+                _block_diagonal(list(self._buoyancy)),
+            ]
+        )
+        self._speed = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # |u_n|^2, |u_n|^2, u_a^2
+
+    def _strip_terms(self, model: mujoco.MjModel, buoyancy: Buoyancy, wet: np.ndarray) -> None:
+        """The constant body-frame terms: the strips' Q_k and drag, each link's added mass, its
+        Kirchhoff form and its buoyancy."""
         nb = len(self.bodies)
-        rows: list[np.ndarray] = []  # Q_k (3, 6), body frame about the centre of mass
-        drag: list[list[float]] = []
-        mass: list[list[float]] = []
-        owner: list[int] = []
-        for i, b in enumerate(self.bodies):
-            for g in np.flatnonzero((model.geom_bodyid == b) & wet):
-                axis, strips = _member(int(model.geom_type[g]), model.geom_size[g], rho, coefficients)
-                flat_rotation = np.empty(9)
-                mujoco.mju_quat2Mat(flat_rotation, model.geom_quat[g])
-                rotation = flat_rotation.reshape(3, 3)  # geom to body
-                order = [(axis + 1) % 3, (axis + 2) % 3, axis]  # the strip frame: across, across, along
-                frame = rotation[:, order].T  # rows e_1, e_2, a in the body frame
-                share = 1.0 / len(strips.s_m)  # of the axial terms: the strips all move alike along it
-                for s, d, m in zip(strips.s_m, strips.drag_n, strips.mass_kg, strict=True):
-                    r = model.geom_pos[g] + s * rotation[:, axis] - model.body_ipos[b]
-                    rows.append(frame @ np.hstack([np.eye(3), -_skew(r)]))
-                    drag.append([d[order[0]], d[order[1]], strips.axial_drag * share])
-                    mass.append([m[order[0]], m[order[1]], strips.axial_mass_kg * share])
-                    owner.append(i)
-        if not rows:
-            raise ValueError("no wet geoms on the links")
+        rows, drag, mass, owner = _strip_rows(model, self.bodies, wet, buoyancy.rho_kgpm3, self.coefficients)
         n = len(rows)
-        self.strips = n
+        self.strip_count = n
         self.owner = np.array(owner)  # each strip's link (they come link by link)
         self._drag = np.array(drag)  # (n, 3) [N s^2/m^2]
         q = np.zeros((3 * n, 6 * nb))  # all strips' Q_k, block by block
@@ -252,37 +320,19 @@ class Links:
         self.added_mass = np.array(
             [self._added_mass[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(nb)]
         )
-        self.added_inertia = added_inertia
         self._kirchhoff = np.array([_kirchhoff(m) for m in self.added_mass])  # (nb, 6, 36)
-        # buoyancy, rho g V up at the centre of volume c: (f, c x f) = G (rho g V R^T e_z), about the
-        # centre of mass
-        index = [list(buoyancy.bodies).index(b) for b in self.bodies]
-        lift_n = buoyancy.rho_kgpm3 * buoyancy.g_mps2 * buoyancy.volume_m3[index]
-        levers = buoyancy.centre_m_body[index] - model.body_ipos[self.bodies]
-        self._buoyancy = np.array(
-            [f * np.vstack([np.eye(3), _skew(r)]) for f, r in zip(lift_n, levers, strict=True)]
-        )
-        # joint space: the dofs that move a link, and where their pairs sit in MuJoCo's sparse
-        # lower inertia (every link hangs from the same root)
+        self._buoyancy = _buoyancy_terms(model, self.bodies, buoyancy)
+
+    def _joint_space(self, model: mujoco.MjModel) -> None:
+        """The dofs that move a link, where their pairs sit in MuJoCo's sparse lower inertia (every
+        link hangs from the same root), and the buffers `jacobians` and `apply` fill."""
+        nb = len(self.bodies)
         self.root = int(model.body_rootid[self.bodies[0]])
-        chains = [self._chain(model, b) for b in self.bodies]
+        chains = [_chain(model, b) for b in self.bodies]
         self.dofs = np.array(sorted(set().union(*chains)), dtype=int)
         self._mask = np.array([[d in chain for d in self.dofs] for chain in chains], dtype=float)[:, None, :]
-        entries, flat = [], []
+        entries, flat = _inertia_entries(model, self.dofs, self._mask)
         nd = len(self.dofs)
-        for a in range(nd):
-            row = int(self.dofs[a])
-            start, count = model.M_rowadr[row], model.M_rownnz[row]
-            columns = list(model.M_colind[start : start + count])
-            for k in range(a + 1):
-                column = int(self.dofs[k])
-                if column in columns:
-                    entries.append(start + columns.index(column))
-                    flat.append(a * nd + k)
-                elif (self._mask[:, 0, a] * self._mask[:, 0, k]).any():
-                    raise ValueError(
-                        f"dofs {row} and {column} move one link but share no entry of MuJoCo's inertia"
-                    )
         self.entries = np.array(entries, dtype=int)
         self.flat = np.array(flat, dtype=int)  # per entry: its index in the dofs x dofs matrix
         self.values = np.zeros(len(entries))
@@ -290,22 +340,12 @@ class Links:
         self._x = np.zeros((nb, 6, 6))  # com-based (omega, v) to each link's (v, omega), see `jacobians`
         self.jacobian = np.zeros((nb, 6, nd))  # body frame, about the centre of mass, at the last `apply`
         self.mass_q = np.zeros((nd, nd))  # the added mass in joint space, at the last `apply`
-        # the wrenches' three parts in one product: the strips' drag forces, the velocities' products
-        # and the vertical in the body frame to each link's (force, moment)
-        self._wrench = np.hstack(
-            [
-                -q.T,
-                _block_diagonal(list(self._kirchhoff)),
-                _block_diagonal(list(self._buoyancy)),
-            ]
-        )
-        self._speed = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # |u_n|^2, |u_n|^2, u_a^2
 
     def tables(self) -> dict[str, np.ndarray]:
         """The model's constant tables, each C-contiguous, as native_physics.c takes them: per
         strip its Q_k (3, 6) and drag (3,), per link its Kirchhoff form (6, 36), buoyancy (6, 3),
         added mass (6, 6) and dof mask, per inertia entry its index in the dofs x dofs matrix."""
-        n, nb = self.strips, len(self.bodies)
+        n, nb = self.strip_count, len(self.bodies)
         q = np.array([self._q[3 * k : 3 * k + 3, 6 * i : 6 * i + 6] for k, i in enumerate(self.owner)])
         tables = {
             "q": q.reshape(n, 18),
@@ -316,15 +356,6 @@ class Links:
             "mask": self._mask.reshape(nb, -1),
         }
         return {name: np.ascontiguousarray(table, dtype=float) for name, table in tables.items()}
-
-    @staticmethod
-    def _chain(model: mujoco.MjModel, body: int) -> set[int]:
-        dofs: set[int] = set()
-        while body > 0:
-            start, count = model.body_dofadr[body], model.body_dofnum[body]
-            dofs.update(range(start, start + count))
-            body = int(model.body_parentid[body])
-        return dofs
 
     def jacobians(self, data: mujoco.MjData) -> np.ndarray:
         """(nb, 6, nd): each link's (v, omega) per joint velocity, body frame about its centre of

@@ -29,6 +29,14 @@ before), so a restarted station, whose counts start at zero, and its neighbours 
 Each station flushes its recording before a hold, so that one killed in it leaves every message
 it sent.
 
+Under `abyss up` (its pid in `SUPERVISOR_ENV`) the simulation is leased: it runs only the periods
+before the testbed's lease (`Lease`, a release that carries `LEASE`), and holds before the first
+period past it, as at a hold but unseen by the other stations (no epoch begins, no recording is
+flushed). The supervisor leases a second past shore's latest mission status, and ends the lease
+a second past the first status that says done: the run stops there, every station done with the
+period before, on the same period however late the supervisor heard the status
+(launch.supervise, LockstepEnd).
+
 So no thread interleaving, process scheduling or wall-clock moment decides anything: the same
 seed and inputs give the same messages in the same periods, on any machine load. What is removed, and how:
 thread interleaving (one loop at a time, in name order), Zenoh's delivery timing (counted phases),
@@ -42,6 +50,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections import Counter
@@ -59,6 +68,16 @@ TICK_TOLERANCE_S = 1e-6  # a loop due at T + this runs in period T (sums of peri
 TESTBED = "testbed"  # the holds' releases come on abyss/<system>/testbed/lockstep
 REPEAT_WALL_S = 0.5  # a report, or the clock, is told again this often while a station waits on it
 WAIT_WARN_WALL_S = 10.0  # a wait this long is logged (a station gone, or not up yet)
+# the supervisor's pid, set by `abyss up` for the stations it starts (stations.runtime, launch.start):
+# a simulation started so runs the periods the supervisor leases it (`Lease`)
+SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"
+LEASE = "lease"  # a testbed's release with this in `delivered` is a lease: the periods before it
+ENDLESS_S = 1e9  # a lease that never ends [simulated s] (a message's times are finite)
+
+
+def hold_period(t_s: float, holds_s: Iterable[float], period_s: float) -> bool:
+    """True if period `t_s` is a hold's: the first at or after one of `holds_s`."""
+    return any(t_s - period_s + TICK_TOLERANCE_S < h_s <= t_s + TICK_TOLERANCE_S for h_s in holds_s)
 
 
 def declare_reports(
@@ -188,7 +207,9 @@ class Lockstep:
     whatever their start-up takes); `holds_s` and `period_s`: where the epochs begin (see the
     module); `end_s`: the run's end; `boot`: the station's; `before_hold`: what it does before a
     hold (its recording flushed); `listens`: the stations whose reports it hears (its
-    neighbours; the simulation, which waits for every station, all of them)."""
+    neighbours; the simulation, which waits for every station, all of them); `leased`: it runs
+    only the periods the testbed leases it (None: the simulation under `abyss up`, see the
+    module)."""
 
     def __init__(
         self,
@@ -208,8 +229,11 @@ class Lockstep:
         boot: int = 0,
         before_hold: Callable[[], None] = lambda: None,
         listens: Iterable[str] = ("*",),
+        leased: bool | None = None,
     ) -> None:
         self.system, self.station, self.clock, self.stop = system, station, clock, stop
+        self.leased = (station == "simulation" and SUPERVISOR_ENV in os.environ) if leased is None else leased
+        self._lease_s = 0.0  # leased: it runs the periods before this
         self.holds_s, self.period_s, self.end_s = holds_s, period_s, end_s
         self.boot, self.before_hold = boot, before_hold
         self._ahead_s = -math.inf  # the period whose deliveries were made ahead (deliver_ahead)
@@ -239,6 +263,10 @@ class Lockstep:
     # -- reports -------------------------------------------------------------------------
     def _take(self, station: str, report: LockstepReport) -> None:
         with self._cond:
+            if station == TESTBED and report.phase == "release" and LEASE in report.delivered:
+                self._lease_s = max(self._lease_s, report.sim_time_s)
+                self._cond.notify_all()
+                return
             before = self._reports.get((station, report.phase))
             if before is None or report.sim_time_s >= before[0]:
                 self._reports[(station, report.phase)] = (report.sim_time_s, dict(report.delivered))
@@ -294,11 +322,19 @@ class Lockstep:
         return True
 
     # -- holds and epochs -----------------------------------------------------------------
+    def hold_period(self, t_s: float) -> bool:
+        """True if period `t_s` is a hold's: the first at or after one of `holds_s` (an epoch's first)."""
+        return hold_period(t_s, self.holds_s, self.period_s)
+
+    def leased_to(self, t_s: float) -> bool:
+        """True if this station may run period `t_s`: not leased, or the lease goes past it."""
+        return not self.leased or t_s < self._lease_s - TICK_TOLERANCE_S
+
     def hold_at(self, t_s: float) -> bool:
-        """True if period `t_s` is a hold's: the first at or after one of `holds_s`."""
-        return any(
-            t_s - self.period_s + TICK_TOLERANCE_S < h_s <= t_s + TICK_TOLERANCE_S for h_s in self.holds_s
-        )
+        """True if the simulation holds before period `t_s`: a hold's, or one its lease does not
+        reach (yet)."""
+        with self._cond:
+            return self.hold_period(t_s) or not self.leased_to(t_s)
 
     def _new_epoch(self) -> None:
         """Count anew from here: what this station delivered so far, and what it verified of its
@@ -310,11 +346,13 @@ class Lockstep:
         self._verified = {}
 
     def hold(self, t_s: float, apply: Callable[[], int]) -> bool:
-        """The simulation, before a hold's period `t_s` (every station done with the one before):
-        its recording flushed, it says it is held and waits for the testbed's release, applying
-        what the testbed sends meanwhile (`apply`: the faults taken, counted in its report);
-        False once `stop` is set."""
-        self.before_hold()
+        """The simulation, before a hold's period `t_s` or one past its lease (every station done
+        with the one before): at a hold its recording flushed, it says it is held and waits for
+        the testbed's release and its lease, applying what the testbed sends meanwhile (`apply`:
+        the faults taken, counted in its report); False once `stop` is set."""
+        hold = self.hold_period(t_s)
+        if hold:
+            self.before_hold()
         applied = 0
         self.report(t_s, "held", {"controls": 0.0})
 
@@ -323,9 +361,11 @@ class Lockstep:
             if taken := apply():
                 applied += taken
                 self.report(t_s, "held", {"controls": float(applied)})
-            return self.reported(TESTBED, "release")[0] >= t_s - TICK_TOLERANCE_S
+            release_s = self.reported(TESTBED, "release")[0]
+            return (not hold or release_s >= t_s - TICK_TOLERANCE_S) and self.leased_to(t_s)
 
-        return self.wait_for(f"the testbed's release at t={t_s:.2f} s", released)
+        what = "release" if hold else "lease"
+        return self.wait_for(f"the testbed's {what} at t={t_s:.2f} s", released)
 
     # -- a period ------------------------------------------------------------------------
     def _deliver(self, t_s: float) -> None:
@@ -345,7 +385,7 @@ class Lockstep:
         hold's period (the testbed acts there first) nor past the run's end; False once `stop`
         is set."""
         next_s = t_s + self.period_s
-        if self.hold_at(next_s) or (self.end_s and next_s >= self.end_s - TICK_TOLERANCE_S):
+        if self.hold_period(next_s) or (self.end_s and next_s >= self.end_s - TICK_TOLERANCE_S):
             return not self.stop.is_set()
         if not self.wait_for(
             f"{', '.join(self._neighbours)} done at t={t_s:.2f} s",
@@ -368,7 +408,7 @@ class Lockstep:
             waiting,
         ):
             return False
-        if self.hold_at(t_s):
+        if self.hold_period(t_s):
             self._new_epoch()
         self._ran = True
         self.clock.set_period(t_s)
@@ -411,11 +451,11 @@ class Lockstep:
         while (t_s := self.clock.next_tick(self.stop)) is not None:
             if self.end_s and t_s >= self.end_s - TICK_TOLERANCE_S:
                 continue
-            if self.boot and not self._ran and not self.hold_at(t_s):
+            if self.boot and not self._ran and not self.hold_period(t_s):
                 continue  # restarted between holds: it waits for the next (see the module)
             if not self.period(t_s):
                 return
-            if self.hold_at(t_s + self.period_s):
+            if self.hold_period(t_s + self.period_s):
                 self.before_hold()
             self.report(t_s, "done")
             if not self.deliver_ahead(t_s):
@@ -503,3 +543,45 @@ class Holds:
         for subscriber in self._subscribers:
             subscriber.undeclare()
         self._publisher.undeclare()
+
+
+class Lease(Holds):
+    """The testbed's lease of periods to a leased simulation (see the module): it runs the
+    periods before `until_s`, which only grows; told at once when it grows and again by `tell`
+    every REPEAT_WALL_S (a simulation that starts or restarts later hears it then). And, as
+    `Holds`, what each station reported last."""
+
+    def __init__(self, session: zenoh.Session, system: str, reject: Reject, until_s: float = 0.0) -> None:
+        super().__init__(session, system, reject)
+        self._lease_lock = threading.Lock()
+        self.until_s = until_s
+        self._told_wall_s = -math.inf
+
+    def grant(self, until_s: float) -> None:
+        """Lease the periods before `until_s` [simulated s] (a shorter lease changes nothing)."""
+        with self._lease_lock:
+            if until_s > self.until_s:
+                self.until_s = until_s
+                self._tell()
+
+    def tell(self) -> None:
+        """Tell the lease again if it was not told for REPEAT_WALL_S."""
+        with self._lease_lock:
+            if time.monotonic() - self._told_wall_s >= REPEAT_WALL_S:
+                self._tell()
+
+    def _tell(self) -> None:
+        self._told_wall_s = time.monotonic()
+        message = LockstepReport(sim_time_s=self.until_s, phase="release", delivered={LEASE: 1.0}, boot=0)
+        self._publisher.put(encode(message, self._seq, time.time()))
+        self._seq += 1
+
+    def held_at(self, t_s: float) -> bool:
+        """True once the simulation (its latest boot) is held at `t_s` or later."""
+        report = self.reported("simulation", "held", self.boot("simulation"))
+        return report is not None and report.sim_time_s >= t_s - TICK_TOLERANCE_S
+
+    def delivered_at(self, station: str, t_s: float) -> bool:
+        """True once `station` (its latest boot) delivered period `t_s` or a later one."""
+        report = self.reported(station, "delivered", self.boot(station))
+        return report is not None and report.sim_time_s >= t_s - TICK_TOLERANCE_S

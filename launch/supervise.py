@@ -1,9 +1,17 @@
 """`abyss up`'s supervision: waits for every station to come up, then watches the run until the
 mission is done, the duration has passed, a station dies (or is restarted) or the user
-interrupts; says how the mission goes every few seconds."""
+interrupts; says how the mission goes every few seconds.
+
+In lockstep the mission's end is decided on the simulated clock (`LockstepEnd`): the simulation
+runs the periods the supervisor leases it (common.lockstep, Lease), LEASE_S past shore's latest
+mission status; the first status that says done, stamped with its period T, ends the lease at
+T + LEASE_S, where the simulation holds with every station done with the period before. The
+supervisor stops the run there, so every station ran the same periods and the records end on
+the same row, however late it heard the status."""
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -14,7 +22,9 @@ import zenoh
 from abyss.common import keys
 from abyss.common.clock import SimClock
 from abyss.common.config import Config
-from abyss.common.messages import MissionStatus, ReplayStart, encode
+from abyss.common.errors import BadMessage
+from abyss.common.lockstep import ENDLESS_S, TICK_TOLERANCE_S, Lease, hold_period
+from abyss.common.messages import MissionStatus, ReplayStart, decode, encode
 from abyss.launch.observe import Heard, Outage
 from abyss.launch.start import Replayed, Starter, Station, ros2_line
 from abyss.launch.summary import exit_text
@@ -23,6 +33,56 @@ STARTUP_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts
 REPLAY_DELAY_S = 1.0  # from every station up to the replayed stations' first message
 REPORT_PERIOD_S = 5.0  # how often the watch says how the mission goes
+# lockstep: how far past shore's latest mission status the simulation may run, and so past the
+# first that says done the run ends [simulated s] (a lease of 4 statuses: the simulation waits
+# for the supervisor only when it hears them a simulated second late)
+LEASE_S = 1.0
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class LockstepEnd:
+    """Lockstep: the end of a run that stops when its mission is done, on the simulated clock
+    (see the module). `on_status` takes each of shore's statuses with its stamp (its period) and
+    leases on; `reached` is true once the simulation holds at `end_s` and every other station has
+    delivered that period's messages (a station done with the period before delivers the next
+    one's at once: after that nothing moves until the stop). There the supervisor judges the
+    mission on the simulation's truth too: done, the run stops; not, `again` leases LEASE_S more."""
+
+    lease: Lease
+    config: Config
+    stop_when_done: bool = True  # False: --keep-running, an endless lease
+    done_s: float | None = None  # the period of shore's first status that says done
+    end_s: float | None = None  # where the simulation holds, the mission done on shore
+    statuses: zenoh.Subscriber | None = None  # shore's, for `on_status` (closed with the session)
+
+    def on_status(self, stamp_s: float, status: MissionStatus) -> None:
+        if not self.stop_when_done or self.end_s is not None:
+            return
+        if status.done:
+            self.done_s, self.end_s = stamp_s, stamp_s + LEASE_S
+        self.lease.grant(stamp_s + LEASE_S)
+
+    def keep_running(self) -> None:
+        self.stop_when_done = False
+        self.lease.grant(ENDLESS_S)
+
+    def reached(self) -> bool:
+        end_s = self.end_s
+        if not self.stop_when_done or end_s is None or not self.lease.held_at(end_s):
+            return False
+        period_s, time_ = self.config.simulation.control_period_s, self.config.time
+        if hold_period(end_s, time_.holds_s, period_s) or (
+            time_.end_s and end_s >= time_.end_s - TICK_TOLERANCE_S
+        ):
+            return True  # no station delivers ahead into a hold's period, nor past the run's end
+        return all(self.lease.delivered_at(s, end_s) for s in keys.STATIONS if s != "simulation")
+
+    def again(self) -> None:
+        """Done on shore, not in the simulation's truth: on for LEASE_S, and judged again there."""
+        assert self.end_s is not None
+        self.end_s += LEASE_S
+        self.lease.grant(self.end_s)
 
 
 @dataclass
@@ -48,6 +108,7 @@ class Supervisor:
     watch_from: tuple[float, float] | None = None  # (the run's time, monotonic) when watched from
     replay_start: ReplayStart | None = None
     never_came: tuple[str, ...] = ()  # external stations still away when the duration passed
+    ending: LockstepEnd | None = None  # lockstep: the simulation's lease and the run's end
 
     # -- deaths and restarts -------------------------------------------------------------------
     def check_deaths(self) -> list[Station]:
@@ -86,8 +147,15 @@ class Supervisor:
 
     # -- start-up ------------------------------------------------------------------------------
     def start_all(self) -> None:
-        """Every station but the external ones, for which it says how to start them."""
+        """Every station but the external ones, for which it says how to start them; in lockstep
+        the simulation's lease first (it runs no period before it hears one)."""
         system = self.config.system
+        if self.config.time.mode == "lockstep" and self.session is not None:
+            lease = Lease(
+                self.session, system, lambda key, reason: log.warning("%s: %s", key, reason), LEASE_S
+            )
+            self.ending = LockstepEnd(lease, self.config)
+            self.ending.statuses = self.session.declare_subscriber(keys.mission_key(system), self._on_status)
         for name in keys.STATIONS:
             if name in self.external:
                 self.change_state(name, external=True)
@@ -132,6 +200,8 @@ class Supervisor:
             for station in self.check_deaths():
                 self.report_death(station)
                 return f"{station.name} died during start-up"
+            if self.ending is not None:
+                self.ending.lease.tell()
             if self.interrupted.wait(0.05):
                 return ""  # the verdict says interrupted
         missing = sorted(set(keys.STATIONS) - shown)
@@ -150,7 +220,12 @@ class Supervisor:
         self.watch_from = (t0, wall0)
         last_report = next_start_s = wall0
         self._announce_replay()
+        ending = self.ending
+        if ending is not None and keep_running:
+            ending.keep_running()
         while True:
+            if ending is not None:
+                ending.lease.tell()
             if self.replay_start is not None and time.monotonic() >= next_start_s:
                 next_start_s = time.monotonic() + 1.0  # again each second, for a replayer that starts late
                 self._put(keys.replay_key(self.config.system), self.replay_start)
@@ -161,10 +236,16 @@ class Supervisor:
                 self.restart_station(station)
             mission = self.heard.mission
             elapsed = self.now_s() - t0
-            # done when shore says so and the simulation's truth agrees
+            # done when shore says so and the simulation's truth agrees (lockstep: at the period
+            # its lease ends, LockstepEnd)
             done = mission is not None and mission.done and self.heard.interventions_true(self.config.mission)
+            if ending is not None and ending.stop_when_done:
+                reached = ending.reached()
+                done = reached and self.heard.interventions_true(self.config.mission)
+                if reached and not done:
+                    ending.again()
             if done and self.mission_done_s is None:
-                self._mission_done(elapsed, wall0)
+                self._mission_done(ending.done_s if ending and ending.done_s is not None else elapsed, wall0)
             if (done and not keep_running) or (duration_s is not None and elapsed >= duration_s):
                 return ""
             if time.monotonic() - last_report >= REPORT_PERIOD_S:
@@ -184,6 +265,15 @@ class Supervisor:
             f"abyss: replaying {', '.join(self.replayed.stations)} of {self.replayed.run_dir} "
             f"from t={REPLAY_DELAY_S:g} s (speed {self.replayed.speed:g})"
         )
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        """Lockstep: shore's mission status with its period, to lease the simulation on."""
+        try:
+            received = decode(str(sample.key_expr), sample.payload.to_bytes(), MissionStatus)
+        except BadMessage:
+            return
+        if self.ending is not None:
+            self.ending.on_status(received.stamp_s, received.message)
 
     def _put(self, key: str, message: ReplayStart) -> None:
         if self.session is not None:

@@ -32,7 +32,7 @@ from abyss.common.config.system import LinksConfig
 from abyss.common.messages import Message, NavState, Waypoints, encode
 from abyss.common.qos import publisher_qos
 from abyss.common.samples import Samples
-from abyss.stations.runtime import Shell, free_port
+from abyss.launch.station import Shell, free_port
 
 SYSTEM = "bench"
 QUIET_S = 0.5  # a flood is over when nothing more arrived for this long

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from abyss.stations.runtime import single_threaded_native_pools
+from abyss.launch.station import single_threaded_native_pools
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from abyss.common import keys
 from abyss.common.bus import client_config, open_session
-from abyss.stations.runtime import free_port
+from abyss.launch.station import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "e2e"))

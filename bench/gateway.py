@@ -25,9 +25,9 @@ from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clouds import pack_cloud
 from abyss.common.messages import JointState, Message, NavState, VelocityRef, decode, encode
 from abyss.common.samples import Samples
+from abyss.launch.station import free_port
 from abyss.ros2 import from_ros, motion, msgs, rmw, status, types
 from abyss.ros2.session import Session
-from abyss.stations.runtime import free_port
 
 FLOOD, PACED, PACE_S = 2000, 300, 0.005
 NAV = NavState(

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.stations.runtime import single_threaded_native_pools
+from abyss.launch.station import single_threaded_native_pools
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pyoctomap
 
-from abyss.stations.runtime import single_threaded_native_pools
+from abyss.launch.station import single_threaded_native_pools
 from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()

@@ -31,7 +31,7 @@ from abyss.common.bus import open_session, zenoh_config  # noqa: E402
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.messages import SimulationStatus, decode  # noqa: E402
 from abyss.common.models import ARM_JOINTS, CAMERAS  # noqa: E402
-from abyss.stations.runtime import free_port  # noqa: E402
+from abyss.launch.station import free_port  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.lowlevel import References  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402

@@ -84,7 +84,7 @@ def run_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
 
 
 def cmd_station(args: argparse.Namespace) -> int:
-    from abyss.stations.runtime import configure_logging, run_station
+    from abyss.launch.station import configure_logging, run_station
 
     configure_logging(args.verbose)
     peers = dict(pairs("--peer", args.peer))

@@ -68,7 +68,7 @@ TICK_TOLERANCE_S = 1e-6  # a loop due at T + this runs in period T (sums of peri
 TESTBED = "testbed"  # the holds' releases come on abyss/<system>/testbed/lockstep
 REPEAT_WALL_S = 0.5  # a report, or the clock, is told again this often while a station waits on it
 WAIT_WARN_WALL_S = 10.0  # a wait this long is logged (a station gone, or not up yet)
-# the supervisor's pid, set by `abyss up` for the stations it starts (stations.runtime, launch.start):
+# the supervisor's pid, set by `abyss up` for the stations it starts (launch.station, launch.start):
 # a simulation started so runs the periods the supervisor leases it (`Lease`)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"
 LEASE = "lease"  # a testbed's release with this in `delivered` is a lease: the periods before it

@@ -21,8 +21,8 @@ from abyss.common.config.system import Ros2Config, TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.common.runfiles import CARRIED_OVER
 from abyss.launch.cpu import CpuCaps
+from abyss.launch.station import BOOT_ENV, NATIVE_POOLS, SUPERVISOR_ENV, free_port
 from abyss.recording.store import RECORD_DIR
-from abyss.stations.runtime import BOOT_ENV, NATIVE_POOLS, SUPERVISOR_ENV, free_port
 
 DEFAULT_PORT = 7447
 CONFIG_FILE = "config.json"  # what the stations (and a replay of the run) are given

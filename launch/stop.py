@@ -12,7 +12,7 @@ from contextlib import contextmanager
 
 from abyss.launch.start import Station
 
-STOP_TIMEOUT_S = 10.0  # twice a station's stop bound (stations.runtime): past it, a defect
+STOP_TIMEOUT_S = 10.0  # twice a station's stop bound (launch.station): past it, a defect
 
 
 @contextmanager

@@ -4,10 +4,13 @@
 
 where the harness is launch, validation, cli and console. A room may import itself and any room
 below it, never one above it nor a sibling on its own floor (linkemu and scene know nothing of
-each other); the harness's rooms may import each other. Read from the source with `ast`, every
-import counted: at the top of a module, inside functions, and under `if TYPE_CHECKING:` (a
-type-only import is still a dependency of the design, and none of the tree needs one upwards),
-in the forms `import abyss.x`, `from abyss.x import y`, `from abyss import x` and relative ones.
+each other); the harness's rooms may import each other. The system under test sees nothing of the
+testbed (issue 50): `stations` imports `common` and `scene` alone, never the link emulator, the
+recording or ROS 2; the shell that hosts a station among them is the harness's (launch.station).
+Read from the source with `ast`, every import counted: at the top of a module, inside
+functions, and under `if TYPE_CHECKING:` (a type-only import is still a dependency of the design,
+and none of the tree needs one upwards), in the forms `import abyss.x`, `from abyss.x import y`,
+`from abyss import x` and relative ones.
 
 And every module of the package imports (the whole walk, a few seconds)."""
 
@@ -35,12 +38,16 @@ FLOORS: tuple[tuple[str, ...], ...] = (  # lowest first
 )
 HARNESS = FLOORS[-1]
 FLOOR_OF = {room: i for i, rooms in enumerate(FLOORS) for room in rooms}
+ONLY = {"stations": {"common", "scene"}}  # rooms that may import just these below them
 
 
 def allowed(room: str, imported: str) -> bool:
-    """May `room` import `imported`? Itself, any room on a floor below, or, in the harness, each other."""
+    """May `room` import `imported`? Itself, any room on a floor below (of those in ONLY, for a
+    room named there), or, in the harness, each other."""
     if room == imported or (room in HARNESS and imported in HARNESS):
         return True
+    if room in ONLY:
+        return imported in ONLY[room]
     return FLOOR_OF[imported] < FLOOR_OF[room]
 
 
@@ -129,7 +136,23 @@ def test_an_upward_import_is_found(tmp_path: Path) -> None:
         "common imports abyss.scene",
     ]
     assert not allowed("linkemu", "scene") and not allowed("scene", "linkemu")
-    assert allowed("cli", "launch") and allowed("validation", "launch") and allowed("stations", "ros2")
+    assert allowed("cli", "launch") and allowed("validation", "launch") and allowed("stations", "scene")
+    assert not any(allowed("stations", testbed) for testbed in ("linkemu", "recording", "ros2", "launch"))
+
+
+def test_the_system_under_test_importing_the_testbed_is_found(tmp_path: Path) -> None:
+    """A station that imports the link emulator, the recording or ROS 2 is refused, as the shell
+    that did (stations/runtime.py) was until it moved to the harness."""
+    (tmp_path / "stations").mkdir()
+    sample = tmp_path / "stations" / "shell.py"
+    sample.write_text(
+        "from abyss.linkemu import control\nimport abyss.recording.store\nfrom abyss import ros2\n"
+    )
+    assert [w.split(": ", 1)[1] for w in upward_imports([sample], tmp_path)] == [
+        "stations imports abyss.linkemu",
+        "stations imports abyss.recording.store",
+        "stations imports abyss.ros2",
+    ]
 
 
 def test_every_module_imports() -> None:

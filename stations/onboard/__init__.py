@@ -54,7 +54,7 @@ def loops(config: Config) -> tuple[str, ...]:
 def run(config: Config, bus: Bus) -> None:
     """The I/O shell: read what came in, step the core, publish what it returns, keep the rate.
     (With `ros2.station = "onboard"`, a ROS 2 node stands for all of it: the station entry point,
-    `stations.runtime.station_main`, runs the ROS 2 gateway in this station's place.)"""
+    `launch.station.station_main`, runs the ROS 2 gateway in this station's place.)"""
     core = Onboard(config)
     shared = Shared()
     with Workers(bus.stop) as workers:

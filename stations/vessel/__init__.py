@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 
 class Mapper(Protocol):
     """What maps the clouds in the scene model's place (the ROS 2 gateway, built by the station
-    entry point, `stations.runtime`): it runs in a thread of its own until the bus stops."""
+    entry point, `launch.station`): it runs in a thread of its own until the bus stops."""
 
     def run(self) -> None: ...
 

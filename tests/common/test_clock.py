@@ -19,8 +19,8 @@ from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import profile
 from abyss.common.lockstep import LockstepClock
 from abyss.common.rate import Rate
+from abyss.launch.station import free_port
 from abyss.linkemu.runner import LinkRunner
-from abyss.stations.runtime import free_port
 
 PERIOD_S = 0.05  # the simulation's control period: its ticks' spacing
 

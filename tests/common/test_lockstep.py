@@ -19,9 +19,9 @@ from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import load
 from abyss.common.lockstep import TESTBED, Lease, Lockstep, LockstepClock, hold_period
 from abyss.common.messages import MissionStatus
+from abyss.launch import station as runtime
+from abyss.launch.station import free_port
 from abyss.launch.supervise import LEASE_S, LockstepEnd
-from abyss.stations import runtime
-from abyss.stations.runtime import free_port
 
 pytestmark = pytest.mark.timeout(30)
 PERIOD_S = 0.05

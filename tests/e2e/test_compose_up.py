@@ -21,8 +21,8 @@ from conftest import abyss
 from rerun.chunk import RrdReader
 
 from abyss.common import keys
+from abyss.launch.station import free_port
 from abyss.recording.reader import open_recording
-from abyss.stations.runtime import free_port
 
 LINK = "auto"  # compose.yaml's default: netem where the kernel has sch_netem, else the TUN shaper
 SYSTEM = "e2e-compose"

@@ -40,10 +40,10 @@ from rosnode import (
 )
 
 from abyss.common.messages import NavState, SceneUpdate, decode
+from abyss.launch.station import free_port
 from abyss.recording.reader import open_recording
 from abyss.scene.export import SCENE_FILE
 from abyss.scene.octree import cell_keys, iterate_leaves, leaves_to_cells, read_binary
-from abyss.stations.runtime import free_port
 
 LAST_WAYPOINT_M = np.array([3.2, 0.0, -8.0])  # the default mission's
 UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each is sent

@@ -31,7 +31,7 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.common.workers import BACKGROUND_NICE
-from abyss.stations.runtime import free_port
+from abyss.launch.station import free_port
 
 pytestmark = pytest.mark.timeout(120)
 SYSTEM = "e2e-sim"

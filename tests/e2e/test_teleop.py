@@ -30,7 +30,7 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.console.teleop import JS_AXIS, JS_EVENT
-from abyss.stations.runtime import free_port
+from abyss.launch.station import free_port
 
 pytestmark = pytest.mark.timeout(90)
 SYSTEM = "e2e-teleop"

@@ -12,7 +12,7 @@ import ray
 
 from abyss.common.errors import ConfigError
 from abyss.validation.campaign import execute
-from abyss.validation.campaign.plan import plan, shard
+from abyss.validation.campaign.plan import RunSpec, plan, shard
 from abyss.validation.campaign.report import Report, build_report, counts_text
 from abyss.validation.campaign.spec import Campaign
 from abyss.validation.campaign.store import PLAN_FILE, Store
@@ -33,17 +33,7 @@ def run_campaign(
     whole = plan(campaign)
     runs = shard(whole, *slice_) if slice_ is not None else whole
     store = Store(out)
-    planned = (out / PLAN_FILE).exists()
-    if planned and not resume:
-        raise ConfigError(
-            "--out", f"{out} holds a campaign already: --resume goes on there, or give another --out"
-        )
-    if resume and not planned:
-        raise ConfigError("--resume", f"{out} holds no campaign to go on with")
-    if resume:
-        store.check_plan(whole, abyss_version(), slice_)
-    else:
-        store.write_plan(campaign, whole, abyss_version(), slice_)
+    _open_store(store, campaign, whole, out, resume, slice_)
     mine = {r.run_id for r in runs}
     have = {run_id: r for run_id, r in store.records().items() if run_id in mine}
     todo = [r for r in runs if r.run_id not in have]
@@ -86,6 +76,29 @@ def run_campaign(
         )
         return 4
     return code
+
+
+def _open_store(
+    store: Store,
+    campaign: Campaign,
+    whole: list[RunSpec],
+    out: Path,
+    resume: bool,
+    slice_: tuple[int, int] | None,
+) -> None:
+    """A new campaign's plan written, or a resumed one's checked against the file's: a directory
+    that holds another campaign is refused, and so is `--resume` where there is none."""
+    planned = (out / PLAN_FILE).exists()
+    if planned and not resume:
+        raise ConfigError(
+            "--out", f"{out} holds a campaign already: --resume goes on there, or give another --out"
+        )
+    if resume and not planned:
+        raise ConfigError("--resume", f"{out} holds no campaign to go on with")
+    if resume:
+        store.check_plan(whole, abyss_version(), slice_)
+    else:
+        store.write_plan(campaign, whole, abyss_version(), slice_)
 
 
 def conclude(report: Report, out: Path, say: Callable[[str], None]) -> int:

@@ -20,8 +20,8 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from abyss.common.config.stations import OnshoreConfig
+from abyss.launch.station import free_port
 from abyss.stations.onshore.viewer import RECORDING_FILE, Sinks, listening, rerun_command
-from abyss.stations.runtime import free_port
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -1,4 +1,4 @@
-"""The station entry point (stations.runtime.station_main) decides between a station and the ROS 2
+"""The station entry point (launch.station.station_main) decides between a station and the ROS 2
 gateway: a station runs itself unless `ros2.station` names it; then onboard is the gateway alone,
 and the vessel runs with the gateway as its scene model's mapper (stations/ imports no abyss.ros2)."""
 
@@ -12,10 +12,11 @@ import pytest
 
 from abyss.common.config import Config
 from abyss.common.config.system import Ros2Config
+from abyss.launch import station as runtime
 from abyss.ros2 import gateway
-from abyss.stations import onboard, onshore, runtime, vessel
+from abyss.stations import onboard, onshore, vessel
 
-STATIONS_DIR = Path(runtime.__file__).parent
+STATIONS_DIR = Path(onboard.__file__).parent.parent
 
 
 def with_ros2(station: str) -> Config:

@@ -1,5 +1,5 @@
 """A station runs numpy's BLAS (and OpenMP) on one thread unless its user asked for more: the
-pools' spinning threads cost a station about as much CPU as its own work (stations.runtime)."""
+pools' spinning threads cost a station about as much CPU as its own work (launch.station)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ PROBE = """
 import json, numpy
 from threadpoolctl import threadpool_info
 before = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
-from abyss.stations.runtime import single_threaded_native_pools
+from abyss.launch.station import single_threaded_native_pools
 single_threaded_native_pools()
 after = [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
 import os

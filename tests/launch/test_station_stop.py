@@ -18,8 +18,8 @@ import pytest
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.messages import LinkControl, Waypoints, encode
+from abyss.launch.station import free_port
 from abyss.stations.onshore.core import JOIN_WAIT_S
-from abyss.stations.runtime import free_port
 
 STOP_BOUND_S = 5.0
 RATE_BPS = 512_000  # the satellite's rate for this test
@@ -103,7 +103,7 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
 HANGING_STATION = """
 import sys, time
 from pathlib import Path
-import abyss.stations.runtime as runtime
+import abyss.launch.station as runtime
 from abyss.common.config import Config
 
 def hang(config, bus):  # a station whose work ignores the stop: a call that never returns

@@ -16,7 +16,7 @@ import subprocess
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import mujoco
 import numpy as np
@@ -121,12 +121,14 @@ class Sinks:
         if held:
             log.error("the web viewer's port %s is held by another process; no web viewer", held)
             return False
-        output = open(Path(cfg.record_dir) / SERVER_LOG, "ab") if cfg.record_dir else subprocess.DEVNULL  # noqa: SIM115
+        output: IO[bytes] | int = (
+            open(Path(cfg.record_dir) / SERVER_LOG, "ab") if cfg.record_dir else subprocess.DEVNULL  # noqa: SIM115
+        )
         self.server = subprocess.Popen(
             [rerun_command(), "--serve-web", "--bind", "127.0.0.1", "--port", str(cfg.viewer_grpc_port),
              "--web-viewer-port", str(cfg.viewer_web_port)],
             stdout=output, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)  # fmt: skip
-        if output is not subprocess.DEVNULL:
+        if not isinstance(output, int):
             output.close()  # the server has its own
         deadline_s = time.monotonic() + SERVER_START_S
         while not all(map(listening, ports)):

@@ -21,9 +21,9 @@ from abyss.common.config import Config
 from abyss.common.config.system import MissionConfig
 from abyss.common.errors import BadMessage
 from abyss.common.messages import MissionStatus, NavState, PanelState, SimulationStatus, Telemetry, decode
-from abyss.launch.record import ControlRecorder
+from abyss.launch.control_record import ControlRecorder
 from abyss.launch.station import station_recorder
-from abyss.launch.summary import NavError, interventions_summary
+from abyss.launch.verdict import NavError, interventions_summary
 from abyss.recording.store import TESTBED, Recorder
 
 # a restarted station is back when its session is up and, for these, once its output is seen

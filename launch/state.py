@@ -20,7 +20,7 @@ from abyss.common.runfiles import write_whole
 STATE_FILE = "state.json"
 Phase = Literal["starting", "up", "stopping", "ended"]  # the run's phase, in this order
 PHASES: tuple[Phase, ...] = get_args(Phase)
-# how a run ended (launch.summary.VERDICTS: what `abyss up` exits with); "" until it ended
+# how a run ended (launch.verdict.VERDICTS: what `abyss up` exits with); "" until it ended
 Verdict = Literal["done", "incomplete", "interrupted", "failed"]
 POLL_PERIOD_S = 0.05
 

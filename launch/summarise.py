@@ -15,8 +15,8 @@ from abyss.common.runfiles import EVENTS_FILE, read_json_list
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.observe import Heard
 from abyss.launch.start import Station
-from abyss.launch.summary import control_summary, read_json, verdict_of
 from abyss.launch.supervise import Supervisor
+from abyss.launch.verdict import control_summary, read_json, verdict_of
 
 COUNTS = ("sent", "received", "rejected", "latency_ms", "cpu", "shed", "loops")  # from a status file
 

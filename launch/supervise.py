@@ -27,7 +27,7 @@ from abyss.common.lockstep import ENDLESS_S, TICK_TOLERANCE_S, Lease, hold_perio
 from abyss.common.messages import MissionStatus, ReplayStart, decode, encode
 from abyss.launch.observe import Heard, Outage
 from abyss.launch.start import Replayed, Starter, Station, ros2_line
-from abyss.launch.summary import exit_text
+from abyss.launch.verdict import exit_text
 
 STARTUP_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts

@@ -1,6 +1,6 @@
 """`abyss up`: the four stations as four OS processes on this machine. `Up` composes the parts:
 start (`launch.start`), what the supervisor hears (`launch.observe`), supervise
-(`launch.supervise`), stop (`launch.stop`) and summarise (`launch.summarise`, `launch.summary`)."""
+(`launch.supervise`), stop (`launch.stop`) and summarise (`launch.summarise`, `launch.verdict`)."""
 
 from __future__ import annotations
 
@@ -37,8 +37,8 @@ from abyss.launch.start import (
 from abyss.launch.state import RunState
 from abyss.launch.stop import interrupts_to, stop_all
 from abyss.launch.summarise import Ending, run_summary
-from abyss.launch.summary import exit_code, render_summary
 from abyss.launch.supervise import Supervisor
+from abyss.launch.verdict import exit_code, render_summary
 
 
 class Up:

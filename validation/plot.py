@@ -17,8 +17,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from abyss.common.errors import ConfigError
-from abyss.launch.record import CONTROL_FILE, read_control, read_panel
-from abyss.launch.summary import read_json
+from abyss.launch.control_record import CONTROL_FILE, read_control, read_panel
+from abyss.launch.verdict import read_json
 
 AXES = ("x", "y", "z")
 FIGURES = ("vehicle_position_error", "vehicle_heading_error", "ee_position_error", "ee_orientation_error")

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from conftest import Up
 
-from abyss.launch.record import CONTROL_FILE, PANEL_FILE
+from abyss.launch.control_record import CONTROL_FILE, PANEL_FILE
 from abyss.launch.supervise import LEASE_S
 
 pytestmark = pytest.mark.timeout(200)

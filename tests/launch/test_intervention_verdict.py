@@ -12,7 +12,7 @@ import numpy as np
 from abyss.common.config.system import MissionConfig
 from abyss.common.messages import PanelState
 from abyss.common.models import panel
-from abyss.launch.summary import interventions_summary, render_summary
+from abyss.launch.verdict import interventions_summary, render_summary
 
 PARTS = (*panel.VALVES, *panel.LEVERS)
 

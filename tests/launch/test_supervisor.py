@@ -29,8 +29,8 @@ from abyss.launch import supervise as supervise_module
 from abyss.launch.start import Station, port_free, ros2_line, viewer_line
 from abyss.launch.state import RunState
 from abyss.launch.stop import stop_all
-from abyss.launch.summary import exit_code, render_summary, verdict_of
 from abyss.launch.up import Up, run_up
+from abyss.launch.verdict import exit_code, render_summary, verdict_of
 
 # children that say "ready" once their signal handlers are set, so no signal comes too early
 IGNORES_SIGINT = (

@@ -11,7 +11,7 @@ import pytest
 from campaign_files import CAMPAIGN, record, write_files
 
 from abyss.common.errors import ConfigError
-from abyss.launch.record import COLUMNS, CONTROL_FILE
+from abyss.launch.control_record import COLUMNS, CONTROL_FILE
 from abyss.validation.campaign.plan import plan, shard
 from abyss.validation.campaign.spec import load_campaign
 from abyss.validation.campaign.store import RESULTS_FILE, RunRecord, Store, figures, record_of

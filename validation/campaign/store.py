@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from abyss.common.errors import ConfigError
-from abyss.launch.record import CONTROL_FILE
-from abyss.launch.summary import read_json
+from abyss.launch.control_record import CONTROL_FILE
+from abyss.launch.verdict import read_json
 from abyss.validation.campaign.plan import RunSpec, shard
 from abyss.validation.campaign.version import abyss_version
 

@@ -1,4 +1,6 @@
-"""A whole run's summary: `summary.json`'s figures and the screen of text `abyss up` ends with."""
+"""A run's verdict and exit code, the figures it rests on (the controllers' final errors, each
+intervention on the simulation's truth) and the screen of text `abyss up` ends with; `summarise`
+puts them together with what the supervisor saw into `summary.json`."""
 
 from __future__ import annotations
 

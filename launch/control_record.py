@@ -1,6 +1,7 @@
 """The controllers' record of a run: onboard's telemetry as `abyss up` observes it (at its full
 rate, after the tether), and the panel's truth, one CSV row per message, read back by
-`abyss plot` and scenarios."""
+`abyss plot` and scenarios (`control.csv`, `panel.csv`; the bus's own recording, MCAP, is
+`recording/`'s)."""
 
 from __future__ import annotations
 

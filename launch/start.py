@@ -3,6 +3,7 @@ stations get it, and one station started as an OS process."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
@@ -138,13 +139,44 @@ def endpoint_of(config: Config, port: int | None) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
-def run_config(config: Config, out_dir: Path, duration_s: float | None) -> Config:
+def port_holder(port: int) -> str:
+    """Who listens on TCP `port` on this machine: 'pid N (its command line)', or '' when it cannot
+    be found (another user's process, or another namespace)."""
+    inodes = set()
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with contextlib.suppress(OSError), open(table) as lines:
+            for line in list(lines)[1:]:
+                fields = line.split()
+                if int(fields[1].rsplit(":", 1)[1], 16) == port and fields[3] == "0A":  # LISTEN
+                    inodes.add(f"socket:[{fields[9]}]")
+    for fd_dir in Path("/proc").glob("[0-9]*/fd"):
+        with contextlib.suppress(OSError):
+            if any(os.readlink(fd) in inodes for fd in fd_dir.iterdir()):
+                command = (fd_dir.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode().strip()
+                return f"pid {fd_dir.parent.name} ({command})"
+    return ""
+
+
+def viewer_port(port: int, what: str, say: Callable[[str], None]) -> int:
+    """`port` when it is free; else a free one, and who holds `port` said (an old run's viewer
+    server, say, which the user may want to stop)."""
+    if port_free(port):
+        return port
+    other = free_port()
+    say(f"abyss: the {what} port {port} is held by {port_holder(port) or 'another process'}; using {other}")
+    return other
+
+
+def run_config(
+    config: Config, out_dir: Path, duration_s: float | None, say: Callable[[str], None] = lambda _: None
+) -> Config:
     """The config as the stations get it: the recordings, the simulation's state and the viewer's
-    free ports in the run directory; lockstep's end on the run's duration."""
+    free ports (a held one said) in the run directory; lockstep's end on the run's duration."""
     onshore = config.onshore
-    web_port, grpc_port = (
-        p if port_free(p) else free_port() for p in (onshore.viewer_web_port, onshore.viewer_grpc_port)
-    )
+    web_port, grpc_port = onshore.viewer_web_port, onshore.viewer_grpc_port
+    if onshore.viewer in ("web", "spawn"):
+        web_port = viewer_port(onshore.viewer_web_port, "web viewer's", say)
+        grpc_port = viewer_port(onshore.viewer_grpc_port, "viewer's gRPC", say)
     return dataclasses.replace(
         config,
         onshore=dataclasses.replace(

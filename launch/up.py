@@ -102,7 +102,7 @@ class Up:
                 self.state.write(self.out_dir)
 
     def run(self, duration_s: float | None, keep_running: bool) -> int:
-        self.config = self.supervisor.config = run_config(self.config, self.out_dir, duration_s)
+        self.config = self.supervisor.config = run_config(self.config, self.out_dir, duration_s, self.echo)
         prepare_run_dir(self.out_dir, self.config)
         session = self.supervisor.session = open_session(
             zenoh_config([self.endpoint], mode="router"), "abyss up"

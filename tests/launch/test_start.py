@@ -7,6 +7,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import signal
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -75,3 +77,27 @@ def test_sigint_and_sigterm_ask_to_stop_and_the_handlers_are_put_back() -> None:
 
 def test_the_progress_line_before_shore_hears_anything() -> None:
     assert progress(None, False) == "no telemetry on shore yet"
+
+
+def test_a_viewer_port_held_by_another_process_is_said_with_who_holds_it(tmp_path: Path) -> None:
+    """An old run's viewer server still on 9876 (as one outlived a suite): the new run takes a
+    free port, and says which process holds the configured one, so the user can stop it."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import socket, sys, time\ns = socket.socket(); s.bind(('127.0.0.1', 0)); "
+         "s.listen(); print(s.getsockname()[1], flush=True); time.sleep(60)"],
+        stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert holder.stdout is not None
+        held = int(holder.stdout.readline())
+        said: list[str] = []
+        config = dataclasses.replace(
+            Config(), onshore=dataclasses.replace(Config().onshore, viewer="web", viewer_grpc_port=held)
+        )
+        ran = run_config(config, tmp_path, None, said.append)
+        assert ran.onshore.viewer_grpc_port != held
+        assert any(f"port {held} is held by pid {holder.pid} (" in line for line in said), said
+    finally:
+        holder.kill()
+        holder.wait()
+        if holder.stdout is not None:
+            holder.stdout.close()

@@ -58,11 +58,11 @@ def _tail_only(first: Sent, second: Sent) -> bool:
     return all(seq > last.get((life, key), -1) for life, key, seq in extra_first | extra_second)
 
 
-def differences(original: Path, again: Path) -> tuple[list[str], int, str]:
-    """Where two runs' bytes differ (empty: identical up to the end of the shorter), the messages
-    compared, and how their ends differ ('' where they end on the same period). In lockstep a run
-    that stops once its mission is done ends where the stop reaches the simulation, the one moment
-    left to the wall clock: what both sent is compared, and the tail said."""
+def differences(original: Path, again: Path) -> tuple[list[str], int]:
+    """Where two runs' bytes differ (empty: identical, end included), and the messages compared.
+    In lockstep a run ends on the same period every time, its duration's or, stopped once its
+    mission is done, the period its lease ends on (common.lockstep): a different end is a
+    difference, said with how far each went."""
     found: list[str] = []
     csv = [(run / "control.csv").read_bytes().splitlines(keepends=True) for run in (original, again)]
     rows = min(map(len, csv))
@@ -80,14 +80,12 @@ def differences(original: Path, again: Path) -> tuple[list[str], int, str]:
             found.append(f"{station}: {len(changed)} messages differ, the first {key} #{seq} ({life})")
         elif len(first) != len(second):
             tails.append(f"{station} {len(first)} then {len(second)}")
-    note = (
-        f"the runs ended on different periods (control.csv {len(csv[0])} then {len(csv[1])} rows; sent: "
-        + ", ".join(tails)
-        + "): compared up to the shorter's end"
-        if tails or len(csv[0]) != len(csv[1])
-        else ""
-    )
-    return found, compared, note
+    if tails or len(csv[0]) != len(csv[1]):
+        found.append(
+            f"the runs ended on different periods (control.csv {len(csv[0])} then {len(csv[1])} rows; "
+            f"sent: {', '.join(tails) or 'alike'})"
+        )
+    return found, compared
 
 
 def outcome_line(result: Result) -> str:
@@ -121,9 +119,9 @@ def replay(directory: Path, run_id: str, say: Callable[[str], None]) -> int:
     if original is None or not (original / "control.csv").exists():
         say('the campaign kept no directory of this run to compare bytes with (keep = "all" keeps every run)')
         return 0 if record is None or record.passed == result.passed else 1
-    found, compared, note = differences(original, out)
+    found, compared = differences(original, out)
     for line in found:
         say(f"DIFFERS: {line}")
     if not found:
-        say(f"byte-identical: control.csv and {compared} messages ({out})" + (f"; {note}" if note else ""))
+        say(f"byte-identical: control.csv and {compared} messages, to the same last period ({out})")
     return 1 if found or (record is not None and record.passed != result.passed) else 0

@@ -49,7 +49,11 @@ class SimulationConfig:
     # the arm's (and gripper's) marine model: "strips" (strip theory per link, the testbed's own:
     # stations/simulation/strips.py) or "ellipsoid" (MuJoCo's fluid model of their geoms, slower)
     arm_hydrodynamics: ArmHydrodynamics = "strips"
-    vehicle_file: str = ""  # "" is robot.xml's own, common/models/robot.toml
+    # the robot package (a directory with robot.toml and its model: common/robot.py) every station
+    # learns the robot's names, frames and limits from; "" is the shipped work-class ROV
+    # (common/models/robots/workclass)
+    robot: str = ""
+    vehicle_file: str = ""  # the marine model and thrusters; "" is the robot package's robot.toml
     # the current: a profile of rows (z [m, world], vx, vy, vz [m/s, world]), linear in between and
     # held beyond its ends, plus a first-order Gauss-Markov process on each horizontal component
     current_profile: tuple[tuple[float, float, float, float], ...] = ()
@@ -98,6 +102,13 @@ class SimulationConfig:
         one_of("simulation.low_level", self.low_level, LOW_LEVELS)
         positive("simulation.physics_step_s", self.physics_step_s)
         positive("simulation.current_time_constant_s", self.current_time_constant_s)
+        if self.robot:  # the stations run in the run directory: the path is the user's shell's
+            robot = Path(self.robot).expanduser()
+            if not (robot / "robot.toml").is_file():
+                raise ConfigError(
+                    "simulation.robot", f"{robot.resolve()}: not a robot package (a directory with robot.toml)"
+                )
+            object.__setattr__(self, "robot", str(robot.resolve()))
         if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
             vehicle_file = Path(self.vehicle_file).expanduser()
             if not vehicle_file.is_file():

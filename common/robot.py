@@ -1,0 +1,346 @@
+"""The robot as data: a package (a directory) holding its model file and `robot.toml`, which names
+what every station learns from it, as ROS nodes learn it from `robot_description`: the model
+(`[model]`: the file, MJCF today, and its floating base), the arm (`[arm]`: its joints in chain
+order, the end-effector site, the stowed pose, the bodies kept clear of obstacles; `[arm.gripper]`:
+its kind, joints and full opening), the cameras (`[cameras]`: their names, the stereo pair, the
+depth camera), the navigation sensors (`[nav_sensors]`), and the vehicle's marine model and
+thrusters (`[added_mass]`, `[damping]`, `[buoyancy]`, `[thrusters]`, which
+stations/simulation/hydrodynamics.py reads).
+
+`load_robot` reads a package through the one typed reader (common.reading) and holds it against
+its compiled model: a joint, site, body, camera or thruster the model lacks, an added mass that is
+not positive definite, a thruster layout that cannot move the vehicle in heave or a stowed pose of
+the wrong length is refused with a ConfigError naming robot.toml and the field. `robot_of(config)`
+is the one way a station gets the robot it runs (`simulation.robot`; "" the shipped one), loaded
+once per package."""
+
+from __future__ import annotations
+
+import functools
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+
+from abyss.common.errors import ConfigError
+from abyss.common.reading import read_table
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from abyss.common.config import Config
+
+ROBOTS_DIR = Path(__file__).parent / "models" / "robots"
+SHIPPED_ROBOT_DIR = ROBOTS_DIR / "workclass"  # the testbed's own work-class ROV
+ROBOT_FILE_NAME = "robot.toml"
+# the body wrench's rows (fx, fy, fz, mx, my, mz) the vehicle's velocity reference commands, in
+# order (surge, sway, heave, yaw); roll and pitch are left to the hydrostatic restoring moment
+COMMANDED_AXES = (0, 1, 2, 5)
+AXIS_NAMES = ("surge", "sway", "heave", "roll", "pitch", "yaw")
+HEAVE = 2
+
+
+@dataclass(frozen=True)
+class ModelSection:
+    file: str  # the model file, relative to the package
+    format: Literal["mjcf"] = "mjcf"  # URDF to follow
+    base: str = "vehicle"  # the floating base: its body, and its free joint, of this name
+
+
+@dataclass(frozen=True)
+class GripperSection:
+    kind: Literal["parallel"]  # two fingers sliding apart: the opening is their travel summed
+    joints: tuple[str, ...]  # the fingers' slide joints (each driven by an actuator of its name)
+    opening_m: float  # the full opening: the fingers' travel at their upper limits, summed [m]
+
+
+@dataclass(frozen=True)
+class ArmSection:
+    joints: tuple[str, ...]  # in chain order, base to tool (each driven by an actuator of its name)
+    end_effector_site: str
+    stowed_rad: tuple[float, ...]  # one per joint [rad]
+    gripper: GripperSection
+    clearance_bodies: tuple[str, ...] = ()  # kept clear of obstacles, with the end effector
+
+
+@dataclass(frozen=True)
+class CamerasSection:
+    names: tuple[str, ...]  # every camera, in the order they are published
+    stereo: tuple[str, str]  # left, right
+    depth: str  # the range camera (rendered as depth, the others as RGB)
+
+
+@dataclass(frozen=True)
+class NavSensorsSection:
+    """The navigation sensors' names (as faults target them), one per kind the simulation has."""
+
+    usbl: str = "usbl"
+    depth: str = "depth"  # the pressure sensor
+    dvl: str = "dvl"
+    imu: str = "imu"
+
+
+@dataclass(frozen=True)
+class ThrustersSection:
+    names: tuple[str, ...]  # the model's thruster sites and motors, in allocation order
+    time_constant_s: float
+    deadband: float
+    forward_max_n: float
+    reverse_max_n: float
+
+
+@dataclass(frozen=True)
+class RobotFile:
+    """robot.toml, its sections typed; the marine ones' numbers are hydrodynamics.py's to read."""
+
+    name: str
+    source: str
+    model: ModelSection
+    arm: ArmSection
+    cameras: CamerasSection
+    thrusters: ThrustersSection
+    added_mass: dict[str, Any]
+    damping: dict[str, Any]
+    buoyancy: dict[str, Any]
+    nav_sensors: NavSensorsSection = field(default_factory=NavSensorsSection)
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A loaded robot package: its names, frames and paths, held against its model."""
+
+    directory: Path
+    spec: RobotFile
+    actuated_axes: tuple[int, ...]  # rows of the body wrench the thrusters move, of COMMANDED_AXES
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def file(self) -> Path:
+        """robot.toml: also the vehicle file (its marine model and thrusters)."""
+        return self.directory / ROBOT_FILE_NAME
+
+    @property
+    def model_file(self) -> Path:
+        return self.directory / self.spec.model.file
+
+    @property
+    def base(self) -> str:
+        return self.spec.model.base
+
+    @property
+    def arm_joints(self) -> tuple[str, ...]:
+        return self.spec.arm.joints
+
+    @property
+    def gripper_joints(self) -> tuple[str, ...]:
+        return self.spec.arm.gripper.joints
+
+    @property
+    def end_effector_site(self) -> str:
+        return self.spec.arm.end_effector_site
+
+    @property
+    def stowed_rad(self) -> tuple[float, ...]:
+        return self.spec.arm.stowed_rad
+
+    @property
+    def clearance_points(self) -> tuple[str, ...]:
+        """The arm's frames kept clear of obstacles: its clearance bodies, then the end effector."""
+        return (*self.spec.arm.clearance_bodies, self.end_effector_site)
+
+    @property
+    def cameras(self) -> tuple[str, ...]:
+        return self.spec.cameras.names
+
+    @property
+    def stereo_left(self) -> str:
+        return self.spec.cameras.stereo[0]
+
+    @property
+    def stereo_right(self) -> str:
+        return self.spec.cameras.stereo[1]
+
+    @property
+    def depth_camera(self) -> str:
+        return self.spec.cameras.depth
+
+    @property
+    def nav_sensors(self) -> NavSensorsSection:
+        return self.spec.nav_sensors
+
+    @property
+    def nav_sensor_names(self) -> tuple[str, ...]:
+        s = self.spec.nav_sensors
+        return (s.usbl, s.depth, s.dvl, s.imu)
+
+    @property
+    def thrusters(self) -> tuple[str, ...]:
+        return self.spec.thrusters.names
+
+    @property
+    def shipped(self) -> bool:
+        return self.directory == SHIPPED_ROBOT_DIR.resolve()
+
+
+def robot_of(config: Config) -> Robot:
+    """The robot the configuration runs (`simulation.robot`; "" the shipped one), loaded once."""
+    return load_robot(Path(config.simulation.robot) if config.simulation.robot else SHIPPED_ROBOT_DIR)
+
+
+def load_robot(directory: Path) -> Robot:
+    """The robot package in `directory` (robot.toml and the model it names), checked against
+    the compiled model; ConfigError naming the file and the field for a bad one. Cached per
+    package (its resolved path)."""
+    return _load(Path(directory).expanduser().resolve())
+
+
+@functools.cache
+def _load(directory: Path) -> Robot:
+    path = directory / ROBOT_FILE_NAME
+    try:
+        table = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError("simulation.robot", f"cannot read {path}: {exc}") from None
+    try:
+        spec: RobotFile = read_table(RobotFile, table)
+    except ConfigError as exc:
+        raise ConfigError(exc.field, exc.reason, str(path)) from None
+    model = _compiled(directory, spec, path)
+    checks = (_check_model_names, _check_arm, _check_cameras, _check_added_mass)
+    for check in checks:
+        check(model, spec, path)
+    allocation = thrust_matrix(model, spec.model.base, spec.thrusters.names, path)
+    return Robot(directory, spec, actuated_axes(allocation, path))
+
+
+def _compiled(directory: Path, spec: RobotFile, path: Path) -> mujoco.MjModel:
+    import mujoco
+
+    model_file = directory / spec.model.file
+    if not model_file.is_file():
+        raise ConfigError("model.file", f"no such file: {model_file}", str(path))
+    try:
+        return mujoco.MjModel.from_xml_path(str(model_file))
+    except ValueError as exc:  # MuJoCo's compiler's error
+        raise ConfigError("model.file", f"{model_file} does not compile: {exc}", str(path)) from None
+
+
+def _has(model: mujoco.MjModel, kind: str, name: str) -> bool:
+    import mujoco
+
+    return bool(mujoco.mj_name2id(model, getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}"), name) >= 0)
+
+
+def _require(model: mujoco.MjModel, path: Path, where: str, kind: str, names: tuple[str, ...]) -> None:
+    missing = [n for n in names if not _has(model, kind, n)]
+    if missing:
+        raise ConfigError(where, f"{', '.join(missing)}: no {kind} of that name in the model", str(path))
+
+
+def _check_model_names(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
+    import mujoco
+
+    base = spec.model.base
+    _require(model, path, "model.base", "body", (base,))
+    _require(model, path, "model.base", "joint", (base,))
+    if model.jnt_type[model.joint(base).id] != mujoco.mjtJoint.mjJNT_FREE:
+        raise ConfigError("model.base", f"joint {base!r} is not a free joint", str(path))
+    _require(model, path, "thrusters.names", "site", spec.thrusters.names)
+    _require(model, path, "thrusters.names", "actuator", spec.thrusters.names)
+
+
+def _check_arm(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
+    arm = spec.arm
+    if not arm.joints:
+        raise ConfigError("arm.joints", "needs the arm's joints, in chain order", str(path))
+    for where, names in (("arm.joints", arm.joints), ("arm.gripper.joints", arm.gripper.joints)):
+        _require(model, path, where, "joint", names)
+        _require(model, path, where, "actuator", names)
+    _require(model, path, "arm.end_effector_site", "site", (arm.end_effector_site,))
+    _require(model, path, "arm.clearance_bodies", "body", arm.clearance_bodies)
+    if len(arm.stowed_rad) != len(arm.joints):
+        raise ConfigError(
+            "arm.stowed_rad", f"{len(arm.stowed_rad)} angles for {len(arm.joints)} joints", str(path)
+        )
+    for name, angle_rad in zip(arm.joints, arm.stowed_rad, strict=True):
+        joint = model.joint(name)
+        lo, hi = joint.range
+        if joint.limited[0] and not lo <= angle_rad <= hi:
+            raise ConfigError("arm.stowed_rad", f"{name} at {angle_rad} rad: outside [{lo:.4g}, {hi:.4g}]", str(path))
+    if not 0.0 < arm.gripper.opening_m <= sum(model.joint(n).range[1] for n in arm.gripper.joints) + 1e-9:
+        raise ConfigError(
+            "arm.gripper.opening_m",
+            f"{arm.gripper.opening_m} m: needs a positive opening within the fingers' travel",
+            str(path),
+        )
+
+
+def _check_cameras(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
+    cameras = spec.cameras
+    _require(model, path, "cameras.names", "camera", cameras.names)
+    for where, names in (("cameras.stereo", cameras.stereo), ("cameras.depth", (cameras.depth,))):
+        strays = [n for n in names if n not in cameras.names]
+        if strays:
+            raise ConfigError(where, f"{', '.join(strays)} not one of {', '.join(cameras.names)}", str(path))
+    if cameras.stereo[0] == cameras.stereo[1]:
+        raise ConfigError("cameras.stereo", "needs two cameras, left then right", str(path))
+
+
+def added_mass_matrix(section: dict[str, Any], path: Path) -> np.ndarray:
+    """M_A (6, 6) from `[added_mass]`: `diagonal` (6 values) or `matrix` (36, row by row)."""
+    key = "diagonal" if "diagonal" in section else "matrix"
+    values = section.get(key)
+    numbers = isinstance(values, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+    )
+    sizes = (6, 36) if key == "diagonal" else (36,)
+    if not numbers or len(values) not in sizes:  # type: ignore[arg-type]
+        raise ConfigError(f"added_mass.{key}", f"needs {' or '.join(map(str, sizes))} numbers", str(path))
+    mass = np.asarray(values, dtype=float)
+    return np.diag(mass) if mass.size == 6 else mass.reshape(6, 6)
+
+
+def _check_added_mass(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
+    mass = added_mass_matrix(spec.added_mass, path)
+    if not np.all(np.isfinite(mass)) or not np.allclose(mass, mass.T) or np.min(np.linalg.eigvalsh(mass)) <= 0:
+        raise ConfigError("added_mass", "must be symmetric and positive definite", str(path))
+
+
+def thrust_matrix(model: mujoco.MjModel, body: str, names: tuple[str, ...], path: Path | None = None) -> np.ndarray:
+    """(6, n): the body wrench about `body`'s centre of mass per newton of each thruster, each
+    pushing along its site's z axis; ConfigError (naming `path`) for a site not on `body`."""
+    import mujoco
+
+    b = model.body(body).id
+    com = model.body_ipos[b]
+    columns = []
+    for name in names:
+        site = model.site(name)
+        if site.bodyid[0] != b:
+            raise ConfigError("thrusters.names", f"{name} is not on {body}", str(path or ""))
+        rotation = np.empty(9)
+        mujoco.mju_quat2Mat(rotation, site.quat)
+        axis = rotation.reshape(3, 3)[:, 2]
+        columns.append(np.r_[axis, np.cross(site.pos - com, axis)])
+    return np.array(columns).T
+
+
+def actuated_axes(allocation: np.ndarray, path: Path | None = None) -> tuple[int, ...]:
+    """The wrench rows of COMMANDED_AXES the thrusters move independently: each in turn where it
+    adds to the rank of the rows taken before it. ConfigError (naming `path`) where heave is not
+    among them: a vehicle that cannot change depth cannot fly a mission."""
+    taken: list[int] = []
+    for axis in COMMANDED_AXES:
+        if np.linalg.matrix_rank(allocation[[*taken, axis]]) > len(taken):
+            taken.append(axis)
+    if HEAVE not in taken:
+        moved = ", ".join(AXIS_NAMES[a] for a in taken) or "nothing"
+        raise ConfigError(
+            "thrusters.names", f"the thrusters cannot move the vehicle in heave (they move {moved})", str(path or "")
+        )
+    return tuple(taken)

@@ -15,7 +15,7 @@ from abyss.common.models import SEABED_CLOUD_FILE
 
 
 def cmd_terrain_build(args: argparse.Namespace) -> int:
-    from abyss.common.models import MODELS_DIR, WORLD_FILE
+    from abyss.common.models import MODELS_DIR, SITE_WORLD_FILE
     from abyss.stations.simulation import terrain
 
     cloud = terrain.read_cloud(args.cloud)
@@ -27,8 +27,8 @@ def cmd_terrain_build(args: argparse.Namespace) -> int:
         f"{terrain.GRID}x{terrain.GRID} grid"
     )
     if args.out is None:
-        terrain.install(built.heights_m, MODELS_DIR, WORLD_FILE)
-        print(f"abyss: wrote {MODELS_DIR / 'terrain.bin'} and the terrain of {WORLD_FILE}")
+        terrain.install(built.heights_m, MODELS_DIR, SITE_WORLD_FILE)
+        print(f"abyss: wrote {MODELS_DIR / 'terrain.bin'} and the terrain of {SITE_WORLD_FILE}")
     else:
         args.out.mkdir(parents=True, exist_ok=True)
         terrain.write_hfield(built.heights_m, args.out / "terrain.bin")

@@ -17,6 +17,7 @@ from abyss.cli.args import (
 from abyss.common import faults, keys
 from abyss.common.bus import message_of
 from abyss.common.errors import BadInput, ConfigError
+from abyss.common.robot import robot_at
 from abyss.common.messages import (
     SimulationControl,
     SimulationStatus,
@@ -24,21 +25,23 @@ from abyss.common.messages import (
 )
 
 
-def fault_control(fault: str, target: str, value: float) -> SimulationControl:
+def fault_control(fault: str, target: str, value: float, robot: str = "") -> SimulationControl:
     """The message of `abyss fault`, checked against the fault table and the robot's model as the
-    simulation checks it; ConfigError with the allowed targets or the value's range."""
+    simulation checks it (`robot`: its package, as `simulation.robot` names it; "" the shipped
+    one); ConfigError with the allowed targets or the value's range."""
     if not faults.row(fault).targets and target:
         raise ConfigError("fault target", f"{fault} takes no target (got {target!r})")
     try:
-        faults.check(fault, target, value, faults.model_names())
+        faults.check(fault, target, value, faults.model_names(robot_at(robot)))
         return SimulationControl(fault, target, value)
     except BadInput as exc:
         raise ConfigError("fault", exc.reason) from None
 
 
-def fault_help() -> str:
-    """`abyss fault`'s description: the fault table, each fault's targets on the robot's model."""
-    names = faults.model_names()
+def fault_help(robot: str = "") -> str:
+    """`abyss fault`'s description: the fault table, each fault's targets on the robot's model
+    (`robot`: its package; "" the shipped one)."""
+    names = faults.model_names(robot_at(robot))
     lines = ["Faults (common/faults.py), each with its targets on this robot:"]
     for row in faults.FAULT_TABLE.values():
         allowed = faults.targets(row.name, names)
@@ -48,7 +51,7 @@ def fault_help() -> str:
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
-    control = fault_control(args.fault, args.target, args.value)
+    control = fault_control(args.fault, args.target, args.value, args.robot)
     session = client(args)
     seen: list[SimulationStatus] = []
 
@@ -124,5 +127,8 @@ def add_commands(sub: Any) -> None:
     p.add_argument("fault", choices=faults.fault_names())
     p.add_argument("target", nargs="?", default="", help="the part it acts on (below, by fault)")
     p.add_argument("value", nargs="?", type=float, default=0.0, help="its setting (below, by fault)")
+    p.add_argument(
+        "--robot", default="", metavar="DIR", help="the running robot's package (simulation.robot); the shipped one by default"
+    )
     connect_args(p)
     p.set_defaults(func=cmd_fault)

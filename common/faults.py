@@ -11,10 +11,13 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING
 
-from abyss.common import models
 from abyss.common.errors import BadInput
 from abyss.common.models import panel
+
+if TYPE_CHECKING:
+    from abyss.common.robot import Robot
 
 VALUE_MAX = 100.0  # a fault's value lies in [0, VALUE_MAX] whatever its row (the message's bound)
 
@@ -38,9 +41,10 @@ KIND_WORDS = {  # how the docs and the help name one target of each kind, and it
 }
 
 
-def model_names() -> ModelNames:
-    """The names of abyss's own robot and panel (common.models), looked up when called."""
-    return ModelNames(models.THRUSTERS, models.CAMERAS, models.NAV_SENSORS, (*panel.VALVES, *panel.LEVERS))
+def model_names(robot: Robot) -> ModelNames:
+    """The names of `robot`'s parts (its package's: common.robot) and the panel's, looked up when
+    called."""
+    return ModelNames(robot.thrusters, robot.cameras, robot.nav_sensor_names, (*panel.VALVES, *panel.LEVERS))
 
 
 @dataclass(frozen=True)

@@ -189,7 +189,12 @@ class Robot:
 
 def robot_of(config: Config) -> Robot:
     """The robot the configuration runs (`simulation.robot`; "" the shipped one), loaded once."""
-    return load_robot(Path(config.simulation.robot) if config.simulation.robot else SHIPPED_ROBOT_DIR)
+    return robot_at(config.simulation.robot)
+
+
+def robot_at(package: str) -> Robot:
+    """The robot package at `package` (a directory's path; "" the shipped one), loaded once."""
+    return load_robot(Path(package) if package else SHIPPED_ROBOT_DIR)
 
 
 def load_robot(directory: Path) -> Robot:

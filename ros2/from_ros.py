@@ -21,8 +21,6 @@ from abyss.common.messages import (
     Telemetry,
     VelocityRef,
 )
-from abyss.common.models import ARM_JOINTS
-from abyss.ros2.motion import ARM_COMMAND_LABEL
 from abyss.ros2.msgs import (
     BASE_LINK,
     ROS,
@@ -49,9 +47,10 @@ def twist_in(msg: Any, session: Session) -> VelocityRef:
 
 def joint_velocities_in(msg: Any, session: Session) -> ArmVelocityRef:
     data = np.asarray(msg.data, dtype=np.float64)
-    if data.shape != (7,):
-        raise BadInput(f"{len(data)} values, expected 7 ({ARM_COMMAND_LABEL})")
-    return ArmVelocityRef(data[:6], float(data[6]))
+    joints = len(session.robot.arm_joints)
+    if data.shape != (joints + 1,):
+        raise BadInput(f"{len(data)} values, expected {joints + 1} ({session.arm_command_label})")
+    return ArmVelocityRef(data[:joints], float(data[joints]))
 
 
 def ee_pose_in(msg: Any, session: Session) -> None:
@@ -168,7 +167,7 @@ def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
             ee_error_m = goal.position_m_world - ee_m
             relative = rotation_of(ee_wxyz).T @ rotation_of(goal.orientation_wxyz_world)
             ee_error_rad = float(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0)))
-    joints = session.joints.positions_rad if session.joints is not None else np.zeros(len(ARM_JOINTS))
+    joints = session.joints.positions_rad if session.joints is not None else np.zeros(len(session.robot.arm_joints))
     return Telemetry(
         position_m_world=position,
         yaw_rad=yaw,

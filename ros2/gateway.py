@@ -37,6 +37,7 @@ from abyss.common.config import Config
 from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
 from abyss.common.rate import Rate
+from abyss.common.robot import robot_of
 from abyss.ros2 import motion, msgs, rmw, status, types
 from abyss.ros2.session import Session
 
@@ -71,7 +72,7 @@ class Gateway:
         self.bus, self.namespace = bus, cfg.namespace
         self.session = open_session(ros_session_config(cfg.listen, cfg.connect), "the ROS 2 gateway")
         self.node = rmw.Node(self.session, cfg.domain, cfg.namespace, node_name(bus.station))
-        self.convert = Session()
+        self.convert = Session(robot_of(config))
         self._lock = threading.Lock()  # the conversions' session: the loop and Zenoh's callbacks
         self.publishers: dict[str, rmw.Publisher] = {}
         self.downlinks: list[tuple[keys.KeySpec, types.KeyMap, Inbox[Message]]] = []

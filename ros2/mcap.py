@@ -14,6 +14,7 @@ epoch; header stamps are simulated time (see `ros2.types`): a message without it
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections import Counter
@@ -30,6 +31,7 @@ from ruamel.yaml import YAML
 
 from abyss.common.errors import AbyssError, BadInput
 from abyss.common.messages import Image, NavState
+from abyss.common.robot import Robot, robot_at
 from abyss.recording.reader import Record, Recording, open_recording
 from abyss.ros2 import motion, msgs, types
 from abyss.ros2.session import Session
@@ -133,6 +135,16 @@ def sim_clock(recording: Recording) -> SimClock:
     )
 
 
+def _robot_of_run(run_dir: Path) -> Robot:
+    """The robot the run flew: its configuration's (config.json, `simulation.robot`), else the
+    shipped one (a run from before robot packages, or one without its configuration)."""
+    try:
+        package = json.loads((run_dir / "config.json").read_text()).get("simulation", {}).get("robot", "")
+    except (OSError, ValueError, AttributeError):
+        package = ""
+    return robot_at(package if isinstance(package, str) else "")
+
+
 def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> dict[str, Any]:
     """Write the recording of `run_dir` to `out` (through `out`.part, so that a failed export leaves
     no half file); `progress` is told how far it got, every PROGRESS_PERIOD_S at most. Returns
@@ -140,7 +152,7 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
     started_s = time.perf_counter()
     recording = open_recording(run_dir)
     exported = _exported(recording)
-    clock, session = sim_clock(recording), Session()
+    clock, session = sim_clock(recording), Session(_robot_of_run(run_dir))
     part = out.with_name(out.name + ".part")
     skipped: Counter[str] = Counter()
     try:

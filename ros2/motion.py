@@ -19,7 +19,6 @@ from abyss.common.messages import (
     VelocityRef,
     Waypoints,
 )
-from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
 from abyss.ros2.msgs import (
     BASE_LINK,
     ROS,
@@ -64,10 +63,10 @@ def vehicle_tf(nav: NavState, head: Any, session: Session) -> Any:
     )
 
 
-def _joint_state(head: Any, positions: Floats, velocities: Floats) -> Any:
+def _joint_state(head: Any, names: list[str], positions: Floats, velocities: Floats) -> Any:
     return ROS["sensor_msgs/msg/JointState"](
         header=head,
-        name=[*ARM_JOINTS, *GRIPPER_JOINTS],
+        name=names,
         position=floats(positions),
         velocity=floats(velocities),
         effort=floats([]),
@@ -77,9 +76,14 @@ def _joint_state(head: Any, positions: Floats, velocities: Floats) -> Any:
 def joint_state(joints: JointState, head: Any, session: Session) -> Any:
     """The arm's joints and each finger at half the gripper's opening; the fingers' velocities are
     not measured (NaN)."""
-    finger_m = joints.gripper_opening_m / 2
+    robot = session.robot
+    fingers = len(robot.gripper_joints)
+    finger_m = joints.gripper_opening_m / fingers
     return _joint_state(
-        head, [*joints.positions_rad, finger_m, finger_m], [*joints.velocities_radps, math.nan, math.nan]
+        head,
+        [*robot.arm_joints, *robot.gripper_joints],
+        [*joints.positions_rad, *[finger_m] * fingers],
+        [*joints.velocities_radps, *[math.nan] * fingers],
     )
 
 
@@ -88,14 +92,12 @@ def arm_tf(joints: JointState, head: Any, session: Session) -> Any:
     return tf_msg([transform_msg(head.stamp, *link) for link in links])
 
 
-ARM_COMMAND_LABEL = "velocity: " + ", ".join((*ARM_JOINTS, "gripper_opening"))
-
-
 def joint_velocities(ref: ArmVelocityRef, head: Any, session: Session) -> Any:
     """A velocity command as ros2_control's forward velocity controller takes it: a
-    Float64MultiArray of the six joints' velocities [rad/s] in model order, then the gripper's
+    Float64MultiArray of the arm's joints' velocities [rad/s] in model order, then the gripper's
     opening speed [m/s]."""
-    dim = ROS["std_msgs/msg/MultiArrayDimension"](label=ARM_COMMAND_LABEL, size=7, stride=7)
+    size = len(session.robot.arm_joints) + 1
+    dim = ROS["std_msgs/msg/MultiArrayDimension"](label=session.arm_command_label, size=size, stride=size)
     return ROS["std_msgs/msg/Float64MultiArray"](
         layout=ROS["std_msgs/msg/MultiArrayLayout"](dim=[dim], data_offset=0),
         data=floats([*ref.joint_velocities_radps, ref.gripper_velocity_mps]),
@@ -147,7 +149,7 @@ def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndar
     arm = [
         transform_msg(stamp, parent, child, translation, rotation)
         for parent, child, translation, rotation in session.arm.transforms(
-            np.zeros(len(ARM_JOINTS)), 0.0, moving=False
+            np.zeros(len(session.robot.arm_joints)), 0.0, moving=False
         )
     ]
     cameras = [

@@ -15,7 +15,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, GRIPPER_JOINTS, ROBOT_FILE
+from abyss.common.robot import Robot
 from abyss.ros2.msgs import (
     BASE_LINK,
     Floats,
@@ -26,22 +26,23 @@ from abyss.scene.receiver import SceneReceiver
 # -- what conversions keep between messages -----------------------------------------------
 class ArmFrames:
     """The arm's frames relative to their parents for a joint state, as robot_state_publisher
-    gives a URDF's: Pinocchio's forward kinematics on robot.xml, the vehicle at the origin. The
-    fingers each open by half the gripper's opening."""
+    gives a URDF's: Pinocchio's forward kinematics on the robot's model, the vehicle at the origin.
+    The fingers each open by half the gripper's opening."""
 
-    def __init__(self) -> None:
-        self.model = pin.buildModelFromMJCF(str(ROBOT_FILE))
+    def __init__(self, robot: Robot) -> None:
+        self.robot = robot
+        self.model = pin.buildModelFromMJCF(str(robot.model_file))
         self.data = self.model.createData()
         self.q_index = {
             name: self.model.joints[self.model.getJointId(name)].idx_q
-            for name in (*ARM_JOINTS, *GRIPPER_JOINTS)
+            for name in (*robot.arm_joints, *robot.gripper_joints)
         }
         frames = self.model.frames
-        self.vehicle = self.model.getFrameId("vehicle", pin.FrameType.BODY)
+        self.vehicle = self.model.getFrameId(robot.base, pin.FrameType.BODY)
         # (parent body, child, moving): each body on the vehicle, and the tool point
         self.links: list[tuple[int, int, bool]] = []
         for i, frame in enumerate(frames):
-            if (frame.type == pin.FrameType.BODY and i != self.vehicle) or frame.name == END_EFFECTOR_SITE:
+            if (frame.type == pin.FrameType.BODY and i != self.vehicle) or frame.name == robot.end_effector_site:
                 parent = frame.parentFrame
                 while frames[parent].type != pin.FrameType.BODY:  # past the joint's own frame
                     parent = frames[parent].parentFrame
@@ -56,9 +57,9 @@ class ArmFrames:
         """(parent, child, translation [m], rotation w, x, y, z) of the moving links, or of the
         fixed ones."""
         q = pin.neutral(self.model)
-        for name, value in zip(ARM_JOINTS, positions_rad, strict=True):
+        for name, value in zip(self.robot.arm_joints, positions_rad, strict=True):
             q[self.q_index[name]] = value
-        for name in GRIPPER_JOINTS:
+        for name in self.robot.gripper_joints:
             q[self.q_index[name]] = gripper_opening_m / 2
         pin.framesForwardKinematics(self.model, self.data, q)
         chosen = []
@@ -83,8 +84,10 @@ class Session:
     consumers take it. A gateway's conversions back to abyss read what it last handed the ROS 2
     node: the navigation, the joints, the goals (with their command ids) and the operator mode."""
 
-    def __init__(self) -> None:
-        self.arm = ArmFrames()
+    def __init__(self, robot: Robot) -> None:
+        """`robot`: the robot the stream is of (common.robot): its names and kinematics."""
+        self.robot = robot
+        self.arm = ArmFrames(robot)
         self.scene = SceneReceiver()
         self.nav: NavState | None = None
         self.joints: JointState | None = None
@@ -94,6 +97,11 @@ class Session:
         self.ee_pose: tuple[np.ndarray, np.ndarray] | None = None  # the node's: position, w x y z [world]
         self.boot_id = new_id()
         self.sim_time_s = 0.0  # the latest simulated time handed over
+
+    @property
+    def arm_command_label(self) -> str:
+        """The velocity command's layout label: the arm's joints in model order, then the gripper."""
+        return "velocity: " + ", ".join((*self.robot.arm_joints, "gripper_opening"))
 
     def handed(self, message: Message) -> None:
         """Remember a message the ROS 2 node was given."""

@@ -46,7 +46,7 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
     choose_gl_backend()  # before MuJoCo is imported
     import mujoco
 
-    from abyss.common.models import CAMERAS
+    from abyss.common.robot import robot_of
     from abyss.stations.onboard.perception import CloudSettings, clouds_of
     from abyss.stations.simulation.encoding import encode_image
     from abyss.stations.simulation.rendering import Cameras
@@ -55,7 +55,14 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
     sim = config.simulation
     world = World(sim, np.random.default_rng(config.seed))
     path = np.array([[*sim.start_position_m_world, sim.start_yaw_rad], *config.mission.waypoints])
-    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, samples=sim.camera_samples)
+    robot = robot_of(config)
+    cameras = Cameras(
+        world.model,
+        sim.camera_width_px,
+        sim.camera_height_px,
+        samples=sim.camera_samples,
+        depth_camera=robot.depth_camera,
+    )
     settings = CloudSettings(config.onboard.cloud_voxel_m, config.onboard.cloud_max_range_m)
     frames = []
     p = world.plant.qpos
@@ -66,9 +73,9 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
             world.data.qpos[p : p + 3] = x, y, z
             world.data.qpos[p + 3 : p + 7] = np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)
             mujoco.mj_forward(world.model, world.data)
-            images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in CAMERAS}
+            images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in robot.cameras}
             pose = (np.array([x, y, z]), np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]))
-            cloud = clouds_of(images, pose, np.zeros((0, 3)), ("depth",), settings)[0]
+            cloud = clouds_of(robot.spec.cameras, images, pose, np.zeros((0, 3)), ("depth",), settings)[0]
             points, colors = unpack_cloud(cloud)
             frames.append(Frame(points, colors, cloud.sensor_m_world))
             progress(f"rendered frame {i + 1}/{count}: {len(points)} points")

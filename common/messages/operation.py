@@ -9,7 +9,7 @@ from typing import ClassVar
 import numpy as np
 
 from abyss.common.errors import BadInput
-from abyss.common.messages.schema import Message, array, check_unit_quaternion, scalar
+from abyss.common.messages.schema import MAX_ARM_JOINTS, Message, array, check_unit_quaternion, scalar
 
 # missed: a waypoint not reached in its time; blocked: the arm stalled against something, it holds
 MODES = ("idle", "moving", "reached", "hold", "missed", "blocked")
@@ -52,7 +52,7 @@ class Telemetry(Message):
     ee_orientation_error_rad: float = scalar(0.0, math.pi + 1e-6)
     ee_position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)  # where onboard sees the tool
     ee_orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0 - 1e-6, 1.0 + 1e-6)
-    arm_positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)  # model order
+    arm_positions_rad: np.ndarray = array("f8", (None,), -10.0, 10.0, MAX_ARM_JOINTS)  # model order
     failsafe: str = scalar()  # why the vehicle and arm hold; empty when they do not
     failsafe_events: int = scalar(0, 2**31)
     sim_time_s: float = scalar(0.0)

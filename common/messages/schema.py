@@ -17,6 +17,8 @@ import numpy as np
 from abyss.common.errors import BadInput
 
 MESSAGES: dict[str, type[Message]] = {}
+# an arm's joints, as messages bound them: any robot package's arm (common.robot), generously
+MAX_ARM_JOINTS = 16
 SMALL_ARRAY_SIZE = 64  # an array up to this size is range-checked as Python numbers (numpy's calls cost more)
 
 

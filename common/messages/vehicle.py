@@ -8,7 +8,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from abyss.common.messages.schema import Message, array, check_unit_quaternion, scalar
+from abyss.common.messages.schema import MAX_ARM_JOINTS, Message, array, check_unit_quaternion, scalar
 
 
 @dataclass(frozen=True)
@@ -47,10 +47,10 @@ class VelocityRef(Message):
 
 @dataclass(frozen=True)
 class ArmVelocityRef(Message):
-    """Arm joint velocity references (model order: common.models.ARM_JOINTS) and the
-    gripper's opening speed; onboard -> simulation."""
+    """Arm joint velocity references (model order: the robot package's arm joints, common.robot)
+    and the gripper's opening speed; onboard -> simulation."""
 
-    joint_velocities_radps: np.ndarray = array("f8", (6,), -5.0, 5.0)
+    joint_velocities_radps: np.ndarray = array("f8", (None,), -5.0, 5.0, MAX_ARM_JOINTS)
     gripper_velocity_mps: float = scalar(-0.5, 0.5)
 
 
@@ -62,8 +62,8 @@ class JointState(Message):
 
     VERSION: ClassVar[int] = 2  # 2: gripper_force_n
 
-    positions_rad: np.ndarray = array("f8", (6,), -10.0, 10.0)
-    velocities_radps: np.ndarray = array("f8", (6,), -100.0, 100.0)
+    positions_rad: np.ndarray = array("f8", (None,), -10.0, 10.0, MAX_ARM_JOINTS)
+    velocities_radps: np.ndarray = array("f8", (None,), -100.0, 100.0, MAX_ARM_JOINTS)
     gripper_opening_m: float = scalar(0.0, 1.0)
     sim_time_s: float = scalar(0.0)
     gripper_force_n: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1e4, "choices": ()})

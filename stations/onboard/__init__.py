@@ -27,7 +27,7 @@ from abyss.common.messages import (
     SonarImage,
     Waypoints,
 )
-from abyss.common.models import CAMERAS
+from abyss.common.robot import robot_of
 from abyss.common.rate import Rate
 from abyss.common.shared import Latest
 from abyss.common.workers import Workers
@@ -107,9 +107,11 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     camera's image out, bad frames rejected and shed sets counted on the left camera's key."""
     from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets  # OpenCV's, on first use
 
-    core = FrameSets(config.onboard, config.simulation.camera_rate_hz)
-    inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in CAMERAS}
-    key = keys.spec("simulation", "camera/cam_left").key(bus.system)  # where bad and shed frames are counted
+    robot = robot_of(config)
+    core = FrameSets(config.onboard, config.simulation.camera_rate_hz, robot.spec.cameras)
+    inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in robot.cameras}
+    # where bad and shed frames are counted: the stereo pair's left camera's key
+    key = keys.spec("simulation", f"camera/{robot.stereo_left}").key(bus.system)
     # with simulated time, a frame set being worked on holds the simulation (common.clock)
     rate = Rate(0.05, bus.stop, bus.clock, "perception")
     while rate.sleep():

@@ -16,14 +16,12 @@ import pinocchio as pin
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import rotation_of
-from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
+from abyss.common.robot import Robot
 from abyss.stations.onboard.modes import Mode
 from abyss.stations.onboard.task_priority import Constraints, Task, solve_constrained
 
-CLEARANCE_POINTS = ("arm_link3", "arm_link5", END_EFFECTOR_SITE)  # elbow, wrist, end-effector
 REACHED_HYSTERESIS = 2.0  # a reached goal is left only beyond this many times its tolerances
 XYZW = [1, 2, 3, 0]  # Pinocchio's quaternion order, from w, x, y, z
-VEHICLE_DOFS = (0, 1, 2, 5)  # of the free flyer's body velocity: surge, sway, heave, yaw rate
 # a stall: the joints, or the tool in the vehicle's frame, moved less than STALL_SHARE of what the
 # controller commanded (along it) for STALL_S, while it commanded at least STALL_MIN_RADPS of the
 # joints or STALL_MIN_MPS of the tool; the arm then holds (blocked) instead of pushing on, and the
@@ -40,21 +38,23 @@ STALL_S = 0.5
 
 # -- the arm on the vehicle -----------------------------------------------------------------
 class ArmKinematics:
-    """The shared model in Pinocchio: poses and world-aligned Jacobians of the arm's frames,
+    """The robot's model in Pinocchio: poses and world-aligned Jacobians of the arm's frames,
     the decision variables being the arm's joints (and with `whole_body`, the vehicle's
-    surge, sway, heave and yaw rate)."""
+    axes its thrusters move: surge, sway, heave and yaw rate on the shipped robot, of the free
+    flyer's body velocity)."""
 
-    def __init__(self, whole_body: bool = False) -> None:
-        self.model = pin.buildModelFromMJCF(str(ROBOT_FILE))
+    def __init__(self, robot: Robot, whole_body: bool = False) -> None:
+        self.robot = robot
+        self.model = pin.buildModelFromMJCF(str(robot.model_file))
         self.data = self.model.createData()
-        joints = [self.model.joints[self.model.getJointId(name)] for name in ARM_JOINTS]
+        joints = [self.model.joints[self.model.getJointId(name)] for name in robot.arm_joints]
         self.arm_q = np.array([j.idx_q for j in joints])
         arm_v = [j.idx_v for j in joints]
-        self.columns = np.array(arm_v + (list(VEHICLE_DOFS) if whole_body else []))
+        self.columns = np.array(arm_v + (list(robot.actuated_axes) if whole_body else []))
         self.lower_rad = self.model.lowerPositionLimit[self.arm_q]
         self.upper_rad = self.model.upperPositionLimit[self.arm_q]
-        self.ee = self.model.getFrameId(END_EFFECTOR_SITE)
-        self.points = [self.model.getFrameId(name) for name in CLEARANCE_POINTS]
+        self.ee = self.model.getFrameId(robot.end_effector_site)
+        self.points = [self.model.getFrameId(name) for name in robot.clearance_points]
         self.q = pin.neutral(self.model)
 
     @property
@@ -74,7 +74,7 @@ class ArmKinematics:
 
     def chain_m_world(self) -> np.ndarray:
         """The arm's joints, base to wrist, then the tool point [m, world], as of the last update."""
-        joints = [self.data.oMi[self.model.getJointId(name)].translation for name in ARM_JOINTS]
+        joints = [self.data.oMi[self.model.getJointId(name)].translation for name in self.robot.arm_joints]
         return np.array([*joints, self.data.oMf[self.ee].translation])
 
     def reach(self) -> tuple[np.ndarray, float]:
@@ -149,10 +149,13 @@ class ArmOutput:
 class ArmController:
     """End-effector position, then orientation, under joint limits and obstacle clearance."""
 
-    def __init__(self, cfg: OnboardConfig, mission: MissionConfig, kinematics: ArmKinematics | None = None):
+    def __init__(
+        self, cfg: OnboardConfig, mission: MissionConfig, robot: Robot, kinematics: ArmKinematics | None = None
+    ):
         self.cfg = cfg
         self.mission = mission
-        self.kinematics = kinematics or ArmKinematics(cfg.whole_body)
+        self.kinematics = kinematics or ArmKinematics(robot, cfg.whole_body)
+        self.arm_joints = robot.arm_joints
         self.command_id = -1
         self.goal_position_m_world: np.ndarray | None = None
         self.goal_rotation = np.eye(3)
@@ -161,13 +164,13 @@ class ArmController:
         self.joints_s = 0.0  # the simulated time of the joint states last stepped on
         # the constraints' constant parts: each joint's lower then upper limit (h = +q, -q: linear in
         # the joints), then each clearance point against each obstacle
-        kin, joints, margin_rad = self.kinematics, len(ARM_JOINTS), cfg.joint_limit_margin_rad
+        kin, joints, margin_rad = self.kinematics, len(self.arm_joints), cfg.joint_limit_margin_rad
         self.boxes = np.array(mission.obstacles, dtype=float).reshape(-1, 6)
         clearances = [
-            f"{point} clear of obstacle {j}" for point in CLEARANCE_POINTS for j in range(len(self.boxes))
+            f"{point} clear of obstacle {j}" for point in robot.clearance_points for j in range(len(self.boxes))
         ]
         self.constraint_names = (
-            *(f"{name} {side}" for name in ARM_JOINTS for side in ("lower", "upper")),
+            *(f"{name} {side}" for name in self.arm_joints for side in ("lower", "upper")),
             *clearances,
         )
         self.limit_gradients = np.zeros((2 * joints, kin.n))
@@ -212,7 +215,7 @@ class ArmController:
         linear = np.array([kin.jacobian(frame)[:3] for frame in kin.points])  # (points, 3, n)
         distances_m, gradients = box_distances(points_m_world, self.boxes)  # (points, boxes[, 3])
         clearance_gradients = (gradients @ linear).reshape(-1, kin.n)
-        limits_rad = self.limit_gradients[:, : len(ARM_JOINTS)] @ arm_rad
+        limits_rad = self.limit_gradients[:, : len(self.arm_joints)] @ arm_rad
         return Constraints(
             self.constraint_names,
             np.vstack((self.limit_gradients, clearance_gradients)),
@@ -233,7 +236,7 @@ class ArmController:
         `joints_s`: the simulated time of `arm_rad` (None: one control period after the last)."""
         kin, cfg = self.kinematics, self.cfg
         kin.update(position_m_world, orientation_wxyz_world, arm_rad)
-        zero = np.zeros(len(ARM_JOINTS))
+        zero = np.zeros(len(self.arm_joints))
         if reference is not None:
             return self._follow(reference, arm_rad, enabled)
         if self.goal_position_m_world is None:
@@ -272,7 +275,7 @@ class ArmController:
         reached = self.within_s >= self.mission.arm_settle_s
         out = self._solve(tasks, arm_rad, Mode.REACHED if reached else Mode.MOVING, position_error, angle)
         arm_velocities = out.joint_velocities_radps
-        tool_mps_vehicle = vehicle_rotation.T @ (jacobian[:3, : len(ARM_JOINTS)] @ arm_velocities)
+        tool_mps_vehicle = vehicle_rotation.T @ (jacobian[:3, : len(self.arm_joints)] @ arm_velocities)
         self.stall.commanded((arm_velocities, tool_mps_vehicle))
         return out
 
@@ -290,9 +293,9 @@ class ArmController:
             cfg.singular_value_threshold,
         )
         xdot = self._within_speed_limits(xdot)
-        vehicle = xdot[len(ARM_JOINTS) :] if cfg.whole_body else None
+        vehicle = xdot[len(self.arm_joints) :] if cfg.whole_body else None
         return ArmOutput(
-            xdot[: len(ARM_JOINTS)],
+            xdot[: len(self.arm_joints)],
             vehicle,
             mode,
             position_error,
@@ -310,7 +313,7 @@ class ArmController:
         rotation_error = np.asarray(pin.log3(ref.rotation @ pose.rotation.T))
         angle = _norm(rotation_error)
         if not enabled:
-            return ArmOutput(np.zeros(len(ARM_JOINTS)), None, Mode.HOLD, position_error, angle, ())
+            return ArmOutput(np.zeros(len(self.arm_joints)), None, Mode.HOLD, position_error, angle, ())
         jacobian = kin.jacobian(kin.ee)
         angular = ref.angular_velocity_radps_world + cfg.kp_ee_orientation * rotation_error
         tasks = [

@@ -30,7 +30,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.models import ARM_JOINTS
+from abyss.common.robot import robot_of
 from abyss.stations.onboard.arm_control import ArmController, ArmOutput
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
@@ -69,7 +69,8 @@ class Onboard:
     def __init__(self, config: Config) -> None:
         cfg = self.cfg = config.onboard
         self.vehicle = VehicleController(cfg, config.mission)
-        self.arm = ArmController(cfg, config.mission)
+        self.robot = robot_of(config)
+        self.arm = ArmController(cfg, config.mission, self.robot)
         self.nav_filter = NavFilter(cfg)
         self.failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
         self.gate = CommandGate(config.mission, *self.arm.kinematics.reach())
@@ -227,7 +228,7 @@ class Onboard:
             ee_orientation_error_rad=a.orientation_error_rad,
             ee_position_m_world=ee_pose.translation,
             ee_orientation_wxyz_world=quat_wxyz_of(ee_pose.rotation),
-            arm_positions_rad=joints.positions_rad[: len(ARM_JOINTS)],
+            arm_positions_rad=joints.positions_rad[: len(self.robot.arm_joints)],
             failsafe=hold,
             failsafe_events=self.failsafe.events,
             sim_time_s=self.sim_time_s,

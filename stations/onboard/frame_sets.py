@@ -25,6 +25,7 @@ from abyss.common.errors import BadInput
 from abyss.common.images import decode_image, encode_jpeg
 from abyss.common.messages import Image, PointCloud
 from abyss.common.models import stereo_set
+from abyss.common.robot import CamerasSection
 from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
@@ -54,10 +55,12 @@ class FrameSetOutputs:
 class FrameSets:
     """One perception step at a time: frames in, clouds and the camera image out."""
 
-    def __init__(self, cfg: OnboardConfig, camera_rate_hz: float) -> None:
-        self.cfg, self.camera_rate_hz = cfg, camera_rate_hz
+    def __init__(self, cfg: OnboardConfig, camera_rate_hz: float, cameras: CamerasSection) -> None:
+        """`cameras`: the robot's (common.robot): the stereo pair and the depth camera."""
+        self.cfg, self.camera_rate_hz, self.cameras = cfg, camera_rate_hz, cameras
         self.settings = CloudSettings.of(cfg)
-        self.needed = {"cam_left"} | ({"cam_depth"} if "depth" in cfg.cloud_sources else set())
+        left, self.right = cameras.stereo
+        self.needed = {left} | ({cameras.depth} if "depth" in cfg.cloud_sources else set())
         self.sets: dict[float, dict[str, Image]] = {}  # sim time [s] -> camera -> frame
         self.last_image_s = -float("inf")  # [s, this station's clock]
         self.resting_until_s = -float("inf")
@@ -83,8 +86,8 @@ class FrameSets:
         out.taken_s, self._started_s = t, now_s
         sources = tuple(s for s in self.cfg.cloud_sources if s != "stereo" or self._stereo(t))
         try:
-            out.clouds = clouds_of(frames, pose, inputs.arm_m_world, sources, self.settings)
-            out.image = self._image(frames["cam_left"], pose, now_s)
+            out.clouds = clouds_of(self.cameras, frames, pose, inputs.arm_m_world, sources, self.settings)
+            out.image = self._image(frames[self.cameras.stereo[0]], pose, now_s)
         except BadInput as exc:  # frames that do not decode, or a camera pose in the wrong frame
             out.rejected.append(exc.reason)
         return out
@@ -119,7 +122,7 @@ class FrameSets:
 
     def _needed(self, t_s: float) -> set[str]:
         """The cameras the set taken at `t_s` [s] must hold to be complete."""
-        return self.needed | {"cam_right"} if self._stereo(t_s) else self.needed
+        return self.needed | {self.right} if self._stereo(t_s) else self.needed
 
     def _image(self, left: Image, pose: tuple[np.ndarray, np.ndarray], now_s: float) -> Image | None:
         """The left frame for the vessel, re-encoded with its pose in the world, at its rate."""

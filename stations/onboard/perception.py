@@ -17,6 +17,7 @@ from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, PointCloud
+from abyss.common.robot import CamerasSection
 from abyss.stations.onboard.stereo import StereoFilter, stereo_depth
 
 if TYPE_CHECKING:
@@ -175,23 +176,26 @@ def camera_in_world(image: Image, pose: tuple[np.ndarray, np.ndarray]) -> np.nda
 
 
 def clouds_of(
+    cameras: CamerasSection,
     frames: dict[str, Image],
     pose: tuple[np.ndarray, np.ndarray],
     arm_m_world: np.ndarray,
     sources: tuple[str, ...],
     settings: CloudSettings,
 ) -> list[PointCloud]:
-    """The clouds of one set of frames taken together (cam_left, cam_right, cam_depth)."""
-    left = decode_image(frames["cam_left"])
-    left_camera = Camera.of(frames["cam_left"])
-    sim_time_s = frames["cam_left"].sim_time_s
+    """The clouds of one set of frames taken together, by camera (the robot's `cameras`: the stereo
+    pair's left colours every cloud; the depth camera's range, the pair's matched disparities)."""
+    (left_name, right_name), depth_name = cameras.stereo, cameras.depth
+    left = decode_image(frames[left_name])
+    left_camera = Camera.of(frames[left_name])
+    sim_time_s = frames[left_name].sim_time_s
     clouds = []
     if "depth" in sources:
-        depth_camera = Camera.of(frames["cam_depth"])
+        depth_camera = Camera.of(frames[depth_name])
         clouds.append(
             world_cloud(
                 "depth",
-                decode_image(frames["cam_depth"]),
+                decode_image(frames[depth_name]),
                 depth_camera,
                 left,
                 left_camera,
@@ -202,11 +206,11 @@ def clouds_of(
             )
         )
     if "stereo" in sources:
-        right_camera = Camera.of(frames["cam_right"])
+        right_camera = Camera.of(frames[right_name])
         baseline_m = float(np.linalg.norm(right_camera.position_m_vehicle - left_camera.position_m_vehicle))
         depth = stereo_depth(
             left,
-            decode_image(frames["cam_right"]),
+            decode_image(frames[right_name]),
             float(left_camera.matrix[0, 0]),
             baseline_m,
             settings.stereo_disparities,

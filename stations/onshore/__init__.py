@@ -34,6 +34,7 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
+from abyss.common.robot import robot_of
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
 from abyss.scene.export import save_snapshot
 from abyss.scene.receiver import ShoreScene
@@ -56,7 +57,7 @@ def run(config: Config, bus: Bus) -> None:
     earlier = [read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER]
     operator = Operator(config.mission, *earlier)  # a restarted shore goes on with what it had
     sinks = Sinks(config.onshore, bus.system)
-    viewer = Viewer(sinks.recording) if sinks.recording is not None else None
+    viewer = Viewer(sinks.recording, robot_of(config)) if sinks.recording is not None else None
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)
     inboxes = _Inboxes(bus)
     rate = bus.loop("display", PERIOD_S)

@@ -35,7 +35,7 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.models import ARM_JOINTS, ROBOT_FILE
+from abyss.common.robot import Robot
 from abyss.stations.onshore.layout import blueprint
 
 RECORDING_FILE = "onshore.rrd"
@@ -202,11 +202,12 @@ class Viewer:
     wall clock [s since the epoch], set as the `stamp` timeline (and `sim_time` when the message
     carries the simulated time [s])."""
 
-    def __init__(self, recording: rr.RecordingStream) -> None:
+    def __init__(self, recording: rr.RecordingStream, robot: Robot) -> None:
+        """`robot`: the robot shown (common.robot), its model posed from telemetry."""
         self.recording = recording
-        self.model = mujoco.MjModel.from_xml_path(str(ROBOT_FILE))
+        self.model = mujoco.MjModel.from_xml_path(str(robot.model_file))
         self.data = mujoco.MjData(self.model)
-        self.joint_qpos = [self.model.joint(name).qposadr[0] for name in ARM_JOINTS]
+        self.joint_qpos = [self.model.joint(name).qposadr[0] for name in robot.arm_joints]
         self.body_paths = ["world"]
         for body in range(1, self.model.nbody):
             parent = self.body_paths[self.model.body_parentid[body]]

@@ -31,7 +31,8 @@ from abyss.common.messages import (
     SimulationStatus,
     VelocityRef,
 )
-from abyss.common.models import CAMERAS, stereo_set
+from abyss.common.models import stereo_set
+from abyss.common.robot import robot_of
 from abyss.common.workers import Realtime, Workers
 
 if TYPE_CHECKING:
@@ -287,10 +288,10 @@ def _sensor_loop(
 
 def cameras_of_set(config: Config, sim_time_s: float) -> tuple[str, ...]:
     """The cameras rendered for the frame set taken at `sim_time_s` [s]: each at the rate it is
-    consumed, cam_right only on the sets onboard's stereo matcher uses (common.models.stereo_set),
-    and not at all without the stereo source."""
-    onboard = config.onboard
+    consumed, the stereo pair's right camera only on the sets onboard's stereo matcher uses
+    (common.models.stereo_set), and not at all without the stereo source."""
+    onboard, robot = config.onboard, robot_of(config)
     right = "stereo" in onboard.cloud_sources and stereo_set(
         sim_time_s, config.simulation.camera_rate_hz, onboard.stereo_every
     )
-    return tuple(camera for camera in CAMERAS if camera != "cam_right" or right)
+    return tuple(camera for camera in robot.cameras if camera != robot.stereo_right or right)

@@ -12,7 +12,7 @@ from abyss.stations.simulation.rendering import Cameras
 
 def encode_image(cameras: Cameras, data: object, camera: str, jpeg_quality: int) -> Image:
     intrinsics = cameras.intrinsics(camera)
-    if camera == "cam_depth":
+    if camera == cameras.depth_camera:
         depth = cameras.depth_m(data, camera)  # a fresh array: to millimetres in place
         np.divide(depth, DEPTH_SCALE_M, out=depth)
         depth_mm = np.clip(depth, 0, 65535, out=depth).astype(np.uint16)

@@ -13,32 +13,34 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from abyss.common.models import ARM_JOINTS, GRIPPER_JOINTS
+from abyss.common.robot import COMMANDED_AXES, Robot
 from abyss.stations.simulation.hydrodynamics import VehicleModel
-from abyss.stations.simulation.thrusters import ACTUATED, Thrusters
+from abyss.stations.simulation.thrusters import Thrusters
 
 
 @dataclass(frozen=True)
 class References:
     vehicle_body: np.ndarray  # (4,) surge, sway, heave [m/s], yaw rate [rad/s]
-    arm_radps: np.ndarray  # (6,)
+    arm_radps: np.ndarray  # (arm joints,)
     gripper_mps: float
 
     @staticmethod
     def hold() -> References:
-        return References(np.zeros(4), np.zeros(6), 0.0)
+        """Everything still: the arm's references one zero, which broadcasts over however many
+        joints the robot's arm has."""
+        return References(np.zeros(4), np.zeros(1), 0.0)
 
 
 class Plant:
-    """Index bookkeeping shared by both controllers."""
+    """Index bookkeeping shared by both controllers: where the robot's base, arm and gripper sit."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
-        joint = model.joint("vehicle")
+    def __init__(self, model: mujoco.MjModel, robot: Robot) -> None:
+        joint = model.joint(robot.base)
         self.qpos, self.qvel = joint.qposadr[0], joint.dofadr[0]
-        self.arm_dofs = np.array([model.joint(n).dofadr[0] for n in ARM_JOINTS])
-        self.gripper_dofs = np.array([model.joint(n).dofadr[0] for n in GRIPPER_JOINTS])
-        self.arm_motors = np.array([model.actuator(n).id for n in ARM_JOINTS])
-        self.gripper_motors = np.array([model.actuator(n).id for n in GRIPPER_JOINTS])
+        self.arm_dofs = np.array([model.joint(n).dofadr[0] for n in robot.arm_joints])
+        self.gripper_dofs = np.array([model.joint(n).dofadr[0] for n in robot.gripper_joints])
+        self.arm_motors = np.array([model.actuator(n).id for n in robot.arm_joints])
+        self.gripper_motors = np.array([model.actuator(n).id for n in robot.gripper_joints])
 
     def rotation(self, data: mujoco.MjData) -> np.ndarray:
         rotation = np.empty(9)
@@ -54,8 +56,8 @@ class Plant:
 class Kinematic:
     dynamics = False  # the world integrates positions from these velocities, no forces
 
-    def __init__(self, model: mujoco.MjModel, gains: object = None, vehicle: object = None) -> None:
-        self.plant = Plant(model)
+    def __init__(self, model: mujoco.MjModel, gains: object, vehicle: object, robot: Robot) -> None:
+        self.plant = Plant(model, robot)
 
     def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
         p = self.plant
@@ -81,10 +83,17 @@ class PidGains:
 class Dynamic:
     dynamics = True
 
-    def __init__(self, model: mujoco.MjModel, gains: PidGains, vehicle: VehicleModel) -> None:
-        self.plant = Plant(model)
-        self.thrusters = Thrusters(model, vehicle.thrusters)
-        self.damping = (vehicle.linear_damping[ACTUATED], vehicle.quadratic_damping[ACTUATED])
+    def __init__(self, model: mujoco.MjModel, gains: PidGains, vehicle: VehicleModel, robot: Robot) -> None:
+        self.plant = Plant(model, robot)
+        self.thrusters = Thrusters(model, vehicle.thrusters, robot.base)
+        actuated = self.thrusters.actuated
+        # the PID runs on the commanded axes (surge, sway, heave, yaw); the allocation takes those
+        # the thrusters move (all four on the shipped layout)
+        self.allocated = np.array([COMMANDED_AXES.index(int(a)) for a in actuated])
+        self.damping = (
+            vehicle.linear_damping[list(COMMANDED_AXES)],
+            vehicle.quadratic_damping[list(COMMANDED_AXES)],
+        )
         self.gains = gains
         self._vehicle_kp, self._vehicle_ki, self._vehicle_kd = (
             np.array(gains.vehicle_kp),
@@ -93,7 +102,7 @@ class Dynamic:
         )
         self.vehicle_integral = np.zeros(4)
         self.vehicle_error = np.zeros(4)
-        self.arm_integral = np.zeros(6)
+        self.arm_integral = np.zeros(len(robot.arm_joints))
         self.arm_force_limit = model.actuator_forcerange[self.plant.arm_motors, 1]
         servos = ((self.plant.arm_motors, gains.arm_kp), (self.plant.gripper_motors, gains.gripper_kp))
         for motors, kv in servos:
@@ -102,7 +111,7 @@ class Dynamic:
 
     def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
         p, g = self.plant, self.gains
-        velocity = p.vehicle_velocity_body(data)[ACTUATED]
+        velocity = p.vehicle_velocity_body(data)[list(COMMANDED_AXES)]
         error = ref.vehicle_body - velocity
         derivative = (error - self.vehicle_error) / dt_s
         self.vehicle_error[:] = error
@@ -113,9 +122,10 @@ class Dynamic:
         wrench4 = feed_forward + self._vehicle_kp * error + self._vehicle_kd * derivative
         candidate = self.vehicle_integral + error * dt_s
         wrench4 = wrench4 + self._vehicle_ki * candidate
-        thrust = self.thrusters.allocate_actuated(wrench4)
-        shortfall = np.abs(self.thrusters.actuated_allocation @ thrust - wrench4)
-        if (shortfall <= 1e-6 + 1e-6 * np.abs(wrench4)).all():  # np.allclose's test, rtol = atol = 1e-6
+        allocated = wrench4[self.allocated]
+        thrust = self.thrusters.allocate_actuated(allocated)
+        shortfall = np.abs(self.thrusters.actuated_allocation @ thrust - allocated)
+        if (shortfall <= 1e-6 + 1e-6 * np.abs(allocated)).all():  # np.allclose's test, rtol = atol = 1e-6
             self.vehicle_integral[:] = candidate  # anti-windup: integrate only when not saturated
         self.thrusters.apply(data, thrust, dt_s)
         # arm: the proportional part is MuJoCo's implicit velocity servo (kv = arm_kp); the

@@ -22,6 +22,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from abyss.common.robot import COMMANDED_AXES
 from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.lowlevel import Dynamic, References
 from abyss.stations.simulation.strips import ArmStrips
@@ -214,15 +215,24 @@ class LowLevel:
     entries) is the Python objects' own arrays, so either path can take over from the other."""
 
     LIMIT = 64  # thrusters, and dofs that move the arm's links: C's scratch
+    ARM_JOINTS, FINGERS = 6, 2  # C's struct's arm and gripper
 
     @staticmethod
     def of(controller: object, strips: ArmStrips | None) -> LowLevel | None:
         """For this controller and this strip model, or None where C does not have them (the library
-        not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs)."""
+        not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs; an
+        arm, gripper or thrust layout other than its struct's)."""
         lib = library()
         if lib is None or not isinstance(controller, Dynamic) or strips is None:
             return None
         if len(controller.thrusters.actuators) > LowLevel.LIMIT or len(strips.dofs) > LowLevel.LIMIT:
+            return None
+        plant = controller.plant
+        if (  # C's struct: six arm joints, two fingers at most, thrust in surge, sway, heave and yaw
+            len(plant.arm_dofs) != LowLevel.ARM_JOINTS
+            or len(plant.gripper_dofs) > LowLevel.FINGERS
+            or tuple(controller.thrusters.actuated) != COMMANDED_AXES
+        ):
             return None
         return LowLevel(lib, controller, strips)
 

@@ -16,7 +16,7 @@ import numpy as np
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.geometry import quat_multiply, small_rotation_wxyz
 from abyss.common.messages import NavState
-from abyss.common.models import NAV_SENSORS
+from abyss.common.robot import NavSensorsSection
 
 SOUND_SPEED_MPS = 1500.0
 SEAWATER_PA_PER_M = 1025.0 * 9.81  # hydrostatic pressure per metre of depth [Pa/m]
@@ -33,10 +33,11 @@ class Fix:
 
 
 class Navigation:
-    def __init__(self, config: SimulationConfig, rng: np.random.Generator) -> None:
+    def __init__(self, config: SimulationConfig, rng: np.random.Generator, sensors: NavSensorsSection) -> None:
         self.config = config
         self.rng = rng
-        self.scale = dict.fromkeys(NAV_SENSORS, 1.0)  # faults raise these
+        self.sensors = sensors  # the robot's names of its sensors, as faults target them
+        self.scale = dict.fromkeys((sensors.usbl, sensors.depth, sensors.dvl, sensors.imu), 1.0)  # faults raise these
         self.gyro_bias_radps = np.zeros(3)
         self.pending: list[Fix] = []  # measured, not delivered yet
         self.latest: Fix | None = None  # the latest delivered
@@ -59,15 +60,15 @@ class Navigation:
             self.pending.remove(fix)
             self.latest = fix
         self.gyro_bias_radps = self.gyro_bias_radps + n(0, c.gyro_bias_walk_radps * math.sqrt(dt), 3)
-        attitude_error = small_rotation_wxyz(n(0, c.imu_sigma_rad * k["imu"], 3))
+        attitude_error = small_rotation_wxyz(n(0, c.imu_sigma_rad * k[self.sensors.imu], 3))
         orientation = quat_multiply(truth.orientation_wxyz_world, attitude_error)
-        pressure_pa = -truth.position_m_world[2] * SEAWATER_PA_PER_M + n(0, c.pressure_sigma_pa * k["depth"])
+        pressure_pa = -truth.position_m_world[2] * SEAWATER_PA_PER_M + n(0, c.pressure_sigma_pa * k[self.sensors.depth])
         velocity = np.zeros(3)
         if bottom_lock:
             velocity = (
                 (1.0 + c.dvl_scale_error) * truth.velocity_mps_body
                 + np.array(c.dvl_offset_mps_body)
-                + n(0, c.dvl_sigma_mps * k["dvl"], 3)
+                + n(0, c.dvl_sigma_mps * k[self.sensors.dvl], 3)
             )
         return NavState(
             position_m_world=np.zeros(3) if self.latest is None else self.latest.position_m_world,
@@ -76,7 +77,7 @@ class Navigation:
             angular_velocity_radps_body=(
                 truth.angular_velocity_radps_body
                 + self.gyro_bias_radps
-                + n(0, 0.1 * c.imu_sigma_rad * k["imu"], 3)
+                + n(0, 0.1 * c.imu_sigma_rad * k[self.sensors.imu], 3)
             ),
             sim_time_s=now_s,
             usbl_time_s=-1.0 if self.latest is None else self.latest.measured_s,
@@ -89,7 +90,7 @@ class Navigation:
         c, n = self.config, self.rng.normal
         if self.rng.random() < c.usbl_dropout_probability:
             return
-        position = truth.position_m_world + n(0, c.usbl_sigma_m * self.scale["usbl"], 3)
+        position = truth.position_m_world + n(0, c.usbl_sigma_m * self.scale[self.sensors.usbl], 3)
         if self.rng.random() < c.usbl_outlier_probability:
             heading_rad = self.rng.uniform(0.0, 2 * math.pi)
             position = position + c.usbl_outlier_m * np.array(

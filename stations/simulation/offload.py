@@ -124,6 +124,7 @@ class _Sensor:
         self.data = mujoco.MjData(model)
         rng = np.random.default_rng(seed)
         if kind == "cameras":
+            from abyss.common.robot import robot_at
             from abyss.stations.simulation.rendering import Cameras
 
             self.cameras = Cameras(
@@ -134,6 +135,7 @@ class _Sensor:
                 config.marine_snow,
                 rng,
                 config.camera_samples,
+                depth_camera=robot_at(config.robot).depth_camera,
             )
         else:
             from abyss.stations.simulation.sonar import ImagingSonar

@@ -71,7 +71,8 @@ class Intrinsics:
 
 
 class Cameras:
-    """RGB for the stereo pair, depth [m along the optical axis] for the depth camera. With a
+    """RGB for the stereo pair, depth [m along the optical axis] for the depth camera (the robot's
+    `depth_camera`, which encoding.encode_image encodes as depth). With a
     `water` type (optics.WATER_TYPES), each RGB frame goes through the underwater optics, with
     its range from a depth render of the same camera, instead of MuJoCo's fog; the depth camera
     is a range sensor, which the water leaves alone.
@@ -89,10 +90,14 @@ class Cameras:
         marine_snow: float = 1.0,
         rng: np.random.Generator | None = None,
         samples: int = 4,
+        *,
+        depth_camera: str,
     ) -> None:
+        """`depth_camera`: the robot's range camera (common.robot), rendered as depth."""
         import mujoco
 
         self.model = model
+        self.depth_camera = depth_camera
         self.width_px, self.height_px = width_px, height_px
         visual, quality = model.vis.global_, model.vis.quality  # type: ignore[attr-defined]
         kept = visual.offwidth, visual.offheight, quality.offsamples

@@ -11,31 +11,22 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from abyss.common.robot import actuated_axes, thrust_matrix
 from abyss.stations.simulation.hydrodynamics import ThrusterSpec
-
-# The vehicle has thrust in surge, sway, heave and yaw; roll and pitch are left to its
-# hydrostatic restoring moment, as on the original vehicle.
-ACTUATED = np.array([0, 1, 2, 5])  # rows of the body wrench (fx, fy, fz, mx, my, mz)
-ACTUATED.flags.writeable = False
 
 
 class Thrusters:
+    """The thrusters of the vehicle's body `body`. The axes they drive (`actuated`, rows of the body
+    wrench fx, fy, fz, mx, my, mz) are those of surge, sway, heave and yaw their layout moves
+    (common.robot.actuated_axes); roll and pitch are left to the hydrostatic restoring moment."""
+
     def __init__(self, model: mujoco.MjModel, spec: ThrusterSpec, body: str = "vehicle") -> None:
-        b = model.body(body).id
-        com = model.body_ipos[b]
         self.spec = spec
         self.actuators = np.array([model.actuator(name).id for name in spec.names])
-        columns = []
-        for name in spec.names:
-            site = model.site(name)
-            if site.bodyid[0] != b:
-                raise ValueError(f"thruster {name} is not on {body}")
-            rotation = np.empty(9)
-            mujoco.mju_quat2Mat(rotation, site.quat)
-            axis = rotation.reshape(3, 3)[:, 2]
-            columns.append(np.r_[axis, np.cross(site.pos - com, axis)])
-        self.allocation = np.array(columns).T  # 6 x n: wrench about the centre of mass per N
-        self.actuated_allocation = self.allocation[ACTUATED]  # 4 x n
+        self.allocation = thrust_matrix(model, body, spec.names)  # 6 x n: wrench about the centre of mass per N
+        self.actuated = np.array(actuated_axes(self.allocation))
+        self.actuated.flags.writeable = False
+        self.actuated_allocation = self.allocation[self.actuated]  # 4 x n for surge, sway, heave, yaw
         self.pseudo_inverse = np.linalg.pinv(self.actuated_allocation)
         n = len(spec.names)
         self.efficiency = np.ones(n)  # faults: 0 failed, <1 weakened
@@ -44,10 +35,10 @@ class Thrusters:
     def allocate(self, wrench_body: np.ndarray) -> np.ndarray:
         """Thrusts [N] for a body wrench [N, N m] (its actuated part), scaled down together
         so that none exceeds its limit in its direction (the direction of the wrench is kept)."""
-        return self.allocate_actuated(np.asarray(wrench_body)[ACTUATED])
+        return self.allocate_actuated(np.asarray(wrench_body)[self.actuated])
 
     def allocate_actuated(self, wrench_actuated: np.ndarray) -> np.ndarray:
-        """As `allocate`, from the actuated part of the wrench alone (surge, sway, heave, yaw)."""
+        """As `allocate`, from the actuated part of the wrench alone (its rows `actuated`)."""
         thrust = self.pseudo_inverse @ wrench_actuated
         excess = (np.abs(thrust) / self.max_thrust_n(thrust)).max()
         return thrust / max(1.0, float(excess))

@@ -21,16 +21,8 @@ from abyss.common.messages import (
     SimulationControl,
     VelocityRef,
 )
-from abyss.common.models import (
-    ARM_JOINTS,
-    CAMERAS,
-    GRIPPER_JOINTS,
-    NAV_SENSORS,
-    VEHICLE_FILE,
-    WORLD_FILE,
-    panel,
-    place_at_start,
-)
+from abyss.common.models import panel, place_at_start, world_file
+from abyss.common.robot import Robot, robot_at
 from abyss.common.runfiles import write_whole
 from abyss.stations.simulation.faults import ACTIONS as FAULT_ACTIONS
 from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
@@ -64,9 +56,10 @@ def _gains(config: SimulationConfig) -> PidGains:
     )
 
 
-def _load_vehicle(model: mujoco.MjModel, config: SimulationConfig) -> VehicleModel:
-    """The vehicle file (the configuration's, or robot.xml's own), its thrusters the MJCF's motors."""
-    vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else VEHICLE_FILE)
+def _load_vehicle(model: mujoco.MjModel, config: SimulationConfig, robot: Robot) -> VehicleModel:
+    """The vehicle file (the configuration's, or the robot package's own), its thrusters the MJCF's
+    motors."""
+    vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else robot.file)
     missing = [
         n for n in vehicle.thrusters.names if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0
     ]
@@ -77,11 +70,11 @@ def _load_vehicle(model: mujoco.MjModel, config: SimulationConfig) -> VehicleMod
     return vehicle
 
 
-def _arm_strips(model: mujoco.MjModel, buoyancy: Buoyancy) -> ArmStrips:
-    """The strip model of the arm (every wet body but the vehicle), in place of MuJoCo's fluid
-    model of its geoms; ConfigError where a wet geom has a shape it has no member for."""
+def _arm_strips(model: mujoco.MjModel, buoyancy: Buoyancy, base: str) -> ArmStrips:
+    """The strip model of the arm (every wet body but the vehicle, `base`), in place of MuJoCo's
+    fluid model of its geoms; ConfigError where a wet geom has a shape it has no member for."""
     wet = wet_geoms(model)
-    vehicle = model.body("vehicle").id
+    vehicle = model.body(base).id
     arm = sorted({int(b) for b in model.geom_bodyid[wet]} - {vehicle})
     try:
         strips = ArmStrips(model, arm, buoyancy, wet)
@@ -96,11 +89,12 @@ def _arm_strips(model: mujoco.MjModel, buoyancy: Buoyancy) -> ArmStrips:
 class World:
     def __init__(self, config: SimulationConfig, rng: np.random.Generator) -> None:
         self.config = config
-        self.model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
+        self.robot = robot = robot_at(config.robot)
+        self.model = mujoco.MjModel.from_xml_path(str(world_file(robot)))
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
-        self.vehicle = _load_vehicle(self.model, config)
-        self.controller = LOW_LEVELS[config.low_level](self.model, _gains(config), self.vehicle)
+        self.vehicle = _load_vehicle(self.model, config, robot)
+        self.controller = LOW_LEVELS[config.low_level](self.model, _gains(config), self.vehicle, robot)
         self.plant = self.controller.plant
         self._marine_models(config)
         self.marine: Marine | None = None
@@ -110,13 +104,13 @@ class World:
             config.current_profile, config.current_sigma_mps, config.current_time_constant_s, rng
         )
         self.water_mps_world = np.zeros(3)  # the current where the vehicle is
-        self.navigation = Navigation(config, rng)
+        self.navigation = Navigation(config, rng, robot.nav_sensors)
         self.faults: dict[str, float] = {}
         self._index_parts()
-        place_at_start(self.model, self.data.qpos, config.start_position_m_world, config.start_yaw_rad)
+        place_at_start(self.model, self.data.qpos, robot, config.start_position_m_world, config.start_yaw_rad)
         mujoco.mj_forward(self.model, self.data)
         self.dvl = DvlBeams(
-            self.model, self.model.body("vehicle").id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
+            self.model, self.model.body(robot.base).id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
         )
 
     def _marine_models(self, config: SimulationConfig) -> None:
@@ -125,13 +119,13 @@ class World:
         rho = WATER_DENSITY_KGPM3
         self.hydrodynamics: Fossen | None = None
         if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
-            self.hydrodynamics = Fossen(self.model, self.vehicle, rho_kgpm3=rho)
+            self.hydrodynamics = Fossen(self.model, self.vehicle, self.robot.base, rho_kgpm3=rho)
         self.buoyancy = Buoyancy(
-            self.model, dry=() if self.hydrodynamics is None else ("vehicle",), rho_kgpm3=rho
+            self.model, dry=() if self.hydrodynamics is None else (self.robot.base,), rho_kgpm3=rho
         )
         self.strips: ArmStrips | None = None
         if config.arm_hydrodynamics == "strips":  # the strip model replaces the arm's ellipsoids
-            self.strips = _arm_strips(self.model, self.buoyancy)
+            self.strips = _arm_strips(self.model, self.buoyancy, self.robot.base)
         # the strip model applies the arm's buoyancy with its drag, in one pass
         self._buoyancy_apart = self.strips is None or not set(self.buoyancy.bodies) <= set(self.strips.bodies)
         # MuJoCo's fluid model, where it still carries a part: its passive forces and their
@@ -151,7 +145,7 @@ class World:
         self._part_joints = np.array([self.model.joint(n).id for n in self.parts])
         self._part_range_rad = self.model.jnt_range[self._part_joints].copy()
         self._part_bodies = np.array([self.model.body(n).id for n in self.parts])
-        self._finger_bodies = {self.model.body(n).id for n in GRIPPER_JOINTS}
+        self._finger_bodies = {int(self.model.joint(n).bodyid[0]) for n in self.robot.gripper_joints}
         robot_dofs = np.r_[
             np.arange(self.plant.qvel, self.plant.qvel + 6), self.plant.arm_dofs, self.plant.gripper_dofs
         ]
@@ -256,10 +250,10 @@ class World:
     def joints(self) -> JointState:
         d, p = self.data, self.plant
         return JointState(
-            positions_rad=np.array([d.qpos[self.model.joint(n).qposadr[0]] for n in ARM_JOINTS]),
+            positions_rad=np.array([d.qpos[self.model.joint(n).qposadr[0]] for n in self.robot.arm_joints]),
             velocities_radps=d.qvel[p.arm_dofs].copy(),
             gripper_opening_m=float(
-                np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]] for n in GRIPPER_JOINTS), 0.0, 1.0)
+                np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]] for n in self.robot.gripper_joints), 0.0, 1.0)
             ),
             sim_time_s=float(d.time),
             gripper_force_n=float(np.mean(np.abs(d.actuator_force[p.gripper_motors]))),
@@ -311,8 +305,10 @@ class World:
 
     # -- faults --------------------------------------------------------------------------
     def model_names(self) -> ModelNames:
-        """The names of this world's parts that faults target (its vehicle file's thrusters)."""
-        return ModelNames(tuple(self.vehicle.thrusters.names), CAMERAS, NAV_SENSORS, self.parts)
+        """The names of this world's parts that faults target (its vehicle file's thrusters, its
+        robot's cameras and navigation sensors, the panel's parts)."""
+        robot = self.robot
+        return ModelNames(tuple(self.vehicle.thrusters.names), robot.cameras, robot.nav_sensor_names, self.parts)
 
     def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:
         """Apply a row of the fault table through the simulation's action for it (faults.py);

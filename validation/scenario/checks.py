@@ -20,7 +20,8 @@ import numpy as np
 from abyss.common import keys
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
-from abyss.common.models import ARM_JOINTS, WORLD_FILE, panel
+from abyss.common.models import panel
+from abyss.common.robot import Robot, robot_at
 from abyss.common.reading import OneOf
 
 Outcome = Literal["done", "failed"]  # of an intervention
@@ -54,6 +55,7 @@ class Run:
     states: list[tuple[float, Telemetry]] = field(default_factory=list)  # (s since all up, state)
     commands: list[dict[str, Any]] = field(default_factory=list)
     killed: int = 0  # stations the scenario killed on purpose
+    robot: str = ""  # the robot package the run flew (simulation.robot; "" the shipped one)
 
 
 @dataclass(frozen=True)
@@ -219,23 +221,24 @@ def arm_limits(run: Run, margin_deg: float = 1.0) -> tuple[bool, str]:
     are soft) in any of onboard's states."""
     if not run.states:
         return False, "no onboard state was recorded"
-    low_rad, high_rad = arm_ranges_rad()
+    robot = robot_at(run.robot)
+    low_rad, high_rad = arm_ranges_rad(robot)
     margin_rad = math.radians(margin_deg)
     q = np.array([s.arm_positions_rad for _, s in run.states])
     past_rad = np.maximum(low_rad - q, q - high_rad).max(axis=0)
     worst = int(np.argmax(past_rad))
     return bool(past_rad.max() <= margin_rad), (
-        f"{len(q)} states; nearest a limit: {ARM_JOINTS[worst]} at {math.degrees(past_rad[worst]):+.1f} deg "
+        f"{len(q)} states; nearest a limit: {robot.arm_joints[worst]} at {math.degrees(past_rad[worst]):+.1f} deg "
         f"from it (allowed {margin_deg:g} deg past)"
     )
 
 
-def arm_ranges_rad() -> tuple[np.ndarray, np.ndarray]:
-    """The arm's joint ranges [rad] as the world's model (MuJoCo) has them, lower and upper."""
+def arm_ranges_rad(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """The arm's joint ranges [rad] as the robot's model (MuJoCo) has them, lower and upper."""
     import mujoco
 
-    model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
-    ranges = np.array([model.jnt_range[model.joint(name).id] for name in ARM_JOINTS])
+    model = mujoco.MjModel.from_xml_path(str(robot.model_file))
+    ranges = np.array([model.jnt_range[model.joint(name).id] for name in robot.arm_joints])
     return ranges[:, 0], ranges[:, 1]
 
 

@@ -240,7 +240,7 @@ def run_scenario(
     up = System(scenario, system_id, out_dir, say)
     if started is not None:
         started(up, system_id)
-    run = Run({})
+    run = Run({}, robot=scenario.configuration.simulation.robot)
     error = ""
     try:
         timeout_s = START_TIMEOUT_S + (EXTERNAL_TIMEOUT_S if scenario.external else 0.0)

@@ -17,12 +17,12 @@ from abyss.cli.args import (
 from abyss.common import faults, keys
 from abyss.common.bus import message_of
 from abyss.common.errors import BadInput, ConfigError
-from abyss.common.robot import robot_at
 from abyss.common.messages import (
     SimulationControl,
     SimulationStatus,
     encode,
 )
+from abyss.common.robot import robot_at
 
 
 def fault_control(fault: str, target: str, value: float, robot: str = "") -> SimulationControl:
@@ -128,7 +128,10 @@ def add_commands(sub: Any) -> None:
     p.add_argument("target", nargs="?", default="", help="the part it acts on (below, by fault)")
     p.add_argument("value", nargs="?", type=float, default=0.0, help="its setting (below, by fault)")
     p.add_argument(
-        "--robot", default="", metavar="DIR", help="the running robot's package (simulation.robot); the shipped one by default"
+        "--robot",
+        default="",
+        metavar="DIR",
+        help="the running robot's package (simulation.robot); the shipped one by default",
     )
     connect_args(p)
     p.set_defaults(func=cmd_fault)

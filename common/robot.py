@@ -276,7 +276,9 @@ def _check_arm(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
         joint = model.joint(name)
         lo, hi = joint.range
         if joint.limited[0] and not lo <= angle_rad <= hi:
-            raise ConfigError("arm.stowed_rad", f"{name} at {angle_rad} rad: outside [{lo:.4g}, {hi:.4g}]", str(path))
+            raise ConfigError(
+                "arm.stowed_rad", f"{name} at {angle_rad} rad: outside [{lo:.4g}, {hi:.4g}]", str(path)
+            )
     if not 0.0 < arm.gripper.opening_m <= sum(model.joint(n).range[1] for n in arm.gripper.joints) + 1e-9:
         raise ConfigError(
             "arm.gripper.opening_m",
@@ -312,11 +314,17 @@ def added_mass_matrix(section: dict[str, Any], path: Path) -> np.ndarray:
 
 def _check_added_mass(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
     mass = added_mass_matrix(spec.added_mass, path)
-    if not np.all(np.isfinite(mass)) or not np.allclose(mass, mass.T) or np.min(np.linalg.eigvalsh(mass)) <= 0:
+    if (
+        not np.all(np.isfinite(mass))
+        or not np.allclose(mass, mass.T)
+        or np.min(np.linalg.eigvalsh(mass)) <= 0
+    ):
         raise ConfigError("added_mass", "must be symmetric and positive definite", str(path))
 
 
-def thrust_matrix(model: mujoco.MjModel, body: str, names: tuple[str, ...], path: Path | None = None) -> np.ndarray:
+def thrust_matrix(
+    model: mujoco.MjModel, body: str, names: tuple[str, ...], path: Path | None = None
+) -> np.ndarray:
     """(6, n): the body wrench about `body`'s centre of mass per newton of each thruster, each
     pushing along its site's z axis; ConfigError (naming `path`) for a site not on `body`."""
     import mujoco
@@ -346,6 +354,8 @@ def actuated_axes(allocation: np.ndarray, path: Path | None = None) -> tuple[int
     if HEAVE not in taken:
         moved = ", ".join(AXIS_NAMES[a] for a in taken) or "nothing"
         raise ConfigError(
-            "thrusters.names", f"the thrusters cannot move the vehicle in heave (they move {moved})", str(path or "")
+            "thrusters.names",
+            f"the thrusters cannot move the vehicle in heave (they move {moved})",
+            str(path or ""),
         )
     return tuple(taken)

@@ -167,7 +167,11 @@ def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
             ee_error_m = goal.position_m_world - ee_m
             relative = rotation_of(ee_wxyz).T @ rotation_of(goal.orientation_wxyz_world)
             ee_error_rad = float(np.arccos(np.clip((np.trace(relative) - 1) / 2, -1.0, 1.0)))
-    joints = session.joints.positions_rad if session.joints is not None else np.zeros(len(session.robot.arm_joints))
+    joints = (
+        session.joints.positions_rad
+        if session.joints is not None
+        else np.zeros(len(session.robot.arm_joints))
+    )
     return Telemetry(
         position_m_world=position,
         yaw_rad=yaw,

@@ -42,7 +42,9 @@ class ArmFrames:
         # (parent body, child, moving): each body on the vehicle, and the tool point
         self.links: list[tuple[int, int, bool]] = []
         for i, frame in enumerate(frames):
-            if (frame.type == pin.FrameType.BODY and i != self.vehicle) or frame.name == robot.end_effector_site:
+            if (
+                frame.type == pin.FrameType.BODY and i != self.vehicle
+            ) or frame.name == robot.end_effector_site:
                 parent = frame.parentFrame
                 while frames[parent].type != pin.FrameType.BODY:  # past the joint's own frame
                     parent = frames[parent].parentFrame

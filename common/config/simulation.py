@@ -106,7 +106,8 @@ class SimulationConfig:
             robot = Path(self.robot).expanduser()
             if not (robot / "robot.toml").is_file():
                 raise ConfigError(
-                    "simulation.robot", f"{robot.resolve()}: not a robot package (a directory with robot.toml)"
+                    "simulation.robot",
+                    f"{robot.resolve()}: not a robot package (a directory with robot.toml)",
                 )
             object.__setattr__(self, "robot", str(robot.resolve()))
         if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's

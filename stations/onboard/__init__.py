@@ -27,8 +27,8 @@ from abyss.common.messages import (
     SonarImage,
     Waypoints,
 )
-from abyss.common.robot import robot_of
 from abyss.common.rate import Rate
+from abyss.common.robot import robot_of
 from abyss.common.shared import Latest
 from abyss.common.workers import Workers
 from abyss.stations.onboard.core import Onboard, OnboardInputs
@@ -109,7 +109,9 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
 
     robot = robot_of(config)
     core = FrameSets(config.onboard, config.simulation.camera_rate_hz, robot.spec.cameras)
-    inboxes = {camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in robot.cameras}
+    inboxes = {
+        camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in robot.cameras
+    }
     # where bad and shed frames are counted: the stereo pair's left camera's key
     key = keys.spec("simulation", f"camera/{robot.stereo_left}").key(bus.system)
     # with simulated time, a frame set being worked on holds the simulation (common.clock)

@@ -150,7 +150,11 @@ class ArmController:
     """End-effector position, then orientation, under joint limits and obstacle clearance."""
 
     def __init__(
-        self, cfg: OnboardConfig, mission: MissionConfig, robot: Robot, kinematics: ArmKinematics | None = None
+        self,
+        cfg: OnboardConfig,
+        mission: MissionConfig,
+        robot: Robot,
+        kinematics: ArmKinematics | None = None,
     ):
         self.cfg = cfg
         self.mission = mission
@@ -167,7 +171,9 @@ class ArmController:
         kin, joints, margin_rad = self.kinematics, len(self.arm_joints), cfg.joint_limit_margin_rad
         self.boxes = np.array(mission.obstacles, dtype=float).reshape(-1, 6)
         clearances = [
-            f"{point} clear of obstacle {j}" for point in robot.clearance_points for j in range(len(self.boxes))
+            f"{point} clear of obstacle {j}"
+            for point in robot.clearance_points
+            for j in range(len(self.boxes))
         ]
         self.constraint_names = (
             *(f"{name} {side}" for name in self.arm_joints for side in ("lower", "upper")),

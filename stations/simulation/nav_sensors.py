@@ -33,11 +33,15 @@ class Fix:
 
 
 class Navigation:
-    def __init__(self, config: SimulationConfig, rng: np.random.Generator, sensors: NavSensorsSection) -> None:
+    def __init__(
+        self, config: SimulationConfig, rng: np.random.Generator, sensors: NavSensorsSection
+    ) -> None:
         self.config = config
         self.rng = rng
         self.sensors = sensors  # the robot's names of its sensors, as faults target them
-        self.scale = dict.fromkeys((sensors.usbl, sensors.depth, sensors.dvl, sensors.imu), 1.0)  # faults raise these
+        self.scale = dict.fromkeys(
+            (sensors.usbl, sensors.depth, sensors.dvl, sensors.imu), 1.0
+        )  # faults raise these
         self.gyro_bias_radps = np.zeros(3)
         self.pending: list[Fix] = []  # measured, not delivered yet
         self.latest: Fix | None = None  # the latest delivered
@@ -62,7 +66,9 @@ class Navigation:
         self.gyro_bias_radps = self.gyro_bias_radps + n(0, c.gyro_bias_walk_radps * math.sqrt(dt), 3)
         attitude_error = small_rotation_wxyz(n(0, c.imu_sigma_rad * k[self.sensors.imu], 3))
         orientation = quat_multiply(truth.orientation_wxyz_world, attitude_error)
-        pressure_pa = -truth.position_m_world[2] * SEAWATER_PA_PER_M + n(0, c.pressure_sigma_pa * k[self.sensors.depth])
+        pressure_pa = -truth.position_m_world[2] * SEAWATER_PA_PER_M + n(
+            0, c.pressure_sigma_pa * k[self.sensors.depth]
+        )
         velocity = np.zeros(3)
         if bottom_lock:
             velocity = (

@@ -23,7 +23,9 @@ class Thrusters:
     def __init__(self, model: mujoco.MjModel, spec: ThrusterSpec, body: str = "vehicle") -> None:
         self.spec = spec
         self.actuators = np.array([model.actuator(name).id for name in spec.names])
-        self.allocation = thrust_matrix(model, body, spec.names)  # 6 x n: wrench about the centre of mass per N
+        self.allocation = thrust_matrix(
+            model, body, spec.names
+        )  # 6 x n: wrench about the centre of mass per N
         self.actuated = np.array(actuated_axes(self.allocation))
         self.actuated.flags.writeable = False
         self.actuated_allocation = self.allocation[self.actuated]  # 4 x n for surge, sway, heave, yaw

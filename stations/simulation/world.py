@@ -253,7 +253,9 @@ class World:
             positions_rad=np.array([d.qpos[self.model.joint(n).qposadr[0]] for n in self.robot.arm_joints]),
             velocities_radps=d.qvel[p.arm_dofs].copy(),
             gripper_opening_m=float(
-                np.clip(sum(d.qpos[self.model.joint(n).qposadr[0]] for n in self.robot.gripper_joints), 0.0, 1.0)
+                np.clip(
+                    sum(d.qpos[self.model.joint(n).qposadr[0]] for n in self.robot.gripper_joints), 0.0, 1.0
+                )
             ),
             sim_time_s=float(d.time),
             gripper_force_n=float(np.mean(np.abs(d.actuator_force[p.gripper_motors]))),
@@ -308,7 +310,9 @@ class World:
         """The names of this world's parts that faults target (its vehicle file's thrusters, its
         robot's cameras and navigation sensors, the panel's parts)."""
         robot = self.robot
-        return ModelNames(tuple(self.vehicle.thrusters.names), robot.cameras, robot.nav_sensor_names, self.parts)
+        return ModelNames(
+            tuple(self.vehicle.thrusters.names), robot.cameras, robot.nav_sensor_names, self.parts
+        )
 
     def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:
         """Apply a row of the fault table through the simulation's action for it (faults.py);

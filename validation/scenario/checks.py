@@ -21,8 +21,8 @@ from abyss.common import keys
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
 from abyss.common.models import panel
-from abyss.common.robot import Robot, robot_at
 from abyss.common.reading import OneOf
+from abyss.common.robot import Robot, robot_at
 
 Outcome = Literal["done", "failed"]  # of an intervention
 OUTCOMES: tuple[Outcome, ...] = typing.get_args(Outcome)

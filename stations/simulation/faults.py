@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from abyss.common.errors import BadInput
+from abyss.stations.simulation.lowlevel import Dynamic
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.world import World
@@ -28,12 +29,12 @@ class Action:
 
 
 def _thruster(world: World, target: str, efficiency: float, cameras: set[str]) -> None:
-    if world.controller.dynamics:  # in place: the physics in C reads the array
+    if isinstance(world.controller, Dynamic):  # in place: the physics in C reads the array
         world.controller.thrusters.efficiency[world.vehicle.thrusters.names.index(target)] = efficiency
 
 
 def _thrusters_healthy(world: World, cameras: set[str]) -> None:
-    if world.controller.dynamics:
+    if isinstance(world.controller, Dynamic):
         world.controller.thrusters.efficiency[:] = 1.0
 
 

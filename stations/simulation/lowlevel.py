@@ -138,4 +138,4 @@ class Dynamic:
         data.ctrl[p.gripper_motors] = ref.gripper_mps
 
 
-LOW_LEVELS = {"kinematic": Kinematic, "dynamic": Dynamic}
+LOW_LEVELS: dict[str, type[Kinematic] | type[Dynamic]] = {"kinematic": Kinematic, "dynamic": Dynamic}

@@ -10,6 +10,9 @@ from abyss.cli.operator import fault_control, fault_help
 from abyss.common import faults
 from abyss.common.errors import ConfigError
 from abyss.common.models import panel
+from abyss.common.robot import robot_at
+
+ROBOT = robot_at("")  # the shipped robot package
 
 
 def test_the_choices_and_the_help_are_the_table(capsys: pytest.CaptureFixture[str]) -> None:
@@ -21,7 +24,7 @@ def test_the_choices_and_the_help_are_the_table(capsys: pytest.CaptureFixture[st
         parser().parse_args(["fault", "spin"])
     assert "invalid choice: 'spin'" in capsys.readouterr().err
     text = fault_help()
-    names = faults.model_names()
+    names = faults.model_names(ROBOT)
     for row in faults.FAULT_TABLE.values():
         assert row.line() in text and row.value_range() in text
         assert all(target in text for target in faults.targets(row.name, names))

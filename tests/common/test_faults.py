@@ -11,7 +11,10 @@ import pytest
 from abyss.common import faults, keys
 from abyss.common.errors import BadInput
 from abyss.common.messages import FAULTS, SimulationControl
-from abyss.common.models import CAMERAS, THRUSTERS
+from abyss.common.robot import robot_at
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 ROOT = Path(__file__).resolve().parents[2]
 OTHER_ROBOT = faults.ModelNames(("t0", "t1"), ("eye",), ("gps",), ("tap",))  # no name of abyss's own
@@ -39,8 +42,8 @@ def test_the_message_the_keys_and_faults_are_the_table() -> None:
 
 
 def test_targets_are_the_models_names_by_kind() -> None:
-    assert faults.targets("thruster", faults.model_names()) == THRUSTERS
-    assert faults.targets("camera", faults.model_names()) == CAMERAS
+    assert faults.targets("thruster", faults.model_names(ROBOT)) == ROBOT.thrusters
+    assert faults.targets("camera", faults.model_names(ROBOT)) == ROBOT.cameras
     assert faults.targets("seize", OTHER_ROBOT) == ("tap",)
     assert faults.targets("noise", OTHER_ROBOT) == ("gps",)
     assert faults.targets("clear", OTHER_ROBOT) == ()

@@ -8,40 +8,43 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD, END_EFFECTOR_SITE, ROBOT_FILE, WORLD_FILE
+from abyss.common.models import world_file
+from abyss.common.robot import robot_at
+
+ROBOT = robot_at("")  # the shipped robot package
 
 
 @pytest.fixture(scope="module")
 def models() -> tuple[mujoco.MjModel, pin.Model]:
-    return mujoco.MjModel.from_xml_path(str(WORLD_FILE)), pin.buildModelFromMJCF(str(ROBOT_FILE))
+    return mujoco.MjModel.from_xml_path(str(world_file(ROBOT))), pin.buildModelFromMJCF(str(ROBOT.model_file))
 
 
 def test_forward_kinematics_and_jacobians_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
     mj, pm = models
     md, pd = mujoco.MjData(mj), pm.createData()
     rng = np.random.default_rng(7)
-    fid = pm.getFrameId(END_EFFECTOR_SITE)
-    arm_dofs_mj = [mj.joint(n).dofadr[0] for n in ARM_JOINTS]
-    arm_dofs_pin = [pm.joints[pm.getJointId(n)].idx_v for n in ARM_JOINTS]
+    fid = pm.getFrameId(ROBOT.end_effector_site)
+    arm_dofs_mj = [mj.joint(n).dofadr[0] for n in ROBOT.arm_joints]
+    arm_dofs_pin = [pm.joints[pm.getJointId(n)].idx_v for n in ROBOT.arm_joints]
     for _ in range(50):
         position = rng.uniform(-5, 5, 3)
         quat_wxyz = rng.normal(size=4)
         quat_wxyz /= np.linalg.norm(quat_wxyz)
-        arm = [rng.uniform(*mj.joint(n).range) for n in ARM_JOINTS]
+        arm = [rng.uniform(*mj.joint(n).range) for n in ROBOT.arm_joints]
         md.qpos[:] = mj.qpos0
         md.qpos[0:3], md.qpos[3:7] = position, quat_wxyz
-        for name, value in zip(ARM_JOINTS, arm, strict=True):
+        for name, value in zip(ROBOT.arm_joints, arm, strict=True):
             md.qpos[mj.joint(name).qposadr[0]] = value
         mujoco.mj_kinematics(mj, md)
         mujoco.mj_comPos(mj, md)
         q = pin.neutral(pm)
         q[0:3], q[3:7] = position, np.r_[quat_wxyz[1:], quat_wxyz[0]]  # Pinocchio: x, y, z, w
-        for name, value in zip(ARM_JOINTS, arm, strict=True):
+        for name, value in zip(ROBOT.arm_joints, arm, strict=True):
             q[pm.joints[pm.getJointId(name)].idx_q] = value
         pin.forwardKinematics(pm, pd, q)
         pin.updateFramePlacements(pm, pd)
         pin.computeJointJacobians(pm, pd, q)
-        site = mj.site(END_EFFECTOR_SITE).id
+        site = mj.site(ROBOT.end_effector_site).id
         np.testing.assert_allclose(pd.oMf[fid].translation, md.site_xpos[site], atol=1e-9)
         np.testing.assert_allclose(pd.oMf[fid].rotation, md.site_xmat[site].reshape(3, 3), atol=1e-9)
         jacp, jacr = np.zeros((3, mj.nv)), np.zeros((3, mj.nv))
@@ -57,7 +60,7 @@ def test_forward_kinematics_and_jacobians_agree(models: tuple[mujoco.MjModel, pi
 
 def test_joint_limits_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
     mj, pm = models
-    for name in ARM_JOINTS:
+    for name in ROBOT.arm_joints:
         idx = pm.joints[pm.getJointId(name)].idx_q
         np.testing.assert_allclose(
             [pm.lowerPositionLimit[idx], pm.upperPositionLimit[idx]], mj.joint(name).range, atol=1e-12
@@ -91,10 +94,10 @@ def test_the_arm_touches_nothing_of_the_robot_straight_or_stowed(
     between two of the robot's own bodies there would press on the joints in every step."""
     mj, _ = models
     md = mujoco.MjData(mj)
-    for pose_rad in (np.zeros(len(ARM_JOINTS)), np.array(ARM_STOWED_RAD)):
+    for pose_rad in (np.zeros(len(ROBOT.arm_joints)), np.array(ROBOT.stowed_rad)):
         md.qpos[:] = mj.qpos0
         md.qpos[0:3] = (0.0, 0.0, -5.0)  # in open water, 5 m above the seabed
-        for name, value in zip(ARM_JOINTS, pose_rad, strict=True):
+        for name, value in zip(ROBOT.arm_joints, pose_rad, strict=True):
             md.qpos[mj.joint(name).qposadr[0]] = value
         mujoco.mj_forward(mj, md)
         touching = [

@@ -26,8 +26,12 @@ from abyss.common import keys
 from abyss.common.clouds import unpack_cloud
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import Message, SceneUpdate, decode
-from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, WORLD_FILE
+from abyss.common.models import world_file
+from abyss.common.robot import robot_at
 from abyss.recording.reader import Recording, open_recording
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 pytestmark = pytest.mark.timeout(240)
 
@@ -225,7 +229,7 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
 
     joints, states = recorded(recording, "simulation/joints"), decoded["/abyss/simulation/joints"]
     k = len(joints) * 2 // 3
-    assert list(states[k].name[:6]) == list(ARM_JOINTS)
+    assert list(states[k].name[:6]) == list(ROBOT.arm_joints)
     np.testing.assert_allclose(states[k].position[:6], joints[k].positions_rad)
     np.testing.assert_allclose(sum(states[k].position[6:]), joints[k].gripper_opening_m)
 
@@ -242,13 +246,13 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
     parents = ["base_link", "arm_base", *(f"arm_link{i}" for i in range(1, 7))]
     assert [t.header.frame_id for t in chain] == parents
     ee_in_vehicle = np.linalg.multi_dot([matrix(t.transform) for t in chain])
-    model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
+    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
     data = mujoco.MjData(model)
     data.qpos[:7] = [0, 0, 0, 1, 0, 0, 0]  # the vehicle at the origin: the site's pose is in its frame
-    for name, value in zip(ARM_JOINTS, joints[k].positions_rad, strict=True):
+    for name, value in zip(ROBOT.arm_joints, joints[k].positions_rad, strict=True):
         data.qpos[model.joint(name).qposadr[0]] = value
     mujoco.mj_kinematics(model, data)
-    site = model.site(END_EFFECTOR_SITE).id
+    site = model.site(ROBOT.end_effector_site).id
     np.testing.assert_allclose(ee_in_vehicle[:3, 3], data.site_xpos[site], atol=1e-9)
     np.testing.assert_allclose(ee_in_vehicle[:3, :3], data.site_xmat[site].reshape(3, 3), atol=1e-9)
 

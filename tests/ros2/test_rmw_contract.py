@@ -12,8 +12,12 @@ import pytest
 from abyss.common.clouds import pack_cloud, unpack_cloud
 from abyss.common.errors import BadInput
 from abyss.common.messages import ArmGoal, ArmVelocityRef, NavState, Waypoints
+from abyss.common.robot import robot_at
 from abyss.ros2 import from_ros, motion, msgs, rmw, sensing, status
 from abyss.ros2.session import Session
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 ZID = "aac3178e146ba6f1fc6e6a4085e77f21"
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
@@ -156,7 +160,7 @@ def _nav(sim_time_s: float) -> NavState:
 
 
 def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
-    session = Session()
+    session = Session(ROBOT)
     assert (
         from_ros.telemetry_in(_diagnostics(mode="moving"), session) is None
     )  # no navigation handed over yet
@@ -187,25 +191,25 @@ def test_velocity_commands_parse_back_within_abyss_s_bounds() -> None:
             linear=msgs.vector_msg((0.2, 0, -0.1)), angular=msgs.vector_msg((0, 0, 0.3))
         ),
     )
-    ref = from_ros.twist_in(twist, Session())
+    ref = from_ros.twist_in(twist, Session(ROBOT))
     assert np.allclose(ref.linear_mps_body, [0.2, 0, -0.1]) and ref.yaw_rate_radps == pytest.approx(0.3)
     twist.header.frame_id = "world"
     with pytest.raises(BadInput, match="frame_id 'world'"):
-        from_ros.twist_in(twist, Session())
-    session, head = Session(), msgs.header(0, "")
+        from_ros.twist_in(twist, Session(ROBOT))
+    session, head = Session(ROBOT), msgs.header(0, "")
     sent = motion.joint_velocities(ArmVelocityRef(np.arange(6) * 0.1, 0.02), head, session)
     command = motion.joint_velocities(from_ros.joint_velocities_in(sent, session), head, session)
     assert np.allclose(command.data, [*(np.arange(6) * 0.1), 0.02])
     command.data = np.zeros(5)
     with pytest.raises(BadInput, match="5 values, expected 7"):
-        from_ros.joint_velocities_in(command, Session())
+        from_ros.joint_velocities_in(command, Session(ROBOT))
     command.data = np.full(7, 50.0)
     with pytest.raises(BadInput, match="joint_velocities_radps"):
-        from_ros.joint_velocities_in(command, Session())
+        from_ros.joint_velocities_in(command, Session(ROBOT))
 
 
 def test_a_node_s_cloud_parses_back_to_the_points_it_holds() -> None:
-    session = Session()
+    session = Session(ROBOT)
     points_m = np.array([[4.0, 0.1, -8.5], [4.2, -0.3, -8.6], [np.nan, 0.0, 0.0]])
     colors = np.array([[255, 0, 0], [0, 128, 255], [0, 0, 0]], np.uint8)
     cloud = sensing.point_cloud(
@@ -241,7 +245,7 @@ def test_a_node_s_octomap_becomes_the_vessel_s_map() -> None:
         resolution=0.1,
         data=np.frombuffer(data, np.int8),
     )
-    snapshot = from_ros.octomap_in(octomap, Session())
+    snapshot = from_ros.octomap_in(octomap, Session(ROBOT))
     size = binary.split(b"\nsize ")[1].split(b"\n")[0]  # as OctoMap wrote it
     assert snapshot.octree.endswith(data) and b"\nsize " + size + b"\n" in snapshot.octree
     model = SceneModel(0.1, 10.0)

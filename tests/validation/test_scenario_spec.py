@@ -11,10 +11,14 @@ import pytest
 
 from abyss.common.errors import ConfigError
 from abyss.common.messages import Telemetry
+from abyss.common.robot import robot_at
 from abyss.validation.scenario.checks import Run, Verdict, arm_ranges_rad, judge
 from abyss.validation.scenario.report import junit
 from abyss.validation.scenario.runner import Result
 from abyss.validation.scenario.spec import USES, Assertion, load_scenario, scenario_of
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 LIBRARY = sorted((Path(__file__).resolve().parents[2] / "scenarios").glob("*.toml"))
 MINIMAL = {"name": "x", "use": "degradation", "duration_s": 10, "assert": [{"kind": "stations"}]}
@@ -163,7 +167,7 @@ def test_an_intervention_is_judged_on_what_onboard_said_and_on_the_truth() -> No
 
 
 def test_an_arm_joint_past_its_range_fails_the_limits() -> None:
-    elbow_high_rad = arm_ranges_rad()[1][2]
+    elbow_high_rad = arm_ranges_rad(ROBOT)[1][2]
     inside = state("")
     bent_rad = np.r_[0.0, 0.0, elbow_high_rad + np.radians(3), 0.0, 0.0, 0.0]
     past = dataclasses.replace(inside, arm_positions_rad=bent_rad)

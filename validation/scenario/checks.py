@@ -228,8 +228,8 @@ def arm_limits(run: Run, margin_deg: float = 1.0) -> tuple[bool, str]:
     past_rad = np.maximum(low_rad - q, q - high_rad).max(axis=0)
     worst = int(np.argmax(past_rad))
     return bool(past_rad.max() <= margin_rad), (
-        f"{len(q)} states; nearest a limit: {robot.arm_joints[worst]} at {math.degrees(past_rad[worst]):+.1f} deg "
-        f"from it (allowed {margin_deg:g} deg past)"
+        f"{len(q)} states; nearest a limit: {robot.arm_joints[worst]} at "
+        f"{math.degrees(past_rad[worst]):+.1f} deg from it (allowed {margin_deg:g} deg past)"
     )
 
 

@@ -8,11 +8,14 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.geometry import rotation_of
-from abyss.common.models import ARM_JOINTS, ARM_STOWED_RAD
+from abyss.common.robot import robot_at
 from abyss.stations.onboard.arm_control import STALL_S, ArmController, ArmKinematics, box_distance
 from abyss.stations.onboard.task_priority import Task, solve
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 PERIOD_S = 0.05
 LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
@@ -80,7 +83,9 @@ def setup(*overrides: str) -> tuple[ArmController, World]:
             *overrides,
         ],
     )
-    return ArmController(config.onboard, config.mission), World(config.simulation, np.random.default_rng(0))
+    return ArmController(config.onboard, config.mission, ROBOT), World(
+        config.simulation, np.random.default_rng(0)
+    )
 
 
 def test_a_constant_target_is_reached() -> None:
@@ -118,7 +123,7 @@ def test_joint_limits_and_clearance_hold_unreachable_targets_stay_finite(target:
     goal = arm.mission.arm_goal()
     assert goal is not None
     arm.set_goal(1, *goal)
-    kinematics = ArmKinematics()
+    kinematics = ArmKinematics(ROBOT)
     seen = np.array(fly(arm, world, 12.0))
     assert np.all(seen >= kinematics.lower_rad - 1e-9) and np.all(seen <= kinematics.upper_rad + 1e-9)
     truth = world.truth()
@@ -135,10 +140,10 @@ def test_whole_body_moves_the_vehicle_toward_a_target_beyond_the_arm() -> None:
     assert goal is not None
     arm.set_goal(1, *goal)
     truth = world.truth()
-    out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, np.array(ARM_STOWED_RAD), True)
+    out = arm.step(truth.position_m_world, truth.orientation_wxyz_world, np.array(ROBOT.stowed_rad), True)
     assert out.vehicle_velocity is not None and out.vehicle_velocity.shape == (4,)
     assert out.vehicle_velocity[1] > 0.0  # sway towards the target at y = 0.9 m
-    assert len(out.joint_velocities_radps) == len(ARM_JOINTS)
+    assert len(out.joint_velocities_radps) == len(ROBOT.arm_joints)
 
 
 def test_an_arm_whose_joints_do_not_follow_is_blocked_within_a_second_and_holds() -> None:

@@ -7,15 +7,19 @@ import numpy as np
 
 from abyss.common.config.system import MissionConfig
 from abyss.common.messages import ArmGoal, OperatorMode, Waypoints
+from abyss.common.robot import robot_at
 from abyss.stations.onboard.arm_control import ArmKinematics
 from abyss.stations.onboard.commands import CommandGate, box_clearance_m
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 LAST_WAYPOINT = np.array([3.2, 0.0, -8.0, 0.0])  # the default mission's, facing the panel
 
 
 def gate() -> CommandGate:
-    return CommandGate(MissionConfig(), *ArmKinematics().reach())
+    return CommandGate(MissionConfig(), *ArmKinematics(ROBOT).reach())
 
 
 def test_box_clearance() -> None:

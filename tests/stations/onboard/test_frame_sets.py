@@ -16,13 +16,16 @@ from abyss.common.config.simulation import SimulationConfig
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.images import decode_image
 from abyss.common.messages import Image
-from abyss.common.models import CAMERAS
+from abyss.common.robot import robot_at
 from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets
 from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.simulation import cameras_of_set
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 DEPTH_ONLY = OnboardConfig(cloud_sources=("depth",))
 RATE_HZ = 1.0  # the cameras' (simulation.camera_rate_hz): a set's index is its time [s]
@@ -37,9 +40,9 @@ class Scene:
 @pytest.fixture(scope="module")
 def scene() -> Scene:
     world = World(SimulationConfig(), np.random.default_rng(0))
-    cameras = Cameras(world.model, 160, 120)
+    cameras = Cameras(world.model, 160, 120, depth_camera=ROBOT.depth_camera)
     try:
-        frames = {camera: encode_image(cameras, world.data, camera, 90) for camera in CAMERAS}
+        frames = {camera: encode_image(cameras, world.data, camera, 90) for camera in ROBOT.cameras}
     finally:
         cameras.close()
     truth = world.truth()
@@ -49,13 +52,15 @@ def scene() -> Scene:
     return Scene(frames, poses)
 
 
-def frames_at(scene: Scene, sim_time_s: float, cameras: tuple[str, ...] = CAMERAS) -> list[tuple[str, Image]]:
+def frames_at(
+    scene: Scene, sim_time_s: float, cameras: tuple[str, ...] = ROBOT.cameras
+) -> list[tuple[str, Image]]:
     """One set of frames, as if taken at `sim_time_s` [s]."""
     return [(c, dataclasses.replace(scene.frames[c], sim_time_s=sim_time_s)) for c in cameras]
 
 
 def test_of_several_complete_sets_only_the_newest_is_worked_on_and_the_others_are_shed(scene: Scene) -> None:
-    core = FrameSets(DEPTH_ONLY, RATE_HZ)
+    core = FrameSets(DEPTH_ONLY, RATE_HZ, ROBOT.spec.cameras)
     frames = [
         *frames_at(scene, 1.0),
         *frames_at(scene, 1.1),
@@ -76,7 +81,7 @@ def test_of_several_complete_sets_only_the_newest_is_worked_on_and_the_others_ar
 
 
 def test_sets_that_never_complete_are_let_go_but_the_newest_few(scene: Scene) -> None:
-    core = FrameSets(DEPTH_ONLY, RATE_HZ)
+    core = FrameSets(DEPTH_ONLY, RATE_HZ, ROBOT.spec.cameras)
     lonely = [frame for t in np.arange(1.0, 2.0, 0.1) for frame in frames_at(scene, float(t), ("cam_left",))]
     out = core.step(FrameSetInputs(lonely, scene.poses), 0.0)
     assert out.taken_s is None and out.shed == 0 and not out.clouds
@@ -84,7 +89,7 @@ def test_sets_that_never_complete_are_let_go_but_the_newest_few(scene: Scene) ->
 
 
 def test_a_set_without_a_navigation_estimate_is_skipped(scene: Scene) -> None:
-    core = FrameSets(OnboardConfig(stereo_every=2), RATE_HZ)
+    core = FrameSets(OnboardConfig(stereo_every=2), RATE_HZ, ROBOT.spec.cameras)
     out = core.step(FrameSetInputs(frames_at(scene, 150.0), scene.poses), 0.0)  # the estimate ends at 99.5 s
     assert out.skipped_s == 150.0 and out.taken_s is None
     assert not out.clouds and out.image is None and not out.rejected and not core.sets
@@ -101,7 +106,7 @@ def test_stereo_runs_on_every_nth_set_by_its_index_and_only_those_sets_wait_for_
     config = Config(
         onboard=OnboardConfig(stereo_every=3), simulation=SimulationConfig(camera_rate_hz=RATE_HZ)
     )
-    core = FrameSets(config.onboard, RATE_HZ)
+    core = FrameSets(config.onboard, RATE_HZ, ROBOT.spec.cameras)
     sources, counts = [], []
     for i in range(6):
         t = 1.0 + i
@@ -124,7 +129,7 @@ def test_stereo_runs_on_every_nth_set_by_its_index_and_only_those_sets_wait_for_
 
 
 def test_the_image_goes_on_at_its_rate_placed_in_the_world(scene: Scene) -> None:
-    core = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=2.0), RATE_HZ)
+    core = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=2.0), RATE_HZ, ROBOT.spec.cameras)
     sent = []
     for i, now_s in enumerate((0.0, 0.2, 0.4, 0.5, 0.9, 1.0, 1.1)):
         out = core.step(FrameSetInputs(frames_at(scene, 1.0 + i), scene.poses), now_s)
@@ -140,12 +145,12 @@ def test_the_image_goes_on_at_its_rate_placed_in_the_world(scene: Scene) -> None
     # the camera sits on the vehicle, which is where the pose estimate says
     position_m_world, _ = scene.poses.at(6.0)  # type: ignore[misc]
     assert 0.05 < np.linalg.norm(image.pose_camera[:3] - position_m_world) < 2.0
-    quiet = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=0.0), RATE_HZ)
+    quiet = FrameSets(dataclasses.replace(DEPTH_ONLY, image_rate_hz=0.0), RATE_HZ, ROBOT.spec.cameras)
     assert quiet.step(FrameSetInputs(frames_at(scene, 1.0), scene.poses), 0.0).image is None
 
 
 def test_the_core_rests_after_a_set_so_as_to_be_busy_its_share_of_the_time(scene: Scene) -> None:
-    core = FrameSets(dataclasses.replace(DEPTH_ONLY, perception_max_busy=0.25), RATE_HZ)
+    core = FrameSets(dataclasses.replace(DEPTH_ONLY, perception_max_busy=0.25), RATE_HZ, ROBOT.spec.cameras)
     assert core.step(FrameSetInputs(frames_at(scene, 1.0), scene.poses), 10.0).taken_s == 1.0
     core.finished(10.1)  # 0.1 s of work: rest until 10.4
     for now_s, t in ((10.2, 1.1), (10.35, 1.2)):
@@ -158,7 +163,7 @@ def test_the_core_rests_after_a_set_so_as_to_be_busy_its_share_of_the_time(scene
 def test_frames_that_do_not_decode_or_sit_in_the_wrong_frame_are_rejected_with_the_reason(
     scene: Scene,
 ) -> None:
-    core = FrameSets(DEPTH_ONLY, RATE_HZ)
+    core = FrameSets(DEPTH_ONLY, RATE_HZ, ROBOT.spec.cameras)
     frames = frames_at(scene, 1.0)
     garbled = [(c, dataclasses.replace(f, data=b"not a jpeg") if c == "cam_left" else f) for c, f in frames]
     out = core.step(FrameSetInputs(garbled, scene.poses), 0.0)

@@ -14,12 +14,15 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
-from abyss.common.models import ARM_JOINTS, panel
+from abyss.common.models import panel
+from abyss.common.robot import robot_at
 from abyss.stations.onboard.arm_control import ArmController, PoseReference
 from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun, Phase
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 from abyss.stations.vessel.intents import resolve
+
+ROBOT = robot_at("")  # the shipped robot package
 
 PERIOD_S = 0.05
 LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
@@ -41,6 +44,7 @@ def recognised(offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> Recogn
 def goal_of(
     part: str, amount: str, offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> InterventionGoal:
+
     goal, reason = resolve(Intervention(1, part, *panel.intent(part, amount)), recognised(offset_m))
     assert goal is not None, reason
     return goal
@@ -55,7 +59,9 @@ def setup(low_level: str) -> tuple[ArmController, World]:
             f"simulation.start_position_m_world={LAST_WAYPOINT}",
         ],
     )
-    return ArmController(config.onboard, config.mission), World(config.simulation, np.random.default_rng(0))
+    return ArmController(config.onboard, config.mission, ROBOT), World(
+        config.simulation, np.random.default_rng(0)
+    )
 
 
 def tool_pose(arm: ArmController, world: World) -> pin.SE3:
@@ -143,7 +149,7 @@ def test_a_seized_valve_ends_failed_with_its_reason_and_the_arm_backs_off_within
     assert world.joints().gripper_opening_m > 0.05  # released
     tool = world.data.site("ee").xpos
     assert np.linalg.norm(tool - run.pose_at(run.turned_rad)[0]) > PRE_GRASP_M * 0.8  # backed off
-    assert len(ARM_JOINTS) == seen.shape[1]
+    assert len(ROBOT.arm_joints) == seen.shape[1]
 
 
 def test_a_panel_recognised_off_ends_in_a_failed_grasp_not_a_forced_one() -> None:
@@ -226,7 +232,7 @@ def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[Interv
         track(arm, world, command.reference, command.gripper_mps)
     assert run.phase == Phase.TURN and world.joints().gripper_opening_m < 0.03  # holding the bar
     for _ in range(round(3.0 / PERIOD_S)):  # onboard down: the low level's watchdog holds still
-        world.step(References(np.zeros(4), np.zeros(len(ARM_JOINTS)), 0.0), PERIOD_S)
+        world.step(References(np.zeros(4), np.zeros(len(ROBOT.arm_joints)), 0.0), PERIOD_S)
     turned = run.turned_rad if resolved_from_the_part else 0.0
     again, reason = resolve(
         dataclasses.replace(intent, turn_rad=goal.turn_rad - turned), recognised(), turned

@@ -30,10 +30,13 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.models import ARM_JOINTS, END_EFFECTOR_SITE, ROBOT_FILE
+from abyss.common.robot import robot_at
 from abyss.common.sonar_frames import encode_polar
 from abyss.stations.onshore.layout import blueprint
 from abyss.stations.onshore.viewer import Viewer
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 STAMP_S = 1.7e9  # a wall-clock stamp [s since the epoch]
 YAW_RAD = 0.6
@@ -115,7 +118,7 @@ def recording(tmp_path: Path) -> Recording:
     path = tmp_path / "view.rrd"
     stream = rr.RecordingStream("abyss-test", recording_id="test-viewer")
     stream.save(path)
-    viewer = Viewer(stream)
+    viewer = Viewer(stream, ROBOT)
     for i in range(3):
         viewer.telemetry(telemetry(i, failsafe="shore lost" if i == 1 else ""), STAMP_S + i)
     viewer.waypoints(
@@ -281,12 +284,12 @@ def test_logged_arm_transforms_put_the_end_effector_where_mujoco_does(recording:
         position = position + rotation @ translation
         rotation = rotation @ rotation_of(np.array([w, x, y, z]))
 
-    model = mujoco.MjModel.from_xml_path(str(ROBOT_FILE))
+    model = mujoco.MjModel.from_xml_path(str(ROBOT.model_file))
     data = mujoco.MjData(model)
     last_m_world = telemetry(2).position_m_world  # where the last telemetry put the vehicle
     data.qpos[:7] = np.r_[last_m_world, math.cos(YAW_RAD / 2), 0.0, 0.0, math.sin(YAW_RAD / 2)]
-    data.qpos[[model.joint(name).qposadr[0] for name in ARM_JOINTS]] = ARM_RAD
+    data.qpos[[model.joint(name).qposadr[0] for name in ROBOT.arm_joints]] = ARM_RAD
     mujoco.mj_kinematics(model, data)
-    site = model.site(END_EFFECTOR_SITE)
-    assert position + rotation @ site.pos == pytest.approx(data.site(END_EFFECTOR_SITE).xpos, abs=1e-4)
+    site = model.site(ROBOT.end_effector_site)
+    assert position + rotation @ site.pos == pytest.approx(data.site(ROBOT.end_effector_site).xpos, abs=1e-4)
     assert rotation == pytest.approx(data.xmat[site.bodyid[0]].reshape(3, 3), abs=1e-4)

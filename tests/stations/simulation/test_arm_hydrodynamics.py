@@ -30,11 +30,13 @@ import pytest
 
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
-from abyss.common.models import ARM_JOINTS
+from abyss.common.robot import robot_at
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, geom_volume_m3, wet_geoms
 from abyss.stations.simulation.strips import ArmStrips, Coefficients
 from abyss.stations.simulation.world import World
+
+ROBOT = robot_at("")  # the shipped robot package
 
 PERIOD_S = 0.05
 OPEN = (0.0, 0.4, -0.8, 0.0, 0.4, 0.0)  # [rad] the arm half open ahead of the vehicle
@@ -48,8 +50,9 @@ def world(
     inertia: bool = True,
     **fields: object,
 ) -> World:
+
     w = World(SimulationConfig(arm_hydrodynamics=arm, **fields), np.random.default_rng(0))  # type: ignore[arg-type]
-    for name, angle_rad in zip(ARM_JOINTS, pose, strict=True):
+    for name, angle_rad in zip(ROBOT.arm_joints, pose, strict=True):
         w.data.qpos[w.model.joint(name).qposadr[0]] = angle_rad
     if w.strips is not None and (coefficients is not None or not inertia):
         w.use_strips(
@@ -141,7 +144,7 @@ def differences(case: Case, coefficients: Coefficients | None = None) -> np.ndar
 def test_the_strip_model_reproduces_the_ellipsoids_joint_trajectories(name: str) -> None:
     error = differences(REFERENCE_SET[name])
     worst = int(np.argmax(error))
-    assert error[worst] < 0.05, f"{name}: {ARM_JOINTS[worst]} off by {error[worst]:.1%} of the range"
+    assert error[worst] < 0.05, f"{name}: {ROBOT.arm_joints[worst]} off by {error[worst]:.1%} of the range"
 
 
 @pytest.mark.parametrize("name", ["held in a cross current", "swung"])

@@ -11,10 +11,14 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from abyss.common.errors import ConfigError
-from abyss.common.models import MODELS_DIR, VEHICLE_FILE
+from abyss.common.models import MODELS_DIR
+from abyss.common.robot import robot_at
 from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
 from abyss.stations.simulation.marine import Current
 from abyss.stations.simulation.thrusters import Thrusters
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 BLUEROV2 = MODELS_DIR / "bluerov2_heavy.xml"
 DT_S = 0.002
@@ -228,7 +232,7 @@ def test_thruster_rotor_lag_dead_band_and_asymmetric_curve() -> None:
 
 
 def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_path: Path) -> None:
-    text = VEHICLE_FILE.read_text()
+    text = ROBOT.file.read_text()
     for old, new, field in (
         ("volume_m3 = 2.916", "volume_m3 = -1", "buoyancy.volume_m3"),
         ("deadband = 0.05", "deadband = 0.9", "thrusters.deadband"),

@@ -14,13 +14,15 @@ import pytest
 
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import Message
-from abyss.common.models import CAMERAS
+from abyss.common.robot import robot_at
 from abyss.common.workers import children_cpu_s
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.offload import Offloaded, OffloadFailed, state_of
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.sonar import ImagingSonar
 from abyss.stations.simulation.world import World, references
+
+ROBOT = robot_at("")  # the shipped robot package
 
 
 def fields(message: Message) -> list[object]:
@@ -52,9 +54,10 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
         config.water,
         config.marine_snow,
         np.random.default_rng([7, 1]),
+        depth_camera=ROBOT.depth_camera,
     )
     try:
-        here = [encode_image(cameras, data, camera, config.jpeg_quality) for camera in CAMERAS]
+        here = [encode_image(cameras, data, camera, config.jpeg_quality) for camera in ROBOT.cameras]
     finally:
         cameras.close()
     ping_here = ImagingSonar(world.model).message(data, np.random.default_rng([7, 2]))
@@ -62,14 +65,14 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
     offloaded = Offloaded("cameras", world.model, config, [7, 1])
     sonar = Offloaded("sonar", world.model, config, [7, 2])
     try:
-        there = offloaded.frames(state, set(), CAMERAS)
+        there = offloaded.frames(state, set(), ROBOT.cameras)
         sonar.process.send_signal(signal.SIGINT)  # a Ctrl-C in the station's terminal: its station ends it
         ping_there = sonar.ping(state)
         dark = offloaded.frames(state, {"cam_left"}, ("cam_left", "cam_depth"))  # a set without stereo
     finally:
         offloaded.close()
         sonar.close()
-    assert [image.camera for image in there] == list(CAMERAS)
+    assert [image.camera for image in there] == list(ROBOT.cameras)
     assert [fields(image) for image in there] == [fields(image) for image in here]  # pixels, pose, time
     assert fields(ping_there) == fields(ping_here)
     assert there[0].sim_time_s == pytest.approx(world.data.time) and there[0].sim_time_s > 0

@@ -16,9 +16,13 @@ import pytest
 from abyss.common.config.simulation import WATER_TYPES as CONFIG_WATER_TYPES
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
-from abyss.common.models import WORLD_FILE, panel
+from abyss.common.models import panel, world_file
+from abyss.common.robot import robot_at
 from abyss.stations.simulation.optics import WATER_TYPES, Optics, WaterType, range_of_depth
 from abyss.stations.simulation.rendering import Cameras, lamps_of
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 pytestmark = pytest.mark.timeout(300)
 WIDTH_PX, HEIGHT_PX = 640, 480
@@ -29,8 +33,8 @@ CLEAR = WaterType("clear", (0.0, 0.0, 0.0), 0.0)  # no attenuation, no scatterin
 
 @pytest.fixture(scope="module")
 def world() -> tuple[mujoco.MjModel, mujoco.MjData, Cameras]:
-    model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
-    cameras = Cameras(model, WIDTH_PX, HEIGHT_PX)
+    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
+    cameras = Cameras(model, WIDTH_PX, HEIGHT_PX, depth_camera=ROBOT.depth_camera)
     yield model, mujoco.MjData(model), cameras
     cameras.close()
 
@@ -129,7 +133,9 @@ def test_the_depth_camera_is_left_alone_and_the_rgb_is_not(
 ) -> None:
     model, data, plain = world
     look_at_marker(model, data, 2.0)
-    murky = Cameras(model, WIDTH_PX, HEIGHT_PX, water="9C", rng=np.random.default_rng(0))
+    murky = Cameras(
+        model, WIDTH_PX, HEIGHT_PX, water="9C", rng=np.random.default_rng(0), depth_camera=ROBOT.depth_camera
+    )
     try:
         assert np.array_equal(murky.depth_m(data, "cam_depth"), plain.depth_m(data, "cam_depth"))
         assert not np.array_equal(murky.rgb(data, "cam_left"), plain.rgb(data, "cam_left"))

@@ -11,11 +11,15 @@ from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import SimulationControl
+from abyss.common.robot import robot_at
 from abyss.stations.simulation import _no_realtime
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 DT_S = 0.01
 
@@ -129,7 +133,7 @@ def test_noise_fault_raises_navigation_noise() -> None:
 @pytest.fixture(scope="module")
 def cameras() -> tuple[World, Cameras]:
     w = world()
-    cams = Cameras(w.model, 640, 480)
+    cams = Cameras(w.model, 640, 480, depth_camera=ROBOT.depth_camera)
     yield w, cams
     cams.close()
 
@@ -172,7 +176,7 @@ def test_the_cameras_passes_are_mujocos_renderers_pixel_for_pixel(water: str, sa
     samples per pixel, its RGB (with the fog and haze the water type sets) and its depth pass,
     bit for bit; the model's own buffer settings are left as they were."""
     w = world()
-    cams = Cameras(w.model, 320, 240, water, samples=samples)
+    cams = Cameras(w.model, 320, 240, water, samples=samples, depth_camera=ROBOT.depth_camera)
     assert w.model.vis.quality.offsamples == 4 and w.model.vis.global_.offwidth != 320  # the model's, kept
     w.model.vis.quality.offsamples = samples
     rgb, depth = mujoco.Renderer(w.model, 240, 320), mujoco.Renderer(w.model, 240, 320)
@@ -196,7 +200,7 @@ def test_fewer_samples_per_pixel_alias_the_edges_and_leave_the_rest() -> None:
     w = world()
     images = {}
     for samples in (4, 0):
-        cams = Cameras(w.model, 320, 240, samples=samples)
+        cams = Cameras(w.model, 320, 240, samples=samples, depth_camera=ROBOT.depth_camera)
         try:
             images[samples] = cams.plain_rgb(w.data, "cam_left").astype(int)
         finally:

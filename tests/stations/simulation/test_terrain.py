@@ -10,8 +10,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.models import MODELS_DIR, SEABED_CLOUD_FILE, WORLD_FILE
+from abyss.common.models import MODELS_DIR, SEABED_CLOUD_FILE, world_file
+from abyss.common.robot import robot_at
 from abyss.stations.simulation import terrain
+
+ROBOT = robot_at("")  # the shipped robot package
+
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -38,7 +42,7 @@ def test_the_shipped_terrain_is_what_the_tool_builds(built: terrain.Terrain) -> 
 
 
 def test_mujoco_sees_the_terrain_where_the_heights_say(built: terrain.Terrain) -> None:
-    model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
+    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     heights = terrain.read_hfield(MODELS_DIR / "terrain.bin")

@@ -19,7 +19,8 @@ from abyss.common.errors import BadInput, BadMessage
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import PointCloud, RecognisedObjects, SceneUpdate, decode, encode
-from abyss.common.models import CAMERAS, panel
+from abyss.common.models import panel
+from abyss.common.robot import robot_at
 from abyss.scene.export import export
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_centres, cell_keys, iterate_leaves, leaves_to_cells, read_binary
@@ -37,6 +38,8 @@ from abyss.stations.vessel.recognition import (
     seen_angles,
 )
 
+ROBOT = robot_at("")  # the shipped robot package
+
 FACE_X_M = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0] - 0.001  # the marker face's front
 
 
@@ -52,6 +55,7 @@ def view_from(
     yaw_rad: float = 0.0,
     parts_deg: dict[str, float] | None = None,
 ) -> View:
+
     w = World(
         SimulationConfig(start_position_m_world=position_m_world, start_yaw_rad=yaw_rad),
         np.random.default_rng(0),
@@ -59,9 +63,9 @@ def view_from(
     for name, angle_deg in (parts_deg or {}).items():
         w.data.qpos[w.model.joint(name).qposadr[0]] = np.radians(angle_deg)
     mujoco.mj_forward(w.model, w.data)
-    cameras = Cameras(w.model, 640, 480)
+    cameras = Cameras(w.model, 640, 480, depth_camera=ROBOT.depth_camera)
     try:
-        frames = {c: encode_image(cameras, w.data, c, 90) for c in CAMERAS}
+        frames = {c: encode_image(cameras, w.data, c, 90) for c in ROBOT.cameras}
     finally:
         cameras.close()
     truth = w.truth()
@@ -89,7 +93,14 @@ def face_distances(cloud: PointCloud) -> np.ndarray:
 def test_clouds_from_depth_and_stereo_lie_on_the_panel_face(start: View) -> None:
     clouds = {
         c.source: c
-        for c in clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth", "stereo"), CloudSettings())
+        for c in clouds_of(
+            ROBOT.spec.cameras,
+            start.frames,
+            start.pose,
+            np.zeros((0, 3)),
+            ("depth", "stereo"),
+            CloudSettings(),
+        )
     }
     depth, stereo = face_distances(clouds["depth"]), face_distances(clouds["stereo"])
     assert len(depth) > 1000 and len(stereo) > 1000
@@ -104,17 +115,21 @@ def test_clouds_from_depth_and_stereo_lie_on_the_panel_face(start: View) -> None
 @pytest.mark.parametrize("mode", [m for m in STEREO_MODES if m != "hh"])  # hh: the test above
 def test_every_stereo_mode_offered_keeps_the_bound_on_the_panel_face(start: View, mode: str) -> None:
     settings = dataclasses.replace(CloudSettings(), stereo_mode=mode)
-    stereo = face_distances(clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("stereo",), settings)[0])
+    stereo = face_distances(
+        clouds_of(ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("stereo",), settings)[0]
+    )
     assert len(stereo) > 1000
     assert np.median(stereo) < 0.08, np.median(stereo)  # measured: 5.1-5.4 cm (hh 4.4)
 
 
 def test_the_arm_is_cut_out_of_the_clouds(start: View) -> None:
-    everything = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    everything = clouds_of(
+        ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )[0]
     face = face_distances(everything)
     # an "arm" along the panel's face: its neighbourhood is cut out of the cloud
     arm = np.array([[FACE_X_M, -0.7, -8.6], [FACE_X_M, 0.7, -8.6]])
-    filtered = clouds_of(start.frames, start.pose, arm, ("depth",), CloudSettings())[0]
+    filtered = clouds_of(ROBOT.spec.cameras, start.frames, start.pose, arm, ("depth",), CloudSettings())[0]
     points, _ = unpack_cloud(filtered)
     assert filtered.count < everything.count and len(face_distances(filtered)) < len(face)
     near_arm = (np.abs(points[:, 2] + 8.6) < 0.1) & (np.abs(points[:, 0] - FACE_X_M) < 0.1)
@@ -135,7 +150,9 @@ def test_octree_and_shores_copy_match_the_world_geometry_at_5_cm(start: View) ->
     (through the codec, with the stream's hysteresis and colour steps)."""
     resolution_m = 0.05
     model, receiver = SceneModel(resolution_m, 8.0), SceneReceiver()
-    cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    cloud = clouds_of(
+        ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )[0]
     model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
     stream(model, receiver)
     origin = cloud.sensor_m_world
@@ -188,7 +205,9 @@ def test_the_leaves_read_from_the_octree_are_pyoctomaps_own(start: View) -> None
     for resolution_m in (0.05, 0.2):
         model = SceneModel(resolution_m, 8.0)
         for view in (start, later):
-            cloud = clouds_of(view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+            cloud = clouds_of(
+                ROBOT.spec.cameras, view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+            )[0]
             model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
         threshold = model.tree.getOccupancyThresLog()
         for bbx in (None, (np.array([3.0, -1.5, -9.2]), np.array([5.3, 0.7, -6.9]))):
@@ -227,7 +246,9 @@ def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for
     receiver = SceneReceiver()
     for position in ((0.0, 0.0, -7.0), (1.5, 0.0, -7.0), (2.5, 0.8, -7.6)):
         view = start if position == (0.0, 0.0, -7.0) else view_from(position)
-        cloud = clouds_of(view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+        cloud = clouds_of(
+            ROBOT.spec.cameras, view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+        )[0]
         model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
         if position == (2.5, 0.8, -7.6):  # the last frame's changes: one update lost on the way
             outcomes = stream(model, receiver, drop=model.seq + 1)
@@ -247,7 +268,9 @@ def test_snapshot_and_deltas_rebuild_the_vessel_octree_and_a_lost_delta_asks_for
 
 def test_export_writes_a_bt_pyoctomap_reads_back_and_a_coloured_ply(start: View, tmp_path: Path) -> None:
     model, receiver = SceneModel(0.1, 8.0), SceneReceiver()
-    cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    cloud = clouds_of(
+        ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )[0]
     model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
     stream(model, receiver)
     snapshot = receiver.snapshot()
@@ -268,7 +291,9 @@ def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -
     truth = np.array(panel.PANEL_POSITION_M_WORLD)
     left = start.frames["cam_left"]
     image = dataclasses.replace(left, pose_frame="world", pose_camera=camera_in_world(left, start.pose))
-    clouds = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())
+    clouds = clouds_of(
+        ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )
     tracker = PanelTracker()
     pose = tracker.update(decode_image(image), image, unpack_cloud(clouds[0])[0])
     assert pose is not None and tracker.method == "texture+shape"
@@ -300,7 +325,9 @@ def test_the_panel_estimate_follows_the_navigations_wandering_frame() -> None:
     working = view_from((3.2, 0.0, -8.0))  # the default mission's last waypoint
     left = working.frames["cam_left"]
     points = unpack_cloud(
-        clouds_of(working.frames, working.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+        clouds_of(
+            ROBOT.spec.cameras, working.frames, working.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+        )[0]
     )[0]
     truth = np.array(panel.PANEL_POSITION_M_WORLD)
     tracker, wander_mps = PanelTracker(), np.array([0.0015, -0.0015, 0.0])
@@ -330,7 +357,9 @@ def test_vision_measures_each_valves_handle_angle_within_3_degrees(
     view = view_from(position, parts_deg=TURNED_DEG)
     left = view.frames["cam_left"]
     image = dataclasses.replace(left, pose_frame="world", pose_camera=camera_in_world(left, view.pose))
-    cloud = clouds_of(view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    cloud = clouds_of(
+        ROBOT.spec.cameras, view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )[0]
     tracker = PanelTracker()
     tracker.update(decode_image(image), image, unpack_cloud(cloud)[0])
     objects = tracker.objects(0.0)
@@ -350,7 +379,9 @@ def test_the_vessels_intake_recognises_the_panel_on_its_schedule(start: View) ->
     latest image and cloud, publishes what it found and keeps it for the relay."""
     left = start.frames["cam_left"]
     image = dataclasses.replace(left, pose_frame="world", pose_camera=camera_in_world(left, start.pose))
-    cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    cloud = clouds_of(
+        ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )[0]
     cfg = VesselConfig(recognition_period_s=2.0, perception_period_s=100.0)
     intake = Intake(cfg, SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m), 0.0, maps=False)
     found = {}
@@ -374,7 +405,9 @@ def test_malformed_scene_data_is_refused_with_its_reason(start: View) -> None:
     )
     with pytest.raises(BadInput, match="binary"):
         SceneReceiver().apply(bad)
-    cloud = clouds_of(start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings())[0]
+    cloud = clouds_of(
+        ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
+    )[0]
     with pytest.raises(BadInput, match="need"):
         dataclasses.replace(cloud, count=cloud.count + 1)
     with pytest.raises(BadMessage, match="not zlib"):

@@ -244,7 +244,7 @@ def plausible(kind: object, meta: Mapping[str, object]) -> st.SearchStrategy[obj
     if kind is bool:
         return st.booleans()
     if kind is str:
-        return st.sampled_from(meta.get("choices") or ("",)) | st.text(max_size=8)
+        return st.sampled_from(tuple(meta.get("choices") or ("",))) | st.text(max_size=8)  # type: ignore[arg-type]
     if kind is bytes:
         return st.binary(max_size=32)
     return st.lists(st.text(max_size=4), max_size=3) | st.dictionaries(st.text(max_size=6), st.floats())

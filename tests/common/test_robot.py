@@ -241,13 +241,9 @@ def _in_docstring(path: Path, number: int) -> bool:
 
     tree = ast.parse(path.read_text())
     for node in ast.walk(tree):
-        if (
-            isinstance(node, ast.Expr)
-            and isinstance(node.value, ast.Constant)
-            and isinstance(node.value.value, str)
-        ):
-            if node.lineno <= number <= (node.end_lineno or node.lineno):
-                return True
+        is_text = isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+        if is_text and isinstance(node.value.value, str) and node.lineno <= number <= (node.end_lineno or 0):
+            return True
     return False
 
 

@@ -52,7 +52,7 @@ from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.config.stations import OnboardConfig, VesselConfig  # noqa: E402
 from abyss.common.config.system import MissionConfig  # noqa: E402
 from abyss.common.images import decode_image, encode_jpeg  # noqa: E402
-from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.common.robot import robot_at  # noqa: E402
 from abyss.scene import model as scene_model  # noqa: E402
 from abyss.stations.onboard import perception, stereo  # noqa: E402
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of  # noqa: E402
@@ -62,7 +62,9 @@ from abyss.stations.simulation.world import World  # noqa: E402
 from abyss.stations.vessel import recognition  # noqa: E402
 from scene import timed  # noqa: E402  (bench/ is on the path when a bench runs)
 
-EVERY_SET = tuple(camera for camera in CAMERAS if camera != "cam_right")  # the sets without stereo
+ROBOT = robot_at("")  # the shipped robot package
+CAMERAS = ROBOT.cameras
+EVERY_SET = tuple(camera for camera in CAMERAS if camera != ROBOT.stereo_right)  # the sets without stereo
 
 REPEATS = 5  # frame sets timed, after one to warm up; stages and cycles: their median
 WATERS = ("none", "I")
@@ -187,7 +189,7 @@ SIMULATION = (
         "encode_image",
         lambda cameras, data, camera, *_: (
             "sim: depth: the rest (linearisation, flip, to mm, copies)"
-            if camera == "cam_depth"
+            if camera == ROBOT.depth_camera
             else "sim: RGB: the rest (flip, copies, conversions)"
         ),
     ),
@@ -271,10 +273,14 @@ def frame_set(
     with stages.wrapping(*ONBOARD):
         on_sets = merge(
             stages.per_run(
-                lambda: clouds_of(frames, pose, arm_m_world, depth_only, settings), 1 - stereo_share
+                lambda: clouds_of(ROBOT.spec.cameras, frames, pose, arm_m_world, depth_only, settings),
+                1 - stereo_share,
             ),
             stages.per_run(
-                lambda: clouds_of(frames, pose, arm_m_world, onboard.cloud_sources, settings), stereo_share
+                lambda: clouds_of(
+                    ROBOT.spec.cameras, frames, pose, arm_m_world, onboard.cloud_sources, settings
+                ),
+                stereo_share,
             ),
         )
     left = frames["cam_left"]
@@ -286,7 +292,8 @@ def frame_set(
         )
     }
     clouds = {
-        cloud.source: cloud for cloud in clouds_of(frames, pose, arm_m_world, onboard.cloud_sources, settings)
+        cloud.source: cloud
+        for cloud in clouds_of(ROBOT.spec.cameras, frames, pose, arm_m_world, onboard.cloud_sources, settings)
     }
     image = dataclasses.replace(  # as onboard sends it on (frame_sets)
         left,

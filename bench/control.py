@@ -14,11 +14,13 @@ from collections.abc import Callable
 import numpy as np
 
 from abyss.common.config import load
-from abyss.common.models import ARM_STOWED_RAD
+from abyss.common.robot import robot_at
 from abyss.stations.onboard.arm_control import ArmController
 from abyss.stations.onboard.task_priority import damped_pinv
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
+
+ROBOT = robot_at("")  # the shipped robot package
 
 REPEATS = 2000
 ROUNDS = 5
@@ -40,11 +42,11 @@ def main() -> None:
             "simulation.start_position_m_world=[3.2, 0, -8.0]",
         ],
     )
-    arm = ArmController(config.onboard, config.mission)
+    arm = ArmController(config.onboard, config.mission, ROBOT)
     goal = config.mission.arm_goal()
     assert goal is not None
     arm.set_goal(1, *goal)
-    position, quat, q = np.array([3.2, 0.0, -8.0]), np.array([1.0, 0, 0, 0]), np.array(ARM_STOWED_RAD)
+    position, quat, q = np.array([3.2, 0.0, -8.0]), np.array([1.0, 0, 0, 0]), np.array(ROBOT.stowed_rad)
     rng = np.random.default_rng(0)
     samples = [q + rng.normal(0, 0.2, 6) for _ in range(REPEATS)]
     kin = arm.kinematics
@@ -72,7 +74,7 @@ def main() -> None:
     print(f"share of the {period_us / 1e3:.0f} ms control period: {full_us / period_us:.1%}")
 
     world = World(config.simulation, np.random.default_rng(0))
-    arm = ArmController(config.onboard, config.mission)
+    arm = ArmController(config.onboard, config.mission, ROBOT)
     arm.set_goal(1, *goal)
     site = world.model.site("ee").id
     for step in range(1, 601):

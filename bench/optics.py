@@ -17,6 +17,7 @@ from abyss.stations.simulation.rendering import choose_gl_backend
 choose_gl_backend()
 
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
+from abyss.common.robot import robot_at  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.optics import range_of_depth  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
@@ -25,7 +26,8 @@ from abyss.stations.simulation.world import World  # noqa: E402
 from scene import timed  # noqa: E402  (bench/ is on the path when a bench runs)
 
 REPEATS = 5  # as scene.timed takes them
-CAMERA = "cam_left"
+ROBOT = robot_at("")  # the shipped robot package
+CAMERA = ROBOT.stereo_left
 
 
 def main() -> None:
@@ -33,7 +35,9 @@ def main() -> None:
     print(f"per {CAMERA} frame at {sim.camera_width_px}x{sim.camera_height_px} px, mean of {REPEATS}:")
     for where, position in (("start", sim.start_position_m_world), ("last waypoint", (3.2, 0.0, -8.0))):
         world = World(SimulationConfig(start_position_m_world=position), np.random.default_rng(0))
-        plain = Cameras(world.model, sim.camera_width_px, sim.camera_height_px)
+        plain = Cameras(
+            world.model, sim.camera_width_px, sim.camera_height_px, depth_camera=ROBOT.depth_camera
+        )
         plain_s = timed(lambda: plain.rgb(world.data, CAMERA))  # noqa: B023
         jpeg_s = timed(lambda: encode_image(plain, world.data, CAMERA, sim.jpeg_quality))  # noqa: B023
         print(f"  {where}: plain render {plain_s * 1e3:.1f} ms, to JPEG {jpeg_s * 1e3:.1f} ms")
@@ -45,7 +49,12 @@ def main() -> None:
         )
         for water in ("I", "9C"):
             cameras = Cameras(
-                world.model, sim.camera_width_px, sim.camera_height_px, water, rng=np.random.default_rng(0)
+                world.model,
+                sim.camera_width_px,
+                sim.camera_height_px,
+                water,
+                rng=np.random.default_rng(0),
+                depth_camera=ROBOT.depth_camera,
             )
             optics = cameras.optics(CAMERA)
             assert optics is not None
@@ -60,6 +69,7 @@ def main() -> None:
                     sim.camera_width_px,
                     sim.camera_height_px,
                     water,  # noqa: B023
+                    depth_camera=ROBOT.depth_camera,
                 ).optics(CAMERA),
                 1,
             )

@@ -45,7 +45,7 @@ from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.config.stations import OnboardConfig, VesselConfig  # noqa: E402
 from abyss.common.config.system import MissionConfig  # noqa: E402
 from abyss.common.geometry import rotation_of  # noqa: E402
-from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.common.robot import robot_at  # noqa: E402
 from abyss.scene.model import SceneModel  # noqa: E402
 from abyss.scene.octree import cell_keys, iterate_leaves, leaves_to_cells  # noqa: E402
 from abyss.stations.onboard.perception import Camera, CloudSettings, clouds_of, depth_to_points  # noqa: E402
@@ -53,6 +53,8 @@ from abyss.stations.onboard.stereo import StereoFilter, stereo_depth  # noqa: E4
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
+
+ROBOT = robot_at("")  # the shipped robot package
 
 UNFILTERED = StereoFilter(
     uniqueness_ratio=10,
@@ -129,6 +131,7 @@ def measure(
         water,
         sim.marine_snow,
         np.random.default_rng(seed),
+        depth_camera=ROBOT.depth_camera,
     )
     settings = dataclasses.replace(
         CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale, stereo_mode=mode
@@ -146,11 +149,13 @@ def measure(
             world.data.qpos[p : p + 3] = position
             world.data.qpos[p + 3 : p + 7] = [np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]
             mujoco.mj_forward(world.model, world.data)
-            images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in CAMERAS}
+            images = {c: encode_image(cameras, world.data, c, sim.jpeg_quality) for c in ROBOT.cameras}
             pose = (position, np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)]))
             if (count - 1) % every == 0:
                 t0 = time.perf_counter()
-                cloud = clouds_of(images, pose, np.zeros((0, 3)), ("stereo",), settings)[0]
+                cloud = clouds_of(ROBOT.spec.cameras, images, pose, np.zeros((0, 3)), ("stereo",), settings)[
+                    0
+                ]
                 stereo_s += time.perf_counter() - t0
                 matched += 1
                 model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
@@ -181,12 +186,21 @@ def stereo_cost_s(
     """[s] stereo_depth alone on the start pose's pair, mean of `repeats` after one."""
     sim = SimulationConfig(water=water)
     world = World(sim, np.random.default_rng(0))
-    cameras = Cameras(world.model, sim.camera_width_px, sim.camera_height_px, water, sim.marine_snow)
+    cameras = Cameras(
+        world.model,
+        sim.camera_width_px,
+        sim.camera_height_px,
+        water,
+        sim.marine_snow,
+        depth_camera=ROBOT.depth_camera,
+    )
     try:
-        left, right = cameras.rgb(world.data, "cam_left"), cameras.rgb(world.data, "cam_right")
+        left, right = cameras.rgb(world.data, "cam_left"), cameras.rgb(world.data, ROBOT.stereo_right)
         focal_px = cameras.intrinsics("cam_left").fx_px
         baseline_m = float(
-            np.linalg.norm(cameras.pose_in_vehicle("cam_right")[:3] - cameras.pose_in_vehicle("cam_left")[:3])
+            np.linalg.norm(
+                cameras.pose_in_vehicle(ROBOT.stereo_right)[:3] - cameras.pose_in_vehicle("cam_left")[:3]
+            )
         )
     finally:
         cameras.close()

@@ -82,15 +82,18 @@ BACKEND = choose_gl_backend()  # MUJOCO_GL, else the simulation's choice; before
 import mujoco  # noqa: E402
 
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.models import CAMERAS, WORLD_FILE, place_at_start  # noqa: E402
+from abyss.common.models import place_at_start, world_file  # noqa: E402
+from abyss.common.robot import robot_at  # noqa: E402
 
-DEPTH_CAMERA = "cam_depth"  # encoding.encode_image: its depth; the others' RGB
+ROBOT = robot_at("")  # the shipped robot package
+CAMERAS = ROBOT.cameras
+DEPTH_CAMERA = ROBOT.depth_camera  # encoding.encode_image: its depth; the others' RGB
 
 
 def start_pose(model: mujoco.MjModel, sim: SimulationConfig) -> mujoco.MjData:
     """World's initial state (common.models.place_at_start)."""
     data = mujoco.MjData(model)
-    place_at_start(model, data.qpos, sim.start_position_m_world, sim.start_yaw_rad)
+    place_at_start(model, data.qpos, ROBOT, sim.start_position_m_world, sim.start_yaw_rad)
     mujoco.mj_forward(model, data)
     return data
 
@@ -125,6 +128,7 @@ def measure(
         sim.marine_snow,
         np.random.default_rng(0),
         samples,
+        depth_camera=DEPTH_CAMERA,
     )
     try:
         for _ in range(warmup):
@@ -146,7 +150,7 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=5)
     args = parser.parse_args()
     sim = SimulationConfig()
-    model = mujoco.MjModel.from_xml_path(str(WORLD_FILE))
+    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
     data = start_pose(model, sim)
     print(
         f"python {platform.python_version()}, mujoco {mujoco.__version__}, MUJOCO_GL={BACKEND}, "

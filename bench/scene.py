@@ -27,13 +27,15 @@ from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.config.stations import VesselConfig  # noqa: E402
 from abyss.common.images import decode_image  # noqa: E402
 from abyss.common.messages import encode  # noqa: E402
-from abyss.common.models import CAMERAS  # noqa: E402
+from abyss.common.robot import robot_at  # noqa: E402
 from abyss.scene.model import SceneModel  # noqa: E402
 from abyss.scene.octree import iterate_leaves  # noqa: E402
 from abyss.stations.onboard.perception import CloudSettings, clouds_of  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
+
+ROBOT = robot_at("")  # the shipped robot package
 
 REPEATS = 5
 
@@ -48,8 +50,8 @@ def timed(action, repeats: int = REPEATS) -> float:  # type: ignore[no-untyped-d
 
 def frames_at(position: tuple[float, float, float]) -> tuple[dict, tuple[np.ndarray, np.ndarray]]:  # type: ignore[type-arg]
     world = World(SimulationConfig(start_position_m_world=position), np.random.default_rng(0))
-    cameras = Cameras(world.model, 640, 480)
-    frames = {c: encode_image(cameras, world.data, c, 90) for c in CAMERAS}
+    cameras = Cameras(world.model, 640, 480, depth_camera=ROBOT.depth_camera)
+    frames = {c: encode_image(cameras, world.data, c, 90) for c in ROBOT.cameras}
     cameras.close()
     truth = world.truth()
     return frames, (truth.position_m_world, truth.orientation_wxyz_world)
@@ -58,17 +60,21 @@ def frames_at(position: tuple[float, float, float]) -> tuple[dict, tuple[np.ndar
 def main() -> None:
     frames, pose = frames_at((0.0, 0.0, -7.0))
     settings = CloudSettings(voxel_m=0.05)
-    decode_s = timed(lambda: [decode_image(frames[c]) for c in CAMERAS])
-    depth_s = timed(lambda: clouds_of(frames, pose, np.zeros((0, 3)), ("depth",), settings))
-    stereo_s = timed(lambda: clouds_of(frames, pose, np.zeros((0, 3)), ("stereo",), settings))
+    decode_s = timed(lambda: [decode_image(frames[c]) for c in ROBOT.cameras])
+    depth_s = timed(
+        lambda: clouds_of(ROBOT.spec.cameras, frames, pose, np.zeros((0, 3)), ("depth",), settings)
+    )
+    stereo_s = timed(
+        lambda: clouds_of(ROBOT.spec.cameras, frames, pose, np.zeros((0, 3)), ("stereo",), settings)
+    )
     print(
         f"cloud fusion per frame: decoding the set {decode_s * 1e3:.0f} ms (floor); "
         f"depth {depth_s * 1e3:.0f} ms "
         f"({depth_s / decode_s:.1f}x); stereo {stereo_s * 1e3:.0f} ms ({stereo_s / decode_s:.1f}x)"
     )
     later, later_pose = frames_at((1.5, 0.0, -7.0))
-    first = clouds_of(frames, pose, np.zeros((0, 3)), ("depth",), settings)[0]
-    second = clouds_of(later, later_pose, np.zeros((0, 3)), ("depth",), settings)[0]
+    first = clouds_of(ROBOT.spec.cameras, frames, pose, np.zeros((0, 3)), ("depth",), settings)[0]
+    second = clouds_of(ROBOT.spec.cameras, later, later_pose, np.zeros((0, 3)), ("depth",), settings)[0]
     print(f"a depth cloud: {first.count} points, {len(first.data)} bytes on the tether")
     for resolution_m in (0.05, 0.1, 0.2):
         points, colors = unpack_cloud(first)

@@ -30,12 +30,14 @@ from abyss.common import keys  # noqa: E402
 from abyss.common.bus import open_session, zenoh_config  # noqa: E402
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
 from abyss.common.messages import SimulationStatus, decode  # noqa: E402
-from abyss.common.models import ARM_JOINTS, CAMERAS  # noqa: E402
+from abyss.common.robot import robot_at  # noqa: E402
 from abyss.launch.station import free_port  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.lowlevel import References  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402
 from abyss.stations.simulation.world import World  # noqa: E402
+
+ROBOT = robot_at("")  # the shipped robot package
 
 
 def physics(
@@ -104,16 +106,16 @@ def arm_trajectories() -> None:
         figures = []
         for name, case in cases.items():
             error = reference.differences(case)
-            figures.append(f"{name} {error.max():.1%} ({ARM_JOINTS[int(np.argmax(error))]})")
+            figures.append(f"{name} {error.max():.1%} ({ROBOT.arm_joints[int(np.argmax(error))]})")
         print(f"  arm trajectories, strips against ellipsoids, {title}: " + "; ".join(figures))
 
 
 def rendering(frames: int = 20) -> float:
     world = World(SimulationConfig(), np.random.default_rng(0))
-    cameras = Cameras(world.model, 640, 480)
+    cameras = Cameras(world.model, 640, 480, depth_camera=ROBOT.depth_camera)
     encode_image(cameras, world.data, "cam_left", 90)  # warm up
     per_camera = {}
-    for camera in CAMERAS:
+    for camera in ROBOT.cameras:
         t0 = time.perf_counter()
         for _ in range(frames):
             encode_image(cameras, world.data, camera, 90)

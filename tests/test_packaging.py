@@ -148,9 +148,9 @@ def test_every_package_and_module_of_the_repository_is_in_the_wheel(names: set[s
 
 def test_package_data_is_in_the_wheel_byte_for_byte(wheel: Path, names: set[str]) -> None:
     models = [
-        p for p in (ROOT / "common" / "models").iterdir() if p.is_file() and p.suffix not in (".py", ".pyc")
+        p for p in (ROOT / "common" / "models").rglob("*") if p.is_file() and p.suffix not in (".py", ".pyc")
     ]
-    assert {p.name for p in models} >= {"robot.xml", "world.xml", "terrain.bin"}
+    assert {p.name for p in models} >= {"robot.xml", "robot.toml", "world.xml", "terrain.bin"}
     data = [*models, ROOT / "common" / "profiles.toml", ROOT / "py.typed"]
     # nothing else in a package folder that is not Python: a new data file needs package-data
     for top in {p.parts[0] for p in _repo_packages() if p.parts}:
@@ -228,7 +228,8 @@ def test_the_installed_wheel_runs_from_its_own_environment(wheel: Path, tmp_path
 
     probe = (
         "import sys, abyss, abyss.stations.onboard, abyss.common.models as m, abyss.launch.up; "
-        "print(abyss.__file__); print(abyss.stations.onboard.__file__); print(m.ROBOT_FILE); "
+        "print(abyss.__file__); print(abyss.stations.onboard.__file__); "
+        "import abyss.common.robot as r; print(r.robot_at('').model_file); "
         "print(sorted(n for n in sys.modules if 'editable' in n))"
     )
     imported = subprocess.run(

@@ -248,8 +248,8 @@ def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_pat
 
 
 def test_both_shipped_vehicle_files_load() -> None:
-    for name in ("robot.toml", "bluerov2_heavy.toml"):
-        vehicle = load_vehicle(MODELS_DIR / name)
+    for path in (ROBOT.file, MODELS_DIR / "bluerov2_heavy.toml"):
+        vehicle = load_vehicle(path)
         assert vehicle.source and vehicle.added_mass.shape == (6, 6)
 
 

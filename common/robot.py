@@ -216,7 +216,7 @@ def _load(directory: Path) -> Robot:
     except ConfigError as exc:
         raise ConfigError(exc.field, exc.reason, str(path)) from None
     model = _compiled(directory, spec, path)
-    checks = (_check_model_names, _check_arm, _check_cameras, _check_added_mass)
+    checks = (_check_distinct, _check_model_names, _check_arm, _check_cameras, _check_added_mass)
     for check in checks:
         check(model, spec, path)
     allocation = thrust_matrix(model, spec.model.base, spec.thrusters.names, path)
@@ -245,6 +245,21 @@ def _require(model: mujoco.MjModel, path: Path, where: str, kind: str, names: tu
     missing = [n for n in names if not _has(model, kind, n)]
     if missing:
         raise ConfigError(where, f"{', '.join(missing)}: no {kind} of that name in the model", str(path))
+
+
+def _check_distinct(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
+    s = spec.nav_sensors
+    lists = {
+        "arm.joints": spec.arm.joints,
+        "arm.gripper.joints": spec.arm.gripper.joints,
+        "thrusters.names": spec.thrusters.names,
+        "cameras.names": spec.cameras.names,
+        "nav_sensors": (s.usbl, s.depth, s.dvl, s.imu),
+    }
+    for where, names in lists.items():
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ConfigError(where, f"{', '.join(twice)} named more than once", str(path))
 
 
 def _check_model_names(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:

@@ -126,6 +126,7 @@ BROKEN = {  # one change each: (robot.toml's text, what it becomes, the field na
         "added_mass",
         "positive definite",
     ),
+    "a sensor named twice": ('dvl = "dvl"', 'dvl = "usbl"', "nav_sensors", "usbl named more than once"),
     "an unknown gripper kind": ('kind = "parallel"', 'kind = "suction"', "arm.gripper.kind", "parallel"),
     "an unknown field": (
         "[arm.gripper]",

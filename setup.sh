@@ -42,8 +42,11 @@ command -v "$PYTHON" >/dev/null || PYTHON=python3
 stamp=.venv/.abyss-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "setup: installing Python packages into .venv (first time: a few minutes)"
-  .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e '.[test]'
+  # pip's and the build backend's chatter (setuptools says on every editable install that a folder
+  # named like the package may shadow it) goes to a log, shown whole if the install fails
+  log=.venv/pip-install.log
+  { .venv/bin/python -m pip install -q --upgrade pip && .venv/bin/python -m pip install -q -e '.[test]'; } >"$log" 2>&1 \
+    || { cat "$log" >&2; echo "setup: the Python packages did not install (log: $log)" >&2; exit 1; }
   touch "$stamp"
 fi
 # the physics in C (stations/simulation/native.py builds native_physics.c against the MuJoCo in

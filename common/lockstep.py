@@ -20,21 +20,21 @@ for the next period cross while the physics steps, and the tick's round trip is 
 critical path; what is delivered, and when in simulated time, is what it was.
 
 Holds (`time.holds_s`) are where the testbed acts: before a hold's period the simulation waits,
-every station done with the period before, until the testbed releases it (`Holds`). In between,
-nothing moves: the testbed's fault lands on that period, a link changes there, a station killed
-there loses exactly what it had not delivered, and its restart (`ABYSS_BOOT` one more) runs its
-first period there. Counts are per epoch, from one hold to the next: at a hold's period every
-station counts its deliveries and its arrivals anew (from what it had verified by the period
-before), so a restarted station, whose counts start at zero, and its neighbours agree again.
-Each station flushes its recording before a hold, so that one killed in it leaves every message
-it sent.
+every station done with the period before, until the testbed releases it
+(`lockstep_testbed.Holds`). In between, nothing moves: the testbed's fault lands on that period, a
+link changes there, a station killed there loses exactly what it had not delivered, and its restart
+(`ABYSS_BOOT` one more) runs its first period there. Counts are per epoch, from one hold to the
+next: at a hold's period every station counts its deliveries and its arrivals anew (from what it
+had verified by the period before), so a restarted station, whose counts start at zero, and its
+neighbours agree again. Each station flushes its recording before a hold, so that one killed in it
+leaves every message it sent.
 
 Under `abyss up` (its pid in `SUPERVISOR_ENV`) the simulation is leased: it runs only the periods
-before the testbed's lease (`Lease`, a release that carries `LEASE`), and holds before the first
-period past it, as at a hold but unseen by the other stations (no epoch begins, no recording is
-flushed). The supervisor leases a second past shore's latest mission status, and ends the lease
-a second past the first status that says done: the run stops there, every station done with the
-period before, on the same period however late the supervisor heard the status
+before the testbed's lease (`lockstep_testbed.Lease`, a release that carries `LEASE`), and holds
+before the first period past it, as at a hold but unseen by the other stations (no epoch begins, no
+recording is flushed). The supervisor leases a second past shore's latest mission status, and ends
+the lease a second past the first status that says done: the run stops there, every station done
+with the period before, on the same period however late the supervisor heard the status
 (launch.supervise, LockstepEnd).
 
 So no thread interleaving, process scheduling or wall-clock moment decides anything: the same
@@ -59,8 +59,7 @@ from collections.abc import Callable, Iterable
 import zenoh
 
 from abyss.common import keys
-from abyss.common.clock import GUARD_WALL_S, POLL_WALL_S, Reject, SimClock, station_message
-from abyss.common.errors import AbyssError
+from abyss.common.clock import GUARD_WALL_S, Reject, SimClock, station_message
 from abyss.common.messages import LockstepReport, encode
 
 log = logging.getLogger(__name__)
@@ -465,123 +464,3 @@ class Lockstep:
         for subscriber in self._subscribers:
             subscriber.undeclare()
         self._publisher.undeclare()
-
-
-class Holds:
-    """The testbed's side of the holds (see the module): what each station reported last in each
-    phase, with its boot, and the release of a hold."""
-
-    def __init__(self, session: zenoh.Session, system: str, reject: Reject) -> None:
-        self._cond = threading.Condition()
-        self._latest: dict[tuple[str, str], LockstepReport] = {}
-        self._boot: Counter[str] = Counter()  # each station's latest boot heard
-        self._publisher, self._subscribers = declare_reports(session, system, TESTBED, self._take, reject)
-        self._seq = 0
-
-    def _take(self, station: str, report: LockstepReport) -> None:
-        with self._cond:
-            if report.boot >= self._boot[station]:
-                self._boot[station] = report.boot
-                self._latest[(station, report.phase)] = report
-                self._cond.notify_all()
-
-    def boot(self, station: str) -> int:
-        with self._cond:
-            return self._boot[station]
-
-    def reported(self, station: str, phase: str, min_boot: int = 0) -> LockstepReport | None:
-        """`station`'s latest report in `phase`, if one of boot `min_boot` or later came."""
-        with self._cond:
-            report = self._latest.get((station, phase))
-            return report if report is not None and report.boot >= min_boot else None
-
-    def wait(self, what: str, ready: Callable[[], bool], alive: Callable[[], bool], timeout_s: float) -> None:
-        """Until `ready()`; AbyssError naming `what` if the system ends (`alive` false) or
-        `timeout_s` passes first."""
-        deadline_s = time.monotonic() + timeout_s
-        while not ready():  # without the lock: `ready` may query the system (a link's profile)
-            if not alive():
-                raise AbyssError(f"the system ended while waiting for {what}")
-            if time.monotonic() > deadline_s:
-                raise AbyssError(f"waited {timeout_s:g} s for {what}")
-            with self._cond:
-                self._cond.wait(POLL_WALL_S * 5)
-
-    def held(
-        self, hold_s: float, min_boot: int, alive: Callable[[], bool], timeout_s: float
-    ) -> LockstepReport:
-        """The simulation's report that it is held at the hold `hold_s` (boot `min_boot` or later)."""
-
-        def held() -> LockstepReport | None:
-            report = self.reported("simulation", "held", min_boot)
-            return report if report is not None and report.sim_time_s >= hold_s - TICK_TOLERANCE_S else None
-
-        self.wait(f"the simulation held at t={hold_s:g} s", lambda: held() is not None, alive, timeout_s)
-        report = held()
-        assert report is not None
-        return report
-
-    def release(self, t_s: float, alive: Callable[[], bool], timeout_s: float) -> None:
-        """Let the simulation go on from its hold at `t_s`: told until it has delivered that period."""
-        told_s = -math.inf
-
-        def gone_on() -> bool:
-            nonlocal told_s
-            delivered = self.reported("simulation", "delivered", self._boot["simulation"])
-            if delivered is not None and delivered.sim_time_s >= t_s - TICK_TOLERANCE_S:
-                return True
-            if time.monotonic() - told_s >= REPEAT_WALL_S:
-                told_s = time.monotonic()
-                message = LockstepReport(sim_time_s=t_s, phase="release", boot=0)
-                self._publisher.put(encode(message, self._seq, time.time()))
-                self._seq += 1
-            return False
-
-        self.wait(f"the simulation to go on from t={t_s:g} s", gone_on, alive, timeout_s)
-
-    def close(self) -> None:
-        for subscriber in self._subscribers:
-            subscriber.undeclare()
-        self._publisher.undeclare()
-
-
-class Lease(Holds):
-    """The testbed's lease of periods to a leased simulation (see the module): it runs the
-    periods before `until_s`, which only grows; told at once when it grows and again by `tell`
-    every REPEAT_WALL_S (a simulation that starts or restarts later hears it then). And, as
-    `Holds`, what each station reported last."""
-
-    def __init__(self, session: zenoh.Session, system: str, reject: Reject, until_s: float = 0.0) -> None:
-        super().__init__(session, system, reject)
-        self._lease_lock = threading.Lock()
-        self.until_s = until_s
-        self._told_wall_s = -math.inf
-
-    def grant(self, until_s: float) -> None:
-        """Lease the periods before `until_s` [simulated s] (a shorter lease changes nothing)."""
-        with self._lease_lock:
-            if until_s > self.until_s:
-                self.until_s = until_s
-                self._tell()
-
-    def tell(self) -> None:
-        """Tell the lease again if it was not told for REPEAT_WALL_S."""
-        with self._lease_lock:
-            if time.monotonic() - self._told_wall_s >= REPEAT_WALL_S:
-                self._tell()
-
-    def _tell(self) -> None:
-        self._told_wall_s = time.monotonic()
-        message = LockstepReport(sim_time_s=self.until_s, phase="release", delivered={LEASE: 1.0}, boot=0)
-        self._publisher.put(encode(message, self._seq, time.time()))
-        self._seq += 1
-
-    def held_at(self, t_s: float) -> bool:
-        """True once the simulation (its latest boot) is held at `t_s` or later."""
-        report = self.reported("simulation", "held", self.boot("simulation"))
-        return report is not None and report.sim_time_s >= t_s - TICK_TOLERANCE_S
-
-    def delivered_at(self, station: str, t_s: float) -> bool:
-        """True once `station` (its latest boot) delivered period `t_s` or a later one."""
-        report = self.reported(station, "delivered", self.boot(station))
-        return report is not None and report.sim_time_s >= t_s - TICK_TOLERANCE_S

@@ -108,7 +108,7 @@ class TimeConfig:
     end_s: float = 0.0
     # lockstep: simulated times at which the simulation holds, before their period, until the
     # testbed releases it (the scenario runner's timed events: a fault, a link change, a station
-    # killed and restarted, each landing on its period; common.lockstep, Holds)
+    # killed and restarted, each landing on its period; common.lockstep_testbed, Holds)
     holds_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:

@@ -17,7 +17,8 @@ import pytest
 from abyss.common import lockstep as lockstep_module
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import load
-from abyss.common.lockstep import TESTBED, Lease, Lockstep, LockstepClock, hold_period
+from abyss.common.lockstep import TESTBED, Lockstep, LockstepClock, hold_period
+from abyss.common.lockstep_testbed import Lease
 from abyss.common.messages import MissionStatus
 from abyss.launch import station as runtime
 from abyss.launch.station import free_port

@@ -28,7 +28,7 @@ from abyss.common.bus import message_of, open_session, zenoh_config
 from abyss.common.clock import SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.errors import AbyssError
-from abyss.common.lockstep import Holds
+from abyss.common.lockstep_testbed import Holds
 from abyss.common.messages import Telemetry
 from abyss.launch.state import RunState, wait_for_state
 from abyss.validation.scenario.checks import Run, Verdict, judge, phase_began_s

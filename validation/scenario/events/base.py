@@ -16,7 +16,7 @@ from abyss.common.reading import OneOf
 if TYPE_CHECKING:
     import zenoh
 
-    from abyss.common.lockstep import Holds
+    from abyss.common.lockstep_testbed import Holds
     from abyss.launch.state import RunState
 
 

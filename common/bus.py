@@ -309,11 +309,18 @@ class Bus:
 
     # -- observation ---------------------------------------------------------------------
     def observe(self, key: str, message: Message) -> None:
-        """Publish on an observation key (scoring, status), outside the links."""
+        """Publish on an observation key (scoring, status), outside the links. In lockstep it
+        blocks rather than drops, as every publisher there does: the records the supervisor writes
+        from it (panel.csv) repeat row for row (a loaded machine dropped one of a run's)."""
         with self._lock:
             payload = encode(message, self._seq[key], self.clock.stamp_s())
             self._seq[key] += 1
-        self.session.put(key, payload)
+        lockstep = self.clock.mode == "lockstep"
+        self.session.put(
+            key,
+            payload,
+            congestion_control=zenoh.CongestionControl.BLOCK if lockstep else zenoh.CongestionControl.DROP,
+        )
 
     # -- life ----------------------------------------------------------------------------
     def loop(self, name: str, period_s: float, clock: Clock | None = None) -> Rate:

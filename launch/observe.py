@@ -4,6 +4,7 @@ the vehicle strays while a restarted station is down."""
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -70,6 +71,7 @@ class Heard:
         self.testbed: Recorder | None = None  # the observation keys' recording
         self.down: dict[str, Outage] = {}  # restarts whose station is not back yet
         self.truth_m_world: np.ndarray | None = None  # the vehicle's position, from the simulation
+        self.truth_s = -math.inf  # [simulated s] the latest truth's; the panel's came before it
         self.nav_error = NavError()  # onboard's estimate against it
         self.panel: tuple[PanelState, PanelState] | None = None  # the panel's truth: the first, the latest
 
@@ -150,6 +152,7 @@ class Heard:
                     drift_m = float(np.linalg.norm(message.position_m_world - down.from_m_world))
                     down.drift_m = max(down.drift_m, drift_m)
             self.truth_m_world = message.position_m_world
+            self.truth_s = message.sim_time_s
             self.nav_error.add_truth(message.sim_time_s, message.position_m_world)
 
     def on_observed(self, sample: zenoh.Sample) -> None:

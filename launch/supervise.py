@@ -241,7 +241,10 @@ class Supervisor:
             # its lease ends, LockstepEnd)
             done = mission is not None and mission.done and self.heard.interventions_true(self.config.mission)
             if ending is not None and ending.stop_when_done:
-                reached = ending.reached()
+                # and what the simulation observed up to there has come (the panel's truth that
+                # judges the mission and goes in panel.csv: the last one, not an older one)
+                last_period_s = (ending.end_s or 0.0) - self.config.simulation.control_period_s
+                reached = ending.reached() and self.heard.truth_s >= last_period_s - TICK_TOLERANCE_S
                 done = reached and self.heard.interventions_true(self.config.mission)
                 if reached and not done:
                     ending.again()

@@ -146,9 +146,9 @@ def _publish(bus: Bus, world: World, truth: NavState, joints: JointState, panel:
     the truth (and the panel's, when due) to the testbed."""
     bus.publish("nav", world.nav())
     bus.publish("joints", joints)
-    bus.observe(keys.truth_key(bus.system), truth)
-    if panel is not None:
+    if panel is not None:  # before the truth: the supervisor that has the truth has the panel's
         bus.observe(keys.panel_truth_key(bus.system), panel)
+    bus.observe(keys.truth_key(bus.system), truth)
 
 
 def _report_status(

@@ -8,20 +8,39 @@ calls (an abyss command starts in about 4 s in it): measure what fits in it."""
 
 from __future__ import annotations
 
+import functools
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 UML = shutil.which("linux.uml")
 MODULES = ("kernel/net/sched/sch_netem.ko", "kernel/drivers/net/veth.ko", "kernel/drivers/net/tun.ko")
 
 
+# UML before Linux 6.3 saves a process's FPU state in a buffer of a fixed size; on a CPU with AMX
+# the host's XSAVE area is larger, ptrace refuses the buffer (EFAULT) and UML's init dies at once
+FP_REGS_REFUSED = "ptrace set fp regs failed"
+
+
+@functools.cache
 def why_not() -> str:
     """Why this machine cannot boot it ('' if it can)."""
     if UML is None:
         return "no linux.uml (Debian's user-mode-linux; setup.sh installs it as root)"
     if not list(Path("/usr/lib/uml/modules").glob(f"*/{MODULES[0]}")):
         return "user-mode-linux's modules have no sch_netem"
+    if "amx_tile" in Path("/proc/cpuinfo").read_text().split():  # a boot tells, in about 3 s
+        with tempfile.TemporaryDirectory() as probe:
+            try:
+                boot("true", Path(probe), timeout_s=120.0)
+            except RuntimeError as exc:
+                if FP_REGS_REFUSED in str(exc):
+                    return (
+                        "this UML kernel cannot run on this CPU: its XSAVE area (AMX) is larger than "
+                        f"UML saves before Linux 6.3, and its init dies ('{FP_REGS_REFUSED}, errno = 14')"
+                    )
+                raise
     return ""
 
 

@@ -224,15 +224,37 @@ def _load(directory: Path) -> Robot:
 
 
 def _compiled(directory: Path, spec: RobotFile, path: Path) -> mujoco.MjModel:
+    try:
+        return model_spec(directory, spec, path).compile()
+    except ValueError as exc:  # MuJoCo's compiler's error
+        raise ConfigError(
+            "model.file", f"{directory / spec.model.file} does not compile: {exc}", str(path)
+        ) from None
+
+
+def model_spec(directory: Path, spec: RobotFile, path: Path) -> mujoco.MjSpec:
+    """The package's model as a MuJoCo spec (its MJCF, parsed); ConfigError naming robot.toml's
+    `model.file` for one missing or unreadable."""
     import mujoco
 
     model_file = directory / spec.model.file
     if not model_file.is_file():
         raise ConfigError("model.file", f"no such file: {model_file}", str(path))
     try:
-        return mujoco.MjModel.from_xml_path(str(model_file))
-    except ValueError as exc:  # MuJoCo's compiler's error
-        raise ConfigError("model.file", f"{model_file} does not compile: {exc}", str(path)) from None
+        return mujoco.MjSpec.from_file(str(model_file))
+    except ValueError as exc:  # MuJoCo's parser's error
+        raise ConfigError("model.file", f"{model_file} does not parse: {exc}", str(path)) from None
+
+
+def robot_spec(robot: Robot) -> mujoco.MjSpec:
+    """A fresh spec of the robot's model, to compose a world from (common.site)."""
+    return model_spec(robot.directory, robot.spec, robot.file)
+
+
+def robot_mjcf(robot: Robot) -> Path:
+    """The MJCF of the robot alone that Pinocchio reads (its MJCF parser takes no height fields,
+    so never a world's)."""
+    return robot.model_file
 
 
 def _has(model: mujoco.MjModel, kind: str, name: str) -> bool:

@@ -15,7 +15,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.robot import Robot
+from abyss.common.robot import Robot, robot_mjcf
 from abyss.ros2.msgs import (
     BASE_LINK,
     Floats,
@@ -31,7 +31,7 @@ class ArmFrames:
 
     def __init__(self, robot: Robot) -> None:
         self.robot = robot
-        self.model = pin.buildModelFromMJCF(str(robot.model_file))
+        self.model = pin.buildModelFromMJCF(str(robot_mjcf(robot)))
         self.data = self.model.createData()
         self.q_index = {
             name: self.model.joints[self.model.getJointId(name)].idx_q

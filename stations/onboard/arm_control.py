@@ -16,7 +16,7 @@ import pinocchio as pin
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import rotation_of
-from abyss.common.robot import Robot
+from abyss.common.robot import Robot, robot_mjcf
 from abyss.stations.onboard.modes import Mode
 from abyss.stations.onboard.task_priority import Constraints, Task, solve_constrained
 
@@ -45,7 +45,7 @@ class ArmKinematics:
 
     def __init__(self, robot: Robot, whole_body: bool = False) -> None:
         self.robot = robot
-        self.model = pin.buildModelFromMJCF(str(robot.model_file))
+        self.model = pin.buildModelFromMJCF(str(robot_mjcf(robot)))
         self.data = self.model.createData()
         joints = [self.model.joints[self.model.getJointId(name)] for name in robot.arm_joints]
         self.arm_q = np.array([j.idx_q for j in joints])

@@ -35,7 +35,7 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.robot import Robot
+from abyss.common.robot import Robot, robot_spec
 from abyss.stations.onshore.layout import blueprint
 
 RECORDING_FILE = "onshore.rrd"
@@ -205,7 +205,7 @@ class Viewer:
     def __init__(self, recording: rr.RecordingStream, robot: Robot) -> None:
         """`robot`: the robot shown (common.robot), its model posed from telemetry."""
         self.recording = recording
-        self.model = mujoco.MjModel.from_xml_path(str(robot.model_file))
+        self.model = robot_spec(robot).compile()
         self.data = mujoco.MjData(self.model)
         self.joint_qpos = [self.model.joint(name).qposadr[0] for name in robot.arm_joints]
         self.body_paths = ["world"]

@@ -22,7 +22,7 @@ from abyss.common.errors import BadInput, ConfigError
 from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
 from abyss.common.models import panel
 from abyss.common.reading import OneOf
-from abyss.common.robot import Robot, robot_at
+from abyss.common.robot import Robot, robot_at, robot_spec
 
 Outcome = Literal["done", "failed"]  # of an intervention
 OUTCOMES: tuple[Outcome, ...] = typing.get_args(Outcome)
@@ -235,9 +235,8 @@ def arm_limits(run: Run, margin_deg: float = 1.0) -> tuple[bool, str]:
 
 def arm_ranges_rad(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
     """The arm's joint ranges [rad] as the robot's model (MuJoCo) has them, lower and upper."""
-    import mujoco
 
-    model = mujoco.MjModel.from_xml_path(str(robot.model_file))
+    model = robot_spec(robot).compile()
     ranges = np.array([model.jnt_range[model.joint(name).id] for name in robot.arm_joints])
     return ranges[:, 0], ranges[:, 1]
 

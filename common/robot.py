@@ -26,6 +26,14 @@ import numpy as np
 
 from abyss.common.errors import ConfigError
 from abyss.common.reading import read_table
+from abyss.common.urdf import (
+    CameraSection,
+    ServosSection,
+    SiteSection,
+    refuse_in_mjcf,
+    urdf_spec,
+    write_mjcf,
+)
 
 if TYPE_CHECKING:
     import mujoco
@@ -45,8 +53,14 @@ HEAVE = 2
 @dataclass(frozen=True)
 class ModelSection:
     file: str  # the model file, relative to the package
-    format: Literal["mjcf"] = "mjcf"  # URDF to follow
+    format: Literal["mjcf", "urdf"] = "mjcf"  # urdf: *.urdf, or xacro (common/urdf.py)
     base: str = "vehicle"  # the floating base: its body, and its free joint, of this name
+    # a URDF's alone (common/urdf.py): what the simulation needs that a URDF cannot say
+    xacro_args: dict[str, str | bool | int | float] = field(default_factory=dict)
+    wet_links: tuple[str, ...] | None = None  # whose collision geoms are wet; None: every link's
+    sites: tuple[SiteSection, ...] = ()
+    cameras: tuple[CameraSection, ...] = ()
+    servos: ServosSection = field(default_factory=ServosSection)
 
 
 @dataclass(frozen=True)
@@ -233,10 +247,14 @@ def _compiled(directory: Path, spec: RobotFile, path: Path) -> mujoco.MjModel:
 
 
 def model_spec(directory: Path, spec: RobotFile, path: Path) -> mujoco.MjSpec:
-    """The package's model as a MuJoCo spec (its MJCF, parsed); ConfigError naming robot.toml's
-    `model.file` for one missing or unreadable."""
+    """The package's model as a MuJoCo spec (its MJCF, parsed; or its URDF with what robot.toml
+    adds, common/urdf.py); ConfigError naming robot.toml's `model.file` for one missing or
+    unreadable."""
     import mujoco
 
+    if spec.model.format == "urdf":
+        return urdf_spec(directory, spec, path)
+    refuse_in_mjcf(spec.model, path)
     model_file = directory / spec.model.file
     if not model_file.is_file():
         raise ConfigError("model.file", f"no such file: {model_file}", str(path))
@@ -253,7 +271,9 @@ def robot_spec(robot: Robot) -> mujoco.MjSpec:
 
 def robot_mjcf(robot: Robot) -> Path:
     """The MJCF of the robot alone that Pinocchio reads (its MJCF parser takes no height fields,
-    so never a world's)."""
+    so never a world's): an MJCF package's own file, a URDF package's model written to the cache."""
+    if robot.spec.model.format == "urdf":
+        return write_mjcf(robot.directory, robot.spec, robot.file)
     return robot.model_file
 
 

@@ -11,8 +11,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from abyss.common.errors import ConfigError
-from abyss.common.models import MODELS_DIR
-from abyss.common.robot import robot_at
+from abyss.common.robot import ROBOTS_DIR, robot_at
 from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
 from abyss.stations.simulation.marine import Current
 from abyss.stations.simulation.thrusters import Thrusters
@@ -20,8 +19,21 @@ from abyss.stations.simulation.thrusters import Thrusters
 ROBOT = robot_at("")  # the shipped robot package
 
 
-BLUEROV2 = MODELS_DIR / "bluerov2_heavy.xml"
+BLUEROV2 = ROBOTS_DIR / "bluerov2_heavy_alpha5"  # the BlueROV2 Heavy's package (with a Reach Alpha 5)
+BLUEROV2_FILE = BLUEROV2 / "robot.toml"  # its published coefficients
 DT_S = 0.002
+
+
+def bluerov2_vehicle() -> mujoco.MjModel:
+    """The BlueROV2 Heavy alone, as its coefficients were identified: the package's MJCF without
+    the arm and the trim ballast it carries for the sea, in fresh water."""
+    spec = mujoco.MjSpec.from_file(str(BLUEROV2 / "robot.xml"))
+    for body in ("arm_base", "ballast"):  # the arm's actuators and exclusions go with it
+        spec.delete(spec.body(body))
+    spec.option.timestep = DT_S
+    spec.option.density, spec.option.viscosity = 1000.0, 0.0011
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    return spec.compile()
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -91,9 +103,9 @@ class Reference:
 def simulate_mujoco(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
     """The BlueROV2 in MuJoCo with the Fossen model and a body wrench [N, N m] about its origin:
     (t, x, y, z, yaw, u, v, w, r) sampled every 0.1 s."""
-    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    fossen = Fossen(model, load_vehicle(MODELS_DIR / "bluerov2_heavy.toml"))
+    fossen = Fossen(model, load_vehicle(BLUEROV2_FILE))
     rows = []
     steps = round(duration_s / DT_S)
     for k in range(steps + 1):
@@ -109,8 +121,8 @@ def simulate_mujoco(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
 
 
 def simulate_reference(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
-    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
-    reference = Reference(model, load_vehicle(MODELS_DIR / "bluerov2_heavy.toml"))
+    model = bluerov2_vehicle()
+    reference = Reference(model, load_vehicle(BLUEROV2_FILE))
     x0 = np.r_[0.0, 0.0, -5.0, 1.0, 0.0, 0.0, 0.0, np.zeros(6)]
     times = np.arange(0.0, duration_s + 1e-9, 0.1)
     solution = solve_ivp(
@@ -166,9 +178,9 @@ def test_terminal_surge_speed_at_full_thrust_is_the_published_vehicles() -> None
     surge damping: X = 141 u|u| + 13.7 u solved for u. The vehicle is held level, as ArduSub holds
     it with its vertical thrusters (a stiff PD on roll and pitch stands in for that here): its
     centre of gravity is 1 cm below that of buoyancy, too little to hold the Munk moment at speed."""
-    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
+    vehicle = load_vehicle(BLUEROV2_FILE)
     fossen, thrusters = Fossen(model, vehicle), Thrusters(model, vehicle.thrusters)
     thrust = thrusters.allocate(np.array([1e4, 0, 0, 0, 0, 0]))  # more than it has: scaled to its limit
     assert np.max(thrust) == pytest.approx(vehicle.thrusters.forward_max_n)
@@ -192,9 +204,9 @@ def test_terminal_surge_speed_at_full_thrust_is_the_published_vehicles() -> None
 def test_the_added_mass_is_in_the_inertia() -> None:
     """A step of force from rest: the first acceleration is (M_RB + M_A)^-1 tau, about F / (m +
     X_udot), not F / m."""
-    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
+    vehicle = load_vehicle(BLUEROV2_FILE)
     fossen = Fossen(model, vehicle)
     mujoco.mj_step1(model, data)
     fossen.apply(model, data, np.zeros(3))
@@ -207,9 +219,9 @@ def test_the_added_mass_is_in_the_inertia() -> None:
 
 
 def test_thruster_rotor_lag_dead_band_and_asymmetric_curve() -> None:
-    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
+    model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    spec = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml").thrusters
+    spec = load_vehicle(BLUEROV2_FILE).thrusters
     thrusters = Thrusters(model, spec)
     n = len(spec.names)
     thrusters.drive(data, np.full(n, 0.9 * spec.deadband), 1.0)  # inside the dead band: nothing
@@ -248,7 +260,7 @@ def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_pat
 
 
 def test_both_shipped_vehicle_files_load() -> None:
-    for path in (ROBOT.file, MODELS_DIR / "bluerov2_heavy.toml"):
+    for path in (ROBOT.file, BLUEROV2_FILE):
         vehicle = load_vehicle(path)
         assert vehicle.source and vehicle.added_mass.shape == (6, 6)
 
@@ -277,8 +289,8 @@ def test_current_profile_and_gauss_markov_process() -> None:
 def test_the_diagonal_added_masss_fast_path_is_the_general_equations() -> None:
     """Fossen.apply on Python floats for a diagonal M_A gives the force and inertia of the
     general path (wrench_n_body and the 6x6 products), turning, moving and in a current."""
-    model = mujoco.MjModel.from_xml_path(str(BLUEROV2))
-    vehicle = load_vehicle(MODELS_DIR / "bluerov2_heavy.toml")
+    model = bluerov2_vehicle()
+    vehicle = load_vehicle(BLUEROV2_FILE)
     fast, general = Fossen(model, vehicle), Fossen(model, vehicle)
     general.diagonal = None  # the matrix path, as a vehicle with off-diagonal terms takes
     assert fast.diagonal is not None

@@ -37,7 +37,7 @@ from abyss.common.messages import (
     encode,
     new_id,
 )
-from abyss.common.models import panel
+from abyss.common.models.panel import intent_of
 from abyss.launch.state import wait_for_state
 from abyss.stations.onboard.intervention import TURN_RATE_RADPS
 
@@ -105,7 +105,7 @@ def one_turn(session: zenoh.Session, watch: Watch, turn_deg: float) -> tuple[flo
     within it."""
     with watch.lock:
         target_deg = watch.angle_deg + turn_deg
-    command = Intervention(new_id(), PART, *panel.intent(PART, f"{turn_deg:g}"))
+    command = Intervention(new_id(), PART, *intent_of(f"{turn_deg:g}"))
     t0 = time.monotonic()
     session.put(keys.operator_key(SYSTEM, "intervene"), encode(command, 0, t0))  # the shore resends
     at_target = watch.wait(

@@ -82,8 +82,9 @@ BACKEND = choose_gl_backend()  # MUJOCO_GL, else the simulation's choice; before
 import mujoco  # noqa: E402
 
 from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.models import place_at_start, world_file  # noqa: E402
+from abyss.common.models import place_at_start  # noqa: E402
 from abyss.common.robot import robot_at  # noqa: E402
+from abyss.common.site import site_at, world_model  # noqa: E402
 
 ROBOT = robot_at("")  # the shipped robot package
 CAMERAS = ROBOT.cameras
@@ -150,7 +151,7 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=5)
     args = parser.parse_args()
     sim = SimulationConfig()
-    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
+    model = world_model(ROBOT, site_at(""))
     data = start_pose(model, sim)
     print(
         f"python {platform.python_version()}, mujoco {mujoco.__version__}, MUJOCO_GL={BACKEND}, "

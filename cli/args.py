@@ -38,6 +38,7 @@ def config_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
         help=f"link profile of a hop ({', '.join(keys.HOPS)})",
     )
     p.add_argument("--seed", type=int)
+    package_args(p)
     p.add_argument(
         "--time",
         choices=TIME_MODES,
@@ -80,7 +81,7 @@ def load_config(
     args: argparse.Namespace, default: Path | None = None, base: dict[str, Any] | None = None
 ) -> Config:
     """--config (else `default`, else the table `base`, else the defaults), then --set, --system,
-    --seed, --time, --speed, --profile and --cpu on top."""
+    --seed, --robot, --site, --time, --speed, --profile and --cpu on top."""
     overrides = list(args.set)
     options: dict[str, str] = {}  # a field -> the option that set it, for its error
 
@@ -92,6 +93,9 @@ def load_config(
         option("--system", "system", args.system)
     if args.seed is not None:
         option("--seed", "seed", args.seed)
+    for name, field in (("robot", "simulation.robot"), ("site", "simulation.site")):
+        if getattr(args, name, ""):
+            option(f"--{name}", field, getattr(args, name))
     if args.time is not None:
         option("--time", "time.mode", args.time)
     if getattr(args, "time_speed", None) is not None:
@@ -138,3 +142,23 @@ def connect_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", default=DEFAULT_ENDPOINT, metavar="ENDPOINT")
     p.add_argument("--system", default="default")
     p.set_defaults(talks_to_system=True)
+
+
+def package_args(p: argparse.ArgumentParser, robot: bool = True, site: bool = True) -> None:
+    """--robot DIR and --site DIR: the robot and site packages (simulation.robot, simulation.site;
+    common.robot, common.site) a command runs, or, for a tool that talks to a running system, that
+    system runs; the shipped ones by default."""
+    if robot:
+        p.add_argument(
+            "--robot",
+            default="",
+            metavar="DIR",
+            help="the robot package (simulation.robot); default: the shipped ROV",
+        )
+    if site:
+        p.add_argument(
+            "--site",
+            default="",
+            metavar="DIR",
+            help="the site package (simulation.site); default: the shipped panel",
+        )

@@ -11,13 +11,17 @@ from abyss.common.messages import (
     SceneUpdate,
     decode,
 )
-from abyss.common.models import SEABED_CLOUD_FILE
+from abyss.common.site import site_at
 
 
 def cmd_terrain_build(args: argparse.Namespace) -> int:
-    from abyss.common.models import MODELS_DIR, SITE_WORLD_FILE
     from abyss.stations.simulation import terrain
 
+    site = site_at(args.site)
+    if args.cloud is None:
+        if site.seabed_cloud_file is None:
+            raise ConfigError("--cloud", f"{site.file} names no model.seabed_cloud: give the cloud")
+        args.cloud = site.seabed_cloud_file
     cloud = terrain.read_cloud(args.cloud)
     print(f"abyss: {len(cloud)} points from {args.cloud}; Poisson reconstruction ...", flush=True)
     built = terrain.reconstruct(cloud, depth=args.depth)
@@ -27,8 +31,8 @@ def cmd_terrain_build(args: argparse.Namespace) -> int:
         f"{terrain.GRID}x{terrain.GRID} grid"
     )
     if args.out is None:
-        terrain.install(built.heights_m, MODELS_DIR, SITE_WORLD_FILE)
-        print(f"abyss: wrote {MODELS_DIR / 'terrain.bin'} and the terrain of {SITE_WORLD_FILE}")
+        terrain.install(built.heights_m, site.directory, site.model_file)
+        print(f"abyss: wrote {site.directory / 'terrain.bin'} and the terrain of {site.model_file}")
     else:
         args.out.mkdir(parents=True, exist_ok=True)
         terrain.write_hfield(built.heights_m, args.out / "terrain.bin")
@@ -84,15 +88,21 @@ def add_commands(sub: Any) -> None:
     terrain = sub.add_parser("terrain", help="seabed terrain from a point cloud").add_subparsers(
         dest="terrain", required=True
     )
-    p = terrain.add_parser("build", help="reconstruct a surface (Open3D) and make it the world's terrain")
+    p = terrain.add_parser("build", help="reconstruct a surface (Open3D) and make it a site's terrain")
     p.add_argument(
         "cloud",
         nargs="?",
         type=Path,
-        default=SEABED_CLOUD_FILE,
-        help="point cloud (.ply, .pcd, .xyz); default: the shipped fractal seabed",
+        default=None,
+        help="point cloud (.ply, .pcd, .xyz); default: the site's (model.seabed_cloud)",
     )
-    p.add_argument("--out", type=Path, help="write here instead of into the world model")
+    p.add_argument(
+        "--site",
+        default="",
+        metavar="DIR",
+        help="the site package to build it into; the shipped one by default",
+    )
+    p.add_argument("--out", type=Path, help="write here instead of into the site's model")
     p.add_argument(
         "--depth", type=int, default=8, choices=range(5, 12), metavar="5..11", help="Poisson octree depth"
     )

@@ -10,10 +10,7 @@ from typing import Any
 
 import zenoh
 
-from abyss.cli.args import (
-    client,
-    connect_args,
-)
+from abyss.cli.args import client, connect_args, package_args
 from abyss.common import faults, keys
 from abyss.common.bus import message_of
 from abyss.common.errors import BadInput, ConfigError
@@ -23,16 +20,19 @@ from abyss.common.messages import (
     encode,
 )
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at
 
 
-def fault_control(fault: str, target: str, value: float, robot: str = "") -> SimulationControl:
+def fault_control(
+    fault: str, target: str, value: float, robot: str = "", site: str = ""
+) -> SimulationControl:
     """The message of `abyss fault`, checked against the fault table and the robot's model as the
     simulation checks it (`robot`: its package, as `simulation.robot` names it; "" the shipped
-    one); ConfigError with the allowed targets or the value's range."""
+    one; `site` likewise); ConfigError with the allowed targets or the value's range."""
     if not faults.row(fault).targets and target:
         raise ConfigError("fault target", f"{fault} takes no target (got {target!r})")
     try:
-        faults.check(fault, target, value, faults.model_names(robot_at(robot)))
+        faults.check(fault, target, value, faults.model_names(robot_at(robot), site_at(site).panel))
         return SimulationControl(fault, target, value)
     except BadInput as exc:
         raise ConfigError("fault", exc.reason) from None
@@ -41,7 +41,7 @@ def fault_control(fault: str, target: str, value: float, robot: str = "") -> Sim
 def fault_help(robot: str = "") -> str:
     """`abyss fault`'s description: the fault table, each fault's targets on the robot's model
     (`robot`: its package; "" the shipped one)."""
-    names = faults.model_names(robot_at(robot))
+    names = faults.model_names(robot_at(robot), site_at("").panel)
     lines = ["Faults (common/faults.py), each with its targets on this robot:"]
     for row in faults.FAULT_TABLE.values():
         allowed = faults.targets(row.name, names)
@@ -51,7 +51,7 @@ def fault_help(robot: str = "") -> str:
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
-    control = fault_control(args.fault, args.target, args.value, args.robot)
+    control = fault_control(args.fault, args.target, args.value, args.robot, args.site)
     session = client(args)
     seen: list[SimulationStatus] = []
 
@@ -87,7 +87,9 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 def cmd_op(args: argparse.Namespace) -> int:
     from abyss.console.op import run_op
 
-    return run_op(args.connect, args.system, args.command, args.value, args.timeout, args.turn or args.to)
+    return run_op(
+        args.connect, args.system, args.command, args.value, args.timeout, args.turn or args.to, args.site
+    )
 
 
 def add_commands(sub: Any) -> None:
@@ -114,6 +116,7 @@ def add_commands(sub: Any) -> None:
     )
     p.add_argument("--turn", metavar="DEG", default="", help="valve: the angle to turn it by [deg]")
     p.add_argument("--to", choices=("up", "down"), default="", help="lever: the stop to throw it to")
+    package_args(p, robot=False)
     connect_args(p)
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
@@ -127,11 +130,6 @@ def add_commands(sub: Any) -> None:
     p.add_argument("fault", choices=faults.fault_names())
     p.add_argument("target", nargs="?", default="", help="the part it acts on (below, by fault)")
     p.add_argument("value", nargs="?", type=float, default=0.0, help="its setting (below, by fault)")
-    p.add_argument(
-        "--robot",
-        default="",
-        metavar="DIR",
-        help="the running robot's package (simulation.robot); the shipped one by default",
-    )
+    package_args(p)
     connect_args(p)
     p.set_defaults(func=cmd_fault)

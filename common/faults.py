@@ -14,9 +14,9 @@ from dataclasses import dataclass, fields
 from typing import TYPE_CHECKING
 
 from abyss.common.errors import BadInput
-from abyss.common.models import panel
 
 if TYPE_CHECKING:
+    from abyss.common.models.panel import Panel
     from abyss.common.robot import Robot
 
 VALUE_MAX = 100.0  # a fault's value lies in [0, VALUE_MAX] whatever its row (the message's bound)
@@ -41,10 +41,10 @@ KIND_WORDS = {  # how the docs and the help name one target of each kind, and it
 }
 
 
-def model_names(robot: Robot) -> ModelNames:
-    """The names of `robot`'s parts (its package's: common.robot) and the panel's, looked up when
-    called."""
-    return ModelNames(robot.thrusters, robot.cameras, robot.nav_sensor_names, (*panel.VALVES, *panel.LEVERS))
+def model_names(robot: Robot, panel: Panel) -> ModelNames:
+    """The names of `robot`'s parts (its package's: common.robot) and the panel's (its site's:
+    common.site)."""
+    return ModelNames(robot.thrusters, robot.cameras, robot.nav_sensor_names, panel.part_names)
 
 
 @dataclass(frozen=True)

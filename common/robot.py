@@ -119,6 +119,12 @@ class RobotFile:
     damping: dict[str, Any]
     buoyancy: dict[str, Any]
     nav_sensors: NavSensorsSection = field(default_factory=NavSensorsSection)
+    # figures published for the vehicle (`source` names where), held to the simulated ones by
+    # `abyss robot check` (validation/robot_check.py, which lists the names it knows)
+    published: dict[str, float | str] = field(default_factory=dict)
+    # a partial configuration for flying this robot (its controllers' gains, its speed limits),
+    # layered under the site's and the user's (common/config: load)
+    config: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

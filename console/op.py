@@ -25,7 +25,8 @@ from abyss.common.messages import (
     encode,
     new_id,
 )
-from abyss.common.models import panel
+from abyss.common.models.panel import Panel, intent_of
+from abyss.common.site import site_at
 
 RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
 
@@ -59,13 +60,20 @@ Command = Waypoints | ArmGoal | OperatorMode | Intervention  # what `abyss op` s
 INTENTS = ("valve", "lever")  # `abyss op valve NAME --turn DEG`, `abyss op lever NAME --to STOP`
 
 
-def command_of(kind: str, text: str, command_id: int, amount: str = "") -> Command:
-    """The command `abyss op KIND TEXT` sends; `amount`: a valve's turn [deg] or a lever's stop."""
+def command_of(
+    kind: str, text: str, command_id: int, amount: str = "", panel: Panel | None = None
+) -> Command:
+    """The command `abyss op KIND TEXT` sends; `amount`: a valve's turn [deg] or a lever's stop;
+    `panel`: the running site's, which the part is checked against (the vessel checks it again)."""
     if kind in INTENTS:
         try:
-            if panel.part_kind(text) != kind:
+            if panel is not None and panel.part_kind(text) != kind:
                 raise BadInput(f"{text} is a {panel.part_kind(text)}, not a {kind}")
-            return Intervention(command_id, text, *panel.intent(text, amount))
+            turn_rad, stop = intent_of(amount)
+            if bool(stop) != (kind == "lever"):
+                how = "thrown up or down" if kind == "lever" else "turned by an angle in [-180, 180] deg"
+                raise BadInput(f"a {kind} is {how}, not {amount!r}")
+            return Intervention(command_id, text, turn_rad, stop)
         except BadInput as exc:
             raise ConfigError(kind, str(exc)) from None
     if kind == "waypoints":
@@ -102,9 +110,12 @@ def send(endpoint: str, system: str, command: Command, topic: str, timeout_s: fl
     return answer[0] if answer else None
 
 
-def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float, amount: str = "") -> int:
+def run_op(
+    endpoint: str, system: str, kind: str, text: str, timeout_s: float, amount: str = "", site: str = ""
+) -> int:
+    """`abyss op`; `site`: the running site's package (simulation.site; "" the shipped one)."""
     try:
-        command = command_of(kind, text, new_id(), amount)
+        command = command_of(kind, text, new_id(), amount, site_at(site).panel)
     except BadInput as exc:  # numbers the message refuses (out of range)
         raise ConfigError(kind, str(exc)) from None
     topic = "intervene" if kind in INTENTS else kind

@@ -37,7 +37,7 @@ from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
 from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, encode, new_id
-from abyss.common.models import panel
+from abyss.common.models.panel import intent_of
 
 Target = Literal["vehicle", "arm"]  # what the keys drive: the vehicle's waypoint or the end-effector's goal
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
@@ -181,8 +181,8 @@ class Teleop:
             self.say(f"end-effector goal {x:.3f} {y:.3f} {z:.3f} m")
 
     def intend(self, part: str, amount: str) -> None:
-        command = Intervention(new_id(), part, *panel.intent(part, amount))
-        asked = f"{part} {'turn ' + amount + ' deg' if panel.part_kind(part) == 'valve' else 'to ' + amount}"
+        command = Intervention(new_id(), part, *intent_of(amount))
+        asked = f"{part} {'to ' + amount if command.to else 'turn ' + amount + ' deg'}"
         with self.lock:
             self.intents[command.command_id] = asked
         self.session.put(keys.operator_key(self.system, "intervene"), encode(command, self.sent, time.time()))

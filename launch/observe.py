@@ -19,9 +19,9 @@ from abyss.common import keys
 from abyss.common.clock import SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
-from abyss.common.config.system import MissionConfig
 from abyss.common.errors import BadMessage
 from abyss.common.messages import MissionStatus, NavState, PanelState, SimulationStatus, Telemetry, decode
+from abyss.common.site import site_of
 from abyss.launch.control_record import ControlRecorder
 from abyss.launch.station import station_recorder
 from abyss.launch.verdict import NavError, interventions_summary
@@ -164,9 +164,9 @@ class Heard:
         down = self.down.pop(name)
         down.down_s = round(time.monotonic() - down.died_s, 3)
 
-    def interventions(self, mission: MissionConfig) -> list[dict[str, Any]]:
+    def interventions(self, config: Config) -> list[dict[str, Any]]:
         start, last = self.panel if self.panel else (None, None)
-        return interventions_summary(mission, start, last)
+        return interventions_summary(config.mission, site_of(config).panel, start, last)
 
-    def interventions_true(self, mission: MissionConfig) -> bool:
-        return all(i["success"] for i in self.interventions(mission))
+    def interventions_true(self, config: Config) -> bool:
+        return all(i["success"] for i in self.interventions(config))

@@ -119,7 +119,7 @@ def run_summary(
         "external": list(supervisor.external),
         "control": control_summary(heard.record.last if heard.record else None),
         "navigation": heard.nav_error.summary(),  # onboard's position error [m]
-        "interventions": heard.interventions(config.mission),
+        "interventions": heard.interventions(config),
         "simulation": dataclasses.asdict(heard.simulation) if heard.simulation else None,
         "scene": read_json(out_dir / "scene.json"),
         "events": read_json_list(out_dir / EVENTS_FILE),  # the restarts as shore saw them

@@ -239,13 +239,13 @@ class Supervisor:
             elapsed = self.now_s() - t0
             # done when shore says so and the simulation's truth agrees (lockstep: at the period
             # its lease ends, LockstepEnd)
-            done = mission is not None and mission.done and self.heard.interventions_true(self.config.mission)
+            done = mission is not None and mission.done and self.heard.interventions_true(self.config)
             if ending is not None and ending.stop_when_done:
                 # and what the simulation observed up to there has come (the panel's truth that
                 # judges the mission and goes in panel.csv: the last one, not an older one)
                 last_period_s = (ending.end_s or 0.0) - self.config.simulation.control_period_s
                 reached = ending.reached() and self.heard.truth_s >= last_period_s - TICK_TOLERANCE_S
-                done = reached and self.heard.interventions_true(self.config.mission)
+                done = reached and self.heard.interventions_true(self.config)
                 if reached and not done:
                     ending.again()
             if done and self.mission_done_s is None:

@@ -14,7 +14,7 @@ import numpy as np
 
 from abyss.common.config.system import MissionConfig
 from abyss.common.messages import PanelState, Telemetry
-from abyss.common.models import panel
+from abyss.common.models.panel import Panel
 from abyss.launch.state import Verdict
 
 VALVE_TOLERANCE_DEG = 5.0  # a valve turned within this of its target is turned
@@ -103,7 +103,7 @@ class NavError:
 
 
 def interventions_summary(
-    mission: MissionConfig, start: PanelState | None, last: PanelState | None
+    mission: MissionConfig, panel: Panel, start: PanelState | None, last: PanelState | None
 ) -> list[dict[str, Any]]:
     """Each of the mission's interventions judged on the simulation's truth: the part's angle
     against its target (a valve: where it started plus the turn; a lever: its stop)."""

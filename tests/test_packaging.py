@@ -150,7 +150,7 @@ def test_package_data_is_in_the_wheel_byte_for_byte(wheel: Path, names: set[str]
     models = [
         p for p in (ROOT / "common" / "models").rglob("*") if p.is_file() and p.suffix not in (".py", ".pyc")
     ]
-    assert {p.name for p in models} >= {"robot.xml", "robot.toml", "world.xml", "terrain.bin"}
+    assert {p.name for p in models} >= {"robot.xml", "robot.toml", "site.xml", "site.toml", "terrain.bin"}
     data = [*models, ROOT / "common" / "profiles.toml", ROOT / "py.typed"]
     # nothing else in a package folder that is not Python: a new data file needs package-data
     for top in {p.parts[0] for p in _repo_packages() if p.parts}:

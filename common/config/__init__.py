@@ -24,7 +24,7 @@ from abyss.common.config.system import (
     Ros2Config,
     TimeConfig,
 )
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BadInput, ConfigError
 from abyss.common.reading import read_table
 
 
@@ -45,6 +45,14 @@ class Config:
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)
+        from abyss.common.site import site_at  # the site package reads its own configuration
+
+        panel = site_at(self.simulation.site).panel
+        for i, (part, amount) in enumerate(self.mission.interventions):
+            try:
+                panel.intent(part, amount)
+            except BadInput as exc:
+                raise ConfigError(f"mission.interventions[{i}]", str(exc)) from None
         if self.time.simulated and self.ros2.station:
             raise ConfigError(
                 "time.mode",
@@ -53,6 +61,44 @@ class Config:
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2)
+
+
+def merged(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """`over` on top of `under`, table by table (a field `over` sets replaces `under`'s)."""
+    out = dict(under)
+    for key, value in over.items():
+        out[key] = (
+            merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+        )
+    return out
+
+
+def _under_packages(table: dict[str, Any]) -> dict[str, Any]:
+    """The table with the configuration its robot and site packages carry (`[config]` of
+    robot.toml and site.toml: a robot's gains, a site's start and mission) under it: the robot's,
+    then the site's, then the table's own on top."""
+    from abyss.common.robot import robot_at
+    from abyss.common.site import site_at
+
+    simulation = table.get("simulation", {})
+    if not isinstance(simulation, dict):
+        return table
+    under: dict[str, Any] = {}
+    for field_name, package_at, file_name in (
+        ("robot", robot_at, "robot.toml"),
+        ("site", site_at, "site.toml"),
+    ):
+        package = simulation.get(field_name, "")
+        # one that is no package at all the field's own check says so (common/config/simulation.py)
+        if isinstance(package, str) and package and (Path(package).expanduser() / file_name).is_file():
+            loaded = package_at(package)  # a ConfigError names its file and field
+            own = loaded.spec.config
+            try:  # the package's own configuration, checked on its own, in its package
+                read_table(Config, merged(own, {"simulation": {field_name: package}}))
+            except ConfigError as exc:
+                raise ConfigError(f"config.{exc.field}", exc.reason, str(loaded.file)) from None
+            under = merged(under, own)
+    return merged(under, table)
 
 
 def load(
@@ -85,6 +131,7 @@ def load(
                 raise ConfigError(name, "is not a section")
         node[leaf] = value
         overridden[name] = (options or {}).get(name, "--set")
+    table = _under_packages(table)
     try:
         return typing.cast(Config, read_table(Config, table))
     except ConfigError as exc:

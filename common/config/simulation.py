@@ -53,6 +53,9 @@ class SimulationConfig:
     # learns the robot's names, frames and limits from; "" is the shipped work-class ROV
     # (common/models/robots/workclass)
     robot: str = ""
+    # the work site package (a directory with site.toml: common/site.py): the seabed, the panel and
+    # its parts; "" is the shipped valve panel (common/models/sites/valve_panel)
+    site: str = ""
     vehicle_file: str = ""  # the marine model and thrusters; "" is the robot package's robot.toml
     # the current: a profile of rows (z [m, world], vx, vy, vz [m/s, world]), linear in between and
     # held beyond its ends, plus a first-order Gauss-Markov process on each horizontal component
@@ -110,6 +113,13 @@ class SimulationConfig:
                     f"{robot.resolve()}: not a robot package (a directory with robot.toml)",
                 )
             object.__setattr__(self, "robot", str(robot.resolve()))
+        if self.site:  # as the robot's
+            site = Path(self.site).expanduser()
+            if not (site / "site.toml").is_file():
+                raise ConfigError(
+                    "simulation.site", f"{site.resolve()}: not a site package (a directory with site.toml)"
+                )
+            object.__setattr__(self, "site", str(site.resolve()))
         if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
             vehicle_file = Path(self.vehicle_file).expanduser()
             if not vehicle_file.is_file():

@@ -18,7 +18,7 @@ from abyss.common.errors import BadInput, ConfigError
 from abyss.common.fields import one_of, positive
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.common.linkprofile import LinkProfile, load_profiles, profile
-from abyss.common.models import panel
+from abyss.common.models.panel import intent_of
 
 
 @dataclass(frozen=True)
@@ -233,9 +233,9 @@ class MissionConfig:
                 "mission.interventions",
                 "an arm goal (mission.arm_target) or interventions, not both: set the other to []",
             )
-        for i, (part, amount) in enumerate(self.interventions):
+        for i, (_, amount) in enumerate(self.interventions):  # the parts are the site's: Config checks them
             try:
-                panel.intent(part, amount)
+                intent_of(amount)
             except BadInput as exc:
                 raise ConfigError(f"mission.interventions[{i}]", str(exc)) from None
         positive("mission.waypoint_timeout_s", self.waypoint_timeout_s, allow_zero=True)

@@ -1,7 +1,7 @@
-"""The world description: the site, `world.xml` (the valve panel and the seabed, read by MuJoCo),
-which includes the shipped robot package's model (`robots/workclass/robot.xml`). What a robot
-names (its joints, thrusters, cameras, sensors) is its package's, read by common.robot; nothing
-here names a part of it."""
+"""The shipped packages (`robots/`: common.robot; `sites/`: common.site) and what holds for any
+world composed of them: which camera sets feed stereo, and where a run starts. What a robot names
+(its joints, thrusters, cameras, sensors) is its package's, and the panel is its site's; nothing
+here names a part of either."""
 
 from __future__ import annotations
 
@@ -10,28 +10,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from abyss.common.errors import ConfigError
-
 if TYPE_CHECKING:
     from abyss.common.robot import Robot
 
 MODELS_DIR = Path(__file__).parent
-# the site: the panel and the seabed, with the shipped robot included (a later slice composes a
-# site with any robot package)
-SITE_WORLD_FILE = MODELS_DIR / "world.xml"
-SEABED_CLOUD_FILE = MODELS_DIR / "seabed_cloud.ply"
-
-
-def world_file(robot: Robot) -> Path:
-    """The world MuJoCo loads to fly `robot`: the site with the robot in it. Only the shipped
-    robot has one yet (the site includes its model); another is refused, naming the field."""
-    if not robot.shipped:
-        raise ConfigError(
-            "simulation.robot",
-            f"{robot.directory}: the site's world includes the shipped robot alone; composing a world "
-            "with another robot package is not there yet (its kinematics and names work, its physics not)",
-        )
-    return SITE_WORLD_FILE
 
 
 def stereo_set(sim_time_s: float, camera_rate_hz: float, stereo_every: int) -> bool:

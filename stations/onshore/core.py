@@ -34,7 +34,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.models import panel
+from abyss.common.models.panel import intent_of
 
 HEARTBEAT_PERIOD_S = 1.0
 STATUS_PERIOD_S = 0.25
@@ -316,7 +316,7 @@ class Operator:
 
 def mission_intervention(mission: MissionConfig, index: int, command_id: int | None = None) -> Intervention:
     part, amount = mission.interventions[index]
-    return Intervention(command_id if command_id is not None else new_id(), part, *panel.intent(part, amount))
+    return Intervention(command_id if command_id is not None else new_id(), part, *intent_of(amount))
 
 
 def mission_status(

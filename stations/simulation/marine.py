@@ -10,7 +10,7 @@ import math
 import mujoco
 import numpy as np
 
-WATER_DENSITY_KGPM3 = 1025.0  # sea water; world.xml's option density for MuJoCo's ellipsoids says the same
+WATER_DENSITY_KGPM3 = 1025.0  # sea water; the site's option density for MuJoCo's ellipsoids says the same
 
 
 def geom_volume_m3(kind: int, size: np.ndarray) -> float:

@@ -21,9 +21,10 @@ from abyss.common.messages import (
     SimulationControl,
     VelocityRef,
 )
-from abyss.common.models import panel, place_at_start, world_file
+from abyss.common.models import place_at_start
 from abyss.common.robot import Robot, robot_at
 from abyss.common.runfiles import write_whole
+from abyss.common.site import site_at, world_model
 from abyss.stations.simulation.faults import ACTIONS as FAULT_ACTIONS
 from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
@@ -90,7 +91,8 @@ class World:
     def __init__(self, config: SimulationConfig, rng: np.random.Generator) -> None:
         self.config = config
         self.robot = robot = robot_at(config.robot)
-        self.model = mujoco.MjModel.from_xml_path(str(world_file(robot)))
+        self.site = site_at(config.site)
+        self.model = world_model(robot, self.site)
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
         self.vehicle = _load_vehicle(self.model, config, robot)
@@ -140,7 +142,7 @@ class World:
 
     def _index_parts(self) -> None:
         """Where the panel's parts, the fingers and the dofs that move of themselves sit in the model."""
-        self.parts = (*panel.VALVES, *panel.LEVERS)
+        self.parts = self.site.panel.part_names
         self._part_qpos = np.array([self.model.joint(n).qposadr[0] for n in self.parts])
         self._part_joints = np.array([self.model.joint(n).id for n in self.parts])
         self._part_range_rad = self.model.jnt_range[self._part_joints].copy()

@@ -30,6 +30,7 @@ from abyss.common.messages import (
 )
 from abyss.common.rate import Rate
 from abyss.common.shared import Latest
+from abyss.common.site import site_of
 from abyss.common.workers import Workers
 from abyss.scene.model import SceneModel
 from abyss.scene.stream import SceneStream, StreamOutputs
@@ -68,7 +69,7 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
         cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s
     )
     images = bus.subscribe("onboard", "image", Image, maxlen=2)
-    intake = Intake(cfg, model, bus.clock.now_s(), maps=mapper is None)
+    intake = Intake(cfg, site_of(config).panel, model, bus.clock.now_s(), maps=mapper is None)
     gateway = mapper(lambda update: model.adopt(update.octree)) if mapper is not None else None
     try:
         with Workers(bus.stop) as workers:
@@ -92,7 +93,7 @@ def _relay_loop(config: Config, bus: Bus, objects: Latest[RecognisedObjects | No
     acks = bus.subscribe("onboard", "ack", CommandAck)
     shore_beats = bus.subscribe("onshore", "heartbeat", Heartbeat, maxlen=4)
     rate = bus.loop("relay", POLL_PERIOD_S)
-    relay = Relay(config.vessel, bus.clock.now_s())
+    relay = Relay(config.vessel, site_of(config).panel, bus.clock.now_s())
     while True:
         latest = telemetry.latest()
         inputs = RelayInputs(

@@ -27,7 +27,7 @@ from abyss.common.messages import (
     RecognisedObjects,
     Telemetry,
 )
-from abyss.common.models import panel
+from abyss.common.models.panel import Panel
 from abyss.stations.vessel.intents import REFINE_M, part_angle_rad, resolve
 from abyss.stations.vessel.recognition import seen_angles
 
@@ -67,8 +67,9 @@ class Relay:
     the moment it held the part), toward the same target, an absolute angle; never again from the
     angle the part had before it was turned."""
 
-    def __init__(self, cfg: VesselConfig, now_s: float) -> None:
+    def __init__(self, cfg: VesselConfig, panel: Panel, now_s: float) -> None:
         self.cfg = cfg
+        self.panel = panel
         self.shore_heard_s = now_s  # shore is given `shore_timeout_s` from the start
         self.last_beat_s = self.last_relay_s = -float("inf")
         self.forwarded_seq = -1
@@ -97,7 +98,7 @@ class Relay:
         start_rad = self.resolved.get(intent.command_id, (intent.target, believed))[1]
         target_rad = self.target_rad.setdefault(intent.command_id, start_rad + intent.turn_rad)
         intent = dataclasses.replace(intent, turn_rad=target_rad - start_rad)  # the target stays where it was
-        goal, reason = resolve(intent, self._placed(), start_rad, again)
+        goal, reason = resolve(self.panel, intent, self._placed(), start_rad, again)
         if goal is not None:
             self.resolved[intent.command_id] = (intent.target, start_rad)
             self.refining = intent, goal
@@ -113,7 +114,7 @@ class Relay:
         intent, sent = self.refining
         start_rad = self.resolved[intent.command_id][1]
         intent = dataclasses.replace(intent, turn_rad=self.target_rad[intent.command_id] - start_rad)
-        goal, _ = resolve(intent, self._placed(), start_rad, again=True)
+        goal, _ = resolve(self.panel, intent, self._placed(), start_rad, again=True)
         if goal is None or np.linalg.norm(goal.grasp_m_world - sent.grasp_m_world) < REFINE_M:
             return None
         self.refining = intent, goal
@@ -125,7 +126,10 @@ class Relay:
         if self.boot_id is not None and t.boot_id != self.boot_id:
             for command_id, turned_rad in self.turned_rad.items():
                 target, start_rad = self.resolved[command_id]
-                self.resolved[command_id] = (target, part_angle_rad(target, start_rad + turned_rad))
+                self.resolved[command_id] = (
+                    target,
+                    part_angle_rad(self.panel, target, start_rad + turned_rad),
+                )
             self.turned_rad = {}
             self.refining = None  # handed again, it goes down resolved anew
         self.boot_id = t.boot_id
@@ -143,7 +147,7 @@ class Relay:
         is handed it again from where the part stands, not from that belief."""
         if t.intervention_id < 0 or t.intervention_id in self.resolved or t.intervention_phase in IDLE_PHASES:
             return
-        lever = panel.part_kind(t.intervention_target) == "lever"
+        lever = self.panel.part_kind(t.intervention_target) == "lever"
         stop = ("down" if t.turn_goal_rad < 0 else "up") if lever else ""
         intent = Intervention(
             t.intervention_id, t.intervention_target, 0.0 if lever else t.turn_goal_rad, stop
@@ -151,7 +155,7 @@ class Relay:
         if not lever:  # the target it was given, held within the part's range from this belief
             believed = self.believed_rad.get(t.intervention_target, 0.0)
             self.target_rad[t.intervention_id] = part_angle_rad(
-                t.intervention_target, believed + t.turn_goal_rad
+                self.panel, t.intervention_target, believed + t.turn_goal_rad
             )
         self._intervention(intent)  # what it would send is not sent: onboard has the goal
         if t.intervention_id in self.resolved:  # else it waits for the panel's markers
@@ -170,23 +174,29 @@ class Relay:
         if t is not None and t.intervention_phase not in IDLE_PHASES:
             working.add(t.intervention_target)
         panel_pose = objects.poses_world[objects.names.index("panel")]
-        for name, seen in seen_angles(objects).items():
-            if panel.part_kind(name) != "valve" or name in working or seen.confidence < SEEN_MIN_CONFIDENCE:
+        for name, seen in seen_angles(self.panel, objects).items():
+            if (
+                self.panel.part_kind(name) != "valve"
+                or name in working
+                or seen.confidence < SEEN_MIN_CONFIDENCE
+            ):
                 continue
-            pivot_m_world = rotation_of(panel_pose[3:]) @ np.asarray(panel.VALVES[name]) + panel_pose[:3]
+            pivot_m_world = rotation_of(panel_pose[3:]) @ np.asarray(self.panel.valves[name]) + panel_pose[:3]
             if t is not None and np.linalg.norm(t.ee_position_m_world - pivot_m_world) < ARM_CLEAR_M:
                 continue  # the tool is at it: the arm hides the bar, or holds it still
             believed = self.believed_rad.get(name, 0.0)
-            lo, hi = panel.VALVE_RANGE_RAD
+            lo, hi = self.panel.valve.range_rad
             candidates = [
                 a for a in (seen.angle_rad + k * math.pi for k in (-1, 0, 1)) if lo - 0.1 < a < hi + 0.1
             ]
-            self.believed_rad[name] = part_angle_rad(name, min(candidates, key=lambda a: abs(a - believed)))
+            self.believed_rad[name] = part_angle_rad(
+                self.panel, name, min(candidates, key=lambda a: abs(a - believed))
+            )
 
     def _believe(self, t: Telemetry) -> None:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:
             target, start_rad = self.resolved[t.intervention_id]
-            self.believed_rad[target] = part_angle_rad(target, start_rad + t.turned_rad)
+            self.believed_rad[target] = part_angle_rad(self.panel, target, start_rad + t.turned_rad)
             if self.refining is not None and self.refining[0].command_id == t.intervention_id:
                 self.refining = None
 

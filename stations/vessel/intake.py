@@ -15,6 +15,7 @@ from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
 from abyss.common.messages import Image, Message, PointCloud, RecognisedObjects, SonarImage
+from abyss.common.models.panel import Panel
 from abyss.common.shared import Latest
 from abyss.common.sonar_frames import ECHO_RGB, echo_arcs
 from abyss.scene.model import SceneModel
@@ -42,12 +43,14 @@ class Intake:
     (the depth camera's when there is one), and perception's status every
     `perception_period_s` [s]."""
 
-    def __init__(self, cfg: VesselConfig, model: SceneModel, now_s: float, maps: bool = True) -> None:
+    def __init__(
+        self, cfg: VesselConfig, panel: Panel, model: SceneModel, now_s: float, maps: bool = True
+    ) -> None:
         self.cfg = cfg
         self.model = model
         self.maps = maps
         self.perception = Perception(cfg)
-        self.tracker = PanelTracker(bias_m_world=cfg.recognition_bias_m)
+        self.tracker = PanelTracker(panel, bias_m_world=cfg.recognition_bias_m)
         self.sim_time_s: Latest[float] = Latest(0.0)  # of the latest cloud (or echoes inserted)
         self.objects: Latest[RecognisedObjects | None] = Latest(None)  # recognition's latest
         self.sonar: Latest[SonarImage | None] = Latest(None)  # the sonar's latest frame

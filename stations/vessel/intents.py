@@ -11,7 +11,7 @@ import numpy as np
 from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects
-from abyss.common.models import panel
+from abyss.common.models.panel import GRASP_ROTATION_PANEL, Panel
 
 ALREADY_RAD = math.radians(1.0)
 # a turn that would end this little past a stop ends at the stop: the part's angle is believed to a
@@ -25,7 +25,7 @@ REFINE_M = 0.003
 FLIP_ABOUT_X = np.diag([1.0, -1.0, -1.0])  # the tool rolled half a turn about its approach
 
 
-def part_angle_rad(part: str, turned_rad: float) -> float:
+def part_angle_rad(panel: Panel, part: str, turned_rad: float) -> float:
     """A part's angle from the tool's: the tool turns past a stop (a lever is pushed on into it,
     the shaft twisting in the grip), the part does not."""
     low, high = panel.part_range_rad(part)
@@ -33,7 +33,11 @@ def part_angle_rad(part: str, turned_rad: float) -> float:
 
 
 def resolve(
-    intent: Intervention, objects: RecognisedObjects | None, believed_rad: float = 0.0, again: bool = False
+    panel: Panel,
+    intent: Intervention,
+    objects: RecognisedObjects | None,
+    believed_rad: float = 0.0,
+    again: bool = False,
 ) -> tuple[InterventionGoal | None, str]:
     """The goal, or None and why it is refused; None and "" while the panel is not recognised
     yet (the intent waits). `again`: the intervention handed again (onboard rebooted during it),
@@ -68,7 +72,7 @@ def resolve(
     panel_rotation, panel_m_world = rotation_of(pose[3:]), pose[:3]
     pivot, axis, grasp = panel.part_geometry(intent.target)
     turned = rotation_about(axis, believed_rad)
-    grasp_rotation = panel.GRASP_ROTATION_PANEL
+    grasp_rotation = GRASP_ROTATION_PANEL
     if kind == "valve" and target_rad > 0:  # the fingers are symmetric: the grasp that ends the
         grasp_rotation = grasp_rotation @ FLIP_ABOUT_X  # turn with the tool rolled least
     return InterventionGoal(

@@ -25,7 +25,7 @@ import numpy as np
 
 from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
 from abyss.common.messages import Image, RecognisedObjects
-from abyss.common.models import panel
+from abyss.common.models.panel import Panel
 
 log = logging.getLogger(__name__)
 MIN_PLANE_POINTS = 200
@@ -47,12 +47,14 @@ def rotation_error_rad(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def by_texture(rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world: np.ndarray) -> Pose | None:
+def by_texture(
+    panel: Panel, rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world: np.ndarray
+) -> Pose | None:
     """The panel's pose from its markers, or None with fewer than two markers in view."""
     parameters = cv2.aruco.DetectorParameters()
     parameters.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
     detector = cv2.aruco.ArucoDetector(
-        cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, panel.MARKER_DICTIONARY)), parameters
+        cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, panel.marker_dictionary)), parameters
     )
     corners, ids, _ = detector.detectMarkers(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
     if ids is None:
@@ -60,7 +62,7 @@ def by_texture(rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world:
     seen = [
         (int(i), c.reshape(4, 2))
         for i, c in zip(ids.ravel(), corners, strict=True)
-        if int(i) in panel.MARKERS
+        if int(i) in panel.marker_table
     ]
     if len(seen) < 2:
         return None
@@ -83,13 +85,13 @@ def by_texture(rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world:
     return Pose(rotation, position, float(np.clip(confidence, 0.0, 1.0)))
 
 
-def model_points(spacing_m: float = 0.02) -> np.ndarray:
+def model_points(panel: Panel, spacing_m: float = 0.02) -> np.ndarray:
     """Points on the panel's face and its valves' and levers' fronts, in the panel's frame."""
-    hx, hy, hz = panel.PLATE_HALF_SIZE_M
+    hx, hy, hz = panel.plate_half_size_m
     ys, zs = np.meshgrid(np.arange(-hy, hy + 1e-9, spacing_m), np.arange(-hz, hz + 1e-9, spacing_m))
     face = np.stack((np.full(ys.size, -hx), ys.ravel(), zs.ravel()), axis=1)
     parts = [face]
-    for x, y, z in (*panel.VALVES.values(), *panel.LEVERS.values()):
+    for x, y, z in (*panel.valves.values(), *panel.levers.values()):
         offsets = np.arange(-0.04, 0.04 + 1e-9, spacing_m)
         gy, gz = np.meshgrid(offsets, offsets)
         parts.append(np.stack((np.full(gy.size, x - 0.02), y + gy.ravel(), z + gz.ravel()), axis=1))
@@ -99,7 +101,7 @@ def model_points(spacing_m: float = 0.02) -> np.ndarray:
 ICP_DIGITS = 9  # the pose ICP finds, rounded (by_shape)
 
 
-def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose | None:
+def by_shape(panel: Panel, points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose | None:
     """The panel's pose from a cloud near the guess: plane segmentation, then ICP of the model."""
     import open3d as o3d
 
@@ -123,7 +125,7 @@ def by_shape(points_m_world: np.ndarray, guess: Pose, rng_seed: int = 0) -> Pose
     near_face = (sign * distance > -0.03) & (sign * distance < 0.15)
     target = cloud.select_by_index(np.flatnonzero(near_face).tolist())
     target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.08, max_nn=30))
-    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model_points(0.03)))
+    source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(model_points(panel, 0.03)))
     initial = np.eye(4)
     initial[:3, :3], initial[:3, 3] = guess.rotation, guess.position_m_world
     result = o3d.pipelines.registration.registration_icp(
@@ -192,11 +194,19 @@ def fuse(poses: list[Pose]) -> Pose:
 # -- the parts' angles, from the image: each part's handle is one colour (its hub's), drawn on
 # the panel's face; candidate angles are projected into the image through the panel's pose and
 # scored by how much of the handle they find in that colour
-VALVE_BAR_FRONT_M = 0.045  # the bar's front, out of the pivot (world.xml: the box at -0.03, 0.015 deep)
-# along the handle from the pivot [m]: on it, then past its end, where it must not be (a lever's
-# candidate angles project into one line seen from in front: only its end tells them apart)
-VALVE_BAR_M = (np.linspace(0.06, 0.11, 6), np.array([0.135, 0.15]))  # clear of the hub (0.04), 0.12 long
-LEVER_SHAFT_M = (np.linspace(0.08, 0.19, 8), np.array([0.235, 0.25]))  # its end at 0.22
+def handle_samples_m(panel: Panel, valve: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Along a handle from its pivot [m]: on it, then past its end, where it must not be (a lever's
+    candidate angles project into one line seen from in front: only its end tells them apart).
+    On the shipped panel, a valve's bar: 0.06-0.11 m (clear of its 0.04 m hub, 0.12 m long), past
+    at 0.135 and 0.15 m; a lever's shaft: 0.08-0.19 m, past its end (0.22 m) at 0.235 and 0.25 m."""
+    if valve:
+        end_m = panel.valve.bar_m[2]
+        return np.linspace(panel.valve.hub_m[0] + 0.02, end_m - 0.01, 6), end_m + np.array([0.015, 0.03])
+    length_m = panel.lever.length_m
+    end_m = length_m + panel.handle_thickness_m / 2
+    return np.linspace(0.4 * length_m, length_m - 0.01, 8), end_m + np.array([0.015, 0.03])
+
+
 SWATCH_M = 0.025  # the part's own colour, sampled within this of its pivot (hub, shaft root)
 ANGLE_STEP_RAD = np.radians(0.5)
 MIN_CONTRAST = 0.25  # a peak that stands less above the other angles' scores is no measurement
@@ -235,8 +245,33 @@ def _lobe(above: np.ndarray, peak: int, period: int | None) -> np.ndarray:
     return np.array(sorted(set(run)))
 
 
+def _handle_points(
+    panel: Panel, valve: bool, angles: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For each candidate angle, the points along the handle from the pivot [m, panel] (on it,
+    then past its end) with their signs in the score, and the swatch of the part's own colour."""
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    on, past = handle_samples_m(panel, valve)
+    r = np.r_[on, past]
+    sign = np.r_[np.full(len(on), 1.0 / len(on)), np.full(len(past), -1.0 / len(past))]
+    if not valve:  # the shaft out of the face, thrown about the panel's y (positive: up)
+        offsets = np.stack(np.broadcast_arrays(-r * c, 0 * r, r * s), axis=-1)
+        return offsets, np.array([[-x, 0.0, 0.0] for x in np.linspace(0.005, 0.02, 5)]), sign  # at any throw
+    # the bar across the spindle, both arms, on its front face
+    bar_front_m = panel.valve.bar_m[0] + panel.valve.bar_m[1]
+    r, sign = np.r_[r, -r], np.r_[sign, sign] / 2
+    offsets = np.stack(np.broadcast_arrays(-bar_front_m + 0 * r, r * c, r * s), axis=-1)
+    grid = np.linspace(-SWATCH_M, SWATCH_M, 5)
+    swatch = np.stack([np.full(25, -bar_front_m), *(g.ravel() for g in np.meshgrid(grid, grid))], axis=1)
+    return offsets, swatch, sign
+
+
 def part_angles(
-    rgb: np.ndarray, camera_matrix: np.ndarray, pose_camera_in_world: np.ndarray, panel_pose: Pose
+    panel: Panel,
+    rgb: np.ndarray,
+    camera_matrix: np.ndarray,
+    pose_camera_in_world: np.ndarray,
+    panel_pose: Pose,
 ) -> dict[str, PartAngle]:
     """Each valve's bar and each lever's shaft found in the image, where the panel's pose puts
     them: candidate angles over the part's range are projected, and the one whose handle's
@@ -245,26 +280,13 @@ def part_angles(
     as several candidates). A part out of view, hidden (the arm in front of it) or
     not standing out of its background is left out."""
     found = {}
-    for name in (*panel.VALVES, *panel.LEVERS):
-        pivot = np.asarray(panel.VALVES.get(name) or panel.LEVERS[name])
+    for name in (*panel.valves, *panel.levers):
+        pivot = np.asarray(panel.valves.get(name) or panel.levers[name])
         valve = panel.part_kind(name) == "valve"
-        lo, hi = panel.VALVE_RANGE_RAD if valve else panel.LEVER_RANGE_RAD
+        lo, hi = panel.valve.range_rad if valve else panel.lever.range_rad
         margin = 0.0 if valve else np.radians(5.0)
         angles = np.arange(lo - margin, hi + margin + 1e-9, ANGLE_STEP_RAD)
-        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        on, past = VALVE_BAR_M if valve else LEVER_SHAFT_M
-        r = np.r_[on, past]
-        sign = np.r_[np.full(len(on), 1.0 / len(on)), np.full(len(past), -1.0 / len(past))]
-        if valve:  # the bar across the spindle, both arms, on its front face
-            r, sign = np.r_[r, -r], np.r_[sign, sign] / 2
-            offsets = np.stack(np.broadcast_arrays(-VALVE_BAR_FRONT_M + 0 * r, r * c, r * s), axis=-1)
-            grid = np.linspace(-SWATCH_M, SWATCH_M, 5)
-            swatch = np.stack(
-                [np.full(25, -VALVE_BAR_FRONT_M), *(g.ravel() for g in np.meshgrid(grid, grid))], axis=1
-            )
-        else:  # the shaft out of the face, thrown about the panel's y (positive: up)
-            offsets = np.stack(np.broadcast_arrays(-r * c, 0 * r, r * s), axis=-1)
-            swatch = np.array([[-x, 0.0, 0.0] for x in np.linspace(0.005, 0.02, 5)])  # at any throw
+        offsets, swatch, sign = _handle_points(panel, valve, angles)
         colours, own = (
             _seen(
                 rgb,
@@ -304,7 +326,7 @@ def part_angles(
     return found
 
 
-def seen_angles(objects: RecognisedObjects) -> dict[str, PartAngle]:
+def seen_angles(panel: Panel, objects: RecognisedObjects) -> dict[str, PartAngle]:
     """The parts' angles measured in the image, as RecognisedObjects carries them (each part's
     rotation from the panel's, about its axis), those measured only."""
     panel_rotation = rotation_of(objects.poses_world[objects.names.index("panel"), 3:])
@@ -313,7 +335,7 @@ def seen_angles(objects: RecognisedObjects) -> dict[str, PartAngle]:
         if name == "panel" or confidence <= 0.0:
             continue
         axis = np.asarray(
-            panel.VALVE_AXIS_PANEL if panel.part_kind(name) == "valve" else panel.LEVER_AXIS_PANEL
+            panel.valve.axis_panel if panel.part_kind(name) == "valve" else panel.lever.axis_panel
         )
         turn = panel_rotation.T @ rotation_of(pose[3:])
         found[name] = PartAngle(float(axis @ cv2.Rodrigues(turn)[0].ravel()), float(confidence))
@@ -341,11 +363,13 @@ class PanelTracker:
 
     def __init__(
         self,
+        panel: Panel,
         expected_m_world: np.ndarray | None = None,
         bias_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0),
     ) -> None:
+        self.panel = panel
         self.expected_m_world = np.array(
-            panel.PANEL_POSITION_M_WORLD if expected_m_world is None else expected_m_world
+            self.panel.position_m_world if expected_m_world is None else expected_m_world
         )
         self.bias_m_world = np.asarray(bias_m_world, float)  # a fault: added to what is reported
         self.estimate: Pose | None = None
@@ -362,11 +386,11 @@ class PanelTracker:
         texture = shape = None
         if rgb is not None and image is not None:
             matrix = np.array([[image.fx_px, 0, image.cx_px], [0, image.fy_px, image.cy_px], [0, 0, 1.0]])
-            texture = by_texture(rgb, matrix, image.pose_camera)
+            texture = by_texture(self.panel, rgb, matrix, image.pose_camera)
         if points_m_world is not None and len(points_m_world):
             guess = texture or self.estimate or by_plane(points_m_world, self.expected_m_world)
             if guess is not None:
-                shape = by_shape(points_m_world, guess)
+                shape = by_shape(self.panel, points_m_world, guess)
         if texture is not None and shape is not None:
             frame = fuse_texture_shape(texture, shape)
         elif texture is not None:
@@ -407,7 +431,7 @@ class PanelTracker:
             self.estimate = Pose(blended.rotation, blended.position_m_world, confidence)
             self.weight = total
         if texture is not None and rgb is not None and image is not None:
-            self.angles = part_angles(rgb, matrix, image.pose_camera, self.estimate)
+            self.angles = part_angles(self.panel, rgb, matrix, image.pose_camera, self.estimate)
         else:  # the parts are placed by the markers: none seen, none measured
             self.angles = {}
         return self.estimate
@@ -421,22 +445,27 @@ class PanelTracker:
             self.estimate.position_m_world + self.bias_m_world,
             self.estimate.confidence,
         )
-        names, poses, sizes = ["panel"], [pose.as_vector()], [panel.PLATE_HALF_SIZE_M]
-        half_thickness_m = panel.HANDLE_THICKNESS_M / 2
+        names, poses, sizes = ["panel"], [pose.as_vector()], [self.panel.plate_half_size_m]
+        half_thickness_m = self.panel.handle_thickness_m / 2
         confidences = [pose.confidence]
-        for name, pivot in (*panel.VALVES.items(), *panel.LEVERS.items()):
+        for name, pivot in (*self.panel.valves.items(), *self.panel.levers.items()):
             # a valve's box holds its handle at any angle; a lever's is its shaft at rest, turned
             # with it about the pivot by the angle measured (at rest, confidence 0: not measured)
-            valve = panel.part_kind(name) == "valve"
+            valve = self.panel.part_kind(name) == "valve"
             measured = self.angles.get(name, PartAngle(0.0, 0.0))
             turn = rotation_about(
-                np.asarray(panel.VALVE_AXIS_PANEL if valve else panel.LEVER_AXIS_PANEL), measured.angle_rad
+                np.asarray(self.panel.valve.axis_panel if valve else self.panel.lever.axis_panel),
+                measured.angle_rad,
             )
             if valve:
                 centre, half_size = np.asarray(pivot), (0.04, 0.12, 0.12)
             else:
-                centre = np.asarray(pivot) - turn @ (panel.LEVER_LENGTH_M / 2, 0.0, 0.0)
-                half_size = (panel.LEVER_LENGTH_M / 2 + half_thickness_m, half_thickness_m, half_thickness_m)
+                centre = np.asarray(pivot) - turn @ (self.panel.lever.length_m / 2, 0.0, 0.0)
+                half_size = (
+                    self.panel.lever.length_m / 2 + half_thickness_m,
+                    half_thickness_m,
+                    half_thickness_m,
+                )
             names.append(name)
             rotation = pose.rotation @ turn
             poses.append(np.r_[pose.rotation @ centre + pose.position_m_world, quat_wxyz_of(rotation)])

@@ -9,8 +9,10 @@ from abyss.cli import parser
 from abyss.cli.operator import fault_control, fault_help
 from abyss.common import faults
 from abyss.common.errors import ConfigError
-from abyss.common.models import panel
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at
+
+panel = site_at("").panel  # the shipped site's
 
 ROBOT = robot_at("")  # the shipped robot package
 
@@ -24,14 +26,14 @@ def test_the_choices_and_the_help_are_the_table(capsys: pytest.CaptureFixture[st
         parser().parse_args(["fault", "spin"])
     assert "invalid choice: 'spin'" in capsys.readouterr().err
     text = fault_help()
-    names = faults.model_names(ROBOT)
+    names = faults.model_names(ROBOT, panel)
     for row in faults.FAULT_TABLE.values():
         assert row.line() in text and row.value_range() in text
         assert all(target in text for target in faults.targets(row.name, names))
 
 
 def test_a_fault_is_checked_against_the_table_and_the_model() -> None:
-    for part in (*panel.VALVES, *panel.LEVERS):
+    for part in (*panel.valves, *panel.levers):
         assert fault_control("seize", part, 1.0).target == part
     assert fault_control("clear", "", 0.0).fault == "clear"
     with pytest.raises(ConfigError, match="seize target 'thr_fl' not one of valve_0, valve_1"):

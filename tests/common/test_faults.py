@@ -12,6 +12,9 @@ from abyss.common import faults, keys
 from abyss.common.errors import BadInput
 from abyss.common.messages import FAULTS, SimulationControl
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at
+
+panel = site_at("").panel  # the shipped site's
 
 ROBOT = robot_at("")  # the shipped robot package
 
@@ -42,8 +45,8 @@ def test_the_message_the_keys_and_faults_are_the_table() -> None:
 
 
 def test_targets_are_the_models_names_by_kind() -> None:
-    assert faults.targets("thruster", faults.model_names(ROBOT)) == ROBOT.thrusters
-    assert faults.targets("camera", faults.model_names(ROBOT)) == ROBOT.cameras
+    assert faults.targets("thruster", faults.model_names(ROBOT, panel)) == ROBOT.thrusters
+    assert faults.targets("camera", faults.model_names(ROBOT, panel)) == ROBOT.cameras
     assert faults.targets("seize", OTHER_ROBOT) == ("tap",)
     assert faults.targets("noise", OTHER_ROBOT) == ("gps",)
     assert faults.targets("clear", OTHER_ROBOT) == ()

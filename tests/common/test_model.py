@@ -8,15 +8,17 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from abyss.common.models import world_file
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at, world_model
+
+panel = site_at("").panel  # the shipped site's
 
 ROBOT = robot_at("")  # the shipped robot package
 
 
 @pytest.fixture(scope="module")
 def models() -> tuple[mujoco.MjModel, pin.Model]:
-    return mujoco.MjModel.from_xml_path(str(world_file(ROBOT))), pin.buildModelFromMJCF(str(ROBOT.model_file))
+    return world_model(ROBOT, site_at("")), pin.buildModelFromMJCF(str(ROBOT.model_file))
 
 
 def test_forward_kinematics_and_jacobians_agree(models: tuple[mujoco.MjModel, pin.Model]) -> None:
@@ -72,18 +74,18 @@ def test_the_panel_recognition_knows_is_the_panel_in_the_world(
 ) -> None:  # type: ignore[no-untyped-def]
     import cv2
 
-    from abyss.common.models import panel
+    from abyss.common.site import site_at
 
     world, _ = models
-    assert np.allclose(world.body("panel").pos, panel.PANEL_POSITION_M_WORLD)
-    assert np.allclose(world.geom("panel_plate").size, panel.PLATE_HALF_SIZE_M)
+    assert np.allclose(world.body("panel").pos, panel.position_m_world)
+    assert np.allclose(world.geom("panel_plate").size, panel.plate_half_size_m)
     face = world.geom("panel_face")
-    assert face.pos[0] + face.size[0] <= -panel.PLATE_HALF_SIZE_M[0] + 1e-9  # on the face towards -x
-    for name, offset in (*panel.VALVES.items(), *panel.LEVERS.items()):
+    assert face.pos[0] + face.size[0] <= -panel.plate_half_size_m[0] + 1e-9  # on the face towards -x
+    for name, offset in (*panel.valves.items(), *panel.levers.items()):
         assert np.allclose(world.body(name).pos, offset), name
     panel.write_face_texture(tmp_path / "face.png")  # the shipped texture is the one drawn
     drawn = cv2.imread(str(tmp_path / "face.png"), cv2.IMREAD_GRAYSCALE)
-    shipped = cv2.imread(str(panel.FACE_TEXTURE_FILE), cv2.IMREAD_GRAYSCALE)
+    shipped = cv2.imread(str(site_at("").face_texture_file), cv2.IMREAD_GRAYSCALE)
     assert drawn is not None and shipped is not None and np.array_equal(drawn, shipped)
 
 

@@ -180,11 +180,20 @@ def test_a_layout_without_sway_drives_the_axes_it_has(tmp_path: Path) -> None:
     assert load_robot(package).actuated_axes == (0, 2, 5)
 
 
-def test_a_robot_other_than_the_shipped_one_has_no_world_yet(tmp_path: Path) -> None:
-    from abyss.common.models import world_file
+def test_a_robot_package_of_its_own_is_composed_into_the_site(tmp_path: Path) -> None:
+    """Any package composes with the site (common.site): its base body first, so its free
+    joint leads qpos; a package whose names clash with the site's is refused naming both."""
+    from abyss.common.site import site_at, world_model
 
-    with pytest.raises(ConfigError, match=r"simulation\.robot: .*composing a world"):
-        world_file(load_robot(_copy(tmp_path)))
+    package = _copy(tmp_path)
+    world = world_model(load_robot(package), site_at(""))
+    assert world.joint(world.jnt_qposadr.argmin()).name == "vehicle" and world.body(1).name == "vehicle"
+    assert {"panel", "valve_1", "ee"} <= {world.body(i).name for i in range(world.nbody)} | {
+        world.site(i).name for i in range(world.nsite)
+    }
+    clash = _broken(tmp_path, '<body name="arm_base"', '<body name="valve_1"', "robot.xml")
+    with pytest.raises(ConfigError, match=r"simulation\.site: .*does not compile.*valve_1"):
+        world_model(load_robot(clash), site_at(""))
 
 
 # -- no module names the robot's parts ----------------------------------------------------------

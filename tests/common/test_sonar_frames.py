@@ -14,7 +14,7 @@ import pytest
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
 from abyss.common.messages import SonarImage
-from abyss.common.models import panel
+from abyss.common.site import site_at
 from abyss.common.sonar_frames import (
     arc_points,
     bearings_rad,
@@ -27,6 +27,8 @@ from abyss.common.sonar_frames import (
 from abyss.stations.onboard.perception import mount_in_world
 from abyss.stations.simulation.sonar import ImagingSonar
 from abyss.stations.simulation.world import World
+
+panel = site_at("").panel  # the shipped site's
 
 
 def frame(beams: int = 9, bins: int = 20, fov_deg: float = 90.0) -> SonarImage:
@@ -117,7 +119,7 @@ def test_the_panels_echoes_lie_on_arcs_through_its_ray_cast_surface() -> None:
     )
     range_m, bearing_rad = first_echoes(placed, decode_polar(placed), -15.0)
     assert len(range_m) >= 10  # the plate spans a score of beams from 2.5 m
-    face_x_m = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0]
+    face_x_m = panel.position_m_world[0] - panel.plate_half_size_m[0]
     site = world.data.site_xmat[sonar.site].reshape(3, 3)
     origin = world.data.site_xpos[sonar.site].copy()
     geom = np.zeros(1, np.int32)

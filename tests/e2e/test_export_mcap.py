@@ -26,8 +26,8 @@ from abyss.common import keys
 from abyss.common.clouds import unpack_cloud
 from abyss.common.geometry import rotation_of
 from abyss.common.messages import Message, SceneUpdate, decode
-from abyss.common.models import world_file
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at, world_model
 from abyss.recording.reader import Recording, open_recording
 
 ROBOT = robot_at("")  # the shipped robot package
@@ -246,7 +246,7 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
     parents = ["base_link", "arm_base", *(f"arm_link{i}" for i in range(1, 7))]
     assert [t.header.frame_id for t in chain] == parents
     ee_in_vehicle = np.linalg.multi_dot([matrix(t.transform) for t in chain])
-    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
+    model = world_model(ROBOT, site_at(""))
     data = mujoco.MjData(model)
     data.qpos[:7] = [0, 0, 0, 1, 0, 0, 0]  # the vehicle at the origin: the site's pose is in its frame
     for name, value in zip(ROBOT.arm_joints, joints[k].positions_rad, strict=True):

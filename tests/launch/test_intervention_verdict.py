@@ -11,10 +11,12 @@ import numpy as np
 
 from abyss.common.config.system import MissionConfig
 from abyss.common.messages import PanelState
-from abyss.common.models import panel
+from abyss.common.site import site_at
 from abyss.launch.verdict import interventions_summary, render_summary
 
-PARTS = (*panel.VALVES, *panel.LEVERS)
+panel = site_at("").panel  # the shipped site's
+
+PARTS = (*panel.valves, *panel.levers)
 
 
 def state(**angles_deg: float) -> PanelState:
@@ -25,15 +27,15 @@ def test_each_intervention_is_judged_on_the_true_angle_against_its_target() -> N
     mission = MissionConfig(
         arm_target=(), interventions=(("valve_1", "90"), ("lever_0", "down"), ("valve_1", "-45"))
     )
-    judged = interventions_summary(mission, state(), state(valve_1=43.0, lever_0=-44.0))
+    judged = interventions_summary(mission, panel, state(), state(valve_1=43.0, lever_0=-44.0))
     assert [(j["part"], j["target_deg"], j["success"]) for j in judged] == [
         ("valve_1", 90.0, False),
         ("lever_0", -45.0, True),
         ("valve_1", 45.0, True),
     ]  # 90 then -45
-    judged = interventions_summary(mission, state(), state(valve_1=84.0, lever_0=-40.0))
+    judged = interventions_summary(mission, panel, state(), state(valve_1=84.0, lever_0=-40.0))
     assert [j["success"] for j in judged] == [False, False, False]  # 6 deg short; 5 from the stop
-    unseen = interventions_summary(mission, None, None)  # no truth came
+    unseen = interventions_summary(mission, panel, None, None)  # no truth came
     assert all(not j["success"] and j["truth_deg"] is None for j in unseen)
     summary = {
         "system": "s",

@@ -18,11 +18,11 @@ from typing import Annotated, Any, Literal
 import numpy as np
 
 from abyss.common import keys
-from abyss.common.errors import BadInput, ConfigError
+from abyss.common.errors import ConfigError
 from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
-from abyss.common.models import panel
 from abyss.common.reading import OneOf
 from abyss.common.robot import Robot, robot_at, robot_spec
+from abyss.common.site import shipped_sites
 
 Outcome = Literal["done", "failed"]  # of an intervention
 OUTCOMES: tuple[Outcome, ...] = typing.get_args(Outcome)
@@ -31,13 +31,15 @@ Phase = Annotated[str, OneOf(INTERVENTION_PHASES[1:], blank=True)]  # "": from a
 
 
 class PanelPart:
-    """A rule: the name of a part of the panel (models.panel)."""
+    """A rule: the name of a part of a shipped site's panel (common.site); a user's site's parts
+    are the run's configuration's to check (its mission's interventions)."""
 
     def check(self, name: str, value: Any) -> None:
-        try:
-            panel.part_kind(value)
-        except BadInput as exc:
-            raise ConfigError(name, str(exc)) from None
+        parts = {part for site in shipped_sites() for part in site.panel.part_names}
+        if value not in parts:
+            raise ConfigError(
+                name, f"{value!r} is not a part of a shipped site's panel: {', '.join(sorted(parts))}"
+            )
 
 
 @dataclass(frozen=True)

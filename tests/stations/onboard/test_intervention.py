@@ -14,13 +14,15 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
-from abyss.common.models import panel
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at
 from abyss.stations.onboard.arm_control import ArmController, PoseReference
 from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun, Phase
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 from abyss.stations.vessel.intents import resolve
+
+panel = site_at("").panel  # the shipped site's
 
 ROBOT = robot_at("")  # the shipped robot package
 
@@ -30,11 +32,11 @@ LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
 
 def recognised(offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> RecognisedObjects:
     """The panel as the vessel would recognise it: where world.xml puts it, plus `offset_m`."""
-    position = np.add(panel.PANEL_POSITION_M_WORLD, offset_m)
+    position = np.add(panel.position_m_world, offset_m)
     return RecognisedObjects(
         ("panel",),
         np.array([[*position, 1.0, 0.0, 0.0, 0.0]]),
-        np.array([panel.PLATE_HALF_SIZE_M]),
+        np.array([panel.plate_half_size_m]),
         np.ones(1),
         "texture",
         0.0,
@@ -45,7 +47,7 @@ def goal_of(
     part: str, amount: str, offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 ) -> InterventionGoal:
 
-    goal, reason = resolve(Intervention(1, part, *panel.intent(part, amount)), recognised(offset_m))
+    goal, reason = resolve(panel, Intervention(1, part, *panel.intent(part, amount)), recognised(offset_m))
     assert goal is not None, reason
     return goal
 
@@ -134,7 +136,7 @@ def test_the_primitive_works_the_part_judged_on_the_truth(
     run, world, _ = work(goal_of(part, amount))
     assert run.phase == "done", run.reason
     assert truth_deg(world, part) == pytest.approx(target_deg, abs=tolerance_deg)
-    others = [p for p in (*panel.VALVES, *panel.LEVERS) if p != part]
+    others = [p for p in (*panel.valves, *panel.levers) if p != part]
     assert all(abs(truth_deg(world, p)) < 1.0 for p in others)  # nothing else was moved
     assert world.joints().gripper_opening_m > 0.05  # let go
 
@@ -222,7 +224,7 @@ def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[Interv
     (the vessel's way since), or from the angle it had before the turn (its way before)."""
     arm, world = setup("dynamic")
     intent = Intervention(1, "valve_1", *panel.intent("valve_1", "90"))
-    goal, _ = resolve(intent, recognised())
+    goal, _ = resolve(panel, intent, recognised())
     assert goal is not None
     run = InterventionRun(goal)
     for _ in range(round(60.0 / PERIOD_S)):
@@ -235,7 +237,7 @@ def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[Interv
         world.step(References(np.zeros(4), np.zeros(len(ROBOT.arm_joints)), 0.0), PERIOD_S)
     turned = run.turned_rad if resolved_from_the_part else 0.0
     again, reason = resolve(
-        dataclasses.replace(intent, turn_rad=goal.turn_rad - turned), recognised(), turned
+        panel, dataclasses.replace(intent, turn_rad=goal.turn_rad - turned), recognised(), turned
     )
     assert again is not None, reason
     rebooted, said = InterventionRun(again), ""

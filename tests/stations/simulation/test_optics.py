@@ -16,12 +16,13 @@ import pytest
 from abyss.common.config.simulation import WATER_TYPES as CONFIG_WATER_TYPES
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
-from abyss.common.models import panel, world_file
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at, world_model
 from abyss.stations.simulation.optics import WATER_TYPES, Optics, WaterType, range_of_depth
 from abyss.stations.simulation.rendering import Cameras, lamps_of
 
 ROBOT = robot_at("")  # the shipped robot package
+panel = site_at("").panel  # the shipped site's
 
 
 pytestmark = pytest.mark.timeout(300)
@@ -33,15 +34,15 @@ CLEAR = WaterType("clear", (0.0, 0.0, 0.0), 0.0)  # no attenuation, no scatterin
 
 @pytest.fixture(scope="module")
 def world() -> tuple[mujoco.MjModel, mujoco.MjData, Cameras]:
-    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
+    model = world_model(ROBOT, site_at(""))
     cameras = Cameras(model, WIDTH_PX, HEIGHT_PX, depth_camera=ROBOT.depth_camera)
     yield model, mujoco.MjData(model), cameras
     cameras.close()
 
 
 def marker_m_world() -> np.ndarray:
-    y, z, _ = panel.MARKERS[MARKER]
-    return np.array(panel.PANEL_POSITION_M_WORLD) + np.array((-panel.PLATE_HALF_SIZE_M[0], y, z))
+    y, z, _ = panel.marker_table[MARKER]
+    return np.array(panel.position_m_world) + np.array((-panel.plate_half_size_m[0], y, z))
 
 
 def look_at_marker(model: mujoco.MjModel, data: mujoco.MjData, range_m: float) -> None:
@@ -57,7 +58,7 @@ def look_at_marker(model: mujoco.MjModel, data: mujoco.MjData, range_m: float) -
 
 def marker_contrast(radiance: np.ndarray, plain: np.ndarray, focal_px: float, range_m: float) -> np.ndarray:
     """White minus black [per channel] over the marker's pixels, told apart in the plain render."""
-    half_px = int(0.5 * panel.MARKERS[MARKER][2] * focal_px / range_m)
+    half_px = int(0.5 * panel.marker_table[MARKER][2] * focal_px / range_m)
     rows = slice(HEIGHT_PX // 2 - half_px, HEIGHT_PX // 2 + half_px)
     cols = slice(WIDTH_PX // 2 - half_px, WIDTH_PX // 2 + half_px)
     gray = plain[rows, cols].mean(axis=-1)

@@ -10,11 +10,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.models import MODELS_DIR, SEABED_CLOUD_FILE, world_file
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at, world_model
 from abyss.stations.simulation import terrain
 
 ROBOT = robot_at("")  # the shipped robot package
+SITE = site_at("")  # the shipped site
 
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -22,30 +23,32 @@ ROOT = Path(__file__).resolve().parents[3]
 
 @pytest.fixture(scope="module")
 def built() -> terrain.Terrain:
-    return terrain.reconstruct(terrain.read_cloud(SEABED_CLOUD_FILE))
+    return terrain.reconstruct(terrain.read_cloud(SITE.seabed_cloud_file))
 
 
 def test_the_shipped_cloud_is_the_seeded_fractal() -> None:
-    np.testing.assert_allclose(terrain.read_cloud(SEABED_CLOUD_FILE), terrain.fractal_cloud(0), atol=1e-9)
+    np.testing.assert_allclose(
+        terrain.read_cloud(SITE.seabed_cloud_file), terrain.fractal_cloud(0), atol=1e-9
+    )
 
 
 def test_reconstruction_follows_the_cloud(built: terrain.Terrain) -> None:
-    cloud = terrain.read_cloud(SEABED_CLOUD_FILE)
+    cloud = terrain.read_cloud(SITE.seabed_cloud_file)
     inner = np.all(np.abs(cloud[:, :2]) < terrain.HALF_SIZE_M - 1.0, axis=1)
     error_m = np.abs(terrain.bilinear(built.heights_m, cloud[inner, :2]) - cloud[inner, 2])
     assert np.median(error_m) < 0.05 and np.percentile(error_m, 95) < 0.15  # measured 0.03, 0.09
 
 
 def test_the_shipped_terrain_is_what_the_tool_builds(built: terrain.Terrain) -> None:
-    shipped = terrain.read_hfield(MODELS_DIR / "terrain.bin")
+    shipped = terrain.read_hfield(SITE.directory / "terrain.bin")
     assert np.median(np.abs(shipped - built.heights_m)) < 0.01
 
 
 def test_mujoco_sees_the_terrain_where_the_heights_say(built: terrain.Terrain) -> None:
-    model = mujoco.MjModel.from_xml_path(str(world_file(ROBOT)))
+    model = world_model(ROBOT, SITE)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    heights = terrain.read_hfield(MODELS_DIR / "terrain.bin")
+    heights = terrain.read_hfield(SITE.directory / "terrain.bin")
     seabed = model.geom("seabed").id
     rng = np.random.default_rng(3)
     for x, y in rng.uniform(-15, 15, size=(20, 2)):

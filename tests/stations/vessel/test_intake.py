@@ -14,10 +14,13 @@ import pytest
 from abyss.common.clouds import pack_cloud, unpack_cloud
 from abyss.common.config.stations import VesselConfig
 from abyss.common.messages import Image, PerceptionStatus, PointCloud, SonarImage
+from abyss.common.site import site_at
 from abyss.common.sonar_frames import echo_arcs, encode_polar
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_keys
 from abyss.stations.vessel.intake import Intake, IntakeInputs
+
+panel = site_at("").panel  # the shipped site's
 
 RESOLUTION_M = 0.1
 
@@ -81,7 +84,7 @@ def statuses(out_messages: list) -> list[PerceptionStatus]:  # type: ignore[type
 def test_the_sonar_feeds_the_model_while_the_cameras_bring_nothing_and_hands_back() -> None:
     cfg = config()
     model = SceneModel(RESOLUTION_M, cfg.octree_max_range_m, track_period_s=0.0)
-    intake = Intake(cfg, model, 0.0)
+    intake = Intake(cfg, panel, model, 0.0)
     first = seabed("depth", 0.0, 1.0)
     out = intake.step(IntakeInputs(clouds=[first], pings=[ping(20.0, 1.0)]), 0.0)
     assert modelled(model, unpack_cloud(first)[0]) > 0.9  # the cameras' cloud is mapped
@@ -107,7 +110,7 @@ def test_the_sonar_feeds_the_model_while_the_cameras_bring_nothing_and_hands_bac
 def test_a_ros2_node_maps_in_the_models_place() -> None:
     cfg = config()
     model = SceneModel(RESOLUTION_M, cfg.octree_max_range_m, track_period_s=0.0)
-    intake = Intake(cfg, model, 0.0, maps=False)
+    intake = Intake(cfg, panel, model, 0.0, maps=False)
     cloud = seabed("depth", 0.0, 1.0)
     out = intake.step(IntakeInputs(clouds=[cloud]), 0.0)
     assert len(model.pending) == 0 and intake.sim_time_s.get() == 1.0  # counted, not inserted
@@ -118,7 +121,7 @@ def test_a_ros2_node_maps_in_the_models_place() -> None:
 def test_recognition_runs_every_recognition_period(period_s: float) -> None:
     """Each run decodes the latest image: a frame that does not decode is rejected once a run."""
     cfg = config(recognition_period_s=period_s)
-    intake = Intake(cfg, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)
+    intake = Intake(cfg, panel, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)
     assert intake.step(IntakeInputs(), 0.0).rejected == []  # nothing to recognise from yet
     garbled = Image(
         camera="cam_left",
@@ -148,7 +151,7 @@ def test_recognition_runs_every_recognition_period(period_s: float) -> None:
 
 def test_perception_status_counts_each_sources_points_every_period() -> None:
     cfg = config(perception_period_s=2.0)
-    intake = Intake(cfg, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)
+    intake = Intake(cfg, panel, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)
     depth, stereo, sonar = (
         seabed("depth", 0.0, 0.0, n=1000),
         seabed("stereo", 5.0, 1.0, n=500),
@@ -183,7 +186,7 @@ def test_perception_status_counts_each_sources_points_every_period() -> None:
 
 def test_a_sonar_frame_that_does_not_decode_is_rejected_and_kept_as_the_latest() -> None:
     cfg = config()
-    intake = Intake(cfg, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)
+    intake = Intake(cfg, panel, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)
     bad = dataclasses.replace(ping(0.0, 2.0), data=b"\x00not an image")
     out = intake.step(IntakeInputs(pings=[bad]), 0.0)
     assert [topic for topic, _ in out.rejected] == ["sonar"] and "decodes to nothing" in out.rejected[0][1]

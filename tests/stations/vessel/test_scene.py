@@ -19,8 +19,8 @@ from abyss.common.errors import BadInput, BadMessage
 from abyss.common.geometry import rotation_of
 from abyss.common.images import decode_image
 from abyss.common.messages import PointCloud, RecognisedObjects, SceneUpdate, decode, encode
-from abyss.common.models import panel
 from abyss.common.robot import robot_at
+from abyss.common.site import site_at
 from abyss.scene.export import export
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_centres, cell_keys, iterate_leaves, leaves_to_cells, read_binary
@@ -38,9 +38,11 @@ from abyss.stations.vessel.recognition import (
     seen_angles,
 )
 
+panel = site_at("").panel  # the shipped site's
+
 ROBOT = robot_at("")  # the shipped robot package
 
-FACE_X_M = panel.PANEL_POSITION_M_WORLD[0] - panel.PLATE_HALF_SIZE_M[0] - 0.001  # the marker face's front
+FACE_X_M = panel.position_m_world[0] - panel.plate_half_size_m[0] - 0.001  # the marker face's front
 
 
 @dataclasses.dataclass
@@ -80,12 +82,12 @@ def start() -> View:
 
 def face_distances(cloud: PointCloud) -> np.ndarray:
     points, _ = unpack_cloud(cloud)
-    y, z = points[:, 1], points[:, 2] - panel.PANEL_POSITION_M_WORLD[2]
+    y, z = points[:, 1], points[:, 2] - panel.position_m_world[2]
     on_face = (np.abs(y) < 0.75) & (np.abs(z) < 0.55) & (np.abs(points[:, 0] - FACE_X_M) < 0.5)
     # the valves and levers stand up to 0.15 m proud of the face: measure against the face where
     # none is (their columns are cut out)
     clear = np.ones(len(points), bool)
-    for _, vy, vz in (*panel.VALVES.values(), *panel.LEVERS.values()):
+    for _, vy, vz in (*panel.valves.values(), *panel.levers.values()):
         clear &= (np.abs(y - vy) > 0.16) | (np.abs(z - vz) > 0.1)
     return np.abs(points[on_face & clear, 0] - FACE_X_M)
 
@@ -288,13 +290,13 @@ def test_export_writes_a_bt_pyoctomap_reads_back_and_a_coloured_ply(start: View,
 
 
 def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -> None:
-    truth = np.array(panel.PANEL_POSITION_M_WORLD)
+    truth = np.array(panel.position_m_world)
     left = start.frames["cam_left"]
     image = dataclasses.replace(left, pose_frame="world", pose_camera=camera_in_world(left, start.pose))
     clouds = clouds_of(
         ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
     )
-    tracker = PanelTracker()
+    tracker = PanelTracker(panel)
     pose = tracker.update(decode_image(image), image, unpack_cloud(clouds[0])[0])
     assert pose is not None and tracker.method == "texture+shape"
     error_m = float(np.linalg.norm(pose.position_m_world - truth))
@@ -303,10 +305,10 @@ def test_panel_pose_within_2_cm_and_2_degrees_from_the_start_pose(start: View) -
     objects = tracker.objects(0.0)
     assert objects is not None and objects.names[0] == "panel" and len(objects.names) == 6
     valve = objects.poses_world[objects.names.index("valve_1"), :3]
-    assert np.linalg.norm(valve - (truth + panel.VALVES["valve_1"])) < 0.03
+    assert np.linalg.norm(valve - (truth + panel.valves["valve_1"])) < 0.03
     # no markers in view (the camera blacked out): nothing found by texture
     black = np.zeros((480, 640, 3), np.uint8)
-    assert by_texture(black, np.eye(3), image.pose_camera) is None
+    assert by_texture(panel, black, np.eye(3), image.pose_camera) is None
     # frames that find nothing: the estimate stands, its confidence fades (not the best seen so far)
     confident = pose.confidence
     for k in (1, 2):
@@ -329,8 +331,8 @@ def test_the_panel_estimate_follows_the_navigations_wandering_frame() -> None:
             ROBOT.spec.cameras, working.frames, working.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
         )[0]
     )[0]
-    truth = np.array(panel.PANEL_POSITION_M_WORLD)
-    tracker, wander_mps = PanelTracker(), np.array([0.0015, -0.0015, 0.0])
+    truth = np.array(panel.position_m_world)
+    tracker, wander_mps = PanelTracker(panel), np.array([0.0015, -0.0015, 0.0])
     for second in range(20):
         error_m = wander_mps * second  # the navigation's, at this frame
         pose = (working.pose[0] + error_m, working.pose[1])
@@ -360,17 +362,17 @@ def test_vision_measures_each_valves_handle_angle_within_3_degrees(
     cloud = clouds_of(
         ROBOT.spec.cameras, view.frames, view.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
     )[0]
-    tracker = PanelTracker()
+    tracker = PanelTracker(panel)
     tracker.update(decode_image(image), image, unpack_cloud(cloud)[0])
     objects = tracker.objects(0.0)
     assert objects is not None
-    seen = seen_angles(objects)
-    valves = {name: np.degrees(a.angle_rad) for name, a in seen.items() if name in panel.VALVES}
+    seen = seen_angles(panel, objects)
+    valves = {name: np.degrees(a.angle_rad) for name, a in seen.items() if name in panel.valves}
     assert len(valves) >= 2, seen  # those the frame holds whole
     for name, angle_deg in valves.items():
         off_deg = (angle_deg - TURNED_DEG[name] + 90.0) % 180.0 - 90.0  # a bar at a and a + 180 is one
         assert abs(off_deg) < 3.0, (name, angle_deg)
-    for name in set(seen) & set(panel.LEVERS):
+    for name in set(seen) & set(panel.levers):
         assert np.degrees(seen[name].angle_rad) == pytest.approx(TURNED_DEG[name], abs=10.0), name
 
 
@@ -383,7 +385,7 @@ def test_the_vessels_intake_recognises_the_panel_on_its_schedule(start: View) ->
         ROBOT.spec.cameras, start.frames, start.pose, np.zeros((0, 3)), ("depth",), CloudSettings()
     )[0]
     cfg = VesselConfig(recognition_period_s=2.0, perception_period_s=100.0)
-    intake = Intake(cfg, SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m), 0.0, maps=False)
+    intake = Intake(cfg, panel, SceneModel(cfg.octree_resolution_m, cfg.octree_max_range_m), 0.0, maps=False)
     found = {}
     for now_s in (0.0, 1.0, 1.9, 2.0, 3.0):
         out = intake.step(IntakeInputs(clouds=[cloud] if now_s == 0.0 else [], image=image), now_s)

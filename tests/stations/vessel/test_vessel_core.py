@@ -29,7 +29,7 @@ from abyss.common.messages import (
     Telemetry,
     encode,
 )
-from abyss.common.models import panel
+from abyss.common.site import site_at
 from abyss.linkemu.link import Link, Offer
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer
@@ -38,6 +38,8 @@ from abyss.scene.stream import SceneStream
 from abyss.stations.vessel.core import Perception, Relay, RelayInputs
 from abyss.stations.vessel.recognition import PanelTracker, PartAngle, Pose
 from abyss.validation.stress import sample_telemetry
+
+panel = site_at("").panel  # the shipped site's
 
 STEP_S = 0.01
 
@@ -154,7 +156,7 @@ def test_pacer_keeps_one_update_in_flight_and_gives_up_on_a_lost_one() -> None:
 
 def test_relay_forwards_commands_and_answers_and_beats_with_shore_silence() -> None:
     cfg = VesselConfig()
-    relay = Relay(cfg, now_s=0.0)
+    relay = Relay(cfg, panel, now_s=0.0)
     mode = OperatorMode(7, "hold")
     ack = CommandAck(7, "mode", "")
     out = relay.step(RelayInputs(commands=[("op/mode", mode)], acks=[ack], shore_heard=True), 0.0)
@@ -173,14 +175,14 @@ def test_relay_forwards_commands_and_answers_and_beats_with_shore_silence() -> N
 
 
 def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_its_stops() -> None:
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     intent = Intervention(5, "valve_1", math.radians(90), "")
     assert relay.step(RelayInputs(commands=[("op/intervene", intent)]), 0.0) == [
         ("heartbeat", Heartbeat(0.0, True))
     ]  # not recognised yet: it waits (shore resends)
     seen = np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]])  # the panel recognised 6 cm low
     by_shape = RecognisedObjects(
-        ("panel",), seen, np.array([panel.PLATE_HALF_SIZE_M]), np.ones(1), "shape", 0.5
+        ("panel",), seen, np.array([panel.plate_half_size_m]), np.ones(1), "shape", 0.5
     )
     out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=by_shape), 0.5)
     assert [t for t, _ in out] == ["heartbeat"]  # no markers seen: it waits
@@ -204,14 +206,14 @@ def test_an_intent_waits_for_the_panel_goes_down_resolved_and_is_refused_beyond_
 
 
 def test_a_moved_estimate_goes_down_again_till_the_intervention_ends() -> None:
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
     def recognised(z_m: float, method: str = "texture") -> RecognisedObjects:
         return RecognisedObjects(
             ("panel",),
             np.array([[5.0, 0.0, z_m, 1.0, 0.0, 0.0, 0.0]]),
-            np.array([panel.PLATE_HALF_SIZE_M]),
+            np.array([panel.plate_half_size_m]),
             np.ones(1),
             method,
             1.0,
@@ -252,8 +254,8 @@ def test_a_moved_estimate_goes_down_again_till_the_intervention_ends() -> None:
 
 def seen_turned(parts: dict[str, tuple[float, float]]) -> RecognisedObjects:
     """The panel where world.xml puts it, its parts measured at (angle [deg], confidence)."""
-    tracker = PanelTracker()
-    tracker.estimate = Pose(np.eye(3), np.array(panel.PANEL_POSITION_M_WORLD), 0.9)
+    tracker = PanelTracker(panel)
+    tracker.estimate = Pose(np.eye(3), np.array(panel.position_m_world), 0.9)
     tracker.angles = {name: PartAngle(math.radians(a), c) for name, (a, c) in parts.items()}
     objects = tracker.objects(1.0)
     assert objects is not None
@@ -261,7 +263,7 @@ def seen_turned(parts: dict[str, tuple[float, float]]) -> RecognisedObjects:
 
 
 def test_the_valves_vision_measures_are_believed_but_not_the_part_in_hand() -> None:
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     seen = {"valve_0": (30.0, 0.9), "valve_1": (-62.0, 0.9), "valve_2": (85.0, 0.2), "lever_0": (-45.0, 0.9)}
     relay.step(RelayInputs(objects=seen_turned(seen)), 1.0)
     believed = {name: math.degrees(a) for name, a in relay.believed_rad.items()}
@@ -278,7 +280,7 @@ def test_the_valves_vision_measures_are_believed_but_not_the_part_in_hand() -> N
     # the tool at valve_0 (a rebooted onboard's arm still on it): its bar hidden or held, not believed
     at_valve_0 = dataclasses.replace(
         sample_telemetry(),
-        ee_position_m_world=np.add(panel.PANEL_POSITION_M_WORLD, panel.VALVES["valve_0"]) - (0.05, 0.0, 0.0),
+        ee_position_m_world=np.add(panel.position_m_world, panel.valves["valve_0"]) - (0.05, 0.0, 0.0),
     )
     relay.step(RelayInputs(objects=seen_turned({"valve_0": (-12.0, 0.9)}), telemetry=(2, at_valve_0)), 2.5)
     assert math.degrees(relay.believed_rad["valve_0"]) == pytest.approx(30.0)
@@ -314,7 +316,7 @@ def marked_panel() -> RecognisedObjects:
     return RecognisedObjects(
         ("panel",),
         np.array([[5.0, 0.0, -8.66, 1.0, 0.0, 0.0, 0.0]]),
-        np.array([panel.PLATE_HALF_SIZE_M]),
+        np.array([panel.plate_half_size_m]),
         np.ones(1),
         "texture",
         1.0,
@@ -339,7 +341,7 @@ def test_an_intervention_handed_again_after_onboard_rebooted_mid_turn_starts_whe
     """valve_1 to be turned by 90 deg; onboard turned it 40 deg and rebooted. Shore hands the same
     intent again: it goes down resolved from 40 deg (the grasp where the bar now stands) for the 50
     deg left, the target unchanged; once done, the part is believed at 90 deg."""
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     objects = marked_panel()
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
@@ -379,7 +381,7 @@ def test_a_lever_thrown_past_its_stop_by_the_tool_is_believed_at_the_stop_and_pu
     grip), the lever stops at -45. Onboard reboots while backing off; handed again, the lever goes
     down resolved from -45 with no turn left, its push toward the stop (negative), never up off
     it (a kill campaign's false done: resolved from -55, the push went 20 deg up)."""
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     objects = marked_panel()
     intent = Intervention(8, "lever_0", 0.0, "down")
 
@@ -408,7 +410,7 @@ def test_a_restarted_vessel_takes_on_onboards_intervention_and_hands_it_again_fr
     the turn; onboard reboots 60 deg into it, shore hands it again: it goes down from 60 deg for
     the 30 left (it went down from the rest angle, where the bar no longer is, and the fingers
     were blocked by it: every-station-killed)."""
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     intent = Intervention(5, "valve_1", math.radians(90), "")
 
     def telemetry(boot: int, phase: str, turned_deg: float) -> tuple[int, Telemetry]:
@@ -428,7 +430,7 @@ def test_a_turn_ending_a_little_past_its_stop_ends_at_the_stop() -> None:
     """valve_1 seen at 0.4 deg (vision's noise about its rest) and asked to turn by 90: the goal
     turns it to its stop at 90 (it was refused as past it, and a restarted vessel's mission
     stopped there); 6 deg past is still refused."""
-    relay = Relay(VesselConfig(), now_s=0.0)
+    relay = Relay(VesselConfig(), panel, now_s=0.0)
     relay.believed_rad["valve_1"] = math.radians(0.4)
     intent = Intervention(5, "valve_1", math.radians(90), "")
     out = relay.step(RelayInputs(commands=[("op/intervene", intent)], objects=marked_panel()), 1.0)

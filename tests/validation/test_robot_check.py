@@ -1,0 +1,183 @@
+"""`abyss robot check` (validation/robot_check.py): the shipped robot passes every check, its
+open-loop speeds and decay periods within their bounds of the analytic ones; a package made heavy,
+or top-heavy, warns in its hydrostatics (exit 1); a broken one exits 2 naming the file and the
+field; the `[published]` figures are held to the simulated ones; the allocation's linear program
+against SciPy's; the command writes its table and its PNG."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.optimize import linprog
+
+from abyss.cli import main
+from abyss.common.errors import ConfigError
+from abyss.common.robot import SHIPPED_ROBOT_DIR, load_robot
+from abyss.validation.robot_check import (
+    CHECKS,
+    PERIOD_BOUND,
+    SPEED_BOUND,
+    Report,
+    check_robot,
+    published_rows,
+)
+from abyss.validation.robot_geometry import largest_along
+from abyss.validation.robot_physics import measured_period_s, terminal_speed
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture(scope="module")
+def shipped() -> Report:
+    return check_robot(SHIPPED_ROBOT_DIR)
+
+
+def package(tmp_path: Path, xml: tuple[str, str] | None = None, toml_extra: str = "") -> Path:
+    """A copy of the shipped package in tmp_path, `xml`'s (old, new) replaced in its MJCF once,
+    `toml_extra` appended to its robot.toml."""
+    directory = tmp_path / "robot"
+    shutil.copytree(SHIPPED_ROBOT_DIR, directory, ignore=shutil.ignore_patterns("__pycache__", "*.py"))
+    if xml is not None:
+        model = directory / "robot.xml"
+        text = model.read_text()
+        assert text.count(xml[0]) == 1
+        model.write_text(text.replace(*xml))
+    (directory / "robot.toml").write_text((directory / "robot.toml").read_text() + toml_extra)
+    return directory
+
+
+def rows_of(report: Report, check: str) -> dict[str, str]:
+    return {r.name: r.status for r in report.rows if r.check == check}
+
+
+def test_the_shipped_robot_passes_every_check(shipped: Report) -> None:
+    assert {r.check for r in shipped.rows} == set(CHECKS)
+    warned = [f"{r.check}: {r.name}: {r.figures}" for r in shipped.rows if r.status == "warn"]
+    assert not warned
+    assert shipped.passed
+    assert rows_of(shipped, "published") == {"figures": "n/a"}  # the shipped package publishes nothing
+
+
+def test_its_open_loop_speeds_and_periods_meet_the_analytic_ones(shipped: Report) -> None:
+    axes = {(r.axis, r.sign) for r in shipped.responses}
+    assert axes == {(a, s) for a in (0, 1, 2, 5) for s in (1, -1)}  # surge, sway, heave, yaw, both ways
+    for r in shipped.responses:
+        assert r.settled
+        assert abs(r.ratio - 1.0) <= SPEED_BOUND
+        assert r.measured * r.sign > 0.5 * abs(r.analytic)  # it moved, the way it was pushed
+    for d in shipped.decays:
+        assert abs(d.ratio - 1.0) <= PERIOD_BOUND
+    assert 0.9 < shipped.decays[0].analytic_s / 3.04 < 1.1  # the work-class's roll: about 3 s
+
+
+def test_the_allocation_is_the_layouts_own(shipped: Report) -> None:
+    """The shipped layout, by hand: four horizontal thrusters at 45 degrees (0.8, 0.55) m from the
+    centre, two vertical ones; 500 N forward, 400 N in reverse."""
+    limits = {(a.axis, a.sign): a for a in shipped.limits}
+    assert limits[0, 1].wrench == pytest.approx(4 * 500 / math.sqrt(2))
+    assert limits[0, -1].wrench == pytest.approx(-4 * 400 / math.sqrt(2))
+    assert limits[2, 1].wrench == pytest.approx(1000.0) and limits[2, -1].wrench == pytest.approx(-800.0)
+    assert limits[5, 1].wrench == pytest.approx(4 * 400 * (0.8 + 0.55) / math.sqrt(2))
+    assert np.allclose(limits[0, 1].thrust_n[4:], 0.0)  # the vertical ones idle in surge, not fighting
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_linear_program_finds_scipys_optimum(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    allocation = rng.normal(size=(4, 6))
+    lower, upper = np.full(6, -rng.uniform(50, 100)), np.full(6, rng.uniform(100, 150))
+    thrust = largest_along(allocation[0], allocation[1:], lower, upper)
+    found = linprog(
+        -allocation[0], A_eq=allocation[1:], b_eq=np.zeros(3), bounds=list(zip(lower, upper, strict=True))
+    )
+    assert found.success
+    assert allocation[0] @ thrust == pytest.approx(-found.fun, rel=1e-7)
+    assert np.allclose(allocation[1:] @ thrust, 0.0, atol=1e-7)
+    assert np.all(thrust >= lower - 1e-9) and np.all(thrust <= upper + 1e-9)
+
+
+def test_a_heavier_ballast_warns_in_hydrostatics(tmp_path: Path) -> None:
+    heavy = package(tmp_path, ('mass="2989"', 'mass="3587"'))  # 20% more
+    report = check_robot(heavy)
+    statics = rows_of(report, "hydrostatics")
+    assert statics["net buoyancy"] == "warn" and statics["BG"] == "pass"
+    assert report.hydrostatics.net_n == pytest.approx(-598 * 9.81, rel=0.01)
+    assert not report.passed
+
+
+def test_a_centre_of_gravity_above_buoyancy_warns_and_exits_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    top_heavy = package(tmp_path, ('<inertial pos="0 0 -0.2"', '<inertial pos="0 0 0.1"'))
+    assert main(["robot", "check", str(top_heavy), "--out", str(tmp_path / "out")]) == 1
+    table = (tmp_path / "out" / "report.txt").read_text()
+    bg = next(line for line in table.splitlines() if line.startswith("hydrostatics") and " BG " in line)
+    assert "warn" in bg and "BG_z > 0" in bg
+    assert "row(s) warn" in capsys.readouterr().out
+
+
+def test_the_command_shows_progress_and_writes_the_table_and_the_png(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["robot", "check", str(SHIPPED_ROBOT_DIR)]) == 0
+    out = capsys.readouterr().out
+    assert [f"{i + 1}/6: {name}" in out for i, name in enumerate(CHECKS)] == [True] * 6
+    written = tmp_path / "robot-check"  # the default --out, under the working directory
+    assert (written / "robot-check.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "every check passes" in (written / "report.txt").read_text()
+    assert f"robot-check.png in {written}" in out
+
+
+def test_a_broken_package_exits_2_naming_the_file_and_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    broken = package(tmp_path)
+    toml = broken / "robot.toml"
+    toml.write_text(toml.read_text().replace("forward_max_n = 500.0", 'forward_max_n = "lots"'))
+    assert main(["robot", "check", str(broken), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert str(toml) in err and "thrusters.forward_max_n" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_published_figures_are_held_to_the_simulated(tmp_path: Path, shipped: Report) -> None:
+    published = (
+        '\n[published]\nsource = "sea trials"\nsurge_max_mps = 1.2\nsway_max_mps = 2.0\n'
+        "top_speed_knots = 3.0\nmass_kg = 2995\n"
+    )
+    robot = load_robot(package(tmp_path, toml_extra=published))
+    assert robot.spec.published["surge_max_mps"] == 1.2 and robot.spec.published["source"] == "sea trials"
+    rows = published_rows(robot, shipped.hydrostatics, list(shipped.responses), list(shipped.limits))
+    status = {r.name: r.status for r in rows}
+    assert status == {
+        "surge_max_mps": "pass",
+        "sway_max_mps": "warn",
+        "top_speed_knots": "warn",
+        "mass_kg": "pass",
+    }
+    assert all("sea trials" in r.why for r in rows)
+    unpublished = dataclasses.replace(robot, spec=dataclasses.replace(robot.spec, published={}))
+    assert [r.status for r in published_rows(unpublished, shipped.hydrostatics, [], [])] == ["n/a"]
+
+
+def test_the_reader_refuses_a_published_figure_of_the_wrong_type(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"robot.toml: published.surge_max_mps"):
+        load_robot(package(tmp_path, toml_extra="\n[published]\nsurge_max_mps = true\n"))
+
+
+def test_the_period_and_the_terminal_speed_solve_their_equations() -> None:
+    time_s = np.arange(0.0, 30.0, 0.05)
+    period = measured_period_s(time_s, 0.2 * np.exp(-0.3 * time_s) * np.cos(2 * math.pi * time_s / 3.1))
+    assert period == pytest.approx(3.1, rel=1e-3)
+    assert measured_period_s(time_s, 0.1 + 0.2 * np.cos(2 * math.pi * time_s / 3.1)) == pytest.approx(
+        3.1, rel=1e-3
+    )
+    speed = terminal_speed(86.6, 866.0, -1131.4)
+    assert speed < 0 and 86.6 * speed + 866.0 * speed * abs(speed) == pytest.approx(-1131.4)
+    assert terminal_speed(10.0, 0.0, 5.0) == pytest.approx(0.5)

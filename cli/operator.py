@@ -81,7 +81,7 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 
     if not 0 < args.step_m <= 1.0 or not 0 < args.step_deg <= 45.0:
         raise ConfigError("teleop", "--step-m must lie in (0, 1] m and --step-deg in (0, 45] deg")
-    return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick)
+    return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick, args.site)
 
 
 def cmd_op(args: argparse.Namespace) -> int:
@@ -103,6 +103,7 @@ def add_commands(sub: Any) -> None:
         metavar="DEVICE",
         help="Linux joystick device (default /dev/input/js0 when present; else the keyboard)",
     )
+    package_args(p, robot=False)
     p.set_defaults(func=cmd_teleop)
 
     p = sub.add_parser("op", help="send one operator command through shore and print onboard's answer")
@@ -111,8 +112,8 @@ def add_commands(sub: Any) -> None:
         "value",
         metavar="VALUE",
         help="waypoints: 'x,y,z,yaw; ...' [m, rad]; arm: 'x,y,z,roll,pitch,yaw' [m, rad]; "
-        "mode: hold|auto|teleop; valve: a valve's name (valve_0..2) with --turn; lever: a lever's "
-        "name (lever_0, lever_1) with --to",
+        "mode: hold|auto|teleop; valve: a valve's name (the site's: valve_0..2 on the shipped one) with "
+        "--turn; lever: a lever's name (lever_0, lever_1) with --to",
     )
     p.add_argument("--turn", metavar="DEG", default="", help="valve: the angle to turn it by [deg]")
     p.add_argument("--to", choices=("up", "down"), default="", help="lever: the stop to throw it to")

@@ -115,10 +115,12 @@ class KeySpec:
 KEYS: tuple[KeySpec, ...] = (
     KeySpec("simulation", "nav", NavState, 20.0, "best-effort", "onboard", "control"),
     KeySpec("simulation", "joints", JointState, 20.0, "best-effort", "onboard", "control"),
-    KeySpec("simulation", "camera/cam_left", Image, 1.0, "best-effort", "onboard", "bulk"),
+    # the cameras by their role, whatever the robot names them (Robot.camera_topic; each Image
+    # says its camera): the stereo pair's left and right, and the depth camera
+    KeySpec("simulation", "camera/left", Image, 1.0, "best-effort", "onboard", "bulk"),
     # on the stereo matcher's sets alone (common.models.stereo_set: 1 in onboard.stereo_every)
-    KeySpec("simulation", "camera/cam_right", Image, 0.5, "best-effort", "onboard", "bulk"),
-    KeySpec("simulation", "camera/cam_depth", Image, 1.0, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "camera/right", Image, 0.5, "best-effort", "onboard", "bulk"),
+    KeySpec("simulation", "camera/depth", Image, 1.0, "best-effort", "onboard", "bulk"),
     KeySpec("simulation", "sonar", SonarImage, 2.0, "best-effort", "onboard", "bulk"),
     KeySpec("onboard", "cmd/vehicle_velocity", VelocityRef, 20.0, "best-effort", "simulation", "control"),
     KeySpec("onboard", "cmd/arm_velocity", ArmVelocityRef, 20.0, "best-effort", "simulation", "control"),

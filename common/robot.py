@@ -189,6 +189,12 @@ class Robot:
     def depth_camera(self) -> str:
         return self.spec.cameras.depth
 
+    def camera_topic(self, camera: str) -> str:
+        """The topic a camera's images go out on, by its role (common.keys: the key table names
+        roles, not a robot's cameras): camera/left, camera/right or camera/depth."""
+        roles = {self.stereo_left: "left", self.stereo_right: "right", self.depth_camera: "depth"}
+        return f"camera/{roles[camera]}"
+
     @property
     def nav_sensors(self) -> NavSensorsSection:
         return self.spec.nav_sensors
@@ -359,6 +365,14 @@ def _check_cameras(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
             raise ConfigError(where, f"{', '.join(strays)} not one of {', '.join(cameras.names)}", str(path))
     if cameras.stereo[0] == cameras.stereo[1]:
         raise ConfigError("cameras.stereo", "needs two cameras, left then right", str(path))
+    roleless = [n for n in cameras.names if n not in (*cameras.stereo, cameras.depth)]
+    if roleless:
+        raise ConfigError(
+            "cameras.names",
+            f"{', '.join(roleless)}: each camera is the stereo pair's left or right or the depth camera "
+            "(published on camera/left, camera/right, camera/depth)",
+            str(path),
+        )
 
 
 def added_mass_matrix(section: dict[str, Any], path: Path) -> np.ndarray:

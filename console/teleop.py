@@ -11,8 +11,7 @@ panel it recognised and onboard to carry out; their answers are printed as they 
 Keys (the vehicle's frame: forward, left, up): w/s forward/back, a/d left/right, r/f up/down,
 q/e turn left/right (vehicle) or yaw (end-effector), i/k pitch, u/o roll (end-effector),
 Tab switches vehicle/end-effector, Space resends, h help, x or Ctrl-C quits.
-Intents: 1/2/3 turn valve_0/1/2 by +90 deg, 4/5/6 by -90 deg; 7/8 throw lever_0 up/down,
-9/0 lever_1 up/down.
+Intents on the panel's parts, on the number keys (listed at the start).
 """
 
 from __future__ import annotations
@@ -37,7 +36,8 @@ from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
 from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, encode, new_id
-from abyss.common.models.panel import intent_of
+from abyss.common.models.panel import Panel, intent_of
+from abyss.common.site import site_at
 
 Target = Literal["vehicle", "arm"]  # what the keys drive: the vehicle's waypoint or the end-effector's goal
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
@@ -55,19 +55,20 @@ KEYMAP: dict[str, tuple[tuple[int, int, int], tuple[int, int, int]]] = {
     "u": ((0, 0, 0), (1, 0, 0)),
     "o": ((0, 0, 0), (-1, 0, 0)),
 }
-# key -> the intent: a part of the panel and its amount (`abyss op valve|lever`)
-INTENT_KEYS = {
-    "1": ("valve_0", "90"),
-    "2": ("valve_1", "90"),
-    "3": ("valve_2", "90"),
-    "4": ("valve_0", "-90"),
-    "5": ("valve_1", "-90"),
-    "6": ("valve_2", "-90"),
-    "7": ("lever_0", "up"),
-    "8": ("lever_0", "down"),
-    "9": ("lever_1", "up"),
-    "0": ("lever_1", "down"),
-}
+INTENT_KEYS = "1234567890"  # the number keys, given to the site's parts in turn (intent_keys)
+
+
+def intent_keys(panel: Panel) -> dict[str, tuple[str, str]]:
+    """Key -> an intent on a part of the running site's panel and its amount (`abyss op valve|lever`):
+    each valve turned by +90 deg, then each by -90 deg, then each lever up and down, on 1-9 and 0
+    while they last (the shipped panel's: 1/2/3 turn valve_0/1/2 by +90 deg, 4/5/6 by -90 deg,
+    7/8 throw lever_0 up/down, 9/0 lever_1)."""
+    valves, levers = list(panel.valves), list(panel.levers)
+    intents = [(v, "90") for v in valves] + [(v, "-90") for v in valves]
+    intents += [(lever, stop) for lever in levers for stop in ("up", "down")]
+    return dict(zip(INTENT_KEYS, intents, strict=False))
+
+
 JS_EVENT = struct.Struct("<IhBB")  # Linux joystick API: time [ms], value, type, number
 JS_BUTTON, JS_AXIS, JS_INIT = 0x01, 0x02, 0x80
 JOYSTICK_SEND_PERIOD_S = 0.5
@@ -107,8 +108,11 @@ class Goals:
 
 
 class Teleop:
-    def __init__(self, endpoint: str, system: str, step_m: float, step_rad: float, out: IO[str]) -> None:
+    def __init__(
+        self, endpoint: str, system: str, step_m: float, step_rad: float, out: IO[str], panel: Panel
+    ) -> None:
         self.system = system
+        self.intents = intent_keys(panel)
         self.step_m, self.step_rad = step_m, step_rad
         self.out = out
         self.goals = Goals()
@@ -155,8 +159,8 @@ class Teleop:
             self.say(f"driving the {'end-effector' if self.target == 'arm' else 'vehicle'}")
         elif key == "h":
             self.say(__doc__.split("\n\n")[-1].strip().replace("\n", "\r\n") if __doc__ else "")
-        elif key in INTENT_KEYS:
-            self.intend(*INTENT_KEYS[key])
+        elif key in self.intents:
+            self.intend(*self.intents[key])
         elif key in KEYMAP or key == " ":
             translation, rotation = KEYMAP.get(key, ((0, 0, 0), (0, 0, 0)))
             self.nudge(np.array(translation, float) * self.step_m, np.array(rotation, float) * self.step_rad)
@@ -248,12 +252,18 @@ def joystick(teleop: Teleop, path: Path, speed_mps: float, rate_radps: float) ->
         os.close(fd)
 
 
-def run_teleop(endpoint: str, system: str, step_m: float, step_deg: float, joystick_path: Path | None) -> int:
+def run_teleop(
+    endpoint: str, system: str, step_m: float, step_deg: float, joystick_path: Path | None, site: str = ""
+) -> int:
+    """`abyss teleop`; `site`: the running site's package (simulation.site; "" the shipped one)."""
     if joystick_path is None and Path("/dev/input/js0").exists():
         joystick_path = Path("/dev/input/js0")
-    teleop = Teleop(endpoint, system, step_m, math.radians(step_deg), sys.stdout)
+    teleop = Teleop(endpoint, system, step_m, math.radians(step_deg), sys.stdout, site_at(site).panel)
     source = f"the joystick {joystick_path}" if joystick_path else "the keyboard"
     teleop.say(f"abyss teleop: system {system} at {endpoint}, driving the vehicle from {source}; h for help")
+    teleop.say(
+        "intents: " + ", ".join(f"{k} {part} {amount}" for k, (part, amount) in teleop.intents.items())
+    )
     try:
         deadline = time.monotonic() + 10.0
         while not teleop.ready() and time.monotonic() < deadline:

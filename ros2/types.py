@@ -171,7 +171,7 @@ BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
     "MissionStatus": (RosTopic("{key}", DIAGNOSTICS, "", mission_diagnostics),),
 }
 BY_KEY: dict[str, tuple[RosTopic, ...]] = {  # keys that differ from their message's mapping
-    "simulation/camera/cam_depth": (
+    "simulation/camera/depth": (
         RosTopic("{key}/image", "sensor_msgs/msg/Image", CAMERA_FRAME, depth_image),
         CAMERA_INFO,
     ),

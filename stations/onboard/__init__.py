@@ -110,10 +110,11 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     robot = robot_of(config)
     core = FrameSets(config.onboard, config.simulation.camera_rate_hz, robot.spec.cameras)
     inboxes = {
-        camera: bus.subscribe("simulation", f"camera/{camera}", Image, maxlen=4) for camera in robot.cameras
+        camera: bus.subscribe("simulation", robot.camera_topic(camera), Image, maxlen=4)
+        for camera in robot.cameras
     }
     # where bad and shed frames are counted: the stereo pair's left camera's key
-    key = keys.spec("simulation", f"camera/{robot.stereo_left}").key(bus.system)
+    key = keys.spec("simulation", robot.camera_topic(robot.stereo_left)).key(bus.system)
     # with simulated time, a frame set being worked on holds the simulation (common.clock)
     rate = Rate(0.05, bus.stop, bus.clock, "perception")
     while rate.sleep():

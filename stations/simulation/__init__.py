@@ -280,7 +280,9 @@ def _sensor_loop(
         while rate.sleep():
             with lock:
                 state = state_of(world.data)
-            for topic, message in sensor.messages(state, blackout, cameras_of_set(config, state["time"])):
+            for topic, message in sensor.messages(
+                state, blackout, cameras_of_set(config, state["time"]), world.robot
+            ):
                 bus.publish(topic, message)
     finally:
         sensor.close()

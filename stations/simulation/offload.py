@@ -20,12 +20,15 @@ import struct
 import subprocess
 import sys
 import time
-from typing import IO, Any, Literal
+from typing import IO, TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from abyss.common.errors import AbyssError
 from abyss.common.workers import child_cpu, in_background
+
+if TYPE_CHECKING:
+    from abyss.common.robot import Robot
 
 STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the sensors' kinematics come from
 HEADER = struct.Struct("<Q")
@@ -92,12 +95,19 @@ class Offloaded:
         return self._call("ping", state)
 
     def messages(
-        self, state: dict[str, Any], blackout: set[str], cameras: tuple[str, ...] = ()
+        self,
+        state: dict[str, Any],
+        blackout: set[str],
+        cameras: tuple[str, ...] = (),
+        robot: Robot | None = None,
     ) -> list[tuple[str, Any]]:
         """The sensor's messages at `state`, each with the topic it goes out on (the cameras':
-        those of `cameras`)."""
+        those of `cameras`, each on its role's topic: `robot`'s camera_topic)."""
         if self.kind == "cameras":
-            return [(f"camera/{image.camera}", image) for image in self.frames(state, blackout, cameras)]
+            assert robot is not None, "the cameras' topics are their roles on the robot"
+            return [
+                (robot.camera_topic(image.camera), image) for image in self.frames(state, blackout, cameras)
+            ]
         return [("sonar", self.ping(state))]
 
     def close(self) -> None:

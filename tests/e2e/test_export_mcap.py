@@ -48,9 +48,9 @@ EXPECTED: dict[str, dict[str, str]] = {
     "simulation/nav": {"": "nav_msgs/msg/Odometry", TF: "tf2_msgs/msg/TFMessage"},
     "simulation/truth": {"": "nav_msgs/msg/Odometry"},
     "simulation/joints": {"": "sensor_msgs/msg/JointState", TF: "tf2_msgs/msg/TFMessage"},
-    "simulation/camera/cam_left": CAMERA_TOPICS,
-    "simulation/camera/cam_right": CAMERA_TOPICS,
-    "simulation/camera/cam_depth": {"image": "sensor_msgs/msg/Image", "camera_info": CAMERA_INFO},
+    "simulation/camera/left": CAMERA_TOPICS,
+    "simulation/camera/right": CAMERA_TOPICS,
+    "simulation/camera/depth": {"image": "sensor_msgs/msg/Image", "camera_info": CAMERA_INFO},
     "simulation/status": {CLOCK: "rosgraph_msgs/msg/Clock", "": DIAGNOSTICS},
     "onboard/cmd/vehicle_velocity": {"": "geometry_msgs/msg/TwistStamped"},
     "onboard/cmd/arm_velocity": {"": "std_msgs/msg/Float64MultiArray"},
@@ -172,9 +172,9 @@ def test_rerun_checks_the_export_and_converts_it_with_every_topic_an_entity(
         "/abyss/onboard/cloud": {"Points3D:positions", "Points3D:rgb"},
         TF: {"Transform3D:translation", "Transform3D:child_frame"},
         TF_STATIC: {"Transform3D:translation", "Transform3D:parent_frame"},
-        "/abyss/simulation/camera/cam_left/image/compressed": {"EncodedImage:blob"},
-        "/abyss/simulation/camera/cam_depth/image": {"DepthImage:buffer"},
-        "/abyss/simulation/camera/cam_left/camera_info": {"Pinhole:image_from_camera"},
+        "/abyss/simulation/camera/left/image/compressed": {"EncodedImage:blob"},
+        "/abyss/simulation/camera/depth/image": {"DepthImage:buffer"},
+        "/abyss/simulation/camera/left/camera_info": {"Pinhole:image_from_camera"},
         "/abyss/onboard/telemetry/ee_pose": {"InstancePoses3D:translations"},
     }
     for entity, wanted in semantic.items():
@@ -296,19 +296,19 @@ def test_images_clouds_scene_paths_and_diagnostics_hold_the_recorded_values(
     recording: Recording, decoded: dict[str, list[Any]], recorded_run: Path
 ) -> None:
     left, jpeg = (
-        recorded(recording, "simulation/camera/cam_left"),
-        decoded["/abyss/simulation/camera/cam_left/image/compressed"][2],
+        recorded(recording, "simulation/camera/left"),
+        decoded["/abyss/simulation/camera/left/image/compressed"][2],
     )
     assert (jpeg.format, jpeg.header.frame_id) == ("jpeg", "cam_left_optical_frame")
     pixels = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_COLOR)
     assert pixels.shape[:2] == (left[2].height_px, left[2].width_px)
-    info = decoded["/abyss/simulation/camera/cam_left/camera_info"][2]
+    info = decoded["/abyss/simulation/camera/left/camera_info"][2]
     assert (info.width, info.height) == (left[2].width_px, left[2].height_px)
     frame = left[2]
     assert list(info.k) == pytest.approx([frame.fx_px, 0, frame.cx_px, 0, frame.fy_px, frame.cy_px, 0, 0, 1])
     depth, raw = (
-        recorded(recording, "simulation/camera/cam_depth")[1],
-        decoded["/abyss/simulation/camera/cam_depth/image"][1],
+        recorded(recording, "simulation/camera/depth")[1],
+        decoded["/abyss/simulation/camera/depth/image"][1],
     )
     assert (raw.encoding, raw.width, raw.height, raw.step) == (
         "16UC1",

@@ -142,7 +142,7 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
         assert {
             ("MP", "/abyss/vessel/goal/waypoints"),
             ("MS", "/abyss/onboard/cmd/arm_velocity"),
-            ("MP", "/abyss/simulation/camera/cam_left/image"),
+            ("MP", "/abyss/simulation/camera/left/image"),
         } <= set(by_topic)
 
         pilot = WaypointPilot(node)

@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from abyss.common.errors import ConfigError
+from abyss.common.models import package_dir
 from abyss.common.reading import read_table
 from abyss.common.urdf import (
     CameraSection,
@@ -219,8 +220,9 @@ def robot_of(config: Config) -> Robot:
 
 
 def robot_at(package: str) -> Robot:
-    """The robot package at `package` (a directory's path; "" the shipped one), loaded once."""
-    return load_robot(Path(package) if package else SHIPPED_ROBOT_DIR)
+    """The robot package at `package` (a directory's path, or a shipped package's name; "" the
+    shipped default), loaded once."""
+    return load_robot(package_dir("robot", package) if package else SHIPPED_ROBOT_DIR)
 
 
 def load_robot(directory: Path) -> Robot:

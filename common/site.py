@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from abyss.common.errors import ConfigError
+from abyss.common.models import package_dir
 from abyss.common.models.panel import Panel
 from abyss.common.reading import read_table
 
@@ -91,8 +92,9 @@ def site_of(config: Config) -> Site:
 
 
 def site_at(package: str) -> Site:
-    """The site package at `package` (a directory's path; "" the shipped one), loaded once."""
-    return load_site(Path(package) if package else SHIPPED_SITE_DIR)
+    """The site package at `package` (a directory's path, or a shipped package's name; "" the
+    shipped default), loaded once."""
+    return load_site(package_dir("site", package) if package else SHIPPED_SITE_DIR)
 
 
 def shipped_sites() -> tuple[Site, ...]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -25,6 +26,7 @@ from abyss.common.config.system import (
     TimeConfig,
 )
 from abyss.common.errors import BadInput, ConfigError
+from abyss.common.models import PACKAGE_FILES, package_dir
 from abyss.common.reading import read_table
 
 
@@ -63,42 +65,47 @@ class Config:
         return json.dumps(dataclasses.asdict(self), indent=2)
 
 
-def merged(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+def merge(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     """`over` on top of `under`, table by table (a field `over` sets replaces `under`'s)."""
     out = dict(under)
     for key, value in over.items():
         out[key] = (
-            merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+            merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
         )
     return out
 
 
-def _under_packages(table: dict[str, Any]) -> dict[str, Any]:
+def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[dict[str, Any], str]]]:
     """The table with the configuration its robot and site packages carry (`[config]` of
     robot.toml and site.toml: a robot's gains, a site's start and mission) under it: the robot's,
-    then the site's, then the table's own on top."""
+    then the site's, then the table's own on top; and those layers with their files, lowest
+    first. A robot's may name the site it flies by default (`simulation.site`), which the
+    table's own still overrides."""
     from abyss.common.robot import robot_at
     from abyss.common.site import site_at
 
-    simulation = table.get("simulation", {})
-    if not isinstance(simulation, dict):
-        return table
+    layers: list[tuple[dict[str, Any], str]] = []
     under: dict[str, Any] = {}
-    for field_name, package_at, file_name in (
-        ("robot", robot_at, "robot.toml"),
-        ("site", site_at, "site.toml"),
-    ):
-        package = simulation.get(field_name, "")
-        # one that is no package at all the field's own check says so (common/config/simulation.py)
-        if isinstance(package, str) and package and (Path(package).expanduser() / file_name).is_file():
+    for field_name, package_at in (("robot", robot_at), ("site", site_at)):
+        simulation = merge(under, table).get("simulation", {})
+        package = simulation.get(field_name, "") if isinstance(simulation, dict) else ""
+        directory = package_dir(field_name, package) if isinstance(package, str) and package else None
+        # one that is no package at all, the field's own check says so (common/config/simulation.py)
+        if directory is not None and (directory / PACKAGE_FILES[field_name]).is_file():
             loaded = package_at(package)  # a ConfigError names its file and field
-            own = loaded.spec.config
-            try:  # the package's own configuration, checked on its own, in its package
-                read_table(Config, merged(own, {"simulation": {field_name: package}}))
-            except ConfigError as exc:
-                raise ConfigError(f"config.{exc.field}", exc.reason, str(loaded.file)) from None
-            under = merged(under, own)
-    return merged(under, table)
+            layers.append((loaded.spec.config, f"{loaded.file}: config"))
+            under = merge(under, loaded.spec.config)
+    return merge(under, table), layers
+
+
+def _sets(table: dict[str, Any], field_name: str) -> bool:
+    """Whether `table` sets the field `field_name` (dotted, list indices aside)."""
+    node: Any = table
+    for part in re.sub(r"\[\d+\]", "", field_name).split("."):
+        if not isinstance(node, dict) or part not in node:
+            return False
+        node = node[part]
+    return True
 
 
 def load(
@@ -131,10 +138,15 @@ def load(
                 raise ConfigError(name, "is not a section")
         node[leaf] = value
         overridden[name] = (options or {}).get(name, "--set")
-    table = _under_packages(table)
+    own = table
+    table, layers = _under_packages(table)
     try:
         return typing.cast(Config, read_table(Config, table))
-    except ConfigError as exc:
-        raise ConfigError(exc.field, exc.reason, overridden.get(exc.field, source)) from None
+    except ConfigError as exc:  # named where the field was set: an option, the user's, a package's
+        packages = [file for layer, file in reversed(layers) if _sets(layer, exc.field)]
+        where = overridden.get(exc.field) or (
+            source if _sets(own, exc.field) or not packages else packages[0]
+        )
+        raise ConfigError(exc.field, exc.reason, where) from None
     except json.JSONDecodeError as exc:
         raise ConfigError("config", f"bad list value: {exc}", source) from None

@@ -11,6 +11,7 @@ from typing import Literal
 
 from abyss.common.errors import ConfigError
 from abyss.common.fields import one_of, positive
+from abyss.common.models import PACKAGE_FILES, package_dir, shipped_names
 
 LowLevel = Literal["kinematic", "dynamic"]
 LOW_LEVELS: tuple[LowLevel, ...] = typing.get_args(LowLevel)
@@ -105,21 +106,20 @@ class SimulationConfig:
         one_of("simulation.low_level", self.low_level, LOW_LEVELS)
         positive("simulation.physics_step_s", self.physics_step_s)
         positive("simulation.current_time_constant_s", self.current_time_constant_s)
-        if self.robot:  # the stations run in the run directory: the path is the user's shell's
-            robot = Path(self.robot).expanduser()
-            if not (robot / "robot.toml").is_file():
-                raise ConfigError(
-                    "simulation.robot",
-                    f"{robot.resolve()}: not a robot package (a directory with robot.toml)",
-                )
-            object.__setattr__(self, "robot", str(robot.resolve()))
-        if self.site:  # as the robot's
-            site = Path(self.site).expanduser()
-            if not (site / "site.toml").is_file():
-                raise ConfigError(
-                    "simulation.site", f"{site.resolve()}: not a site package (a directory with site.toml)"
-                )
-            object.__setattr__(self, "site", str(site.resolve()))
+        for kind in (
+            "robot",
+            "site",
+        ):  # the stations run in the run directory: the path is the user's shell's
+            value = getattr(self, kind)
+            if value:
+                directory = package_dir(kind, value)
+                if not (directory / PACKAGE_FILES[kind]).is_file():
+                    raise ConfigError(
+                        f"simulation.{kind}",
+                        f"{directory.resolve()}: not a {kind} package (a directory with "
+                        f"{PACKAGE_FILES[kind]}), nor a shipped one's name: {', '.join(shipped_names(kind))}",
+                    )
+                object.__setattr__(self, kind, str(directory.resolve()))
         if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
             vehicle_file = Path(self.vehicle_file).expanduser()
             if not vehicle_file.is_file():

@@ -14,6 +14,25 @@ if TYPE_CHECKING:
     from abyss.common.robot import Robot
 
 MODELS_DIR = Path(__file__).parent
+PACKAGE_FILES = {"robot": "robot.toml", "site": "site.toml"}  # a package's kind -> the file it holds
+
+
+def package_dir(kind: str, value: str) -> Path:
+    """Where `simulation.robot` or `simulation.site` (`kind`) points: the name of a package the
+    testbed ships (`robots/<name>`, `sites/<name>`, e.g. "bluerov2_heavy_alpha5"), else a
+    directory's path as given (relative to the current directory); "" is the shipped default's
+    name for neither, so it is the caller's to handle."""
+    shipped = MODELS_DIR / f"{kind}s" / value
+    if value and "/" not in value and (shipped / PACKAGE_FILES[kind]).is_file():
+        return shipped
+    return Path(value).expanduser()
+
+
+def shipped_names(kind: str) -> tuple[str, ...]:
+    """The names of the `kind` ("robot", "site") packages the testbed ships."""
+    return tuple(
+        sorted(d.name for d in (MODELS_DIR / f"{kind}s").iterdir() if (d / PACKAGE_FILES[kind]).is_file())
+    )
 
 
 def stereo_set(sim_time_s: float, camera_rate_hz: float, stereo_every: int) -> bool:

@@ -4,6 +4,7 @@ the shipped library campaign loads and plans."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -179,3 +180,21 @@ def test_the_shipped_kill_campaign_kills_every_station_over_the_mission_in_locks
     assert len(kills) == 36 and len(runs) == 108
     assert all(r.replayable and r.scenario.holds_s == (r.scenario.events[0].at_s,) for r in runs)
     assert all(r.scenario.restart for r in runs)
+
+
+def test_robot_and_site_are_matrix_axes_by_shipped_name_or_directory(tmp_path: Path) -> None:
+    """`robot` and `site` vary the packages a run flies (simulation.robot, simulation.site): a
+    shipped package by its name, a directory relative to the campaign file; each run's
+    configuration names the package it runs, and one that is no package is refused naming the key."""
+    package = tmp_path / "my_robot"
+    shutil.copytree(ROOT / "common" / "models" / "robots" / "workclass", package)
+    text = CAMPAIGN + '[matrix]\nrobot = ["bluerov2_heavy_alpha5", "../my_robot"]\nsite = ["valve_panel"]\n'
+    campaign = load_campaign(write_files(tmp_path, text))
+    robots = {run.scenario.configuration.simulation.robot for run in plan(campaign)}
+    shipped = ROOT / "common" / "models" / "robots" / "bluerov2_heavy_alpha5"
+    assert robots == {str(shipped.resolve()), str(package.resolve())}
+    assert {run.scenario.configuration.simulation.site for run in plan(campaign)} == {
+        str((ROOT / "common" / "models" / "sites" / "valve_panel").resolve())
+    }
+    with pytest.raises(ConfigError, match=r"matrix\.robot: .*not a robot package.*bluerov2_heavy_alpha5"):
+        load_campaign(write_files(tmp_path, CAMPAIGN + '[matrix]\nrobot = ["../nowhere"]\n'))

@@ -19,6 +19,7 @@ from typing import Annotated, Any
 from abyss.common import keys
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import load_profiles
+from abyss.common.models import shipped_names
 from abyss.common.reading import OneOf, read
 from abyss.validation.scenario.events import EVENTS, action_of, fields_of
 from abyss.validation.scenario.fields import configured
@@ -36,6 +37,9 @@ RESERVED = {  # configuration fields the campaign sets itself: matrix key -> the
     "time.mode": "time",
 }
 EVENT_KEY = re.compile(r"^events\[(\d+)\]\.(\w+)$")
+# matrix keys that stand for a configuration field: the robot and site packages (a shipped one's
+# name, or a directory relative to the campaign file)
+PACKAGE_KEYS = {"robot": "simulation.robot", "site": "simulation.site"}
 
 
 @dataclass(frozen=True)
@@ -67,6 +71,8 @@ def apply_value(table: dict[str, Any], key: str, value: Any) -> None:
     value as typed (the scenario's [config] reads `section.field` keys)."""
     if key.startswith("links."):
         table.setdefault("links", {})[key.removeprefix("links.")] = value
+    elif key in PACKAGE_KEYS:
+        table.setdefault("config", {})[PACKAGE_KEYS[key]] = value
     elif m := EVENT_KEY.match(key):
         table["events"][int(m[1])][m[2]] = value
     else:
@@ -139,7 +145,7 @@ def _campaign(table: dict[str, Any], path: Path) -> Campaign:
         description=fields.description,
         scenarios=scenarios,
         seeds=_seeds(fields.seeds),
-        matrix=_matrix(fields.matrix, scenarios),
+        matrix=_matrix(fields.matrix, scenarios, path.parent),
         time=fields.time,
         min_pass_rate=_rate(fields.min_pass_rate, "min_pass_rate"),
         min_pass_rate_of=_rates_of(fields.min_pass_rate_of, scenarios),
@@ -209,7 +215,9 @@ def _rates_of(table: dict[str, Any], scenarios: tuple[Scenario, ...]) -> dict[st
     return rates
 
 
-def _matrix(table: Any, scenarios: tuple[Scenario, ...]) -> tuple[tuple[str, tuple[Any, ...]], ...]:
+def _matrix(
+    table: Any, scenarios: tuple[Scenario, ...], base: Path
+) -> tuple[tuple[str, tuple[Any, ...]], ...]:
     if table is None:
         return ()
     if not isinstance(table, dict) or not table:
@@ -225,7 +233,13 @@ def _matrix(table: Any, scenarios: tuple[Scenario, ...]) -> tuple[tuple[str, tup
             raise ConfigError(where, f"{values!r}: values are strings, numbers, booleans or lists of them")
         if len({json.dumps(v) for v in values}) != len(values):
             raise ConfigError(where, f"{values!r}: a value twice")
-        _check_key(key, values, scenarios, where)
+        if key in PACKAGE_KEYS:  # a directory is the campaign file's, wherever the runs run
+            kind = key
+            values = [
+                v if isinstance(v, str) and v in shipped_names(kind) else str((base / str(v)).resolve())
+                for v in values
+            ]
+        _check_key(PACKAGE_KEYS.get(key, key), values, scenarios, where)
         matrix.append((key, tuple(values)))
     return tuple(matrix)
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from abyss.common.config import Config, load
+from abyss.common.config import Config, load, merge
 from abyss.common.errors import ConfigError
 
 
@@ -22,15 +22,6 @@ def nested(table: dict[str, Any]) -> dict[str, Any]:
             if not isinstance(node, dict):
                 raise ConfigError(key, f"{section} is a field, not a section")
         node[leaf] = merge(node.get(leaf, {}), nested(value)) if isinstance(value, dict) else value
-    return out
-
-
-def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    """`over` on top of `base`, table by table (neither changed)."""
-    out = dict(base)
-    for key, value in over.items():
-        both = isinstance(value, dict) and isinstance(out.get(key), dict)
-        out[key] = merge(out[key], value) if both else value
     return out
 
 

@@ -1,0 +1,78 @@
+"""A team's own robot and site through the whole system: a robot package written here in URDF
+with xacro (tests/common/urdf_package.py: "minirov", whose joints, thrusters, cameras and sites all
+differ from the shipped robot's), on a site whose parts differ from the shipped panel's, flies three
+waypoints in simulated time; its recording exports to ROS 2 topics that name its joints and its
+frames, and the panel it recognised names the site's parts. Any name of the shipped packages still
+wired into a station fails here."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+from conftest import Up, abyss
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from abyss.common.site import SHIPPED_SITE_DIR
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "common"))
+from urdf_package import write_urdf_package
+
+pytestmark = pytest.mark.timeout(300)
+
+
+def _site(root: Path) -> Path:
+    """The shipped site with its parts renamed: a valve "gate" and a lever "throttle"."""
+    site = root / "harbour_site"
+    shutil.copytree(SHIPPED_SITE_DIR, site)
+    text = (site / "site.toml").read_text()
+    parts = "".join(
+        f'\n[[panel.parts]]\nname = "{name}"\nkind = "{kind}"\npivot_m_panel = {pivot}\n'
+        for name, kind, pivot in (
+            ("gate", "valve", [-0.07, 0.0, 0.25]),
+            ("throttle", "lever", [-0.07, 0.3, -0.3]),
+        )
+    )
+    (site / "site.toml").write_text(text[: text.index("[[panel.parts]]")] + parts)
+    return site
+
+
+def test_a_urdf_robot_of_its_own_flies_its_waypoints_and_exports_its_names(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    package = write_urdf_package(tmp_path)
+    monkeypatch.setenv("ABYSS_PACKAGE_PATH", package.package_path)  # every station's, as ROS's would be
+    site = _site(tmp_path)
+    up = Up(
+        tmp_path / "run",
+        "--robot", str(package.directory), "--site", str(site),
+        "--time", "sim", "--speed", "max", "--duration", "150", "--record", "all", "--viewer", "none",
+        "--set", "mission.interventions=[]",
+    )  # fmt: skip
+    assert up.wait(280) == 0, up.output()
+    summary = up.summary()
+    assert summary["verdict"] == "done", (summary.get("failure"), up.output()[-3000:])
+    assert summary["mission"]["waypoints_total"] == 3 and summary["mission"]["waypoint_index"] == 3
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert Path(config["simulation"]["robot"]) == package.directory.resolve()
+    assert {"panel", "gate", "throttle"} <= set(
+        summary["scene"]["objects"]
+    )  # recognised, by its parts' names
+    exported = abyss("export", "mcap", str(tmp_path / "run"), timeout_s=120)
+    assert exported.returncode == 0, exported.stderr
+    names, frames = set(), set()
+    with next((tmp_path / "run").glob("*.mcap")).open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, _, message in reader.iter_decoded_messages(
+            topics=["/abyss/simulation/joints", "/tf"]
+        ):
+            if channel.topic == "/abyss/simulation/joints":
+                names.add(tuple(message.name))
+            else:
+                frames |= {t.child_frame_id for t in message.transforms}
+    assert names == {(*package.arm_joints, *package.gripper_joints)}
+    assert {"boom", "stick", "wrist", "hand"} <= frames and not {"arm_link1", "arm_base"} & frames, frames

@@ -320,3 +320,15 @@ def test_an_mjcf_package_refuses_the_urdf_fields(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as refused:
         load_robot(copy)
     assert refused.value.field == "model.wet_links" and "URDF package's" in refused.value.reason
+
+
+def test_the_docs_example_is_the_package_these_tests_write(tmp_path: Path) -> None:
+    """docs/examples (docs/own-robot.md's worked example) holds exactly what write_urdf_package
+    writes: the page's package is the one the tests load, check and fly."""
+    examples = Path(__file__).resolve().parents[2] / "docs" / "examples"
+    write_urdf_package(tmp_path)
+    written = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*") if p.is_file())
+    shipped = sorted(p.relative_to(examples) for p in examples.rglob("*") if p.is_file())
+    assert written == shipped
+    for relative in written:
+        assert (tmp_path / relative).read_bytes() == (examples / relative).read_bytes(), relative

@@ -181,3 +181,24 @@ def test_the_period_and_the_terminal_speed_solve_their_equations() -> None:
     speed = terminal_speed(86.6, 866.0, -1131.4)
     assert speed < 0 and 86.6 * speed + 866.0 * speed * abs(speed) == pytest.approx(-1131.4)
     assert terminal_speed(10.0, 0.0, 5.0) == pytest.approx(0.5)
+
+
+def test_the_docs_example_is_checked_as_the_page_says(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """docs/own-robot.md's example (a URDF package with xacro): everything passes but surge at
+    full thrust, which pitches past 30 deg and falls to about a third of its terminal speed, while
+    sway, heave, yaw and the decays agree with the analytic figures to 0.2 %."""
+    examples = Path(__file__).resolve().parents[2] / "docs" / "examples"
+    monkeypatch.setenv("ABYSS_PACKAGE_PATH", str(examples / "ros_ws"))
+    report = check_robot(examples / "minirov_description")
+    warned = {r.name for r in report.rows if r.status == "warn"}
+    assert warned == {"surge +", "surge -"}, warned
+    for row in report.rows:
+        if row.check == "open loop" and row.name not in warned:
+            ratio = float(row.figures.split("ratio ")[1].split(";")[0])
+            assert abs(ratio - 1.0) <= 0.0025, row  # 0.2 %, as the table rounds it
+    surge = [r for r in report.rows if r.name.startswith("surge") and r.check == "open loop"]
+    heels = [float(r.figures.split("heel ")[1].split(" deg")[0]) for r in surge]
+    ratios = [float(r.figures.split("ratio ")[1].split(";")[0]) for r in surge]
+    assert min(heels) > 30.0 and all(0.25 < r < 0.45 for r in ratios), (heels, ratios)

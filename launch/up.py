@@ -22,6 +22,7 @@ from abyss.common.clock import SimClock
 from abyss.common.config import Config
 from abyss.common.errors import AbyssError
 from abyss.launch.cpu import CpuCaps
+from abyss.launch.mission_check import check_reach
 from abyss.launch.observe import Heard
 from abyss.launch.start import (
     Local,
@@ -56,6 +57,7 @@ class Up:
         replayed: Replayed | None = None,
     ) -> None:
         external = checked_external(config, external, restart, replayed)
+        check_reach(config)  # a mission its arm cannot work fails here, not a minute in
         self.config = config
         self.cpu = CpuCaps(config.system, config.cpu.capped())  # fails here where no cgroup can be made
         self.out_dir = out_dir.resolve()  # the stations run there, whatever the caller's directory

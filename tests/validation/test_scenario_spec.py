@@ -235,3 +235,18 @@ def test_a_failed_scenario_says_which_assertions_came_out_wrong(tmp_path: Path) 
     text = (tmp_path / "junit.xml").read_text()
     assert 'message="commands_answered failed: unanswered: mode 7"' in text
     assert 'message="mission_done within_s=20.0 held: done at 12 s"' in text
+
+
+def test_an_intervention_is_named_by_its_part_or_by_its_place_in_the_mission() -> None:
+    """`part = "#i"` is the mission's i-th intervention's part, as the summary judged them: a
+    scenario written so runs on any site; an i past the mission's fails saying so."""
+    ended = dataclasses.replace(state(""), intervention_target="gate", intervention_phase="done")
+    summary = {"interventions": [{"part": "gate", "success": True, "truth_deg": 90.0, "target_deg": 90.0}]}
+    run = Run(summary, states=[(1.0, ended)])
+    by_place, by_name, past = judge(
+        run, tuple(Assertion("intervention", {"part": part}) for part in ("#0", "gate", "#1"))
+    )
+    assert by_place.passed and by_name.passed and by_place.detail == by_name.detail
+    assert not past.passed and past.detail == "#1: the mission has no such intervention"
+    with pytest.raises(ConfigError, match=r"assert\[0\]\.part: 'valve_9' is neither #i .* valve_1"):
+        scenario_of({**MINIMAL, "assert": [{"kind": "intervention", "part": "valve_9"}]}, "x.toml")

@@ -10,6 +10,7 @@ import dataclasses
 import functools
 import inspect
 import math
+import re
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -30,16 +31,33 @@ Station = Annotated[str, OneOf(keys.STATIONS)]
 Phase = Annotated[str, OneOf(INTERVENTION_PHASES[1:], blank=True)]  # "": from all up
 
 
+MISSION_PART = re.compile(r"^#(\d+)$")  # "#i": the part of the mission's i-th intervention
+
+
 class PanelPart:
-    """A rule: the name of a part of a shipped site's panel (common.site); a user's site's parts
-    are the run's configuration's to check (its mission's interventions)."""
+    """A rule: the name of a part of a shipped site's panel (common.site; a user's site's parts
+    are the run's configuration's to check, its mission's interventions), or "#i": the part of
+    the mission's i-th intervention (from 0), whatever the site names it, so that a scenario
+    runs on any robot and site."""
 
     def check(self, name: str, value: Any) -> None:
         parts = {part for site in shipped_sites() for part in site.panel.part_names}
-        if value not in parts:
+        if value not in parts and not MISSION_PART.match(str(value)):
             raise ConfigError(
-                name, f"{value!r} is not a part of a shipped site's panel: {', '.join(sorted(parts))}"
+                name,
+                f"{value!r} is neither #i (the mission's i-th intervention's part) nor a part of a "
+                f"shipped site's panel: {', '.join(sorted(parts))}",
             )
+
+
+def part_named(run: Run, part: str) -> str:
+    """The part a scenario's `part` names: itself, or for "#i" the mission's i-th intervention's
+    (as the summary judged them); "" for an i past the mission's."""
+    m = MISSION_PART.match(part)
+    if m is None:
+        return part
+    judged = run.summary.get("interventions", [])
+    return judged[int(m[1])]["part"] if int(m[1]) < len(judged) else ""
 
 
 @dataclass(frozen=True)
@@ -150,9 +168,11 @@ def commands_answered(run: Run) -> tuple[bool, str]:
 
 
 def scene(run: Run, min_occupied_cells: float = 1, objects: list[str] | None = None) -> tuple[bool, str]:
+    """At least `min_occupied_cells` in shore's map, and each of `objects` recognised (an object's
+    name, or "#i": the mission's i-th intervention's part)."""
     s = run.summary.get("scene") or {}
     cells, seen = s.get("occupied_cells", 0), set(s.get("objects", {}))
-    missing = sorted(set(objects or ()) - seen)
+    missing = sorted({part_named(run, name) or name for name in objects or ()} - seen)
     return cells >= min_occupied_cells and not missing, (
         f"{cells} occupied cells on shore; recognised {', '.join(sorted(seen)) or 'nothing'}"
         + (f"; missing {', '.join(missing)}" if missing else "")
@@ -197,6 +217,9 @@ def intervention(
     """The intervention on `part` ended `outcome` as onboard reported it, with `reason` in its
     reason (a failure's), and the simulation's truth agrees: the part at its target when done,
     short of it when failed."""
+    asked, part = part, part_named(run, part)
+    if not part:
+        return False, f"{asked}: the mission has no such intervention"
     ends = [s for _, s in run.states if s.intervention_target == part and s.intervention_phase in OUTCOMES]
     if not ends:
         seen = [s.intervention_phase for _, s in run.states if s.intervention_target == part]

@@ -112,7 +112,7 @@ class Teleop:
         self, endpoint: str, system: str, step_m: float, step_rad: float, out: IO[str], panel: Panel
     ) -> None:
         self.system = system
-        self.intents = intent_keys(panel)
+        self.intent_keys = intent_keys(panel)
         self.step_m, self.step_rad = step_m, step_rad
         self.out = out
         self.goals = Goals()
@@ -159,8 +159,8 @@ class Teleop:
             self.say(f"driving the {'end-effector' if self.target == 'arm' else 'vehicle'}")
         elif key == "h":
             self.say(__doc__.split("\n\n")[-1].strip().replace("\n", "\r\n") if __doc__ else "")
-        elif key in self.intents:
-            self.intend(*self.intents[key])
+        elif key in self.intent_keys:
+            self.intend(*self.intent_keys[key])
         elif key in KEYMAP or key == " ":
             translation, rotation = KEYMAP.get(key, ((0, 0, 0), (0, 0, 0)))
             self.nudge(np.array(translation, float) * self.step_m, np.array(rotation, float) * self.step_rad)
@@ -262,7 +262,7 @@ def run_teleop(
     source = f"the joystick {joystick_path}" if joystick_path else "the keyboard"
     teleop.say(f"abyss teleop: system {system} at {endpoint}, driving the vehicle from {source}; h for help")
     teleop.say(
-        "intents: " + ", ".join(f"{k} {part} {amount}" for k, (part, amount) in teleop.intents.items())
+        "intents: " + ", ".join(f"{k} {part} {amount}" for k, (part, amount) in teleop.intent_keys.items())
     )
     try:
         deadline = time.monotonic() + 10.0

@@ -233,13 +233,11 @@ def _matrix(
             raise ConfigError(where, f"{values!r}: values are strings, numbers, booleans or lists of them")
         if len({json.dumps(v) for v in values}) != len(values):
             raise ConfigError(where, f"{values!r}: a value twice")
+        field_name = key
         if key in PACKAGE_KEYS:  # a directory is the campaign file's, wherever the runs run
-            kind = key
-            values = [
-                v if isinstance(v, str) and v in shipped_names(kind) else str((base / str(v)).resolve())
-                for v in values
-            ]
-        _check_key(PACKAGE_KEYS.get(key, key), values, scenarios, where)
+            field_name, shipped = PACKAGE_KEYS[key], shipped_names(key)
+            values = [v if v in shipped else str((base / str(v)).resolve()) for v in values]
+        _check_key(field_name, values, scenarios, where)
         matrix.append((key, tuple(values)))
     return tuple(matrix)
 

@@ -7,7 +7,6 @@ import contextlib
 import dataclasses
 import os
 import shutil
-import socket
 import subprocess
 import sys
 from collections.abc import Callable, Sequence
@@ -20,9 +19,10 @@ from abyss.common.config import Config
 from abyss.common.config.stations import OnshoreConfig
 from abyss.common.config.system import Ros2Config, TimeConfig
 from abyss.common.errors import ConfigError
+from abyss.common.ports import free_port, port_free
 from abyss.common.runfiles import CARRIED_OVER
 from abyss.launch.cpu import CpuCaps
-from abyss.launch.station import BOOT_ENV, NATIVE_POOLS, SUPERVISOR_ENV, free_port
+from abyss.launch.station import BOOT_ENV, NATIVE_POOLS, SUPERVISOR_ENV
 from abyss.recording.store import RECORD_DIR
 
 DEFAULT_PORT = 7447
@@ -70,15 +70,6 @@ class Replayed:
 
     def args(self, station: str) -> list[str]:
         return ["--replay", str(self.run_dir), "--speed", str(self.speed)] if station in self.stations else []
-
-
-def port_free(port: int) -> bool:
-    with socket.socket() as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
 
 
 def checked_external(

@@ -10,7 +10,6 @@ import logging
 import math
 import os
 import signal
-import socket
 import sys
 import threading
 import time
@@ -80,12 +79,6 @@ def _vessel_with_gateway(config: Config, bus: Bus) -> None:
         return Gateway(config, bus, on_up={"scene": adopt})
 
     vessel.run(config, bus, mapper=mapper)
-
-
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket() as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
 
 
 class Shell:

@@ -11,7 +11,6 @@ import ctypes
 import logging
 import math
 import signal
-import socket
 import subprocess
 import time
 from collections import deque
@@ -35,6 +34,7 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
+from abyss.common.ports import listening
 from abyss.common.robot import Robot, robot_spec
 from abyss.stations.onshore.layout import blueprint
 
@@ -72,13 +72,6 @@ def rerun_command() -> str:
 SERVER_START_S = 60.0  # [s] for rerun's web server to listen (a loaded machine took seconds)
 SERVER_LOG = "rerun-server.log"  # the web server's output, in the record directory
 log = logging.getLogger(__name__)
-
-
-def listening(port: int) -> bool:
-    """Whether something accepts connections on 127.0.0.1:`port`."""
-    with socket.socket() as s:
-        s.settimeout(0.5)
-        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 def _die_with_parent() -> None:  # in the child, before exec: SIGTERM when its parent dies

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from abyss.cli import main
-from abyss.launch.station import free_port
+from abyss.common.ports import free_port
 
 COMMANDS = (
     ["link", "set", "satellite", "--loss", "10%"],

@@ -12,7 +12,7 @@ import pytest
 from abyss.common.bus import Bus, open_session, zenoh_config
 from abyss.common.errors import ConfigError
 from abyss.common.messages import Heartbeat, Telemetry
-from abyss.launch.station import free_port
+from abyss.common.ports import free_port
 
 
 @pytest.fixture

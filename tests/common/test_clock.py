@@ -18,8 +18,8 @@ from abyss.common.config import load
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import profile
 from abyss.common.lockstep import LockstepClock
+from abyss.common.ports import free_port
 from abyss.common.rate import Rate
-from abyss.launch.station import free_port
 from abyss.linkemu.runner import LinkRunner
 
 PERIOD_S = 0.05  # the simulation's control period: its ticks' spacing

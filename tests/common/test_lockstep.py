@@ -20,8 +20,8 @@ from abyss.common.config import load
 from abyss.common.lockstep import TESTBED, Lockstep, LockstepClock, hold_period
 from abyss.common.lockstep_testbed import Lease
 from abyss.common.messages import MissionStatus
+from abyss.common.ports import free_port
 from abyss.launch import station as runtime
-from abyss.launch.station import free_port
 from abyss.launch.supervise import LEASE_S, LockstepEnd
 
 pytestmark = pytest.mark.timeout(30)

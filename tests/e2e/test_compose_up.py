@@ -21,7 +21,7 @@ from conftest import abyss
 from rerun.chunk import RrdReader
 
 from abyss.common import keys
-from abyss.launch.station import free_port
+from abyss.common.ports import free_port
 from abyss.recording.reader import open_recording
 
 LINK = "auto"  # compose.yaml's default: netem where the kernel has sch_netem, else the TUN shaper

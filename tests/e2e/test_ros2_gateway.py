@@ -40,7 +40,7 @@ from rosnode import (
 )
 
 from abyss.common.messages import NavState, SceneUpdate, decode
-from abyss.launch.station import free_port
+from abyss.common.ports import free_port
 from abyss.recording.reader import open_recording
 from abyss.scene.export import SCENE_FILE
 from abyss.scene.octree import cell_keys, iterate_leaves, leaves_to_cells, read_binary

@@ -30,8 +30,8 @@ from abyss.common.messages import (
     decode,
     encode,
 )
+from abyss.common.ports import free_port
 from abyss.common.workers import BACKGROUND_NICE
-from abyss.launch.station import free_port
 
 pytestmark = pytest.mark.timeout(120)
 SYSTEM = "e2e-sim"

@@ -29,8 +29,8 @@ from abyss.common.messages import (
     decode,
     encode,
 )
+from abyss.common.ports import free_port
 from abyss.console.teleop import JS_AXIS, JS_EVENT
-from abyss.launch.station import free_port
 
 pytestmark = pytest.mark.timeout(90)
 SYSTEM = "e2e-teleop"

@@ -15,8 +15,7 @@ from browser import Browser, chromium
 from conftest import Up
 
 from abyss.common import keys
-from abyss.launch.station import free_port
-from abyss.stations.onshore.viewer import listening
+from abyss.common.ports import free_port, listening
 
 pytestmark = pytest.mark.timeout(240)
 COLOURFUL_PX = 1500  # the hull, the path, the voxels: more saturated pixels than the UI's accents

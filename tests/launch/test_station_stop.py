@@ -18,7 +18,7 @@ import pytest
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.messages import LinkControl, Waypoints, encode
-from abyss.launch.station import free_port
+from abyss.common.ports import free_port
 from abyss.stations.onshore.core import JOIN_WAIT_S
 
 STOP_BOUND_S = 5.0

@@ -24,9 +24,10 @@ from abyss.common.config import Config
 from abyss.common.config.system import Ros2Config
 from abyss.common.errors import ConfigError
 from abyss.common.messages import MissionStatus, SimulationStatus
+from abyss.common.ports import port_free
 from abyss.launch import stop as stop_module
 from abyss.launch import supervise as supervise_module
-from abyss.launch.start import Station, port_free, ros2_line, viewer_line
+from abyss.launch.start import Station, ros2_line, viewer_line
 from abyss.launch.state import RunState
 from abyss.launch.stop import stop_all
 from abyss.launch.up import Up, run_up

@@ -20,8 +20,8 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from abyss.common.config.stations import OnshoreConfig
-from abyss.launch.station import free_port
-from abyss.stations.onshore.viewer import RECORDING_FILE, Sinks, listening, rerun_command
+from abyss.common.ports import free_port, listening
+from abyss.stations.onshore.viewer import RECORDING_FILE, Sinks, rerun_command
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -283,7 +283,7 @@ def frame_set(
                 stereo_share,
             ),
         )
-    left = frames["cam_left"]
+    left = frames[ROBOT.stereo_left]
     on_image = {
         "onboard: the left frame re-encoded for the vessel": (
             image_per_set

@@ -124,15 +124,7 @@ def measure(
     sim, onboard, vessel = SimulationConfig(water=water), OnboardConfig(), VesselConfig()
     step_m = step_m if step_m is not None else onboard.max_speed_mps / sim.camera_rate_hz
     world = World(sim, np.random.default_rng(seed))
-    cameras = Cameras(
-        world.model,
-        sim.camera_width_px,
-        sim.camera_height_px,
-        water,
-        sim.marine_snow,
-        np.random.default_rng(seed),
-        depth_camera=ROBOT.depth_camera,
-    )
+    cameras = cameras_of(world, sim, np.random.default_rng(seed))
     settings = dataclasses.replace(
         CloudSettings.of(onboard), stereo_filter=kept, stereo_scale=scale, stereo_mode=mode
     )
@@ -159,8 +151,10 @@ def measure(
                 stereo_s += time.perf_counter() - t0
                 matched += 1
                 model.insert(*unpack_cloud(cloud), cloud.sensor_m_world)
-            left = Camera.of(images["cam_left"])
-            points, _ = depth_to_points(cameras.depth_m(world.data, "cam_left"), left, settings.max_range_m)
+            left = Camera.of(images[ROBOT.stereo_left])
+            points, _ = depth_to_points(
+                cameras.depth_m(world.data, ROBOT.stereo_left), left, settings.max_range_m
+            )
             in_vehicle = points @ left.rotation_in_vehicle.T + left.position_m_vehicle
             truth.append(cell_keys(in_vehicle @ rotation_of(pose[1]).T + position, model.resolution_m))
     finally:
@@ -180,26 +174,28 @@ def measure(
     )
 
 
+def cameras_of(world: World, sim: SimulationConfig, rng: np.random.Generator | None = None) -> Cameras:
+    """The simulation's cameras on `world`, as `sim` sets them (its water, its snow)."""
+    return Cameras(
+        world.model, sim.camera_width_px, sim.camera_height_px, sim.water, sim.marine_snow, rng,
+        depth_camera=ROBOT.depth_camera,
+    )  # fmt: skip
+
+
 def stereo_cost_s(
     kept: StereoFilter, water: str, scale: int = 1, mode: str = "hh", repeats: int = 10
 ) -> float:
     """[s] stereo_depth alone on the start pose's pair, mean of `repeats` after one."""
     sim = SimulationConfig(water=water)
     world = World(sim, np.random.default_rng(0))
-    cameras = Cameras(
-        world.model,
-        sim.camera_width_px,
-        sim.camera_height_px,
-        water,
-        sim.marine_snow,
-        depth_camera=ROBOT.depth_camera,
-    )
+    cameras = cameras_of(world, sim)
     try:
-        left, right = cameras.rgb(world.data, "cam_left"), cameras.rgb(world.data, ROBOT.stereo_right)
-        focal_px = cameras.intrinsics("cam_left").fx_px
+        left, right = cameras.rgb(world.data, ROBOT.stereo_left), cameras.rgb(world.data, ROBOT.stereo_right)
+        focal_px = cameras.intrinsics(ROBOT.stereo_left).fx_px
         baseline_m = float(
             np.linalg.norm(
-                cameras.pose_in_vehicle(ROBOT.stereo_right)[:3] - cameras.pose_in_vehicle("cam_left")[:3]
+                cameras.pose_in_vehicle(ROBOT.stereo_right)[:3]
+                - cameras.pose_in_vehicle(ROBOT.stereo_left)[:3]
             )
         )
     finally:

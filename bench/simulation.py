@@ -113,7 +113,7 @@ def arm_trajectories() -> None:
 def rendering(frames: int = 20) -> float:
     world = World(SimulationConfig(), np.random.default_rng(0))
     cameras = Cameras(world.model, 640, 480, depth_camera=ROBOT.depth_camera)
-    encode_image(cameras, world.data, "cam_left", 90)  # warm up
+    encode_image(cameras, world.data, ROBOT.stereo_left, 90)  # warm up
     per_camera = {}
     for camera in ROBOT.cameras:
         t0 = time.perf_counter()

@@ -257,8 +257,8 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
     np.testing.assert_allclose(ee_in_vehicle[:3, :3], data.site_xmat[site].reshape(3, 3), atol=1e-9)
 
     # each camera's optical frame on the vehicle: its mounting as the simulation sent it
-    for camera in ("cam_left", "cam_right", "cam_depth"):
-        first = recorded(recording, f"simulation/camera/{camera}")[0]
+    for camera in ROBOT.cameras:
+        first = recorded(recording, f"simulation/{ROBOT.camera_topic(camera)}")[0]
         mount = static[f"{camera}_optical_frame"]
         assert mount.header.frame_id == "base_link"
         np.testing.assert_allclose(xyz(mount.transform.translation), first.pose_camera[:3])

@@ -41,6 +41,12 @@ class SimulationConfig:
     vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 5000.0)
     vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 600.0)
     vehicle_kd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    # the dynamic low level's attitude hold, as a small ROV's autopilot keeps it level (ArduSub's
+    # stabilise mode): PD on roll and pitch towards level [N m/rad, N m/(rad/s)] through the
+    # thrusters, where they move those axes; 0: roll and pitch left to the hydrostatic restoring
+    # moment, which a work-class ROV's weight makes stiff (5 kN m/rad) and a small one's does not
+    attitude_kp: tuple[float, float] = (0.0, 0.0)
+    attitude_kd: tuple[float, float] = (0.0, 0.0)
     arm_kp: float = 400.0  # [N m/(rad/s)]
     arm_ki: float = 200.0
     gripper_kp: float = 1000.0  # [N/(m/s)]
@@ -106,6 +112,9 @@ class SimulationConfig:
         one_of("simulation.low_level", self.low_level, LOW_LEVELS)
         positive("simulation.physics_step_s", self.physics_step_s)
         positive("simulation.current_time_constant_s", self.current_time_constant_s)
+        for name in ("attitude_kp", "attitude_kd"):
+            for gain in getattr(self, name):
+                positive(f"simulation.{name}", gain, allow_zero=True)
         for kind in (
             "robot",
             "site",

@@ -4,7 +4,8 @@ references for the arm [rad/s] and gripper [m/s].
 
 kinematic: applies the references as the velocities, instantly (validates the high level);
 dynamic: PID on the velocity error plus a feed-forward of the vehicle's damping, through the
-thruster allocation and the joint motors."""
+thruster allocation and the joint motors; with attitude gains, roll and pitch held level too
+(attitude.py)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import mujoco
 import numpy as np
 
 from abyss.common.robot import COMMANDED_AXES, Robot
+from abyss.stations.simulation.attitude import AttitudeHold
 from abyss.stations.simulation.hydrodynamics import VehicleModel
 from abyss.stations.simulation.thrusters import Thrusters
 
@@ -78,6 +80,8 @@ class PidGains:
     arm_kp: float  # [N m/(rad/s)], > 0
     arm_ki: float
     gripper_kp: float  # [N/(m/s)]
+    attitude_kp: tuple[float, float] = (0.0, 0.0)  # roll, pitch [N m/rad]: attitude.py; 0 passive
+    attitude_kd: tuple[float, float] = (0.0, 0.0)  # [N m/(rad/s)]
 
 
 class Dynamic:
@@ -100,6 +104,7 @@ class Dynamic:
             np.array(gains.vehicle_ki),
             np.array(gains.vehicle_kd),
         )
+        self.attitude = AttitudeHold(self.thrusters, gains.attitude_kp, gains.attitude_kd)
         self.vehicle_integral = np.zeros(4)
         self.vehicle_error = np.zeros(4)
         self.arm_integral = np.zeros(len(robot.arm_joints))
@@ -111,7 +116,8 @@ class Dynamic:
 
     def apply(self, data: mujoco.MjData, ref: References, dt_s: float) -> None:
         p, g = self.plant, self.gains
-        velocity = p.vehicle_velocity_body(data)[list(COMMANDED_AXES)]
+        velocity6 = p.vehicle_velocity_body(data)
+        velocity = velocity6[list(COMMANDED_AXES)]
         error = ref.vehicle_body - velocity
         derivative = (error - self.vehicle_error) / dt_s
         self.vehicle_error[:] = error
@@ -123,8 +129,13 @@ class Dynamic:
         candidate = self.vehicle_integral + error * dt_s
         wrench4 = wrench4 + self._vehicle_ki * candidate
         allocated = wrench4[self.allocated]
-        thrust = self.thrusters.allocate_actuated(allocated)
-        shortfall = np.abs(self.thrusters.actuated_allocation @ thrust - allocated)
+        if self.attitude.held:  # roll and pitch held level too, through the same thrusters
+            allocated = np.r_[allocated, self.attitude.moment(p.rotation(data), velocity6[3:5])]
+            thrust = self.attitude.allocate(allocated)
+            shortfall = np.abs(self.attitude.allocation @ thrust - allocated)
+        else:
+            thrust = self.thrusters.allocate_actuated(allocated)
+            shortfall = np.abs(self.thrusters.actuated_allocation @ thrust - allocated)
         if (shortfall <= 1e-6 + 1e-6 * np.abs(allocated)).all():  # np.allclose's test, rtol = atol = 1e-6
             self.vehicle_integral[:] = candidate  # anti-windup: integrate only when not saturated
         self.thrusters.apply(data, thrust, dt_s)

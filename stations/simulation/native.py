@@ -221,17 +221,19 @@ class LowLevel:
     def of(controller: object, strips: ArmStrips | None) -> LowLevel | None:
         """For this controller and this strip model, or None where C does not have them (the library
         not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs; an
-        arm, gripper or thrust layout other than its struct's)."""
+        arm, gripper or thrust layout other than its struct's; an attitude hold)."""
         lib = library()
         if lib is None or not isinstance(controller, Dynamic) or strips is None:
             return None
         if len(controller.thrusters.actuators) > LowLevel.LIMIT or len(strips.dofs) > LowLevel.LIMIT:
             return None
         plant = controller.plant
-        if (  # C's struct: six arm joints, two fingers at most, thrust in surge, sway, heave and yaw
+        if (  # C's struct: six arm joints, two fingers at most, thrust in surge, sway, heave and
+            # yaw, no attitude hold (stations/simulation/attitude.py)
             len(plant.arm_dofs) != LowLevel.ARM_JOINTS
             or len(plant.gripper_dofs) > LowLevel.FINGERS
             or tuple(controller.thrusters.actuated) != COMMANDED_AXES
+            or controller.attitude.held
         ):
             return None
         return LowLevel(lib, controller, strips)

@@ -20,7 +20,9 @@ from abyss.common.robot import NavSensorsSection
 
 SOUND_SPEED_MPS = 1500.0
 SEAWATER_PA_PER_M = 1025.0 * 9.81  # hydrostatic pressure per metre of depth [Pa/m]
-DVL_M_BODY = np.array([0.0, 0.0, -0.7])  # under the skid
+# where the beams start in the vehicle's frame [m], for a robot whose model has no site of its DVL's
+# name (robot.toml's [nav_sensors] dvl): under the work-class ROV's skid
+DVL_M_BODY = np.array([0.0, 0.0, -0.7])
 DVL_BEAM_RAD = math.radians(30.0)  # each beam off the vertical
 SEABED_GEOM = "seabed"
 
@@ -112,13 +114,22 @@ class Navigation:
 
 class DvlBeams:
     """The DVL's four Janus beams, 30 degrees off the vertical, 45 degrees off the bow, cast
-    in MuJoCo: bottom lock when every beam meets the seabed within the altitude range."""
+    in MuJoCo from the robot's DVL (its site, where the model has one on the vehicle; else
+    DVL_M_BODY): bottom lock when every beam meets the seabed within the altitude range."""
 
     def __init__(
-        self, model: mujoco.MjModel, vehicle_body: int, min_altitude_m: float, max_altitude_m: float
+        self,
+        model: mujoco.MjModel,
+        vehicle_body: int,
+        min_altitude_m: float,
+        max_altitude_m: float,
+        site: str = "",
     ) -> None:
         self.model = model
         self.vehicle_body = vehicle_body
+        site_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site) if site else -1
+        on_vehicle = site_id >= 0 and model.site_bodyid[site_id] == vehicle_body
+        self.origin_m_body = model.site_pos[site_id].copy() if on_vehicle else DVL_M_BODY
         self.seabed = model.geom(SEABED_GEOM).id
         self.min_altitude_m, self.max_altitude_m = min_altitude_m, max_altitude_m
         s, h = math.sin(DVL_BEAM_RAD) / math.sqrt(2), -math.cos(DVL_BEAM_RAD)
@@ -130,7 +141,7 @@ class DvlBeams:
         the seabed within range."""
         m = self.model
         rotation = data.xmat[self.vehicle_body].reshape(3, 3)
-        origin = data.xpos[self.vehicle_body] + rotation @ DVL_M_BODY
+        origin = data.xpos[self.vehicle_body] + rotation @ self.origin_m_body
         reach_m = self.max_altitude_m / math.cos(DVL_BEAM_RAD)
         out = np.full(len(self.beams_body), np.nan)
         for i, beam in enumerate(self.beams_body):

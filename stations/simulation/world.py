@@ -54,6 +54,8 @@ def _gains(config: SimulationConfig) -> PidGains:
         config.arm_kp,
         config.arm_ki,
         config.gripper_kp,
+        config.attitude_kp,
+        config.attitude_kd,
     )
 
 
@@ -112,7 +114,11 @@ class World:
         place_at_start(self.model, self.data.qpos, robot, config.start_position_m_world, config.start_yaw_rad)
         mujoco.mj_forward(self.model, self.data)
         self.dvl = DvlBeams(
-            self.model, self.model.body(robot.base).id, config.dvl_min_altitude_m, config.dvl_max_altitude_m
+            self.model,
+            self.model.body(robot.base).id,
+            config.dvl_min_altitude_m,
+            config.dvl_max_altitude_m,
+            robot.nav_sensors.dvl,
         )
 
     def _marine_models(self, config: SimulationConfig) -> None:

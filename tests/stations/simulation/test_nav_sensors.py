@@ -1,5 +1,6 @@
 """The simulated navigation sensors in the real world model: USBL fixes at their rate and delay,
-the DVL's bottom lock (its altitude range, the panel in its beams), depth from the pressure."""
+the DVL's bottom lock (its altitude range, the panel in its beams, the robot's DVL site), depth
+from the pressure."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import pytest
 
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import NavState, SimulationControl
+from abyss.common.robot import ROBOTS_DIR
+from abyss.common.site import SITES_DIR
 from abyss.stations.simulation.lowlevel import References
-from abyss.stations.simulation.nav_sensors import SOUND_SPEED_MPS
+from abyss.stations.simulation.nav_sensors import DVL_M_BODY, SOUND_SPEED_MPS
 from abyss.stations.simulation.world import World
 
 pytestmark = pytest.mark.timeout(120)
@@ -74,6 +77,21 @@ def test_dvl_loses_lock_when_its_beams_meet_the_panel() -> None:
     assert not any(n.dvl_valid for n in fly(near, 1.0))
     clear = world(start_position_m_world=(2.0, 0.0, -6.5), start_yaw_rad=math.pi / 2)
     assert all(n.dvl_valid for n in fly(clear, 1.0))
+
+
+def test_the_dvl_casts_its_beams_from_the_robots_dvl_site() -> None:
+    """The BlueROV2's DVL (its site under the stern, 0.19 m below the hull's centre) locks 0.6 m
+    over the seabed, where beams cast from under the work-class's skid (0.7 m down, for a model
+    with no DVL site) would start 0.1 m over it, under the 0.3 m it needs."""
+    small = world(
+        robot=str(ROBOTS_DIR / "bluerov2_heavy_alpha5"),
+        site=str(SITES_DIR / "small_panel"),
+        start_position_m_world=(2.0, 0.0, -9.2),  # the seabed at z = -10.0
+    )
+    np.testing.assert_allclose(small.dvl.origin_m_body, small.model.site(small.robot.nav_sensors.dvl).pos)
+    np.testing.assert_allclose(small.dvl.altitudes_m(small.data), 0.6, atol=0.03)  # the terrain undulates
+    assert all(n.dvl_valid for n in fly(small, 1.0))
+    np.testing.assert_array_equal(world().dvl.origin_m_body, DVL_M_BODY)
 
 
 def test_depth_comes_from_the_pressure_and_its_noise_fault() -> None:

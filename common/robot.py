@@ -135,6 +135,9 @@ class Robot:
     directory: Path
     spec: RobotFile
     actuated_axes: tuple[int, ...]  # rows of the body wrench the thrusters move, of COMMANDED_AXES
+    # between the fingers' faces with each at zero travel [m]: what a handle of this thickness
+    # leaves of the opening where they meet it (the opening is the travel, summed)
+    closed_gap_m: float = 0.0
 
     @property
     def name(self) -> str:
@@ -248,7 +251,33 @@ def _load(directory: Path) -> Robot:
     for check in checks:
         check(model, spec, path)
     allocation = thrust_matrix(model, spec.model.base, spec.thrusters.names, path)
-    return Robot(directory, spec, actuated_axes(allocation, path))
+    return Robot(
+        directory, spec, actuated_axes(allocation, path), closed_gap_m(model, spec.arm.gripper.joints)
+    )
+
+
+def closed_gap_m(model: mujoco.MjModel, fingers: tuple[str, ...]) -> float:
+    """The least distance between the first two fingers' colliding geoms at zero travel (the
+    model's reference pose) [m], as MuJoCo measures it; 0 where a finger has none."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    colliding = [
+        [
+            g
+            for g in range(model.ngeom)
+            if model.geom_bodyid[g] == body and (model.geom_contype[g] or model.geom_conaffinity[g])
+        ]
+        for body in (model.joint(name).bodyid[0] for name in fingers[:2])
+    ]
+    if len(colliding) < 2 or not all(colliding):
+        return 0.0
+    return min(
+        float(mujoco.mj_geomDistance(model, data, a, b, 1.0, None))
+        for a in colliding[0]
+        for b in colliding[1]
+    )
 
 
 def _compiled(directory: Path, spec: RobotFile, path: Path) -> mujoco.MjModel:

@@ -63,6 +63,10 @@ class OnboardConfig:
     clearance_m: float = 0.05  # kept between the arm and the obstacles [m]
     kp_constraint: float = 2.0  # [1/s] how fast a joint limit or an obstacle may be approached
     whole_body: bool = False  # the vehicle's surge, sway, heave and yaw join the arm's joints
+    # with whole_body, the vehicle's columns are scaled by this in the solver (a weighted least-norm
+    # solution: a vehicle axis costs 1 / weight^2 what a joint does per unit of speed), so that
+    # below 1 the arm does what it can and the vehicle what the arm cannot; 1: alike
+    whole_body_weight: float = 1.0
     # failsafe: hold station and hold the arm still when the vessel is silent this long
     goal_timeout_s: float = 2.0  # [s]
     hold_on_shore_loss: bool = True  # also when the vessel reports shore silent

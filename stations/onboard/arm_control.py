@@ -6,6 +6,7 @@ the obstacles' boxes."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -191,7 +192,15 @@ class ArmController:
         self.speed_limits = np.r_[
             np.full(joints, cfg.max_joint_speed_radps), np.full(3, cfg.max_speed_mps), cfg.max_yaw_rate_radps
         ][: kin.n]
-        for constant in (self.boxes, self.limit_gradients, self.constraint_minimums, self.speed_limits):
+        # the solver's variables: the joints' speeds, and the vehicle's scaled by whole_body_weight
+        self.column_scale = np.r_[np.ones(joints), np.full(kin.n - joints, cfg.whole_body_weight)]
+        for constant in (
+            self.boxes,
+            self.limit_gradients,
+            self.constraint_minimums,
+            self.speed_limits,
+            self.column_scale,
+        ):
             constant.flags.writeable = False
 
     def set_goal(
@@ -288,17 +297,19 @@ class ArmController:
     def _solve(
         self, tasks: list[Task], arm_rad: np.ndarray, mode: Mode, position_error: np.ndarray, angle: float
     ) -> ArmOutput:
-        """The tasks under the constraints, within the speed limits."""
-        kin, cfg = self.kinematics, self.cfg
-        xdot, active, _ = solve_constrained(
-            self.constraints(arm_rad),
-            tasks,
+        """The tasks under the constraints, within the speed limits; solved in the scaled
+        variables (`column_scale`: the least norm weighs the vehicle's against the joints')."""
+        kin, cfg, scale = self.kinematics, self.cfg, self.column_scale
+        constraints = self.constraints(arm_rad)
+        scaled, active, _ = solve_constrained(
+            dataclasses.replace(constraints, gradients=constraints.gradients * scale),
+            [dataclasses.replace(task, jacobian=task.jacobian * scale) for task in tasks],
             kin.n,
             cfg.kp_constraint,
             cfg.damping,
             cfg.singular_value_threshold,
         )
-        xdot = self._within_speed_limits(xdot)
+        xdot = self._within_speed_limits(scaled * scale)
         vehicle = xdot[len(self.arm_joints) :] if cfg.whole_body else None
         return ArmOutput(
             xdot[: len(self.arm_joints)],

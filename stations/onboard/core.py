@@ -31,15 +31,15 @@ from abyss.common.messages import (
     new_id,
 )
 from abyss.common.robot import robot_of
+from abyss.common.site import site_of
 from abyss.stations.onboard.arm_control import ArmController, ArmOutput
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
-from abyss.stations.onboard.intervention import InterventionRun
+from abyss.stations.onboard.intervention import Grip, InterventionRun
 from abyss.stations.onboard.modes import ControlMode, Mode
 from abyss.stations.onboard.navigation import NavFilter
 from abyss.stations.onboard.vehicle_control import ControlOutput, VehicleController
 
-GRIPPER_OPENING_M = 0.03  # opened while reaching, so the fingers pass either side of a handle
 GRIPPER_GAIN_PER_S = 2.0
 log = logging.getLogger(__name__)
 Command = Waypoints | ArmGoal | OperatorMode | InterventionGoal  # an operator's
@@ -71,6 +71,10 @@ class Onboard:
         self.vehicle = VehicleController(cfg, config.mission)
         self.robot = robot_of(config)
         self.arm = ArmController(cfg, config.mission, self.robot)
+        gripper = self.robot.spec.arm.gripper
+        self.grip = Grip.of(
+            gripper.opening_m, self.robot.closed_gap_m, site_of(config).panel.handle_thickness_m
+        )
         self.nav_filter = NavFilter(cfg)
         self.failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
         self.gate = CommandGate(config.mission, *self.arm.kinematics.reach())
@@ -140,7 +144,7 @@ class Onboard:
                 )
                 self.intervention = None
             elif isinstance(command, InterventionGoal):
-                self.intervention = InterventionRun(command)
+                self.intervention = InterventionRun(command, self.grip)
             elif isinstance(command, OperatorMode):
                 self.operator_mode = ControlMode(command.mode)  # from the wire
         for beat in inputs.heartbeats:
@@ -192,7 +196,7 @@ class Onboard:
         """The gripper's speed [m/s]: the intervention's; without one, opened while the arm
         reaches for its goal; else still."""
         if self.intervention is None and a.mode in (Mode.MOVING, Mode.REACHED):
-            opening_error_m = GRIPPER_OPENING_M - joints.gripper_opening_m
+            opening_error_m = self.grip.reach_m - joints.gripper_opening_m
             return float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
         return 0.0 if intervention_mps is None else intervention_mps
 

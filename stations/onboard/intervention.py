@@ -37,11 +37,17 @@ from abyss.common.messages import REFINABLE_PHASES, InterventionGoal
 from abyss.stations.onboard.arm_control import PoseReference
 
 PRE_GRASP_M = 0.10
-OPEN_M = 0.07  # the gripper's opening on the way in and out [m]
 OPEN_GAIN_PER_S = 2.0
 SQUEEZE_MPS = 0.05  # the fingers close, and squeeze what they hold, at this speed [m/s]
-HOLD_MIN_M = 0.008  # the fingers meet the 0.04 m handle at 0.016 m: below this they hold nothing
-HELD_MAX_M = 0.024  # squeezing a handle they stand at 13-14 mm (measured); reaching, at 30 mm
+# The openings a grip is judged by (Grip.of), from where the fingers meet the handle (its
+# thickness less the fingers' gap when closed). The work-class ROV's fingers meet the valve panel's
+# 40 mm handles at 16 mm, stand at 13-14 mm squeezing one (measured) and reach at 30 mm: below
+# half the meeting opening they closed past where the handle would be (8 mm there), above it by
+# HELD_SLACK_M they hold nothing (24 mm); reaching, they stand REACH_CLEARANCE_M wider than they
+# meet it, 7 mm clear either side (30 mm); on the way in and out OPEN_SHORT_M short of their stops
+HELD_SLACK_M = 0.008
+REACH_CLEARANCE_M = 0.014
+OPEN_SHORT_M = 0.01
 NEAR_M = 0.03  # the tool this close to where the part's grasp would put it: on the handle
 PRIED_M = 0.006  # the fingers forced open this far past their hold: the part resists the turn
 OPENING_STILL_M = 0.0005  # the opening moved less than this over SETTLE_S: the fingers stopped
@@ -87,6 +93,23 @@ TIMEOUT_S = {
 
 
 @dataclass(frozen=True)
+class Grip:
+    """The gripper's openings for a robot's fingers on a site's handles [m]."""
+
+    open_m: float  # on the way in and out
+    hold_min_m: float  # closed below this: they hold nothing
+    held_max_m: float  # closed on a handle, they stand below this
+    reach_m: float  # opened while an arm goal is reached for, to pass either side of a handle
+
+    @staticmethod
+    def of(opening_m: float, closed_gap_m: float, handle_thickness_m: float) -> Grip:
+        """From the fingers' full opening and their gap when closed (common.robot.Robot) and the
+        handles' thickness (the site's panel)."""
+        meet_m = handle_thickness_m - closed_gap_m
+        return Grip(opening_m - OPEN_SHORT_M, meet_m / 2, meet_m + HELD_SLACK_M, meet_m + REACH_CLEARANCE_M)
+
+
+@dataclass(frozen=True)
 class Command:
     """What the primitive asks of the arm this period."""
 
@@ -97,8 +120,9 @@ class Command:
 class InterventionRun:
     """One intervention, from its goal to done or failed."""
 
-    def __init__(self, goal: InterventionGoal) -> None:
+    def __init__(self, goal: InterventionGoal, grip: Grip) -> None:
         self._take(goal)
+        self.grip = grip
         self.phase = Phase.APPROACH
         self.reason = ""  # why it failed, once it will
         self.retry = ""  # why the grasp is tried again, while it is
@@ -187,7 +211,7 @@ class InterventionRun:
         onboard's arm, as the kill left it): let go where it stands, back out, and grasp again
         from there; the target stays the goal's, which is absolute. Said as the retry's reason."""
         on_handle = float(np.linalg.norm(self.pose_at(self.turned_rad)[0] - tool.translation)) < NEAR_M
-        if on_handle and HOLD_MIN_M <= opening_m <= HELD_MAX_M:
+        if on_handle and self.grip.hold_min_m <= opening_m <= self.grip.held_max_m:
             self.retry = f"found holding {self.goal.target} (rebooted?): let go, to grasp it again"
             log.warning("intervention %d: %s", self.goal.command_id, self.retry)
             self._next(Phase.RELEASE)
@@ -215,11 +239,11 @@ class InterventionRun:
         return self.settled_s >= SETTLE_S
 
     def _open(self, opening_m: float) -> float:
-        return float(np.clip(OPEN_GAIN_PER_S * (OPEN_M - opening_m), -0.05, 0.05))
+        return float(np.clip(OPEN_GAIN_PER_S * (self.grip.open_m - opening_m), -0.05, 0.05))
 
     def _approach(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
         position, rotation = self.pose_at(self.from_rad, PRE_GRASP_M)
-        if self._settled(tool, position, rotation, dt_s) and opening_m > OPEN_M - 0.01:
+        if self._settled(tool, position, rotation, dt_s) and opening_m > self.grip.open_m - 0.01:
             self._next(Phase.PRE_GRASP)
         else:
             self._timed_out("the pre-grasp pose not reached")
@@ -241,7 +265,7 @@ class InterventionRun:
         self.openings.append((self.phase_s, opening_m))
         earlier = [o for t, o in self.openings if t <= self.phase_s - SETTLE_S]
         if earlier and abs(earlier[-1] - opening_m) < OPENING_STILL_M:
-            if opening_m >= HOLD_MIN_M:
+            if opening_m >= self.grip.hold_min_m:
                 self.hold_opening_m = opening_m
                 self.reference_rad = self.from_rad
                 self.progress = (self.phase_s, self.turned_rad)
@@ -256,7 +280,7 @@ class InterventionRun:
         goal = self.goal.turn_rad
         if self.goal.to_stop:  # pushed into its stop (within LEAD_MAX_RAD of where it is)
             goal += math.copysign(OVERTRAVEL_RAD, self.goal.turn_rad)
-        if opening_m < HOLD_MIN_M:  # the handle slipped out of the fingers
+        if opening_m < self.grip.hold_min_m:  # the handle slipped out of the fingers
             self._again(f"the grasp slipped at {math.degrees(self.turned_rad):.0f} deg")
             return self._release(tool, opening_m, dt_s)
         if abs(goal - self.turned_rad) < TURN_TOLERANCE_RAD:
@@ -297,7 +321,7 @@ class InterventionRun:
 
     def _release(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
         position, rotation = self.pose_at(self.turned_rad)
-        if opening_m > OPEN_M - 0.01 or self.phase_s >= TIMEOUT_S[Phase.RELEASE]:
+        if opening_m > self.grip.open_m - 0.01 or self.phase_s >= TIMEOUT_S[Phase.RELEASE]:
             self.from_rad = self.turned_rad
             self._next(Phase.RETREAT)
         return Command(PoseReference(position, rotation), self._open(opening_m))

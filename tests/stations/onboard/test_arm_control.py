@@ -8,8 +8,16 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.geometry import rotation_of
-from abyss.common.robot import robot_at
-from abyss.stations.onboard.arm_control import STALL_S, ArmController, ArmKinematics, box_distance
+from abyss.common.models.panel import GRASP_ROTATION_PANEL
+from abyss.common.robot import ROBOTS_DIR, robot_at
+from abyss.common.site import SITES_DIR, site_at
+from abyss.stations.onboard.arm_control import (
+    STALL_S,
+    ArmController,
+    ArmKinematics,
+    PoseReference,
+    box_distance,
+)
 from abyss.stations.onboard.task_priority import Task, solve
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
@@ -144,6 +152,37 @@ def test_whole_body_moves_the_vehicle_toward_a_target_beyond_the_arm() -> None:
     assert out.vehicle_velocity is not None and out.vehicle_velocity.shape == (4,)
     assert out.vehicle_velocity[1] > 0.0  # sway towards the target at y = 0.9 m
     assert len(out.joint_velocities_radps) == len(ROBOT.arm_joints)
+
+
+def test_a_whole_body_weight_below_one_leaves_the_vehicle_what_the_arm_cannot_do() -> None:
+    """The BlueROV2's stowed arm (its plane turned to the stern) sent to the small panel's valve
+    from the last waypoint: unweighed, the least-norm solution turns the vehicle as fast as the
+    arm's base (yaw moves the tool's heading as the base rotate does, and its position further);
+    weighed 0.2, the base rotate turns and the vehicle's yaw is a fifth of that (measured: 0.11
+    and 0.10 rad/s unweighed, 0.022 and 0.19 weighed)."""
+    robot = robot_at(str(ROBOTS_DIR / "bluerov2_heavy_alpha5"))
+    site = site_at(str(SITES_DIR / "small_panel"))
+    rates = {}
+    for weight in (1.0, 0.2):
+        config = load(
+            None,
+            [f"simulation.robot={robot.directory}", f"simulation.site={site.directory}",
+             f"onboard.whole_body_weight={weight}"],
+        )  # fmt: skip
+        assert config.onboard.whole_body
+        x, y, z, _ = config.mission.waypoints[-1]
+        arm = ArmController(config.onboard, config.mission, robot)
+        pivot, _, grasp = site.panel.part_geometry("valve")
+        tool_m_world = np.add(site.panel.position_m_world, pivot + grasp)
+        reference = PoseReference(tool_m_world, GRASP_ROTATION_PANEL)
+        out = arm.step(
+            np.array([x, y, z]), np.array([1.0, 0, 0, 0]), np.array(robot.stowed_rad), True, reference
+        )
+        assert out.vehicle_velocity is not None
+        rates[weight] = (abs(out.joint_velocities_radps[0]), abs(out.vehicle_velocity[3]))
+    (base_1, yaw_1), (base_w, yaw_w) = rates[1.0], rates[0.2]
+    assert yaw_1 > 0.5 * base_1  # unweighed, the vehicle turns about as fast as the base rotate
+    assert yaw_w < 0.3 * yaw_1 and base_w > 1.5 * base_1, rates
 
 
 def test_an_arm_whose_joints_do_not_follow_is_blocked_within_a_second_and_holds() -> None:

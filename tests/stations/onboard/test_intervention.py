@@ -14,10 +14,10 @@ import pytest
 
 from abyss.common.config import load
 from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at
+from abyss.common.robot import ROBOTS_DIR, robot_at
+from abyss.common.site import SITES_DIR, site_at
 from abyss.stations.onboard.arm_control import ArmController, PoseReference
-from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun, Phase
+from abyss.stations.onboard.intervention import PRE_GRASP_M, Grip, InterventionRun, Phase
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 from abyss.stations.vessel.intents import resolve
@@ -25,6 +25,8 @@ from abyss.stations.vessel.intents import resolve
 panel = site_at("").panel  # the shipped site's
 
 ROBOT = robot_at("")  # the shipped robot package
+# its fingers on the shipped site's handles, as onboard takes them
+GRIP = Grip.of(ROBOT.spec.arm.gripper.opening_m, ROBOT.closed_gap_m, panel.handle_thickness_m)
 
 PERIOD_S = 0.05
 LAST_WAYPOINT = "[3.2, 0, -8.0]"  # the default mission's
@@ -81,10 +83,23 @@ def track(arm: ArmController, world: World, reference: PoseReference, gripper_mp
     world.step(References(np.zeros(4), out.joint_velocities_radps, gripper_mps), PERIOD_S)
 
 
+def test_the_grip_is_the_robots_fingers_on_the_sites_handles() -> None:
+    """The work-class's fingers, 24 mm apart closed, meet the valve panel's 40 mm handles at
+    16 mm: hold below 8 mm is none, above 24 none, reaching at 30; the BlueROV2's, face to face
+    closed, meet the small panel's 30 mm handles at 30 mm. Both open to 70 mm of their 80."""
+    assert ROBOT.closed_gap_m == pytest.approx(0.024, abs=1e-9)
+    assert np.allclose(dataclasses.astuple(GRIP), (0.07, 0.008, 0.024, 0.03), rtol=0, atol=1e-12)
+    small = robot_at(str(ROBOTS_DIR / "bluerov2_heavy_alpha5"))
+    assert small.closed_gap_m == pytest.approx(0.0, abs=1e-9)
+    thickness_m = site_at(str(SITES_DIR / "small_panel")).panel.handle_thickness_m
+    grip = Grip.of(small.spec.arm.gripper.opening_m, small.closed_gap_m, thickness_m)
+    assert np.allclose(dataclasses.astuple(grip), (0.07, 0.015, 0.038, 0.044), rtol=0, atol=1e-9)
+
+
 def test_the_turning_task_turns_the_tool_about_the_valve_axis_with_the_handle_held() -> None:
     arm, world = setup("kinematic")
     goal = goal_of("valve_1", "90")
-    run = InterventionRun(goal)  # its geometry only: the poses along the turn
+    run = InterventionRun(goal, GRIP)  # its geometry only: the poses along the turn
     for _ in range(round(12.0 / PERIOD_S)):  # onto the grasp pose
         track(arm, world, PoseReference(*run.pose_at(0.0)))
     start = tool_pose(arm, world)
@@ -110,7 +125,7 @@ def work(
     arm, world = setup("dynamic")
     if seize:
         world.apply_fault(SimulationControl("seize", goal.target, 1.0), set())
-    run, joints = InterventionRun(goal), []
+    run, joints = InterventionRun(goal, GRIP), []
     for _ in range(round(seconds / PERIOD_S)):
         state = world.joints()
         command = run.step(tool_pose(arm, world), state.gripper_opening_m, PERIOD_S, True)
@@ -162,7 +177,7 @@ def test_a_panel_recognised_off_ends_in_a_failed_grasp_not_a_forced_one() -> Non
 
 def test_a_refined_goal_is_taken_whole_until_the_fingers_close_then_as_the_pivots_shift() -> None:
     goal, moved = goal_of("valve_1", "90"), goal_of("valve_1", "90", (0.0, 0.0, 0.02))
-    run = InterventionRun(goal)
+    run = InterventionRun(goal, GRIP)
     assert run.refine(moved) and np.allclose(run.grasp_m, moved.grasp_m_world)
     assert not run.refine(dataclasses.replace(moved, command_id=4))  # another intervention's
     run.phase = Phase.TURN
@@ -186,7 +201,7 @@ def work_in_a_wandering_frame(follow: bool) -> tuple[InterventionRun, World]:
     seed 2 of the default mission showed, as here the arm alone carries it (the vehicle, holding
     station on the same navigation, carries it too in a mission): 3 mm/s did not pull it off."""
     arm, world = setup("dynamic")
-    run, held_s, t_s = InterventionRun(goal_of("valve_1", "90")), None, 0.0
+    run, held_s, t_s = InterventionRun(goal_of("valve_1", "90"), GRIP), None, 0.0
     for _ in range(round(60.0 / PERIOD_S)):
         held_s = t_s if held_s is None and run.phase == Phase.TURN else held_s
         error_m = np.array([0.006 * (t_s - held_s), 0.0, 0.0]) if held_s is not None else np.zeros(3)
@@ -226,7 +241,7 @@ def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[Interv
     intent = Intervention(1, "valve_1", *panel.intent("valve_1", "90"))
     goal, _ = resolve(panel, intent, recognised())
     assert goal is not None
-    run = InterventionRun(goal)
+    run = InterventionRun(goal, GRIP)
     for _ in range(round(60.0 / PERIOD_S)):
         command = run.step(tool_pose(arm, world), world.joints().gripper_opening_m, PERIOD_S, True)
         if run.phase == Phase.TURN and run.turned_rad > math.radians(at_deg):
@@ -240,7 +255,7 @@ def reboot_mid_turn(at_deg: float, resolved_from_the_part: bool) -> tuple[Interv
         panel, dataclasses.replace(intent, turn_rad=goal.turn_rad - turned), recognised(), turned
     )
     assert again is not None, reason
-    rebooted, said = InterventionRun(again), ""
+    rebooted, said = InterventionRun(again, GRIP), ""
     for _ in range(round(60.0 / PERIOD_S)):
         command = rebooted.step(tool_pose(arm, world), world.joints().gripper_opening_m, PERIOD_S, True)
         said = said or rebooted.retry

@@ -3,13 +3,15 @@ agree on the arm."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from abyss.common.robot import robot_at
-from abyss.common.site import site_at, world_model
+from abyss.common.site import Site, shipped_sites, site_at, world_model
 
 panel = site_at("").panel  # the shipped site's
 
@@ -86,6 +88,16 @@ def test_the_panel_recognition_knows_is_the_panel_in_the_world(
     panel.write_face_texture(tmp_path / "face.png")  # the shipped texture is the one drawn
     drawn = cv2.imread(str(tmp_path / "face.png"), cv2.IMREAD_GRAYSCALE)
     shipped = cv2.imread(str(site_at("").face_texture_file), cv2.IMREAD_GRAYSCALE)
+    assert drawn is not None and shipped is not None and np.array_equal(drawn, shipped)
+
+
+@pytest.mark.parametrize("site", shipped_sites(), ids=lambda site: site.directory.name)
+def test_every_shipped_sites_face_texture_is_the_one_its_panel_draws(site: Site, tmp_path: Path) -> None:
+    import cv2
+
+    site.panel.write_face_texture(tmp_path / "face.png")
+    drawn = cv2.imread(str(tmp_path / "face.png"), cv2.IMREAD_GRAYSCALE)
+    shipped = cv2.imread(str(site.face_texture_file), cv2.IMREAD_GRAYSCALE)
     assert drawn is not None and shipped is not None and np.array_equal(drawn, shipped)
 
 

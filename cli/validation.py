@@ -12,6 +12,7 @@ from abyss.cli.args import (
     config_args,
     connect_args,
     load_config,
+    package_args,
 )
 from abyss.common import keys
 from abyss.common.config.system import TIME_MODES
@@ -29,6 +30,8 @@ def cmd_scenario_run(args: argparse.Namespace) -> int:
     from abyss.validation.scenario.spec import load_scenario
 
     scenarios = [load_scenario(path) for path in args.files]  # every file checked before anything runs
+    if args.robot or args.site:
+        scenarios = [on_packages(s, args.robot, args.site) for s in scenarios]
     if args.time is not None or args.time_speed is not None:
         scenarios = [on_time(s, args.time or "sim", args.time_speed) for s in scenarios]
     speeds = {s.time.speed_factor if s.time.simulated else 1.0 for s in scenarios}
@@ -54,6 +57,25 @@ def cmd_scenario_run(args: argparse.Namespace) -> int:
         if not r.passed:
             print(f"abyss: FAIL {r.scenario.name} ({r.out_dir}): {r.why_failed}")
     return 0 if all(r.passed for r in results) else 1
+
+
+def on_packages(scenario: Scenario, robot: str, site: str) -> Scenario:
+    """The scenario flown by the robot and site packages asked for (--robot, --site: a shipped
+    one's name, or a directory here), each checked as its configuration is."""
+    import dataclasses
+
+    from abyss.common.config import merge
+    from abyss.common.models import package_dir
+    from abyss.validation.scenario.fields import configured
+
+    packages = {
+        kind: str(package_dir(kind, value).resolve())
+        for kind, value in (("robot", robot), ("site", site))
+        if value
+    }
+    config = merge(scenario.config, {"simulation": packages})
+    configured(config, f"--robot/--site ({scenario.name})")
+    return dataclasses.replace(scenario, config=config)
 
 
 def on_time(scenario: Scenario, mode: str, speed: str | None) -> Scenario:
@@ -133,6 +155,7 @@ def add_commands(sub: Any) -> None:
         metavar="X|max",
         help="with --time sim: simulated seconds per wall second, or max",
     )
+    package_args(p)
     p.add_argument("--junit", type=Path, metavar="PATH", help="write JUnit XML here")
     p.add_argument(
         "--report",

@@ -77,8 +77,9 @@ def merge(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[dict[str, Any], str]]]:
     """The table with the configuration its robot and site packages carry (`[config]` of
-    robot.toml and site.toml: a robot's gains, a site's start and mission) under it: the robot's,
-    then the site's, then the table's own on top; and those layers with their files, lowest
+    robot.toml and site.toml: a robot's gains, a site's start and mission) under it: the robot's
+    velocity loops derived from its masses (common.gains), the robot's own, then the site's,
+    then the table's own on top; and those layers with their files, lowest
     first. A robot's may name the site it flies by default (`simulation.site`), which the
     table's own still overrides."""
     from abyss.common.robot import robot_at
@@ -93,6 +94,10 @@ def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[d
         # one that is no package at all, the field's own check says so (common/config/simulation.py)
         if directory is not None and (directory / PACKAGE_FILES[field_name]).is_file():
             loaded = package_at(package)  # a ConfigError names its file and field
+            if field_name == "robot":  # its velocity loops, where its package states none
+                from abyss.common.gains import derived_gains
+
+                under = merge(under, derived_gains(loaded))
             layers.append((loaded.spec.config, f"{loaded.file}: config"))
             under = merge(under, loaded.spec.config)
     return merge(under, table), layers

@@ -93,11 +93,8 @@ def test_the_packages_configuration_lies_under_the_users(tmp_path: Path) -> None
     site = _site(tmp_path, extra='\n[config]\n"mission" = { interventions = [["gate", "45"]] }\n')
     robot = tmp_path / "robot"
     shutil.copytree(SHIPPED_ROBOT_DIR, robot)
-    with (robot / "robot.toml").open("a") as toml:
-        toml.write(
-            f'\n[config]\nsimulation = {{ site = "{site}", arm_kp = 123.0 }}\n'
-            "mission = { waypoint_timeout_s = 7.0 }\n"
-        )
+    with (robot / "robot.toml").open("a") as toml:  # beside the workclass's [config.simulation]
+        toml.write(f'site = "{site}"\narm_kp = 123.0\n\n[config.mission]\nwaypoint_timeout_s = 7.0\n')
     config = load(None, [f"simulation.robot={robot}", "mission.waypoint_timeout_s=9"])
     assert config.simulation.site == str(site.resolve()) and config.simulation.arm_kp == 123.0
     assert config.mission.interventions == (("gate", "45"),) and config.mission.waypoint_timeout_s == 9.0

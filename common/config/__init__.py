@@ -82,7 +82,8 @@ def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[d
     then the table's own on top; and those layers with their files, lowest
     first. A robot's may name the site it flies by default (`simulation.site`), which the
     table's own still overrides."""
-    from abyss.common.robot import robot_at
+    from abyss.common.gains import derived_gains
+    from abyss.common.robot import Robot, robot_at
     from abyss.common.site import site_at
 
     layers: list[tuple[dict[str, Any], str]] = []
@@ -94,9 +95,7 @@ def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[d
         # one that is no package at all, the field's own check says so (common/config/simulation.py)
         if directory is not None and (directory / PACKAGE_FILES[field_name]).is_file():
             loaded = package_at(package)  # a ConfigError names its file and field
-            if field_name == "robot":  # its velocity loops, where its package states none
-                from abyss.common.gains import derived_gains
-
+            if isinstance(loaded, Robot):  # its velocity loops, where its package states none
                 under = merge(under, derived_gains(loaded))
             layers.append((loaded.spec.config, f"{loaded.file}: config"))
             under = merge(under, loaded.spec.config)

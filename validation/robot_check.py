@@ -8,8 +8,9 @@ the file and the field), then held to six checks, each a few rows of figures aga
 3. allocation: the axes the thrusters move and the largest wrench along each, a linear program
    (robot_geometry.axis_limits);
 4. open loop: that wrench held from rest in the simulation's marine model until the speed
-   settles, against the terminal speed of the damping, and the roll and pitch decays against
-   their periods (robot_physics.open_loop, decay);
+   settles, against the terminal speed of the damping, roll and pitch held by the package's own
+   attitude hold where its configuration sets one (simulation.attitude_kp/kd), and the roll and
+   pitch free decays against their periods (robot_physics.open_loop, decay);
 5. published: the figures the package's `[published]` table carries against the simulated ones;
 6. workspace: the share of the arm's reach in front of the vehicle its stereo pair sees
    (robot_geometry.workspace).
@@ -31,8 +32,10 @@ from typing import Literal
 
 import numpy as np
 
+from abyss.common.config import load
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.robot import AXIS_NAMES, COMMANDED_AXES, Robot, load_robot, robot_spec, thrust_matrix
+from abyss.stations.simulation.attitude import ROLL, AttitudeHold
 from abyss.validation import robot_physics as physics
 from abyss.validation.robot_geometry import AxisLimit, Workspace, axis_limits, frame_agreement, workspace
 
@@ -42,7 +45,7 @@ SEED = 0  # the arm's configurations, the vehicle's poses: the same report every
 FRAME_TOLERANCE = 1e-6  # [m] and [rad]: two double-precision readings of one chain agree to ~1e-12
 NET_BUOYANCY_SHARE = 0.02  # of the weight: more than a small trim weight or float fixes
 NEEDED_AXES = (0, 2, 5)  # surge, heave, yaw: what the vehicle controller cannot fly without
-SPEED_BOUND = 0.10  # terminal speeds, simulated / analytic (see `_response_row`)
+SPEED_BOUND = 0.10  # terminal speeds, simulated / analytic (see `response_row`)
 HEEL_BOUND_RAD = math.radians(15.0)  # the most roll or pitch an open-loop run may reach (ditto)
 PERIOD_BOUND = 0.05  # decay periods, simulated / analytic (see `_decay_rows`)
 SEEN_SHARE = 0.10  # the least share of the reach in front that the stereo pair must see
@@ -115,7 +118,7 @@ def check_robot(directory: Path, progress: Callable[[str], None] = lambda _: Non
     progress(CHECKS[0])
     rows += _kinematics_rows(robot, rng)
     progress(CHECKS[1])
-    bench = physics.Bench(robot)
+    bench = bench_of(robot)
     statics = physics.hydrostatics(bench)
     rows += _hydrostatics_rows(statics)
     progress(CHECKS[2])
@@ -126,7 +129,8 @@ def check_robot(directory: Path, progress: Callable[[str], None] = lambda _: Non
     progress(CHECKS[3])
     responses = [physics.open_loop(bench, a.axis, a.wrench, a.thrust_n, statics.net_n) for a in limits]
     decays = [physics.decay(bench, k, statics) for k in (0, 1)]
-    rows += [_response_row(r) for r in responses] + _decay_rows(decays, statics)
+    held = _held(bench.hold)
+    rows += [response_row(r, held) for r in responses] + _decay_rows(decays, statics)
     progress(CHECKS[4])
     rows += published_rows(robot, statics, responses, limits)
     progress(CHECKS[5])
@@ -145,6 +149,14 @@ def check_robot(directory: Path, progress: Callable[[str], None] = lambda _: Non
         space,
         elapsed_s,
     )
+
+
+def bench_of(robot: Robot) -> physics.Bench:
+    """The robot's bench with the attitude hold its package flies with: the configuration's
+    simulation.attitude_kp/kd, the package's [config] over the defaults (common.config.load), as
+    the simulation's low level reads them; none held where they are zero."""
+    flown = load(None, [f"simulation.robot={robot.directory}"]).simulation
+    return physics.Bench(robot, flown.attitude_kp, flown.attitude_kd)
 
 
 def _status(ok: bool) -> Status:
@@ -249,15 +261,26 @@ def _allocation_rows(robot: Robot, limits: list[AxisLimit]) -> list[Row]:
     return rows
 
 
-def _response_row(r: physics.Response) -> Row:
+def _held(hold: AttitudeHold) -> str:
+    """What the open-loop rows say of the package's attitude hold: "" where it holds nothing."""
+    if not hold.held:
+        return ""
+    axes = " and ".join(("roll", "pitch")[a - ROLL] for a in hold.held)
+    kp, kd = ", ".join(f"{g:g}" for g in hold.kp), ", ".join(f"{g:g}" for g in hold.kd)
+    return f"; {axes} held by the package's attitude hold (kp {kp} N m/rad, kd {kd} N m s/rad), as it flies"
+
+
+def response_row(r: physics.Response, held: str = "") -> Row:
     """Within SPEED_BOUND: the analytic speed takes the axis alone, the run has what it leaves out
     (the pitch or roll the thrust's line of action gives, C_RB and C_A's coupling, the rotors' lag
     and the arm's mass): under 1% on a vehicle near neutral and level; 10% still catches a thrust
     the model's motors cap below robot.toml's, or a damping read in the wrong units. And within
     HEEL_BOUND_RAD: the analytic speed is the level vehicle's, and roll and pitch are left to the
-    righting moment (common.robot.COMMANDED_AXES), so a vehicle that heels further under full
-    thrust (the thrust's moment about the centre of gravity, the added mass's Munk moment, against
-    W BG_z) flies heeled, or tumbles, under the station's controller too."""
+    righting moment (common.robot.COMMANDED_AXES), or to the package's attitude hold where its
+    configuration has one (`held` says so: as the simulation's low level flies it), so a vehicle
+    that heels further under full thrust (the thrust's moment about the centre of gravity, the
+    added mass's Munk moment, against W BG_z and the hold) flies heeled, or tumbles, under the
+    station's controller too."""
     unit = UNITS[r.axis]
     name = f"{AXIS_NAMES[r.axis]} {'+' if r.sign > 0 else '-'}"
     ok = r.settled and abs(r.ratio - 1.0) <= SPEED_BOUND and r.heel_rad <= HEEL_BOUND_RAD
@@ -269,7 +292,7 @@ def _response_row(r: physics.Response) -> Row:
         f"heel {math.degrees(r.heel_rad):.1f} deg",
         f"ratio {1 - SPEED_BOUND:.2f}..{1 + SPEED_BOUND:.2f}, heel <= {math.degrees(HEEL_BOUND_RAD):.0f} deg",
         _status(ok),
-        "full thrust from rest in the marine model until steady, against d_l u + d_q u|u| = F",
+        "full thrust from rest in the marine model until steady, against d_l u + d_q u|u| = F" + held,
     )
 
 

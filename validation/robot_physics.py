@@ -14,7 +14,10 @@ buoyancy, as it does in the water.
 `hydrostatics` is what the package floats like, stowed, in the rest pose: weight against
 buoyancy, the centres, the righting coefficient W BG_z and the roll and pitch periods it gives with
 the rigid and added inertia. `open_loop` and `decay` run the bench: a thrust held from rest until
-the speed settles, and a release from a heel."""
+the speed settles, and a release from a heel. Where the package's configuration holds roll and
+pitch (simulation.attitude_kp/kd), the open-loop runs fly with that hold, as the simulation's low
+level applies it (stations/simulation/attitude.py `AttitudeHold`, which a small ROV's autopilot
+stands for); the decays stay free, since they measure the restoring moment."""
 
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ import mujoco
 import numpy as np
 
 from abyss.common.robot import HEAVE, Robot, robot_spec
+from abyss.stations.simulation.attitude import AttitudeHold
 from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy
 from abyss.stations.simulation.thrusters import Thrusters
@@ -97,9 +101,17 @@ class Trace:
 
 
 class Bench:
-    """The robot's model with the simulation's marine terms (see the module's text)."""
+    """The robot's model with the simulation's marine terms (see the module's text); `hold` is the
+    package's attitude hold (none held with zero gains, the default), which `run` applies on asking."""
 
-    def __init__(self, robot: Robot) -> None:
+    def __init__(
+        self,
+        robot: Robot,
+        attitude_kp: tuple[float, float] = (0.0, 0.0),
+        attitude_kd: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        """`attitude_kp` [N m/rad] and `attitude_kd` [N m/(rad/s)]: roll's, then pitch's, as the
+        configuration's simulation.attitude_kp/kd."""
         self.robot = robot
         self.model = model = robot_spec(robot).compile()
         model.opt.timestep = PHYSICS_STEP_S
@@ -108,6 +120,7 @@ class Bench:
         self.buoyancy = Buoyancy(model, dry=(robot.base,), rho_kgpm3=WATER_DENSITY_KGPM3)
         model.opt.density = model.opt.viscosity = 0.0  # the arm carries no drag (see the module's text)
         self.thrusters = Thrusters(model, self.vehicle.thrusters, robot.base)
+        self.hold = AttitudeHold(self.thrusters, attitude_kp, attitude_kd)
         self.data = mujoco.MjData(model)
         self.body = model.body(robot.base).id
         joint = model.joint(robot.base)
@@ -132,10 +145,12 @@ class Bench:
         self.thrusters.rotor_speed[:] = 0.0
         mujoco.mj_forward(m, d)
 
-    def run(self, thrust_n: np.ndarray, duration_s: float, settle: int | None = None) -> Trace:
+    def run(
+        self, thrust_n: np.ndarray, duration_s: float, settle: int | None = None, attitude: bool = False
+    ) -> Trace:
         """Hold the thrusts `thrust_n` [N] (commanded through the rotors) for `duration_s` [s], or,
         with `settle` (a row of nu), until that velocity and the roll and pitch are steady (at most
-        RUN_MAX_S)."""
+        RUN_MAX_S). `attitude`: with the attitude hold, where it holds an axis (see `commanded`)."""
         m, d = self.model, self.data
         water = np.zeros(3)
         every = round(SAMPLE_S / PHYSICS_STEP_S)
@@ -144,7 +159,8 @@ class Bench:
         steps = round((RUN_MAX_S if settle is not None else duration_s) / PHYSICS_STEP_S)
         for k in range(steps):
             if k % LOW_LEVEL_STEPS == 0:
-                self.thrusters.apply(d, thrust_n, LOW_LEVEL_STEPS * PHYSICS_STEP_S)
+                thrust = self.commanded(thrust_n) if attitude else thrust_n
+                self.thrusters.apply(d, thrust, LOW_LEVEL_STEPS * PHYSICS_STEP_S)
             self.buoyancy.apply(d)
             mujoco.mj_step1(m, d)
             self.fossen.apply(m, d, water)
@@ -159,6 +175,18 @@ class Bench:
                     break
         table = np.array(rows)
         return Trace(table[:, 0], table[:, 1:7], table[:, 7:10])
+
+    def commanded(self, thrust_n: np.ndarray) -> np.ndarray:
+        """The thrusts [N] for `thrust_n`'s wrench on the actuated axes with the hold's roll and pitch
+        moments from the body's attitude now, allocated and scaled into the thrusters' limits together
+        (AttitudeHold.allocate, as the low level does); `thrust_n` itself where nothing is held."""
+        if not self.hold.held:
+            return thrust_n
+        d = self.data
+        rotation = d.xmat[self.body].reshape(3, 3)
+        rates = d.qvel[self.dof + 3 : self.dof + 5]  # the free joint's angular velocity: body frame
+        actuated = self.thrusters.actuated_allocation @ thrust_n
+        return self.hold.allocate(np.r_[actuated, self.hold.moment(rotation, rates)])
 
     def _sample(self) -> list[float]:
         d = self.data
@@ -257,6 +285,7 @@ class Response:
     analytic: float
     settled: bool  # steady before RUN_MAX_S
     heel_rad: float  # the largest roll or pitch on the way [rad]
+    attitude_held: tuple[int, ...] = ()  # the axes the package's attitude hold held (3 roll, 4 pitch)
 
     @property
     def measured(self) -> float:
@@ -269,19 +298,21 @@ class Response:
 
 def open_loop(bench: Bench, axis: int, wrench: float, thrust_n: np.ndarray, net_n: float) -> Response:
     """Hold `thrust_n` [N] (the thrusters' split of `wrench` [N or N m] along `axis`) from rest until
-    the speed along the axis settles; the analytic speed solves d_l u + d_q u|u| = F with F the
-    wrench, the net buoyancy `net_n` [N] added in heave (the vehicle level: body z is the world's)."""
+    the speed along the axis settles, with the bench's attitude hold where it has one; the analytic
+    speed solves d_l u + d_q u|u| = F with F the wrench, the net buoyancy `net_n` [N] added in heave
+    (the vehicle level: body z is the world's)."""
     force = wrench + (net_n if axis == HEAVE else 0.0)
     vehicle = bench.vehicle
     analytic = terminal_speed(
         float(vehicle.linear_damping[axis]), float(vehicle.quadratic_damping[axis]), force
     )
     bench.reset()
-    trace = bench.run(thrust_n, RUN_MAX_S, settle=axis)
+    trace = bench.run(thrust_n, RUN_MAX_S, settle=axis, attitude=True)
     settled = trace.time_s[-1] < RUN_MAX_S - SAMPLE_S / 2
     heel_rad = float(np.abs(trace.rpy_rad[:, :2]).max())
     sign = 1 if wrench > 0 else -1
-    return Response(axis, sign, trace.time_s, trace.nu_body[:, axis], analytic, settled, heel_rad)
+    speed = trace.nu_body[:, axis]
+    return Response(axis, sign, trace.time_s, speed, analytic, settled, heel_rad, bench.hold.held)
 
 
 @dataclass(frozen=True)

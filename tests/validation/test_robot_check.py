@@ -2,7 +2,9 @@
 open-loop speeds and decay periods within their bounds of the analytic ones; a package made heavy,
 or top-heavy, warns in its hydrostatics (exit 1); a broken one exits 2 naming the file and the
 field; the `[published]` figures are held to the simulated ones; the allocation's linear program
-against SciPy's; the command writes its table and its PNG."""
+against SciPy's; the command writes its table and its PNG. The BlueROV2 flies its open-loop runs
+with its package's attitude hold and passes all but its published bollard pulls (robot.toml says
+why); without the hold it heels over in surge."""
 
 from __future__ import annotations
 
@@ -17,24 +19,34 @@ from scipy.optimize import linprog
 
 from abyss.cli import main
 from abyss.common.errors import ConfigError
-from abyss.common.robot import SHIPPED_ROBOT_DIR, load_robot
+from abyss.common.robot import ROBOTS_DIR, SHIPPED_ROBOT_DIR, load_robot
 from abyss.validation.robot_check import (
     CHECKS,
+    HEEL_BOUND_RAD,
     PERIOD_BOUND,
     SPEED_BOUND,
     Report,
+    bench_of,
     check_robot,
     published_rows,
+    response_row,
 )
 from abyss.validation.robot_geometry import largest_along
-from abyss.validation.robot_physics import measured_period_s, terminal_speed
+from abyss.validation.robot_physics import measured_period_s, open_loop, terminal_speed
 
 pytestmark = pytest.mark.timeout(120)
+BLUEROV2_DIR = ROBOTS_DIR / "bluerov2_heavy_alpha5"
+ROLL, PITCH = 3, 4
 
 
 @pytest.fixture(scope="module")
 def shipped() -> Report:
     return check_robot(SHIPPED_ROBOT_DIR)
+
+
+@pytest.fixture(scope="module")
+def bluerov2() -> Report:
+    return check_robot(BLUEROV2_DIR)
 
 
 def package(tmp_path: Path, xml: tuple[str, str] | None = None, toml_extra: str = "") -> Path:
@@ -202,3 +214,75 @@ def test_the_docs_example_is_checked_as_the_page_says(
     heels = [float(r.figures.split("heel ")[1].split(" deg")[0]) for r in surge]
     ratios = [float(r.figures.split("ratio ")[1].split(";")[0]) for r in surge]
     assert min(heels) > 30.0 and all(0.25 < r < 0.45 for r in ratios), (heels, ratios)
+
+
+def ratio_of(row_figures: str) -> float:
+    return float(row_figures.split("ratio ")[1].split(";")[0])
+
+
+def test_the_bluerov2_passes_all_but_its_published_bollard_pulls(bluerov2: Report) -> None:
+    """Blue Robotics publish 9 kgf ahead and to the side; the model's thrusters give the T200 chart's
+    thrust at 16 V (robot.toml's [published] says why both warn, and rightly)."""
+    assert {r.check for r in bluerov2.rows} == set(CHECKS)
+    warned = {(r.check, r.name) for r in bluerov2.rows if r.status == "warn"}
+    assert warned == {("published", "bollard_forward_n"), ("published", "bollard_lateral_n")}
+    assert not bluerov2.passed
+
+
+def test_the_bluerov2_flies_its_open_loop_runs_with_its_attitude_hold(bluerov2: Report) -> None:
+    """Surge, sway, heave and yaw at full thrust, roll and pitch held by robot.toml's gains: steady
+    and level, at the damping's terminal speeds; the decays stay free (held, their period would be
+    the hold's, a second, not the righting moment's 3.5 s)."""
+    assert {(r.axis, r.sign) for r in bluerov2.responses} == {(a, s) for a in (0, 1, 2, 5) for s in (1, -1)}
+    for r in bluerov2.responses:
+        assert r.attitude_held == (ROLL, PITCH)
+        assert r.settled and abs(r.ratio - 1.0) <= SPEED_BOUND and r.heel_rad <= HEEL_BOUND_RAD, r.axis
+    hold = "roll and pitch held by the package's attitude hold (kp 12.5, 12.5 N m/rad, kd 3.5, 3.5 N m s/rad)"
+    runs = [r for r in bluerov2.rows if r.check == "open loop" and "decay" not in r.name]
+    assert len(runs) == 8 and all(r.status == "pass" and hold in r.why for r in runs)
+    for d in bluerov2.decays:
+        assert abs(d.ratio - 1.0) <= PERIOD_BOUND and d.measured_s > 3.0
+    decays = [r for r in bluerov2.rows if r.name.endswith("decay")]
+    assert len(decays) == 2 and not any("held" in r.why for r in decays)
+
+
+def test_the_bluerov2s_published_figures_with_their_ratios(bluerov2: Report) -> None:
+    """robot.toml's [published]: 13.5 kg (von Benzon et al.) and the Alpha 5's 1.36 kg against the
+    model's 15.1 kg (its sea ballast 0.235 kg more); 1 m/s ahead (Blue Robotics) against 0.97; 9 kgf
+    ahead and to the side (Blue Robotics) against 4 x 51.5 N x cos 45 deg ahead and 4 x 40.2 N x
+    cos 45 deg to port (the two pushing astern give 40.2 N, the two ahead match them)."""
+    rows = {r.name: r for r in bluerov2.rows if r.check == "published"}
+    assert set(rows) == {"mass_kg", "surge_max_mps", "bollard_forward_n", "bollard_lateral_n"}
+    assert all("Blue Robotics" in r.why for r in rows.values())
+    surge = next(r for r in bluerov2.responses if (r.axis, r.sign) == (0, 1))
+    expected = {
+        "mass_kg": (bluerov2.hydrostatics.mass_kg / 14.86, "pass"),
+        "surge_max_mps": (surge.measured / 1.0, "pass"),
+        "bollard_forward_n": (4 * 51.5 / math.sqrt(2) / 88.3, "warn"),
+        "bollard_lateral_n": (4 * 40.2 / math.sqrt(2) / 88.3, "warn"),
+    }
+    for name, (ratio, status) in expected.items():
+        assert ratio_of(rows[name].figures) == pytest.approx(ratio, abs=0.006), name
+        assert rows[name].status == status, name
+    assert 1.0 < expected["mass_kg"][0] < 1.03 and 0.95 < expected["surge_max_mps"][0] < 1.0
+
+
+def test_without_its_attitude_gains_the_bluerov2_heels_over_in_surge(
+    tmp_path: Path, bluerov2: Report
+) -> None:
+    """The same package, its attitude_kp/kd struck out: nothing held, the surge run at the same full
+    thrust pitches past the bound (its righting moment is 1.7 N m/rad) and its row warns."""
+    directory = tmp_path / "bluerov2"
+    shutil.copytree(BLUEROV2_DIR, directory, ignore=shutil.ignore_patterns("__pycache__"))
+    toml = directory / "robot.toml"
+    lines = toml.read_text().splitlines(keepends=True)
+    kept = [line for line in lines if not line.startswith(("attitude_kp", "attitude_kd"))]
+    assert len(lines) - len(kept) == 2
+    toml.write_text("".join(kept))
+    bench = bench_of(load_robot(directory))
+    assert bench.hold.held == ()
+    surge = next(a for a in bluerov2.limits if (a.axis, a.sign) == (0, 1))
+    free = open_loop(bench, 0, surge.wrench, surge.thrust_n, bluerov2.hydrostatics.net_n)
+    assert free.attitude_held == () and free.heel_rad > HEEL_BOUND_RAD
+    row = response_row(free)
+    assert row.status == "warn" and "held" not in row.why

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from abyss.common.robot import Robot, added_mass_matrix, robot_spec
+from abyss.common.robot import Robot, added_mass_matrix
 
 BANDWIDTH_PER_S = (1.50, 1.26, 1.26, 2.92)  # surge, sway, heave, yaw: kp / (m + m_A) [1/s]
 INTEGRAL_PER_S = (0.25, 0.25, 0.25, 0.12)  # ki / kp [1/s]
@@ -21,14 +21,11 @@ AXES = (0, 1, 2, 5)  # of the body's six: surge, sway, heave, yaw
 
 def derived_gains(robot: Robot) -> dict[str, Any]:
     """`{"simulation": {"vehicle_kp": [...], "vehicle_ki": [...]}}` for `robot`: its rigid mass
-    (the base with all it carries) and yaw inertia, plus its added mass, times the work-class's
-    bandwidths scaled by the rotors' lag; three significant figures."""
-    model = robot_spec(robot).compile()
-    base = model.body(robot.base).id
-    mass_kg = float(model.body_subtreemass[base])
-    yaw_inertia_kg_m2 = float(model.body_inertia[base][2])
+    (the base with all it carries) and yaw inertia as the package's load measured them, plus its
+    added mass, times the work-class's bandwidths scaled by the rotors' lag; three significant
+    figures."""
     added = added_mass_matrix(robot.spec.added_mass, robot.file).diagonal()
-    rigid = (mass_kg, mass_kg, mass_kg, yaw_inertia_kg_m2)
+    rigid = (robot.mass_kg, robot.mass_kg, robot.mass_kg, robot.yaw_inertia_kg_m2)
     scale = ROTOR_LAG_S / robot.spec.thrusters.time_constant_s
     kp = [scale * w * (m + added[a]) for w, m, a in zip(BANDWIDTH_PER_S, rigid, AXES, strict=True)]
     ki = [scale * r * p for r, p in zip(INTEGRAL_PER_S, kp, strict=True)]

@@ -138,6 +138,8 @@ class Robot:
     # between the fingers' faces with each at zero travel [m]: what a handle of this thickness
     # leaves of the opening where they meet it (the opening is the travel, summed)
     closed_gap_m: float = 0.0
+    mass_kg: float = 0.0  # the base with all it carries (its subtree), as the model compiles it
+    yaw_inertia_kg_m2: float = 0.0  # the base body's own, about its principal z
 
     @property
     def name(self) -> str:
@@ -251,8 +253,14 @@ def _load(directory: Path) -> Robot:
     for check in checks:
         check(model, spec, path)
     allocation = thrust_matrix(model, spec.model.base, spec.thrusters.names, path)
+    base = model.body(spec.model.base).id
     return Robot(
-        directory, spec, actuated_axes(allocation, path), closed_gap_m(model, spec.arm.gripper.joints)
+        directory,
+        spec,
+        actuated_axes(allocation, path),
+        closed_gap_m(model, spec.arm.gripper.joints),
+        float(model.body_subtreemass[base]),
+        float(model.body_inertia[base][2]),
     )
 
 

@@ -10,7 +10,6 @@ import numpy as np
 
 from abyss.common.config import Config
 from abyss.common.errors import ConfigError
-from abyss.common.geometry import rotation_of_rpy
 from abyss.common.robot import robot_of
 from abyss.common.site import site_of
 
@@ -21,15 +20,16 @@ def check_reach(config: Config) -> None:
     if not config.mission.interventions:
         return
     from abyss.stations.onboard.arm_control import ArmKinematics  # Pinocchio's, on first use
+    from abyss.stations.onboard.commands import shoulder_distance_m
 
     robot, panel = robot_of(config), site_of(config).panel
     shoulder_m_vehicle, reach_m = ArmKinematics(robot).reach()
-    x, y, z, yaw = config.mission.waypoints[-1]
-    shoulder_m_world = np.array([x, y, z]) + rotation_of_rpy(0.0, 0.0, yaw) @ shoulder_m_vehicle
+    last = np.asarray(config.mission.waypoints[-1])
+    x, y, z, _ = last
     for i, (part, _) in enumerate(config.mission.interventions):
         pivot, _, grasp = panel.part_geometry(part)
         grasp_m_world = np.add(panel.position_m_world, pivot + grasp)  # the panel's frame: the world's, moved
-        distance_m = float(np.linalg.norm(grasp_m_world - shoulder_m_world))
+        distance_m = shoulder_distance_m(shoulder_m_vehicle, last, grasp_m_world)
         if distance_m > reach_m:
             raise ConfigError(
                 f"mission.interventions[{i}]",

@@ -24,6 +24,16 @@ def box_clearance_m(point_m_world: np.ndarray, box: Box) -> float:
     return float(np.linalg.norm(outside))
 
 
+def shoulder_distance_m(
+    shoulder_m_vehicle: np.ndarray, vehicle_goal: np.ndarray, position_m_world: np.ndarray
+) -> float:
+    """How far `position_m_world` lies from the arm's shoulder with the vehicle holding at
+    `vehicle_goal` (x, y, z [m, world], yaw [rad]) [m]: what an arm goal's reach is judged by."""
+    x, y, z, yaw = vehicle_goal
+    shoulder_m_world = np.array([x, y, z]) + rotation_of_rpy(0.0, 0.0, yaw) @ shoulder_m_vehicle
+    return float(np.linalg.norm(np.asarray(position_m_world) - shoulder_m_world))
+
+
 class CommandGate:
     """Checks operator commands and remembers the ones it took."""
 
@@ -77,9 +87,8 @@ class CommandGate:
     def check_arm(self, position_m_world: np.ndarray, vehicle_goal: np.ndarray) -> str:
         """Why the end-effector cannot reach the goal from where the vehicle will hold; ''
         when it can."""
-        x, y, z, yaw = vehicle_goal
-        shoulder_m_world = np.array([x, y, z]) + rotation_of_rpy(0.0, 0.0, yaw) @ self.shoulder_m_vehicle
-        distance_m = float(np.linalg.norm(position_m_world - shoulder_m_world))
+        x, y, z, _ = vehicle_goal
+        distance_m = shoulder_distance_m(self.shoulder_m_vehicle, vehicle_goal, position_m_world)
         if distance_m > self.reach_m:
             return (
                 f"out of reach: {distance_m:.2f} m from the shoulder where the vehicle will hold "

@@ -264,7 +264,9 @@ def test_the_bluerov2s_published_figures_with_their_ratios(bluerov2: Report) -> 
     for name, (ratio, status) in expected.items():
         assert ratio_of(rows[name].figures) == pytest.approx(ratio, abs=0.006), name
         assert rows[name].status == status, name
-    assert 1.0 < expected["mass_kg"][0] < 1.03 and 0.95 < expected["surge_max_mps"][0] < 1.0
+    # the report's own ratios: the model 2 % over the published mass, its surge 3 % under 1 m/s
+    assert 1.0 < ratio_of(rows["mass_kg"].figures) < 1.03
+    assert 0.95 < ratio_of(rows["surge_max_mps"].figures) < 1.0
 
 
 def test_without_its_attitude_gains_the_bluerov2_heels_over_in_surge(

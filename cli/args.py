@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +41,19 @@ def config_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
     )
     p.add_argument("--seed", type=int)
     package_args(p)
+    p.add_argument(
+        "--hybrid",
+        metavar="TOPICS",
+        help="a hybrid run: a real vehicle provides these outputs of the simulation (e.g. "
+        "nav,joints or nav,joints,sonar: hybrid.vehicle), and the simulation runs as its twin, "
+        "rendering the rest at its pose (docs/hybrid.md)",
+    )
+    p.add_argument(
+        "--site-pose",
+        metavar="X,Y,Z,HEADING_DEG",
+        help="with --hybrid: where the site's origin lies in the real vehicle's navigation frame "
+        "[m] and its x axis's heading there [deg] (hybrid.site_origin_m_nav, site_heading_rad)",
+    )
     p.add_argument(
         "--time",
         choices=TIME_MODES,
@@ -96,6 +111,12 @@ def load_config(
     for name, field in (("robot", "simulation.robot"), ("site", "simulation.site")):
         if getattr(args, name, ""):
             option(f"--{name}", field, getattr(args, name))
+    if getattr(args, "hybrid", None):
+        option("--hybrid", "hybrid.vehicle", json.dumps(args.hybrid.split(",")))
+    if getattr(args, "site_pose", None):
+        x, y, z, heading_rad = site_pose(args.site_pose)
+        option("--site-pose", "hybrid.site_origin_m_nav", json.dumps([x, y, z]))
+        option("--site-pose", "hybrid.site_heading_rad", heading_rad)
     if args.time is not None:
         option("--time", "time.mode", args.time)
     if getattr(args, "time_speed", None) is not None:
@@ -105,6 +126,15 @@ def load_config(
     for station, cores in pairs("--cpu", getattr(args, "cpu", [])):
         option("--cpu", f"cpu.{keys.check_station(station)}", cores)
     return load(args.config or default, overrides, base=base, options=options)
+
+
+def site_pose(text: str) -> tuple[float, float, float, float]:
+    """--site-pose X,Y,Z,HEADING_DEG: the origin [m] and the heading [rad]."""
+    try:
+        x, y, z, heading_deg = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError("--site-pose", f"{text!r} is not X,Y,Z,HEADING_DEG (four numbers)") from None
+    return x, y, z, math.radians(heading_deg)
 
 
 def profile_args(p: argparse.ArgumentParser) -> None:

@@ -20,6 +20,7 @@ from abyss.cli.args import (
 )
 from abyss.common import keys
 from abyss.common.config import Config
+from abyss.common.config.hybrid import ROS2_VEHICLE
 from abyss.common.config.stations import VIEWERS, Viewer
 from abyss.common.config.system import RECORD_LEVELS, ROS2_STATIONS
 from abyss.common.errors import ConfigError
@@ -55,7 +56,10 @@ def up_config(args: argparse.Namespace, config: Config) -> Config:
     if ros2:
         if "station" not in ros2 and not config.ros2.station:
             raise ConfigError("--ros-domain/--ros-namespace", "need --ros2 STATION")
-        config = dataclasses.replace(config, ros2=dataclasses.replace(config.ros2, **ros2))
+        hybrid = config.hybrid
+        if ros2.get("station") == "simulation" and not hybrid.on:  # the node is a real vehicle
+            hybrid = dataclasses.replace(hybrid, vehicle=ROS2_VEHICLE)
+        config = dataclasses.replace(config, ros2=dataclasses.replace(config.ros2, **ros2), hybrid=hybrid)
     return config
 
 
@@ -149,8 +153,11 @@ def cmd_certs_make(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_keys(_args: argparse.Namespace) -> int:
-    print(keys.keys_table())
+def cmd_keys(args: argparse.Namespace) -> int:
+    """The key table; with a hybrid configuration (--hybrid, or --config a run's config.json),
+    who provides each key in that run."""
+    hybrid = load_config(args).hybrid
+    print(keys.keys_table(hybrid.providers() if hybrid.on else None))
     return 0
 
 
@@ -159,7 +166,8 @@ def add_commands(sub: Any) -> None:
     _add_station(sub)
     _add_health(sub)
     _add_certs(sub)
-    p = sub.add_parser("keys", help="print the table of every key")
+    p = sub.add_parser("keys", help="print the table of every key (and who provides it in a hybrid run)")
+    config_args(p, speed=False)
     p.set_defaults(func=cmd_keys)
 
 

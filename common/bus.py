@@ -200,7 +200,7 @@ class Bus:
         self.on_arrival: Callable[[], None] = lambda: None
         self.lockstep: Any = None  # the station's periods, with --time lockstep (common.lockstep.Lockstep)
         self.realtime = Realtime(0)  # the station's scheduling (the simulation's physics asks for more)
-        self.about: dict[str, str] = {}  # what the station says of itself (the simulation: its physics)
+        self.about: dict[str, Any] = {}  # what the station says of itself (the simulation: its physics)
 
     def route(self, hop: str, egress: Egress) -> None:
         """Send what goes across `hop` through `egress` (the testbed's link emulator), which

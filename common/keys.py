@@ -302,18 +302,32 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
 )
 
 
-def keys_table() -> str:
-    """The Markdown table of every key; `abyss keys` prints it, docs/links.md holds it."""
+PROVIDERS = {"vehicle": "the real vehicle", "twin": "the twin (simulation)"}
+
+
+def keys_table(providers: dict[str, str] | None = None) -> str:
+    """The Markdown table of every key; `abyss keys` prints it, docs/links.md holds it. With a
+    hybrid run's `providers` (simulation topic -> "vehicle" or "twin": HybridConfig.providers), a
+    column says who provides each data key in that run."""
+    extra = " provided by |" if providers else ""
     rows = [
-        "| key | message | rate | reliability | priority | hop |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| key | message | rate | reliability | priority | hop |" + extra,
+        "| --- | --- | --- | --- | --- | --- |" + (" --- |" if providers else ""),
     ]
     for s in KEYS:
         rate = f"{s.rate_hz:g} Hz" if s.rate_hz else "event"
+        by = (
+            PROVIDERS.get(providers.get(s.topic, ""), s.station)
+            if providers and s.station == "simulation"
+            else s.station
+        )
         rows.append(
             f"| `abyss/<system>/{s.station}/{s.topic}` | {s.message} | {rate} | {s.reliability} "
-            f"| {s.priority} | {s.hop} ({s.station} -> {s.to}) |"
+            f"| {s.priority} | {s.hop} ({s.station} -> {s.to}) |" + (f" {by} |" if providers else "")
         )
     for pattern, message, rate, note in CONTROL_KEYS:
-        rows.append(f"| `{pattern}` | {message} | {rate} | reliable | - | none: {note} |")
+        rows.append(
+            f"| `{pattern}` | {message} | {rate} | reliable | - | none: {note} |"
+            + (" testbed |" if providers else "")
+        )
     return "\n".join(rows)

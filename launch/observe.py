@@ -24,7 +24,7 @@ from abyss.common.messages import MissionStatus, NavState, PanelState, Simulatio
 from abyss.common.site import site_of
 from abyss.launch.control_record import ControlRecorder
 from abyss.launch.station import station_recorder
-from abyss.launch.verdict import NavError, interventions_summary
+from abyss.launch.verdict import NavError, hybrid_interventions, interventions_summary
 from abyss.recording.store import TESTBED, Recorder
 
 # a restarted station is back when its session is up and, for these, once its output is seen
@@ -165,8 +165,12 @@ class Heard:
         down.down_s = round(time.monotonic() - down.died_s, 3)
 
     def interventions(self, config: Config) -> list[dict[str, Any]]:
+        if config.hybrid.on:  # the truth is the real world's
+            return hybrid_interventions(config.mission, self.mission)
         start, last = self.panel if self.panel else (None, None)
         return interventions_summary(config.mission, site_of(config).panel, start, last)
 
     def interventions_true(self, config: Config) -> bool:
-        return all(i["success"] for i in self.interventions(config))
+        """The mission's interventions done in the simulation's truth; a hybrid run has none to
+        judge by, and shore's status (onboard's measurement) decides alone."""
+        return config.hybrid.on or all(i["success"] for i in self.interventions(config))

@@ -16,7 +16,7 @@ from abyss.launch.cpu import CpuCaps
 from abyss.launch.observe import Heard
 from abyss.launch.start import Station
 from abyss.launch.supervise import Supervisor
-from abyss.launch.verdict import control_summary, read_json, verdict_of
+from abyss.launch.verdict import HYBRID_JUDGE, control_summary, read_json, verdict_of
 
 COUNTS = ("sent", "received", "rejected", "latency_ms", "cpu", "shed", "loops")  # from a status file
 
@@ -74,6 +74,24 @@ def time_summary(config: Config, supervisor: Supervisor, heard: Heard) -> dict[s
     }
 
 
+def hybrid_summary(config: Config) -> dict[str, Any] | None:
+    """A hybrid run: who provided each output of the simulation, the site's registration, and
+    which verdicts the truth cannot give; None for an all-simulated run."""
+    hybrid = config.hybrid
+    if not hybrid.on:
+        return None
+    return {
+        "providers": hybrid.providers(),
+        "vehicle_via": "ros2" if config.ros2.station == "simulation" else "abyss keys",
+        "site_origin_m_nav": list(hybrid.site_origin_m_nav),
+        "site_heading_rad": hybrid.site_heading_rad,
+        "unavailable": {
+            "interventions": HYBRID_JUDGE,
+            "navigation": "no truth to measure onboard's navigation against: the vehicle's is the only one",
+        },
+    }
+
+
 @dataclasses.dataclass(frozen=True)
 class Ending:
     """How the run ended, as the supervisor knows it once every station stopped."""
@@ -119,6 +137,7 @@ def run_summary(
         "external": list(supervisor.external),
         "control": control_summary(heard.record.last if heard.record else None),
         "navigation": heard.nav_error.summary(),  # onboard's position error [m]
+        "hybrid": hybrid_summary(config),
         "interventions": heard.interventions(config),
         "simulation": dataclasses.asdict(heard.simulation) if heard.simulation else None,
         "scene": read_json(out_dir / "scene.json"),

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from abyss.common.config.system import MissionConfig
-from abyss.common.messages import PanelState, Telemetry
+from abyss.common.messages import MissionStatus, PanelState, Telemetry
 from abyss.common.models.panel import Panel
 from abyss.launch.state import Verdict
 
@@ -133,6 +133,23 @@ def interventions_summary(
     return judged
 
 
+HYBRID_JUDGE = (
+    "unavailable: a hybrid run, whose truth is the real world; judged on shore by onboard's "
+    "measurement and the vessel's vision"
+)
+
+
+def hybrid_interventions(mission: MissionConfig, status: MissionStatus | None) -> list[dict[str, Any]]:
+    """A hybrid run's interventions: no truth judges them (success None); shore's mission status
+    says which onboard reported done, by its own measurement of the part through the vessel's
+    vision."""
+    done = status.interventions_done if status is not None else 0
+    return [
+        {"part": part, "truth_deg": None, "success": None, "done_on_shore": i < done, "truth": HYBRID_JUDGE}
+        for i, (part, _amount) in enumerate(mission.interventions)
+    ]
+
+
 def deadlines_text(loops: dict[str, dict[str, Any]]) -> str:
     """The share of deadlines met by a station's worst loop, and its name."""
     if not loops:
@@ -144,6 +161,7 @@ def deadlines_text(loops: dict[str, dict[str, Any]]) -> str:
 def render_summary(summary: dict[str, Any]) -> str:
     """The screen of text `abyss up` ends with, one section after the other."""
     sections = (
+        _hybrid_lines,
         _stations_lines,
         _restart_lines,
         _link_lines,
@@ -180,6 +198,25 @@ def _station_line(name: str, s: dict[str, Any]) -> str:
         + (f"  restarted {s['restarts']}x" if s["restarts"] else "")
         + ("  its stop was cut at 5 s (stacks in its log)" if s.get("stop_cut") else "")
     )
+
+
+def _hybrid_lines(summary: dict[str, Any]) -> list[str]:
+    hybrid = summary.get("hybrid")
+    if not hybrid:
+        return []
+    by = {who: [t for t, p in hybrid["providers"].items() if p == who] for who in ("vehicle", "twin")}
+    twin = summary["stations"].get("simulation", {}).get("twin", {})
+    delay = (
+        f", {twin['nav_to_frame_p50_ms']:.0f} ms from navigation to frame (median)"
+        if twin.get("frames")
+        else ""
+    )
+    return [
+        f"  hybrid: the real vehicle provided {', '.join(by['vehicle'])} ({hybrid['vehicle_via']}); the "
+        f"twin rendered {', '.join(by['twin'])}: {twin.get('frames', 0)} frame sets{delay}, "
+        f"{twin.get('withheld', 0)} withheld (navigation missing or stale)",
+        "  truth-based verdicts unavailable: the truth is the real world's",
+    ]
 
 
 def _stations_lines(summary: dict[str, Any]) -> list[str]:
@@ -244,6 +281,12 @@ def _mission_lines(summary: dict[str, Any]) -> list[str]:
         )
     ]
     for i in summary.get("interventions", []):
+        if "done_on_shore" in i:  # a hybrid run
+            lines.append(
+                f"  intervention: {i['part']} {'done' if i['done_on_shore'] else 'NOT DONE'} on shore; "
+                f"the simulation's truth {i['truth']}"
+            )
+            continue
         truth = "no truth" if i["truth_deg"] is None else f"{i['truth_deg']:.1f} deg"
         lines.append(
             f"  intervention (simulation's truth): {i['part']} at {truth}, target "

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from abyss.common import keys
+from abyss.common.config.hybrid import ROS2_VEHICLE, HybridConfig
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.config.stations import OnboardConfig, OnshoreConfig, VesselConfig
 from abyss.common.config.system import (
@@ -44,6 +45,7 @@ class Config:
     ros2: Ros2Config = field(default_factory=Ros2Config)
     cpu: CpuConfig = field(default_factory=CpuConfig)
     time: TimeConfig = field(default_factory=TimeConfig)
+    hybrid: HybridConfig = field(default_factory=HybridConfig)
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)
@@ -60,6 +62,26 @@ class Config:
                 "time.mode",
                 "sim: a ROS 2 node (ros2.station, --ros2) runs on the wall clock; use --time real with it",
             )
+        self._check_hybrid()
+
+    def _check_hybrid(self) -> None:
+        """A real vehicle runs on the wall clock; a ROS 2 node in the simulation's place is the
+        real vehicle of a hybrid run, and provides what the gateway parses (its navigation, its joints)."""
+        hybrid = self.hybrid
+        if hybrid.on and self.time.simulated:
+            raise ConfigError(
+                "time.mode",
+                f"{self.time.mode}: a real vehicle (hybrid.vehicle, --hybrid) runs on the wall clock; "
+                "use --time real",
+            )
+        if self.ros2.station == "simulation":
+            parsed = ROS2_VEHICLE
+            if not hybrid.on or not set(hybrid.vehicle) <= set(parsed):
+                raise ConfigError(
+                    "hybrid.vehicle",
+                    f"{', '.join(hybrid.vehicle) or 'none'}: a ROS 2 node in the simulation's place (--ros2 "
+                    f"simulation) is a hybrid run's real vehicle, and provides {', '.join(parsed)} at most",
+                )
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2)

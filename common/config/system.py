@@ -148,7 +148,7 @@ class TimeConfig:
 
 
 # the stations a ROS 2 node can stand for (ros2.gateway); "": none
-Ros2Station = Literal["", "onboard", "vessel"]
+Ros2Station = Literal["", "onboard", "vessel", "simulation"]
 ROS2_STATIONS: tuple[Ros2Station, ...] = typing.get_args(Ros2Station)[1:]
 _ROS_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]*)+$")
 

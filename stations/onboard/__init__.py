@@ -27,12 +27,12 @@ from abyss.common.messages import (
     SonarImage,
     Waypoints,
 )
+from abyss.common.navigation import PoseHistory
 from abyss.common.rate import Rate
 from abyss.common.robot import robot_of
 from abyss.common.shared import Latest
 from abyss.common.workers import Workers
 from abyss.stations.onboard.core import Onboard, OnboardInputs
-from abyss.stations.onboard.navigation import PoseHistory
 
 log = logging.getLogger(__name__)
 

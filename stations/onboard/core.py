@@ -30,6 +30,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
+from abyss.common.navigation import NavFilter
 from abyss.common.robot import robot_of
 from abyss.common.site import site_of
 from abyss.stations.onboard.arm_control import ArmController, ArmOutput
@@ -37,7 +38,6 @@ from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
 from abyss.stations.onboard.intervention import Grip, InterventionRun
 from abyss.stations.onboard.modes import ControlMode, Mode
-from abyss.stations.onboard.navigation import NavFilter
 from abyss.stations.onboard.vehicle_control import ControlOutput, VehicleController
 
 GRIPPER_GAIN_PER_S = 2.0

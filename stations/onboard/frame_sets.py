@@ -25,8 +25,8 @@ from abyss.common.errors import BadInput
 from abyss.common.images import decode_image, encode_jpeg
 from abyss.common.messages import Image, PointCloud
 from abyss.common.models import stereo_set
+from abyss.common.navigation import PoseHistory
 from abyss.common.robot import CamerasSection
-from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
 INCOMPLETE_KEPT = 4  # sets that never complete (a frame lost): the newest this many are kept

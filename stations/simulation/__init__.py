@@ -37,6 +37,7 @@ from abyss.common.workers import Realtime, Workers
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.offload import SensorKind
+    from abyss.stations.simulation.twin import Twin
     from abyss.stations.simulation.world import World
 
 STATUS_PERIOD_S = 1.0
@@ -52,11 +53,18 @@ def loops(config: Config) -> tuple[str, ...]:
 
 
 def run(config: Config, bus: Bus) -> None:
+    """The station: the whole simulation, or in a hybrid run (`hybrid.vehicle`) the twin of a
+    real vehicle (twin.py)."""
     sim = config.simulation
     if sim.camera_rate_hz > 0:
         from abyss.stations.simulation.rendering import choose_gl_backend
 
         choose_gl_backend()  # before MuJoCo is imported
+    if config.hybrid.on:
+        from abyss.stations.simulation import twin
+
+        twin.run(config, bus)
+        return
     from abyss.stations.simulation.world import World
 
     world = World(sim, np.random.default_rng(config.seed))
@@ -73,7 +81,7 @@ def run(config: Config, bus: Bus) -> None:
         )
         for kind, rate_hz in sensors:
             if rate_hz > 0:
-                workers.start(kind, _sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
+                workers.start(kind, sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
         _physics_loop(config, bus, world, lock, blackout)
 
 
@@ -260,17 +268,19 @@ class Timekeeper:
             self.holdback.close()
 
 
-def _sensor_loop(
+def sensor_loop(
     config: Config,
     bus: Bus,
-    world: World,
+    world: World | Twin,
     lock: threading.Lock,
     blackout: set[str],
     kind: SensorKind,
     rate_hz: float,
+    twin: Twin | None = None,
 ) -> None:
     """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics
-    state, in a process of its own (stations.simulation.offload)."""
+    state, in a process of its own (stations.simulation.offload). A hybrid run's `twin`: only
+    what it provides, and nothing while its navigation is missing or stale."""
     from abyss.stations.simulation.offload import Offloaded, state_of
 
     stream = {"cameras": 1, "sonar": 2}[kind]  # the sensor's own random stream: snow, speckle, noise
@@ -279,11 +289,18 @@ def _sensor_loop(
     try:
         while rate.sleep():
             with lock:
+                if twin is not None and twin.why_not(bus.clock.now_s()):
+                    twin.withheld += 1
+                    continue
                 state = state_of(world.data)
+                placed_s = twin.nav_arrived_s if twin is not None else None
+            cameras = cameras_of_set(config, state["time"])
             for topic, message in sensor.messages(
-                state, blackout, cameras_of_set(config, state["time"]), world.robot
+                state, blackout, twin.cameras(cameras) if twin is not None else cameras, world.robot
             ):
                 bus.publish(topic, message)
+            if twin is not None and placed_s is not None:
+                twin.delay_s.add(bus.clock.now_s() - placed_s)
     finally:
         sensor.close()
 

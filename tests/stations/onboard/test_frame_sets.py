@@ -16,9 +16,9 @@ from abyss.common.config.simulation import SimulationConfig
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.images import decode_image
 from abyss.common.messages import Image
+from abyss.common.navigation import PoseHistory
 from abyss.common.robot import robot_at
 from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets
-from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.simulation import cameras_of_set
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras

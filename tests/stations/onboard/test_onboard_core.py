@@ -17,9 +17,9 @@ from abyss.common.messages import (
     decode,
     encode,
 )
+from abyss.common.navigation import SETTLE_FIXES
 from abyss.linkemu.link import Link
 from abyss.stations.onboard.core import Onboard, OnboardInputs
-from abyss.stations.onboard.navigation import SETTLE_FIXES
 
 STEP_S = 0.05
 

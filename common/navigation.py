@@ -1,4 +1,6 @@
-"""The onboard navigation estimate. Horizontally, the DVL's velocity is integrated in the world
+"""The navigation estimate from a vehicle's sensors (`simulation/nav`): onboard steers by it, and a
+hybrid run's twin (stations/simulation/twin.py) renders from it, so that both place what the
+cameras see alike. Horizontally, the DVL's velocity is integrated in the world
 frame (dead reckoning) and each USBL fix corrects it as a Kalman filter weighs the two: the
 fix's noise against what the integration has gathered since. A fix arrives a fraction of a
 second after it was taken: it is compared with the estimate of that moment, kept in a short

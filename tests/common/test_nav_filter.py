@@ -11,7 +11,7 @@ import pytest
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.config.stations import OnboardConfig
 from abyss.common.messages import NavState
-from abyss.stations.onboard.navigation import RESET_AFTER_REJECTED, SETTLE_FIXES, NavFilter
+from abyss.common.navigation import RESET_AFTER_REJECTED, SETTLE_FIXES, NavFilter
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 

@@ -49,7 +49,7 @@ def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
         ("vessel.octree_resolution_m=0.001", "vessel.octree_resolution_m"),
         ("vessel.recognition_bias_m=[0, 0, 2]", "vessel.recognition_bias_m"),
         ("vessel.recognition_bias_m=[0, 0]", "vessel.recognition_bias_m"),
-        ("ros2.station=simulation", "hybrid.vehicle"),  # a ROS 2 vehicle: a hybrid run, which says what it provides
+        ("ros2.station=simulation", "hybrid.vehicle"),  # a ROS 2 vehicle: a hybrid run says what it gives
         ("ros2.station=shore", "ros2.station"),
         ("ros2.domain=233", "ros2.domain"),
         ("ros2.namespace=abyss", "ros2.namespace"),

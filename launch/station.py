@@ -28,7 +28,7 @@ from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
 from abyss.common.lockstep import Lockstep, LockstepClock
 from abyss.common.messages import repeatable_ids
-from abyss.common.workers import children_cpu_s, loops_first
+from abyss.common.workers import Workers, children_cpu_s, loops_first
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
 
@@ -57,13 +57,16 @@ def station_entry(name: str) -> Callable[[Config, Any], None]:
 
 def station_main(name: str, config: Config) -> Callable[[Config, Any], None]:
     """What runs in station `name`'s shell: the station's `run(config, bus)`, or with
-    `ros2.station` naming it (onboard or the vessel, as the config allows), the ROS 2 gateway
-    (abyss.ros2.gateway): in onboard's place, or beside the vessel, whose scene model then
-    adopts each map the ROS 2 node publishes."""
+    `ros2.station` naming it (onboard, the vessel or the simulation, as the config allows), the
+    ROS 2 gateway (abyss.ros2.gateway): in onboard's place; beside the vessel, whose scene model
+    then adopts each map the ROS 2 node publishes; or beside the simulation's twin, the node
+    being a real vehicle's driver (a hybrid run)."""
     if config.ros2.station != name:
         return station_entry(name)
     if name == "vessel":
         return _vessel_with_gateway
+    if name == "simulation":
+        return _twin_with_gateway
     from abyss.ros2 import gateway
 
     return gateway.run
@@ -79,6 +82,22 @@ def _vessel_with_gateway(config: Config, bus: Bus) -> None:
         return Gateway(config, bus, on_up={"scene": adopt})
 
     vessel.run(config, bus, mapper=mapper)
+
+
+def _twin_with_gateway(config: Config, bus: Bus) -> None:
+    """The simulation with a real vehicle's ROS 2 driver (`--ros2 simulation`, a hybrid run): the
+    gateway, in a worker, puts the driver's navigation and joints on the simulation's keys (to
+    onboard, and to the twin, which takes them from its own session) and hands it the velocity
+    commands; the station runs as usual, which in a hybrid run is the twin."""
+    from abyss.ros2.gateway import Gateway
+
+    gateway = Gateway(config, bus)
+    try:
+        with Workers(bus.stop) as workers:
+            workers.start("ros2 gateway", gateway.run)
+            station_entry("simulation")(config, bus)
+    finally:
+        gateway.close()
 
 
 class Shell:

@@ -1,6 +1,8 @@
 """Back from ROS 2: what a ROS 2 node publishes in a station's place (the gateway), as abyss
-messages. Each: (ROS 2 message, session) -> abyss message, or None when it leaves nothing to send
-yet; BadInput names what is wrong with it."""
+messages: onboard's commands, telemetry and clouds, the vessel's map, and a real vehicle's
+navigation and joints (its driver in the simulation's place, a hybrid run). Each: (ROS 2 message,
+session) -> abyss message, or None when it leaves nothing to send yet; BadInput names what is
+wrong with it."""
 
 from __future__ import annotations
 
@@ -15,7 +17,9 @@ from abyss.common.geometry import rotation_of, wrap_rad, yaw_of
 from abyss.common.messages import (
     MODES,
     ArmVelocityRef,
+    JointState,
     Message,
+    NavState,
     PointCloud,
     SceneUpdate,
     Telemetry,
@@ -35,6 +39,79 @@ Parse = Callable[[Any, Session], Message | None]
 def _frame(head: Any, allowed: str) -> None:
     if head.frame_id not in ("", allowed):
         raise BadInput(f"frame_id {head.frame_id!r}, expected {allowed!r}")
+
+
+def _stamp_s(head: Any) -> float:
+    """A header's stamp [s]: exactly the time `msgs.ros_time` was given, where that was on whole
+    nanoseconds."""
+    return (int(head.stamp.sec) * 10**9 + int(head.stamp.nanosec)) / 1e9
+
+
+def _finite(what: str, values: Any) -> None:
+    if not np.isfinite(np.asarray(values, dtype=np.float64)).all():
+        raise BadInput(f"{what} not finite")
+
+
+def odometry_in(msg: Any, session: Session) -> NavState:
+    """A real vehicle's navigation as its driver fuses it: nav_msgs/Odometry in `world` with child
+    `base_link` (`motion.odometry`'s frames: the pose in the world, the twist in the body). A fused
+    navigation fixes every sample, so the fix's time (`usbl_time_s`) is the header's stamp, as is
+    `sim_time_s`; the depth is -z and the DVL taken as locked, which Odometry cannot say."""
+    _frame(msg.header, WORLD)
+    if msg.child_frame_id not in ("", BASE_LINK):
+        raise BadInput(f"child_frame_id {msg.child_frame_id!r}, expected {BASE_LINK!r} (the twist's frame)")
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    linear, angular = msg.twist.twist.linear, msg.twist.twist.angular
+    position = np.array([p.x, p.y, p.z], dtype=np.float64)
+    orientation = np.array([q.w, q.x, q.y, q.z], dtype=np.float64)
+    _finite("the pose is", [*position, *orientation])
+    _finite("the twist is", [linear.x, linear.y, linear.z, angular.x, angular.y, angular.z])
+    norm = float(np.linalg.norm(orientation))
+    if abs(norm - 1.0) > 1e-3:
+        raise BadInput(f"the pose's orientation is not a unit quaternion (norm {norm:.4f})")
+    stamp_s = _stamp_s(msg.header)
+    return NavState(
+        position,
+        orientation,
+        np.array([linear.x, linear.y, linear.z]),
+        np.array([angular.x, angular.y, angular.z]),
+        stamp_s,
+        usbl_time_s=stamp_s,
+        depth_m=float(-p.z),
+        dvl_valid=True,
+    )
+
+
+def joint_state_in(msg: Any, session: Session) -> JointState:
+    """The arm's joints by their names (the robot's, in any order) and the gripper's opening: its
+    finger joints' positions summed (as the simulation defines it; `motion.joint_state` puts each
+    finger at its share), within [0, 1] m. Velocities where the message has them, else 0 (as for
+    a finger's NaN: not measured). Other joints are ignored; the effort does not cross (the
+    gripper's force is 0)."""
+    robot = session.robot
+    names = [str(name) for name in msg.name]
+    positions = np.asarray(msg.position, dtype=np.float64)
+    velocities = np.asarray(msg.velocity, dtype=np.float64)
+    if len(positions) != len(names) or len(velocities) not in (0, len(names)):
+        raise BadInput(f"{len(names)} names, {len(positions)} positions and {len(velocities)} velocities")
+    index = {name: i for i, name in enumerate(names)}
+    missing = [name for name in (*robot.arm_joints, *robot.gripper_joints) if name not in index]
+    if missing:
+        raise BadInput(
+            f"no joint {', '.join(missing)} in the message (it names {', '.join(names) or 'none'})"
+        )
+    arm = [index[name] for name in robot.arm_joints]
+    fingers = [index[name] for name in robot.gripper_joints]
+    _finite("the joints' positions are", positions[arm + fingers])
+    speeds = (
+        np.where(np.isnan(velocities[arm]), 0.0, velocities[arm]) if len(velocities) else np.zeros(len(arm))
+    )
+    return JointState(
+        positions[arm],
+        speeds,
+        float(np.clip(positions[fingers].sum(), 0.0, 1.0)),
+        _stamp_s(msg.header),
+    )
 
 
 def twist_in(msg: Any, session: Session) -> VelocityRef:

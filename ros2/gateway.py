@@ -1,20 +1,26 @@
-"""The ROS 2 gateway: a ROS 2 node stands for a station (`abyss up --ros2 onboard|vessel`), met
-on the wire it speaks with RMW_IMPLEMENTATION=rmw_zenoh_cpp (`ros2.rmw`), with no ROS on
-abyss's side. It runs in the station's shell, so its abyss side is the station's: the same
-keys, links, recording and liveliness token; its ROS 2 side is a Zenoh router of its own
-(rmw_zenohd's endpoint, `ros2.listen`) or a session joined to one (`ros2.connect`). Which keys
-cross is `types.gateway_keys`: all of onboard's; the vessel's scene model only (the vessel
-station runs with the node's map in place of its own octree).
+"""The ROS 2 gateway: a ROS 2 node stands for a station (`abyss up --ros2
+onboard|vessel|simulation`), met on the wire it speaks with RMW_IMPLEMENTATION=rmw_zenoh_cpp
+(`ros2.rmw`), with no ROS on abyss's side. It runs in the station's shell, so its abyss side is
+the station's: the same keys, links, recording and liveliness token; its ROS 2 side is a Zenoh
+router of its own (rmw_zenohd's endpoint, `ros2.listen`) or a session joined to one
+(`ros2.connect`). Which keys cross is `types.gateway_keys`: all of onboard's; the vessel's scene
+model only (the vessel station runs with the node's map in place of its own octree); for the
+simulation, a real vehicle's driver in a hybrid run (its navigation and joints up, the velocity
+commands down), beside the twin, which renders the sensors at the vehicle's pose.
 
 - Down to the node, by the table of `ros2.types`: each message on each of its key's ROS 2
   topics (the navigation as Odometry and /tf; joints; camera images and their CameraInfo; the
-  goals; the heartbeat; clouds), /clock with the latest simulated time handed over, and
-  /tf_static (transient local) with the arm's fixed links and each camera's mounting.
+  goals; the heartbeat; clouds; the velocity commands), /clock with the latest simulated time
+  handed over, and /tf_static (transient local) with the arm's fixed links and each camera's
+  mounting. A vehicle's driver keeps its own time and frames (`types.OWN_TIME_AND_FRAMES`): it
+  is handed neither /clock nor /tf_static, and the commands are stamped with the latest time its
+  navigation or joints stated.
 - Up from the node: each topic the table can parse back (the velocity references; the telemetry
-  from the node's diagnostics and tool pose; clouds; the map), validated (type, type hash,
-  attachment, CDR, the abyss message's bounds); a sample that fails is dropped, counted on its
-  topic's key in the station's `rejected` and logged once. What is valid goes out on the
-  station's key, or to the station's own handler of it (the vessel's scene model).
+  from the node's diagnostics and tool pose; clouds; the map; a vehicle's navigation and joints),
+  validated (type, type hash, attachment, CDR, frames, the abyss message's bounds); a sample that
+  fails is dropped, counted on its topic's key in the station's `rejected` and logged once. What
+  is valid goes out on the station's key (a vehicle's navigation and joints so reach onboard and
+  the twin alike), or to the station's own handler of it (the vessel's scene model).
 - The operator's commands: the node has no command ids, so the gateway answers for it. A
   command is handed over once a ROS 2 subscriber of its topic is known, then acknowledged as
   taken; until then it waits for shore's next send, and a command sent again is answered the
@@ -35,7 +41,17 @@ from abyss.common import keys
 from abyss.common.bus import Bus, Inbox, open_session, zenoh_config
 from abyss.common.config import Config
 from abyss.common.errors import BadInput
-from abyss.common.messages import ArmGoal, CommandAck, Image, Message, OperatorMode, Telemetry, Waypoints
+from abyss.common.messages import (
+    ArmGoal,
+    CommandAck,
+    Image,
+    JointState,
+    Message,
+    NavState,
+    OperatorMode,
+    Telemetry,
+    Waypoints,
+)
 from abyss.common.rate import Rate
 from abyss.common.robot import robot_of
 from abyss.ros2 import motion, msgs, rmw, status, types
@@ -101,9 +117,14 @@ class Gateway:
                     functools.partial(self._up, spec, t),
                     bus.reject,
                 )
-        self.clock = self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", msgs.CLOCK_QOS)
+        own = bus.station in types.OWN_TIME_AND_FRAMES  # a vehicle's driver: its own clock and frames
+        self.clock = (
+            None if own else self.node.publisher(types.CLOCK, "rosgraph_msgs/msg/Clock", msgs.CLOCK_QOS)
+        )
         self.clock_s = -1.0
-        self.static = self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
+        self.static = (
+            None if own else self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
+        )
         self.camera_mounts: dict[str, np.ndarray] = {}
         self._publish_static()
         log.info(
@@ -116,7 +137,7 @@ class Gateway:
             self.node.zid,
             list(cfg.listen),
             list(cfg.connect),
-            len(self.publishers) + 2,
+            len(self.publishers) + sum(p is not None for p in (self.clock, self.static)),
             sum(isinstance(e, rmw.Subscription) for e in self.node.endpoints),
         )
 
@@ -147,7 +168,7 @@ class Gateway:
                     continue
                 if converted is not None:
                     self.publishers[self.topic(spec, t)].put(msgs.serialize(converted))
-            if self.convert.sim_time_s > self.clock_s:
+            if self.clock is not None and self.convert.sim_time_s > self.clock_s:
                 self.clock_s = self.convert.sim_time_s
                 clock = status.clock(None, msgs.header(self.clock_s, ""), self.convert)
                 self.clock.put(msgs.serialize(clock))
@@ -162,6 +183,8 @@ class Gateway:
     def _publish_static(self) -> None:
         """/tf_static: the arm's fixed links and the cameras mounted so far, all in one message
         (the cache of a transient local publisher of depth 1 keeps the last)."""
+        if self.static is None:
+            return
         with self._lock:
             static = motion.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
         self.static.put(msgs.serialize(static))
@@ -203,6 +226,8 @@ class Gateway:
         try:
             with self._lock:
                 message = t.parse(ros_message, self.convert)
+                if isinstance(message, NavState | JointState):  # a vehicle's: the commands' stamps
+                    self.convert.handed(message)
             if message is not None and handler is not None:
                 handler(message)
         except BadInput as exc:

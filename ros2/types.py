@@ -2,8 +2,9 @@
 and the conversion of each message to a message of the standard type (`ros2.motion`,
 `ros2.sensing`, `ros2.status`, on the building blocks of `ros2.msgs`: rosbags' typestore, ROS 2
 Jazzy, plus `octomap_msgs/Octomap`), and back (`ros2.from_ros`) for what a ROS 2 node publishes in
-a station's place. The MCAP export (`ros2.mcap`) writes by it; the ROS 2 gateway (`ros2.gateway`)
-publishes and subscribes by it.
+a station's place (onboard's commands, telemetry and clouds; the vessel's map; a real vehicle's
+navigation and joints, its driver in the simulation's place). The MCAP export (`ros2.mcap`) writes
+by it; the ROS 2 gateway (`ros2.gateway`) publishes and subscribes by it.
 
 Frames (REP 103, REP 105):
 - `world`: abyss's world frame, z up, x towards the panel, taken as ENU with x east and y north.
@@ -27,6 +28,7 @@ stamp mapped to simulated time by the caller (`stamp_of`); /clock carries the si
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -34,6 +36,7 @@ from typing import Any
 from rosbags.interfaces import Qos, QosDurability
 
 from abyss.common import keys
+from abyss.common.config.hybrid import ROS2_VEHICLE
 from abyss.common.config.system import ROS2_STATIONS
 from abyss.common.messages import (
     Message,
@@ -41,8 +44,10 @@ from abyss.common.messages import (
 from abyss.ros2.from_ros import (
     Parse,
     ee_pose_in,
+    joint_state_in,
     joint_velocities_in,
     octomap_in,
+    odometry_in,
     point_cloud_in,
     telemetry_in,
     twist_in,
@@ -131,9 +136,12 @@ ARM_PARENTS, ARM_CHILDREN = "arm_base .. arm_link6", "arm_link1 .. arm_link6, fi
 
 CLOCK = "/clock"
 BY_MESSAGE: dict[str, tuple[RosTopic, ...]] = {
-    "NavState": (ODOMETRY, RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS)),
+    "NavState": (  # parsed back from a vehicle's driver; the truth's (BY_KEY) never comes from a node
+        dataclasses.replace(ODOMETRY, parse=odometry_in),
+        RosTopic(TF, TF_MESSAGE, WORLD, vehicle_tf, BASE_LINK, TF_QOS),
+    ),
     "JointState": (
-        RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_state),
+        RosTopic("{key}", "sensor_msgs/msg/JointState", "", joint_state, parse=joint_state_in),
         RosTopic(TF, TF_MESSAGE, ARM_PARENTS, arm_tf, ARM_CHILDREN, TF_QOS),
     ),
     "Image": (
@@ -231,22 +239,30 @@ def key_map(abyss_topic: str) -> KeyMap | None:
     return next((m for m in TABLE if m.matches(abyss_topic)), None)
 
 
+# the stations whose node keeps its own time and frames: a real vehicle's driver (the simulation's
+# place, a hybrid run) runs on its own clock with its own robot description, so the gateway hands
+# it no /clock and no /tf_static
+OWN_TIME_AND_FRAMES: tuple[str, ...] = ("simulation",)
+
+
 def gateway_keys(station: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
     """The abyss keys (`<station>/<topic>`) a ROS 2 node in `station`'s place is handed, and
     those it publishes. Onboard: all it receives, all it sends that parse back. The vessel: its
     scene model only, clouds in and the map out; its relay of commands, telemetry and
-    acknowledgements (abyss's operator protocol) stays abyss's."""
+    acknowledgements (abyss's operator protocol) stays abyss's. The simulation: a real vehicle's
+    driver (a hybrid run), handed the velocity commands sent to the simulation, provides its
+    navigation and joints (hybrid.ROS2_VEHICLE); the twin renders the sensors."""
     if station == "vessel":
         return ("onboard/cloud",), ("vessel/scene",)
     maps = [(f"{s.station}/{s.topic}", s, key_map(f"{s.station}/{s.topic}")) for s in keys.KEYS]
-    return (
-        tuple(key for key, s, m in maps if s.to == station and m is not None),
-        tuple(
-            key
-            for key, s, m in maps
-            if s.station == station and m is not None and any(t.parse is not None for t in m.topics)
-        ),
+    up = tuple(
+        key
+        for key, s, m in maps
+        if s.station == station and m is not None and any(t.parse is not None for t in m.topics)
     )
+    if station == "simulation":
+        up = tuple(key for key in up if key.split("/", 1)[1] in ROS2_VEHICLE)
+    return tuple(key for key, s, m in maps if s.to == station and m is not None), up
 
 
 def stamp_of(message: Message, sent_sim_s: float) -> float:
@@ -287,13 +303,14 @@ def topics_table() -> str:
                 f"| {code(t.child_frame_id)} | {qos_text(m.qos(t))} | {'yes' if t.export else '-'} "
                 f"| {gateway(m.key, t)} |"
             )
+    nodes = " and ".join(f"{s}'s" for s in ROS2_STATIONS if s not in OWN_TIME_AND_FRAMES)
     rows.append(
         f"| (robot.xml; each camera's first frame) | {code(TF_STATIC)} | {TF_MESSAGE} "
         f"| `{BASE_LINK}`, `arm_link6` | `arm_base`, `ee`, {code(CAMERA_FRAME)} "
-        f"| {qos_text(TF_STATIC_QOS)} | yes | to the node |"
+        f"| {qos_text(TF_STATIC_QOS)} | yes | to {nodes} nodes |"
     )
     rows.append(
         f"| (the latest simulated time handed over) | {code(CLOCK)} | rosgraph_msgs/msg/Clock "
-        f"| - | - | {qos_text(CLOCK_QOS)} | - | to the node |"
+        f"| - | - | {qos_text(CLOCK_QOS)} | - | to {nodes} nodes |"
     )
     return "\n".join(rows)

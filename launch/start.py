@@ -267,5 +267,6 @@ def ros2_line(ros2: Ros2Config) -> str:
         f"abyss: {ros2.station} is a ROS 2 gateway (domain {ros2.domain}, topics under "
         f"{ros2.namespace}); start your node with RMW_IMPLEMENTATION=rmw_zenoh_cpp "
         f"ROS_DOMAIN_ID={ros2.domain} "
-        f"ZENOH_CONFIG_OVERRIDE='connect/endpoints=[\"{endpoint}\"]' ({where}) and use_sim_time:=true"
+        f"ZENOH_CONFIG_OVERRIDE='connect/endpoints=[\"{endpoint}\"]' ({where})"
+        + ("" if ros2.station == "simulation" else " and use_sim_time:=true")  # a vehicle keeps its own time
     )

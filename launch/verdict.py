@@ -213,7 +213,7 @@ def _hybrid_lines(summary: dict[str, Any]) -> list[str]:
     )
     return [
         f"  hybrid: the real vehicle provided {', '.join(by['vehicle'])} ({hybrid['vehicle_via']}); the "
-        f"twin rendered {', '.join(by['twin'])}: {twin.get('frames', 0)} frame sets{delay}, "
+        f"twin rendered {', '.join(by['twin'])}: {twin.get('frames', 0)} sensor turns{delay}, "
         f"{twin.get('withheld', 0)} withheld (navigation missing or stale)",
         "  truth-based verdicts unavailable: the truth is the real world's",
     ]

@@ -63,6 +63,16 @@ def run(config: Config, bus: Bus) -> None:
         _control_loop(config, bus, core, shared)
 
 
+def wrong_joints(joints: JointState, arm_joints: int) -> str:
+    """Why a JointState does not fit an arm of `arm_joints` joints ("" when it does)."""
+    counts = {len(joints.positions_rad), len(joints.velocities_radps)}
+    return (
+        ""
+        if counts == {arm_joints}
+        else f"{'/'.join(map(str, sorted(counts)))} joints, the robot's arm has {arm_joints}"
+    )
+
+
 def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> None:
     nav = bus.subscribe("simulation", "nav", NavState, maxlen=8)
     joints = bus.subscribe("simulation", "joints", JointState, maxlen=4)
@@ -72,8 +82,14 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
     interventions = bus.subscribe("vessel", "goal/intervene", InterventionGoal)
     heartbeats = bus.subscribe("vessel", "heartbeat", Heartbeat, maxlen=4)
     rate = bus.loop("control", config.onboard.control_period_s)
+    arm_joints, latest_joints = len(robot_of(config).arm_joints), None
     while rate.sleep():
-        latest_joints = joints.latest()
+        for received in joints.drain():  # a vehicle's joints (a hybrid run's real one) may not fit the robot
+            wrong = wrong_joints(received.message, arm_joints)
+            if wrong:
+                bus.reject(keys.spec("simulation", "joints").key(bus.system), wrong)
+            else:
+                latest_joints = received
         inputs = OnboardInputs(
             commands=[
                 *(r.message for r in waypoints.drain()),

@@ -9,8 +9,8 @@ velocity commands onboard sends it, which it does not act on (it is a recording)
         [--stop-after S]
 
 It starts at once, stops after `--stop-after` simulated seconds of the recording (its navigation
-then goes stale) or at the recording's end, and writes REPORT (JSON: what it sent, the commands
-it received) on SIGTERM or at its end."""
+then goes stale) or at the recording's end, and on SIGTERM writes REPORT (JSON: what it sent,
+the commands it received) and ends."""
 
 from __future__ import annotations
 

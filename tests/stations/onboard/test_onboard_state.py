@@ -63,3 +63,16 @@ def test_the_pose_history_is_handed_over_whole_and_looked_up_between_estimates()
     assert np.allclose(position, [0.25, 0.0, 0.0])
     assert history.at(1.15) is not None and history.at(1.3) is None  # 0.2 s tolerance past the ends
     assert not later.poses[0][1].flags.writeable  # no reader can change it behind the writer's back
+
+
+def test_joints_that_do_not_fit_the_robots_arm_are_refused_with_the_counts() -> None:
+    """A hybrid run's real vehicle may send another arm's joints: refused, not a crash of the step."""
+    from abyss.common.messages import JointState
+    from abyss.stations.onboard import wrong_joints
+
+    six = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
+    assert wrong_joints(six, 6) == ""
+    assert wrong_joints(six, 5) == "6 joints, the robot's arm has 5"
+    assert (
+        wrong_joints(JointState(np.zeros(6), np.zeros(7), 0.0, 0.0), 6) == "6/7 joints, the robot's arm has 6"
+    )

@@ -531,3 +531,16 @@ class Mapper:
     def run(self, stop: threading.Event, period_s: float = 1.0) -> None:
         while not stop.wait(period_s):
             self.step()
+
+
+def gateway_graph(
+    node: RosNode, name: str, needs: set[tuple[str, str]], timeout_s: float = 60.0
+) -> list[Token]:
+    """The graph once the gateway's node and the endpoints `needs` (kind, topic) are in it: the
+    gateway declares its node's token first and each endpoint's as it makes it."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        graph = node.graph()
+        if needs <= {(t.kind, t.topic) for t in graph if t.node == name}:
+            return graph
+    raise AssertionError(f"the gateway {name} never showed all of {sorted(needs)}")

@@ -25,7 +25,6 @@ from rosnode import (
     Quaternion,
     RosNode,
     Time,
-    Token,
     Twist,
     TwistStamped,
     TwistWithCovariance,
@@ -75,18 +74,6 @@ def joint_state(
         [*map(float, velocities), *[float("nan")] * len(fingers)],
         [],
     )
-
-
-def gateway_graph(
-    node: RosNode, name: str, needs: set[tuple[str, str]], timeout_s: float = 60.0
-) -> list[Token]:
-    """The ROS graph once the gateway's node `name` shows the endpoints `needs` (kind, topic)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        graph = node.graph()
-        if needs <= {(t.kind, t.topic) for t in graph if t.node == name}:
-            return graph
-    raise AssertionError(f"the gateway {name} never showed all of {sorted(needs)}")
 
 
 class VehicleDriver:

@@ -16,33 +16,18 @@ import numpy as np
 import pytest
 import zenoh
 from conftest import ARM_MISSION, ROOT, Up
+from maps import agreement, occupied
 
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import load
-from abyss.common.messages import Image, JointState, NavState, SceneUpdate, SimulationStatus, decode, encode
+from abyss.common.messages import Image, JointState, NavState, SimulationStatus, decode, encode
 from abyss.common.ports import free_port
 from abyss.common.robot import robot_at
-from abyss.scene.export import SCENE_FILE
-from abyss.scene.receiver import SceneReceiver
 
 pytestmark = pytest.mark.timeout(300)
 VEHICLE = Path(__file__).parent / "vehicle.py"
 CELL_M = 0.1  # the vessel's octree resolution
-
-
-def occupied(run_dir: Path) -> set[tuple[int, int, int]]:
-    """Shore's final map of a run: its occupied cells' keys."""
-    receiver = SceneReceiver()
-    receiver.apply(decode("scene", (run_dir / SCENE_FILE).read_bytes(), SceneUpdate).message)
-    centres = receiver.occupied_cells()[0]
-    return {(int(x), int(y), int(z)) for x, y, z in np.floor(centres / CELL_M)}
-
-
-def agreement(mine: set[tuple[int, int, int]], theirs: set[tuple[int, int, int]]) -> float:
-    """The share of `mine` with a cell of `theirs` within one cell (its 26 neighbours)."""
-    near = [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]
-    return float(np.mean([any((x + i, y + j, z + k) in theirs for i, j, k in near) for x, y, z in mine]))
 
 
 def test_a_recorded_vehicle_flies_and_the_twin_renders_the_site_the_vessel_maps_as_before(

@@ -11,36 +11,20 @@ import json
 import threading
 from pathlib import Path
 
-import numpy as np
 import pytest
 from conftest import ARM_MISSION, Up
-from rosnode import RosNode
-from rosvehicle import VehicleDriver, gateway_graph, joint_state, odometry
+from maps import agreement, occupied
+from rosnode import RosNode, gateway_graph
+from rosvehicle import VehicleDriver, joint_state, odometry
 from vehicle import recorded
 
-from abyss.common.messages import JointState, NavState, SceneUpdate, decode
+from abyss.common.messages import JointState, NavState
 from abyss.common.ports import free_port
 from abyss.common.robot import robot_at
-from abyss.scene.export import SCENE_FILE
-from abyss.scene.receiver import SceneReceiver
 
 pytestmark = pytest.mark.timeout(300)
 CELL_M = 0.1  # the vessel's octree resolution
 GATEWAY = "abyss_simulation_gateway"
-
-
-def occupied(run_dir: Path) -> set[tuple[int, int, int]]:
-    """Shore's final map of a run: its occupied cells' keys."""
-    receiver = SceneReceiver()
-    receiver.apply(decode("scene", (run_dir / SCENE_FILE).read_bytes(), SceneUpdate).message)
-    centres = receiver.occupied_cells()[0]
-    return {(int(x), int(y), int(z)) for x, y, z in np.floor(centres / CELL_M)}
-
-
-def agreement(mine: set[tuple[int, int, int]], theirs: set[tuple[int, int, int]]) -> float:
-    """The share of `mine` with a cell of `theirs` within one cell (its 26 neighbours)."""
-    near = [(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)]
-    return float(np.mean([any((x + i, y + j, z + k) in theirs for i, j, k in near) for x, y, z in mine]))
 
 
 def ros_samples(run_dir: Path) -> list[tuple[float, str, object]]:

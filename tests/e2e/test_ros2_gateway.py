@@ -13,7 +13,6 @@ import os
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +29,11 @@ from rosnode import (
     PoseStamped,
     RosNode,
     TFMessage,
-    Token,
     TwistStamped,
     WaypointPilot,
     data_key,
     dds_name,
+    gateway_graph,
     rihs01,
     ros_type,
 )
@@ -53,19 +52,6 @@ UP_TOPICS = {  # what the gateway takes from the node, and the bad samples each 
     "/abyss/onboard/telemetry/ee_pose": PoseStamped,
     "/abyss/onboard/cloud": PointCloud2,
 }
-
-
-def _gateway_graph(
-    node: RosNode, name: str, needs: set[tuple[str, str]], timeout_s: float = 20.0
-) -> list[Token]:
-    """The graph once the gateway's node and the endpoints `needs` (kind, topic) are in it: the
-    gateway declares its node's token first and each endpoint's as it makes it."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        graph = node.graph()
-        if needs <= {(t.kind, t.topic) for t in graph if t.node == name}:
-            return graph
-    raise AssertionError(f"the gateway {name} never showed all of {sorted(needs)}")
 
 
 def _send_bad_samples(session: zenoh.Session, gid: bytes) -> int:
@@ -117,7 +103,7 @@ def test_a_ros2_node_flies_the_mission_through_the_gateway(tmp_path: Path) -> No
     node = RosNode(endpoint)
     stop, workers = threading.Event(), list[threading.Thread]()
     try:
-        graph = _gateway_graph(
+        graph = gateway_graph(
             node,
             "abyss_onboard_gateway",
             {
@@ -245,7 +231,7 @@ def test_a_ros2_scene_model_maps_for_the_vessel(tmp_path: Path) -> None:
     node = RosNode(endpoint, name="team_mapper")
     stop, workers = threading.Event(), list[threading.Thread]()
     try:
-        graph = _gateway_graph(
+        graph = gateway_graph(
             node,
             "abyss_vessel_gateway",
             {("MP", "/abyss/onboard/cloud"), ("MS", "/abyss/vessel/scene"), ("MP", "/clock")},

@@ -1,20 +1,15 @@
 from __future__ import annotations
 
-import atexit
 import contextlib
 import json
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent import futures
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -56,14 +51,14 @@ class Up:
         self.out = out
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         self.process = subprocess.Popen(
-            up_command(out, *args),
+            [sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out), *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
             cwd=out.parent,
             env=env,
             start_new_session=True,
-        )  # a group of its own: a failed test kills it, and its stations follow it (PDEATHSIG)
+        )  # its stations share its process group: a failed test kills them all
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -126,118 +121,6 @@ class Up:
 
     def output(self) -> str:
         return "\n".join(self.lines)
-
-
-def up_command(out: Path, *args: str) -> list[str]:
-    """`abyss up` as a user types it, into `out` (-P: its working directory never shadows abyss)."""
-    return [sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out), *args]
-
-
-@dataclass(frozen=True)
-class Ended:
-    """A begun `abyss up`'s end (`begin_up`): its run directory, exit code (-9: killed at its
-    timeout) and output, read as `Up`'s are."""
-
-    out: Path
-    code: int
-    lines: list[str]
-
-    def summary(self) -> dict[str, Any]:
-        return json.loads((self.out / "summary.json").read_text())
-
-    def output(self) -> str:
-        return "\n".join(self.lines)
-
-
-_begun: list[futures.Future[Ended]] = []  # every begun run, in the order begun
-_running: list[subprocess.Popen[str]] = []  # the one running now, if any
-_running_lock = threading.Lock()
-_session_over = threading.Event()
-
-
-def begin_up(
-    out: Path, *args: str, timeout_s: float, env: dict[str, str] | None = None
-) -> futures.Future[Ended]:
-    """`abyss up` into `out` (its parent must exist), `env` added to this process's environment,
-    begun now and run to its end in a thread: for a test module's `begin()`, which tests/conftest.py
-    calls as collection ends, so that the run passes beside the unit tests. Only for runs on
-    simulated time, whose verdicts do not hang on how busy the machine is. Begun runs go one at a
-    time, each killed at `timeout_s`, and at the session's end if it ends first (`_end_begun_runs`);
-    not in `Up.started`, which no_leftover_systems empties after every test, theirs or not."""
-    ended: futures.Future[Ended] = futures.Future()
-    previous = _begun[-1] if _begun else None
-    _begun.append(ended)
-    env = {**os.environ, **(env or {}), "PYTHONUNBUFFERED": "1"}
-
-    def run() -> None:
-        if previous is not None:
-            futures.wait([previous])
-        try:
-            ended.set_result(_run_to_end(out, list(args), env, timeout_s))
-        except BaseException as error:  # the waiting fixture raises it
-            ended.set_exception(error)
-
-    threading.Thread(target=run, name=f"begun {out}", daemon=True).start()  # never joined at exit
-    return ended
-
-
-def _run_to_end(out: Path, args: list[str], env: dict[str, str], timeout_s: float) -> Ended:
-    log = out.parent / f"{out.name}.output"
-    with _running_lock, log.open("w") as stream:
-        if _session_over.is_set():
-            raise RuntimeError(f"the session ended before {out} began")
-        process = subprocess.Popen(
-            up_command(out, *args),
-            stdout=stream,
-            stderr=subprocess.STDOUT,
-            text=True,
-            cwd=out.parent,
-            env=env,
-            start_new_session=True,
-        )
-        _running.append(process)
-    try:
-        code = process.wait(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        _kill(process)
-        code = process.wait()
-    finally:
-        with _running_lock:
-            _running.remove(process)
-    return Ended(out, code, log.read_text().splitlines())
-
-
-def _kill(process: subprocess.Popen[str]) -> None:
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(process.pid, signal.SIGKILL)  # the supervisor; its stations follow it (PDEATHSIG)
-
-
-@atexit.register
-def _end_begun_runs() -> None:
-    """The session ended with a begun run not over (failed fast, interrupted, or --collect-only):
-    its supervisor killed (its stations stop within seconds), and nothing more begins."""
-    with _running_lock:
-        _session_over.set()
-        for process in _running:
-            _kill(process)
-
-
-def wait_for_begun(ended: futures.Future[Ended], request: pytest.FixtureRequest) -> Iterator[Ended]:
-    """A module fixture's body: the begun run, once ended; its folder (a temporary one of the
-    module's, tempfile.mkdtemp) removed after the module's tests if none of them failed, kept for a
-    look otherwise."""
-    run = ended.result()  # within the test's timeout; the run's own ends it by then
-    failed = request.session.testsfailed
-    yield run
-    if request.session.testsfailed == failed and Path(tempfile.gettempdir()) in run.out.parent.parents:
-        shutil.rmtree(run.out.parent, ignore_errors=True)
-
-
-@pytest.fixture(autouse=True)
-def no_begun_run_beside() -> None:
-    """No whole-system test runs beside a begun run, whose load would weigh on a run on the wall
-    clock: in the suite the unit tests outlast them; alone (`-m e2e`, a module) they may not."""
-    futures.wait(_begun)
 
 
 @pytest.fixture(autouse=True)

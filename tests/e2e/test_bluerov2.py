@@ -1,53 +1,31 @@
 """The BlueROV2 Heavy with a Reach Alpha 5 on the small panel, the whole system as a user runs it
 on simulated time (`abyss up --robot ... --site ... --time sim --speed max`): it flies the site's
 waypoints, then turns the valve by 90 degrees and throws the lever down, each judged on the
-simulation's truth of the panel, and the run ends done. That flight, on simulated time, begins as
-the suite's collection ends (`begin`, from tests/conftest.py) and runs beside the unit tests; the
-shore kill below runs on the wall clock, so in its test."""
+simulation's truth of the panel, and the run ends done."""
 
 from __future__ import annotations
 
 import json
-import tempfile
-from collections.abc import Iterator
-from concurrent.futures import Future
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, Ended, abyss, begin_up, wait_for_begun
+from conftest import ROOT, Up, abyss
 
 pytestmark = pytest.mark.timeout(300)
 ROBOT = ROOT / "common" / "models" / "robots" / "bluerov2_heavy_alpha5"
 SITE = ROOT / "common" / "models" / "sites" / "small_panel"
-_flight: Future[Ended] | None = None
-
-
-def begin() -> None:
-    """Begin the flight on simulated time now, in the background: its verdict does not hang on
-    how busy the unit tests keep the machine."""
-    global _flight
-    if _flight is None:
-        _flight = begin_up(
-            Path(tempfile.mkdtemp(prefix="abyss-bluerov2-")) / "run",
-            "--robot", str(ROBOT), "--site", str(SITE),
-            "--time", "sim", "--speed", "max", "--duration", "150",
-            "--system", "e2e-bluerov2", "--viewer", "none", "--record", "none",
-            timeout_s=280,
-        )  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def flight(request: pytest.FixtureRequest) -> Iterator[Ended]:
-    begin()
-    assert _flight is not None
-    yield from wait_for_begun(_flight, request)
 
 
 def test_the_bluerov2_flies_its_waypoints_and_works_the_valve_and_the_lever_on_the_truth(
-    flight: Ended,
+    tmp_path: Path,
 ) -> None:
-    up = flight
-    assert up.code == 0, up.output()  # done: the mission ended before its 150 simulated seconds
+    up = Up(
+        tmp_path / "run",
+        "--robot", str(ROBOT), "--site", str(SITE),
+        "--time", "sim", "--speed", "max", "--duration", "150",
+        "--system", "e2e-bluerov2", "--viewer", "none", "--record", "none",
+    )  # fmt: skip
+    assert up.wait(280) == 0, up.output()  # done: the mission ended before its 150 simulated seconds
     summary = up.summary()
     assert summary["verdict"] == "done" and summary["failure"] == "", up.output()
     assert summary["time"]["mode"] == "sim" and summary["time"]["speed"] == "max"

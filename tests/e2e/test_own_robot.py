@@ -3,31 +3,26 @@ with xacro (tests/common/urdf_package.py: "minirov", whose joints, thrusters, ca
 differ from the shipped robot's), on a site whose parts differ from the shipped panel's, flies three
 waypoints in simulated time; its recording exports to ROS 2 topics that name its joints and its
 frames, and the panel it recognised names the site's parts. Any name of the shipped packages still
-wired into a station fails here. The flight, on simulated time, begins as the suite's collection
-ends (`begin`, from tests/conftest.py) and runs beside the unit tests."""
+wired into a station fails here."""
 
 from __future__ import annotations
 
 import json
 import shutil
 import sys
-import tempfile
-from collections.abc import Iterator
-from concurrent.futures import Future
 from pathlib import Path
 
 import pytest
-from conftest import Ended, abyss, begin_up, wait_for_begun
+from conftest import Up, abyss
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from abyss.common.site import SHIPPED_SITE_DIR
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "common"))
-from urdf_package import UrdfPackage, write_urdf_package
+from urdf_package import write_urdf_package
 
 pytestmark = pytest.mark.timeout(300)
-_flight: tuple[UrdfPackage, Future[Ended]] | None = None
 
 
 def _site(root: Path) -> Path:
@@ -46,56 +41,35 @@ def _site(root: Path) -> Path:
     return site
 
 
-def begin() -> None:
-    """Write the package and the site, and begin the flight on simulated time now, in the
-    background: its verdict does not hang on how busy the unit tests keep the machine."""
-    global _flight
-    if _flight is None:
-        root = Path(tempfile.mkdtemp(prefix="abyss-own-robot-"))
-        package = write_urdf_package(root)
-        site = _site(root)
-        flown = begin_up(
-            root / "run",
-            "--robot", str(package.directory), "--site", str(site),
-            "--time", "sim", "--speed", "max", "--duration", "40", "--keep-running", "--record", "all",
-            "--viewer", "none",
-            "--set", "mission.interventions=[]",
-            timeout_s=280,
-            env={"ABYSS_PACKAGE_PATH": package.package_path},  # every station's, as ROS's would be
-        )  # fmt: skip
-        _flight = package, flown
-
-
-@pytest.fixture(scope="module")
-def flight(request: pytest.FixtureRequest) -> Iterator[tuple[UrdfPackage, Ended]]:
-    begin()
-    assert _flight is not None
-    package, flown = _flight
-    for ended in wait_for_begun(flown, request):
-        yield package, ended
-
-
 def test_a_urdf_robot_of_its_own_flies_its_waypoints_and_exports_its_names(
-    flight: tuple[UrdfPackage, Ended], monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    package, up = flight
-    monkeypatch.setenv("ABYSS_PACKAGE_PATH", package.package_path)  # the export's, as the flight's
-    assert up.code == 0, up.output()
+    package = write_urdf_package(tmp_path)
+    monkeypatch.setenv("ABYSS_PACKAGE_PATH", package.package_path)  # every station's, as ROS's would be
+    site = _site(tmp_path)
+    up = Up(
+        tmp_path / "run",
+        "--robot", str(package.directory), "--site", str(site),
+        "--time", "sim", "--speed", "max", "--duration", "40", "--keep-running", "--record", "all",
+        "--viewer", "none",
+        "--set", "mission.interventions=[]",
+    )  # fmt: skip
+    assert up.wait(280) == 0, up.output()
     summary = up.summary()
     # run on past the mission's end (done at 13 s on its derived loops) to a fixed 40 simulated
     # seconds, so that the vessel's recognition is judged at the same time whenever the mission ends
     assert summary["verdict"] in ("done", "incomplete") and summary["failure"] == "", up.output()[-3000:]
     mission = summary["mission"]
     assert mission["done"] and mission["waypoints_total"] == 3 and mission["waypoint_index"] == 3, mission
-    config = json.loads((up.out / "config.json").read_text())
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
     assert Path(config["simulation"]["robot"]) == package.directory.resolve()
     assert {"panel", "gate", "throttle"} <= set(
         summary["scene"]["objects"]
     )  # recognised, by its parts' names
-    exported = abyss("export", "mcap", str(up.out), timeout_s=120)
+    exported = abyss("export", "mcap", str(tmp_path / "run"), timeout_s=120)
     assert exported.returncode == 0, exported.stderr
     names, frames = set(), set()
-    with next(up.out.glob("*.mcap")).open("rb") as stream:
+    with next((tmp_path / "run").glob("*.mcap")).open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, channel, _, message in reader.iter_decoded_messages(
             topics=["/abyss/simulation/joints", "/tf"]

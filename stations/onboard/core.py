@@ -76,7 +76,11 @@ class Onboard:
             gripper.opening_m, self.robot.closed_gap_m, site_of(config).panel.handle_thickness_m
         )
         self.nav_filter = NavFilter(cfg)
-        self.failsafe = Failsafe(cfg.goal_timeout_s, cfg.hold_on_shore_loss)
+        self.failsafe = Failsafe(
+            cfg.goal_timeout_s,
+            cfg.hold_on_shore_loss,
+            config.hybrid.nav_max_age_s if config.hybrid.on else 0.0,
+        )
         self.gate = CommandGate(config.mission, *self.arm.kinematics.reach())
         self.operator_mode = ControlMode.AUTO
         self.every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
@@ -149,6 +153,8 @@ class Onboard:
                 self.operator_mode = ControlMode(command.mode)  # from the wire
         for beat in inputs.heartbeats:
             self.failsafe.heard(now_s, beat)
+        if inputs.nav:
+            self.failsafe.navigated(now_s)
         for nav in inputs.nav:
             self.position_m_world, self.orientation_wxyz_world = self.nav_filter.update(nav)
             self.sim_time_s = nav.sim_time_s
@@ -189,6 +195,9 @@ class Onboard:
             linear, yaw_rate = a.vehicle_velocity[:3], float(a.vehicle_velocity[3])
         out.vehicle = VelocityRef(linear, yaw_rate)
         out.arm = ArmVelocityRef(a.joint_velocities_radps, self._gripper_mps(gripper_mps, a, joints))
+        if self.failsafe.blind:  # no navigation: stopped, not steered by an estimate gone still
+            out.vehicle = VelocityRef(np.zeros(3), 0.0)
+            out.arm = ArmVelocityRef(np.zeros(len(arm_rad)), 0.0)
         if self.tick % self.every == 0:
             out.telemetry = self._telemetry(v, a, joints, hold)
 

@@ -1,7 +1,10 @@
 """The onboard failsafe: the vehicle holds station and the arm holds still while the vessel
 is silent (its heartbeat stops: tether down, vessel dead) or, optionally, while the vessel
 reports shore silent (satellite down); both resume when the link returns. It judges by the
-heartbeats alone, as a real vehicle must: it cannot ask the link whether it is down."""
+heartbeats alone, as a real vehicle must: it cannot ask the link whether it is down. With
+`nav_timeout_s` (a hybrid run's real vehicle: hybrid.nav_max_age_s), navigation that stops stops
+the vehicle and the arm outright (`blind`): holding station on an estimate that no longer moves
+would push the vehicle on at whatever error it last had."""
 
 from __future__ import annotations
 
@@ -9,10 +12,13 @@ from abyss.common.messages import Heartbeat
 
 
 class Failsafe:
-    def __init__(self, goal_timeout_s: float, hold_on_shore_loss: bool) -> None:
+    def __init__(self, goal_timeout_s: float, hold_on_shore_loss: bool, nav_timeout_s: float = 0.0) -> None:
         self.goal_timeout_s = goal_timeout_s
         self.hold_on_shore_loss = hold_on_shore_loss
+        self.nav_timeout_s = nav_timeout_s  # 0: off (the simulation's navigation stops only with it)
         self.heard_s: float | None = None  # never heard: nothing to hold yet
+        self.navigated_s: float | None = None
+        self.blind = False  # navigation stopped: stop, rather than hold station
         self.shore_heard = True
         self.reason = ""
         self.events = 0
@@ -21,10 +27,17 @@ class Failsafe:
         self.heard_s = now_s
         self.shore_heard = heartbeat.shore_heard
 
+    def navigated(self, now_s: float) -> None:
+        self.navigated_s = now_s
+
     def check(self, now_s: float) -> str:
         """Why the vehicle must hold now ('' when it need not); counts each entry."""
         reason = ""
-        if self.heard_s is not None and now_s - self.heard_s > self.goal_timeout_s:
+        silent_s = now_s - self.navigated_s if self.navigated_s is not None else 0.0
+        self.blind = self.nav_timeout_s > 0 and silent_s > self.nav_timeout_s
+        if self.blind:
+            reason = f"no navigation for {silent_s:.1f} s: the vehicle and the arm stopped"
+        elif self.heard_s is not None and now_s - self.heard_s > self.goal_timeout_s:
             reason = f"no heartbeat from the vessel for {now_s - self.heard_s:.1f} s"
         elif self.hold_on_shore_loss and not self.shore_heard:
             reason = "the vessel reports shore silent (satellite link lost)"

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.config import Config
+from abyss.common.config import Config, load
 from abyss.common.linkprofile import profile
 from abyss.common.messages import (
     CommandAck,
@@ -14,6 +14,7 @@ from abyss.common.messages import (
     InterventionGoal,
     JointState,
     NavState,
+    Waypoints,
     decode,
     encode,
 )
@@ -89,3 +90,27 @@ def test_an_intervention_sent_before_navigation_settles_waits_and_is_judged_once
     assert all(a.accepted for _, a in answers), answers
     settled_s = 1.0 + SETTLE_FIXES - 1  # a fix a second from 1 s
     assert settled_s <= answered_s <= settled_s + 1.0 + STEP_S
+
+
+def test_a_real_vehicle_whose_navigation_stops_is_stopped_not_steered_by_the_last_estimate() -> None:
+    """A hybrid run: its navigation stopped, onboard sends zero velocities to the vehicle and the
+    arm (held station on an estimate gone still, it would push on at its last error), and steers
+    again once navigation returns."""
+    config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
+    core = Onboard(config)
+    core.step(OnboardInputs(commands=[Waypoints(1, ((20.0, 0.0, -5.0, 0.0),))]), 0.0)
+    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
+    speeds: dict[float, float] = {}
+    for step in range(int(4.0 / STEP_S)):
+        now_s = step * STEP_S
+        silent = 1.0 <= now_s < 2.5  # the vehicle's navigation stops for 1.5 s
+        nav = NavState(
+            np.array([0.0, 0.0, -5.0]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), now_s, now_s, 5.0
+        )
+        out = core.step(OnboardInputs(nav=[] if silent else [nav], joints=joints), now_s)
+        assert out.vehicle is not None
+        speeds[round(now_s, 3)] = float(np.linalg.norm(out.vehicle.linear_mps_body))
+    bound_s = config.hybrid.nav_max_age_s
+    assert speeds[0.9] > 0.1  # flying to the waypoint
+    assert max(v for t, v in speeds.items() if 1.0 + bound_s + STEP_S <= t < 2.5) == 0.0
+    assert speeds[3.9] > 0.1 and core.failsafe.events == 1

@@ -76,3 +76,18 @@ def test_joints_that_do_not_fit_the_robots_arm_are_refused_with_the_counts() -> 
     assert (
         wrong_joints(JointState(np.zeros(6), np.zeros(7), 0.0, 0.0), 6) == "6/7 joints, the robot's arm has 6"
     )
+
+
+def test_a_real_vehicles_navigation_that_stops_stops_it_and_its_return_resumes() -> None:
+    failsafe = Failsafe(goal_timeout_s=2.0, hold_on_shore_loss=True, nav_timeout_s=0.5)
+    failsafe.heard(0.0, Heartbeat(0.0, True))
+    assert failsafe.check(0.1) == ""  # no navigation yet: nothing to stop
+    failsafe.navigated(0.2)
+    assert failsafe.check(0.7) == "" and not failsafe.blind
+    assert failsafe.check(0.75).startswith("no navigation for 0.6 s") and failsafe.blind
+    assert failsafe.events == 1
+    failsafe.navigated(0.8)
+    assert failsafe.check(0.8) == "" and not failsafe.blind
+    simulated = Failsafe(goal_timeout_s=2.0, hold_on_shore_loss=True)  # off: all-simulated runs
+    simulated.navigated(0.0)
+    assert simulated.check(1.9) == "" and not simulated.blind

@@ -119,3 +119,20 @@ class HybridConfig:
             np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), orientation_wxyz_nav
         )
         return position, orientation
+
+    def nav_pose(
+        self, position_m_site: np.ndarray, orientation_wxyz_site: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A pose in the site's frame in the vehicle's navigation frame (the registration applied,
+        `site_pose` undone). With no registration, or no real vehicle, the pose as given, untouched:
+        the all-simulated runs' numbers stay bit for bit what they were."""
+        if not self.on or (self.site_heading_rad == 0.0 and not any(self.site_origin_m_nav)):
+            return position_m_site, orientation_wxyz_site
+        c, s = math.cos(self.site_heading_rad), math.sin(self.site_heading_rad)
+        turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # site -> nav, about z
+        position = turn @ np.asarray(position_m_site, dtype=float) + np.asarray(self.site_origin_m_nav)
+        half = self.site_heading_rad / 2  # the heading put on
+        orientation = quat_multiply(
+            np.array([math.cos(half), 0.0, 0.0, math.sin(half)]), orientation_wxyz_site
+        )
+        return position, orientation

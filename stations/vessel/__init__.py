@@ -69,7 +69,9 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
         cfg.octree_resolution_m, cfg.octree_max_range_m, cfg.scene_update_bytes, cfg.scene_track_period_s
     )
     images = bus.subscribe("onboard", "image", Image, maxlen=2)
-    intake = Intake(cfg, site_of(config).panel, model, bus.clock.now_s(), maps=mapper is None)
+    intake = Intake(
+        cfg, site_of(config).panel, model, bus.clock.now_s(), maps=mapper is None, hybrid=config.hybrid
+    )
     gateway = mapper(lambda update: model.adopt(update.octree)) if mapper is not None else None
     try:
         with Workers(bus.stop) as workers:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abyss.common.clouds import unpack_cloud
+from abyss.common.config.hybrid import HybridConfig
 from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
 from abyss.common.images import decode_image
@@ -20,7 +21,7 @@ from abyss.common.shared import Latest
 from abyss.common.sonar_frames import ECHO_RGB, echo_arcs
 from abyss.scene.model import SceneModel
 from abyss.stations.vessel.core import Perception
-from abyss.stations.vessel.recognition import PanelTracker
+from abyss.stations.vessel.recognition import PanelTracker, expected_pose
 
 
 @dataclass
@@ -44,13 +45,23 @@ class Intake:
     `perception_period_s` [s]."""
 
     def __init__(
-        self, cfg: VesselConfig, panel: Panel, model: SceneModel, now_s: float, maps: bool = True
+        self,
+        cfg: VesselConfig,
+        panel: Panel,
+        model: SceneModel,
+        now_s: float,
+        maps: bool = True,
+        hybrid: HybridConfig | None = None,
     ) -> None:
         self.cfg = cfg
         self.model = model
         self.maps = maps
         self.perception = Perception(cfg)
-        self.tracker = PanelTracker(panel, bias_m_world=cfg.recognition_bias_m)
+        # the panel first looked for where the site package puts it, registered in a hybrid run
+        position, rotation = expected_pose(panel, hybrid or HybridConfig())
+        self.tracker = PanelTracker(
+            panel, position, bias_m_world=cfg.recognition_bias_m, expected_rotation=rotation
+        )
         self.sim_time_s: Latest[float] = Latest(0.0)  # of the latest cloud (or echoes inserted)
         self.objects: Latest[RecognisedObjects | None] = Latest(None)  # recognition's latest
         self.sonar: Latest[SonarImage | None] = Latest(None)  # the sonar's latest frame

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from abyss.common.config.hybrid import HybridConfig
 from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
 from abyss.common.messages import Image, RecognisedObjects
 from abyss.common.models.panel import Panel
@@ -153,12 +154,26 @@ def by_shape(panel: Panel, points_m_world: np.ndarray, guess: Pose, rng_seed: in
     return Pose(transform[:3, :3].copy(), transform[:3, 3].copy(), float(np.clip(confidence, 0.0, 1.0)))
 
 
-def by_plane(points_m_world: np.ndarray, expected_m_world: np.ndarray) -> Pose | None:
-    """A first guess with no marker in view: the panel upright at the expected place."""
+def by_plane(
+    points_m_world: np.ndarray, expected_m_world: np.ndarray, expected_rotation: np.ndarray | None = None
+) -> Pose | None:
+    """A first guess with no marker in view: the panel upright at the expected place, facing as
+    expected (`expected_rotation`, panel axes to world axes; None: the world's)."""
     near = np.linalg.norm(points_m_world - expected_m_world, axis=1) < 1.5
     if near.sum() < MIN_PLANE_POINTS:
         return None
-    return Pose(np.eye(3), points_m_world[near].mean(axis=0), 0.1)
+    rotation = np.eye(3) if expected_rotation is None else expected_rotation
+    return Pose(rotation, points_m_world[near].mean(axis=0), 0.1)
+
+
+def expected_pose(panel: Panel, hybrid: HybridConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Where the vessel first looks for the panel, in its world (the vehicle's navigation frame):
+    the site package's pose (the panel's frame the site's, translated), and in a hybrid run where
+    the registration puts it (`hybrid.nav_pose`: moved to the site's origin, turned by its
+    heading). Position [m] and rotation (panel axes to world axes); with no registration, the
+    site package's position untouched and the identity."""
+    position, orientation = hybrid.nav_pose(np.array(panel.position_m_world), np.array([1.0, 0.0, 0.0, 0.0]))
+    return np.array(position), rotation_of(orientation)
 
 
 def fuse_texture_shape(texture: Pose, shape: Pose) -> Pose:
@@ -366,11 +381,17 @@ class PanelTracker:
         panel: Panel,
         expected_m_world: np.ndarray | None = None,
         bias_m_world: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        expected_rotation: np.ndarray | None = None,
     ) -> None:
         self.panel = panel
+        # where a shape with no marker in view is first looked for (by_plane), and how it faces
+        # there: the site package's pose unless told (`expected_pose`, in a hybrid run)
         self.expected_m_world = np.array(
             self.panel.position_m_world if expected_m_world is None else expected_m_world
         )
+        self.expected_rotation = None if expected_rotation is None else np.array(expected_rotation, float)
+        if self.expected_rotation is not None:
+            self.expected_rotation.setflags(write=False)
         self.bias_m_world = np.asarray(bias_m_world, float)  # a fault: added to what is reported
         self.estimate: Pose | None = None
         self.weight = 0.0
@@ -388,7 +409,11 @@ class PanelTracker:
             matrix = np.array([[image.fx_px, 0, image.cx_px], [0, image.fy_px, image.cy_px], [0, 0, 1.0]])
             texture = by_texture(self.panel, rgb, matrix, image.pose_camera)
         if points_m_world is not None and len(points_m_world):
-            guess = texture or self.estimate or by_plane(points_m_world, self.expected_m_world)
+            guess = (
+                texture
+                or self.estimate
+                or by_plane(points_m_world, self.expected_m_world, self.expected_rotation)
+            )
             if guess is not None:
                 shape = by_shape(self.panel, points_m_world, guess)
         if texture is not None and shape is not None:

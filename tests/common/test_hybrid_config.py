@@ -78,6 +78,41 @@ def test_the_registration_takes_the_site_origin_and_heading_off_a_pose_in_the_na
     np.testing.assert_allclose(orientation, roll, atol=1e-12)
 
 
+def test_the_registration_puts_a_pose_in_the_site_frame_into_the_navigation_frame_site_poses_inverse() -> (
+    None
+):
+    heading = math.radians(40.0)
+    hybrid = HybridConfig(
+        vehicle=("nav", "joints"), site_origin_m_nav=(30.0, -12.0, 0.0), site_heading_rad=heading
+    )
+    # the site's origin, facing along its x axis: the registration's origin, turned by its heading
+    position, orientation = hybrid.nav_pose(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+    np.testing.assert_allclose(position, [30.0, -12.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(
+        orientation, [math.cos(heading / 2), 0.0, 0.0, math.sin(heading / 2)], atol=1e-12
+    )
+    # 2 m along the site's x axis lies 2 m along the heading in the navigation frame
+    position, _ = hybrid.nav_pose(np.array([2.0, 0.0, -5.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    np.testing.assert_allclose(position, [30.0 + 2 * math.cos(heading), -12.0 + 2 * math.sin(heading), -5.0])
+    rng = np.random.default_rng(7)
+    for _ in range(20):  # each undoes the other, both ways round
+        p = rng.uniform(-50.0, 50.0, 3)
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        for there, back in ((hybrid.nav_pose, hybrid.site_pose), (hybrid.site_pose, hybrid.nav_pose)):
+            p2, q2 = back(*there(p, q))
+            np.testing.assert_allclose(p2, p, atol=1e-9)
+            np.testing.assert_allclose(q2, q, atol=1e-12)
+
+
+def test_with_no_registration_or_no_real_vehicle_the_site_frame_is_the_navigation_frame_untouched() -> None:
+    p, q = np.array([5.0, 0.1, -8.6]), np.array([0.9, 0.1, 0.3, 0.3])
+    registered = {"site_origin_m_nav": (30.0, -12.0, 0.0), "site_heading_rad": 0.7}
+    for hybrid in (HybridConfig(), HybridConfig(vehicle=("nav", "joints")), HybridConfig(**registered)):
+        position, orientation = hybrid.nav_pose(p, q)
+        assert position is p and orientation is q  # not a float operation on them: bit for bit
+
+
 def test_abyss_keys_says_who_provides_each_key_in_a_hybrid_run() -> None:
     def keys_table(*args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(

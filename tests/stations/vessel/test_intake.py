@@ -12,13 +12,16 @@ import numpy as np
 import pytest
 
 from abyss.common.clouds import pack_cloud, unpack_cloud
+from abyss.common.config.hybrid import HybridConfig
 from abyss.common.config.stations import VesselConfig
-from abyss.common.messages import Image, PerceptionStatus, PointCloud, SonarImage
+from abyss.common.geometry import rotation_about, rotation_of
+from abyss.common.messages import Image, PerceptionStatus, PointCloud, RecognisedObjects, SonarImage
 from abyss.common.site import site_at
 from abyss.common.sonar_frames import echo_arcs, encode_polar
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_keys
 from abyss.stations.vessel.intake import Intake, IntakeInputs
+from abyss.stations.vessel.recognition import PanelTracker, expected_pose, model_points, rotation_error_rad
 
 panel = site_at("").panel  # the shipped site's
 
@@ -192,3 +195,38 @@ def test_a_sonar_frame_that_does_not_decode_is_rejected_and_kept_as_the_latest()
     assert [topic for topic, _ in out.rejected] == ["sonar"] and "decodes to nothing" in out.rejected[0][1]
     assert intake.sonar.get() is bad  # the stream sends the latest frame on (and rejects it there)
     assert statuses(out.messages)[0].points_per_s["sonar"] == 0.0
+
+
+def test_in_a_hybrid_run_the_panel_is_found_by_its_shape_alone_where_the_registration_puts_it() -> None:
+    """With the site registered (origin (30, -12, 0) m, heading 40 deg), the panel stands in the
+    vessel's world (the navigation frame) at the registered pose: the intake looks for it there,
+    facing as turned, and finds it by the cloud alone (no image, no marker). Looked for at the site
+    package's own pose, or there but unturned, it is not found."""
+    heading = math.radians(40.0)
+    hybrid = HybridConfig(
+        vehicle=("nav", "joints"), site_origin_m_nav=(30.0, -12.0, 0.0), site_heading_rad=heading
+    )
+    turn = rotation_about(np.array([0.0, 0.0, 1.0]), heading)
+    position = turn @ np.array(panel.position_m_world) + hybrid.site_origin_m_nav
+    points = model_points(panel, 0.01) @ turn.T + position
+    camera = position + turn @ np.array([-2.0, 0.0, 0.0])  # 2 m in front of its face
+    cloud = pack_cloud("depth", points, np.full((len(points), 3), 128, np.uint8), camera, 0.001, 0.0)
+
+    def recognised(hybrid: HybridConfig | None) -> RecognisedObjects | None:
+        cfg = config()
+        intake = Intake(cfg, panel, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0, False, hybrid)
+        intake.step(IntakeInputs(clouds=[cloud]), 0.0)
+        return intake.objects.get()
+
+    found = recognised(hybrid)
+    assert found is not None and found.method == "shape"
+    pose = found.poses_world[found.names.index("panel")]
+    assert np.linalg.norm(pose[:3] - position) < 0.02, pose
+    assert np.degrees(rotation_error_rad(rotation_of(pose[3:]), turn)) < 1.0, pose
+    assert recognised(None) is None  # at the site package's pose, 33 m away: nothing there
+    unturned = PanelTracker(panel, expected_m_world=position)
+    assert unturned.update(None, None, points) is None  # the face is 40 deg off the guess's
+    # with no registration, the site package's pose untouched
+    expected_m_world, rotation = expected_pose(panel, HybridConfig())
+    assert expected_m_world.tolist() == list(panel.position_m_world) and np.array_equal(rotation, np.eye(3))
+    assert not np.signbit(rotation).any()

@@ -12,7 +12,7 @@ APT_PACKAGES="$(grep -v '^#' apt-packages.txt | xargs)"  # what a station needs;
 # for the base image, as no container registry may be reachable (deploy/base-image.sh); ping for
 # the namespace lab's test; user-mode Linux and kmod's insmod for a kernel with sch_netem, where
 # the host's has none (tests/linkemu/uml.py)
-TEST_APT_PACKAGES="chromium docker-compose debootstrap iputils-ping user-mode-linux kmod"
+TEST_APT_PACKAGES="chromium chromium-driver docker-compose debootstrap iputils-ping user-mode-linux kmod"
 # a C compiler for the physics in C (stations/simulation/native_physics.c; without it the physics
 # steps in Python: the per-step terms alike bit for bit, the low level to rounding, slower)
 TEST_APT_PACKAGES="$TEST_APT_PACKAGES gcc libc6-dev"

@@ -92,6 +92,12 @@ def cmd_op(args: argparse.Namespace) -> int:
     )
 
 
+def cmd_console(args: argparse.Namespace) -> int:
+    from abyss.console.pilot import run_console
+
+    return run_console(args.connect, args.system, args.port, args.site)
+
+
 def add_commands(sub: Any) -> None:
     p = sub.add_parser("teleop", help="drive the vehicle or the end-effector from a joystick or the keyboard")
     connect_args(p)
@@ -105,6 +111,15 @@ def add_commands(sub: Any) -> None:
     )
     package_args(p, robot=False)
     p.set_defaults(func=cmd_teleop)
+
+    p = sub.add_parser(
+        "console",
+        help="the pilot's console: a web page on this machine to fly the mission from (docs/console.md)",
+    )
+    p.add_argument("--port", type=int, default=0, help="the page's port on 127.0.0.1 (default: any free one)")
+    package_args(p, robot=False)
+    connect_args(p)
+    p.set_defaults(func=cmd_console)
 
     p = sub.add_parser("op", help="send one operator command through shore and print onboard's answer")
     p.add_argument("command", choices=("waypoints", "arm", "mode", "valve", "lever"))

@@ -1,0 +1,295 @@
+"""`abyss console`: the pilot's console, one web page on this machine to fly the mission from. It
+joins the system on shore's own network as an operator's tool (as `abyss op` does) and shows only
+what reached shore across the satellite: the vessel's relay of onboard's telemetry, its relayed
+camera frame and the parts it recognised, and shore's own mission status, each with its age.
+Its commands take `abyss op`'s path (the operator keys to the onshore station, which sends them
+down the satellite), resent until onboard's answer comes back, and each shows that answer. It
+keeps a list of alerts: the failsafe entered and left, a command refused, an intervention failed,
+the vessel's telemetry gone silent. The page (`console/web/`) polls `/state` twice a second.
+
+The server binds to 127.0.0.1 alone: on a network, commands would need the operator's credential,
+which this console does not ask for yet."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from abyss.common import keys
+from abyss.common.bus import client_config, message_of, open_session
+from abyss.common.errors import AbyssError, BadInput
+from abyss.common.messages import (
+    CommandAck,
+    Image,
+    MissionStatus,
+    RecognisedObjects,
+    Telemetry,
+    encode,
+    new_id,
+)
+from abyss.common.site import site_at
+from abyss.console.op import INTENTS, Command, command_of
+
+WEB = Path(__file__).parent / "web"
+FILES = {"/": ("index.html", "text/html"), "/console.js": ("console.js", "text/javascript")}
+RESEND_PERIOD_S = 2.0  # a command not answered yet is sent again, as `abyss op` does
+SILENT_S = 3.0  # the vessel's telemetry older than this: an alert (the satellite or the vessel lost)
+KEPT_ALERTS = 50
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Sent:
+    """A command the console sent, and onboard's answer once it came."""
+
+    command: Command
+    kind: str
+    text: str
+    topic: str
+    sent_s: float  # wall [s], the first send
+    last_sent_s: float
+    answer: CommandAck | None = None
+
+    def view(self) -> dict[str, Any]:
+        state = "sent" if self.answer is None else ("taken" if self.answer.accepted else "refused")
+        return {
+            "id": self.command.command_id,
+            "kind": self.kind,
+            "text": self.text,
+            "state": state,
+            "reason": self.answer.reason if self.answer is not None else "",
+            "sent_s": self.sent_s,
+        }
+
+
+@dataclass
+class Pilot:
+    """What the page shows and what it sent: updated by Zenoh's callbacks, read by the server's
+    threads, under one lock."""
+
+    session: zenoh.Session
+    system: str
+    site: str = ""
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    latest: dict[str, tuple[float, Any]] = field(default_factory=dict)  # what -> (arrival [s, wall], message)
+    frame: tuple[float, int, bytes] | None = None  # arrival, count, JPEG
+    sent: dict[int, Sent] = field(default_factory=dict)
+    alerts: list[dict[str, Any]] = field(default_factory=list)
+    _failsafe: str = ""
+    _silent: bool = False
+
+    def start(self) -> list[Any]:
+        """Subscribe to what reached shore; the subscribers (keep them)."""
+        take = {
+            keys.spec("vessel", "telemetry").key(self.system): (Telemetry, self._telemetry),
+            keys.mission_key(self.system): (MissionStatus, lambda m: self._keep("mission", m)),
+            keys.spec("vessel", "objects").key(self.system): (
+                RecognisedObjects,
+                lambda m: self._keep("objects", m),
+            ),
+            keys.spec("vessel", "image").key(self.system): (Image, self._image),
+            keys.operator_key(self.system, "ack"): (CommandAck, self._answer),
+        }
+
+        def on(cls: Any, handler: Any) -> Any:
+            def callback(sample: zenoh.Sample) -> None:
+                message = message_of(sample, cls)
+                if message is not None:
+                    handler(message)
+
+            return callback
+
+        return [self.session.declare_subscriber(k, on(cls, handler)) for k, (cls, handler) in take.items()]
+
+    def _keep(self, what: str, message: Any) -> None:
+        with self.lock:
+            self.latest[what] = (time.time(), message)
+
+    def _telemetry(self, telemetry: Telemetry) -> None:
+        with self.lock:
+            self.latest["telemetry"] = (time.time(), telemetry)
+            if telemetry.failsafe != self._failsafe:
+                self._alert(f"failsafe: {telemetry.failsafe}" if telemetry.failsafe else "failsafe left")
+                self._failsafe = telemetry.failsafe
+            if self._silent:
+                self._alert("the vessel's telemetry reaches shore again")
+                self._silent = False
+
+    def _image(self, image: Image) -> None:
+        if image.encoding != "jpeg":
+            return
+        with self.lock:
+            count = self.frame[1] + 1 if self.frame else 1
+            self.frame = (time.time(), count, image.data)
+
+    def _answer(self, ack: CommandAck) -> None:
+        with self.lock:
+            sent = self.sent.get(ack.command_id)
+            if sent is None or sent.topic != ack.command or sent.answer is not None:
+                return
+            sent.answer = ack
+            if not ack.accepted:
+                self._alert(f"{sent.kind} {sent.text} refused: {ack.reason}")
+
+    def _alert(self, text: str) -> None:
+        """An alert (the caller holds the lock)."""
+        self.alerts.append({"wall_s": time.time(), "text": text})
+        del self.alerts[:-KEPT_ALERTS]
+
+    def send(self, kind: str, text: str, amount: str = "") -> int:
+        """A command as `abyss op KIND TEXT` makes it (ConfigError/BadInput: refused here, sent
+        nowhere); its id."""
+        command = command_of(kind, text, new_id(), amount, site_at(self.site).panel)
+        topic = "intervene" if kind in INTENTS else kind
+        now = time.time()
+        with self.lock:
+            self.sent[command.command_id] = Sent(command, kind, f"{text} {amount}".strip(), topic, now, now)
+        self._put(self.sent[command.command_id])
+        return command.command_id
+
+    def _put(self, sent: Sent) -> None:
+        self.session.put(keys.operator_key(self.system, sent.topic), encode(sent.command, 0, time.time()))
+
+    def resend(self) -> None:
+        """Commands not answered yet, sent again; the vessel's silence noticed."""
+        now = time.time()
+        with self.lock:
+            due = [
+                s for s in self.sent.values() if s.answer is None and now - s.last_sent_s >= RESEND_PERIOD_S
+            ]
+            for s in due:
+                s.last_sent_s = now
+            telemetry = self.latest.get("telemetry")
+            if telemetry is not None and now - telemetry[0] > SILENT_S and not self._silent:
+                self._silent = True
+                self._alert(
+                    f"no telemetry from the vessel for {now - telemetry[0]:.0f} s (satellite or vessel lost)"
+                )
+        for s in due:
+            self._put(s)
+
+    def state(self) -> dict[str, Any]:
+        """What the page shows, each with its age [s]."""
+        now = time.time()
+        with self.lock:
+            shown: dict[str, Any] = {"wall_s": now, "system": self.system}
+            for what, (arrived, message) in self.latest.items():
+                shown[what] = {"age_s": now - arrived, **_fields(message)}
+            if self.frame is not None:
+                shown["frame"] = {"age_s": now - self.frame[0], "count": self.frame[1]}
+            shown["commands"] = [s.view() for s in sorted(self.sent.values(), key=lambda s: -s.sent_s)][:20]
+            shown["alerts"] = list(reversed(self.alerts))
+        return shown
+
+    def jpeg(self) -> bytes | None:
+        with self.lock:
+            return self.frame[2] if self.frame else None
+
+
+def _fields(message: Any) -> dict[str, Any]:
+    """A message's fields the page reads, as JSON values."""
+    if isinstance(message, Telemetry):
+        x, y, z = (float(v) for v in message.position_m_world)
+        return {
+            "position_m_world": [x, y, z],
+            "depth_m": -z,
+            "heading_rad": message.yaw_rad,
+            "mode": message.mode,
+            "arm_mode": message.arm_mode,
+            "operator_mode": message.operator_mode,
+            "failsafe": message.failsafe,
+            "waypoint_index": message.waypoint_index,
+            "waypoints_total": message.waypoints_total,
+            "intervention_target": message.intervention_target,
+            "intervention_phase": message.intervention_phase,
+            "intervention_reason": message.intervention_reason,
+            "gripper_opening_m": message.gripper_opening_m,
+            "arm_positions_rad": [float(v) for v in message.arm_positions_rad],
+            "sim_time_s": message.sim_time_s,
+        }
+    if isinstance(message, MissionStatus):
+        return {
+            "mode": message.mode,
+            "waypoint_index": message.waypoint_index,
+            "waypoints_total": message.waypoints_total,
+            "position_error_m": message.position_error_m,
+            "done": message.done,
+            "interventions_done": message.interventions_done,
+            "interventions_total": message.interventions_total,
+            "intervention_phase": message.intervention_phase,
+        }
+    assert isinstance(message, RecognisedObjects)
+    return {"names": list(message.names), "method": message.method}
+
+
+def _handler(pilot: Pilot) -> type[BaseHTTPRequestHandler]:
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self) -> None:
+            path = self.path.split("?", 1)[0]
+            if path in FILES:
+                name, kind = FILES[path]
+                self._reply(HTTPStatus.OK, (WEB / name).read_bytes(), kind)
+            elif path == "/state":
+                self._reply(HTTPStatus.OK, json.dumps(pilot.state()).encode(), "application/json")
+            elif path == "/frame.jpg" and (jpeg := pilot.jpeg()) is not None:
+                self._reply(HTTPStatus.OK, jpeg, "image/jpeg")
+            else:
+                self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
+
+        def do_POST(self) -> None:
+            if self.path != "/command":
+                self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
+                return
+            try:
+                asked = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))))
+                command_id = pilot.send(str(asked["kind"]), str(asked["value"]), str(asked.get("amount", "")))
+            except (AbyssError, BadInput, KeyError, ValueError) as exc:
+                self._reply(
+                    HTTPStatus.BAD_REQUEST, json.dumps({"error": str(exc)}).encode(), "application/json"
+                )
+                return
+            self._reply(HTTPStatus.OK, json.dumps({"id": command_id}).encode(), "application/json")
+
+        def _reply(self, status: HTTPStatus, body: bytes, kind: str) -> None:
+            self.send_response(status)
+            self.send_header("Content-Type", kind)
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Cache-Control", "no-store")
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format: str, *args: Any) -> None:
+            log.debug(format, *args)
+
+    return Handler
+
+
+def run_console(endpoint: str, system: str, port: int, site: str = "", ready: Any = print) -> int:
+    """Serve the console on 127.0.0.1:`port` (0: any free port) until interrupted."""
+    session = open_session(client_config(endpoint), "abyss console")
+    pilot = Pilot(session, system, site)
+    subscribers = pilot.start()
+    server = ThreadingHTTPServer(("127.0.0.1", port), _handler(pilot))
+    server.daemon_threads = True
+    threading.Thread(target=server.serve_forever, name="console http", daemon=True).start()
+    ready(f"abyss console: http://127.0.0.1:{server.server_address[1]}/ (system {system!r} at {endpoint})")
+    try:
+        while True:
+            time.sleep(0.5)
+            pilot.resend()
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        server.shutdown()
+        for subscriber in subscribers:
+            subscriber.undeclare()
+        session.close()

@@ -1,0 +1,162 @@
+"""The pilot's console (`abyss console`) in a real browser, Debian's Chromium driven by Selenium
+through chromium-driver, against a running system: its instruments show what reached shore, and
+its commands take shore's path to onboard, each showing onboard's answer."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+from conftest import ROOT, Up
+from selenium import webdriver
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support.ui import WebDriverWait
+
+from abyss.common import keys
+from abyss.common.bus import client_config, message_of, open_session
+from abyss.common.messages import MissionStatus, Telemetry
+
+pytestmark = pytest.mark.timeout(240)
+WAIT_S = 60.0  # for what the page shows to come, on this loaded machine
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[webdriver.Chrome]:
+    driver_path, chromium = shutil.which("chromedriver"), shutil.which("chromium")
+    if driver_path is None or chromium is None:
+        pytest.skip("Debian's chromium and chromium-driver are not installed (setup.sh installs them)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for flag in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,900"):
+        options.add_argument(flag)
+    options.add_argument(f"--user-data-dir={tmp_path / 'profile'}")
+    driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=driver_path))
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+class Shore:
+    """What reached shore, as the test sees it on shore's network: each with its arrival [s]."""
+
+    def __init__(self, endpoint: str, system: str) -> None:
+        self.lock = threading.Lock()
+        self.missions: list[tuple[float, MissionStatus]] = []
+        self.telemetry: list[tuple[float, Telemetry]] = []
+        self.session = open_session(client_config(endpoint), "the test's shore")
+        self.subscribers = [
+            self.session.declare_subscriber(keys.mission_key(system), self._mission),
+            self.session.declare_subscriber(keys.spec("vessel", "telemetry").key(system), self._telemetry),
+        ]
+
+    def _mission(self, sample: zenoh.Sample) -> None:
+        if (m := message_of(sample, MissionStatus)) is not None:
+            with self.lock:
+                self.missions.append((time.monotonic(), m))
+
+    def _telemetry(self, sample: zenoh.Sample) -> None:
+        if (t := message_of(sample, Telemetry)) is not None:
+            with self.lock:
+                self.telemetry.append((time.monotonic(), t))
+
+    def since(self, seconds: float) -> tuple[list[MissionStatus], list[Telemetry]]:
+        now = time.monotonic()
+        with self.lock:
+            return (
+                [m for t, m in self.missions if now - t <= seconds],
+                [m for t, m in self.telemetry if now - t <= seconds],
+            )
+
+    def close(self) -> None:
+        for subscriber in self.subscribers:
+            subscriber.undeclare()
+        self.session.close()
+
+
+def text(driver: webdriver.Chrome, selector: str) -> str:
+    """The text of the page's element `selector` (an id, or CSS with a leading `css:`), read in one
+    go in the page: it redraws twice a second."""
+    query = selector[4:] if selector.startswith("css:") else f"#{selector}"
+    return str(
+        driver.execute_script(
+            "const e = document.querySelector(arguments[0]); return e ? e.textContent : ''", query
+        )
+    )
+
+
+def test_the_console_shows_what_reached_shore_and_its_commands_get_onboards_answers(
+    tmp_path: Path, browser: webdriver.Chrome
+) -> None:
+    up = Up(tmp_path / "run", "--keep-running", "--duration", "90")
+    up.wait_up()
+    endpoint = up.endpoint
+    console = subprocess.Popen(
+        [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    shore = Shore(endpoint, "default")
+    try:
+        assert console.stdout is not None
+        line = console.stdout.readline()
+        url = re.search(r"http://127\.0\.0\.1:\d+/", line)
+        assert url, line
+        browser.get(url.group(0))
+        wait = WebDriverWait(browser, WAIT_S, poll_frequency=0.2)
+        # the mission's waypoint as the page shows it is one shore published in the last seconds
+        depth_css = 'css:[data-name="depth"] .value'
+        wait.until(lambda d: text(d, "mission-waypoint") and text(d, depth_css))
+        for _ in range(3):
+            shown = text(browser, "mission-waypoint")
+            missions, telemetry = shore.since(3.0)
+            assert shown in {f"{m.waypoint_index}/{m.waypoints_total}" for m in missions}, (
+                shown,
+                missions[-1:],
+            )
+            depth = text(browser, depth_css)
+            assert any(abs(float(depth.split()[0]) + t.position_m_world[2]) < 0.05 for t in telemetry), depth
+            before = text(browser, "telemetry-age")
+            wait.until(lambda d, before=before: text(d, "telemetry-age") != before)  # the page polled again
+        assert "older than 3 s" in browser.page_source
+        wait.until(
+            lambda d: "stale" not in (d.find_element(By.ID, "instruments").get_attribute("class") or "")
+        )
+        # hold: through shore, the satellite, the vessel and the tether; onboard's answer shows
+        browser.find_element(By.ID, "hold").click()
+        wait.until(lambda d: "mode hold: taken" in text(d, "commands"))
+        wait.until(lambda d: "failsafe: operator hold" in text(d, "alerts"))
+        # a waypoint at the surface: onboard refuses it, and the page says why
+        browser.find_element(By.ID, "waypoints").send_keys("5,0,-0.01,0")
+        browser.find_element(By.CSS_SELECTOR, "#waypoints-form button").click()
+        wait.until(lambda d: "refused: waypoint 0" in text(d, "commands"))
+        assert "of the surface" in text(browser, "commands") and "refused" in text(browser, "alerts")
+        # text the console cannot parse is refused in the page, sent nowhere
+        browser.find_element(By.ID, "waypoints").clear()
+        browser.find_element(By.ID, "waypoints").send_keys("5,0")
+        browser.find_element(By.CSS_SELECTOR, "#waypoints-form button").click()
+        wait.until(lambda d: "expected 4" in text(d, "error"))
+        # the relayed camera frame came across the satellite
+        wait.until(lambda d: d.execute_script("return document.getElementById('frame').naturalWidth") > 0)
+        shots = Path(
+            os.environ.get("ABYSS_SCREENSHOTS", tmp_path)
+        )  # docs/images/console.png: set it to docs/images
+        browser.save_screenshot(str(shots / "console.png"))
+    finally:
+        shore.close()
+        console.send_signal(signal.SIGINT)
+        console.wait(timeout=30)
+        if console.stdout is not None:
+            console.stdout.close()
+        up.stop()

@@ -4,6 +4,7 @@ its commands take shore's path to onboard, each showing onboard's answer."""
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -17,16 +18,16 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import ROOT, Up
+from conftest import ROOT, Up, abyss
 from selenium import webdriver
 from selenium.webdriver.common.by import By
-from selenium.webdriver.support.ui import WebDriverWait
+from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.messages import MissionStatus, Telemetry
+from abyss.common.messages import MissionStatus, PanelState, Telemetry
 
-pytestmark = pytest.mark.timeout(240)
+pytestmark = pytest.mark.timeout(300)
 WAIT_S = 60.0  # for what the page shows to come, on this loaded machine
 
 
@@ -155,6 +156,63 @@ def test_the_console_shows_what_reached_shore_and_its_commands_get_onboards_answ
         browser.save_screenshot(str(shots / "console.png"))
     finally:
         shore.close()
+        console.send_signal(signal.SIGINT)
+        console.wait(timeout=30)
+        if console.stdout is not None:
+            console.stdout.close()
+        up.stop()
+
+
+def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_greys_the_page(
+    tmp_path: Path, browser: webdriver.Chrome
+) -> None:
+    """The mission's waypoints flown, the pilot picks valve_1 from the parts the vessel recognised
+    and turns it 90 deg: it turns on the simulation's truth. Then the satellite goes down: the
+    instruments grey out and the alert rises; it comes back: they clear."""
+    up = Up(tmp_path / "run", "--keep-running", "--duration", "200", "--set", "mission.interventions=[]")
+    up.wait_up()
+    endpoint = up.endpoint
+    angles: dict[str, float] = {}
+    session = open_session(client_config(endpoint), "the test's panel truth")
+
+    def on_panel(sample: zenoh.Sample) -> None:
+        if (panel := message_of(sample, PanelState)) is not None:
+            angles.update(zip(panel.names, (math.degrees(a) for a in panel.angles_rad), strict=True))
+
+    panel_truth = session.declare_subscriber(keys.panel_truth_key("default"), on_panel)
+    console = subprocess.Popen(
+        [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    link = ("--connect", endpoint)
+    try:
+        assert console.stdout is not None
+        url = re.search(r"http://127\.0\.0\.1:\d+/", console.stdout.readline())
+        assert url
+        browser.get(url.group(0))
+        wait = WebDriverWait(browser, 120, poll_frequency=0.2)
+        wait.until(lambda d: text(d, "mission-mode") == "reached" and "valve_1" in text(d, "part"))
+        wait.until(lambda d: "valve_1" in angles)
+        start_deg = angles["valve_1"]
+        Select(browser.find_element(By.ID, "part")).select_by_visible_text("valve_1")
+        browser.find_element(By.ID, "amount").send_keys("90")
+        browser.find_element(By.ID, "intervene").click()
+        wait.until(lambda d: "valve valve_1 90: taken" in text(d, "commands"))
+        wait.until(lambda d: abs(angles["valve_1"] - start_deg - 90.0) < 10.0)
+        # the satellite down: no telemetry reaches shore, the page greys out and says so
+        assert abyss("link", "set", "satellite", "--profile", "outage", *link).returncode == 0
+        wait.until(lambda d: "stale" in (d.find_element(By.ID, "instruments").get_attribute("class") or ""))
+        wait.until(lambda d: "no telemetry from the vessel" in text(d, "alerts"))
+        assert abyss("link", "set", "satellite", "--profile", "satellite", *link).returncode == 0
+        wait.until(lambda d: "reaches shore again" in text(d, "alerts"))
+        wait.until(
+            lambda d: "stale" not in (d.find_element(By.ID, "instruments").get_attribute("class") or "")
+        )
+    finally:
+        panel_truth.undeclare()
+        session.close()
         console.send_signal(signal.SIGINT)
         console.wait(timeout=30)
         if console.stdout is not None:

@@ -32,7 +32,25 @@ def cmd_up(args: argparse.Namespace) -> int:
     from abyss.launch.up import run_up
 
     config = up_config(args, load_config(args))
-    return run_up(config, args.out, args.duration, args.keep_running, args.port, args.external, args.restart)
+    return run_up(
+        config,
+        args.out,
+        args.duration,
+        args.keep_running,
+        args.port,
+        args.external,
+        args.restart,
+        console_port=console_port(args.console),
+    )
+
+
+def console_port(text: str) -> int | None:
+    """--console PORT|none: the pilot's console's port (0: any free one), None for none."""
+    if text == "none":
+        return None
+    if not text.isdigit() or int(text) > 65535:
+        raise ConfigError("--console", f"{text!r} is not a port (0: any free one) or none")
+    return int(text)
 
 
 def up_config(args: argparse.Namespace, config: Config) -> Config:
@@ -183,6 +201,12 @@ def _add_up(sub: Any) -> None:
         help="do not start this station: wait for yours (a real component) on its keys",
     )
     p.add_argument("--restart", action="store_true", help="start a station that dies again")
+    p.add_argument(
+        "--console",
+        default="0",
+        metavar="PORT|none",
+        help="the pilot's console, a web page on 127.0.0.1:PORT (default: any free port; docs/console.md)",
+    )
     p.add_argument(
         "--ros2",
         choices=ROS2_STATIONS,

@@ -26,7 +26,7 @@ import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.errors import AbyssError, BadInput
+from abyss.common.errors import AbyssError, BadInput, ConfigError
 from abyss.common.messages import (
     CommandAck,
     Image,
@@ -273,23 +273,55 @@ def _handler(pilot: Pilot) -> type[BaseHTTPRequestHandler]:
     return Handler
 
 
-def run_console(endpoint: str, system: str, port: int, site: str = "", ready: Any = print) -> int:
-    """Serve the console on 127.0.0.1:`port` (0: any free port) until interrupted."""
-    session = open_session(client_config(endpoint), "abyss console")
-    pilot = Pilot(session, system, site)
-    subscribers = pilot.start()
-    server = ThreadingHTTPServer(("127.0.0.1", port), _handler(pilot))
-    server.daemon_threads = True
-    threading.Thread(target=server.serve_forever, name="console http", daemon=True).start()
-    ready(f"abyss console: http://127.0.0.1:{server.server_address[1]}/ (system {system!r} at {endpoint})")
-    try:
-        while True:
-            time.sleep(0.5)
-            pilot.resend()
-    except KeyboardInterrupt:
-        return 0
-    finally:
-        server.shutdown()
-        for subscriber in subscribers:
+class Console:
+    """The console served on 127.0.0.1:`port` (0: any free one) over `session`, a session on
+    shore's network (`abyss console`'s own, or `abyss up`'s); `url` where; `close()` ends it."""
+
+    def __init__(self, session: zenoh.Session, system: str, port: int, site: str = "") -> None:
+        self.pilot = Pilot(session, system, site)
+        self.subscribers = self.pilot.start()
+        try:
+            self.server = ThreadingHTTPServer(("127.0.0.1", port), _handler(self.pilot))
+        except OSError as exc:
+            self._undeclare()
+            raise ConfigError("--console", f"cannot serve on 127.0.0.1:{port}: {exc}") from None
+        self.server.daemon_threads = True
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/"
+        self.stop = threading.Event()
+        self.threads = [
+            threading.Thread(target=self.server.serve_forever, name="console http", daemon=True),
+            threading.Thread(target=self._resend, name="console resend", daemon=True),
+        ]
+        for thread in self.threads:
+            thread.start()
+
+    def _resend(self) -> None:
+        while not self.stop.wait(0.5):
+            self.pilot.resend()
+
+    def _undeclare(self) -> None:
+        for subscriber in self.subscribers:
             subscriber.undeclare()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.server.shutdown()
+        self.server.server_close()
+        self._undeclare()
+
+
+def run_console(endpoint: str, system: str, port: int, site: str = "") -> int:
+    """`abyss console`: serve the console until interrupted."""
+    session = open_session(client_config(endpoint), "abyss console")
+    try:
+        console = Console(session, system, port, site)
+        print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            console.close()
+    finally:
         session.close()
+    return 0

@@ -21,6 +21,7 @@ from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import SimClock
 from abyss.common.config import Config
 from abyss.common.errors import AbyssError
+from abyss.console.pilot import Console
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.mission_check import check_reach
 from abyss.launch.observe import Heard
@@ -55,6 +56,7 @@ class Up:
         restart: bool = False,
         placement: Placement | None = None,
         replayed: Replayed | None = None,
+        console_port: int | None = None,
     ) -> None:
         external = checked_external(config, external, restart, replayed)
         check_reach(config)  # a mission its arm cannot work fails here, not a minute in
@@ -65,6 +67,8 @@ class Up:
         self.endpoint = endpoint_of(config, port)
         self.interrupted = threading.Event()
         self.keep_running = False
+        self.console_port = console_port  # the pilot's console's, once up (None: no console)
+        self.console: Console | None = None
         self.state = RunState(config.system, self.endpoint, os.getpid())
         self._state_lock = threading.Lock()
         self.heard = Heard(self.change_state)
@@ -120,6 +124,8 @@ class Up:
                 failure, startup_s = self._start_and_watch(t0, duration_s, keep_running)
             finally:
                 self.change_state(phase="stopping")
+                if self.console is not None:
+                    self.console.close()
                 stuck = stop_all(self.supervisor.stations.values(), self.echo)  # always, whatever failed
                 failure = failure or stuck
                 self._close(session, observers)
@@ -144,6 +150,14 @@ class Up:
             self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
             viewer = viewer_line(self.config.onshore)
             self.echo(viewer)
+            if self.console_port is not None:  # on abyss up's own session, on shore's network
+                self.console = Console(
+                    self.supervisor.session,
+                    self.config.system,
+                    self.console_port,
+                    self.config.simulation.site,
+                )
+                self.echo(f"abyss: the pilot's console at {self.console.url}")
             self.change_state(phase="up", viewer=viewer.removeprefix("abyss: "))
             failure = self.supervisor.watch(duration_s, keep_running)
         return failure, startup_s
@@ -171,11 +185,19 @@ def run_up(
     restart: bool = False,
     placement: Placement | None = None,
     replayed: Replayed | None = None,
+    console_port: int | None = None,
 ) -> int:
     run_dir = out or Path("runs") / f"{config.system}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         return Up(
-            config, run_dir, port, external=external, restart=restart, placement=placement, replayed=replayed
+            config,
+            run_dir,
+            port,
+            external=external,
+            restart=restart,
+            placement=placement,
+            replayed=replayed,
+            console_port=console_port,
         ).run(duration_s, keep_running)
     except AbyssError as exc:
         print(f"abyss: {exc}", file=sys.stderr)

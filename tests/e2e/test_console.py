@@ -168,7 +168,8 @@ def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_gre
 ) -> None:
     """The mission's waypoints flown, the pilot picks valve_1 from the parts the vessel recognised
     and turns it 90 deg: it turns on the simulation's truth. Then the satellite goes down: the
-    instruments grey out and the alert rises; it comes back: they clear."""
+    instruments grey out and the alert rises; it comes back: they clear. The console is the one
+    `abyss up` serves."""
     up = Up(tmp_path / "run", "--keep-running", "--duration", "200", "--set", "mission.interventions=[]")
     up.wait_up()
     endpoint = up.endpoint
@@ -180,18 +181,9 @@ def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_gre
             angles.update(zip(panel.names, (math.degrees(a) for a in panel.angles_rad), strict=True))
 
     panel_truth = session.declare_subscriber(keys.panel_truth_key("default"), on_panel)
-    console = subprocess.Popen(
-        [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
     link = ("--connect", endpoint)
     try:
-        assert console.stdout is not None
-        url = re.search(r"http://127\.0\.0\.1:\d+/", console.stdout.readline())
-        assert url
-        browser.get(url.group(0))
+        browser.get(up.wait_for(r"the pilot's console at (http://127\.0\.0\.1:\d+/)").group(1))
         wait = WebDriverWait(browser, 120, poll_frequency=0.2)
         wait.until(lambda d: text(d, "mission-mode") == "reached" and "valve_1" in text(d, "part"))
         wait.until(lambda d: "valve_1" in angles)
@@ -213,8 +205,4 @@ def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_gre
     finally:
         panel_truth.undeclare()
         session.close()
-        console.send_signal(signal.SIGINT)
-        console.wait(timeout=30)
-        if console.stdout is not None:
-            console.stdout.close()
         up.stop()

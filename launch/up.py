@@ -150,12 +150,10 @@ class Up:
             self.echo(f"abyss: all {len(keys.STATIONS)} stations up in {startup_s:.1f} s")
             viewer = viewer_line(self.config.onshore)
             self.echo(viewer)
-            if self.console_port is not None:  # on abyss up's own session, on shore's network
+            session = self.supervisor.session
+            if self.console_port is not None and session is not None:  # abyss up's, on shore's network
                 self.console = Console(
-                    self.supervisor.session,
-                    self.config.system,
-                    self.console_port,
-                    self.config.simulation.site,
+                    session, self.config.system, self.console_port, self.config.simulation.site
                 )
                 self.echo(f"abyss: the pilot's console at {self.console.url}")
             self.change_state(phase="up", viewer=viewer.removeprefix("abyss: "))

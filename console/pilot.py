@@ -22,6 +22,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from abyss.common import keys
@@ -38,12 +39,14 @@ from abyss.common.messages import (
 )
 from abyss.common.site import site_at
 from abyss.console.op import INTENTS, Command, command_of
+from abyss.console.teleop import Goals, Target
 
 WEB = Path(__file__).parent / "web"
 FILES = {"/": ("index.html", "text/html"), "/console.js": ("console.js", "text/javascript")}
 RESEND_PERIOD_S = 2.0  # a command not answered yet is sent again, as `abyss op` does
 SILENT_S = 3.0  # the vessel's telemetry older than this: an alert (the satellite or the vessel lost)
 KEPT_ALERTS = 50
+MAX_STEP = 1.0  # a teleop step's largest [m or rad]: the page sends a few centimetres at a time
 log = logging.getLogger(__name__)
 
 
@@ -84,6 +87,8 @@ class Pilot:
     frame: tuple[float, int, bytes] | None = None  # arrival, count, JPEG
     sent: dict[int, Sent] = field(default_factory=dict)
     alerts: list[dict[str, Any]] = field(default_factory=list)
+    goals: Goals = field(default_factory=Goals)  # teleop's, started from the telemetry as abyss teleop's
+    teleop_sent: int = 0
     _failsafe: str = ""
     _silent: bool = False
 
@@ -117,6 +122,7 @@ class Pilot:
     def _telemetry(self, telemetry: Telemetry) -> None:
         with self.lock:
             self.latest["telemetry"] = (time.time(), telemetry)
+            self.goals.start_from(telemetry)
             if telemetry.failsafe != self._failsafe:
                 self._alert(f"failsafe: {telemetry.failsafe}" if telemetry.failsafe else "failsafe left")
                 self._failsafe = telemetry.failsafe
@@ -156,6 +162,22 @@ class Pilot:
         self._put(self.sent[command.command_id])
         return command.command_id
 
+    def nudge(self, target: Target, translation_m: list[float], rotation_rad: list[float]) -> None:
+        """Teleop: move the vehicle's or the end-effector's goal by a step in the vehicle's heading
+        frame (forward, left, up [m]; roll, pitch, yaw [rad]) and send it, as `abyss teleop` does."""
+        step = [float(v) for v in (*translation_m, *rotation_rad)]
+        if target not in ("vehicle", "arm") or len(step) != 6 or not all(abs(v) <= MAX_STEP for v in step):
+            raise BadInput(f"a teleop step is a target (vehicle, arm) and 6 values each within {MAX_STEP}")
+        with self.lock:
+            if self.goals.vehicle is None:
+                raise BadInput("no telemetry from the vessel yet: nothing to start the goal from")
+            command = self.goals.move(target, np.array(step[:3]), np.array(step[3:]))
+            self.teleop_sent += 1
+        topic = "waypoints" if target == "vehicle" else "arm"
+        self.session.put(
+            keys.operator_key(self.system, topic), encode(command, self.teleop_sent, time.time())
+        )
+
     def _put(self, sent: Sent) -> None:
         self.session.put(keys.operator_key(self.system, sent.topic), encode(sent.command, 0, time.time()))
 
@@ -188,6 +210,7 @@ class Pilot:
                 shown["frame"] = {"age_s": now - self.frame[0], "count": self.frame[1]}
             shown["commands"] = [s.view() for s in sorted(self.sent.values(), key=lambda s: -s.sent_s)][:20]
             shown["alerts"] = list(reversed(self.alerts))
+            shown["teleop_sent"] = self.teleop_sent
         return shown
 
     def jpeg(self) -> bytes | None:
@@ -246,13 +269,19 @@ def _handler(pilot: Pilot) -> type[BaseHTTPRequestHandler]:
                 self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
 
         def do_POST(self) -> None:
-            if self.path != "/command":
+            if self.path not in ("/command", "/teleop"):
                 self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
                 return
             try:
                 asked = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))))
-                command_id = pilot.send(str(asked["kind"]), str(asked["value"]), str(asked.get("amount", "")))
-            except (AbyssError, BadInput, KeyError, ValueError) as exc:
+                if self.path == "/teleop":
+                    pilot.nudge(asked["target"], list(asked["translation_m"]), list(asked["rotation_rad"]))
+                    command_id = -1
+                else:
+                    command_id = pilot.send(
+                        str(asked["kind"]), str(asked["value"]), str(asked.get("amount", ""))
+                    )
+            except (AbyssError, BadInput, KeyError, ValueError, TypeError) as exc:
                 self._reply(
                     HTTPStatus.BAD_REQUEST, json.dumps({"error": str(exc)}).encode(), "application/json"
                 )

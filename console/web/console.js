@@ -58,6 +58,7 @@ async function poll() {
     const state = await (await fetch("state", { cache: "no-store" })).json();
     $("system").textContent = `system ${state.system}`;
     instruments(state.telemetry); mission(state.mission); parts(state.objects); frame(state.frame); lists(state);
+    $("teleop-sent").textContent = state.teleop_sent;
   } catch (e) { $("error").textContent = `the console's server: ${e}`; }
 }
 
@@ -77,5 +78,49 @@ $("intervene-form").addEventListener("submit", (e) => {
   const amount = $("amount").value.trim();
   send(["up", "down"].includes(amount) ? "lever" : "valve", $("part").value, amount);
 });
+// Teleop, as `abyss teleop` does it: goals moved by steps in the vehicle's heading frame, sent
+// through shore. A gamepad's sticks move the goal at their deflection times SPEED while the dead-man
+// button is held, one step each SEND_S; let go, nothing more is sent and the vehicle stops at the
+// goal it was last sent (at most SPEED times SEND_S ahead of where it was heading).
+const SPEED_MPS = 0.25, RATE_RADPS = 10 * Math.PI / 180, SEND_S = 0.5, DEADBAND = 0.1, DEADMAN = 4;
+const STEP_M = 0.1, STEP_RAD = 5 * Math.PI / 180;
+const KEYS = { w: [1, 0, 0, 0, 0, 0], s: [-1, 0, 0, 0, 0, 0], a: [0, 1, 0, 0, 0, 0], d: [0, -1, 0, 0, 0, 0],
+  r: [0, 0, 1, 0, 0, 0], f: [0, 0, -1, 0, 0, 0], q: [0, 0, 0, 0, 0, 1], e: [0, 0, 0, 0, 0, -1],
+  i: [0, 0, 0, 0, 1, 0], k: [0, 0, 0, 0, -1, 0], u: [0, 0, 0, 1, 0, 0], o: [0, 0, 0, -1, 0, 0] };
+let target = "vehicle", lastSendS = performance.now() / 1000, switchHeld = false;
+
+function teleop(step) {
+  fetch("teleop", { method: "POST", body: JSON.stringify(
+    { target, translation_m: step.slice(0, 3), rotation_rad: step.slice(3) }) })
+    .then(async (answer) => { if (!answer.ok) $("error").textContent = (await answer.json()).error; });
+}
+
+function switchTarget() { target = target === "vehicle" ? "arm" : "vehicle"; $("teleop-target").textContent = target === "arm" ? "end-effector" : "vehicle"; }
+
+function gamepadTick() {
+  const pad = [...(navigator.getGamepads ? navigator.getGamepads() : [])].find((p) => p);
+  const nowS = performance.now() / 1000;
+  $("gamepad").textContent = pad ? pad.id : "none";
+  if (!pad) { lastSendS = nowS; return; }
+  if (pad.buttons[0] && pad.buttons[0].pressed !== switchHeld) { switchHeld = pad.buttons[0].pressed; if (switchHeld) switchTarget(); }
+  const held = Boolean(pad.buttons[DEADMAN] && pad.buttons[DEADMAN].pressed);
+  $("deadman").textContent = held ? "held" : "released";
+  const a = [0, 1, 2, 3].map((i) => (Math.abs(pad.axes[i] || 0) > DEADBAND ? pad.axes[i] : 0));
+  const dt = nowS - lastSendS;
+  if (dt < SEND_S) return;
+  lastSendS = nowS;
+  if (held && a.some((v) => v !== 0)) {
+    teleop([-a[1] * SPEED_MPS * dt, -a[0] * SPEED_MPS * dt, -a[3] * SPEED_MPS * dt, 0, 0, -a[2] * RATE_RADPS * dt]);
+  }
+}
+
+document.addEventListener("keydown", (e) => {
+  if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
+  if (e.key === "Tab") { e.preventDefault(); switchTarget(); return; }
+  const steps = KEYS[e.key];
+  if (steps) teleop(steps.map((v, i) => v * (i < 3 ? STEP_M : STEP_RAD)));
+});
+
 setInterval(poll, 500);
+setInterval(gamepadTick, 100);
 poll();

@@ -25,7 +25,7 @@ from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.messages import MissionStatus, PanelState, Telemetry
+from abyss.common.messages import MissionStatus, NavState, PanelState, Telemetry
 
 pytestmark = pytest.mark.timeout(300)
 WAIT_S = 60.0  # for what the page shows to come, on this loaded machine
@@ -174,13 +174,21 @@ def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_gre
     up.wait_up()
     endpoint = up.endpoint
     angles: dict[str, float] = {}
-    session = open_session(client_config(endpoint), "the test's panel truth")
+    vehicle: list[NavState] = []
+    session = open_session(client_config(endpoint), "the test's truth")
 
     def on_panel(sample: zenoh.Sample) -> None:
         if (panel := message_of(sample, PanelState)) is not None:
             angles.update(zip(panel.names, (math.degrees(a) for a in panel.angles_rad), strict=True))
 
-    panel_truth = session.declare_subscriber(keys.panel_truth_key("default"), on_panel)
+    def on_truth(sample: zenoh.Sample) -> None:
+        if (truth := message_of(sample, NavState)) is not None:
+            vehicle.append(truth)
+
+    truths = [
+        session.declare_subscriber(keys.panel_truth_key("default"), on_panel),
+        session.declare_subscriber(keys.truth_key("default"), on_truth),
+    ]
     link = ("--connect", endpoint)
     try:
         browser.get(up.wait_for(r"the pilot's console at (http://127\.0\.0\.1:\d+/)").group(1))
@@ -202,7 +210,29 @@ def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_gre
         wait.until(
             lambda d: "stale" not in (d.find_element(By.ID, "instruments").get_attribute("class") or "")
         )
+        # a gamepad (the page's navigator.getGamepads, the test's): the stick back with the dead-man
+        # held backs the vehicle away from the panel; let go, it stops
+        browser.execute_script(
+            "window.pad = {id: 'the test pad', axes: [0, 1, 0, 0],"
+            " buttons: Array.from({length: 8}, () => ({pressed: false, value: 0}))};"
+            "navigator.getGamepads = () => [window.pad];"
+        )
+        wait.until(lambda d: text(d, "gamepad") == "the test pad")
+        x0 = vehicle[-1].position_m_world[0]
+        browser.execute_script("window.pad.buttons[4].pressed = true;")
+        wait.until(lambda d: vehicle[-1].position_m_world[0] < x0 - 0.3)
+        browser.execute_script("window.pad.buttons[4].pressed = false;")
+        wait.until(lambda d: text(d, "deadman") == "released")
+        wait.until(lambda d: abs(vehicle[-1].velocity_mps_body[0]) < 0.02)
+        sent, stopped, seen = text(browser, "teleop-sent"), vehicle[-1].position_m_world, len(vehicle)
+        wait.until(lambda d: len(vehicle) >= seen + 60)  # three more simulated seconds of the truth
+        assert abs(vehicle[-1].position_m_world[0] - stopped[0]) < 0.1, (
+            stopped,
+            vehicle[-1].position_m_world,
+        )
+        assert text(browser, "teleop-sent") == sent and int(sent) > 0  # nothing sent since the release
     finally:
-        panel_truth.undeclare()
+        for truth in truths:
+            truth.undeclare()
         session.close()
         up.stop()

@@ -27,6 +27,12 @@ ARM_MISSION = (
     "--set",
     "mission.arm_target=[4.86, 0, -8.35, 1.5708, 0, 0]",
 )
+# the recorded run's (`recorded_run`), which a hybrid run flies again with a vehicle replaying it
+RECORDED_MISSION = (
+    *("--keep-running", "--duration", "40"),
+    *("--set", "simulation.camera_rate_hz=0.5", "--set", "vessel.scene_track_period_s=1"),
+    *ARM_MISSION,
+)
 
 
 @pytest.fixture
@@ -160,14 +166,7 @@ def recorded_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
             "save",
             "--record",
             "all",
-            "--keep-running",
-            "--duration",
-            "40",
-            "--set",
-            "simulation.camera_rate_hz=0.5",
-            "--set",
-            "vessel.scene_track_period_s=1",
-            *ARM_MISSION,
+            *RECORDED_MISSION,
         ],
         capture_output=True,
         text=True,

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import ARM_MISSION, ROOT, Up
+from conftest import RECORDED_MISSION, ROOT, Up
 from maps import agreement, occupied
 
 from abyss.common import keys
@@ -33,19 +33,7 @@ CELL_M = 0.1  # the vessel's octree resolution
 def test_a_recorded_vehicle_flies_and_the_twin_renders_the_site_the_vessel_maps_as_before(
     tmp_path: Path, recorded_run: Path
 ) -> None:
-    up = Up(
-        tmp_path / "run",
-        "--hybrid",
-        "nav,joints",
-        "--keep-running",
-        "--duration",
-        "40",
-        "--set",
-        "simulation.camera_rate_hz=0.5",
-        "--set",
-        "vessel.scene_track_period_s=1",
-        *ARM_MISSION,
-    )
+    up = Up(tmp_path / "run", "--hybrid", "nav,joints", *RECORDED_MISSION)
     up.wait_up()  # the twin up, rendering nothing yet
     report = tmp_path / "vehicle.json"
     vehicle = subprocess.Popen(

@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 import pytest
-from conftest import ARM_MISSION, Up
+from conftest import RECORDED_MISSION, Up
 from maps import agreement, occupied
 from rosnode import RosNode, gateway_graph
 from rosvehicle import VehicleDriver, joint_state, odometry
@@ -62,9 +62,8 @@ def test_a_ros2_vehicle_driver_provides_the_twin_s_pose_and_the_vessel_maps_as_b
     up = Up(
         tmp_path / "run",
         *("--ros2", "simulation", "--set", f'ros2.listen=["{endpoint}"]'),
-        *("--set", "simulation.camera_rate_hz=0.5", "--set", "vessel.scene_track_period_s=1"),
-        *ARM_MISSION,
-        *("--keep-running", "--duration", "40", "--viewer", "save", "--record", "none"),
+        *RECORDED_MISSION,
+        *("--viewer", "save", "--record", "none"),
     )
     up.wait_for(r"simulation is a ROS 2 gateway")
     node = RosNode(endpoint, name="team_vehicle_driver")

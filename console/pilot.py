@@ -92,6 +92,9 @@ class Pilot:
     _failsafe: str = ""
     _silent: bool = False
 
+    def __post_init__(self) -> None:
+        self.panel = site_at(self.site).panel  # the running site's, that commands are checked against
+
     def start(self) -> list[Any]:
         """Subscribe to what reached shore; the subscribers (keep them)."""
         take = {
@@ -154,7 +157,7 @@ class Pilot:
     def send(self, kind: str, text: str, amount: str = "") -> int:
         """A command as `abyss op KIND TEXT` makes it (ConfigError/BadInput: refused here, sent
         nowhere); its id."""
-        command = command_of(kind, text, new_id(), amount, site_at(self.site).panel)
+        command = command_of(kind, text, new_id(), amount, self.panel)
         topic = "intervene" if kind in INTENTS else kind
         now = time.time()
         with self.lock:

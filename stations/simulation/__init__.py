@@ -276,12 +276,14 @@ def sensor_loop(
     blackout: set[str],
     kind: SensorKind,
     rate_hz: float,
-    twin: Twin | None = None,
 ) -> None:
     """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics
-    state, in a process of its own (stations.simulation.offload). A hybrid run's `twin`: only
-    what it provides, and nothing while its navigation is missing or stale."""
+    state, in a process of its own (stations.simulation.offload). A hybrid run's twin renders
+    only what it provides, and nothing while its navigation is missing or stale."""
     from abyss.stations.simulation.offload import Offloaded, state_of
+    from abyss.stations.simulation.twin import Twin
+
+    twin = world if isinstance(world, Twin) else None
 
     stream = {"cameras": 1, "sonar": 2}[kind]  # the sensor's own random stream: snow, speckle, noise
     sensor = Offloaded(kind, world.model, config.simulation, [config.seed, stream])

@@ -138,7 +138,7 @@ def run(config: Config, bus: Bus) -> None:
     with Workers(bus.stop) as workers:
         for kind, rate_hz in sensors:
             if rate_hz > 0 and twin.renders(kind):
-                workers.start(kind, sensor_loop, config, bus, twin, lock, blackout, kind, rate_hz, twin)
+                workers.start(kind, sensor_loop, config, bus, twin, lock, blackout, kind, rate_hz)
         _place(bus, twin, lock, blackout)
     bus.about.update(twin.status())
 

@@ -29,7 +29,12 @@ from abyss.recording.store import TESTBED, Recorder
 
 # a restarted station is back when its session is up and, for these, once its output is seen
 # again (onboard's telemetry, the simulation's truth): a session comes up before the station runs
-HEARD_FROM: dict[str, type] = {"onboard": Telemetry, "simulation": NavState}
+# what says a restarted station is back: its output the supervisor sees (the simulation's truth; a
+# hybrid run's twin, which has none, its status)
+HEARD_FROM: dict[str, tuple[type, ...]] = {
+    "onboard": (Telemetry,),
+    "simulation": (NavState, SimulationStatus),
+}
 
 
 @dataclass

@@ -239,9 +239,14 @@ def _restart_lines(summary: dict[str, Any]) -> list[str]:
     lines = []
     for r in summary.get("restarts", []):
         back = f"down {r['down_s']:.1f} s" if r.get("down_s") is not None else "not back"
+        strayed = (
+            "no truth to tell how far the vehicle strayed (a hybrid run)"
+            if summary.get("hybrid")
+            else f"the vehicle strayed {r['drift_m'] * 1e3:.0f} mm meanwhile"
+        )
         lines.append(
             f"  restart: {r['station']} at t={r['t_s']:.1f} s (exit {exit_text(r['exit_code'])}), "
-            f"{back}, the vehicle strayed {r['drift_m'] * 1e3:.0f} mm meanwhile"
+            f"{back}, {strayed}"
         )
     for e in summary.get("events", []):
         lines.append(f"  on shore: {e['station']} {e['event']} (sim t={e['sim_time_s']:.1f} s)")

@@ -79,3 +79,23 @@ def test_a_wrong_intent_fails_at_the_command_line_with_what_is_allowed() -> None
         )
         assert done.returncode == 2 and expected in done.stderr, (args, done.stdout, done.stderr)
     assert math.isclose(panel.intent("valve_2", "-30")[0], math.radians(-30))
+
+
+def test_a_hybrid_run_says_its_interventions_and_a_restarts_drift_have_no_truth_to_judge_them() -> None:
+    """Shore's word stands in for the truth, said as such; a restart's drift is not claimed 0 mm."""
+    from abyss.common.config import load
+    from abyss.common.messages import MissionStatus
+    from abyss.launch.summarise import hybrid_summary
+    from abyss.launch.verdict import _restart_lines, hybrid_interventions
+
+    config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
+    status = MissionStatus("reached", 3, 3, 0.0, 0.0, "reached", 0.0, 0.0, "", 0, True, 1, 2)
+    judged = hybrid_interventions(config.mission, status)
+    assert [(i["part"], i["success"], i["done_on_shore"]) for i in judged] == [
+        ("valve_1", None, True),
+        ("lever_0", None, False),
+    ]
+    restart = {"station": "simulation", "exit_code": -9, "t_s": 8.9, "down_s": 2.8, "drift_m": 0.0}
+    hybrid = {"restarts": [restart], "hybrid": hybrid_summary(config)}
+    assert "no truth to tell how far the vehicle strayed" in _restart_lines(hybrid)[0]
+    assert "strayed 0 mm" in _restart_lines({"restarts": [restart]})[0]

@@ -95,7 +95,17 @@ def cmd_op(args: argparse.Namespace) -> int:
 def cmd_console(args: argparse.Namespace) -> int:
     from abyss.console.pilot import run_console
 
-    return run_console(args.connect, args.system, args.port, args.site)
+    if args.token:
+        from abyss.common.errors import ConfigError
+        from abyss.common.security import tool_certificates
+        from abyss.console.access import token_of
+
+        certificates = tool_certificates(args.connect)
+        if certificates is None:
+            raise ConfigError("--token", "only a console on a tls/ endpoint has a token to work out again")
+        print(token_of(certificates, args.system))
+        return 0
+    return run_console(args.connect, args.system, args.port, args.site, args.bind, args.viewer_url)
 
 
 def add_commands(sub: Any) -> None:
@@ -116,7 +126,19 @@ def add_commands(sub: Any) -> None:
         "console",
         help="the pilot's console: a web page on this machine to fly the mission from (docs/console.md)",
     )
-    p.add_argument("--port", type=int, default=0, help="the page's port on 127.0.0.1 (default: any free one)")
+    p.add_argument("--port", type=int, default=0, help="the page's port (default: any free one)")
+    p.add_argument(
+        "--bind",
+        default="127.0.0.1",
+        metavar="ADDRESS",
+        help="where the page is served (default 127.0.0.1; any other address asks for the operator's token)",
+    )
+    p.add_argument("--viewer-url", default="", help="rerun's web viewer of the run, to embed in the page")
+    p.add_argument(
+        "--token",
+        action="store_true",
+        help="print the token of a console on this tls/ endpoint (from $ABYSS_TLS_DIR's operator key)",
+    )
     package_args(p, robot=False)
     connect_args(p)
     p.set_defaults(func=cmd_console)

@@ -7,6 +7,7 @@ import dataclasses
 import logging
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -106,7 +107,7 @@ def run_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
 
 
 def cmd_station(args: argparse.Namespace) -> int:
-    from abyss.launch.station import configure_logging, run_station
+    from abyss.launch.station import configure_logging, run_station, station_main
 
     configure_logging(args.verbose)
     peers = dict(pairs("--peer", args.peer))
@@ -118,6 +119,13 @@ def cmd_station(args: argparse.Namespace) -> int:
         from abyss.recording.replay import replayer
 
         entry = replayer(args.replay, args.speed)
+    port = console_port(args.console)
+    if port is not None:
+        if args.name != "onshore":
+            raise ConfigError(
+                "--console", f"the pilot's console is served by the onshore station, not {args.name}"
+            )
+        entry = _with_console(entry or station_main(args.name, config), port)
     code = run_station(
         args.name,
         config,
@@ -137,6 +145,22 @@ def cmd_station(args: argparse.Namespace) -> int:
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(code)
+
+
+def _with_console(entry: Callable[[Config, Any], None], port: int) -> Callable[[Config, Any], None]:
+    """The onshore station with the pilot's console served on its own session."""
+
+    def run(config: Config, bus: Any) -> None:
+        from abyss.console.pilot import Console
+
+        console = Console(bus.session, config.system, port, config.simulation.site)
+        print(f"abyss: the pilot's console at {console.url}", flush=True)
+        try:
+            entry(config, bus)
+        finally:
+            console.close()
+
+    return run
 
 
 def cmd_health(args: argparse.Namespace) -> int:
@@ -228,6 +252,12 @@ def _add_station(sub: Any) -> None:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT")
     p.add_argument("--status-file", type=Path, help="write counters here on exit")
+    p.add_argument(
+        "--console",
+        default="none",
+        metavar="PORT|none",
+        help="onshore only: serve the pilot's console on 127.0.0.1:PORT (0: any free port; docs/console.md)",
+    )
     p.add_argument(
         "--link",
         choices=LINK_MODES,

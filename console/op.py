@@ -5,6 +5,8 @@ refused here, before anything is sent."""
 
 from __future__ import annotations
 
+import json
+import math
 import threading
 import time
 
@@ -27,6 +29,7 @@ from abyss.common.messages import (
 )
 from abyss.common.models.panel import Panel, intent_of
 from abyss.common.site import site_at
+from abyss.console.access import operator_name
 
 RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
 
@@ -57,6 +60,38 @@ def parse_arm(text: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 Command = Waypoints | ArmGoal | OperatorMode | Intervention  # what `abyss op` sends
+UNNAMED = "an operator's tool that gave no name"
+
+
+def put_command(
+    session: zenoh.Session, system: str, topic: str, command: Command, seq: int, by: str, teleop: bool = False
+) -> None:
+    """Hand `command` to the onshore station on operator/`topic`, signed with who sent it (`by`)
+    and whether it is a teleop goal, so that every console on shore shows it and its sender."""
+    signature = json.dumps({"by": by, "teleop": teleop}).encode()
+    session.put(keys.operator_key(system, topic), encode(command, seq, time.time()), attachment=signature)
+
+
+def sender_of(sample: zenoh.Sample) -> tuple[str, bool]:
+    """Who sent the command in `sample` and whether it is a teleop goal (put_command's signature)."""
+    try:
+        signature = json.loads(sample.attachment.to_bytes()) if sample.attachment is not None else {}
+        return str(signature.get("by") or UNNAMED), bool(signature.get("teleop", False))
+    except (ValueError, AttributeError):
+        return UNNAMED, False
+
+
+def text_of(command: Command) -> str:
+    """A command as `abyss op` takes it (`mode hold`, `waypoints 5,0,-10,0`, `valve valve_1 90`)."""
+    if isinstance(command, OperatorMode):
+        return command.mode
+    if isinstance(command, Waypoints):
+        return "; ".join(",".join(f"{v:g}" for v in row.round(3)) for row in command.waypoints)
+    if isinstance(command, Intervention):
+        return f"{command.target} {command.to or f'{math.degrees(command.turn_rad):g}'}"
+    return ",".join(f"{v:g}" for v in command.position_m_world.round(3))
+
+
 INTENTS = ("valve", "lever")  # `abyss op valve NAME --turn DEG`, `abyss op lever NAME --to STOP`
 
 
@@ -101,7 +136,7 @@ def send(endpoint: str, system: str, command: Command, topic: str, timeout_s: fl
         subscriber = session.declare_subscriber(keys.operator_key(system, "ack"), on_ack)
         deadline, sent = time.monotonic() + timeout_s, 0
         while not answered.is_set() and time.monotonic() < deadline:
-            session.put(keys.operator_key(system, topic), encode(command, sent, time.time()))
+            put_command(session, system, topic, command, sent, operator_name("abyss op"))
             sent += 1
             answered.wait(min(RESEND_PERIOD_S, max(0.0, deadline - time.monotonic())))
         subscriber.undeclare()

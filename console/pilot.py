@@ -5,10 +5,12 @@ camera frame and the parts it recognised, and shore's own mission status, each w
 Its commands take `abyss op`'s path (the operator keys to the onshore station, which sends them
 down the satellite), resent until onboard's answer comes back, and each shows that answer. It
 keeps a list of alerts: the failsafe entered and left, a command refused, an intervention failed,
-the vessel's telemetry gone silent. The page (`console/web/`) polls `/state` twice a second.
+the arm blocked, a waypoint missed, a station lost or restarted, the vessel's telemetry gone
+silent. Every command any operator's tool hands shore shows here with who sent it, so a second
+console sees the first one's. The page (`console/web/`) polls `/state` twice a second.
 
-The server binds to 127.0.0.1 alone: on a network, commands would need the operator's credential,
-which this console does not ask for yet."""
+The server binds to 127.0.0.1 unless told otherwise; bound where others reach it, it asks for the
+operator's token (`console.access`)."""
 
 from __future__ import annotations
 
@@ -22,27 +24,38 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import zenoh
 
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
+from abyss.common.certs import CertFiles
 from abyss.common.errors import AbyssError, BadInput, ConfigError
 from abyss.common.messages import (
     CommandAck,
     Image,
+    LinkStats,
     MissionStatus,
+    PerceptionStatus,
     RecognisedObjects,
+    SonarImage,
     Telemetry,
-    encode,
     new_id,
 )
+from abyss.common.security import tool_certificates
 from abyss.common.site import site_at
-from abyss.console.op import INTENTS, Command, command_of
+from abyss.common.sonar_frames import decode_polar, fan
+from abyss.console.access import HEADER, Access, operator_name
+from abyss.console.op import INTENTS, Command, command_of, put_command, sender_of, text_of
 from abyss.console.teleop import Goals, Target
+from abyss.stations.onshore import TOOL_COMMANDS
 
 WEB = Path(__file__).parent / "web"
 FILES = {"/": ("index.html", "text/html"), "/console.js": ("console.js", "text/javascript")}
+IMAGES = ("/frame.jpg", "/sonar.png")
+# what the page shows of each hop's statistics (linkemu's keys): delays [ms], the queue, losses
+LINK_FIELDS = ("delay_p50_ms", "delay_p99_ms", "in_flight", "messages_lost", "losses", "queue_drops")
 RESEND_PERIOD_S = 2.0  # a command not answered yet is sent again, as `abyss op` does
 SILENT_S = 3.0  # the vessel's telemetry older than this: an alert (the satellite or the vessel lost)
 KEPT_ALERTS = 50
@@ -58,9 +71,11 @@ class Sent:
     kind: str
     text: str
     topic: str
-    sent_s: float  # wall [s], the first send
+    sent_s: float  # wall [s], the first send (another tool's: when this console saw it)
     last_sent_s: float
+    by: str = ""  # who sent it: "" this console, else the tool's signature (op.put_command)
     answer: CommandAck | None = None
+    answered_s: float = 0.0  # wall [s], when onboard's answer reached this console
 
     def view(self) -> dict[str, Any]:
         state = "sent" if self.answer is None else ("taken" if self.answer.accepted else "refused")
@@ -70,7 +85,9 @@ class Sent:
             "text": self.text,
             "state": state,
             "reason": self.answer.reason if self.answer is not None else "",
+            "by": self.by,
             "sent_s": self.sent_s,
+            "answered_s": self.answered_s,
         }
 
 
@@ -82,21 +99,26 @@ class Pilot:
     session: zenoh.Session
     system: str
     site: str = ""
+    by: str = field(default_factory=lambda: operator_name("console"))  # this console, to the others
     lock: threading.Lock = field(default_factory=threading.Lock)
     latest: dict[str, tuple[float, Any]] = field(default_factory=dict)  # what -> (arrival [s, wall], message)
-    frame: tuple[float, int, bytes] | None = None  # arrival, count, JPEG
+    images: dict[str, tuple[float, int, bytes]] = field(default_factory=dict)  # path -> arrival, count, bytes
+    links: dict[tuple[str, str], tuple[float, LinkStats]] = field(default_factory=dict)  # (hop, direction)
     sent: dict[int, Sent] = field(default_factory=dict)
     alerts: list[dict[str, Any]] = field(default_factory=list)
     goals: Goals = field(default_factory=Goals)  # teleop's, started from the telemetry as abyss teleop's
     teleop_sent: int = 0
-    _failsafe: str = ""
+    others_teleop: dict[str, int] = field(default_factory=dict)  # teleop goals other tools sent, by sender
+    stations: dict[str, bool] = field(default_factory=dict)  # station -> its liveliness token held
+    _before: Telemetry | None = None  # the telemetry before the latest, for what changed
     _silent: bool = False
 
     def __post_init__(self) -> None:
         self.panel = site_at(self.site).panel  # the running site's, that commands are checked against
 
     def start(self) -> list[Any]:
-        """Subscribe to what reached shore; the subscribers (keep them)."""
+        """Subscribe to what reached shore, the commands of every operator's tool, and the
+        stations' liveliness; the subscribers (keep them)."""
         take = {
             keys.spec("vessel", "telemetry").key(self.system): (Telemetry, self._telemetry),
             keys.mission_key(self.system): (MissionStatus, lambda m: self._keep("mission", m)),
@@ -104,7 +126,13 @@ class Pilot:
                 RecognisedObjects,
                 lambda m: self._keep("objects", m),
             ),
+            keys.spec("vessel", "perception").key(self.system): (
+                PerceptionStatus,
+                lambda m: self._keep("perception", m),
+            ),
             keys.spec("vessel", "image").key(self.system): (Image, self._image),
+            keys.spec("vessel", "sonar").key(self.system): (SonarImage, self._sonar),
+            keys.linkstats_key(self.system, "*", "*"): (LinkStats, self._link),
             keys.operator_key(self.system, "ack"): (CommandAck, self._answer),
         }
 
@@ -116,7 +144,24 @@ class Pilot:
 
             return callback
 
-        return [self.session.declare_subscriber(k, on(cls, handler)) for k, (cls, handler) in take.items()]
+        def on_command(topic: str, cls: type) -> Any:
+            def callback(sample: zenoh.Sample) -> None:
+                command = message_of(sample, cls)
+                if command is not None:
+                    self._seen(topic, command, *sender_of(sample))
+
+            return callback
+
+        return [
+            *(self.session.declare_subscriber(k, on(cls, handler)) for k, (cls, handler) in take.items()),
+            *(
+                self.session.declare_subscriber(keys.operator_key(self.system, topic), on_command(topic, cls))
+                for topic, cls in TOOL_COMMANDS
+            ),
+            self.session.liveliness().declare_subscriber(
+                keys.alive_key(self.system, "*"), self._alive, history=True
+            ),
+        ]
 
     def _keep(self, what: str, message: Any) -> None:
         with self.lock:
@@ -126,28 +171,68 @@ class Pilot:
         with self.lock:
             self.latest["telemetry"] = (time.time(), telemetry)
             self.goals.start_from(telemetry)
-            if telemetry.failsafe != self._failsafe:
-                self._alert(f"failsafe: {telemetry.failsafe}" if telemetry.failsafe else "failsafe left")
-                self._failsafe = telemetry.failsafe
+            for alert in _changes(self._before, telemetry):
+                self._alert(alert)
+            self._before = telemetry
             if self._silent:
                 self._alert("the vessel's telemetry reaches shore again")
                 self._silent = False
 
     def _image(self, image: Image) -> None:
-        if image.encoding != "jpeg":
+        if image.encoding == "jpeg":
+            self._keep_image("/frame.jpg", image.data)
+
+    def _sonar(self, sonar: SonarImage) -> None:
+        """The sonar's fan seen from above, drawn here once (0.2 Hz), served as a PNG."""
+        try:
+            drawn, png = cv2.imencode(".png", fan(sonar, decode_polar(sonar)))
+        except BadInput as exc:
+            log.warning("a sonar frame that does not decode, not shown: %s", exc)
             return
+        if drawn:
+            self._keep_image("/sonar.png", png.tobytes())
+            self._keep("sonar", sonar)
+
+    def _keep_image(self, path: str, data: bytes) -> None:
         with self.lock:
-            count = self.frame[1] + 1 if self.frame else 1
-            self.frame = (time.time(), count, image.data)
+            count = self.images[path][1] + 1 if path in self.images else 1
+            self.images[path] = (time.time(), count, data)
+
+    def _link(self, stats: LinkStats) -> None:
+        with self.lock:
+            self.links[stats.hop, stats.direction] = (time.time(), stats)
+
+    def _alive(self, sample: zenoh.Sample) -> None:
+        """A station's liveliness token came or went: a station lost, or back (restarted)."""
+        station = str(sample.key_expr).split("/")[2]
+        up = sample.kind == zenoh.SampleKind.PUT
+        with self.lock:
+            if station in self.stations and self.stations[station] != up:
+                self._alert(f"station {station} back (restarted)" if up else f"station {station} lost")
+            self.stations[station] = up
+
+    def _seen(self, topic: str, command: Command, by: str, teleop: bool) -> None:
+        """A command some operator's tool handed shore: another's is listed with its sender (a
+        teleop goal only counted: they come twice a second)."""
+        with self.lock:
+            if command.command_id in self.sent or by == self.by:
+                return
+            if teleop:
+                self.others_teleop[by] = self.others_teleop.get(by, 0) + 1
+                return
+            kind = "intervene" if topic == "intervene" else topic
+            now = time.time()
+            self.sent[command.command_id] = Sent(command, kind, text_of(command), topic, now, now, by)
 
     def _answer(self, ack: CommandAck) -> None:
         with self.lock:
             sent = self.sent.get(ack.command_id)
             if sent is None or sent.topic != ack.command or sent.answer is not None:
                 return
-            sent.answer = ack
+            sent.answer, sent.answered_s = ack, time.time()
             if not ack.accepted:
-                self._alert(f"{sent.kind} {sent.text} refused: {ack.reason}")
+                by = f" (sent by {sent.by})" if sent.by else ""
+                self._alert(f"{sent.kind} {sent.text} refused{by}: {ack.reason}")
 
     def _alert(self, text: str) -> None:
         """An alert (the caller holds the lock)."""
@@ -177,19 +262,19 @@ class Pilot:
             command = self.goals.move(target, np.array(step[:3]), np.array(step[3:]))
             self.teleop_sent += 1
         topic = "waypoints" if target == "vehicle" else "arm"
-        self.session.put(
-            keys.operator_key(self.system, topic), encode(command, self.teleop_sent, time.time())
-        )
+        put_command(self.session, self.system, topic, command, self.teleop_sent, self.by, teleop=True)
 
     def _put(self, sent: Sent) -> None:
-        self.session.put(keys.operator_key(self.system, sent.topic), encode(sent.command, 0, time.time()))
+        put_command(self.session, self.system, sent.topic, sent.command, 0, self.by)
 
     def resend(self) -> None:
         """Commands not answered yet, sent again; the vessel's silence noticed."""
         now = time.time()
         with self.lock:
             due = [
-                s for s in self.sent.values() if s.answer is None and now - s.last_sent_s >= RESEND_PERIOD_S
+                s
+                for s in self.sent.values()
+                if not s.by and s.answer is None and now - s.last_sent_s >= RESEND_PERIOD_S
             ]
             for s in due:
                 s.last_sent_s = now
@@ -209,16 +294,46 @@ class Pilot:
             shown: dict[str, Any] = {"wall_s": now, "system": self.system}
             for what, (arrived, message) in self.latest.items():
                 shown[what] = {"age_s": now - arrived, **_fields(message)}
-            if self.frame is not None:
-                shown["frame"] = {"age_s": now - self.frame[0], "count": self.frame[1]}
+            for path, (arrived, count, _) in self.images.items():
+                shown[path.strip("/").split(".")[0]] = {"age_s": now - arrived, "count": count}
+            shown["links"] = [
+                {"hop": hop, "direction": direction, "age_s": now - arrived, "profile": stats.profile}
+                | {k: stats.stats[k] for k in LINK_FIELDS if k in stats.stats}
+                for (hop, direction), (arrived, stats) in sorted(self.links.items())
+            ]
             shown["commands"] = [s.view() for s in sorted(self.sent.values(), key=lambda s: -s.sent_s)][:20]
             shown["alerts"] = list(reversed(self.alerts))
             shown["teleop_sent"] = self.teleop_sent
+            shown["others_teleop"] = dict(self.others_teleop)
+            shown["stations"] = dict(self.stations)
+            shown["by"] = self.by
         return shown
 
-    def jpeg(self) -> bytes | None:
+    def image(self, path: str) -> bytes | None:
+        """The latest relayed frame (/frame.jpg) or sonar fan (/sonar.png), if one came."""
         with self.lock:
-            return self.frame[2] if self.frame else None
+            return self.images[path][2] if path in self.images else None
+
+
+def _changes(before: Telemetry | None, now: Telemetry) -> list[str]:
+    """What the telemetry says changed that the pilot must be told: the failsafe entered or
+    left, the arm blocked, a waypoint missed, an intervention failed, onboard restarted."""
+    failsafe, arm_mode, mode, intervention = ("", "", "", (-1, ""))
+    if before is not None:
+        failsafe, arm_mode, mode = before.failsafe, before.arm_mode, before.mode
+        intervention = (before.intervention_id, before.intervention_phase)
+    said = []
+    if now.failsafe != failsafe:
+        said.append(f"failsafe: {now.failsafe}" if now.failsafe else "failsafe left")
+    if now.arm_mode == "blocked" != arm_mode:
+        said.append(f"the arm blocked (intervention: {now.intervention_target or 'none'})")
+    if now.mode == "missed" != mode:
+        said.append(f"waypoint {now.waypoint_index + 1} of {now.waypoints_total} missed: its time ran out")
+    if now.intervention_phase == "failed" and (now.intervention_id, "failed") != intervention:
+        said.append(f"the intervention on {now.intervention_target} failed: {now.intervention_reason}")
+    if before is not None and now.boot_id != before.boot_id:
+        said.append("onboard restarted: shore hands it the goals in force again")
+    return said
 
 
 def _fields(message: Any) -> dict[str, Any]:
@@ -253,25 +368,50 @@ def _fields(message: Any) -> dict[str, Any]:
             "interventions_total": message.interventions_total,
             "intervention_phase": message.intervention_phase,
         }
+    if isinstance(message, PerceptionStatus):
+        return {
+            "scene_source": message.scene_source,
+            "recognition_confidence": message.recognition_confidence,
+            "points_per_s": dict(message.points_per_s),
+        }
+    if isinstance(message, SonarImage):
+        return {"range_max_m": message.range_max_m, "horizontal_fov_rad": message.horizontal_fov_rad}
     assert isinstance(message, RecognisedObjects)
-    return {"names": list(message.names), "method": message.method}
+    return {
+        "names": list(message.names),
+        "positions_m_world": message.poses_world[:, :3].round(3).tolist(),
+        "half_sizes_m": message.half_sizes_m.round(3).tolist(),
+        "method": message.method,
+    }
 
 
-def _handler(pilot: Pilot) -> type[BaseHTTPRequestHandler]:
+def _handler(pilot: Pilot, access: Access, viewer_url: str) -> type[BaseHTTPRequestHandler]:
     class Handler(BaseHTTPRequestHandler):
+        def _allowed(self) -> bool:
+            if access.allows(self.path, self.headers):
+                return True
+            why = f"the console needs the operator's token (the address it printed, or {HEADER})"
+            self._reply(HTTPStatus.UNAUTHORIZED, json.dumps({"error": why}).encode(), "application/json")
+            return False
+
         def do_GET(self) -> None:
             path = self.path.split("?", 1)[0]
+            if not self._allowed():
+                return
             if path in FILES:
                 name, kind = FILES[path]
                 self._reply(HTTPStatus.OK, (WEB / name).read_bytes(), kind)
             elif path == "/state":
-                self._reply(HTTPStatus.OK, json.dumps(pilot.state()).encode(), "application/json")
-            elif path == "/frame.jpg" and (jpeg := pilot.jpeg()) is not None:
-                self._reply(HTTPStatus.OK, jpeg, "image/jpeg")
+                state = pilot.state() | {"viewer_url": viewer_url}
+                self._reply(HTTPStatus.OK, json.dumps(state).encode(), "application/json")
+            elif path in IMAGES and (data := pilot.image(path)) is not None:
+                self._reply(HTTPStatus.OK, data, "image/jpeg" if path.endswith(".jpg") else "image/png")
             else:
                 self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
 
         def do_POST(self) -> None:
+            if not self._allowed():
+                return
             if self.path not in ("/command", "/teleop"):
                 self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
                 return
@@ -306,19 +446,33 @@ def _handler(pilot: Pilot) -> type[BaseHTTPRequestHandler]:
 
 
 class Console:
-    """The console served on 127.0.0.1:`port` (0: any free one) over `session`, a session on
-    shore's network (`abyss console`'s own, or `abyss up`'s); `url` where; `close()` ends it."""
+    """The console served on `host`:`port` (0: any free one) over `session`, a session on
+    shore's network (`abyss console`'s own, or `abyss up`'s); `url` where (with the token a
+    non-local `host` asks, `console.access`); `viewer_url`: rerun's web viewer of the live
+    recording, embedded in the page ("" none); `close()` ends it."""
 
-    def __init__(self, session: zenoh.Session, system: str, port: int, site: str = "") -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        system: str,
+        port: int,
+        site: str = "",
+        host: str = "127.0.0.1",
+        certificates: CertFiles | None = None,
+        viewer_url: str = "",
+    ) -> None:
         self.pilot = Pilot(session, system, site)
+        self.access = Access.at(host, system, certificates)
         self.subscribers = self.pilot.start()
         try:
-            self.server = ThreadingHTTPServer(("127.0.0.1", port), _handler(self.pilot))
+            self.server = ThreadingHTTPServer((host, port), _handler(self.pilot, self.access, viewer_url))
         except OSError as exc:
             self._undeclare()
-            raise ConfigError("--console", f"cannot serve on 127.0.0.1:{port}: {exc}") from None
+            raise ConfigError("--console", f"cannot serve on {host}:{port}: {exc}") from None
         self.server.daemon_threads = True
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/"
+        port = self.server.server_address[1]
+        self.pilot.by = f"{operator_name('console')}:{port}"  # as other consoles name this one
+        self.url = self.access.url(port)
         self.stop = threading.Event()
         self.threads = [
             threading.Thread(target=self.server.serve_forever, name="console http", daemon=True),
@@ -342,11 +496,14 @@ class Console:
         self._undeclare()
 
 
-def run_console(endpoint: str, system: str, port: int, site: str = "") -> int:
+def run_console(
+    endpoint: str, system: str, port: int, site: str = "", host: str = "127.0.0.1", viewer_url: str = ""
+) -> int:
     """`abyss console`: serve the console until interrupted."""
+    certificates = tool_certificates(endpoint)
     session = open_session(client_config(endpoint), "abyss console")
     try:
-        console = Console(session, system, port, site)
+        console = Console(session, system, port, site, host, certificates, viewer_url)
         print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
         try:
             threading.Event().wait()

@@ -35,9 +35,11 @@ import zenoh
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, encode, new_id
+from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, new_id
 from abyss.common.models.panel import Panel, intent_of
 from abyss.common.site import site_at
+from abyss.console.access import operator_name
+from abyss.console.op import put_command
 
 Target = Literal["vehicle", "arm"]  # what the keys drive: the vehicle's waypoint or the end-effector's goal
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]
@@ -117,6 +119,7 @@ class Teleop:
         self.out = out
         self.goals = Goals()
         self.target: Target = "vehicle"
+        self.by = operator_name("abyss teleop")
         self.lock = threading.Lock()
         self.session = open_session(client_config(endpoint), "abyss teleop")
         self.subscriber = self.session.declare_subscriber(
@@ -175,7 +178,9 @@ class Teleop:
         with self.lock:
             command = self.goals.move(self.target, translation_m, rotation_rad)
         topic = "waypoints" if isinstance(command, Waypoints) else "arm"
-        self.session.put(keys.operator_key(self.system, topic), encode(command, self.sent, time.time()))
+        put_command(
+            self.session, self.system, topic, command, self.sent, operator_name("abyss teleop"), teleop=True
+        )
         self.sent += 1
         if isinstance(command, Waypoints):
             x, y, z, yaw = command.waypoints[0]
@@ -189,7 +194,7 @@ class Teleop:
         asked = f"{part} {'to ' + amount if command.to else 'turn ' + amount + ' deg'}"
         with self.lock:
             self.intents[command.command_id] = asked
-        self.session.put(keys.operator_key(self.system, "intervene"), encode(command, self.sent, time.time()))
+        put_command(self.session, self.system, "intervene", command, self.sent, self.by)
         self.sent += 1
         self.say(f"intent {asked} sent")
 

@@ -41,6 +41,7 @@ from abyss.launch.stop import interrupts_to, stop_all
 from abyss.launch.summarise import Ending, run_summary
 from abyss.launch.supervise import Supervisor
 from abyss.launch.verdict import exit_code, render_summary
+from abyss.stations.onshore.viewer import web_viewer_url
 
 
 class Up:
@@ -152,8 +153,16 @@ class Up:
             self.echo(viewer)
             session = self.supervisor.session
             if self.console_port is not None and session is not None:  # abyss up's, on shore's network
+                onshore = self.config.onshore
+                web = onshore.viewer == "web"
                 self.console = Console(
-                    session, self.config.system, self.console_port, self.config.simulation.site
+                    session,
+                    self.config.system,
+                    self.console_port,
+                    self.config.simulation.site,
+                    viewer_url=web_viewer_url(onshore.viewer_web_port, onshore.viewer_grpc_port)
+                    if web
+                    else "",
                 )
                 self.echo(f"abyss: the pilot's console at {self.console.url}")
             self.change_state(phase="up", viewer=viewer.removeprefix("abyss: "))

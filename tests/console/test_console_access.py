@@ -1,0 +1,196 @@
+"""The pilot's console without a running system: its real HTTP server over a real Zenoh session.
+Bound where others reach it, it asks for the operator's token and sends nothing without it; a
+second console on the same shore sees the first one's commands and who sent them; the telemetry's
+changes that the pilot must be told become alerts."""
+
+from __future__ import annotations
+
+import json
+import queue
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from abyss.common import certs, keys
+from abyss.common.bus import message_of, open_session, zenoh_config
+from abyss.common.certs import CertFiles
+from abyss.common.messages import OperatorMode, Telemetry, Waypoints, encode
+from abyss.common.ports import free_port
+from abyss.console.access import HEADER, Access, token_of
+from abyss.console.pilot import Console, _changes
+
+SYSTEM = "console-test"
+WAIT_S = 10.0
+
+
+@pytest.fixture
+def shore() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
+    """Two sessions on one shore network, as `abyss up`'s router and a tool beside it."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session(zenoh_config([endpoint], mode="router"), "the test's shore")
+    tool = open_session(zenoh_config([], [endpoint], mode="peer"), "the test's tool")
+    try:
+        yield router, tool
+    finally:
+        tool.close()
+        router.close()
+
+
+def request(url: str, body: dict[str, str] | None = None, token: str = "") -> tuple[int, dict]:
+    headers = {HEADER: token} if token else {}
+    data = json.dumps(body).encode() if body is not None else None
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url, data, headers), timeout=WAIT_S) as answer:
+            return answer.status, json.loads(answer.read())
+    except urllib.error.HTTPError as refused:
+        return refused.code, json.loads(refused.read())
+
+
+def base(console: Console) -> str:
+    return f"http://127.0.0.1:{console.server.server_address[1]}/"
+
+
+def test_a_console_bound_for_others_sends_nothing_without_the_operators_token(
+    shore: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, tool = shore
+    arrived: queue.Queue[OperatorMode] = queue.Queue()
+
+    def on_mode(sample: zenoh.Sample) -> None:
+        if (mode := message_of(sample, OperatorMode)) is not None:
+            arrived.put(mode)
+
+    subscriber = tool.declare_subscriber(keys.operator_key(SYSTEM, "mode"), on_mode)
+    console = Console(router, SYSTEM, 0, host="0.0.0.0")
+    try:
+        token = console.access.token
+        assert token and f"?token={token}" in console.url
+        hold = {"kind": "mode", "value": "hold"}
+        status, body = request(base(console) + "command", hold)
+        assert status == 401 and "token" in body["error"]
+        assert request(base(console) + "state")[0] == 401
+        assert request(base(console) + "command", hold, token="not the token")[0] == 401
+        with urllib.request.urlopen(base(console), timeout=WAIT_S) as page:  # the page itself is open
+            assert b"the pilot's console" in page.read()
+        status, body = request(base(console) + "command", hold, token=token)
+        assert status == 200
+        # one session's puts arrive in order: the first to arrive is the one sent with the token
+        assert arrived.get(timeout=WAIT_S).command_id == body["id"]
+        status, state = request(base(console) + f"state?token={token}")
+        assert status == 200 and state["commands"][0]["id"] == body["id"]
+    finally:
+        console.close()
+        subscriber.undeclare()
+
+
+def test_on_localhost_the_console_asks_nothing_and_a_tls_token_is_the_operators_own(tmp_path: Path) -> None:
+    assert Access.at("127.0.0.1", SYSTEM, None).token is None
+    assert Access.at("localhost", SYSTEM, None).allows("/state", {})  # type: ignore[arg-type]
+    certs.make(tmp_path)
+    operator = CertFiles(tmp_path, certs.OPERATOR)
+    made = Access.at("0.0.0.0", SYSTEM, operator).token
+    assert made == token_of(operator, SYSTEM)  # worked out again from the same key
+    assert made != token_of(operator, "another system")
+    assert Access.at("0.0.0.0", SYSTEM, None).token != Access.at("0.0.0.0", SYSTEM, None).token
+
+
+def test_a_second_console_sees_the_first_ones_commands_and_who_sent_them(
+    shore: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, tool = shore
+    first, second = Console(router, SYSTEM, 0), Console(tool, SYSTEM, 0)
+    try:
+        assert first.pilot.by != second.pilot.by
+        _, sent = request(base(first) + "command", {"kind": "waypoints", "value": "5,0,-10,0; 6,1,-10,0.5"})
+        shown = None
+        for _ in range(int(WAIT_S / 0.05)):
+            shown = next((c for c in second.pilot.state()["commands"] if c["id"] == sent["id"]), None)
+            if shown is not None:
+                break
+            second.stop.wait(0.05)
+        assert shown is not None, "the second console never saw the first one's command"
+        assert shown["by"] == first.pilot.by and shown["text"] == "5,0,-10,0; 6,1,-10,0.5"
+        assert shown["state"] == "sent"  # till onboard's answer reaches shore
+        mine = next(c for c in first.pilot.state()["commands"] if c["id"] == sent["id"])
+        assert mine["by"] == ""  # its own
+        # teleop goals are counted by sender, not listed
+        first.pilot.goals.start_from(telemetry())
+        first.pilot.nudge("vehicle", [0.1, 0.0, 0.0], [0.0, 0.0, 0.0])
+        for _ in range(int(WAIT_S / 0.05)):
+            if second.pilot.state()["others_teleop"]:
+                break
+            second.stop.wait(0.05)
+        assert second.pilot.state()["others_teleop"] == {first.pilot.by: 1}
+        assert all(
+            c["kind"] != "waypoints" or c["id"] == sent["id"] for c in second.pilot.state()["commands"]
+        )
+    finally:
+        first.close()
+        second.close()
+
+
+def telemetry(**changed: object) -> Telemetry:
+    fields: dict[str, object] = dict(
+        position_m_world=np.array([1.0, 2.0, -10.0]),
+        yaw_rad=0.0,
+        mode="moving",
+        command_id=1,
+        waypoint_index=0,
+        waypoints_total=2,
+        position_error_m_world=np.zeros(3),
+        heading_error_rad=0.0,
+        arm_mode="idle",
+        arm_command_id=-1,
+        ee_position_error_m_world=np.zeros(3),
+        ee_orientation_error_rad=0.0,
+        ee_position_m_world=np.zeros(3),
+        ee_orientation_wxyz_world=np.array([1.0, 0.0, 0.0, 0.0]),
+        arm_positions_rad=np.zeros(4),
+        failsafe="",
+        failsafe_events=0,
+        sim_time_s=1.0,
+    )
+    return Telemetry(**(fields | changed))  # type: ignore[arg-type]
+
+
+def test_what_the_telemetry_says_changed_becomes_the_pilots_alerts() -> None:
+    calm = telemetry()
+    assert _changes(None, calm) == [] and _changes(calm, calm) == []
+    assert _changes(calm, telemetry(failsafe="no heartbeat for 5 s")) == ["failsafe: no heartbeat for 5 s"]
+    assert _changes(telemetry(failsafe="x"), calm) == ["failsafe left"]
+    assert _changes(None, telemetry(failsafe="operator hold")) == ["failsafe: operator hold"]
+    blocked = telemetry(arm_mode="blocked", intervention_target="valve_1")
+    assert _changes(calm, blocked) == ["the arm blocked (intervention: valve_1)"]
+    assert _changes(blocked, blocked) == []  # said once
+    assert _changes(calm, telemetry(mode="missed", waypoint_index=1)) == [
+        "waypoint 2 of 2 missed: its time ran out"
+    ]
+    failed = telemetry(intervention_id=7, intervention_target="lever_1", intervention_phase="failed",
+                       intervention_reason="the grasp slipped")  # fmt: skip
+    assert _changes(calm, failed) == ["the intervention on lever_1 failed: the grasp slipped"]
+    assert _changes(failed, failed) == []
+    assert _changes(calm, telemetry(boot_id=5)) == [
+        "onboard restarted: shore hands it the goals in force again"
+    ]
+
+
+def test_a_command_from_a_tool_that_gave_no_name_is_shown_as_such(
+    shore: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, tool = shore
+    console = Console(router, SYSTEM, 0)
+    try:
+        tool.put(keys.operator_key(SYSTEM, "waypoints"), encode(Waypoints(42, np.zeros((1, 4))), 0, 0.0))
+        for _ in range(int(WAIT_S / 0.05)):
+            if console.pilot.state()["commands"]:
+                break
+            console.stop.wait(0.05)
+        (shown,) = console.pilot.state()["commands"]
+        assert shown["id"] == 42 and "gave no name" in shown["by"]
+    finally:
+        console.close()

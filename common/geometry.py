@@ -13,6 +13,13 @@ def yaw_of(quat_wxyz: np.ndarray) -> float:
     return float(math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
+def roll_pitch_of(quat_wxyz: np.ndarray) -> tuple[float, float]:
+    """Roll and pitch [rad] of a world-frame orientation (w, x, y, z), z up, as rotation_of_rpy
+    composes them (the inverse of its roll and pitch)."""
+    r = rotation_of(quat_wxyz)
+    return float(math.atan2(r[2, 1], r[2, 2])), float(-math.asin(max(-1.0, min(1.0, r[2, 0]))))
+
+
 def wrap_rad(angle_rad: float) -> float:
     """The same angle in [-pi, pi)."""
     return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi

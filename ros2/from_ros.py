@@ -215,7 +215,8 @@ def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
     """The controllers' state as the node states it in the values of TELEMETRY_VALUES, the rest
     from what the gateway handed the node: the position and heading from the navigation, the
     errors against the goals (and the tool's pose, /ee_pose, where the node publishes it), the
-    command ids of the goals in force, the joints, the operator mode. None before navigation."""
+    command ids of the goals in force, the joints, the operator mode, the attitude and velocity.
+    The effort stays zeros: the node does not state it. None before navigation."""
     if not msg.status:
         raise BadInput("no DiagnosticStatus in the array")
     values = {kv.key: kv.value for kv in msg.status[0].values}
@@ -270,4 +271,6 @@ def telemetry_in(msg: Any, session: Session) -> Telemetry | None:
         sim_time_s=session.sim_time_s,
         operator_mode=session.operator_mode,
         boot_id=session.boot_id,
+        orientation_wxyz_world=nav.orientation_wxyz_world,
+        velocity_mps_body=nav.velocity_mps_body,
     )

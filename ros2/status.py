@@ -82,6 +82,7 @@ def perception_diagnostics(p: PerceptionStatus, head: Any, session: Session) -> 
             **{f"{source}_points_per_s": rate for source, rate in p.points_per_s.items()},
             "recognition_confidence": p.recognition_confidence,
             "recognition_method": p.recognition_method,
+            "scene_backlog_cells": p.scene_backlog_cells,
         },
     )
 

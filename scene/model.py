@@ -153,6 +153,14 @@ class SceneModel:
         self.pending.remove(keys[as_sent])
         self.pending.merge(keys[~as_sent], state[~as_sent], rgb[~as_sent])
 
+    def backlog_cells(self) -> int:
+        """How many cells are queued for shore and not yet sent; with a snapshot due, the whole
+        map, which goes again."""
+        with self._lock:
+            if self.snapshot_due:
+                return len(np.union1d(self.pending.keys, self.published.keys))
+            return len(self.pending)
+
     def request_snapshot(self) -> None:
         """Shore lost track: send everything again, starting with a snapshot."""
         with self._lock:

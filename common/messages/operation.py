@@ -34,9 +34,13 @@ class Telemetry(Message):
     `boot_id` is new each time onboard starts, so that shore sees a reboot and hands the goals
     in force again. The intervention (`intervention_*`, -1 and "" when none): the part, the
     phase and why it failed; how far onboard has turned it [rad], of the goal; the gripper as
-    the low level reports it."""
+    the low level reports it. The vehicle as the pilot watches it: its attitude as onboard
+    estimates it (w, x, y, z), its velocity as the navigation last gave it [m/s, body] (the
+    DVL's: meaningless without bottom lock), and the effort onboard commanded this step: the
+    velocity sent (surge, sway, heave [m/s], yaw rate [rad/s]) over its limit (`max_speed_mps`,
+    `max_yaw_rate_radps`), in [-1, 1]; zeros while onboard sends a stop."""
 
-    VERSION: ClassVar[int] = 3  # 2: boot_id; 3: the intervention
+    VERSION: ClassVar[int] = 4  # 2: boot_id; 3: the intervention; 4: attitude, velocity, effort
 
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
@@ -66,6 +70,14 @@ class Telemetry(Message):
     turn_goal_rad: float = field(default=0.0, metadata={"lo": -10.0, "hi": 10.0, "choices": ()})
     gripper_opening_m: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1.0, "choices": ()})
     gripper_force_n: float = field(default=0.0, metadata={"lo": 0.0, "hi": 1e4, "choices": ()})
+    orientation_wxyz_world: np.ndarray = array("f8", (4,), -1.0 - 1e-6, 1.0 + 1e-6, default=(1.0, 0, 0, 0))
+    velocity_mps_body: np.ndarray = array("f8", (3,), -100.0, 100.0, default=(0.0, 0.0, 0.0))
+    # the velocity command over its limit: surge, sway, heave, yaw rate
+    effort_body: np.ndarray = array("f8", (4,), -1.0, 1.0, default=(0.0, 0.0, 0.0, 0.0))
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_unit_quaternion(self.orientation_wxyz_world)
 
     @property
     def position_error_m(self) -> float:

@@ -81,7 +81,11 @@ class PerceptionStatus(Message):
     cameras' clouds, depth and stereo, and the sonar's echoes) the points it received over the
     last `window_s` [points/s]; what the scene model maps from now (`scene_source`: "cameras",
     or "sonar" while the cameras' clouds bring no point, "" before either); the recognised
-    panel's confidence now and what found it (RecognisedObjects.method; "" while not found)."""
+    panel's confidence now and what found it (RecognisedObjects.method; "" while not found);
+    the scene stream's backlog: the cells the scene model has queued for shore and not yet sent
+    (with a snapshot due, the whole map)."""
+
+    VERSION: ClassVar[int] = 2  # 2: scene_backlog_cells
 
     points_per_s: dict[str, float]
     window_s: float = scalar(0.1, 3600.0)
@@ -89,6 +93,7 @@ class PerceptionStatus(Message):
     recognition_confidence: float = scalar(0.0, 1.0)
     recognition_method: str = scalar()
     sim_time_s: float = scalar(0.0)
+    scene_backlog_cells: int = field(default=0, metadata={"lo": 0, "hi": 2**53, "choices": ()})
 
     def __post_init__(self) -> None:
         super().__post_init__()

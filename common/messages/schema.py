@@ -28,11 +28,14 @@ def array(
     lo: float = -math.inf,
     hi: float = math.inf,
     max_rows: int = 100_000,
+    default: tuple[float, ...] | None = None,
 ) -> Any:
-    """A numpy array field: fixed dtype, shape (None: any length up to max_rows), range."""
-    return field(
-        metadata={"dtype": np.dtype(dtype), "shape": shape, "lo": lo, "hi": hi, "max_rows": max_rows}
-    )
+    """A numpy array field: fixed dtype, shape (None: any length up to max_rows), range; with
+    `default`, a field that may be left out (appended to a message, as a new version's are)."""
+    meta = {"dtype": np.dtype(dtype), "shape": shape, "lo": lo, "hi": hi, "max_rows": max_rows}
+    if default is None:
+        return field(metadata=meta)
+    return field(default_factory=functools.partial(np.array, default, meta["dtype"]), metadata=meta)
 
 
 def scalar(lo: float = -math.inf, hi: float = math.inf, choices: tuple[str, ...] = ()) -> Any:

@@ -86,6 +86,7 @@ class Onboard:
         self.every = max(1, round(cfg.telemetry_period_s / cfg.control_period_s))
         self.position_m_world: np.ndarray | None = None
         self.orientation_wxyz_world = np.array([1.0, 0.0, 0.0, 0.0])
+        self.velocity_mps_body = np.zeros(3)  # as the latest navigation gave it
         self.sim_time_s = 0.0
         self.tick = 0
         self.boot_id = new_id()  # shore sees a reboot by it, and hands the goals in force again
@@ -157,6 +158,7 @@ class Onboard:
             self.failsafe.navigated(now_s)
         for nav in inputs.nav:
             self.position_m_world, self.orientation_wxyz_world = self.nav_filter.update(nav)
+            self.velocity_mps_body = nav.velocity_mps_body
             self.sim_time_s = nav.sim_time_s
             if self.position_m_world is not None and self.nav_filter.settled:  # else frames wait
                 out.poses.append((nav.sim_time_s, self.position_m_world.copy(), self.orientation_wxyz_world))
@@ -193,13 +195,13 @@ class Onboard:
         linear, yaw_rate = v.linear_mps_body, v.yaw_rate_radps
         if a.vehicle_velocity is not None and a.mode in (Mode.MOVING, Mode.REACHED):
             linear, yaw_rate = a.vehicle_velocity[:3], float(a.vehicle_velocity[3])
-        out.vehicle = VelocityRef(linear, yaw_rate)
+        sent = out.vehicle = VelocityRef(linear, yaw_rate)
         out.arm = ArmVelocityRef(a.joint_velocities_radps, self._gripper_mps(gripper_mps, a, joints))
         if self.failsafe.blind:  # no navigation: stopped, not steered by an estimate gone still
-            out.vehicle = VelocityRef(np.zeros(3), 0.0)
+            sent = out.vehicle = VelocityRef(np.zeros(3), 0.0)
             out.arm = ArmVelocityRef(np.zeros(len(arm_rad)), 0.0)
         if self.tick % self.every == 0:
-            out.telemetry = self._telemetry(v, a, joints, hold)
+            out.telemetry = self._telemetry(v, a, joints, hold, sent)
 
     def _gripper_mps(self, intervention_mps: float | None, a: ArmOutput, joints: JointState) -> float:
         """The gripper's speed [m/s]: the intervention's; without one, opened while the arm
@@ -209,9 +211,15 @@ class Onboard:
             return float(np.clip(GRIPPER_GAIN_PER_S * opening_error_m, -0.05, 0.05))
         return 0.0 if intervention_mps is None else intervention_mps
 
-    def _telemetry(self, v: ControlOutput, a: ArmOutput, joints: JointState, hold: str) -> Telemetry:
-        """The controllers' state for the vessel; modes and phases as their wire values."""
+    def _telemetry(
+        self, v: ControlOutput, a: ArmOutput, joints: JointState, hold: str, sent: VelocityRef
+    ) -> Telemetry:
+        """The controllers' state for the vessel; modes and phases as their wire values; `sent`:
+        the velocity sent to the vehicle this step, as effort."""
         assert self.position_m_world is not None
+        cfg = self.cfg
+        limits = (cfg.max_speed_mps, cfg.max_speed_mps, cfg.max_speed_mps, cfg.max_yaw_rate_radps)
+        effort = np.clip(np.r_[sent.linear_mps_body, sent.yaw_rate_radps] / limits, -1.0, 1.0)
         arm, run = self.arm, self.intervention
         ee_pose = arm.kinematics.pose(arm.kinematics.ee)
         intervention_id, target, phase, reason, turned_rad, turn_goal_rad = (
@@ -255,4 +263,7 @@ class Onboard:
             intervention_reason=reason,
             turned_rad=turned_rad,
             turn_goal_rad=turn_goal_rad,
+            orientation_wxyz_world=self.orientation_wxyz_world,
+            velocity_mps_body=self.velocity_mps_body,
+            effort_body=effort,
         )

@@ -274,7 +274,10 @@ class Perception:
             return "sonar" if self.sonar_seen else ""
         return "cameras" if self.cameras_seen_s > -float("inf") else ""
 
-    def status(self, now_s: float, objects: RecognisedObjects | None, sim_time_s: float) -> PerceptionStatus:
+    def status(
+        self, now_s: float, objects: RecognisedObjects | None, sim_time_s: float, backlog_cells: int
+    ) -> PerceptionStatus:
+        """What perception works with; `backlog_cells`: the scene model's cells queued for shore."""
         window_s = min(self.window_s, max(now_s - self._started(now_s), 1e-3))
         counts = dict.fromkeys(PERCEPTION_SOURCES, 0)
         for when, source, points in self._points:
@@ -290,4 +293,5 @@ class Perception:
             recognition_confidence=confidence,
             recognition_method=method,
             sim_time_s=sim_time_s,
+            scene_backlog_cells=backlog_cells,
         )

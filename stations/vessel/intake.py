@@ -77,7 +77,9 @@ class Intake:
             self.model.flush()  # what the last clouds changed, once no more came for a period
         if now_s - self.last_status_s >= self.cfg.perception_period_s:
             self.last_status_s = now_s
-            status = self.perception.status(now_s, self.objects.get(), self.sim_time_s.get())
+            status = self.perception.status(
+                now_s, self.objects.get(), self.sim_time_s.get(), self.model.backlog_cells()
+            )
             out.messages.append(("perception", status))
         due = now_s - self.last_recognition_s >= self.cfg.recognition_period_s
         if due and (inputs.image is not None or self.points is not None):

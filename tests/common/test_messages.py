@@ -32,6 +32,7 @@ from abyss.common.messages import (
     wire_bytes,
 )
 from abyss.common.messages.schema import schema_of
+from abyss.validation.stress import sample_telemetry
 
 finite = st.floats(-1e4, 1e4, allow_nan=False)
 
@@ -193,6 +194,27 @@ def test_invalid_values_are_refused_at_construction() -> None:
         )
     with pytest.raises(BadInput, match="unit quaternion"):
         ArmGoal(1, np.zeros(3), np.array([0.5, 0.0, 0.0, 0.0]))
+
+
+def test_telemetry_carries_the_attitude_velocity_and_effort_its_defaults_at_rest() -> None:
+    rest = sample_telemetry()
+    assert np.array_equal(rest.orientation_wxyz_world, [1.0, 0.0, 0.0, 0.0])
+    assert not rest.velocity_mps_body.any() and not rest.effort_body.any()
+    turned = np.array([math.cos(0.2), 0.0, 0.0, math.sin(0.2)])
+    moving = dataclasses.replace(
+        rest,
+        orientation_wxyz_world=turned,
+        velocity_mps_body=np.array([0.4, -0.1, 0.05]),
+        effort_body=np.array([0.8, -0.2, 0.1, -1.0]),
+    )
+    back = decode("k", encode(moving, 0, 1.0), Telemetry).message
+    assert np.array_equal(back.orientation_wxyz_world, turned)
+    assert np.array_equal(back.velocity_mps_body, [0.4, -0.1, 0.05])
+    assert np.array_equal(back.effort_body, [0.8, -0.2, 0.1, -1.0])
+    with pytest.raises(BadInput, match="unit quaternion"):
+        dataclasses.replace(rest, orientation_wxyz_world=np.array([0.5, 0.0, 0.0, 0.0]))
+    with pytest.raises(BadInput, match="effort_body"):
+        dataclasses.replace(rest, effort_body=np.array([1.5, 0.0, 0.0, 0.0]))
 
 
 # -- every message type, random bodies ---------------------------------------------------

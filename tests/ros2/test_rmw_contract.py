@@ -177,6 +177,11 @@ def test_telemetry_comes_from_the_node_s_state_and_what_it_was_handed() -> None:
     )
     assert np.allclose(telemetry.position_error_m_world, [1.5, 0.8, -0.6]) and telemetry.arm_command_id == 9
     assert telemetry.sim_time_s == 4.0 and telemetry.boot_id == session.boot_id
+    turned = np.array([np.cos(0.2), 0.0, 0.0, np.sin(0.2)])  # 0.4 rad of yaw
+    session.handed(NavState(np.zeros(3), turned, np.array([0.3, -0.1, 0.0]), np.zeros(3), 5.0))
+    telemetry = from_ros.telemetry_in(_diagnostics(mode="moving"), session)
+    assert telemetry is not None and np.allclose(telemetry.orientation_wxyz_world, turned)
+    assert np.allclose(telemetry.velocity_mps_body, [0.3, -0.1, 0.0]) and not telemetry.effort_body.any()
     with pytest.raises(BadInput, match="not one of"):
         from_ros.telemetry_in(_diagnostics(mode="flying"), session)
     with pytest.raises(BadInput, match="waypoint 'x'"):

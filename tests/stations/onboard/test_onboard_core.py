@@ -14,6 +14,7 @@ from abyss.common.messages import (
     InterventionGoal,
     JointState,
     NavState,
+    OperatorMode,
     Waypoints,
     decode,
     encode,
@@ -92,6 +93,30 @@ def test_an_intervention_sent_before_navigation_settles_waits_and_is_judged_once
     assert settled_s <= answered_s <= settled_s + 1.0 + STEP_S
 
 
+def test_telemetry_tells_the_estimated_attitude_the_navigations_velocity_and_the_effort_sent() -> None:
+    """A waypoint behind the vehicle and turned to its left: surge backwards at the speed limit
+    (effort -1), the yaw rate positive; each effort the velocity sent over its limit."""
+    config = Config()
+    core = Onboard(config)
+    core.step(OnboardInputs(commands=[Waypoints(1, ((-20.0, 0.0, -5.0, 0.3),))]), 0.0)
+    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
+    turned = np.array([np.cos(0.05), 0.0, 0.0, np.sin(0.05)])  # 0.1 rad of yaw
+    nav = NavState(
+        np.array([0.0, 0.0, -5.0]), turned, np.array([0.2, -0.05, 0.01]), np.zeros(3), 0.0, 0.0, 5.0
+    )
+    out = core.step(OnboardInputs(nav=[nav], joints=joints), 0.0)
+    t, sent = out.telemetry, out.vehicle
+    assert t is not None and sent is not None
+    assert np.allclose(t.orientation_wxyz_world, core.orientation_wxyz_world)
+    assert np.allclose(t.orientation_wxyz_world, turned)
+    assert np.array_equal(t.velocity_mps_body, [0.2, -0.05, 0.01])
+    cfg = config.onboard
+    limits = [cfg.max_speed_mps] * 3 + [cfg.max_yaw_rate_radps]
+    assert np.allclose(t.effort_body, np.r_[sent.linear_mps_body, sent.yaw_rate_radps] / limits)
+    assert t.effort_body[0] < -0.9 and t.effort_body[3] > 0.0  # backwards, turning left
+    assert np.allclose(np.linalg.norm(t.effort_body[:3]), 1.0)  # at the speed limit
+
+
 def test_a_real_vehicle_whose_navigation_stops_is_stopped_not_steered_by_the_last_estimate() -> None:
     """A hybrid run: its navigation stopped, onboard sends zero velocities to the vehicle and the
     arm (held station on an estimate gone still, it would push on at its last error), and steers
@@ -114,3 +139,25 @@ def test_a_real_vehicle_whose_navigation_stops_is_stopped_not_steered_by_the_las
     assert speeds[0.9] > 0.1  # flying to the waypoint
     assert max(v for t, v in speeds.items() if 1.0 + bound_s + STEP_S <= t < 2.5) == 0.0
     assert speeds[3.9] > 0.1 and core.failsafe.events == 1
+
+
+def test_the_effort_told_is_what_was_sent_zero_in_the_blind_stop() -> None:
+    """Held by the operator and turned off its held heading, the vehicle turns back (a yaw
+    effort); its navigation then stops: onboard sends zeros, and the effort told is zero, not the
+    turn back that holding station on the estimate gone still would ask for."""
+    config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
+    core = Onboard(config)
+    core.step(OnboardInputs(commands=[OperatorMode(1, "hold")]), 0.0)
+    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
+    efforts: dict[float, np.ndarray] = {}
+    for step in range(int(3.0 / STEP_S)):
+        now_s = step * STEP_S
+        yaw_rad = 0.0 if now_s < 0.5 else 0.5  # turned at 0.5 s
+        attitude = np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
+        nav = NavState(np.array([0.0, 0.0, -5.0]), attitude, np.zeros(3), np.zeros(3), now_s, now_s, 5.0)
+        out = core.step(OnboardInputs(nav=[] if now_s >= 1.5 else [nav], joints=joints), now_s)
+        if out.telemetry is not None:
+            efforts[round(now_s, 3)] = out.telemetry.effort_body
+    assert efforts[1.4][3] < -0.05  # turning back to the held heading
+    blind = [e for t, e in efforts.items() if t >= 1.5 + config.hybrid.nav_max_age_s + STEP_S]
+    assert blind and not np.any(blind)

@@ -187,6 +187,28 @@ def test_perception_status_counts_each_sources_points_every_period() -> None:
     assert published[4.0].points_per_s["depth"] == pytest.approx(len(unpack_cloud(depth)[0]) / 4.0)
 
 
+def test_perception_status_tells_the_scene_streams_backlog_till_it_is_sent() -> None:
+    """The cells the model has queued for shore and not sent: all of a new cloud's, fewer as
+    updates go, none once all went, the whole map again once shore asks for a snapshot."""
+    cfg = config(perception_period_s=1.0)
+    model = SceneModel(RESOLUTION_M, cfg.octree_max_range_m, track_period_s=0.0)
+    intake = Intake(cfg, panel, model, 0.0)
+
+    def backlog(now_s: float) -> int:
+        return statuses(intake.step(IntakeInputs(), now_s).messages)[0].scene_backlog_cells
+
+    out = intake.step(IntakeInputs(clouds=[seabed("depth", 0.0, 1.0)]), 0.0)
+    queued = len(model.pending)
+    assert queued > 0 and statuses(out.messages)[0].scene_backlog_cells == queued
+    assert model.next_update(1.0, 2000) is not None  # a first part goes
+    assert 0 < len(model.pending) < queued and backlog(1.0) == len(model.pending)
+    while model.next_update(1.0) is not None:
+        pass
+    assert backlog(2.0) == 0
+    model.request_snapshot()
+    assert backlog(3.0) == len(model.published) == queued
+
+
 def test_a_sonar_frame_that_does_not_decode_is_rejected_and_kept_as_the_latest() -> None:
     cfg = config()
     intake = Intake(cfg, panel, SceneModel(RESOLUTION_M, cfg.octree_max_range_m), 0.0)

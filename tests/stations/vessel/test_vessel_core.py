@@ -301,13 +301,14 @@ def test_the_sonar_maps_while_the_cameras_bring_no_point_and_hands_back() -> Non
     perception.received("stereo", 0, 106.5)  # an empty cloud (murk, a blacked-out camera) is nothing
     perception.received("sonar", 300, 107.0)
     assert perception.sonar_feeds(107.0) and perception.scene_source(107.0) == "sonar"
-    status = perception.status(108.0, None, 7.0)
+    status = perception.status(108.0, None, 7.0, 42)
     assert status.scene_source == "sonar" and status.window_s == pytest.approx(8.0)
     assert status.points_per_s == pytest.approx({"depth": 125.0, "stereo": 0.0, "sonar": 37.5})
     assert status.recognition_confidence == 0.0 and status.recognition_method == ""
+    assert status.scene_backlog_cells == 42
     perception.received("depth", 10, 109.0)  # the cameras see again
     assert not perception.sonar_feeds(109.0) and perception.scene_source(109.0) == "cameras"
-    later = perception.status(116.0, None, 16.0)  # the window slides past the first cloud
+    later = perception.status(116.0, None, 16.0, 0)  # the window slides past the first cloud
     assert later.points_per_s == pytest.approx({"depth": 1.0, "stereo": 0.0, "sonar": 30.0})
 
 

@@ -32,6 +32,7 @@ from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
 from abyss.common.certs import CertFiles
 from abyss.common.errors import AbyssError, BadInput, ConfigError
+from abyss.common.geometry import roll_pitch_of
 from abyss.common.messages import (
     CommandAck,
     Image,
@@ -183,9 +184,12 @@ class Pilot:
             self._keep_image("/frame.jpg", image.data)
 
     def _sonar(self, sonar: SonarImage) -> None:
-        """The sonar's fan seen from above, drawn here once (0.2 Hz), served as a PNG."""
+        """The sonar's fan seen from above, drawn here once (0.2 Hz) in a sonar display's colours
+        (black at the noise floor, through red to yellow at the strongest echo), served as a PNG."""
         try:
-            drawn, png = cv2.imencode(".png", fan(sonar, decode_polar(sonar)))
+            drawn, png = cv2.imencode(
+                ".png", cv2.applyColorMap(fan(sonar, decode_polar(sonar)), cv2.COLORMAP_INFERNO)
+            )
         except BadInput as exc:
             log.warning("a sonar frame that does not decode, not shown: %s", exc)
             return
@@ -295,7 +299,8 @@ class Pilot:
             for what, (arrived, message) in self.latest.items():
                 shown[what] = {"age_s": now - arrived, **_fields(message)}
             for path, (arrived, count, _) in self.images.items():
-                shown[path.strip("/").split(".")[0]] = {"age_s": now - arrived, "count": count}
+                name = path.strip("/").split(".")[0]  # frame, sonar: beside the sonar's fields
+                shown[name] = shown.get(name, {}) | {"age_s": now - arrived, "count": count}
             shown["links"] = [
                 {"hop": hop, "direction": direction, "age_s": now - arrived, "profile": stats.profile}
                 | {k: stats.stats[k] for k in LINK_FIELDS if k in stats.stats}
@@ -340,10 +345,15 @@ def _fields(message: Any) -> dict[str, Any]:
     """A message's fields the page reads, as JSON values."""
     if isinstance(message, Telemetry):
         x, y, z = (float(v) for v in message.position_m_world)
+        roll_rad, pitch_rad = roll_pitch_of(message.orientation_wxyz_world)
         return {
             "position_m_world": [x, y, z],
             "depth_m": -z,
             "heading_rad": message.yaw_rad,
+            "roll_rad": roll_rad,
+            "pitch_rad": pitch_rad,
+            "speed_mps": float(np.linalg.norm(message.velocity_mps_body)),
+            "effort": [float(v) for v in message.effort_body],
             "mode": message.mode,
             "arm_mode": message.arm_mode,
             "operator_mode": message.operator_mode,
@@ -373,6 +383,7 @@ def _fields(message: Any) -> dict[str, Any]:
             "scene_source": message.scene_source,
             "recognition_confidence": message.recognition_confidence,
             "points_per_s": dict(message.points_per_s),
+            "scene_backlog_cells": message.scene_backlog_cells,
         }
     if isinstance(message, SonarImage):
         return {"range_max_m": message.range_max_m, "horizontal_fov_rad": message.horizontal_fov_rad}

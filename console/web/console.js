@@ -94,7 +94,8 @@ function links(state) {
   const num = (v, digits = 0) => (v === undefined ? "-" : v.toFixed(digits));
   $("links").innerHTML = "<tr><th>hop, direction</th><th>profile</th><th>delay p50/p99 [ms]</th><th>queue</th><th>lost</th></tr>"
     + Object.entries(hops).map(([hop, ds]) => {
-      const rtt = ds.length === 2 ? ds.reduce((sum, d) => sum + (d.delay_p50_ms || 0), 0) : undefined;
+      const medians = ds.map((d) => d.delay_p50_ms);
+      const rtt = ds.length === 2 && medians.every((v) => v !== undefined) ? medians[0] + medians[1] : undefined;
       return `<tr class="hop" data-hop="${hop}"><td><b>${hop}</b></td><td colspan="4">round trip ${num(rtt)} ms</td></tr>`
         + ds.map((d) => `<tr class="${d.age_s > STALE_S * 2 ? "stale" : ""}"><td>${d.direction}</td><td>${d.profile}</td>`
           + `<td>${num(d.delay_p50_ms)}/${num(d.delay_p99_ms)}</td><td>${num(d.in_flight)}</td>`

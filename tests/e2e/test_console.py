@@ -16,6 +16,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
 from conftest import ROOT, Up, abyss
@@ -29,6 +30,17 @@ from abyss.common.messages import MissionStatus, NavState, PanelState, Telemetry
 
 pytestmark = pytest.mark.timeout(300)
 WAIT_S = 60.0  # for what the page shows to come, on this loaded machine
+# the page's parts, each taken alone for docs/console.md (docs/images/console_<part>.png)
+PARTS = (
+    "camera",
+    "sonar",
+    "vehicle",
+    "map-section",
+    "mission-section",
+    "commands-section",
+    "links-section",
+    "alerts-section",
+)
 
 
 @pytest.fixture
@@ -99,23 +111,34 @@ def text(driver: webdriver.Chrome, selector: str) -> str:
 def test_the_console_shows_what_reached_shore_and_its_commands_get_onboards_answers(
     tmp_path: Path, browser: webdriver.Chrome
 ) -> None:
+    """`abyss console` for a system elsewhere, bound where others reach it: without the
+    operator's token the page can neither read nor send; with it, its instruments match shore's,
+    each part shows, and its commands come back with onboard's answers."""
     up = Up(tmp_path / "run", "--keep-running", "--duration", "90")
     up.wait_up()
     endpoint = up.endpoint
     console = subprocess.Popen(
-        [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint],
+        [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint, "--bind", "0.0.0.0"],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         text=True,
     )
     shore = Shore(endpoint, "default")
+    shots = Path(os.environ.get("ABYSS_SCREENSHOTS", tmp_path))  # docs/images: set it to docs/images
     try:
         assert console.stdout is not None
         line = console.stdout.readline()
-        url = re.search(r"http://127\.0\.0\.1:\d+/", line)
-        assert url, line
-        browser.get(url.group(0))
+        printed = re.search(r"http://[^/\s]+:(\d+)/\?token=(\S+)", line)
+        assert printed, line
+        page = f"http://127.0.0.1:{printed.group(1)}/"
         wait = WebDriverWait(browser, WAIT_S, poll_frequency=0.2)
+        # without the token: the page says what it needs, shows nothing and sends nothing
+        browser.get(page)
+        wait.until(lambda d: "needs the operator's token" in text(d, "access"))
+        browser.find_element(By.ID, "hold").click()
+        wait.until(lambda d: "token" in text(d, "error"))
+        assert text(browser, "commands") == "" and text(browser, "mission") == "no status yet"
+        browser.get(f"{page}?token={printed.group(2)}")
         # the mission's waypoint as the page shows it is one shore published in the last seconds
         depth_css = 'css:[data-name="depth"] .value'
         wait.until(lambda d: text(d, "mission-waypoint") and text(d, depth_css))
@@ -128,17 +151,41 @@ def test_the_console_shows_what_reached_shore_and_its_commands_get_onboards_answ
             )
             depth = text(browser, depth_css)
             assert any(abs(float(depth.split()[0]) + t.position_m_world[2]) < 0.05 for t in telemetry), depth
+            speed = float(text(browser, 'css:[data-name="speed"] .value').split()[0])
+            assert any(abs(speed - np.linalg.norm(t.velocity_mps_body)) < 0.01 for t in telemetry), speed
             before = text(browser, "telemetry-age")
             wait.until(lambda d, before=before: text(d, "telemetry-age") != before)  # the page polled again
         assert "older than 3 s" in browser.page_source
         wait.until(
             lambda d: "stale" not in (d.find_element(By.ID, "instruments").get_attribute("class") or "")
         )
+        # every station's liveliness, every hop's health as the stations measured it
+        wait.until(lambda d: all(text(d, f'css:[data-station="{s}"]') == s for s in keys.STATIONS))
+        wait.until(lambda d: all(text(d, f'css:[data-hop="{h}"]') for h in keys.HOPS))
+        satellite_rtt_ms = float(
+            re.search(r"round trip (\d+) ms", text(browser, 'css:[data-hop="satellite"]')).group(1)
+        )
+        assert 2 * 150 * 0.8 < satellite_rtt_ms < 2 * 150 * 3, satellite_rtt_ms  # profile: 150 ms each way
+        wait.until(lambda d: "the scene stream's backlog" in text(d, "backlog"))
         # hold: through shore, the satellite, the vessel and the tether; onboard's answer shows
         browser.find_element(By.ID, "hold").click()
         wait.until(lambda d: "mode hold: taken" in text(d, "commands"))
         wait.until(lambda d: "failsafe: operator hold" in text(d, "alerts"))
+        # a waypoint picked on the map, a metre east of the vehicle, lands in the text field
+        _, telemetry = shore.since(3.0)
+        x, y, z = (float(v) for v in telemetry[-1].position_m_world)
+        picked = browser.execute_script(
+            "const [px, py] = abyssMap.toPixel(arguments[0], arguments[1]);"
+            "const c = document.getElementById('map'), r = c.getBoundingClientRect(), k = r.width / c.width;"
+            "c.dispatchEvent(new MouseEvent('click', {clientX: r.left + px * k, clientY: r.top + py * k}));"
+            "return document.getElementById('waypoints').value;",
+            x + 1.0,
+            y,
+        )
+        px, py, pz, _ = (float(v) for v in picked.split(","))
+        assert abs(px - x - 1.0) < 0.1 and abs(py - y) < 0.1 and abs(pz - z) < 0.2, (picked, (x, y, z))
         # a waypoint at the surface: onboard refuses it, and the page says why
+        browser.find_element(By.ID, "waypoints").clear()
         browser.find_element(By.ID, "waypoints").send_keys("5,0,-0.01,0")
         browser.find_element(By.CSS_SELECTOR, "#waypoints-form button").click()
         wait.until(lambda d: "refused: waypoint 0" in text(d, "commands"))
@@ -148,12 +195,21 @@ def test_the_console_shows_what_reached_shore_and_its_commands_get_onboards_answ
         browser.find_element(By.ID, "waypoints").send_keys("5,0")
         browser.find_element(By.CSS_SELECTOR, "#waypoints-form button").click()
         wait.until(lambda d: "expected 4" in text(d, "error"))
-        # the relayed camera frame came across the satellite
-        wait.until(lambda d: d.execute_script("return document.getElementById('frame').naturalWidth") > 0)
-        shots = Path(
-            os.environ.get("ABYSS_SCREENSHOTS", tmp_path)
-        )  # docs/images/console.png: set it to docs/images
+        # stop here: one waypoint where the vehicle is, taken
+        browser.find_element(By.ID, "stop").click()
+        wait.until(
+            lambda d: re.search(r"waypoints [-\d.]+,[-\d.]+,[-\d.]+,[-\d.]+: taken", text(d, "commands"))
+        )
+        # the relayed camera frame and the sonar's fan came across the satellite
+        for image in ("frame", "sonar-fan"):
+            wait.until(
+                lambda d, i=image: d.execute_script(f"return document.getElementById('{i}').naturalWidth") > 0
+            )
+        browser.set_window_size(1280, 1500)  # the whole page, for the docs
+        wait.until(lambda d: d.execute_script("return window.innerHeight") > 1200)
         browser.save_screenshot(str(shots / "console.png"))
+        for part in PARTS:
+            browser.find_element(By.ID, part).screenshot(str(shots / f"console_{part}.png"))
     finally:
         shore.close()
         console.send_signal(signal.SIGINT)

@@ -61,8 +61,15 @@ def test_the_web_viewer_shows_the_live_system_in_a_browser(tmp_path: Path) -> No
             seen = colourful_px_in_3d_view(shot)
             missing = panels_missing(browser)
         cv2.imwrite(str(tmp_path / "web_viewer.png"), shot)
+        # the pilot's console of the same run embeds this viewer
+        browser.open(up.wait_for(r"the pilot's console at (http://127\.0\.0\.1:\d+/)").group(1))
+        embedded, deadline = "", time.monotonic() + 30.0
+        while time.monotonic() < deadline and embedded != url:
+            time.sleep(0.5)
+            embedded = browser.evaluate("(document.getElementById('viewer') || {}).src || ''")
     finally:
         browser.close()
+    assert embedded == url, f"the console embeds {embedded!r}, not the viewer at {url}"
     assert colourful_px_in_3d_view(blank) < COLOURFUL_PX
     assert seen >= COLOURFUL_PX, f"the 3D view stayed blank ({seen} colourful pixels); see {tmp_path}"
     assert not missing, f"the viewer has no view named {missing}; see {tmp_path}"

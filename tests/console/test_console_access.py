@@ -5,20 +5,28 @@ changes that the pilot must be told become alerts."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import queue
+import re
+import subprocess
+import sys
+import types
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 import zenoh
 
+from abyss.cli.system import _with_console
 from abyss.common import certs, keys
 from abyss.common.bus import message_of, open_session, zenoh_config
 from abyss.common.certs import CertFiles
+from abyss.common.config import Config
 from abyss.common.messages import OperatorMode, Telemetry, Waypoints, encode
 from abyss.common.ports import free_port
 from abyss.console.access import HEADER, Access, token_of
@@ -194,3 +202,60 @@ def test_a_command_from_a_tool_that_gave_no_name_is_shown_as_such(
         assert shown["id"] == 42 and "gave no name" in shown["by"]
     finally:
         console.close()
+
+
+def test_a_station_lost_and_back_is_an_alert(shore: tuple[zenoh.Session, zenoh.Session]) -> None:
+    router, tool = shore
+    console = Console(router, SYSTEM, 0)
+    try:
+
+        def alerts() -> list[str]:
+            return [a["text"] for a in reversed(console.pilot.state()["alerts"])]
+
+        def until(holds: Callable[[], bool]) -> None:
+            for _ in range(int(WAIT_S / 0.05)):
+                if holds():
+                    return
+                console.stop.wait(0.05)
+            raise AssertionError(f"never: alerts {alerts()}, stations {console.pilot.state()['stations']}")
+
+        token = tool.liveliness().declare_token(keys.alive_key(SYSTEM, "vessel"))
+        until(lambda: console.pilot.state()["stations"] == {"vessel": True})
+        assert alerts() == []  # a station first seen is no news
+        token.undeclare()
+        until(lambda: alerts() == ["station vessel lost"])
+        token = tool.liveliness().declare_token(keys.alive_key(SYSTEM, "vessel"))
+        until(lambda: alerts() == ["station vessel lost", "station vessel back (restarted)"])
+        token.undeclare()
+    finally:
+        console.close()
+
+
+def test_the_onshore_station_serves_the_console_on_its_own_session_and_only_it(
+    shore: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, _ = shore
+    served: list[bytes] = []
+    out = io.StringIO()
+
+    def onshore(config: Config, bus: object) -> None:  # the station's run, as its shell calls it
+        url = re.search(r"pilot's console at (\S+)", out.getvalue())
+        assert url, out.getvalue()
+        with urllib.request.urlopen(url.group(1) + "state", timeout=WAIT_S) as state:
+            served.append(state.read())
+
+    with contextlib.redirect_stdout(out):
+        _with_console(onshore, 0)(Config(), types.SimpleNamespace(session=router))
+    assert json.loads(served[0])["system"] == Config().system
+    url = re.search(r"pilot's console at (\S+)", out.getvalue()).group(1)  # type: ignore[union-attr]
+    with pytest.raises(urllib.error.URLError):  # closed with the station
+        urllib.request.urlopen(url, timeout=WAIT_S)
+    refused = subprocess.run(
+        [sys.executable, "-m", "abyss.cli", "station", "vessel", "--console", "0"],
+        capture_output=True,
+        text=True,
+    )
+    assert (
+        refused.returncode != 0
+        and "served by the onshore station, not vessel" in refused.stderr + refused.stdout
+    )

@@ -209,7 +209,8 @@ def lockstep_key(system: str, station: str) -> str:
 
 
 def operator_key(system: str, topic: str) -> str:
-    """Commands of an operator's tool (`abyss teleop`, `abyss op`) to the onshore station, on
+    """Commands of an operator's tool (`abyss teleop`, `abyss op`, a console) to the onshore
+    station, each signed with its sender in the sample's attachment (console.op.put_command), on
     shore's own network; the onshore station sends them down the satellite as op/<topic>, and
     hands onboard's acknowledgements back on operator/ack."""
     return key(system, "onshore", "operator", topic)
@@ -288,7 +289,7 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
         "abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
         "Waypoints, ArmGoal, OperatorMode, Intervention",
         "event",
-        "operator tools to the onshore station, which sends them down",
+        "operator tools to the onshore station, which sends them down (signed with the sender)",
     ),
     (
         "abyss/<system>/onshore/operator/ack",

@@ -3,7 +3,7 @@ camera's frame relayed to shore at 1 Hz) in Debian's Chromium driven by Selenium
 - the delay from a telemetry sample reaching shore (this script's own subscriber on shore's
   network) to the page showing it (the page's log, `window.abyssLog`, same clock);
 - from a click to onboard's answer reaching the console's server, and to the page showing it,
-  alternating Hold and Auto;
+  alternating Hold and Auto, against `abyss op`'s own send and wait on the same path (the peer);
 - the browser's CPU (all of Chromium's processes, cores) with the console open, against the same
   browser on a blank page in the same sitting (the floor).
 Run: .venv/bin/python bench/console.py [--seconds S] [--clicks N]. Prints figures; asserts nothing."""
@@ -28,7 +28,8 @@ from selenium.webdriver.common.by import By
 
 from abyss.common import keys
 from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.messages import Telemetry
+from abyss.common.messages import OperatorMode, Telemetry, new_id
+from abyss.console.op import send
 
 ROOT = Path(__file__).resolve().parents[1]
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")
@@ -138,6 +139,13 @@ def main() -> None:
                     time.sleep(0.05)
                 time.sleep(1.0)
             answers = driver.execute_script("return Object.values(window.abyssLog.answers)")
+            op = []  # the peer: `abyss op`'s own send and wait, on the same path, no page
+            for i in range(args.clicks):
+                t0 = time.monotonic()
+                command = OperatorMode(new_id(), "hold" if i % 2 == 0 else "auto")
+                if send(endpoint, "bench-console", command, "mode", 30.0) is not None:
+                    op.append(time.monotonic() - t0)
+                time.sleep(1.0)
         finally:
             driver.quit()
             subscriber.undeclare()
@@ -148,7 +156,12 @@ def main() -> None:
     page = [a["shown_s"] - a["clicked_s"] for a in answers]
     print(f"telemetry on shore -> shown in the page: {percentiles(delays)}")
     print(f"click -> onboard's answer at the console: {percentiles(answered)}")
+    to_put = [a["sent_s"] - a["clicked_s"] for a in answers]
+    put_to_answer = [a["answered_s"] - a["sent_s"] for a in answers]
+    print(f"  of which click -> the console's put:     {percentiles(to_put)}")
+    print(f"  and the put -> the answer:               {percentiles(put_to_answer)}")
     print(f"click -> the answer shown in the page:    {percentiles(page)}")
+    print(f"abyss op's send -> onboard's answer (peer): {percentiles(op)}")
     print(f"browser CPU: {console:.3f} cores with the console open (frames at 1 Hz, {frames} px wide), "
           f"{blank:.3f} on a blank page: the page costs {console - blank:.3f} cores")  # fmt: skip
 

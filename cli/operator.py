@@ -93,7 +93,7 @@ def cmd_op(args: argparse.Namespace) -> int:
 
 
 def cmd_console(args: argparse.Namespace) -> int:
-    from abyss.console.pilot import run_console
+    from abyss.console.server import run_console
 
     if args.token:
         from abyss.common.errors import ConfigError

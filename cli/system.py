@@ -151,7 +151,7 @@ def _with_console(entry: Callable[[Config, Any], None], port: int) -> Callable[[
     """The onshore station with the pilot's console served on its own session."""
 
     def run(config: Config, bus: Any) -> None:
-        from abyss.console.pilot import Console
+        from abyss.console.server import Console
 
         console = Console(bus.session, config.system, port, config.simulation.site)
         print(f"abyss: the pilot's console at {console.url}", flush=True)

@@ -8,20 +8,14 @@ keeps a list of alerts: the failsafe entered and left, a command refused, an int
 the arm blocked, a waypoint missed, a station lost or restarted, the vessel's telemetry gone
 silent. Every command any operator's tool hands shore shows here with who sent it, so a second
 console sees the first one's. The page (`console/web/`) polls `/state` twice a second.
-
-The server binds to 127.0.0.1 unless told otherwise; bound where others reach it, it asks for the
-operator's token (`console.access`)."""
+`console.server` serves it."""
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from http import HTTPStatus
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
 from typing import Any
 
 import cv2
@@ -29,11 +23,11 @@ import numpy as np
 import zenoh
 
 from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.certs import CertFiles
-from abyss.common.errors import AbyssError, BadInput, ConfigError
+from abyss.common.bus import message_of
+from abyss.common.errors import BadInput
 from abyss.common.geometry import roll_pitch_of
 from abyss.common.messages import (
+    TOOL_COMMANDS,
     CommandAck,
     Image,
     LinkStats,
@@ -44,17 +38,12 @@ from abyss.common.messages import (
     Telemetry,
     new_id,
 )
-from abyss.common.security import tool_certificates
 from abyss.common.site import site_at
 from abyss.common.sonar_frames import decode_polar, fan
-from abyss.console.access import HEADER, Access, operator_name
+from abyss.console.access import operator_name
 from abyss.console.op import INTENTS, Command, command_of, put_command, sender_of, text_of
 from abyss.console.teleop import Goals, Target
-from abyss.stations.onshore import TOOL_COMMANDS
 
-WEB = Path(__file__).parent / "web"
-FILES = {"/": ("index.html", "text/html"), "/console.js": ("console.js", "text/javascript")}
-IMAGES = ("/frame.jpg", "/sonar.png")
 # what the page shows of each hop's statistics (linkemu's keys): delays [ms], the queue, losses
 LINK_FIELDS = ("delay_p50_ms", "delay_p99_ms", "in_flight", "messages_lost", "losses", "queue_drops")
 RESEND_PERIOD_S = 2.0  # a command not answered yet is sent again, as `abyss op` does
@@ -172,7 +161,7 @@ class Pilot:
         with self.lock:
             self.latest["telemetry"] = (time.time(), telemetry)
             self.goals.start_from(telemetry)
-            for alert in _changes(self._before, telemetry):
+            for alert in alerts_of(self._before, telemetry):
                 self._alert(alert)
             self._before = telemetry
             if self._silent:
@@ -320,7 +309,7 @@ class Pilot:
             return self.images[path][2] if path in self.images else None
 
 
-def _changes(before: Telemetry | None, now: Telemetry) -> list[str]:
+def alerts_of(before: Telemetry | None, now: Telemetry) -> list[str]:
     """What the telemetry says changed that the pilot must be told: the failsafe entered or
     left, the arm blocked, a waypoint missed, an intervention failed, onboard restarted."""
     failsafe, arm_mode, mode, intervention = ("", "", "", (-1, ""))
@@ -394,134 +383,3 @@ def _fields(message: Any) -> dict[str, Any]:
         "half_sizes_m": message.half_sizes_m.round(3).tolist(),
         "method": message.method,
     }
-
-
-def _handler(pilot: Pilot, access: Access, viewer_url: str) -> type[BaseHTTPRequestHandler]:
-    class Handler(BaseHTTPRequestHandler):
-        def _allowed(self) -> bool:
-            if access.allows(self.path, self.headers):
-                return True
-            why = f"the console needs the operator's token (the address it printed, or {HEADER})"
-            self._reply(HTTPStatus.UNAUTHORIZED, json.dumps({"error": why}).encode(), "application/json")
-            return False
-
-        def do_GET(self) -> None:
-            path = self.path.split("?", 1)[0]
-            if not self._allowed():
-                return
-            if path in FILES:
-                name, kind = FILES[path]
-                self._reply(HTTPStatus.OK, (WEB / name).read_bytes(), kind)
-            elif path == "/state":
-                state = pilot.state() | {"viewer_url": viewer_url}
-                self._reply(HTTPStatus.OK, json.dumps(state).encode(), "application/json")
-            elif path in IMAGES and (data := pilot.image(path)) is not None:
-                self._reply(HTTPStatus.OK, data, "image/jpeg" if path.endswith(".jpg") else "image/png")
-            else:
-                self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
-
-        def do_POST(self) -> None:
-            if not self._allowed():
-                return
-            if self.path not in ("/command", "/teleop"):
-                self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
-                return
-            try:
-                asked = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))))
-                if self.path == "/teleop":
-                    pilot.nudge(asked["target"], list(asked["translation_m"]), list(asked["rotation_rad"]))
-                    command_id = -1
-                else:
-                    command_id = pilot.send(
-                        str(asked["kind"]), str(asked["value"]), str(asked.get("amount", ""))
-                    )
-            except (AbyssError, BadInput, KeyError, ValueError, TypeError) as exc:
-                self._reply(
-                    HTTPStatus.BAD_REQUEST, json.dumps({"error": str(exc)}).encode(), "application/json"
-                )
-                return
-            self._reply(HTTPStatus.OK, json.dumps({"id": command_id}).encode(), "application/json")
-
-        def _reply(self, status: HTTPStatus, body: bytes, kind: str) -> None:
-            self.send_response(status)
-            self.send_header("Content-Type", kind)
-            self.send_header("Content-Length", str(len(body)))
-            self.send_header("Cache-Control", "no-store")
-            self.end_headers()
-            self.wfile.write(body)
-
-        def log_message(self, format: str, *args: Any) -> None:
-            log.debug(format, *args)
-
-    return Handler
-
-
-class Console:
-    """The console served on `host`:`port` (0: any free one) over `session`, a session on
-    shore's network (`abyss console`'s own, or `abyss up`'s); `url` where (with the token a
-    non-local `host` asks, `console.access`); `viewer_url`: rerun's web viewer of the live
-    recording, embedded in the page ("" none); `close()` ends it."""
-
-    def __init__(
-        self,
-        session: zenoh.Session,
-        system: str,
-        port: int,
-        site: str = "",
-        host: str = "127.0.0.1",
-        certificates: CertFiles | None = None,
-        viewer_url: str = "",
-    ) -> None:
-        self.pilot = Pilot(session, system, site)
-        self.access = Access.at(host, system, certificates)
-        self.subscribers = self.pilot.start()
-        try:
-            self.server = ThreadingHTTPServer((host, port), _handler(self.pilot, self.access, viewer_url))
-        except OSError as exc:
-            self._undeclare()
-            raise ConfigError("--console", f"cannot serve on {host}:{port}: {exc}") from None
-        self.server.daemon_threads = True
-        port = self.server.server_address[1]
-        self.pilot.by = f"{operator_name('console')}:{port}"  # as other consoles name this one
-        self.url = self.access.url(port)
-        self.stop = threading.Event()
-        self.threads = [
-            threading.Thread(target=self.server.serve_forever, name="console http", daemon=True),
-            threading.Thread(target=self._resend, name="console resend", daemon=True),
-        ]
-        for thread in self.threads:
-            thread.start()
-
-    def _resend(self) -> None:
-        while not self.stop.wait(0.5):
-            self.pilot.resend()
-
-    def _undeclare(self) -> None:
-        for subscriber in self.subscribers:
-            subscriber.undeclare()
-
-    def close(self) -> None:
-        self.stop.set()
-        self.server.shutdown()
-        self.server.server_close()
-        self._undeclare()
-
-
-def run_console(
-    endpoint: str, system: str, port: int, site: str = "", host: str = "127.0.0.1", viewer_url: str = ""
-) -> int:
-    """`abyss console`: serve the console until interrupted."""
-    certificates = tool_certificates(endpoint)
-    session = open_session(client_config(endpoint), "abyss console")
-    try:
-        console = Console(session, system, port, site, host, certificates, viewer_url)
-        print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
-        try:
-            threading.Event().wait()
-        except KeyboardInterrupt:
-            return 0
-        finally:
-            console.close()
-    finally:
-        session.close()
-    return 0

@@ -21,7 +21,7 @@ from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import SimClock
 from abyss.common.config import Config
 from abyss.common.errors import AbyssError
-from abyss.console.pilot import Console
+from abyss.console.server import Console
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.mission_check import check_reach
 from abyss.launch.observe import Heard
@@ -41,7 +41,6 @@ from abyss.launch.stop import interrupts_to, stop_all
 from abyss.launch.summarise import Ending, run_summary
 from abyss.launch.supervise import Supervisor
 from abyss.launch.verdict import exit_code, render_summary
-from abyss.stations.onshore.viewer import web_viewer_url
 
 
 class Up:
@@ -153,6 +152,8 @@ class Up:
             self.echo(viewer)
             session = self.supervisor.session
             if self.console_port is not None and session is not None:  # abyss up's, on shore's network
+                from abyss.stations.onshore.viewer import web_viewer_url  # rerun: only here
+
                 onshore = self.config.onshore
                 web = onshore.viewer == "web"
                 self.console = Console(

@@ -230,7 +230,7 @@ def test_the_installed_wheel_runs_from_its_own_environment(wheel: Path, tmp_path
         "import sys, abyss, abyss.stations.onboard, abyss.common.models as m, abyss.launch.up; "
         "print(abyss.__file__); print(abyss.stations.onboard.__file__); "
         "import abyss.common.robot as r; print(r.robot_at('').model_file); "
-        "print(sorted(n for n in sys.modules if 'editable' in n))"
+        "print(sorted(n for n in sys.modules if n.startswith('__editable__')))"
     )
     imported = subprocess.run(
         [python, "-c", probe], capture_output=True, text=True, cwd=cwd, env=env, timeout=120

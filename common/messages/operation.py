@@ -185,3 +185,13 @@ class MissionStatus(Message):
     intervention_target: str = ""  # the one in hand, or the last
     intervention_phase: str = field(default="", metadata={"choices": INTERVENTION_PHASES})
     intervention_reason: str = ""  # why it failed, or why a grasp is tried again
+
+
+# what the operator's tools (`abyss op`, `abyss teleop`, a console) hand the onshore station on
+# operator/<topic>, which sends it down as op/<topic>
+TOOL_COMMANDS: tuple[tuple[str, type[Message]], ...] = (
+    ("mode", OperatorMode),
+    ("waypoints", Waypoints),
+    ("arm", ArmGoal),
+    ("intervene", Intervention),
+)

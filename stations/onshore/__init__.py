@@ -19,13 +19,12 @@ from abyss.common import keys
 from abyss.common.bus import Bus, Inbox
 from abyss.common.config import Config
 from abyss.common.messages import (
+    TOOL_COMMANDS,
     ArmGoal,
     CommandAck,
     Image,
-    Intervention,
     LinkStats,
     Message,
-    OperatorMode,
     PerceptionStatus,
     Received,
     RecognisedObjects,
@@ -75,15 +74,6 @@ def run(config: Config, bus: Bus) -> None:
         _save(record_dir, operator, saved)
     scene.show(bus.clock.now_s(), final=True)
     sinks.close()
-
-
-# what the operator tools (`abyss teleop`, `abyss op`) send on operator/<topic>
-TOOL_COMMANDS: tuple[tuple[str, type[Message]], ...] = (
-    ("mode", OperatorMode),
-    ("waypoints", Waypoints),
-    ("arm", ArmGoal),
-    ("intervene", Intervention),
-)
 
 
 class _Inboxes:

@@ -30,7 +30,8 @@ from abyss.common.config import Config
 from abyss.common.messages import OperatorMode, Telemetry, Waypoints, encode
 from abyss.common.ports import free_port
 from abyss.console.access import HEADER, Access, token_of
-from abyss.console.pilot import Console, _changes
+from abyss.console.pilot import alerts_of
+from abyss.console.server import Console
 
 SYSTEM = "console-test"
 WAIT_S = 10.0
@@ -168,21 +169,21 @@ def telemetry(**changed: object) -> Telemetry:
 
 def test_what_the_telemetry_says_changed_becomes_the_pilots_alerts() -> None:
     calm = telemetry()
-    assert _changes(None, calm) == [] and _changes(calm, calm) == []
-    assert _changes(calm, telemetry(failsafe="no heartbeat for 5 s")) == ["failsafe: no heartbeat for 5 s"]
-    assert _changes(telemetry(failsafe="x"), calm) == ["failsafe left"]
-    assert _changes(None, telemetry(failsafe="operator hold")) == ["failsafe: operator hold"]
+    assert alerts_of(None, calm) == [] and alerts_of(calm, calm) == []
+    assert alerts_of(calm, telemetry(failsafe="no heartbeat for 5 s")) == ["failsafe: no heartbeat for 5 s"]
+    assert alerts_of(telemetry(failsafe="x"), calm) == ["failsafe left"]
+    assert alerts_of(None, telemetry(failsafe="operator hold")) == ["failsafe: operator hold"]
     blocked = telemetry(arm_mode="blocked", intervention_target="valve_1")
-    assert _changes(calm, blocked) == ["the arm blocked (intervention: valve_1)"]
-    assert _changes(blocked, blocked) == []  # said once
-    assert _changes(calm, telemetry(mode="missed", waypoint_index=1)) == [
+    assert alerts_of(calm, blocked) == ["the arm blocked (intervention: valve_1)"]
+    assert alerts_of(blocked, blocked) == []  # said once
+    assert alerts_of(calm, telemetry(mode="missed", waypoint_index=1)) == [
         "waypoint 2 of 2 missed: its time ran out"
     ]
     failed = telemetry(intervention_id=7, intervention_target="lever_1", intervention_phase="failed",
                        intervention_reason="the grasp slipped")  # fmt: skip
-    assert _changes(calm, failed) == ["the intervention on lever_1 failed: the grasp slipped"]
-    assert _changes(failed, failed) == []
-    assert _changes(calm, telemetry(boot_id=5)) == [
+    assert alerts_of(calm, failed) == ["the intervention on lever_1 failed: the grasp slipped"]
+    assert alerts_of(failed, failed) == []
+    assert alerts_of(calm, telemetry(boot_id=5)) == [
         "onboard restarted: shore hands it the goals in force again"
     ]
 

@@ -1,0 +1,160 @@
+"""The pilot's console served: the page (`console/web/`) and its state over HTTP, on 127.0.0.1 unless
+told otherwise, where others reach it only with the operator's token (`console.access`). GET /,
+/console.js (the page), /state (`Pilot.state`, with the embedded viewer's address), /frame.jpg and
+/sonar.png (the latest relayed frame and sonar fan); POST /command (`abyss op`'s kind, value,
+amount) and /teleop (a step of the vehicle's or the end-effector's goal)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from abyss.common.bus import client_config, open_session
+from abyss.common.certs import CertFiles
+from abyss.common.errors import AbyssError, BadInput, ConfigError
+from abyss.common.security import tool_certificates
+from abyss.console.access import HEADER, Access, operator_name
+from abyss.console.pilot import Pilot
+
+WEB = Path(__file__).parent / "web"
+FILES = {"/": ("index.html", "text/html"), "/console.js": ("console.js", "text/javascript")}
+IMAGES = ("/frame.jpg", "/sonar.png")
+log = logging.getLogger(__name__)
+
+
+def _handler(pilot: Pilot, access: Access, viewer_url: str) -> type[BaseHTTPRequestHandler]:
+    class Handler(BaseHTTPRequestHandler):
+        def _allowed(self) -> bool:
+            if access.allows(self.path, self.headers):
+                return True
+            why = f"the console needs the operator's token (the address it printed, or {HEADER})"
+            self._reply(HTTPStatus.UNAUTHORIZED, json.dumps({"error": why}).encode(), "application/json")
+            return False
+
+        def do_GET(self) -> None:
+            path = self.path.split("?", 1)[0]
+            if not self._allowed():
+                return
+            if path in FILES:
+                name, kind = FILES[path]
+                self._reply(HTTPStatus.OK, (WEB / name).read_bytes(), kind)
+            elif path == "/state":
+                state = pilot.state() | {"viewer_url": viewer_url}
+                self._reply(HTTPStatus.OK, json.dumps(state).encode(), "application/json")
+            elif path in IMAGES and (data := pilot.image(path)) is not None:
+                self._reply(HTTPStatus.OK, data, "image/jpeg" if path.endswith(".jpg") else "image/png")
+            else:
+                self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
+
+        def do_POST(self) -> None:
+            if not self._allowed():
+                return
+            if self.path not in ("/command", "/teleop"):
+                self._reply(HTTPStatus.NOT_FOUND, b"not found", "text/plain")
+                return
+            try:
+                asked = json.loads(self.rfile.read(int(self.headers.get("Content-Length", 0))))
+                if self.path == "/teleop":
+                    pilot.nudge(asked["target"], list(asked["translation_m"]), list(asked["rotation_rad"]))
+                    command_id = -1
+                else:
+                    command_id = pilot.send(
+                        str(asked["kind"]), str(asked["value"]), str(asked.get("amount", ""))
+                    )
+            except (AbyssError, BadInput, KeyError, ValueError, TypeError) as exc:
+                self._reply(
+                    HTTPStatus.BAD_REQUEST, json.dumps({"error": str(exc)}).encode(), "application/json"
+                )
+                return
+            self._reply(HTTPStatus.OK, json.dumps({"id": command_id}).encode(), "application/json")
+
+        def _reply(self, status: HTTPStatus, body: bytes, kind: str) -> None:
+            self.send_response(status)
+            self.send_header("Content-Type", kind)
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Cache-Control", "no-store")
+            self.end_headers()
+            self.wfile.write(body)
+
+        def log_message(self, format: str, *args: Any) -> None:
+            log.debug(format, *args)
+
+    return Handler
+
+
+class Console:
+    """The console served on `host`:`port` (0: any free one) over `session`, a session on
+    shore's network (`abyss console`'s own, or `abyss up`'s); `url` where (with the token a
+    non-local `host` asks, `console.access`); `viewer_url`: rerun's web viewer of the live
+    recording, embedded in the page ("" none); `close()` ends it."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        system: str,
+        port: int,
+        site: str = "",
+        host: str = "127.0.0.1",
+        certificates: CertFiles | None = None,
+        viewer_url: str = "",
+    ) -> None:
+        self.pilot = Pilot(session, system, site)
+        self.access = Access.at(host, system, certificates)
+        self.subscribers = self.pilot.start()
+        try:
+            self.server = ThreadingHTTPServer((host, port), _handler(self.pilot, self.access, viewer_url))
+        except OSError as exc:
+            self._undeclare()
+            raise ConfigError("--console", f"cannot serve on {host}:{port}: {exc}") from None
+        self.server.daemon_threads = True
+        port = self.server.server_address[1]
+        self.pilot.by = f"{operator_name('console')}:{port}"  # as other consoles name this one
+        self.url = self.access.url(port)
+        self.stop = threading.Event()
+        self.threads = [
+            threading.Thread(target=self.server.serve_forever, name="console http", daemon=True),
+            threading.Thread(target=self._resend, name="console resend", daemon=True),
+        ]
+        for thread in self.threads:
+            thread.start()
+
+    def _resend(self) -> None:
+        while not self.stop.wait(0.5):
+            self.pilot.resend()
+
+    def _undeclare(self) -> None:
+        for subscriber in self.subscribers:
+            subscriber.undeclare()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.server.shutdown()
+        self.server.server_close()
+        self._undeclare()
+
+
+def run_console(
+    endpoint: str, system: str, port: int, site: str = "", host: str = "127.0.0.1", viewer_url: str = ""
+) -> int:
+    """`abyss console`: serve the console until interrupted."""
+    certificates = tool_certificates(endpoint)
+    session = open_session(client_config(endpoint), "abyss console")
+    try:
+        console = Console(session, system, port, site, host, certificates, viewer_url)
+        print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
+        try:
+            threading.Event().wait()
+        except KeyboardInterrupt:
+            return 0
+        finally:
+            console.close()
+    finally:
+        session.close()
+    return 0

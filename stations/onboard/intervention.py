@@ -14,7 +14,8 @@ vessel resolved (messages.InterventionGoal) and reports each phase in telemetry.
     done | failed
 
 A grasp that closes on nothing, or one lost during the turn (the opening collapses: the handle
-slipped out), is tried again from the approach, twice; the third time, or a part that does not
+slipped out) short of a lever's stop (past it, the stop pried the fingers off: thrown), is tried
+again from the approach, twice; the third time, or a part that does not
 turn, ends failed with its reason, after the release and the retreat: the arm backs off and
 nothing is pushed further. Handed an intervention with the fingers already on the part (a rebooted
 onboard), it lets go first and says so. The phases' clocks stop while the arm holds (failsafe, operator
@@ -281,7 +282,10 @@ class InterventionRun:
         if self.goal.to_stop:  # pushed into its stop (within LEAD_MAX_RAD of where it is)
             goal += math.copysign(OVERTRAVEL_RAD, self.goal.turn_rad)
         if opening_m < self.grip.hold_min_m:  # the handle slipped out of the fingers
-            self._again(f"the grasp slipped at {math.degrees(self.turned_rad):.0f} deg")
+            if self.goal.to_stop and self._past_the_stop():
+                self._next(Phase.RELEASE)  # wrenched out by the stop it was pushed into: thrown
+            else:
+                self._again(f"the grasp slipped at {math.degrees(self.turned_rad):.0f} deg")
             return self._release(tool, opening_m, dt_s)
         if abs(goal - self.turned_rad) < TURN_TOLERANCE_RAD:
             self._next(Phase.RELEASE)
@@ -309,6 +313,15 @@ class InterventionRun:
         rate = direction * TURN_RATE_RADPS if advancing else 0.0
         velocity = rate * np.cross(self.axis, position - self.pivot)
         return Command(PoseReference(position, rotation, velocity, rate * self.axis, self.axis), -SQUEEZE_MPS)
+
+    def _past_the_stop(self) -> bool:
+        """The tool turned at least as far as a lever's stop (within TURN_TOLERANCE_RAD): a lever
+        moves freely short of its stop, so the fingers lose it there only to the stop's
+        resistance, as the tool overtravels (the BlueROV2's jaw on the small panel's lever: the
+        lever at its stop on the truth, the fingers pried off, and two regrasps where the lever
+        no longer was)."""
+        sign = math.copysign(1.0, self.goal.turn_rad)
+        return sign * (self.turned_rad - self.goal.turn_rad) >= -TURN_TOLERANCE_RAD
 
     def _again(self, why: str) -> None:
         """Try the grasp once more, from where the part now stands, or fail."""

@@ -277,3 +277,25 @@ def test_onboard_rebooted_mid_turn_lets_go_says_so_and_finishes_the_turn(
     assert said.startswith("found holding valve_1"), said
     assert rebooted.phase == "done", rebooted.reason
     assert truth_deg(world, "valve_1") == pytest.approx(90.0, abs=5.0)
+
+
+def test_a_lever_wrenched_out_of_the_fingers_past_its_stop_is_thrown_and_short_of_it_slipped() -> None:
+    """The fingers lose the lever (the opening collapses) with the tool turned past the lever's
+    stop: the stop pried them off, the lever is thrown and the run goes on to release and done;
+    short of the stop the lever moves freely, so it slipped, and the grasp is tried again."""
+    goal = goal_of("lever_1", "down")
+    assert goal.to_stop
+
+    def lost_at(turned_rad: float) -> InterventionRun:
+        run = InterventionRun(goal, GRIP)
+        run.started, run.phase, run.hold_opening_m = True, Phase.TURN, GRIP.hold_min_m + 0.005
+        position, rotation = run.pose_at(turned_rad)
+        run.step(pin.SE3(rotation, position), GRIP.hold_min_m / 2, PERIOD_S, True)
+        return run
+
+    past = lost_at(goal.turn_rad * 1.1)  # the tool overtravelling into the stop
+    assert past.phase == Phase.RELEASE and past.retry == "" and past.attempts == 1
+    short = lost_at(goal.turn_rad * 0.5)
+    assert (
+        short.phase == Phase.RELEASE and short.retry.startswith("the grasp slipped") and short.attempts == 2
+    )

@@ -170,9 +170,13 @@ def test_compare_names_the_keys_a_changed_gain_changes_and_nothing_else(
         assert done.returncode == 0 and differing == [], done.stdout + done.stderr
         assert f"0 of {len(rows)} keys differ" in done.stdout
     else:
-        assert done.returncode == 1 and differing == ["onboard/cmd/vehicle_velocity"], done.stdout
+        # the command, and in telemetry only the effort, which reports that command to the pilot
+        assert done.returncode == 1, done.stdout
+        assert differing == ["onboard/cmd/vehicle_velocity", "onboard/telemetry"], done.stdout
         assert rows["onboard/cmd/vehicle_velocity"]["fields"]["linear_mps_body"]["differs"]
-        assert f"1 of {len(rows)} keys differ: onboard/cmd/vehicle_velocity" in done.stdout
+        telemetry = rows["onboard/telemetry"]["fields"]
+        assert [f for f, row in telemetry.items() if row["differs"]] == ["effort_body"], telemetry
+        assert f"2 of {len(rows)} keys differ: onboard/cmd/vehicle_velocity, onboard/telemetry" in done.stdout
     assert all(row["paired"] > 0 for row in rows.values())
 
 

@@ -105,6 +105,8 @@ class System:
             f"{scenario.duration_s:g}",
             "--viewer",
             "save",
+            "--console",
+            "none",  # unattended: no pilot's page, nothing more on the run's own session
         ]
         command += [] if scenario.stop_when_done else ["--keep-running"]
         command += ["--restart"] if scenario.restart else []

@@ -213,9 +213,8 @@ class Pilot:
             if teleop:
                 self.others_teleop[by] = self.others_teleop.get(by, 0) + 1
                 return
-            kind = "intervene" if topic == "intervene" else topic
             now = time.time()
-            self.sent[command.command_id] = Sent(command, kind, text_of(command), topic, now, now, by)
+            self.sent[command.command_id] = Sent(command, topic, text_of(command), topic, now, now, by)
 
     def _answer(self, ack: CommandAck) -> None:
         with self.lock:

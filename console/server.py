@@ -112,7 +112,10 @@ class Console:
             self.server = ThreadingHTTPServer((host, port), _handler(self.pilot, self.access, viewer_url))
         except OSError as exc:
             self._undeclare()
-            raise ConfigError("--console", f"cannot serve on {host}:{port}: {exc}") from None
+            raise ConfigError(
+                "the console's address",
+                f"cannot serve on {host}:{port} (--console, or --bind and --port): {exc}",
+            ) from None
         self.server.daemon_threads = True
         port = self.server.server_address[1]
         self.pilot.by = f"{operator_name('console')}:{port}"  # as other consoles name this one

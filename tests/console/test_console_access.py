@@ -27,6 +27,7 @@ from abyss.common import certs, keys
 from abyss.common.bus import message_of, open_session, zenoh_config
 from abyss.common.certs import CertFiles
 from abyss.common.config import Config
+from abyss.common.errors import ConfigError
 from abyss.common.messages import OperatorMode, Telemetry, Waypoints, encode
 from abyss.common.ports import free_port
 from abyss.console.access import HEADER, Access, token_of
@@ -260,3 +261,13 @@ def test_the_onshore_station_serves_the_console_on_its_own_session_and_only_it(
         refused.returncode != 0
         and "served by the onshore station, not vessel" in refused.stderr + refused.stdout
     )
+
+
+def test_an_address_the_console_cannot_serve_on_is_refused_by_name(
+    shore: tuple[zenoh.Session, zenoh.Session],
+) -> None:
+    router, _ = shore
+    with pytest.raises(
+        ConfigError, match=r"cannot serve on nonsense\.invalid:0 \(--console, or --bind and --port\)"
+    ):
+        Console(router, SYSTEM, 0, host="nonsense.invalid")

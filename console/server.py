@@ -1,5 +1,6 @@
 """The pilot's console served: the page (`console/web/`) and its state over HTTP, on 127.0.0.1 unless
-told otherwise, where others reach it only with the operator's token (`console.access`). GET /,
+told otherwise, where others reach it only with the operator's token, over HTTPS with the operator's
+certificate (`console.access`). GET /,
 /console.js (the page), /state (`Pilot.state`, with the embedded viewer's address), /frame.jpg and
 /sonar.png (the latest relayed frame and sonar fan); POST /command (`abyss op`'s kind, value,
 amount) and /teleop (a step of the vehicle's or the end-effector's goal)."""
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 import threading
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -89,6 +91,12 @@ def _handler(pilot: Pilot, access: Access, viewer_url: str) -> type[BaseHTTPRequ
     return Handler
 
 
+def _refused_handshake(request: Any, address: tuple[str, int]) -> None:
+    """A client that does not speak the console's TLS (plain HTTP, an untrusted certificate): one
+    line in the log, not a traceback."""
+    log.info("the console refused %s: %s", address[0], sys.exc_info()[1])
+
+
 class Console:
     """The console served on `host`:`port` (0: any free one) over `session`, a session on
     shore's network (`abyss console`'s own, or `abyss up`'s); `url` where (with the token a
@@ -117,6 +125,18 @@ class Console:
                 f"cannot serve on {host}:{port} (--console, or --bind and --port): {exc}",
             ) from None
         self.server.daemon_threads = True
+        if (context := self.access.tls_context()) is not None:  # each handshake in its request's thread
+            self.server.socket = context.wrap_socket(
+                self.server.socket, server_side=True, do_handshake_on_connect=False
+            )
+            self.server.handle_error = _refused_handshake  # type: ignore[method-assign]
+        elif self.access.token is not None:
+            log.warning(
+                "the console on %s is plain HTTP: its token crosses the network in the clear, and a "
+                "browser allows no gamepad there; with the operator's certificate ($ABYSS_TLS_DIR, a "
+                "tls/ endpoint) it serves HTTPS",
+                host,
+            )
         port = self.server.server_address[1]
         self.pilot.by = f"{operator_name('console')}:{port}"  # as other consoles name this one
         self.url = self.access.url(port)

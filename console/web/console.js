@@ -242,7 +242,7 @@ function switchTarget() { target = target === "vehicle" ? "arm" : "vehicle"; $("
 function gamepadTick() {
   const pad = [...(navigator.getGamepads ? navigator.getGamepads() : [])].find((p) => p);
   const nowS = performance.now() / 1000;
-  $("gamepad").textContent = pad ? pad.id : "none";
+  $("gamepad").textContent = pad ? pad.id : window.isSecureContext ? "none" : "none: a browser allows gamepads only over HTTPS or on localhost";
   if (!pad) { lastSendS = nowS; return; }
   if (pad.buttons[0] && pad.buttons[0].pressed !== switchHeld) { switchHeld = pad.buttons[0].pressed; if (switchHeld) switchTarget(); }
   const held = Boolean(pad.buttons[DEADMAN] && pad.buttons[DEADMAN].pressed);

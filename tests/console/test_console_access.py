@@ -6,10 +6,13 @@ changes that the pilot must be told become alerts."""
 from __future__ import annotations
 
 import contextlib
+import http.client
 import io
 import json
+import logging
 import queue
 import re
+import ssl
 import subprocess
 import sys
 import types
@@ -51,11 +54,15 @@ def shore() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
         router.close()
 
 
-def request(url: str, body: dict[str, str] | None = None, token: str = "") -> tuple[int, dict]:
+def request(
+    url: str, body: dict[str, str] | None = None, token: str = "", trust: ssl.SSLContext | None = None
+) -> tuple[int, dict]:
     headers = {HEADER: token} if token else {}
     data = json.dumps(body).encode() if body is not None else None
     try:
-        with urllib.request.urlopen(urllib.request.Request(url, data, headers), timeout=WAIT_S) as answer:
+        with urllib.request.urlopen(
+            urllib.request.Request(url, data, headers), timeout=WAIT_S, context=trust
+        ) as answer:
             return answer.status, json.loads(answer.read())
     except urllib.error.HTTPError as refused:
         return refused.code, json.loads(refused.read())
@@ -66,7 +73,7 @@ def base(console: Console) -> str:
 
 
 def test_a_console_bound_for_others_sends_nothing_without_the_operators_token(
-    shore: tuple[zenoh.Session, zenoh.Session],
+    shore: tuple[zenoh.Session, zenoh.Session], caplog: pytest.LogCaptureFixture
 ) -> None:
     router, tool = shore
     arrived: queue.Queue[OperatorMode] = queue.Queue()
@@ -76,10 +83,12 @@ def test_a_console_bound_for_others_sends_nothing_without_the_operators_token(
             arrived.put(mode)
 
     subscriber = tool.declare_subscriber(keys.operator_key(SYSTEM, "mode"), on_mode)
-    console = Console(router, SYSTEM, 0, host="0.0.0.0")
+    with caplog.at_level(logging.WARNING, logger="abyss.console.server"):
+        console = Console(router, SYSTEM, 0, host="0.0.0.0")
     try:
         token = console.access.token
-        assert token and f"?token={token}" in console.url
+        assert token and f"?token={token}" in console.url and console.url.startswith("http://")
+        assert "plain HTTP: its token crosses the network in the clear" in caplog.text
         hold = {"kind": "mode", "value": "hold"}
         status, body = request(base(console) + "command", hold)
         assert status == 401 and "token" in body["error"]
@@ -107,6 +116,35 @@ def test_on_localhost_the_console_asks_nothing_and_a_tls_token_is_the_operators_
     assert made == token_of(operator, SYSTEM)  # worked out again from the same key
     assert made != token_of(operator, "another system")
     assert Access.at("0.0.0.0", SYSTEM, None).token != Access.at("0.0.0.0", SYSTEM, None).token
+
+
+def test_with_the_operators_certificate_the_console_is_https_that_only_the_systems_ca_vouches_for(
+    shore: tuple[zenoh.Session, zenoh.Session], tmp_path: Path
+) -> None:
+    router, tool = shore
+    certs.make(tmp_path)  # the operator's certificate names 127.0.0.1
+    operator = CertFiles(tmp_path, certs.OPERATOR)
+    arrived: queue.Queue[OperatorMode] = queue.Queue()
+    subscriber = tool.declare_subscriber(
+        keys.operator_key(SYSTEM, "mode"),
+        lambda sample: arrived.put(mode) if (mode := message_of(sample, OperatorMode)) else None,
+    )
+    console = Console(router, SYSTEM, 0, host="0.0.0.0", certificates=operator)
+    try:
+        token = token_of(operator, SYSTEM)
+        assert console.url.startswith("https://") and console.url.endswith(f"/?token={token}")
+        at = f"127.0.0.1:{console.server.server_address[1]}/"
+        trusted = ssl.create_default_context(cafile=str(operator.ca))
+        with pytest.raises(urllib.error.URLError, match="CERTIFICATE_VERIFY_FAILED"):
+            request(f"https://{at}state", token=token, trust=ssl.create_default_context())
+        with pytest.raises((urllib.error.URLError, ConnectionError, http.client.HTTPException)):
+            request(f"http://{at}state", token=token)  # plain HTTP to it gets no answer
+        assert request(f"https://{at}state", trust=trusted)[0] == 401  # TLS is not the token
+        status, body = request(f"https://{at}command", {"kind": "mode", "value": "hold"}, token, trusted)
+        assert status == 200 and arrived.get(timeout=WAIT_S).command_id == body["id"]
+    finally:
+        console.close()
+        subscriber.undeclare()
 
 
 def test_a_second_console_sees_the_first_ones_commands_and_who_sent_them(

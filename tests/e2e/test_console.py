@@ -4,6 +4,9 @@ its commands take shore's path to onboard, each showing onboard's answer."""
 
 from __future__ import annotations
 
+import base64
+import contextlib
+import hashlib
 import math
 import os
 import re
@@ -20,13 +23,18 @@ import numpy as np
 import pytest
 import zenoh
 from conftest import ROOT, Up, abyss
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
 from selenium import webdriver
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
+from abyss.common import certs, keys
+from abyss.common.bus import client_config, message_of, open_session, zenoh_config
+from abyss.common.certs import CertFiles
 from abyss.common.messages import MissionStatus, NavState, PanelState, Telemetry
+from abyss.common.ports import free_port
+from abyss.console.server import Console
 
 pytestmark = pytest.mark.timeout(300)
 WAIT_S = 60.0  # for what the page shows to come, on this loaded machine
@@ -43,21 +51,34 @@ PARTS = (
 )
 
 
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[webdriver.Chrome]:
-    driver_path, chromium = shutil.which("chromedriver"), shutil.which("chromium")
-    if driver_path is None or chromium is None:
+@contextlib.contextmanager
+def chromium(profile: Path, *flags: str) -> Iterator[webdriver.Chrome]:
+    """Debian's Chromium, headless, through chromium-driver."""
+    driver_path, binary = shutil.which("chromedriver"), shutil.which("chromium")
+    if driver_path is None or binary is None:
         pytest.skip("Debian's chromium and chromium-driver are not installed (setup.sh installs them)")
     options = webdriver.ChromeOptions()
-    options.binary_location = chromium
-    for flag in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1280,900"):
+    options.binary_location = binary
+    for flag in (
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-dev-shm-usage",
+        "--window-size=1280,900",
+        *flags,
+    ):
         options.add_argument(flag)
-    options.add_argument(f"--user-data-dir={tmp_path / 'profile'}")
+    options.add_argument(f"--user-data-dir={profile}")
     driver = webdriver.Chrome(options=options, service=webdriver.ChromeService(executable_path=driver_path))
     try:
         yield driver
     finally:
         driver.quit()
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[webdriver.Chrome]:
+    with chromium(tmp_path / "profile") as driver:
+        yield driver
 
 
 class Shore:
@@ -292,3 +313,31 @@ def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_gre
             truth.undeclare()
         session.close()
         up.stop()
+
+
+def test_over_https_with_the_operators_certificate_the_page_is_secure_and_asks_its_token(
+    tmp_path: Path,
+) -> None:
+    """Chromium trusting the operator's key alone (as a browser that imported the system's CA would
+    trust its certificate) at a host the certificate names: the page is a secure context (a gamepad
+    allowed), reads the console's state with the token, and says what it needs without it."""
+    certs.make(tmp_path / "certs", {certs.OPERATOR: ["127.0.0.2"]})
+    operator = CertFiles(tmp_path / "certs", certs.OPERATOR)
+    key = x509.load_pem_x509_certificate(operator.certificate.read_bytes()).public_key()
+    spki = key.public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
+    pin = base64.b64encode(hashlib.sha256(spki).digest()).decode()
+    session = open_session(zenoh_config([f"tcp/127.0.0.1:{free_port()}"], mode="router"), "the test's shore")
+    console = Console(session, "https-test", 0, host="0.0.0.0", certificates=operator)
+    port = console.server.server_address[1]
+    try:
+        with chromium(tmp_path / "profile", f"--ignore-certificate-errors-spki-list={pin}") as driver:
+            wait = WebDriverWait(driver, WAIT_S)
+            driver.get(f"https://127.0.0.2:{port}/?token={console.access.token}")
+            wait.until(lambda d: text(d, "system") == "system https-test")
+            assert driver.execute_script("return window.isSecureContext") is True
+            assert text(driver, "gamepad") == "none"  # allowed, none plugged in
+            driver.get(f"https://127.0.0.2:{port}/")
+            wait.until(lambda d: "needs the operator's token" in text(d, "access"))
+    finally:
+        console.close()
+        session.close()

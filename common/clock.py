@@ -66,6 +66,10 @@ class Clock:
         """Wait `timeout_s` of this clock's seconds, or until `event` is set: whether it is."""
         return event.wait(max(0.0, timeout_s))
 
+    def wait_until(self, event: threading.Event, t_s: float) -> bool:
+        """Wait until this clock reads `t_s`, or until `event` is set: whether it is."""
+        return self.wait(event, t_s - self.now_s())
+
     def wall_timeout_s(self, timeout_s: float) -> float:
         """How long to block on the wall clock (a `Condition.wait`) before looking at this clock
         again, to wait `timeout_s` of its seconds."""
@@ -81,7 +85,7 @@ class Clock:
     def sleep_until(self, loop: str, t_s: float, stop: threading.Event) -> bool:
         """`loop` waits for its tick at `t_s`: False once `stop` is set."""
         self.done(loop, t_s)
-        return not self.wait(stop, t_s - self.now_s())
+        return not self.wait_until(stop, t_s)
 
 
 WALL = Clock()
@@ -138,9 +142,15 @@ class SimClock(Clock):
         return self.now_s()
 
     def wait(self, event: threading.Event, timeout_s: float) -> bool:
-        deadline_s = self.now_s() + timeout_s
+        return self.wait_until(event, self.now_s() + timeout_s)
+
+    def wait_until(self, event: threading.Event, t_s: float) -> bool:
+        """Until the time reads `t_s` itself, not for a span from a reading: a loop that said it
+        is done up to `t_s` took the span from one reading and the deadline from the next, so
+        ticks that landed between the two put its wake-up past `t_s`, on a tick the simulation,
+        held back for that loop, never sent (simulated time stood still)."""
         with self._ticked:
-            while not event.is_set() and (remaining_s := deadline_s - self.now_s()) > 0:
+            while not event.is_set() and (remaining_s := t_s - self.now_s()) > 0:
                 self._ticked.wait(self.wall_timeout_s(remaining_s))
         return event.is_set()
 

@@ -146,6 +146,44 @@ def test_at_max_speed_the_time_moves_on_ticks_alone_and_each_wakes_what_waits_fo
         runner.close()
 
 
+def test_a_loop_wakes_at_the_tick_it_said_however_many_ticks_land_while_it_reads_the_time() -> None:
+    """The simulation steps from t once every loop is done with t - max_lag (Holdback), so a loop
+    that said it is done up to T must wake on the ticks that reach T. Here the simulation steps as
+    far as that lets it right after the loop reads the time following its report (its thread
+    descheduled there, as on a loaded machine): a wait measured as a span from one reading and
+    ended from another went past T, for a tick the simulation, held for the loop, never sent
+    (valve-seized stood still at 37 s at --speed max)."""
+    max_lag_s = 0.1
+    clock = SimClock(0.0, speed=float("inf"))
+    clock.tick(1.0)
+    stop = threading.Event()
+    rate = Rate(PERIOD_S, stop, clock, "control")
+    reported: list[float] = []
+    clock.on_progress = reported.append
+    read = clock.now_s
+    sim = [1.0]
+
+    def now_s() -> float:  # the loop reads the time; the simulation's ticks land just after
+        value = read()
+        if reported:
+            reported.clear()
+            while clock.progress_s() >= sim[0] - max_lag_s:  # Holdback's rule, held for the loop
+                sim[0] = round(sim[0] + PERIOD_S, 9)
+                clock.tick(sim[0])
+        return value
+
+    clock.now_s = now_s  # type: ignore[method-assign]
+    woke: list[bool] = []
+    loop = threading.Thread(target=lambda: woke.append(rate.sleep()), daemon=True)
+    loop.start()
+    loop.join(3.0)
+    stop.set()
+    loop.join(1.0)
+    assert clock.progress_s() == pytest.approx(1.05)  # it said: done up to 1.05
+    assert sim[0] == pytest.approx(1.2)  # the simulation went as far as that lets it, no further
+    assert woke == [True]  # and the loop woke there, its tick reached, before anyone stopped it
+
+
 def test_an_emulated_link_on_simulated_time_delays_by_its_profile_in_simulated_time(
     ticking: tuple[SimClock, Ticker],
 ) -> None:

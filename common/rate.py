@@ -36,7 +36,7 @@ class Rate:
             self._next_s = now_s
         if self.name:
             return self.clock.sleep_until(self.name, self._next_s, self.stop)
-        return not self.clock.wait(self.stop, self._next_s - now_s)
+        return not self.clock.wait_until(self.stop, self._next_s)
 
     def forgive(self) -> None:
         """What the loop waited for since its tick (the simulation held back for a station) is not

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import os
 import sys
 from collections.abc import Callable
@@ -107,6 +106,7 @@ def run_args(p: argparse.ArgumentParser, speed: bool = True) -> None:
 
 
 def cmd_station(args: argparse.Namespace) -> int:
+    from abyss.common.leave import leave
     from abyss.launch.station import configure_logging, run_station, station_main
 
     configure_logging(args.verbose)
@@ -138,13 +138,7 @@ def cmd_station(args: argparse.Namespace) -> int:
         peers,
         entry,
     )
-    # everything is closed and written: leave without the interpreter's finalisation, which
-    # aborts the process ("exception not rethrown") when a daemon thread is still inside
-    # native code (an octree insertion, an ICP) as it tears the threads down
-    logging.shutdown()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    leave(code)  # everything is closed and written
 
 
 def _with_console(entry: Callable[[Config, Any], None], port: int) -> Callable[[Config, Any], None]:

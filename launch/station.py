@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ctypes
-import faulthandler
 import importlib
 import json
 import logging
@@ -26,6 +25,7 @@ from abyss.common.certs import CertFiles
 from abyss.common.clock import WALL, Clock, ProgressReport, SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
+from abyss.common.leave import STOP_BOUND_S, watch_the_stop
 from abyss.common.lockstep import Lockstep, LockstepClock
 from abyss.common.messages import repeatable_ids
 from abyss.common.workers import Workers, children_cpu_s, loops_first
@@ -36,7 +36,6 @@ log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
 BOOT_ENV = "ABYSS_BOOT"  # how many times `abyss up` started this station before (restarts)
 PR_SET_PDEATHSIG = 1
-STOP_BOUND_S = 4.5  # a station stops within 5 s of SIGINT/SIGTERM (this, and exiting)
 
 
 def stop_with_supervisor() -> None:
@@ -373,17 +372,17 @@ def run_station(
 def _stop_watchdog(
     name: str, stopped: threading.Event, status_file: Path | None, outcome: dict[str, Any]
 ) -> None:
-    """A station stops within STOP_BOUND_S of being asked, whatever hangs: past it, every
-    thread's stack goes to the log (what hung: a Zenoh teardown, a native call), the status is
-    written from the counters taken before the close, marked `stop_cut`, and the process ends."""
-    if stopped.wait(STOP_BOUND_S):
-        return
-    log.error("%s: not stopped %.1f s after it was asked; the threads' stacks:", name, STOP_BOUND_S)
-    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
-    if status_file is not None:
-        status_file.write_text(json.dumps({**outcome, "stop_s": STOP_BOUND_S, "stop_cut": True}, indent=2))
-    sys.stderr.flush()
-    os._exit(int(outcome["exit_code"]))
+    """A station stops within STOP_BOUND_S of being asked, whatever hangs: past it, the status is
+    written from the counters taken before the close, marked `stop_cut` (common.leave)."""
+
+    def last_words() -> int:
+        if status_file is not None:
+            status_file.write_text(
+                json.dumps({**outcome, "stop_s": STOP_BOUND_S, "stop_cut": True}, indent=2)
+            )
+        return int(outcome["exit_code"])
+
+    watch_the_stop(name, stopped, last_words)
 
 
 def configure_logging(verbose: bool = False) -> None:

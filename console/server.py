@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 import logging
+import signal
+import ssl
 import sys
 import threading
 from http import HTTPStatus
@@ -21,6 +23,7 @@ import zenoh
 from abyss.common.bus import client_config, open_session
 from abyss.common.certs import CertFiles
 from abyss.common.errors import AbyssError, BadInput, ConfigError
+from abyss.common.leave import leave, watch_the_stop
 from abyss.common.security import tool_certificates
 from abyss.console.access import HEADER, Access, operator_name
 from abyss.console.pilot import Pilot
@@ -91,10 +94,17 @@ def _handler(pilot: Pilot, access: Access, viewer_url: str) -> type[BaseHTTPRequ
     return Handler
 
 
-def _refused_handshake(request: Any, address: tuple[str, int]) -> None:
-    """A client that does not speak the console's TLS (plain HTTP, an untrusted certificate): one
-    line in the log, not a traceback."""
-    log.info("the console refused %s: %s", address[0], sys.exc_info()[1])
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """A client that does not speak the console's TLS (plain HTTP, an untrusted certificate)
+        or that left mid-request: one line in the log, not a traceback."""
+        error = sys.exc_info()[1]
+        if isinstance(error, ssl.SSLError | ConnectionError):
+            log.info("the console dropped %s: %s", client_address[0], error)
+        else:
+            super().handle_error(request, client_address)
 
 
 class Console:
@@ -117,19 +127,17 @@ class Console:
         self.access = Access.at(host, system, certificates)
         self.subscribers = self.pilot.start()
         try:
-            self.server = ThreadingHTTPServer((host, port), _handler(self.pilot, self.access, viewer_url))
+            self.server = _Server((host, port), _handler(self.pilot, self.access, viewer_url))
         except OSError as exc:
             self._undeclare()
             raise ConfigError(
                 "the console's address",
                 f"cannot serve on {host}:{port} (--console, or --bind and --port): {exc}",
             ) from None
-        self.server.daemon_threads = True
         if (context := self.access.tls_context()) is not None:  # each handshake in its request's thread
             self.server.socket = context.wrap_socket(
                 self.server.socket, server_side=True, do_handshake_on_connect=False
             )
-            self.server.handle_error = _refused_handshake  # type: ignore[method-assign]
         elif self.access.token is not None:
             log.warning(
                 "the console on %s is plain HTTP: its token crosses the network in the clear, and a "
@@ -166,18 +174,26 @@ class Console:
 def run_console(
     endpoint: str, system: str, port: int, site: str = "", host: str = "127.0.0.1", viewer_url: str = ""
 ) -> int:
-    """`abyss console`: serve the console until interrupted."""
+    """`abyss console`: serve the console until SIGINT or SIGTERM, then close within
+    STOP_BOUND_S whatever hangs (common.leave). The signals are blocked before any thread starts
+    and taken by the main thread alone (sigwait): no handler runs inside a lock's bytecodes."""
     certificates = tool_certificates(endpoint)
+    asked = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, asked)  # every thread from here on inherits the mask
     session = open_session(client_config(endpoint), "abyss console")
     try:
         console = Console(session, system, port, site, host, certificates, viewer_url)
-        print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
-        try:
-            threading.Event().wait()
-        except KeyboardInterrupt:
-            return 0
-        finally:
-            console.close()
-    finally:
+    except BaseException:
         session.close()
-    return 0
+        raise
+    print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
+    got = signal.sigwait(asked)
+    log.info("abyss console: %s received, closing", signal.Signals(got).name)
+    closed = threading.Event()
+    threading.Thread(
+        target=watch_the_stop, args=("abyss console", closed, lambda: 1), name="stop watchdog", daemon=True
+    ).start()
+    console.close()
+    session.close()
+    closed.set()
+    leave(0)

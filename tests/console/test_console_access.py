@@ -12,6 +12,7 @@ import json
 import logging
 import queue
 import re
+import signal
 import ssl
 import subprocess
 import sys
@@ -309,3 +310,32 @@ def test_an_address_the_console_cannot_serve_on_is_refused_by_name(
         ConfigError, match=r"cannot serve on nonsense\.invalid:0 \(--console, or --bind and --port\)"
     ):
         Console(router, SYSTEM, 0, host="nonsense.invalid")
+
+
+@pytest.mark.parametrize("asked", [signal.SIGINT, signal.SIGTERM])
+def test_abyss_console_serves_until_asked_to_stop_then_closes_and_exits_at_once(
+    asked: signal.Signals,
+) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session(zenoh_config([endpoint], mode="router"), "the test's shore")
+    console = subprocess.Popen(
+        [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint, "--system", SYSTEM],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert console.stdout is not None
+        url = re.search(r"abyss console: (http://\S+)", console.stdout.readline())
+        assert url, console.communicate(timeout=WAIT_S)
+        with urllib.request.urlopen(url.group(1) + "state", timeout=WAIT_S) as state:
+            assert json.loads(state.read())["system"] == SYSTEM
+        console.send_signal(asked)
+        _, err = console.communicate(timeout=WAIT_S)  # closed within its bound (common.leave)
+        assert console.returncode == 0 and "not stopped" not in err, err
+        with pytest.raises(urllib.error.URLError):
+            urllib.request.urlopen(url.group(1), timeout=WAIT_S)
+    finally:
+        if console.poll() is None:
+            console.kill()
+        router.close()

@@ -234,10 +234,16 @@ def test_the_console_shows_what_reached_shore_and_its_commands_get_onboards_answ
     finally:
         shore.close()
         console.send_signal(signal.SIGINT)
-        console.wait(timeout=30)
-        if console.stdout is not None:
-            console.stdout.close()
-        up.stop()
+        try:
+            console.wait(timeout=30)  # it closes within its bound (common.leave)
+        finally:
+            if console.poll() is None:  # nothing left running past the test, whatever failed
+                console.kill()
+                console.wait()
+            if console.stdout is not None:
+                console.stdout.close()
+            up.stop()
+    assert console.returncode == 0, console.returncode
 
 
 def test_an_intervention_picked_in_the_console_turns_the_valve_and_an_outage_greys_the_page(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import ssl
 import sys
@@ -175,11 +176,13 @@ def run_console(
     endpoint: str, system: str, port: int, site: str = "", host: str = "127.0.0.1", viewer_url: str = ""
 ) -> int:
     """`abyss console`: serve the console until SIGINT or SIGTERM, then close within
-    STOP_BOUND_S whatever hangs (common.leave). The signals are blocked before any thread starts
-    and taken by the main thread alone (sigwait): no handler runs inside a lock's bytecodes."""
+    STOP_BOUND_S whatever hangs (common.leave). The signals' handler only writes to a pipe that
+    the main thread reads: nothing is raised inside a lock's bytecodes, whichever thread the
+    signal lands on."""
     certificates = tool_certificates(endpoint)
-    asked = {signal.SIGINT, signal.SIGTERM}
-    signal.pthread_sigmask(signal.SIG_BLOCK, asked)  # every thread from here on inherits the mask
+    asked, ask = os.pipe()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda number, _frame: os.write(ask, bytes([number])))
     session = open_session(client_config(endpoint), "abyss console")
     try:
         console = Console(session, system, port, site, host, certificates, viewer_url)
@@ -187,8 +190,7 @@ def run_console(
         session.close()
         raise
     print(f"abyss console: {console.url} (system {system!r} at {endpoint})", flush=True)
-    got = signal.sigwait(asked)
-    log.info("abyss console: %s received, closing", signal.Signals(got).name)
+    log.info("abyss console: %s received, closing", signal.Signals(os.read(asked, 1)[0]).name)
     closed = threading.Event()
     threading.Thread(
         target=watch_the_stop, args=("abyss console", closed, lambda: 1), name="stop watchdog", daemon=True

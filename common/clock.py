@@ -30,6 +30,7 @@ from abyss.common.messages import Message, SimTime, decode, encode
 log = logging.getLogger(__name__)
 POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this often [wall s]
 GUARD_WALL_S = 0.1  # a wait woken by ticks looks at its stop event at least this often [wall s]
+STUCK_WALL_S = 10.0  # a laggard whose progress stood this long while the simulation held for it is let go
 SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
 
 
@@ -232,8 +233,11 @@ class Holdback:
     t - `max_lag_s` (each reports on its progress key). A station not heard from yet is waited for
     up to `start_wall_s` (it is starting); one whose liveliness token goes (its process died) is let
     go at once, one silent for `silent_wall_s` too, with a warning, so that a dead station stalls
-    nothing; it is waited for again from its next report. `held_wall_s`: the wall time the simulation
-    waited on each, the station that limited the speed."""
+    nothing; it is waited for again from its next report. A station, or the simulation's own loops,
+    whose progress stands still for STUCK_WALL_S while the simulation holds for it is let go too, with
+    a warning naming it, until it reports past where it stood: a loop waiting for a tick past the one
+    the simulation holds at would otherwise stand simulated time still for good. `held_wall_s`: the
+    wall time the simulation waited on each, the station that limited the speed."""
 
     def __init__(
         self,
@@ -251,7 +255,8 @@ class Holdback:
         self.progress_s: dict[str, float] = {}
         self.heard_wall_s: dict[str, float] = {}
         self.held_wall_s: dict[str, float] = dict.fromkeys(["simulation", *sorted(self.stations)], 0.0)
-        self.let_go: set[str] = set()
+        self.let_go: dict[str, float] = {}  # who, and how far done when let go (-inf: dead or silent)
+        self._stuck: tuple[str, float, float] | None = None  # who, done up to [sim s], since [wall s]
         self.reject = reject
         self._started_wall_s = time.monotonic()
         self._cond = threading.Condition()
@@ -263,7 +268,7 @@ class Holdback:
         if sample.kind != zenoh.SampleKind.DELETE or station not in self.stations:
             return
         with self._cond:
-            self.let_go.add(station)
+            self.let_go[station] = -math.inf
             self.progress_s.pop(station, None)  # a restarted station reports afresh
             self._cond.notify_all()
         log.warning("%s is gone: the simulation no longer waits for it", station)
@@ -278,24 +283,29 @@ class Holdback:
                 return
             self.progress_s[station] = max(self.progress_s.get(station, -math.inf), message.sim_time_s)
             self.heard_wall_s[station] = time.monotonic()
-            if station in self.let_go:
-                self.let_go.discard(station)
+            if message.sim_time_s > self.let_go.get(station, math.inf):
+                del self.let_go[station]
                 log.info("%s reports its progress again; the simulation waits for it again", station)
             self._cond.notify_all()
 
     def _laggard(self, t_s: float, now_wall_s: float, own: SimClock) -> str | None:
         """The station furthest behind t - max_lag_s (the simulation: its own cameras and sonar),
         letting go of the silent ones."""
-        if own.progress_s() < t_s - self.max_lag_s:
+        own_s = own.progress_s()
+        if own_s > self.let_go.get("simulation", math.inf):
+            del self.let_go["simulation"]
+        if own_s < t_s - self.max_lag_s and "simulation" not in self.let_go:
             return "simulation"
         behind = [
-            s for s in self.stations - self.let_go if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s
+            s
+            for s in self.stations - set(self.let_go)
+            if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s
         ]
         for station in behind:
             heard_s = self.heard_wall_s.get(station)
             silent_s = now_wall_s - (heard_s if heard_s is not None else self._started_wall_s)
             if silent_s > (self.silent_wall_s if heard_s is not None else self.start_wall_s):
-                self.let_go.add(station)
+                self.let_go[station] = -math.inf
                 log.warning("%s silent for %.1f s: the simulation no longer waits for it", station, silent_s)
         behind = [s for s in behind if s not in self.let_go]
         return min(behind, key=lambda s: self.progress_s.get(s, -math.inf)) if behind else None
@@ -313,11 +323,30 @@ class Holdback:
                 laggard = self._laggard(t_s, now_wall_s, own)
                 if laggard is None:
                     return
+                self._let_go_if_stuck(laggard, t_s, now_wall_s, own)
                 if now_wall_s >= repeat_s:
                     waiting()
                     repeat_s = now_wall_s + ProgressReport.REPEAT_WALL_S
                 self._cond.wait(GUARD_WALL_S)  # woken by a report (notify), or to look at the silent
                 self.held_wall_s[laggard] += time.monotonic() - now_wall_s
+
+    def _let_go_if_stuck(self, laggard: str, t_s: float, now_wall_s: float, own: SimClock) -> None:
+        done_s = own.progress_s() if laggard == "simulation" else self.progress_s.get(laggard, -math.inf)
+        if done_s == -math.inf:
+            return  # not heard yet: starting (start_wall_s)
+        if self._stuck is None or self._stuck[:2] != (laggard, done_s):
+            self._stuck = (laggard, done_s, now_wall_s)
+        elif now_wall_s - self._stuck[2] > STUCK_WALL_S:
+            self.let_go[laggard] = done_s
+            self._stuck = None
+            log.warning(
+                "%s done up to %.3f s and no further for %.0f s while the simulation held at %.3f s: no "
+                "longer waited for until it reports past it (a loop waiting for a later tick?)",
+                laggard,
+                done_s,
+                STUCK_WALL_S,
+                t_s,
+            )
 
     def notify(self) -> None:
         """Something `hold` waits for may have come (the simulation's own loops moved on)."""

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from abyss.common import clock as clock_module
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.clock import Holdback, ProgressReport, SimClock
@@ -249,7 +250,7 @@ def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(s
         wall0 = time.monotonic()
         holdback.hold(1.0, stop, own)  # onboard is at 1.0; vessel never speaks: let go after 0.5 s
         assert 0.4 <= time.monotonic() - wall0 < 3.0
-        assert holdback.let_go == {"vessel"}
+        assert set(holdback.let_go) == {"vessel"}
         released = threading.Event()
 
         def hold_then_say() -> None:
@@ -265,6 +266,47 @@ def test_the_simulation_waits_for_the_slowest_station_and_lets_a_silent_one_go(s
         assert got_bad.wait(5.0)
         assert rejected[0][0] == keys.progress_key("sys", "onboard") and rejected[0][1]
         assert holdback.progress_s["onboard"] >= 1.95  # and nothing it knew is lost
+    finally:
+        stop.set()
+        report.close()
+        holdback.close()
+
+
+def test_a_laggard_whose_progress_stands_still_is_let_go_until_it_reports_past_it(  # type: ignore[no-untyped-def]
+    sessions, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A station that keeps saying the same progress (its loop waits for a tick past the one the
+    simulation holds at), or the simulation's own loops standing still, stall nothing for good."""
+    monkeypatch.setattr(clock_module, "STUCK_WALL_S", 0.5)
+    simulation, station = sessions
+    own = SimClock(PERIOD_S)
+    holdback = Holdback(simulation, "sys", ["onboard"], max_lag_s=0.1, reject=lambda key, reason: None)
+    onboard_clock = SimClock(PERIOD_S)
+    report = ProgressReport(station, "sys", "onboard", onboard_clock)  # it repeats: never silent
+    stop = threading.Event()
+    try:
+        onboard_clock.done("control", 1.0)
+        own.done("cameras", 3.0)
+        wall0 = time.monotonic()
+        holdback.hold(1.5, stop, own)  # onboard stands at 1.0 < 1.5 - 0.1
+        assert 0.4 <= time.monotonic() - wall0 < 3.0 and holdback.let_go == {"onboard": 1.0}
+        time.sleep(2 * ProgressReport.REPEAT_WALL_S)  # its repeats of 1.0 do not bring it back
+        assert "onboard" in holdback.let_go
+        onboard_clock.done("control", 1.6)  # past where it stood: waited for again
+        deadline = time.monotonic() + 5.0
+        while "onboard" in holdback.let_go and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert "onboard" not in holdback.let_go
+        holdback.hold(1.6, stop, own)  # onboard at 1.6, the cameras at 3.0: no wait
+        holdback.hold(3.5, stop, own)  # onboard stands at 1.6 again, then the cameras at 3.0
+        assert holdback.let_go == {"onboard": 1.6, "simulation": 3.0}
+        own.done("cameras", 4.0)
+        onboard_clock.done("control", 4.0)
+        deadline = time.monotonic() + 5.0
+        while holdback.let_go and time.monotonic() < deadline:
+            holdback.hold(3.9, stop, own)  # looks at the own loops again
+            time.sleep(0.05)
+        assert holdback.let_go == {}
     finally:
         stop.set()
         report.close()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import faulthandler
 import importlib
 import json
 import logging
@@ -386,8 +387,11 @@ def _stop_watchdog(
 
 
 def configure_logging(verbose: bool = False) -> None:
+    """A station's log on stderr, where SIGUSR1 also writes every thread's stack (a scenario run
+    that stood still asks for them before it kills the run)."""
     logging.basicConfig(
         level=logging.DEBUG if verbose else logging.INFO,
         stream=sys.stderr,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)

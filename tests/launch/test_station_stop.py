@@ -129,6 +129,8 @@ def test_a_station_that_hangs_is_cut_at_its_bound_with_its_stacks_and_status(tmp
     try:
         up = session.liveliness().declare_subscriber(keys.alive_key("hang", "onshore"), history=True)
         assert up.recv() is not None
+        station.send_signal(signal.SIGUSR1)  # its stacks, asked for (a run that stood still): it goes on
+        time.sleep(0.5)
         asked_s = time.monotonic()
         station.send_signal(signal.SIGINT)
         output, _ = station.communicate(timeout=30)
@@ -140,5 +142,6 @@ def test_a_station_that_hangs_is_cut_at_its_bound_with_its_stacks_and_status(tmp
     text = output.decode(errors="replace")
     assert stop_s < STOP_BOUND_S, text
     assert "not stopped 4.5 s after it was asked" in text and "in hang" in text, text  # the stack says where
+    assert text.count("Current thread") == 2, text  # every thread's stack: for SIGUSR1, then at the cut
     status = json.loads(status_path.read_text())
     assert status["stop_cut"] is True and status["exit_code"] == 0

@@ -154,6 +154,14 @@ class System:
             time.sleep(0.05)
 
     def kill(self) -> None:
+        """SIGKILL the run, after asking each station for its threads' stacks (SIGUSR1: into its
+        log), so that a run that stood still says where."""
+        state = self.out_dir / "state.json"
+        stations = json.loads(state.read_text()).get("stations", {}) if state.exists() else {}
+        for pid in (s.get("pid") for s in stations.values()):
+            with contextlib.suppress(ProcessLookupError, TypeError):
+                os.kill(pid, signal.SIGUSR1)
+        time.sleep(0.5 if stations else 0.0)
         with contextlib.suppress(ProcessLookupError):
             os.killpg(self.process.pid, signal.SIGKILL)
 
@@ -287,8 +295,11 @@ def _drive(
     try:
         if held is not None:
             held.run(say)
+        wall_deadline_s = time.monotonic() + scenario.duration_s + 90.0  # simulated time may stand still
         for event in scenario.events if held is None else ():
             while up.process.poll() is None:
+                if time.monotonic() > wall_deadline_s:
+                    raise subprocess.TimeoutExpired("abyss up", scenario.duration_s + 90.0)
                 origin_s = timeline.phase_began_s(event.phase)
                 if origin_s is not None and timeline.since_up_s() >= origin_s + event.at_s:
                     break

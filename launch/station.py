@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import faulthandler
 import importlib
+import io
 import json
 import logging
 import math
@@ -394,4 +396,5 @@ def configure_logging(verbose: bool = False) -> None:
         stream=sys.stderr,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)
+    with contextlib.suppress(io.UnsupportedOperation, ValueError):  # a stderr that is no file: none
+        faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=True)

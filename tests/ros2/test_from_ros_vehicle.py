@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from abyss.common.errors import BadInput
@@ -63,7 +63,6 @@ rate = st.floats(-50.0, 50.0, allow_nan=False)
 stamp_ns = st.integers(0, 10**6 * 10**9)  # a stamp on whole nanoseconds, as ROS 2 has them
 
 
-@settings(deadline=None)  # a loaded machine's pauses are not the code's
 @given(
     position=st.tuples(coordinate, coordinate, height).map(list),
     quat=st.lists(component, min_size=4, max_size=4),
@@ -117,7 +116,6 @@ def test_odometry_is_refused_with_its_reason() -> None:
             from_ros.odometry_in(odometry, SESSION)
 
 
-@settings(deadline=None)  # a loaded machine's pauses are not the code's
 @given(
     positions=st.lists(st.floats(-3.0, 3.0, allow_nan=False), min_size=6, max_size=6),
     velocities=st.lists(st.floats(-2.0, 2.0, allow_nan=False), min_size=6, max_size=6),

@@ -30,12 +30,18 @@ from abyss.common.messages import Message, SimTime, decode, encode
 log = logging.getLogger(__name__)
 POLL_WALL_S = 0.02  # a wait on simulated time looks at the clock at least this often [wall s]
 GUARD_WALL_S = 0.1  # a wait woken by ticks looks at its stop event at least this often [wall s]
-STUCK_WALL_S = 10.0  # a laggard whose progress stood this long while the simulation held for it is let go
+# a laggard whose progress stood this long while the simulation held for it fails the run, naming it:
+# simulated time that stands still is a bug to see, never a pause to let go of (docs/time.md)
+STALL_WALL_S = 60.0
 SPEED_SMOOTHING = 0.2  # weight of the latest tick in the speed a `SimClock` extrapolates with
 
 
 M = TypeVar("M", bound=Message)
 Reject = Callable[[str, str], None]  # a malformed input's key and reason, counted (Bus.reject)
+
+
+class Stalled(RuntimeError):
+    """Simulated time stood still: a loop the simulation holds for did not move on."""
 
 
 def station_message(sample: zenoh.Sample, expected: type[M], reject: Reject) -> tuple[str, M] | None:
@@ -54,6 +60,16 @@ class Clock:
     """The wall clock: `time.monotonic()` for periods and timeouts, `time.time()` for stamps."""
 
     mode = "real"
+
+    def __init__(self) -> None:
+        self._thread = threading.local()  # the named loop a thread runs, if any (`loop`)
+
+    def loop(self) -> str | None:
+        """The named loop the calling thread runs (it entered or waited on this clock), if any."""
+        return getattr(self._thread, "loop", None)
+
+    def _runs(self, loop: str) -> None:
+        self._thread.loop = loop
 
     def now_s(self) -> float:
         """Seconds on this clock, for periods, ages and timeouts (no fixed origin)."""
@@ -81,11 +97,23 @@ class Clock:
 
     def enter(self, loop: str, t_s: float, stop: threading.Event) -> None:
         """`loop` starts, its first tick at `t_s` (in lockstep it waits for its turn)."""
+        self._runs(loop)
         self.done(loop, t_s)
 
     def sleep_until(self, loop: str, t_s: float, stop: threading.Event) -> bool:
         """`loop` waits for its tick at `t_s`: False once `stop` is set."""
+        self._runs(loop)
         self.done(loop, t_s)
+        return not self.wait_until(stop, t_s)
+
+    def wait_for_room(self, t_s: float, stop: threading.Event) -> bool:
+        """A sender blocked on a full emulated link until `t_s`, when the link next has room: the
+        calling thread's loop, if it runs one, has nothing to do before then (the simulation need
+        not wait for it), and waits on this clock. True once there, False once `stop` is set or
+        where the sender cannot wait (lockstep, outside a loop's turn)."""
+        loop = self.loop()
+        if loop is not None:
+            self.done(loop, t_s)
         return not self.wait_until(stop, t_s)
 
 
@@ -103,6 +131,7 @@ class SimClock(Clock):
     mode = "sim"
 
     def __init__(self, horizon_s: float, speed: float = 1.0) -> None:
+        super().__init__()
         self.horizon_s = horizon_s
         self.speed = speed if math.isfinite(speed) else 1.0  # simulated seconds per wall second, as seen
         self._fixed_speed = math.isfinite(speed)
@@ -167,6 +196,11 @@ class SimClock(Clock):
         with self._lock:
             return min(self._loops.values(), default=math.inf)
 
+    def slowest(self) -> tuple[str, float] | None:
+        """The loop least far done, and how far (None: no loop yet)."""
+        with self._lock:
+            return min(self._loops.items(), key=lambda item: item[1], default=None)
+
     def done(self, loop: str, t_s: float) -> None:
         with self._lock:
             before = min(self._loops.values(), default=-math.inf)
@@ -208,6 +242,7 @@ class ProgressReport:
         self._seq = 0
         self._latest_s = 0.0
         self._stop = threading.Event()
+        self._clock = clock
         clock.on_progress = self.publish
         self._thread = threading.Thread(target=self._repeat, name="progress", daemon=True)
         self._thread.start()
@@ -219,8 +254,26 @@ class ProgressReport:
             self._seq += 1
 
     def _repeat(self) -> None:
+        stood: tuple[str, float] | None = None
+        since_wall_s, warned = time.monotonic(), False
         while not self._stop.wait(self.REPEAT_WALL_S):
             self.publish(self._latest_s)
+            slowest = self._clock.slowest()
+            if slowest != stood:
+                stood, since_wall_s, warned = slowest, time.monotonic(), False
+            elif (
+                stood is not None
+                and not warned
+                and self._clock.now_s() >= stood[1]
+                and time.monotonic() - since_wall_s > STALL_WALL_S / 2
+            ):
+                warned = True  # its tick has come, and it has not moved on: the loop to look at
+                log.warning(
+                    "loop %s done up to %.3f s and no further for %.0f s while the clock reads %.3f s",
+                    *stood,
+                    STALL_WALL_S / 2,
+                    self._clock.now_s(),
+                )
 
     def close(self) -> None:
         self._stop.set()
@@ -231,13 +284,15 @@ class ProgressReport:
 class Holdback:
     """What the simulation waits for before it steps past t: every station of `stations` done with
     t - `max_lag_s` (each reports on its progress key). A station not heard from yet is waited for
-    up to `start_wall_s` (it is starting); one whose liveliness token goes (its process died) is let
-    go at once, one silent for `silent_wall_s` too, with a warning, so that a dead station stalls
-    nothing; it is waited for again from its next report. A station, or the simulation's own loops,
-    whose progress stands still for STUCK_WALL_S while the simulation holds for it is let go too, with
-    a warning naming it, until it reports past where it stood: a loop waiting for a tick past the one
-    the simulation holds at would otherwise stand simulated time still for good. `held_wall_s`: the
-    wall time the simulation waited on each, the station that limited the speed."""
+    up to `start_wall_s` (it is starting; then it is not part of the run, with a warning); one
+    whose liveliness token goes (its process died) is let go at once, so that a dead station stalls
+    nothing, and waited for again from its next report (restarted). Nothing else is let go: a
+    station, or the simulation's own loops, whose progress stands still while the simulation holds
+    for it (silent, or repeating the same report) is named in the log after `silent_wall_s`, and
+    past STALL_WALL_S the run fails (`Stalled`), naming it and where it stood: a run on simulated
+    time whose verdict depended on how long a loop stood on a loaded machine would not repeat.
+    `held_wall_s`: the wall time the simulation waited on each, the station that limited the
+    speed."""
 
     def __init__(
         self,
@@ -255,8 +310,8 @@ class Holdback:
         self.progress_s: dict[str, float] = {}
         self.heard_wall_s: dict[str, float] = {}
         self.held_wall_s: dict[str, float] = dict.fromkeys(["simulation", *sorted(self.stations)], 0.0)
-        self.let_go: dict[str, float] = {}  # who, and how far done when let go (-inf: dead or silent)
-        self._stuck: tuple[str, float, float] | None = None  # who, done up to [sim s], since [wall s]
+        self.let_go: set[str] = set()  # dead, or never heard from at the start
+        self._stood: tuple[str, float, float, bool] | None = None  # who, done up to, since [wall s], named
         self.reject = reject
         self._started_wall_s = time.monotonic()
         self._cond = threading.Condition()
@@ -268,7 +323,7 @@ class Holdback:
         if sample.kind != zenoh.SampleKind.DELETE or station not in self.stations:
             return
         with self._cond:
-            self.let_go[station] = -math.inf
+            self.let_go.add(station)
             self.progress_s.pop(station, None)  # a restarted station reports afresh
             self._cond.notify_all()
         log.warning("%s is gone: the simulation no longer waits for it", station)
@@ -283,30 +338,25 @@ class Holdback:
                 return
             self.progress_s[station] = max(self.progress_s.get(station, -math.inf), message.sim_time_s)
             self.heard_wall_s[station] = time.monotonic()
-            if message.sim_time_s > self.let_go.get(station, math.inf):
-                del self.let_go[station]
+            if station in self.let_go:
+                self.let_go.discard(station)
                 log.info("%s reports its progress again; the simulation waits for it again", station)
             self._cond.notify_all()
 
     def _laggard(self, t_s: float, now_wall_s: float, own: SimClock) -> str | None:
         """The station furthest behind t - max_lag_s (the simulation: its own cameras and sonar),
-        letting go of the silent ones."""
-        own_s = own.progress_s()
-        if own_s > self.let_go.get("simulation", math.inf):
-            del self.let_go["simulation"]
-        if own_s < t_s - self.max_lag_s and "simulation" not in self.let_go:
+        letting go of those never heard from at the start."""
+        if own.progress_s() < t_s - self.max_lag_s:
             return "simulation"
         behind = [
-            s
-            for s in self.stations - set(self.let_go)
-            if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s
+            s for s in self.stations - self.let_go if self.progress_s.get(s, -math.inf) < t_s - self.max_lag_s
         ]
         for station in behind:
-            heard_s = self.heard_wall_s.get(station)
-            silent_s = now_wall_s - (heard_s if heard_s is not None else self._started_wall_s)
-            if silent_s > (self.silent_wall_s if heard_s is not None else self.start_wall_s):
-                self.let_go[station] = -math.inf
-                log.warning("%s silent for %.1f s: the simulation no longer waits for it", station, silent_s)
+            if station not in self.heard_wall_s and now_wall_s - self._started_wall_s > self.start_wall_s:
+                self.let_go.add(station)
+                log.warning(
+                    "%s not heard from in %.0f s: the simulation runs without it", station, self.start_wall_s
+                )
         behind = [s for s in behind if s not in self.let_go]
         return min(behind, key=lambda s: self.progress_s.get(s, -math.inf)) if behind else None
 
@@ -315,7 +365,8 @@ class Holdback:
     ) -> None:
         """Block until every station, and every loop of the simulation's `own` clock, is done with
         `t_s` - max_lag_s (or `stop`); `waiting` is called every REPEAT_WALL_S meanwhile (the
-        simulation tells its time again, for a station that joins while it waits)."""
+        simulation tells its time again, for a station that joins while it waits). `Stalled` if
+        the one it holds for stands still for STALL_WALL_S."""
         repeat_s = time.monotonic() + ProgressReport.REPEAT_WALL_S
         with self._cond:
             while not stop.is_set():
@@ -323,30 +374,37 @@ class Holdback:
                 laggard = self._laggard(t_s, now_wall_s, own)
                 if laggard is None:
                     return
-                self._let_go_if_stuck(laggard, t_s, now_wall_s, own)
+                self._watch(laggard, t_s, now_wall_s, own)
                 if now_wall_s >= repeat_s:
                     waiting()
                     repeat_s = now_wall_s + ProgressReport.REPEAT_WALL_S
-                self._cond.wait(GUARD_WALL_S)  # woken by a report (notify), or to look at the silent
+                self._cond.wait(GUARD_WALL_S)  # woken by a report (notify), or to look at the time
                 self.held_wall_s[laggard] += time.monotonic() - now_wall_s
 
-    def _let_go_if_stuck(self, laggard: str, t_s: float, now_wall_s: float, own: SimClock) -> None:
-        done_s = own.progress_s() if laggard == "simulation" else self.progress_s.get(laggard, -math.inf)
+    def _watch(self, laggard: str, t_s: float, now_wall_s: float, own: SimClock) -> None:
+        """Name a laggard that stands still past `silent_wall_s`; past STALL_WALL_S, fail."""
+        if laggard == "simulation":
+            slowest = own.slowest()
+            who, done_s = (
+                (f"the simulation's loop {slowest[0]}", slowest[1]) if slowest else (laggard, -math.inf)
+            )
+        else:
+            who, done_s = laggard, self.progress_s.get(laggard, -math.inf)
         if done_s == -math.inf:
             return  # not heard yet: starting (start_wall_s)
-        if self._stuck is None or self._stuck[:2] != (laggard, done_s):
-            self._stuck = (laggard, done_s, now_wall_s)
-        elif now_wall_s - self._stuck[2] > STUCK_WALL_S:
-            self.let_go[laggard] = done_s
-            self._stuck = None
-            log.warning(
-                "%s done up to %.3f s and no further for %.0f s while the simulation held at %.3f s: no "
-                "longer waited for until it reports past it (a loop waiting for a later tick?)",
-                laggard,
-                done_s,
-                STUCK_WALL_S,
-                t_s,
-            )
+        if self._stood is None or self._stood[:2] != (who, done_s):
+            self._stood = (who, done_s, now_wall_s, False)
+            return
+        stood_s = now_wall_s - self._stood[2]
+        where = (
+            f"{who} done up to {done_s:.3f} s and no further for {stood_s:.1f} s "
+            f"while the simulation held at {t_s:.3f} s"
+        )
+        if stood_s > STALL_WALL_S:
+            raise Stalled(f"simulated time stood still: {where} (its log names the loop)")
+        if stood_s > self.silent_wall_s and not self._stood[3]:
+            self._stood = (*self._stood[:3], True)
+            log.warning("%s", where)
 
     def notify(self) -> None:
         """Something `hold` waits for may have come (the simulation's own loops moved on)."""

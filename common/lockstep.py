@@ -42,8 +42,9 @@ seed and inputs give the same messages in the same periods, on any machine load.
 thread interleaving (one loop at a time, in name order), Zenoh's delivery timing (counted phases),
 wall-clock reads (every stamp, age and rate is the period's T), messages crossing a period
 (a message offered in period T is delivered in a later one, however short its link), Zenoh's own
-drops (every publisher blocks instead), and an emulated link's full queue (a sender never waits for
-room: what does not fit is dropped and counted).
+drops (every publisher blocks instead), and the wall-clock wait of a sender that finds an emulated
+link's queue full (a reliable key's sender hands its turn back and goes on in the period the link
+has room: `LockstepClock.wait_for_room`).
 """
 
 from __future__ import annotations
@@ -155,8 +156,20 @@ class LockstepClock(SimClock):
             condition = self._turn_of[loop] = threading.Condition(self._turn_lock)
         return condition
 
+    def wait_for_room(self, t_s: float, stop: threading.Event) -> bool:
+        """A loop blocked on a full emulated link hands its turn back and goes on in its turn of
+        the first period at or after `t_s`, when the link has room (the other loops and the
+        periods in between run meanwhile, as they would while it blocked); a thread that has no
+        turn (a delivery, a callback) cannot wait: False, and what it offered is dropped."""
+        loop = self.loop()
+        with self._turns:
+            if loop is None or self._turn != loop:
+                return False
+        return self.sleep_until(loop, t_s, stop)
+
     def sleep_until(self, loop: str, t_s: float, stop: threading.Event) -> bool:
         """Wait for `loop`'s turn in the first period at or after `t_s`: False once `stop` is set."""
+        self._runs(loop)
         with self._turns:
             self._due_s[loop] = t_s
             own = self._condition_of(loop)

@@ -156,10 +156,20 @@ class Link:
         ):
             self.counters[name] += value
 
+    def room_s(self, now_s: float, nbytes: int) -> float | None:
+        """The earliest time from `now_s` a message of `nbytes` may find room in the queue (a
+        sender that found it FULL offers again then; None: nothing in flight will make room)."""
+        self._run_events(now_s)
+        return self.transport.room_s(now_s, self.packets_for(nbytes))
+
+    def next_timed_s(self) -> float | None:
+        """The time of the next event on the link (a packet's arrival, an acknowledgement, a timer)."""
+        return self._events[0][0] if self._events else None
+
     def next_event_s(self) -> float | None:
         if self._ready:
             return -math.inf
-        return self._events[0][0] if self._events else None
+        return self.next_timed_s()
 
     def reconfigure(self, profile: LinkProfile) -> None:
         """Apply a new profile to every packet sent from now on; none in flight is lost."""

@@ -26,7 +26,8 @@ class LinkRunner:
     is set (the station is asked to stop), no sender waits for room any more: what it offers
     to a full queue is refused and counted (`refused_at_stop`). On a lockstep clock the runner has
     no thread: `deliver_due` is the period's delivery phase (common.lockstep), nothing is passed
-    through at once, and a sender never waits for room."""
+    through at once, and a sender that finds the queue full goes on in its loop's turn of the
+    period the link has room (`LockstepClock.wait_for_room`)."""
 
     def __init__(
         self,
@@ -66,26 +67,36 @@ class LinkRunner:
 
     def send(self, payload: bytes, block: bool, tag: Any = None) -> bool:
         """Offer a message; False if the link dropped it (queue full with DROP).
-        With `block`, wait for room in the queue as Zenoh's BLOCK does."""
-        with self._cond:
-            if self._direct and self.link.in_flight() == 0:
-                self.link.pass_through(len(payload))
-                direct = True
-            else:
-                direct = False
-                while True:
-                    if self._closed or self.stopping.is_set():
+        With `block`, wait for room in the queue as Zenoh's BLOCK does. On simulated time that
+        wait is on the clock (`Clock.wait_for_room`): the link says when room next comes, and
+        the sender's loop is done until then, so the simulation steps there and the queue
+        drains; a wall-clock wait would hold simulated time for a queue that only simulated
+        time drains."""
+        while True:
+            with self._cond:
+                if self._direct and self.link.in_flight() == 0:
+                    self.link.pass_through(len(payload))
+                    break
+                if self._closed or self.stopping.is_set():
+                    self.link.counters["refused_at_stop"] += 1
+                    return False
+                now_s = self.clock.now_s()
+                result = self.link.offer(now_s, payload, block, tag)
+                if result is not Offer.FULL:
+                    self._cond.notify_all()
+                    return result is Offer.ACCEPTED
+                if self.clock.mode == "real":
+                    self._cond.wait(0.05)  # woken by a delivery that makes room
+                    continue
+                room_s = self.link.room_s(now_s, len(payload))
+            if room_s is None or not self.clock.wait_for_room(max(room_s, now_s), self.stopping):
+                with self._cond:  # no room to come, or no wait possible here: dropped, counted
+                    if self.stopping.is_set():
                         self.link.counters["refused_at_stop"] += 1
                         return False
-                    result = self.link.offer(self.clock.now_s(), payload, block and not self.driven, tag)
-                    if result is not Offer.FULL:
-                        break
-                    self._cond.wait(0.05)
-                self._cond.notify_all()
-        if direct:
-            self.deliver(tag, payload)
-            return True
-        return result is Offer.ACCEPTED
+                    return self.link.offer(self.clock.now_s(), payload, False, tag) is Offer.ACCEPTED
+        self.deliver(tag, payload)
+        return True
 
     def reconfigure(self, profile: LinkProfile) -> None:
         with self._cond:

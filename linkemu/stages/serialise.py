@@ -40,6 +40,12 @@ class Serialise(Stage):
             self._ends_s.popleft()
         return len(self._ends_s)
 
+    def room_s(self, now_s: float, packets: int) -> float:
+        """When `packets` more fit in the queue: now, or the end of the packet whose leaving
+        makes the room (the queue drains only as the link serialises)."""
+        over = self.backlog(now_s) + packets - self.profile.queue_limit_packets
+        return now_s if over <= 0 else self._ends_s[over - 1]
+
     def process(self, packet: Packet) -> list[Packet]:
         if self.trace is None and math.isinf(self.profile.rate_bps):
             return [packet]

@@ -90,6 +90,10 @@ class Tcp:
         queued = len(self.unsent) + len(self.unacked)  # parts not sent, segments not acknowledged
         return queued + packets <= self.link.profile.queue_limit_packets
 
+    def room_s(self, now_s: float, packets: int) -> float | None:
+        """Room comes with an acknowledgement or a timer, each an event of the link's."""
+        return now_s if self.has_room(now_s, packets) else self.link.next_timed_s()
+
     def send(self, now_s: float, packets: list[Packet]) -> None:
         if not self.unacked and now_s - self.last_sent_s > self.rto_s:
             self._restart_after_idle(now_s - self.last_sent_s)

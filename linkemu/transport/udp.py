@@ -21,6 +21,9 @@ class Udp:
     def has_room(self, now_s: float, packets: int) -> bool:
         return self.serialiser.backlog(now_s) + packets <= self.link.profile.queue_limit_packets
 
+    def room_s(self, now_s: float, packets: int) -> float | None:
+        return self.serialiser.room_s(now_s, packets)
+
     def send(self, now_s: float, packets: list[Packet]) -> None:
         mid = packets[0].message
         copies = [copy for packet in packets for copy in self.link.transmit(now_s, packet)]

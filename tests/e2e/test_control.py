@@ -68,11 +68,12 @@ class Flight:
 
 @pytest.fixture(scope="module")
 def flights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Flight]:
-    """The waypoints flown with each low level, two systems at once (as the scenario library runs
-    them), each to the end of its mission or 150 s: what each summary and the scorer saw. The
-    controller accepts a waypoint at half the bound; the tests below hold the true pose to it."""
+    """The waypoints flown with each low level, two systems at once, each to the end of its
+    mission or 150 s, in lockstep (the control loop's periods are the period's, whatever the
+    machine's load): what each summary and the scorer saw. The controller accepts a waypoint at
+    half the bound; the tests below hold the true pose to it."""
     ups = {low_level: Up(tmp_path_factory.mktemp(low_level) / "run", "--system", f"e2e-wp-{low_level}",
-                         "--duration", "150", "--profile", f"tether={profile}",
+                         "--time", "lockstep", "--duration", "150", "--profile", f"tether={profile}",
                          "--set", f"simulation.low_level={low_level}",
                          "--set", f"mission.position_tolerance_m={tolerance_m / 2}",
                          "--set", f"mission.heading_tolerance_rad={math.radians(tolerance_deg / 2)}",

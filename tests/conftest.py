@@ -18,12 +18,51 @@ settings.load_profile("abyss")
 
 choose_gl_backend()
 E2E = Path(__file__).parent / "e2e"
+# The whole-system tests that run in real time, and why each must: every other one runs on lockstep
+# or simulated time, where the machine's load changes the wall time and never the verdict
+# (docs/time.md). Each carries the `realtime` marker (`-m "e2e and not realtime"`: the verdicts
+# that do not depend on the load). A module's name stands for all its tests.
+REALTIME = {
+    "test_console.py": "a browser's pacing, and the pilot's commands in wall time",
+    "test_web_viewer.py": "rerun's web viewer in a browser",
+    "test_operator.py": "the operator's tools act in wall time (docs/time.md)",
+    "test_teleop.py": "a joystick's commands in wall time",
+    "test_hybrid.py": "a real vehicle (a replayed one) keeps the wall clock",
+    "test_hybrid_ros2.py": "a ROS 2 vehicle driver keeps the wall clock",
+    "test_ros2_gateway.py": "a ROS 2 node keeps the wall clock",
+    "test_simulation_station.py": "the physics' real-time priority and its real-time factor",
+    "test_tcp_model.py": "the kernel's TCP through a real shaper",
+    "test_hosts.py": "stations in network namespaces over real, shaped links",
+    "test_lab.py": "real links shaped in network namespaces",
+    "test_compose_up.py": "stations in containers over real links",
+    "test_replay.py": "a replay paces a recording on the wall clock",
+    "test_export_mcap.py": "reads the replays' recorded run (a real-time run)",
+    "test_up.py": "`abyss up` as a newcomer runs it (real time) and its stop, kill and Ctrl-C in wall time",
+    "test_control.py::test_failsafe_holds_station_through_a_tether_outage_and_resumes": (
+        "an operator changes the link from outside, in wall time"
+    ),
+    "test_scenarios.py::test_an_external_station_started_by_hand": "an external station keeps the wall clock",
+    "test_scenarios.py::test_each_station_killed_inside_an_intervention_phase"
+    "_and_both_interventions_end_done": (
+        "an event timed on an intervention's phase lands when shore sees it"
+    ),
+    "test_bluerov2.py::test_the_bluerov2_rides_out_shore_killed_as_its_jaws_close": (
+        "an event timed on an intervention's phase lands when shore sees it"
+    ),
+    "test_campaign.py::test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the_head": (
+        "a Ray node's death and the retry in wall time"
+    ),
+}
 
 
 def pytest_itemcollected(item: pytest.Item) -> None:
-    """Everything under tests/e2e starts whole systems: the folder is the tier (`-m "not e2e"`)."""
+    """Everything under tests/e2e starts whole systems: the folder is the tier (`-m "not e2e"`);
+    the real-time ones (REALTIME) carry `realtime` too."""
     if E2E in item.path.parents:
         item.add_marker(pytest.mark.e2e)
+        name = getattr(item, "originalname", item.name)
+        if item.path.name in REALTIME or f"{item.path.name}::{name}" in REALTIME:
+            item.add_marker(pytest.mark.realtime)
 
 
 @pytest.hookimpl(trylast=True)  # after -m and -k have deselected

@@ -6,9 +6,13 @@ the speed achieved; alone and at two systems at once. With --baseline REV, the s
 revision (`git archive REV`) in the same sitting, and the ratios, so that a change is measured
 against what it changed and not against another day's load.
 
+With --save, the figures go to bench/cost.json, the landed ones, with the commit they are of;
+with --compare, each row is also set against that file's (another sitting's: a rough guide, where
+--baseline is the measure).
+
 Run: .venv/bin/python bench/cost.py [--times lockstep,max,real] [--systems 1,2] [--baseline REV]
-     [--duration S] [--repeats N] [--variant SECTION.FIELD=VALUE ...]. Prints figures; asserts
-     nothing."""
+     [--duration S] [--repeats N] [--variant SECTION.FIELD=VALUE ...] [--save] [--compare].
+     Prints figures; asserts nothing."""
 
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 STATIONS = ("simulation", "onboard", "vessel", "onshore")
+LANDED = ROOT / "bench" / "cost.json"  # the landed figures (--save, --compare)
 
 
 @dataclass(frozen=True)
@@ -126,7 +131,10 @@ def main() -> None:
         metavar="SECTION.FIELD=VALUE",
         help="also this checkout with this setting (`abyss up --set`), in the same sitting; repeatable",
     )
+    parser.add_argument("--save", action="store_true", help=f"write this checkout's figures to {LANDED.name}")
+    parser.add_argument("--compare", action="store_true", help=f"set each row against {LANDED.name}'s")
     args = parser.parse_args()
+    landed = json.loads(LANDED.read_text())["figures"] if args.compare and LANDED.is_file() else {}
     with tempfile.TemporaryDirectory(prefix="abyss-cost-") as tmp_dir:
         tmp = Path(tmp_dir)
         trees = {"now": Tree(None)}  # the installed package: this checkout
@@ -154,6 +162,15 @@ def main() -> None:
                     label = f"{time_source}, {systems} at once, {name}"
                     figures[(name, time_source, systems)] = line(label, results)
                 now = figures[("now", time_source, systems)]
+                if args.compare:
+                    before = landed.get(f"{time_source}, {systems} at once")
+                    print(
+                        f"  {'':52s} now/landed: cost {now['total'] / before['total']:.2f} (whole "
+                        f"{now['whole'] / before['whole']:.2f}), speed {now['speed'] / before['speed']:.2f}"
+                        if before
+                        else f"  {'':52s} no landed figures for {time_source}, {systems} at once",
+                        flush=True,
+                    )
                 for name in (n for n in trees if n.startswith("now, ")):
                     variant = figures[(name, time_source, systems)]
                     print(
@@ -171,6 +188,29 @@ def main() -> None:
                         f"{now['whole'] / before['whole']:.2f}), speed {now['speed'] / before['speed']:.2f}",
                         flush=True,
                     )
+
+        if args.save:
+            commit = subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+            ).stdout.strip()
+            mine = {
+                f"{t}, {n} at once": {k: round(v, 4) for k, v in f.items()}
+                for (name, t, n), f in figures.items()
+                if name == "now"
+            }
+            LANDED.write_text(
+                json.dumps(
+                    {
+                        "commit": commit,
+                        "date": time.strftime("%Y-%m-%d"),
+                        "repeats": args.repeats,
+                        "figures": mine,
+                    },
+                    indent=2,
+                )
+                + "\n"
+            )
+            print(f"saved to {LANDED.relative_to(ROOT)} (at {commit})")
 
 
 if __name__ == "__main__":

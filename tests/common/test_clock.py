@@ -352,16 +352,29 @@ class Simulation:
         self.thread.join(5.0)
 
 
-def relay(clock: object, link: LinkRunner, stop: threading.Event, accepted: list[float], ticks: int) -> None:
+def storm_link(clock: SimClock, stop: threading.Event) -> LinkRunner:
+    """The satellite in a storm (256 kbit/s, TCP backing off after bursts of loss) on `clock`."""
+    return LinkRunner(
+        "satellite", profile("satellite-storm"), lambda _tag, _payload: None, np.random.default_rng(3),
+        stopping=stop, clock=clock,
+    )  # fmt: skip
+
+
+def relay(
+    clock: SimClock,
+    link: LinkRunner,
+    stop: threading.Event,
+    accepted: list[float],
+    turns: list[tuple[float, str]],
+) -> None:
     """The vessel's relay towards shore in a storm: each 0.1 s, 24 kB for a 256 kbit/s link (3.2 kB
-    a tick), every message reliable (Zenoh's BLOCK)."""
-    rate = Rate(0.1, stop, clock, "relay")  # type: ignore[arg-type]
-    for _ in range(ticks):
-        if not rate.sleep():
-            return
+    a tick), every message reliable (Zenoh's BLOCK): when each was taken, and its ticks."""
+    rate = Rate(0.1, stop, clock, "relay")
+    while rate.sleep():
+        turns.append((clock.now_s(), "relay"))
         for _ in range(3):
             if link.send(b"x" * 8000, block=True, tag="relay"):
-                accepted.append(link.clock.now_s())
+                accepted.append(clock.now_s())
 
 
 def test_a_sender_on_a_full_link_waits_on_simulated_time_so_simulated_time_never_stands_still() -> None:
@@ -371,12 +384,9 @@ def test_a_sender_on_a_full_link_waits_on_simulated_time_so_simulated_time_never
     room comes, and its loop is done until then: 20 simulated seconds pass, nothing dropped."""
     clock = SimClock(0.0, speed=float("inf"))
     stop = threading.Event()
-    link = LinkRunner(
-        "satellite", profile("satellite-storm"), lambda _tag, _payload: None, np.random.default_rng(3),
-        stopping=stop, clock=clock,
-    )  # fmt: skip
+    link = storm_link(clock, stop)
     accepted: list[float] = []
-    sender = threading.Thread(target=relay, args=(clock, link, stop, accepted, 100), daemon=True)
+    sender = threading.Thread(target=relay, args=(clock, link, stop, accepted, []), daemon=True)
     sender.start()
     while clock.slowest() is None:  # the loop is there before the simulation starts
         time.sleep(0.01)
@@ -401,10 +411,7 @@ def run_lockstep_relay(periods: int) -> tuple[list[float], list[tuple[float, str
     the loops' turns in order, the link's counters)."""
     clock = LockstepClock()
     stop = threading.Event()
-    link = LinkRunner(
-        "satellite", profile("satellite-storm"), lambda _tag, _payload: None, np.random.default_rng(3),
-        stopping=stop, clock=clock,
-    )  # fmt: skip
+    link = storm_link(clock, stop)
     accepted: list[float] = []
     turns: list[tuple[float, str]] = []
 
@@ -413,15 +420,10 @@ def run_lockstep_relay(periods: int) -> tuple[list[float], list[tuple[float, str
         while rate.sleep():
             turns.append((clock.now_s(), "status"))
 
-    def relaying() -> None:
-        rate = Rate(0.1, stop, clock, "relay")
-        while rate.sleep():
-            turns.append((clock.now_s(), "relay"))
-            for _ in range(3):
-                if link.send(b"x" * 8000, block=True, tag="relay"):
-                    accepted.append(clock.now_s())
-
-    threads = [threading.Thread(target=f, daemon=True) for f in (other, relaying)]
+    threads = [
+        threading.Thread(target=other, daemon=True),
+        threading.Thread(target=relay, args=(clock, link, stop, accepted, turns), daemon=True),
+    ]
     for thread in threads:
         thread.start()
     while clock.loops() != {"relay", "status"}:

@@ -90,6 +90,27 @@ def test_tail_drop_with_drop_and_wait_with_block() -> None:
 
 
 @pytest.mark.parametrize("transport", ["udp", "tcp"])
+def test_a_full_queue_says_when_a_message_next_has_room_and_it_has_room_then(transport: str) -> None:
+    """What a blocked sender on simulated time waits for (linkemu.runner): UDP's room comes as the
+    serialiser lets packets go, to the packet; TCP's with an acknowledgement or a timer, an event
+    of the link's. Offered then, the message fits, and not a packet's time before (UDP)."""
+    lnk = link(rate="1mbit", queue_limit="10", transport=transport, delay="20ms")
+    t_s = 0.0
+    while lnk.offer(t_s, bytes(1000), block=True) is Offer.ACCEPTED:
+        t_s += 0.001
+    room_s = lnk.room_s(t_s, 3000)  # three packets' room
+    assert room_s is not None and room_s > t_s
+    if transport == "udp":
+        packet_s = (1000 + HEADER_BYTES["udp"]) * 8 / 1e6
+        assert lnk.offer(room_s - packet_s / 2, bytes(3000), block=True) is Offer.FULL
+    while (offered := lnk.offer(room_s, bytes(3000), block=True)) is Offer.FULL:  # TCP: event by event
+        next_s = lnk.room_s(room_s, 3000)
+        assert next_s is not None and next_s > room_s
+        room_s = next_s
+    assert offered is Offer.ACCEPTED and room_s - t_s < 1.0
+
+
+@pytest.mark.parametrize("transport", ["udp", "tcp"])
 def test_message_larger_than_the_queue_is_dropped_not_stuck(transport: str) -> None:
     lnk = link(queue_limit="4", transport=transport)
     assert lnk.offer(0.0, bytes(10_000), block=True) is Offer.DROPPED

@@ -165,7 +165,9 @@ class LockstepClock(SimClock):
         with self._turns:
             if loop is None or self._turn != loop:
                 return False
-        return self.sleep_until(loop, t_s, stop)
+        # a later period's turn, never this one's again: room due within TICK_TOLERANCE_S of this
+        # period (float sums) would bring it back here, where the link has no room yet
+        return self.sleep_until(loop, max(t_s, self.now_s() + 2 * TICK_TOLERANCE_S), stop)
 
     def sleep_until(self, loop: str, t_s: float, stop: threading.Event) -> bool:
         """Wait for `loop`'s turn in the first period at or after `t_s`: False once `stop` is set."""

@@ -517,3 +517,31 @@ def test_lockstep_runs_the_loops_due_one_at_a_time_in_name_order() -> None:
         "sonar",
     ]
     assert [t for name, t in ran if name == "sonar"] == pytest.approx([0.1, 0.2])
+
+
+def test_in_lockstep_room_due_a_hair_past_the_period_is_waited_for_in_the_next_one() -> None:
+    """Room the link says is due a float's rounding past this period (a serialisation end summed
+    otherwise than the periods) is not this period's: the sender goes on in the next one, not in
+    this one again, where the link has no room yet and it would ask for ever."""
+    clock = LockstepClock()
+    stop = threading.Event()
+    resumed: list[float] = []
+
+    def sender() -> None:
+        rate = Rate(PERIOD_S, stop, clock, "relay")
+        while rate.sleep():  # a loop: each turn handed back as it waits
+            if not resumed and clock.wait_for_room(clock.now_s() + 1e-9, stop):
+                resumed.append(clock.now_s())
+
+    thread = threading.Thread(target=sender, daemon=True)
+    thread.start()
+    while clock.loops() != {"relay"}:
+        time.sleep(0.01)
+    try:
+        for period in range(1, 4):
+            clock.set_period(period * PERIOD_S)
+            clock.run_loops(period * PERIOD_S, stop)
+    finally:
+        stop.set()
+        thread.join(2.0)
+    assert resumed == [pytest.approx(2 * PERIOD_S)]

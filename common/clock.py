@@ -62,14 +62,14 @@ class Clock:
     mode = "real"
 
     def __init__(self) -> None:
-        self._thread = threading.local()  # the named loop a thread runs, if any (`loop`)
+        self._per_thread = threading.local()  # the named loop a thread runs, if any (`loop`)
 
     def loop(self) -> str | None:
         """The named loop the calling thread runs (it entered or waited on this clock), if any."""
-        return getattr(self._thread, "loop", None)
+        return getattr(self._per_thread, "loop", None)
 
     def _runs(self, loop: str) -> None:
-        self._thread.loop = loop
+        self._per_thread.loop = loop
 
     def now_s(self) -> float:
         """Seconds on this clock, for periods, ages and timeouts (no fixed origin)."""

@@ -89,6 +89,7 @@ class LinkRunner:
                     self._cond.wait(0.05)  # woken by a delivery that makes room
                     continue
                 room_s = self.link.room_s(now_s, len(payload))
+                self._cond.notify_all()  # what the link delivered by now, to the delivery thread
             if room_s is None or not self.clock.wait_for_room(max(room_s, now_s), self.stopping):
                 with self._cond:  # no room to come, or no wait possible here: dropped, counted
                     if self.stopping.is_set():

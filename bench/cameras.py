@@ -53,6 +53,7 @@ from abyss.common.config.stations import OnboardConfig, VesselConfig  # noqa: E4
 from abyss.common.config.system import MissionConfig  # noqa: E402
 from abyss.common.images import decode_image, encode_jpeg  # noqa: E402
 from abyss.common.robot import robot_at  # noqa: E402
+from abyss.common.site import site_at  # noqa: E402
 from abyss.scene import model as scene_model  # noqa: E402
 from abyss.stations.onboard import perception, stereo  # noqa: E402
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of  # noqa: E402
@@ -311,7 +312,7 @@ def frame_set(
         stamp[0] += 1.0 / sim.camera_rate_hz
         model.insert(*unpack_cloud(cloud), cloud.sensor_m_world, stamp[0])
 
-    tracker = recognition.PanelTracker()
+    tracker = recognition.PanelTracker(site_at("").panel)  # the shipped site's
     points = unpack_cloud(clouds.get("depth") or clouds["stereo"])[0]
     recognised_per_set = 1.0 / (vessel.recognition_period_s * sim.camera_rate_hz)
     with stages.wrapping(*VESSEL):
@@ -350,7 +351,9 @@ def offloaded_ms(position: tuple[float, float, float], yaw_rad: float, water: st
             wall_ms += (
                 share
                 * 1e3
-                * median_s(lambda c=cameras: sensor.messages(state_of(world.data), set(), c), 2 * REPEATS)
+                * median_s(
+                    lambda c=cameras: sensor.messages(state_of(world.data), set(), c, ROBOT), 2 * REPEATS
+                )
             )
             cpu_ms += share * 1e3 * (process_cpu_s(sensor.process.pid) - cpu0) / (2 * REPEATS + 1)
         return wall_ms, cpu_ms

@@ -106,15 +106,27 @@ class Clock:
         self.done(loop, t_s)
         return not self.wait_until(stop, t_s)
 
-    def wait_for_room(self, t_s: float, stop: threading.Event) -> bool:
-        """A sender blocked on a full emulated link until `t_s`, when the link next has room: the
-        calling thread's loop, if it runs one, has nothing to do before then (the simulation need
-        not wait for it), and waits on this clock. True once there, False once `stop` is set or
-        where the sender cannot wait (lockstep, outside a loop's turn)."""
+    def step_aside(self, t_s: float, stop: threading.Event) -> bool:
+        """The calling thread's loop, if it runs one, has nothing to do before `t_s` (the
+        simulation need not wait for it), and waits on this clock until then: a sender whose
+        emulated link is full until `t_s`, when it next has room (linkemu.runner), or a loop whose
+        bulk work (a render, a stereo match) lasts until then (`after_work`). True once there,
+        False once `stop` is set or where the caller cannot wait (lockstep, outside a loop's
+        turn)."""
         loop = self.loop()
         if loop is not None:
             self.done(loop, t_s)
         return not self.wait_until(stop, t_s)
+
+    def after_work(self, started_s: float, latency_s: float, stop: threading.Event) -> bool:
+        """Bulk work a loop started at `started_s` (in a process or thread of its own, from inputs
+        taken then) is done `latency_s` later on a simulated clock, however long it takes in wall
+        time: the loop steps aside until then, so that the simulation and the other loops go on
+        meanwhile and its result comes out on the same period whatever the machine's load. On the
+        wall clock it is done when it is done: at once. False once `stop` is set."""
+        if self.mode == "real" or latency_s <= 0:
+            return not stop.is_set()
+        return self.step_aside(started_s + latency_s, stop)
 
 
 WALL = Clock()

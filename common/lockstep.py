@@ -44,7 +44,7 @@ wall-clock reads (every stamp, age and rate is the period's T), messages crossin
 (a message offered in period T is delivered in a later one, however short its link), Zenoh's own
 drops (every publisher blocks instead), and the wall-clock wait of a sender that finds an emulated
 link's queue full (a reliable key's sender hands its turn back and goes on in the period the link
-has room: `LockstepClock.wait_for_room`).
+has room: `LockstepClock.step_aside`).
 """
 
 from __future__ import annotations
@@ -156,11 +156,12 @@ class LockstepClock(SimClock):
             condition = self._turn_of[loop] = threading.Condition(self._turn_lock)
         return condition
 
-    def wait_for_room(self, t_s: float, stop: threading.Event) -> bool:
-        """A loop blocked on a full emulated link hands its turn back and goes on in its turn of
-        the first period at or after `t_s`, when the link has room (the other loops and the
-        periods in between run meanwhile, as they would while it blocked); a thread that has no
-        turn (a delivery, a callback) cannot wait: False, and what it offered is dropped."""
+    def step_aside(self, t_s: float, stop: threading.Event) -> bool:
+        """A loop with nothing to do before `t_s` (blocked on a full emulated link until it has
+        room, or its bulk work lasting until then) hands its turn back and goes on in its turn of
+        the first period at or after `t_s` (the other loops and the periods in between run
+        meanwhile); a thread that has no turn (a delivery, a callback) cannot wait: False (what a
+        sender offered is dropped)."""
         loop = self.loop()
         with self._turns:
             if loop is None or self._turn != loop:

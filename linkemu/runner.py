@@ -27,7 +27,7 @@ class LinkRunner:
     to a full queue is refused and counted (`refused_at_stop`). On a lockstep clock the runner has
     no thread: `deliver_due` is the period's delivery phase (common.lockstep), nothing is passed
     through at once, and a sender that finds the queue full goes on in its loop's turn of the
-    period the link has room (`LockstepClock.wait_for_room`)."""
+    period the link has room (`LockstepClock.step_aside`)."""
 
     def __init__(
         self,
@@ -68,7 +68,7 @@ class LinkRunner:
     def send(self, payload: bytes, block: bool, tag: Any = None) -> bool:
         """Offer a message; False if the link dropped it (queue full with DROP).
         With `block`, wait for room in the queue as Zenoh's BLOCK does. On simulated time that
-        wait is on the clock (`Clock.wait_for_room`): the link says when room next comes, and
+        wait is on the clock (`Clock.step_aside`): the link says when room next comes, and
         the sender's loop is done until then, so the simulation steps there and the queue
         drains; a wall-clock wait would hold simulated time for a queue that only simulated
         time drains."""
@@ -90,7 +90,7 @@ class LinkRunner:
                     continue
                 room_s = self.link.room_s(now_s, len(payload))
                 self._cond.notify_all()  # what the link delivered by now, to the delivery thread
-            if room_s is None or not self.clock.wait_for_room(max(room_s, now_s), self.stopping):
+            if room_s is None or not self.clock.step_aside(max(room_s, now_s), self.stopping):
                 with self._cond:  # no room to come, or no wait possible here: dropped, counted
                     if self.stopping.is_set():
                         self.link.counters["refused_at_stop"] += 1

@@ -73,6 +73,13 @@ class SceneModel:
     ) -> None:
         """Integrate one cloud (rays from the sensor) and queue the cells whose state changed
         (`track`, at the cloud's `stamp_s`: its simulated time; else the monotonic clock's now)."""
+        if len(points_m_world):
+            self.integrate(points_m_world, colors, sensor_m_world)
+            self.track(stamp_s)
+
+    def integrate(self, points_m_world: np.ndarray, colors: np.ndarray, sensor_m_world: np.ndarray) -> None:
+        """Integrate one cloud (rays from the sensor) into the octree alone: nothing is queued
+        for shore before the next `track` (which may run in another thread, never beside it)."""
         if len(points_m_world) == 0:
             return
         points, colors = voxel_downsample(points_m_world, colors, self.resolution_m)
@@ -91,7 +98,6 @@ class SceneModel:
         if self._dirty is not None:
             low, high = np.minimum(low, self._dirty[0]), np.maximum(high, self._dirty[1])
         self._dirty = (low, high)
-        self.track(stamp_s)
 
     def track(self, stamp_s: float | None = None) -> None:
         """Queue the cells whose state changed in the region the clouds touched, if

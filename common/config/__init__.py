@@ -62,6 +62,14 @@ class Config:
                 "time.mode",
                 "sim: a ROS 2 node (ros2.station, --ros2) runs on the wall clock; use --time real with it",
             )
+        camera_rate_hz = self.simulation.camera_rate_hz
+        if camera_rate_hz > 0 and self.onboard.perception_latency_s * camera_rate_hz >= 1.0:
+            raise ConfigError(
+                "onboard.perception_latency_s",
+                f"{self.onboard.perception_latency_s} s must stay below the cameras' period "
+                f"({1.0 / camera_rate_hz:g} s at simulation.camera_rate_hz = {camera_rate_hz}): "
+                "a set's clouds go out before the next set is taken",
+            )
         self._check_hybrid()
 
     def _check_hybrid(self) -> None:

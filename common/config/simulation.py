@@ -99,6 +99,10 @@ class SimulationConfig:
     water: Water = "none"
     marine_snow: float = 1.0
     sonar_rate_hz: float = 2.0  # the imaging sonar's frames (stations/simulation/sonar.py); 0: none
+    # [s] on simulated time, a frame (camera or sonar) leaves the sensor this long after it was
+    # taken: a camera's exposure, readout and encoding, and the render's, which run meanwhile
+    # (docs/time.md, Bulk work); in real time it leaves when rendered. Below each sensor's period.
+    sensor_latency_s: float = 0.2
     # where the physics state is kept (every state_period_s) and resumed from at start, so that
     # a restarted simulation goes on where the vehicle was; "" keeps none (`abyss up` sets it)
     state_file: str = ""
@@ -190,6 +194,15 @@ class SimulationConfig:
         one_of("simulation.water", self.water, WATER_TYPES)
         one_of("simulation.camera_samples", self.camera_samples, CAMERA_SAMPLES)
         positive("simulation.marine_snow", self.marine_snow, allow_zero=True)
+        positive("simulation.sensor_latency_s", self.sensor_latency_s, allow_zero=True)
+        for name in ("camera_rate_hz", "sonar_rate_hz"):
+            rate_hz = getattr(self, name)
+            if rate_hz > 0 and self.sensor_latency_s * rate_hz >= 1.0:
+                raise ConfigError(
+                    "simulation.sensor_latency_s",
+                    f"{self.sensor_latency_s} s must stay below the period of {name} = {rate_hz} "
+                    f"({1.0 / rate_hz:g} s): a frame leaves before the next is taken",
+                )
 
     def _check_periods(self) -> None:
         """Each period a whole multiple of the one below it: a control period of the low level's,

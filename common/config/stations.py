@@ -120,6 +120,11 @@ class OnboardConfig:
     # proportion to its work: where the CPU is short (a capped onboard computer, a loaded host) it
     # sheds frame sets, and the control loop in the same process keeps its deadlines
     perception_max_busy: float = 0.5
+    # [s] on simulated time, a frame set's clouds (and its image for the vessel) go out this long
+    # after the set was taken: the onboard computer's time for the set, which the set's work runs
+    # in, the control loop and the simulation going on meanwhile (docs/time.md, Bulk work); in
+    # real time they go out when done. Below the cameras' period (simulation.camera_rate_hz).
+    perception_latency_s: float = 0.3
 
     def __post_init__(self) -> None:
         for name in self.cloud_sources:
@@ -143,6 +148,7 @@ class OnboardConfig:
                     allow_zero=f.name in ("offset_time_constant_s", "nav_time_constant_s", "image_rate_hz")
                     or f.name in STEREO_SWITCHES,
                 )
+        positive("onboard.perception_latency_s", self.perception_latency_s, allow_zero=True)
         if self.perception_max_busy > 1.0:
             raise ConfigError("onboard.perception_max_busy", f"{self.perception_max_busy} outside (0, 1]")
         if self.stereo_uniqueness_percent > 100:
@@ -172,6 +178,10 @@ class VesselConfig:
     # over `abyss stress satellite --duration 15` the scene's bytes over the final map's .bt were
     # 3.0/2.3/1.7x at 0.2/0.1/0.05 m with 1 s, 1.4/1.1/0.95x with 5 s (zstd, hysteresis, Z order)
     scene_track_period_s: float = 5.0
+    # [s] on simulated time, clouds and echoes are in the octree this long after they came (their
+    # changes queued for shore then): the insertion runs meanwhile, the relay and the stream going
+    # on (docs/time.md, Bulk work); in real time they are in when inserted
+    insertion_latency_s: float = 0.2
     satellite_capacity_bps: float = 1e6  # [bit/s] the first guess, before one is measured
     recognition_period_s: float = 2.0  # [s]
     # [m, world] added to the recognised panel's position: a fault for scenarios, as a camera
@@ -191,9 +201,11 @@ class VesselConfig:
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
             if f.name != "recognition_bias_m":
-                positive(
-                    f"vessel.{f.name}", getattr(self, f.name), allow_zero=f.name == "scene_track_period_s"
-                )  # 0: after each cloud
+                positive(  # 0: after each cloud; at once
+                    f"vessel.{f.name}",
+                    getattr(self, f.name),
+                    allow_zero=f.name in ("scene_track_period_s", "insertion_latency_s"),
+                )
         if len(self.recognition_bias_m) != 3 or not all(abs(b) <= 1.0 for b in self.recognition_bias_m):
             raise ConfigError("vessel.recognition_bias_m", "needs [x, y, z], each within [-1, 1] m")
         if self.image_scale > 1.0:

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +35,9 @@ from abyss.common.robot import robot_of
 from abyss.common.shared import Latest
 from abyss.common.workers import Workers
 from abyss.stations.onboard.core import Onboard, OnboardInputs
+
+if TYPE_CHECKING:
+    from abyss.stations.onboard.frame_sets import FrameSetOutputs
 
 log = logging.getLogger(__name__)
 
@@ -131,21 +136,37 @@ def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:
     }
     # where bad and shed frames are counted: the stereo pair's left camera's key
     key = keys.spec("simulation", robot.camera_topic(robot.stereo_left)).key(bus.system)
-    # with simulated time, a frame set being worked on holds the simulation (common.clock)
     rate = Rate(0.05, bus.stop, bus.clock, "perception")
-    while rate.sleep():
-        frames = [(camera, frame.message) for camera, inbox in inboxes.items() for frame in inbox.drain()]
-        inputs = FrameSetInputs(frames, shared.poses.get(), shared.arm_m_world.get())
-        out = core.step(inputs, bus.clock.now_s())
-        if out.shed:
-            bus.shed(key, out.shed)
-        for reason in out.rejected:
-            bus.reject(key, reason)
-        for cloud in out.clouds:
-            bus.publish("cloud", cloud)
-        if out.image is not None:
-            bus.publish("image", out.image)
-        core.finished(bus.clock.now_s())
+    with ThreadPoolExecutor(1, "perception work") as worker:
+        while rate.sleep():
+            frames = [(camera, frame.message) for camera, inbox in inboxes.items() for frame in inbox.drain()]
+            taken_s = bus.clock.now_s()
+            out, job = core.take(
+                FrameSetInputs(frames, shared.poses.get(), shared.arm_m_world.get()), taken_s
+            )
+            if job is not None:
+                # the set's work runs in a thread of its own; on simulated time its clouds go out
+                # onboard.perception_latency_s after the set was taken, the station's other loops
+                # and the simulation going on meanwhile (Clock.after_work)
+                work = worker.submit(core.work, job, out)
+                if not bus.clock.after_work(taken_s, config.onboard.perception_latency_s, bus.stop):
+                    break
+                work.result()
+                rate.forgive()  # its next tick counts from now
+            _publish_frame_set(bus, key, out)
+            core.finished(bus.clock.now_s())
+
+
+def _publish_frame_set(bus: Bus, key: str, out: FrameSetOutputs) -> None:
+    """What a frame set gave: shed sets and bad frames counted on `key`, its messages published."""
+    if out.shed:
+        bus.shed(key, out.shed)
+    for reason in out.rejected:
+        bus.reject(key, reason)
+    for cloud in out.clouds:
+        bus.publish("cloud", cloud)
+    if out.image is not None:
+        bus.publish("image", out.image)
 
 
 def _sonar_loop(bus: Bus, shared: Shared) -> None:

@@ -52,6 +52,18 @@ class FrameSetOutputs:
     skipped_s: float | None = None  # the sim time [s] of a set dropped for want of a pose estimate
 
 
+@dataclass(frozen=True)
+class FrameSetJob:
+    """A complete set's work, with everything it needs taken when the set was (FrameSets.take)."""
+
+    frames: dict[str, Image]  # camera -> frame
+    pose: tuple[np.ndarray, np.ndarray]  # the navigation estimate at the set's time
+    arm_m_world: np.ndarray  # [m, world] the arm's chain then (the clouds' self-filter)
+    sources: tuple[str, ...]  # the cloud sources run on this set
+    image: bool  # the left frame goes on to the vessel (at onboard.image_rate_hz)
+    taken_s: float  # when the set was taken [s, the station's clock]
+
+
 class FrameSets:
     """One perception step at a time: frames in, clouds and the camera image out."""
 
@@ -67,28 +79,46 @@ class FrameSets:
         self._started_s: float | None = None  # when the set being worked on was taken
 
     def step(self, inputs: FrameSetInputs, now_s: float) -> FrameSetOutputs:
-        """Gather `inputs.frames`, and work on the newest complete set unless resting. `now_s`
-        [s, this station's clock]; call `finished` once what this returns is published."""
+        """Gather `inputs.frames`, and work on the newest complete set unless resting (`take`,
+        then `work`). `now_s` [s, this station's clock]; call `finished` once what this returns
+        is published."""
+        out, job = self.take(inputs, now_s)
+        return self.work(job, out) if job is not None else out
+
+    def take(self, inputs: FrameSetInputs, now_s: float) -> tuple[FrameSetOutputs, FrameSetJob | None]:
+        """Gather `inputs.frames` and take the newest complete set unless resting: what is known
+        at once (sets shed, a set skipped), and the set's work, if any, for `work` (which may run
+        in another thread while frames come on, but not beside the next `take`)."""
         out = FrameSetOutputs()
         for camera, frame in inputs.frames:
             self.sets.setdefault(frame.sim_time_s, {})[camera] = frame
         if now_s < self.resting_until_s:  # what comes meanwhile waits; the newest set is taken
-            return out
+            return out, None
         t = self._newest_complete(out)
         if t is None:
-            return out
+            return out, None
         frames = self.sets.pop(t)
         pose = inputs.poses.at(t)
         if pose is None:
             log.debug("no navigation estimate at %.2f s; frames skipped", t)
             out.skipped_s = t
-            return out
+            return out, None
         out.taken_s, self._started_s = t, now_s
         sources = tuple(s for s in self.cfg.cloud_sources if s != "stereo" or self._stereo(t))
+        image = self.cfg.image_rate_hz > 0 and now_s - self.last_image_s >= 1.0 / self.cfg.image_rate_hz
+        return out, FrameSetJob(frames, pose, inputs.arm_m_world, sources, image, now_s)
+
+    def work(self, job: FrameSetJob, out: FrameSetOutputs) -> FrameSetOutputs:
+        """The clouds of a set `take` took (and the left frame for the vessel, when due) into
+        `out`; frames that do not decode, or a camera pose in the wrong frame, are rejected."""
         try:
-            out.clouds = clouds_of(self.cameras, frames, pose, inputs.arm_m_world, sources, self.settings)
-            out.image = self._image(frames[self.cameras.stereo[0]], pose, now_s)
-        except BadInput as exc:  # frames that do not decode, or a camera pose in the wrong frame
+            out.clouds = clouds_of(
+                self.cameras, job.frames, job.pose, job.arm_m_world, job.sources, self.settings
+            )
+            if job.image:
+                out.image = self._image(job.frames[self.cameras.stereo[0]], job.pose)
+                self.last_image_s = job.taken_s
+        except BadInput as exc:
             out.rejected.append(exc.reason)
         return out
 
@@ -124,16 +154,11 @@ class FrameSets:
         """The cameras the set taken at `t_s` [s] must hold to be complete."""
         return self.needed | {self.right} if self._stereo(t_s) else self.needed
 
-    def _image(self, left: Image, pose: tuple[np.ndarray, np.ndarray], now_s: float) -> Image | None:
-        """The left frame for the vessel, re-encoded with its pose in the world, at its rate."""
-        cfg = self.cfg
-        if cfg.image_rate_hz <= 0 or now_s - self.last_image_s < 1.0 / cfg.image_rate_hz:
-            return None
-        image = dataclasses.replace(
+    def _image(self, left: Image, pose: tuple[np.ndarray, np.ndarray]) -> Image:
+        """The left frame for the vessel, re-encoded with its pose in the world."""
+        return dataclasses.replace(
             left,
             pose_frame="world",
             pose_camera=camera_in_world(left, pose),
-            data=encode_jpeg(decode_image(left), cfg.image_jpeg_quality),
+            data=encode_jpeg(decode_image(left), self.cfg.image_jpeg_quality),
         )
-        self.last_image_s = now_s
-        return image

@@ -278,7 +278,8 @@ def sensor_loop(
     rate_hz: float,
 ) -> None:
     """Render a sensor (`kind`: the cameras, the sonar) at its rate from a copy of the physics
-    state, in a process of its own (stations.simulation.offload). A hybrid run's twin renders
+    state, in a process of its own (stations.simulation.offload); on simulated time its messages
+    go out `simulation.sensor_latency_s` after the state was taken. A hybrid run's twin renders
     only what it provides, and nothing while its navigation is missing or stale."""
     from abyss.stations.simulation.offload import Offloaded, state_of
     from abyss.stations.simulation.twin import Twin
@@ -296,10 +297,16 @@ def sensor_loop(
                     continue
                 state = state_of(world.data)
                 placed_s = twin.nav_arrived_s if twin is not None else None
+            taken_s = bus.clock.now_s()
             cameras = cameras_of_set(config, state["time"])
-            for topic, message in sensor.messages(
+            sensor.submit(
                 state, blackout, twin.cameras(cameras) if twin is not None else cameras, world.robot
-            ):
+            )
+            # on simulated time the frames leave the sensor its latency after they were taken,
+            # the physics and the stations going on meanwhile (Clock.after_work)
+            if not bus.clock.after_work(taken_s, config.simulation.sensor_latency_s, bus.stop):
+                break
+            for topic, message in sensor.collect():
                 bus.publish(topic, message)
             if twin is not None and placed_s is not None:
                 twin.delay_s.add(bus.clock.now_s() - placed_s)

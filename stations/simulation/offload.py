@@ -13,6 +13,7 @@ and stdout by the process that started it and by nothing else."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
 import signal
@@ -70,12 +71,25 @@ class Offloaded:
             [sys.executable, "-P", "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE
         )
         in_background(self.process.pid)  # before it starts threads, which inherit it
+        self._topics: tuple[str, ...] | None = None  # of the request submitted, until collected
         self._call("init", kind, model, config, seed)
 
     def _call(self, *request: object) -> Any:
-        assert self.process.stdin is not None and self.process.stdout is not None
+        self._send(*request)
+        return self._reply()
+
+    def _send(self, *request: object) -> None:
+        assert self.process.stdin is not None
         try:
             _write(self.process.stdin, request)
+        except OSError as exc:
+            raise OffloadFailed(
+                f"the {self.kind} process ended (exit {self.process.poll()}): {exc!r}"
+            ) from None
+
+    def _reply(self) -> Any:
+        assert self.process.stdout is not None
+        try:
             status, result, cpu_s = _read(self.process.stdout)
         except (EOFError, OSError, pickle.UnpicklingError) as exc:
             raise OffloadFailed(
@@ -86,13 +100,31 @@ class Offloaded:
             raise OffloadFailed(f"the {self.kind} process failed: {result}")
         return result
 
-    def frames(self, state: dict[str, Any], blackout: set[str], cameras: tuple[str, ...]) -> Any:
-        """The Image messages of `cameras` at `state` (cameras in `blackout` dark)."""
-        return self._call("frames", state, set(blackout), cameras)
+    def submit(
+        self,
+        state: dict[str, Any],
+        blackout: set[str],
+        cameras: tuple[str, ...] = (),
+        robot: Robot | None = None,
+    ) -> None:
+        """Start the sensor's messages at `state` (the cameras': those of `cameras`, those in
+        `blackout` dark, each on its role's topic: `robot`'s camera_topic); `collect` them. The
+        child works on them meanwhile: the caller need not wait."""
+        assert self._topics is None, "one request at a time: collect the last one first"
+        if self.kind == "cameras":
+            assert robot is not None, "the cameras' topics are their roles on the robot"
+            self._topics = tuple(robot.camera_topic(camera) for camera in cameras)
+            self._send("frames", state, set(blackout), cameras)
+        else:
+            self._topics = ("sonar",)
+            self._send("ping", state)
 
-    def ping(self, state: dict[str, Any]) -> Any:
-        """The sonar's SonarImage at `state`."""
-        return self._call("ping", state)
+    def collect(self) -> list[tuple[str, Any]]:
+        """The messages `submit` started, each with the topic it goes out on (waits for them)."""
+        assert self._topics is not None, "nothing submitted"
+        topics, self._topics = self._topics, None
+        result = self._reply()
+        return list(zip(topics, result if self.kind == "cameras" else [result], strict=True))
 
     def messages(
         self,
@@ -101,17 +133,15 @@ class Offloaded:
         cameras: tuple[str, ...] = (),
         robot: Robot | None = None,
     ) -> list[tuple[str, Any]]:
-        """The sensor's messages at `state`, each with the topic it goes out on (the cameras':
-        those of `cameras`, each on its role's topic: `robot`'s camera_topic)."""
-        if self.kind == "cameras":
-            assert robot is not None, "the cameras' topics are their roles on the robot"
-            return [
-                (robot.camera_topic(image.camera), image) for image in self.frames(state, blackout, cameras)
-            ]
-        return [("sonar", self.ping(state))]
+        """The sensor's messages at `state` (`submit`, then `collect`)."""
+        self.submit(state, blackout, cameras, robot)
+        return self.collect()
 
     def close(self) -> None:
         assert self.process.stdin is not None and self.process.stdout is not None
+        if self._topics is not None:  # a request never collected: its reply read, so the child ends
+            with contextlib.suppress(OffloadFailed):
+                self.collect()
         try:
             self.process.stdin.close()
             self.process.wait(CLOSE_S)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Protocol
 
 from abyss.common import keys
@@ -75,7 +76,7 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
     gateway = mapper(lambda update: model.adopt(update.octree)) if mapper is not None else None
     try:
         with Workers(bus.stop) as workers:
-            workers.start("scene", _scene_loop, bus, intake, images)
+            workers.start("scene", _scene_loop, config, bus, intake, images)
             workers.start("scene send", _send_loop, config, bus, model, images, intake)
             if gateway is not None:
                 workers.start("ros2 gateway", gateway.run)
@@ -111,21 +112,33 @@ def _relay_loop(config: Config, bus: Bus, objects: Latest[RecognisedObjects | No
             break
 
 
-def _scene_loop(bus: Bus, intake: Intake, images: Inbox[Image]) -> None:
+def _scene_loop(config: Config, bus: Bus, intake: Intake, images: Inbox[Image]) -> None:
     """The I/O shell of the intake (`intake.Intake`); another thread (`_send_loop`) streams the
     result, so that a slow insertion (a second or more for a stereo cloud on a loaded machine)
     never holds the stream back."""
     clouds = bus.subscribe("onboard", "cloud", PointCloud, maxlen=4)
     pings = bus.subscribe("onboard", "sonar", SonarImage, maxlen=4)
-    rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene")  # with simulated time, an insertion holds it
-    while rate.sleep():
-        image = images.latest()
-        inputs = IntakeInputs(
-            clouds=[r.message for r in clouds.drain()],
-            pings=[r.message for r in pings.drain()],
-            image=image.message if image else None,
-        )
-        _publish(bus, intake.step(inputs, bus.clock.now_s()))
+    rate = Rate(POLL_PERIOD_S, bus.stop, bus.clock, "scene")
+    with ThreadPoolExecutor(1, "scene insertion") as worker:
+        while rate.sleep():
+            image = images.latest()
+            inputs = IntakeInputs(
+                clouds=[r.message for r in clouds.drain()],
+                pings=[r.message for r in pings.drain()],
+                image=image.message if image else None,
+            )
+            taken_s = bus.clock.now_s()
+            out, cells = intake.take(inputs, taken_s)
+            if cells:
+                # into the octree in a thread of its own; on simulated time its changes are queued
+                # for shore vessel.insertion_latency_s after they came, the relay and the stream
+                # going on meanwhile, which never touch the octree (Clock.after_work)
+                work = worker.submit(intake.integrate, cells)
+                if not bus.clock.after_work(taken_s, config.vessel.insertion_latency_s, bus.stop):
+                    break
+                work.result()
+                rate.forgive()  # its next tick counts from now
+            _publish(bus, intake.settle(cells, inputs.image, taken_s, out))
 
 
 def _publish(bus: Bus, out: IntakeOutputs | StreamOutputs) -> None:

@@ -31,6 +31,16 @@ class IntakeInputs:
     image: Image | None = None  # the camera's latest frame
 
 
+@dataclass(frozen=True)
+class Insertion:
+    """A cloud or the sonar's echoes for the scene model (SceneModel.integrate, then track)."""
+
+    points_m_world: np.ndarray
+    colors: np.ndarray  # [uint8 RGB] one a point
+    sensor_m_world: np.ndarray  # where the rays start
+    stamp_s: float  # its simulated time
+
+
 @dataclass
 class IntakeOutputs:
     messages: list[tuple[str, Message]] = field(default_factory=list)  # (topic, message) to publish
@@ -70,11 +80,37 @@ class Intake:
         self.points: np.ndarray | None = None  # [m, world] the cloud recognition fits the panel to
 
     def step(self, inputs: IntakeInputs, now_s: float) -> IntakeOutputs:
+        """One step at once: `take`, `integrate`, `settle`."""
+        out, cells = self.take(inputs, now_s)
+        self.integrate(cells)
+        return self.settle(cells, inputs.image, now_s, out)
+
+    def take(self, inputs: IntakeInputs, now_s: float) -> tuple[IntakeOutputs, list[Insertion]]:
+        """What came in, counted and kept; the clouds and echoes for the model, to `integrate`
+        (which may run in another thread while the station goes on: it touches the octree alone)
+        and then `settle`. Without them, what the last clouds changed is flushed once no more
+        came for a track period."""
         out = IntakeOutputs()
-        self._clouds(inputs.clouds, now_s)
-        self._pings(inputs.pings, now_s, out)
+        cells = self._clouds(inputs.clouds, now_s) + self._pings(inputs.pings, now_s, out)
         if self.maps and now_s - self.inserted_s >= self.cfg.scene_track_period_s:
-            self.model.flush()  # what the last clouds changed, once no more came for a period
+            self.model.flush()
+        return out, cells
+
+    def integrate(self, cells: list[Insertion]) -> None:
+        """The clouds and echoes `take` returned, into the octree (scene.model: nothing queued)."""
+        for insertion in cells:
+            if len(insertion.points_m_world):
+                self.model.integrate(insertion.points_m_world, insertion.colors, insertion.sensor_m_world)
+
+    def settle(
+        self, cells: list[Insertion], image: Image | None, now_s: float, out: IntakeOutputs
+    ) -> IntakeOutputs:
+        """After `integrate`, the step `take` began at `now_s` ends: what the clouds changed
+        queued for shore (at their stamps' track period), perception's status and recognition
+        (on `image`, the camera's latest then) when due, into `out`."""
+        for insertion in cells:
+            if len(insertion.points_m_world):
+                self.model.track(insertion.stamp_s)
         if now_s - self.last_status_s >= self.cfg.perception_period_s:
             self.last_status_s = now_s
             status = self.perception.status(
@@ -82,24 +118,27 @@ class Intake:
             )
             out.messages.append(("perception", status))
         due = now_s - self.last_recognition_s >= self.cfg.recognition_period_s
-        if due and (inputs.image is not None or self.points is not None):
+        if due and (image is not None or self.points is not None):
             self.last_recognition_s = now_s
-            self._recognise(inputs.image, out)
+            self._recognise(image, out)
         return out
 
-    def _clouds(self, clouds: list[PointCloud], now_s: float) -> None:
+    def _clouds(self, clouds: list[PointCloud], now_s: float) -> list[Insertion]:
+        cells = []
         for cloud in clouds:
             points, colors = unpack_cloud(cloud)
             self.perception.received(cloud.source, len(points), now_s)
             if self.maps:
-                self.model.insert(points, colors, cloud.sensor_m_world, cloud.sim_time_s)
+                cells.append(Insertion(points, colors, cloud.sensor_m_world, cloud.sim_time_s))
                 self.inserted_s = now_s
             self.sim_time_s.set(cloud.sim_time_s)
             if cloud.source == "depth" or self.points is None:
                 self.points = points
+        return cells
 
-    def _pings(self, pings: list[SonarImage], now_s: float, out: IntakeOutputs) -> None:
+    def _pings(self, pings: list[SonarImage], now_s: float, out: IntakeOutputs) -> list[Insertion]:
         """The sonar's echoes, counted, and inserted while the sonar feeds the model."""
+        cells = []
         for ping in pings:
             self.sonar.set(ping)
             try:
@@ -110,9 +149,10 @@ class Intake:
             self.perception.received("sonar", len(echoes), now_s)
             if self.maps and self.perception.sonar_feeds(now_s) and len(echoes):
                 colors = np.tile(np.array(ECHO_RGB, np.uint8), (len(echoes), 1))
-                self.model.insert(echoes, colors, origin, ping.sim_time_s)
+                cells.append(Insertion(echoes, colors, origin, ping.sim_time_s))
                 self.inserted_s = now_s
                 self.sim_time_s.update(ping.sim_time_s, max)
+        return cells
 
     def _recognise(self, image: Image | None, out: IntakeOutputs) -> None:
         """The panel from the latest image (when it decodes, posed in the world frame) and cloud."""

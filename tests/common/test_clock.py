@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ import pytest
 from abyss.common import clock as clock_module
 from abyss.common import keys
 from abyss.common.bus import open_session, zenoh_config
-from abyss.common.clock import Holdback, ProgressReport, SimClock
+from abyss.common.clock import Clock, Holdback, ProgressReport, SimClock
 from abyss.common.config import load
 from abyss.common.errors import ConfigError
 from abyss.common.linkprofile import profile
@@ -530,7 +531,7 @@ def test_in_lockstep_room_due_a_hair_past_the_period_is_waited_for_in_the_next_o
     def sender() -> None:
         rate = Rate(PERIOD_S, stop, clock, "relay")
         while rate.sleep():  # a loop: each turn handed back as it waits
-            if not resumed and clock.wait_for_room(clock.now_s() + 1e-9, stop):
+            if not resumed and clock.step_aside(clock.now_s() + 1e-9, stop):
                 resumed.append(clock.now_s())
 
     thread = threading.Thread(target=sender, daemon=True)
@@ -545,3 +546,131 @@ def test_in_lockstep_room_due_a_hair_past_the_period_is_waited_for_in_the_next_o
         stop.set()
         thread.join(2.0)
     assert resumed == [pytest.approx(2 * PERIOD_S)]
+
+
+def bulk_loop(
+    clock: Clock,
+    stop: threading.Event,
+    latency_s: float,
+    gates: dict[float, threading.Event],
+    log: list[tuple],
+) -> None:
+    """A sensor's loop with bulk work, as the simulation's cameras run it: each second it takes its
+    input, hands the work to a thread of its own and steps aside for `latency_s`
+    (`Clock.after_work`). The work ends only once its gate opens (or 5 s pass), and says whether
+    it did; the loop logs when it took the input, the work's result and when it sent it."""
+    with ThreadPoolExecutor(1) as worker:
+        rate = Rate(1.0, stop, clock, "cameras")
+        while rate.sleep():
+            taken_s = clock.now_s()
+            gate = gates.setdefault(round(taken_s, 6), threading.Event())
+            work = worker.submit(lambda t=taken_s, g=gate: (g.wait(5.0), round(t * 10)))
+            if not clock.after_work(taken_s, latency_s, stop):
+                return
+            log.append(("cameras", taken_s, work.result()))
+            log.append(("sent", clock.now_s(), None))
+
+
+def test_in_lockstep_bulk_work_runs_while_the_periods_go_on_and_its_result_goes_out_on_its_latency() -> None:
+    """Bulk work (a render, a stereo match) ran inside its loop's turn, and the whole system waited
+    for it each time. Now its loop steps aside for its latency of simulated time while the work
+    runs in a thread of its own, the other loops running the periods in between meanwhile: here
+    the work cannot end before the control loop has run the period before the result is due (its
+    gate), which, were the periods waiting for the work, would never come. The result goes out
+    on the period `latency_s` after the input was taken, the same every run."""
+
+    def run() -> list[tuple]:
+        clock, stop = LockstepClock(), threading.Event()
+        log: list[tuple] = []
+        gates: dict[float, threading.Event] = {}
+
+        def control() -> None:
+            rate = Rate(PERIOD_S, stop, clock, "control")
+            while rate.sleep():
+                log.append(("control", clock.now_s(), None))
+                taken_s = round(clock.now_s() - 0.15, 6)  # the period before the result is due
+                gates.setdefault(taken_s, threading.Event()).set()
+
+        threads = [
+            threading.Thread(target=bulk_loop, args=(clock, stop, 0.2, gates, log), daemon=True),
+            threading.Thread(target=control, daemon=True),
+        ]
+        for thread in threads:
+            thread.start()
+        while clock.loops() != {"cameras", "control"}:
+            time.sleep(0.01)
+        try:
+            for period in range(1, 45):
+                clock.set_period(round(period * PERIOD_S, 9))
+                clock.run_loops(round(period * PERIOD_S, 9), stop)
+        finally:
+            stop.set()
+            for thread in threads:
+                thread.join(2.0)
+        return log
+
+    log = run()
+    results = [(t, result) for what, t, result in log if what == "cameras"]
+    # each work's gate opened (the periods went on beside it), its result that of its input
+    assert results == [(pytest.approx(1.0), (True, 10)), (pytest.approx(2.0), (True, 20))]
+    assert [t for what, t, _ in log if what == "sent"] == pytest.approx([1.2, 2.2])  # its latency after
+    control = [t for what, t, _ in log if what == "control"]
+    assert control == pytest.approx([PERIOD_S * k for k in range(1, 45)])  # never a turn missed
+    assert run() == log  # the same every run, turn for turn
+
+
+def test_on_simulated_time_bulk_work_frees_the_simulation_till_its_latency_the_wall_clock_adds_none() -> None:
+    """On simulated time the loop with bulk work is done until its latency (the simulation steps
+    on while the work runs, its gate opened from simulated time past the input: at --speed max the
+    simulation could not pass a loop still counted at its tick), and its result goes out then; on
+    the wall clock the work's result goes out as soon as it is done (no latency added)."""
+    clock, stop = SimClock(0.0, speed=float("inf")), threading.Event()
+    log: list[tuple] = []
+    gates: dict[float, threading.Event] = {}
+    thread = threading.Thread(target=bulk_loop, args=(clock, stop, 0.2, gates, log), daemon=True)
+    thread.start()
+    while clock.slowest() is None:
+        time.sleep(0.01)
+
+    def opened_past_input(_t_s: float) -> None:  # the simulation got 0.1 s past an input
+        for taken_s, gate in list(gates.items()):
+            if clock.now_s() >= taken_s + 0.1:
+                gate.set()
+
+    simulation = Simulation(clock, end_s=2.5, max_lag_s=0.0)
+    clock.on_progress = lambda t_s: (opened_past_input(t_s), simulation._notify())
+    try:
+        while simulation.thread.is_alive():
+            opened_past_input(0.0)
+            simulation.thread.join(0.01)
+    finally:
+        stop.set()
+        simulation.close()
+        thread.join(6.0)
+    taken = [(t, r) for what, t, r in log if what == "cameras"][:2]
+    sent = [t for what, t, _ in log if what == "sent"][:2]
+    assert [r for _, r in taken] == [(True, 10), (True, 20)]  # the simulation went past each input
+    assert [t for t, _ in taken] == pytest.approx([1.0, 2.0], abs=PERIOD_S + 1e-9)  # (woken on a tick)
+    assert np.subtract(sent, [t for t, _ in taken]) == pytest.approx([0.2, 0.2], abs=PERIOD_S + 1e-9)
+
+    wall_log: list[tuple] = []
+
+    class Open(dict):  # every gate open: the work ends at once
+        def setdefault(self, _key: float, _default: object = None) -> threading.Event:
+            gate = threading.Event()
+            gate.set()
+            return gate
+
+    wall_stop = threading.Event()
+    wall = threading.Thread(target=bulk_loop, args=(Clock(), wall_stop, 3.0, Open(), wall_log), daemon=True)
+    started = time.monotonic()
+    wall.start()  # its first tick a second on
+    while not any(what == "sent" for what, _, _ in wall_log) and time.monotonic() - started < 6.0:
+        time.sleep(0.01)
+    sent_after_s = time.monotonic() - started
+    wall_stop.set()
+    wall.join(6.0)
+    assert [r for what, _, r in wall_log if what == "cameras"][:1] == [
+        (True, pytest.approx(10 * wall_log[0][1], abs=1))
+    ]
+    assert sent_after_s < 3.0  # its tick at 1 s and the work's moment, not its 3 s of latency besides

@@ -55,6 +55,11 @@ def test_every_key_goes_to_a_neighbour_and_types_exist() -> None:
         ("ros2.namespace=abyss", "ros2.namespace"),
         ("ros2.listen=[]", "ros2.listen"),
         ("simulation.vehicle_file=no-such-vehicle.toml", "simulation.vehicle_file"),
+        # bulk work's latency on simulated time: a result out before the next input is taken
+        ("simulation.sensor_latency_s=0.5", "simulation.sensor_latency_s"),  # the sonar at 2 Hz
+        ("simulation.sensor_latency_s=-0.1", "simulation.sensor_latency_s"),
+        ("onboard.perception_latency_s=1.0", "onboard.perception_latency_s"),  # the cameras at 1 Hz
+        ("vessel.insertion_latency_s=-1", "vessel.insertion_latency_s"),
     ],
 )
 def test_bad_config_names_the_field(override: str, field: str) -> None:

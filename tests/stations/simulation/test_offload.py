@@ -65,14 +65,18 @@ def test_the_childs_frames_and_pings_are_this_process_ones(moved: tuple[Simulati
     offloaded = Offloaded("cameras", world.model, config, [7, 1])
     sonar = Offloaded("sonar", world.model, config, [7, 2])
     try:
-        there = offloaded.frames(state, set(), ROBOT.cameras)
+        offloaded.submit(state, set(), ROBOT.cameras, ROBOT)  # the child renders meanwhile
         sonar.process.send_signal(signal.SIGINT)  # a Ctrl-C in the station's terminal: its station ends it
-        ping_there = sonar.ping(state)
-        dark = offloaded.frames(state, {"cam_left"}, ("cam_left", "cam_depth"))  # a set without stereo
+        [(sonar_topic, ping_there)] = sonar.messages(state, set())
+        topics, there = zip(*offloaded.collect(), strict=True)
+        dark = [
+            image for _, image in offloaded.messages(state, {"cam_left"}, ("cam_left", "cam_depth"), ROBOT)
+        ]
     finally:
         offloaded.close()
         sonar.close()
     assert [image.camera for image in there] == list(ROBOT.cameras)
+    assert list(topics) == [ROBOT.camera_topic(camera) for camera in ROBOT.cameras] and sonar_topic == "sonar"
     assert [fields(image) for image in there] == [fields(image) for image in here]  # pixels, pose, time
     assert fields(ping_there) == fields(ping_here)
     assert there[0].sim_time_s == pytest.approx(world.data.time) and there[0].sim_time_s > 0
@@ -88,5 +92,5 @@ def test_a_child_that_dies_fails_the_loop_naming_the_sensor(moved: tuple[Simulat
     sonar.process.kill()
     sonar.process.wait()
     with pytest.raises(OffloadFailed, match="the sonar process ended"):
-        sonar.ping(state_of(world.data))
+        sonar.messages(state_of(world.data), set())
     sonar.close()

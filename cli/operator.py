@@ -50,6 +50,18 @@ def fault_help(robot: str = "") -> str:
     return "\n".join(lines)
 
 
+FAULT_TABLE = "(the fault table)"  # `abyss fault`'s description, made when its help is shown
+
+
+class FaultTableHelp(argparse.RawDescriptionHelpFormatter):
+    """`abyss fault`'s help, its fault table made when the help is shown: it compiles the shipped
+    robot's model, which every other command would pay for, and which would import MuJoCo into
+    `abyss`'s own process before a command that renders has chosen its OpenGL backend."""
+
+    def add_text(self, text: str | None) -> None:
+        super().add_text(fault_help() if text == FAULT_TABLE else text)
+
+
 def cmd_fault(args: argparse.Namespace) -> int:
     control = fault_control(args.fault, args.target, args.value, args.robot, args.site)
     session = client(args)
@@ -162,8 +174,8 @@ def add_commands(sub: Any) -> None:
     p = sub.add_parser(
         "fault",
         help="inject a fault into a running simulation",
-        description=fault_help(),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=FAULT_TABLE,
+        formatter_class=FaultTableHelp,
     )
     p.add_argument("fault", choices=faults.fault_names())
     p.add_argument("target", nargs="?", default="", help="the part it acts on (below, by fault)")

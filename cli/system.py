@@ -31,6 +31,8 @@ from abyss.linkemu.control import LINK_MODES
 def cmd_up(args: argparse.Namespace) -> int:
     from abyss.launch.up import run_up
 
+    if args.duration is not None and not 0 < args.duration <= 1e6:
+        raise ConfigError("--duration", f"{args.duration:g} s: a positive number of seconds, at most 1e6")
     config = up_config(args, load_config(args))
     return run_up(
         config,

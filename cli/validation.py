@@ -103,6 +103,9 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 
 def cmd_stress_satellite(args: argparse.Namespace) -> int:
+    from abyss.stations.simulation.rendering import choose_gl_backend
+
+    choose_gl_backend()  # it renders in this process: before anything imports MuJoCo
     from abyss.validation.stress import stress_satellite
 
     try:

@@ -30,7 +30,8 @@ class RenderingUnavailable(AbyssError):
 
 @functools.cache
 def choose_gl_backend() -> str:
-    """Set MUJOCO_GL to a backend that works here; call before `import mujoco` renders."""
+    """Set MUJOCO_GL to a backend that works here; call before MuJoCo's rendering is imported
+    (it reads MUJOCO_GL then: imported first, it renders through GLFW, which needs a display)."""
     if os.environ.get("MUJOCO_GL"):
         return os.environ["MUJOCO_GL"]
     errors = []

@@ -146,10 +146,18 @@ def read_cloud(path: Path) -> np.ndarray:
     return points
 
 
+CLOUD_SUFFIXES = (".ply", ".pcd", ".xyz")  # what Open3D writes and `read_cloud` reads back
+
+
 def write_cloud(points_m: np.ndarray, path: Path) -> None:
+    """Write the points to `path`, a point cloud file by its suffix; TerrainError where it cannot."""
     import open3d as o3d
 
-    o3d.io.write_point_cloud(path, o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m)))
+    if path.suffix.lower() not in CLOUD_SUFFIXES:
+        raise TerrainError(f"{path}: a point cloud file is named .ply, .pcd or .xyz")
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m))
+    if not o3d.io.write_point_cloud(str(path), cloud):
+        raise TerrainError(f"{path}: could not be written (does its directory exist?)")
 
 
 def hfield_xml(heights_m: np.ndarray, file_name: str) -> tuple[str, str]:

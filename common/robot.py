@@ -98,6 +98,14 @@ class NavSensorsSection:
 
 
 @dataclass(frozen=True)
+class SonarSection:
+    """The imaging sonar (stations/simulation/sonar.py): the site it pings from, its x axis the
+    boresight, its z axis up (the beams fan out in the site's xy plane)."""
+
+    site: str = "sonar"
+
+
+@dataclass(frozen=True)
 class ThrustersSection:
     names: tuple[str, ...]  # the model's thruster sites and motors, in allocation order
     time_constant_s: float
@@ -120,6 +128,7 @@ class RobotFile:
     damping: dict[str, Any]
     buoyancy: dict[str, Any]
     nav_sensors: NavSensorsSection = field(default_factory=NavSensorsSection)
+    sonar: SonarSection = field(default_factory=SonarSection)
     # figures published for the vehicle (`source` names where), held to the simulated ones by
     # `abyss robot check` (validation/robot_check.py, which lists the names it knows)
     published: dict[str, float | str] = field(default_factory=dict)
@@ -140,6 +149,7 @@ class Robot:
     closed_gap_m: float = 0.0
     mass_kg: float = 0.0  # the base with all it carries (its subtree), as the model compiles it
     yaw_inertia_kg_m2: float = 0.0  # the base body's own, about its principal z
+    has_sonar: bool = True  # the model has the sonar's site (`[sonar] site`)
 
     @property
     def name(self) -> str:
@@ -211,6 +221,10 @@ class Robot:
         return (s.usbl, s.depth, s.dvl, s.imu)
 
     @property
+    def sonar_site(self) -> str:
+        return self.spec.sonar.site
+
+    @property
     def thrusters(self) -> tuple[str, ...]:
         return self.spec.thrusters.names
 
@@ -252,6 +266,9 @@ def _load(directory: Path) -> Robot:
     checks = (_check_distinct, _check_model_names, _check_arm, _check_cameras, _check_added_mass)
     for check in checks:
         check(model, spec, path)
+    has_sonar = _has(model, "site", spec.sonar.site)
+    if "sonar" in table and not has_sonar:  # named, and not there (else: a robot without a sonar)
+        _require(model, path, "sonar.site", "site", (spec.sonar.site,))
     allocation = thrust_matrix(model, spec.model.base, spec.thrusters.names, path)
     base = model.body(spec.model.base).id
     return Robot(
@@ -261,6 +278,7 @@ def _load(directory: Path) -> Robot:
         closed_gap_m(model, spec.arm.gripper.joints),
         float(model.body_subtreemass[base]),
         float(model.body_inertia[base][2]),
+        has_sonar,
     )
 
 
@@ -334,10 +352,28 @@ def _has(model: mujoco.MjModel, kind: str, name: str) -> bool:
     return bool(mujoco.mj_name2id(model, getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}"), name) >= 0)
 
 
+COUNTS = {"joint": "njnt", "site": "nsite", "body": "nbody", "camera": "ncam", "actuator": "nu"}
+
+
+def _names(model: mujoco.MjModel, kind: str) -> list[str]:
+    """The model's named elements of `kind` (joint, site, body, camera, actuator), in order."""
+    import mujoco
+
+    obj = getattr(mujoco.mjtObj, f"mjOBJ_{kind.upper()}")
+    named = (mujoco.mj_id2name(model, obj, i) for i in range(getattr(model, COUNTS[kind])))
+    return [name for name in named if name]
+
+
 def _require(model: mujoco.MjModel, path: Path, where: str, kind: str, names: tuple[str, ...]) -> None:
     missing = [n for n in names if not _has(model, kind, n)]
     if missing:
-        raise ConfigError(where, f"{', '.join(missing)}: no {kind} of that name in the model", str(path))
+        there = _names(model, kind)
+        shown = ", ".join(there[:40]) + (f" and {len(there) - 40} more" if len(there) > 40 else "")
+        raise ConfigError(
+            where,
+            f"{', '.join(missing)}: no {kind} of that name in the model (its {kind}s: {shown or 'none'})",
+            str(path),
+        )
 
 
 def _check_distinct(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:

@@ -70,6 +70,17 @@ class Config:
                 f"({1.0 / camera_rate_hz:g} s at simulation.camera_rate_hz = {camera_rate_hz}): "
                 "a set's clouds go out before the next set is taken",
             )
+        if self.simulation.sonar_rate_hz > 0:
+            from abyss.common.robot import robot_of
+
+            robot = robot_of(self)
+            if not robot.has_sonar:
+                raise ConfigError(
+                    "simulation.sonar_rate_hz",
+                    f"{self.simulation.sonar_rate_hz} Hz, but robot {robot.name!r} has no site "
+                    f"{robot.sonar_site!r} for the sonar: name its site in {robot.file}'s [sonar] "
+                    "site, or set simulation.sonar_rate_hz = 0 for a robot without one",
+                )
         self._check_hybrid()
 
     def _check_hybrid(self) -> None:

@@ -178,9 +178,10 @@ class _Sensor:
                 depth_camera=robot_at(config.robot).depth_camera,
             )
         else:
-            from abyss.stations.simulation.sonar import ImagingSonar
+            from abyss.common.robot import robot_at
+            from abyss.stations.simulation.sonar import ImagingSonar, SonarSpec
 
-            self.sonar, self.rng = ImagingSonar(model), rng
+            self.sonar, self.rng = ImagingSonar(model, SonarSpec(site=robot_at(config.robot).sonar_site)), rng
 
     def _at(self, state: dict[str, Any]) -> Any:
         self.data.time = state["time"]

@@ -66,7 +66,7 @@ def test_robot_toml_adds_the_sites_cameras_motors_and_servos(package: UrdfPackag
     z_axis = np.zeros(3)
     mujoco.mju_rotVecQuat(z_axis, np.array([0.0, 0.0, 1.0]), rotation)
     np.testing.assert_allclose(z_axis, [math.sqrt(0.5), -math.sqrt(0.5), 0.0], atol=1e-6)
-    for name in ("sonar", "beacon", "doppler", "ahrs", "baro", package.end_effector_site):
+    for name in ("fls", "beacon", "doppler", "ahrs", "baro", package.end_effector_site):
         assert mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name) >= 0, name
     for name in package.cameras:
         assert model.camera(name).bodyid[0] == hull and model.cam_fovy[model.camera(name).id] == 70.0
@@ -332,3 +332,53 @@ def test_the_docs_example_is_the_package_these_tests_write(tmp_path: Path) -> No
     assert written == shipped
     for relative in written:
         assert (tmp_path / relative).read_bytes() == (examples / relative).read_bytes(), relative
+
+
+def test_the_sonar_is_the_site_robot_toml_names_and_a_robot_without_one_says_so(
+    package: UrdfPackage, robot: Robot
+) -> None:
+    """The sonar's site was found by the name `sonar` alone: no field named it, the robot checked
+    clean, and the simulation died at start. It is `[sonar] site` now (here "fls"); one named and
+    missing is refused with the sites there are, and a robot without one runs with the sonar off
+    (`simulation.sonar_rate_hz = 0`), refused at start otherwise."""
+    from abyss.common.config import load
+    from abyss.stations.simulation.sonar import ImagingSonar, SonarSpec
+
+    assert robot.sonar_site == "fls" and robot.has_sonar
+    model = robot_spec(robot).compile()
+    sonar = ImagingSonar(model, SonarSpec(site=robot.sonar_site))  # what the simulation pings with
+    assert model.site(sonar.site).name == "fls"
+    text = (package.directory / "robot.toml").read_text()
+
+    def variant(
+        name: str, toml: str
+    ) -> Path:  # the package again, another robot.toml (loads are cached per directory)
+        directory = package.directory.with_name(name)
+        shutil.copytree(package.directory, directory)
+        (directory / "robot.toml").write_text(toml)
+        return directory
+
+    with pytest.raises(ConfigError) as refused:
+        load_robot(variant("misnamed", text.replace('[sonar]\nsite = "fls"', '[sonar]\nsite = "fsl"')))
+    assert refused.value.field == "sonar.site" and "fsl: no site of that name" in refused.value.reason
+    assert "fls" in refused.value.reason and "doppler" in refused.value.reason  # the sites there are
+    without = variant(
+        "without", text.replace('[sonar]\nsite = "fls"\n', "").replace('name = "fls"', 'name = "fwd"')
+    )
+    assert not load_robot(without).has_sonar  # no [sonar], no site "sonar": a robot without one
+    with pytest.raises(ConfigError) as refused:
+        load(overrides=[f"simulation.robot={without}"])
+    assert refused.value.field == "simulation.sonar_rate_hz" and "[sonar]" in refused.value.reason
+    assert (
+        load(overrides=[f"simulation.robot={without}", "simulation.sonar_rate_hz=0"]).simulation.sonar_rate_hz
+        == 0
+    )
+
+
+def test_a_name_the_model_lacks_is_refused_with_the_names_there_are(package: UrdfPackage) -> None:
+    toml = package.directory / "robot.toml"
+    toml.write_text(toml.read_text().replace('joints = ["j1", "j2"', 'joints = ["j1", "j2x"', 1))
+    with pytest.raises(ConfigError) as refused:
+        load_robot(package.directory)
+    assert refused.value.field == "arm.joints"
+    assert "j2x: no joint of that name in the model (its joints: hull, j1, j2, j3" in refused.value.reason

@@ -260,7 +260,7 @@ link = "palm"
 position_m = [0.08, 0.0, 0.0]
 
 [[model.sites]]
-name = "sonar"  # forward-looking, its x along the middle beam, pitched 10 degrees down
+name = "fls"  # the sonar ([sonar] below), forward-looking: x along the middle beam, 10 degrees down
 link = "hull"
 position_m = [0.26, 0.0, 0.12]
 xyaxes = [0.985, 0.0, -0.174, 0.0, 1.0, 0.0]
@@ -332,6 +332,9 @@ opening_m = 0.04
 names = ["eye_l", "eye_r", "eye_range"]
 stereo = ["eye_l", "eye_r"]
 depth = "eye_range"
+
+[sonar]
+site = "fls"
 
 [nav_sensors]
 usbl = "beacon"

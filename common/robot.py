@@ -114,6 +114,24 @@ class ThrustersSection:
     reverse_max_n: float
 
 
+# what a `[published]` table may hold besides `source` (where the figures come from, with the
+# conditions they were taken in: the battery's voltage, a tether): each figure's meaning, all
+# positive numbers; `abyss robot check` holds the simulated ones to them (validation/robot_check.py)
+PUBLISHED_FIGURES = {
+    "mass_kg": "the mass in air [kg], the arm's included",
+    "surge_max_mps": "the top speed ahead [m/s]",
+    "surge_reverse_max_mps": "the top speed astern [m/s]",
+    "sway_max_mps": "the top speed to port [m/s]",
+    "sway_reverse_max_mps": "the top speed to starboard [m/s]",
+    "heave_max_mps": "the top speed up [m/s]",
+    "heave_reverse_max_mps": "the top speed down [m/s]",
+    "yaw_max_degps": "the top turn rate, the slower way [deg/s]",
+    "bollard_forward_n": "the bollard pull ahead [N]",
+    "bollard_lateral_n": "the bollard pull to port [N]",
+    "bollard_vertical_n": "the bollard pull up [N]",
+}
+
+
 @dataclass(frozen=True)
 class RobotFile:
     """robot.toml, its sections typed; the marine ones' numbers are hydrodynamics.py's to read."""
@@ -262,6 +280,7 @@ def _load(directory: Path) -> Robot:
         spec: RobotFile = read_table(RobotFile, table)
     except ConfigError as exc:
         raise ConfigError(exc.field, exc.reason, str(path)) from None
+    _check_published(spec, path)
     model = _compiled(directory, spec, path)
     checks = (_check_distinct, _check_model_names, _check_arm, _check_cameras, _check_added_mass)
     for check in checks:
@@ -429,6 +448,24 @@ def _check_arm(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
             f"{arm.gripper.opening_m} m: needs a positive opening within the fingers' travel",
             str(path),
         )
+
+
+def _check_published(spec: RobotFile, path: Path) -> None:
+    """`[published]`: `source` (text) and figures abyss knows, each a positive number."""
+    for name, value in spec.published.items():
+        if name == "source":
+            if not isinstance(value, str):
+                raise ConfigError("published.source", "text: where the figures come from", str(path))
+        elif name not in PUBLISHED_FIGURES:
+            raise ConfigError(
+                f"published.{name}",
+                f"not a figure abyss knows: one of source, {', '.join(PUBLISHED_FIGURES)}",
+                str(path),
+            )
+        elif isinstance(value, str) or not value > 0:
+            raise ConfigError(
+                f"published.{name}", f"{value!r}: a positive number ({PUBLISHED_FIGURES[name]})", str(path)
+            )
 
 
 def _check_cameras(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:

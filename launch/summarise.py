@@ -11,6 +11,7 @@ from typing import Any
 
 from abyss.common import keys
 from abyss.common.config import Config
+from abyss.common.robot import robot_of
 from abyss.common.runfiles import EVENTS_FILE, read_json_list
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.observe import Heard
@@ -74,6 +75,21 @@ def time_summary(config: Config, supervisor: Supervisor, heard: Heard) -> dict[s
     }
 
 
+def robot_summary(config: Config) -> dict[str, Any]:
+    """The robot the run flew: its package and the names every station learnt from it."""
+    robot = robot_of(config)
+    return {
+        "name": robot.name,
+        "package": str(robot.directory),
+        "model": str(robot.model_file),
+        "arm_joints": list(robot.arm_joints),
+        "gripper_joints": list(robot.gripper_joints),
+        "thrusters": list(robot.thrusters),
+        "cameras": list(robot.cameras),
+        "sonar": robot.sonar_site if robot.has_sonar else None,
+    }
+
+
 def hybrid_summary(config: Config) -> dict[str, Any] | None:
     """A hybrid run: who provided each output of the simulation, the site's registration, and
     which verdicts the truth cannot give; None for an all-simulated run."""
@@ -122,6 +138,7 @@ def run_summary(
     return {
         "system": config.system,
         "endpoint": endpoint,
+        "robot": robot_summary(config),
         "verdict": verdict_of(failure, supervisor.mission_done_s is not None, ending.interrupted),
         "failure": failure,
         "keep_running": ending.keep_running,

@@ -44,7 +44,6 @@ from abyss.common.errors import BadInput
 from abyss.common.messages import (
     ArmGoal,
     CommandAck,
-    Image,
     JointState,
     Message,
     NavState,
@@ -125,7 +124,7 @@ class Gateway:
         self.static = (
             None if own else self.node.publisher(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
         )
-        self.camera_mounts: dict[str, np.ndarray] = {}
+        self.sensor_mounts: dict[str, np.ndarray] = {}  # sensor frame -> its pose on the vehicle
         self._publish_static()
         log.info(
             "ROS 2 gateway for %s: node %s/%s in domain %d, Zenoh %s (listen %s, connect %s); %d topics "
@@ -172,21 +171,18 @@ class Gateway:
                 self.clock_s = self.convert.sim_time_s
                 clock = status.clock(None, msgs.header(self.clock_s, ""), self.convert)
                 self.clock.put(msgs.serialize(clock))
-        if (
-            isinstance(message, Image)
-            and message.pose_frame == "vehicle"
-            and message.camera not in self.camera_mounts
-        ):
-            self.camera_mounts[message.camera] = message.pose_camera
+        mount = motion.sensor_mount(message)
+        if mount is not None and mount[0] not in self.sensor_mounts:
+            self.sensor_mounts[mount[0]] = mount[1]
             self._publish_static()
 
     def _publish_static(self) -> None:
-        """/tf_static: the arm's fixed links and the cameras mounted so far, all in one message
+        """/tf_static: the arm's fixed links and the sensors mounted so far, all in one message
         (the cache of a transient local publisher of depth 1 keeps the last)."""
         if self.static is None:
             return
         with self._lock:
-            static = motion.static_tf(self.convert, self.convert.sim_time_s, self.camera_mounts)
+            static = motion.static_tf(self.convert, self.convert.sim_time_s, self.sensor_mounts)
         self.static.put(msgs.serialize(static))
 
     def _command(self, spec: keys.KeySpec, mapping: types.KeyMap, command: Command) -> None:

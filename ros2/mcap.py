@@ -30,7 +30,7 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 from ruamel.yaml import YAML
 
 from abyss.common.errors import AbyssError, BadInput
-from abyss.common.messages import Image, NavState
+from abyss.common.messages import NavState
 from abyss.common.robot import Robot, robot_at
 from abyss.recording.reader import Record, Recording, open_recording
 from abyss.ros2 import motion, msgs, types
@@ -113,14 +113,14 @@ def _exported(recording: Recording) -> list[tuple[Record, types.KeyMap]]:
     return sorted(chosen, key=lambda rm: rm[0].recorded_s)
 
 
-def camera_mounts(recording: Recording) -> dict[str, np.ndarray]:
-    """Each camera's pose on the vehicle (x, y, z, w, x, y, z; optical axes), from its first frame
-    as the simulation sent it."""
+def sensor_mounts(recording: Recording) -> dict[str, np.ndarray]:
+    """Each sensor's frame and its pose on the vehicle (x, y, z, w, x, y, z: a camera's optical
+    axes, the sonar's own), from its first message as the simulation sent it (motion.sensor_mount)."""
     mounts: dict[str, np.ndarray] = {}
-    frames = [r for r in recording.published(("simulation",)) if r.message == "Image"]
-    for _, image in recording.messages(frames):
-        if isinstance(image, Image) and image.pose_frame == "vehicle":
-            mounts.setdefault(image.camera, image.pose_camera)
+    sent = [r for r in recording.published(("simulation",)) if r.message in ("Image", "SonarImage")]
+    for _, message in recording.messages(sent):
+        if (mount := motion.sensor_mount(message)) is not None:
+            mounts.setdefault(*mount)
     return mounts
 
 
@@ -166,7 +166,7 @@ def export_mcap(run_dir: Path, out: Path, progress: Progress | None = None) -> d
                     channels.add(t.topic(r.topic), t.type, m.qos(t))
             channels.add(types.TF_STATIC, types.TF_MESSAGE, msgs.TF_STATIC_QOS)
             first_s = exported[0][0].recorded_s if exported else time.time()
-            static = motion.static_tf(session, clock(first_s), camera_mounts(recording))
+            static = motion.static_tf(session, clock(first_s), sensor_mounts(recording))
             channels.write(types.TF_STATIC, static, first_s, first_s)
             reported_s = time.monotonic()
             for done, (r, m) in enumerate(exported, 1):

@@ -12,9 +12,11 @@ import numpy as np
 from abyss.common.messages import (
     ArmGoal,
     ArmVelocityRef,
+    Image,
     JointState,
     NavState,
     OperatorMode,
+    SonarImage,
     Telemetry,
     VelocityRef,
     Waypoints,
@@ -142,9 +144,10 @@ def operator_mode(mode: OperatorMode, head: Any, session: Session) -> Any:
     return ROS["std_msgs/msg/String"](data=mode.mode)
 
 
-def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndarray]) -> Any:
-    """/tf_static: the arm's fixed links, and each camera's optical frame on the vehicle from its
-    mounting (`Image.pose_camera` as the simulation sends it: x, y, z, w, x, y, z in base_link)."""
+def static_tf(session: Session, stamp_s: float, mounts: dict[str, np.ndarray]) -> Any:
+    """/tf_static: the arm's fixed links, and each sensor's frame on the vehicle from its mounting
+    (`mounts`: a frame's name, a camera's optical frame or the sonar's own, to its pose as the
+    simulation sends it: x, y, z, w, x, y, z in base_link; `sensor_mounts`)."""
     stamp = ros_time(stamp_s)
     arm = [
         transform_msg(stamp, parent, child, translation, rotation)
@@ -152,8 +155,18 @@ def static_tf(session: Session, stamp_s: float, camera_mounts: dict[str, np.ndar
             np.zeros(len(session.robot.arm_joints)), 0.0, moving=False
         )
     ]
-    cameras = [
-        transform_msg(stamp, BASE_LINK, optical_frame(camera), pose[:3], pose[3:])
-        for camera, pose in sorted(camera_mounts.items())
+    sensors = [
+        transform_msg(stamp, BASE_LINK, frame, pose[:3], pose[3:]) for frame, pose in sorted(mounts.items())
     ]
-    return tf_msg(arm + cameras)
+    return tf_msg(arm + sensors)
+
+
+def sensor_mount(message: Any) -> tuple[str, np.ndarray] | None:
+    """A sensor's frame and its pose on the vehicle from a message the simulation sent (a camera's
+    Image: its optical frame; the sonar's SonarImage: the frame named as the sonar, which its
+    images' headers name); None for another message or one posed elsewhere."""
+    if isinstance(message, Image) and message.pose_frame == "vehicle":
+        return optical_frame(message.camera), message.pose_camera
+    if isinstance(message, SonarImage) and message.pose_frame == "vehicle":
+        return message.sonar, message.pose_sonar
+    return None

@@ -263,6 +263,12 @@ def test_poses_joints_and_transforms_are_the_recorded_ones_in_ros_frames(
         assert mount.header.frame_id == "base_link"
         np.testing.assert_allclose(xyz(mount.transform.translation), first.pose_camera[:3])
         np.testing.assert_allclose(wxyz(mount.transform.rotation), first.pose_camera[3:])
+    # and the sonar's frame, which its images' headers name, from its mounting likewise
+    ping = recorded(recording, "simulation/sonar")[0]
+    mount = static[ping.sonar]
+    assert mount.header.frame_id == "base_link" and ping.sonar == ROBOT.sonar_site
+    np.testing.assert_allclose(xyz(mount.transform.translation), ping.pose_sonar[:3])
+    np.testing.assert_allclose(wxyz(mount.transform.rotation), ping.pose_sonar[3:])
 
     ref = recorded(recording, "onboard/cmd/vehicle_velocity")
     twists = decoded["/abyss/onboard/cmd/vehicle_velocity"]

@@ -64,6 +64,10 @@ def test_a_urdf_robot_of_its_own_flies_its_waypoints_and_exports_its_names(
     assert mission["done"] and mission["waypoints_total"] == 3 and mission["waypoint_index"] == 3, mission
     config = json.loads((tmp_path / "run" / "config.json").read_text())
     assert Path(config["simulation"]["robot"]) == package.directory.resolve()
+    robot = summary["robot"]  # the package and the names the stations learnt from it
+    assert Path(robot["package"]) == package.directory.resolve() and robot["sonar"] == "fls"
+    assert robot["arm_joints"] == list(package.arm_joints) and robot["cameras"] == list(package.cameras)
+    assert summary["stations"]["simulation"]["sent"].get(f"abyss/{summary['system']}/simulation/sonar", 0) > 0
     assert {"panel", "gate", "throttle"} <= set(
         summary["scene"]["objects"]
     )  # recognised, by its parts' names
@@ -73,7 +77,7 @@ def test_a_urdf_robot_of_its_own_flies_its_waypoints_and_exports_its_names(
     with next((tmp_path / "run").glob("*.mcap")).open("rb") as stream:
         reader = make_reader(stream, decoder_factories=[DecoderFactory()])
         for _, channel, _, message in reader.iter_decoded_messages(
-            topics=["/abyss/simulation/joints", "/tf"]
+            topics=["/abyss/simulation/joints", "/tf", "/tf_static"]
         ):
             if channel.topic == "/abyss/simulation/joints":
                 names.add(tuple(message.name))
@@ -81,3 +85,4 @@ def test_a_urdf_robot_of_its_own_flies_its_waypoints_and_exports_its_names(
                 frames |= {t.child_frame_id for t in message.transforms}
     assert names == {(*package.arm_joints, *package.gripper_joints)}
     assert {"boom", "stick", "wrist", "hand"} <= frames and not {"arm_link1", "arm_base"} & frames, frames
+    assert {"base_link", "fls", "eye_l_optical_frame"} <= frames, frames  # the sonar's frame too

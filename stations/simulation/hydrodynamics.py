@@ -47,6 +47,28 @@ class VehicleModel:
     thrusters: ThrusterSpec
 
 
+# the marine sections' fields (the robot package's robot.toml, or simulation.vehicle_file): each
+# with what it holds; docs/vehicle.md lists them with their units
+MARINE_FIELDS = {
+    "added_mass": {
+        "diagonal": "6 numbers [kg, kg, kg, kg m^2, kg m^2, kg m^2]",
+        "matrix": "36 numbers, row by row, M_A about the body origin",
+    },
+    "damping": {
+        "linear": "6 numbers [N s/m, N m s/rad]",
+        "quadratic": "6 numbers [N s^2/m^2, N m s^2/rad^2]",
+    },
+    "buoyancy": {"volume_m3": "the displaced volume [m^3]", "centre_m_body": "3 numbers [m, body]"},
+    "thrusters": {
+        "names": "the model's thruster sites and motors, in allocation order",
+        "time_constant_s": "the rotor's first-order lag [s]",
+        "deadband": "the command share [0, 0.5) below which the rotor does not turn",
+        "forward_max_n": "the thrust at full command ahead [N]",
+        "reverse_max_n": "the thrust at full command astern [N]",
+    },
+}
+
+
 def load_vehicle(path: Path) -> VehicleModel:
     """Read a vehicle file; a missing or bad field raises ConfigError naming the file and field."""
     try:
@@ -75,6 +97,18 @@ def load_vehicle(path: Path) -> VehicleModel:
             )
         return value
 
+    for section, allowed in MARINE_FIELDS.items():
+        table = doc.get(section, {})
+        if not isinstance(table, dict):
+            raise ConfigError(section, f"a table of {', '.join(allowed)}", str(path))
+        for key in table:
+            if key not in allowed:
+                shown = "; ".join(f"{name} ({what})" for name, what in allowed.items())
+                raise ConfigError(f"{section}.{key}", f"not a field of [{section}]: {shown}", str(path))
+    if len({"diagonal", "matrix"} & set(doc.get("added_mass", {}))) != 1:
+        raise ConfigError(
+            "added_mass", "needs one of diagonal (6 numbers) or matrix (36, row by row)", str(path)
+        )
     mass = (
         numbers("added_mass", "diagonal", (6, 36), True)
         if "diagonal" in doc.get("added_mass", {})

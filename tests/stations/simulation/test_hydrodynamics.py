@@ -250,6 +250,10 @@ def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_pat
         ("deadband = 0.05", "deadband = 0.9", "thrusters.deadband"),
         ("linear = [86.6, ", "linear = [", "damping.linear"),
         ("time_constant_s = 0.2\n", "", "thrusters.time_constant_s"),
+        # a misspelt field is refused by its name, with the fields there are (a misspelt `diagonal`
+        # said `added_mass.matrix: needs 36 numbers`)
+        ("diagonal = [", "diagnoal = [", "added_mass.diagnoal"),
+        ("[damping]\n", "[damping]\ncubic = [0, 0, 0, 0, 0, 0]\n", "damping.cubic"),
     ):
         assert old in text
         bad = tmp_path / "vehicle.toml"
@@ -257,6 +261,9 @@ def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_pat
         with pytest.raises(ConfigError) as error:
             load_vehicle(bad)
         assert error.value.field == field and str(bad) in str(error.value)
+        if field in ("added_mass.diagnoal", "damping.cubic"):  # with the fields there are
+            assert "not a field of [" in error.value.reason
+            assert "diagonal (6 numbers" in error.value.reason or "linear (6 numbers" in error.value.reason
 
 
 def test_both_shipped_vehicle_files_load() -> None:

@@ -477,6 +477,14 @@ def _check_cameras(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
             raise ConfigError(where, f"{', '.join(strays)} not one of {', '.join(cameras.names)}", str(path))
     if cameras.stereo[0] == cameras.stereo[1]:
         raise ConfigError("cameras.stereo", "needs two cameras, left then right", str(path))
+    unnamed = [n for n in _names(model, "camera") if n not in cameras.names]
+    if unnamed:  # it would never render: taken silently, a camera meant for the pair looks lost
+        raise ConfigError(
+            "cameras.names",
+            f"the model's camera {', '.join(unnamed)} is not named here: every camera of the model is "
+            "the stereo pair's left or right or the depth camera (or leave it out of the model)",
+            str(path),
+        )
     roleless = [n for n in cameras.names if n not in (*cameras.stereo, cameras.depth)]
     if roleless:
         raise ConfigError(

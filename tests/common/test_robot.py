@@ -90,6 +90,13 @@ BROKEN = {  # one change each: (robot.toml's text, what it becomes, the field na
         "cameras.names",
         "cam_sonar",
     ),
+    "a camera of the model left out of the names": (  # it was taken silently, and never rendered
+        'names = ["cam_left", "cam_right", "cam_depth"]  # published in this order\n'
+        'stereo = ["cam_left", "cam_right"]  # left, right: a 0.12 m baseline\ndepth = "cam_depth"',
+        'names = ["cam_left", "cam_right"]\nstereo = ["cam_left", "cam_right"]\ndepth = "cam_right"',
+        "cameras.names",
+        "cam_depth is not named here",
+    ),
     "a depth camera not among the cameras": (
         'depth = "cam_depth"',
         'depth = "cam_range"',

@@ -76,6 +76,7 @@ class Onboard:
             gripper.opening_m, self.robot.closed_gap_m, site_of(config).panel.handle_thickness_m
         )
         self.nav_filter = NavFilter(cfg)
+        self.joints_s: float | None = None  # the latest joints' time (a stale one does not move it)
         self.failsafe = Failsafe(
             cfg.goal_timeout_s,
             cfg.hold_on_shore_loss,
@@ -162,6 +163,9 @@ class Onboard:
             self.sim_time_s = nav.sim_time_s
             if self.position_m_world is not None and self.nav_filter.settled:  # else frames wait
                 out.poses.append((nav.sim_time_s, self.position_m_world.copy(), self.orientation_wxyz_world))
+        if inputs.joints is not None and inputs.joints.sim_time_s != self.joints_s:
+            self.failsafe.jointed(now_s)
+            self.joints_s = inputs.joints.sim_time_s
         if self.position_m_world is None or inputs.joints is None:
             return out
         self._control(inputs.joints, now_s, out)
@@ -200,8 +204,11 @@ class Onboard:
         if self.failsafe.blind:  # no navigation: stopped, not steered by an estimate gone still
             sent = out.vehicle = VelocityRef(np.zeros(3), 0.0)
             out.arm = ArmVelocityRef(np.zeros(len(arm_rad)), 0.0)
+        armless = self.failsafe.arm_check(now_s)
+        if armless:  # the joints stopped: the arm is not driven on from its last ones
+            out.arm = ArmVelocityRef(np.zeros(len(arm_rad)), 0.0)
         if self.tick % self.every == 0:
-            out.telemetry = self._telemetry(v, a, joints, hold, sent)
+            out.telemetry = self._telemetry(v, a, joints, hold or armless, sent)
 
     def _gripper_mps(self, intervention_mps: float | None, a: ArmOutput, joints: JointState) -> float:
         """The gripper's speed [m/s]: the intervention's; without one, opened while the arm

@@ -35,7 +35,6 @@ if TYPE_CHECKING:
     from abyss.stations.simulation.offload import SensorKind
 
 PLACE_PERIOD_S = 0.01  # how often the twin takes what the vehicle sent: the delay it adds, at most
-SAY_EVERY_S = 10.0  # a twin still without navigation says so again this often
 log = logging.getLogger(__name__)
 
 
@@ -88,9 +87,9 @@ class Twin:
         if self.joints_arrived_s is None:
             return "no joints from the real vehicle yet"
         if now_s - self.nav_arrived_s > age:
-            return f"the navigation is {now_s - self.nav_arrived_s:.1f} s old (hybrid.nav_max_age_s {age:g})"
+            return f"the navigation is older than hybrid.nav_max_age_s ({age:g} s)"
         if now_s - self.joints_arrived_s > age:
-            return f"the joints are {now_s - self.joints_arrived_s:.1f} s old (hybrid.nav_max_age_s {age:g})"
+            return f"the joints are older than hybrid.nav_max_age_s ({age:g} s)"
         return ""
 
     def cameras(self, cameras: tuple[str, ...]) -> tuple[str, ...]:
@@ -152,7 +151,7 @@ def _place(bus: Bus, twin: Twin, lock: threading.Lock, blackout: set[str]) -> No
     control_key = keys.simulation_control_key(bus.system)
     controls = bus.subscribe_key(control_key, SimulationControl)
     rate = bus.loop("placement", PLACE_PERIOD_S)
-    said, said_at = "", -SAY_EVERY_S
+    said, said_at = "", 0.0  # what the twin last said of its freshness, and when
     status_at = time.monotonic()
     while rate.sleep():
         now_s = bus.clock.now_s()
@@ -167,10 +166,14 @@ def _place(bus: Bus, twin: Twin, lock: threading.Lock, blackout: set[str]) -> No
             why = twin.why_not(now_s)
         for control in controls.drain():
             _fault(bus, control.message, blackout, control_key)
-        if why != said or (why and now_s - said_at >= SAY_EVERY_S):
-            log.warning("twin: %s; its sensors render nothing", why) if why else log.info(
-                "twin: navigation and joints fresh; its sensors render at the real vehicle's pose"
-            )
+        if why != said:  # once as it begins, once as it ends with how long it lasted
+            if why:
+                log.warning("twin: %s; its sensors render nothing", why)
+            else:
+                log.info(
+                    "twin: navigation and joints fresh%s; its sensors render at the real vehicle's pose",
+                    f" after {now_s - said_at:.1f} s" if said else "",
+                )
             said, said_at = why, now_s
         if time.monotonic() - status_at >= 1.0:
             status_at = time.monotonic()

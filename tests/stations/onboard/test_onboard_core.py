@@ -5,10 +5,12 @@ link must still trip the failsafe, and the vehicle must go on once the link retu
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from abyss.common.config import Config, load
 from abyss.common.linkprofile import profile
 from abyss.common.messages import (
+    ArmGoal,
     CommandAck,
     Heartbeat,
     InterventionGoal,
@@ -124,7 +126,6 @@ def test_a_real_vehicle_whose_navigation_stops_is_stopped_not_steered_by_the_las
     config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
     core = Onboard(config)
     core.step(OnboardInputs(commands=[Waypoints(1, ((20.0, 0.0, -5.0, 0.0),))]), 0.0)
-    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
     speeds: dict[float, float] = {}
     for step in range(int(4.0 / STEP_S)):
         now_s = step * STEP_S
@@ -132,6 +133,7 @@ def test_a_real_vehicle_whose_navigation_stops_is_stopped_not_steered_by_the_las
         nav = NavState(
             np.array([0.0, 0.0, -5.0]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3), now_s, now_s, 5.0
         )
+        joints = JointState(np.zeros(6), np.zeros(6), 0.0, now_s)  # its joints come on
         out = core.step(OnboardInputs(nav=[] if silent else [nav], joints=joints), now_s)
         assert out.vehicle is not None
         speeds[round(now_s, 3)] = float(np.linalg.norm(out.vehicle.linear_mps_body))
@@ -148,10 +150,10 @@ def test_the_effort_told_is_what_was_sent_zero_in_the_blind_stop() -> None:
     config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
     core = Onboard(config)
     core.step(OnboardInputs(commands=[OperatorMode(1, "hold")]), 0.0)
-    joints = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)
     efforts: dict[float, np.ndarray] = {}
     for step in range(int(3.0 / STEP_S)):
         now_s = step * STEP_S
+        joints = JointState(np.zeros(6), np.zeros(6), 0.0, now_s)
         yaw_rad = 0.0 if now_s < 0.5 else 0.5  # turned at 0.5 s
         attitude = np.array([np.cos(yaw_rad / 2), 0.0, 0.0, np.sin(yaw_rad / 2)])
         nav = NavState(np.array([0.0, 0.0, -5.0]), attitude, np.zeros(3), np.zeros(3), now_s, now_s, 5.0)
@@ -161,3 +163,45 @@ def test_the_effort_told_is_what_was_sent_zero_in_the_blind_stop() -> None:
     assert efforts[1.4][3] < -0.05  # turning back to the held heading
     blind = [e for t, e in efforts.items() if t >= 1.5 + config.hybrid.nav_max_age_s + STEP_S]
     assert blind and not np.any(blind)
+
+
+def test_a_real_vehicles_joints_that_stop_stop_the_arm_and_say_so_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A hybrid run whose vehicle sends joints of the wrong count (dropped: the latest valid ones
+    stay) or none: onboard commanded the arm from its last joints while the real one moved (the
+    elbow's command grew from 0.10 to 0.20 rad/s). Past hybrid.nav_max_age_s without a new valid
+    JointState the arm is sent zeros, the vehicle flying on, the failsafe told in the telemetry
+    and logged once as it begins and once as it ends; new joints drive the arm again. (The arm
+    here follows its commands exactly; the navigation settles in about 17 s of fixes.)"""
+    config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
+    core = Onboard(config)
+    goal = ArmGoal(1, np.array([1.26, 0.0, -5.0]), np.array([1.0, 0, 0, 0]))  # ahead, within reach
+    joints_rad = np.array(core.robot.stowed_rad)
+    arm: dict[float, float] = {}
+    told: dict[float, str] = {}
+    stall_s = (19.0, 20.5)  # no new joints for 1.5 s (the last ones stay), the arm on its way
+    with caplog.at_level("INFO", logger="abyss.stations.onboard.failsafe"):
+        for step in range(int(23.0 / STEP_S)):
+            now_s = step * STEP_S
+            if not stall_s[0] <= now_s < stall_s[1]:
+                joints = JointState(joints_rad.copy(), np.zeros(len(joints_rad)), 0.0, now_s)
+            here = NavState(np.array([0.0, 0.0, -5.0]), np.array([1.0, 0, 0, 0]), np.zeros(3), np.zeros(3),
+                            sim_time_s=now_s, usbl_time_s=np.floor(now_s), depth_m=5.0)  # fmt: skip
+            commands = [goal] if step % 20 == 0 else []  # resent until answered
+            out = core.step(OnboardInputs(commands=commands, nav=[here], joints=joints), now_s)
+            assert out.arm is not None and out.vehicle is not None
+            joints_rad = joints_rad + out.arm.joint_velocities_radps * STEP_S  # the arm follows
+            arm[round(now_s, 3)] = float(np.abs(out.arm.joint_velocities_radps).max())
+            if out.telemetry is not None:
+                told[round(now_s, 3)] = out.telemetry.failsafe
+    bound_s = config.hybrid.nav_max_age_s
+    assert arm[round(stall_s[0] - STEP_S, 3)] > 0.01  # on its way to the goal from the joints it is sent
+    stalled = [v for t, v in arm.items() if stall_s[0] + bound_s + STEP_S <= t < stall_s[1]]
+    assert stalled and max(stalled) == 0.0
+    assert arm[round(stall_s[1] + STEP_S, 3)] > 0.01 and core.failsafe.events == 1  # driven again
+    assert any("no valid joints" in why for t, why in told.items() if stall_s[0] + bound_s < t < stall_s[1])
+    assert not told[max(told)]  # over once they came again
+    begun = [r for r in caplog.records if "no valid joints" in r.getMessage()]
+    ended = [r for r in caplog.records if "failsafe over (arm)" in r.getMessage()]
+    assert len(begun) == 1 and len(ended) == 1

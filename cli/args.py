@@ -111,7 +111,12 @@ def load_config(
     for name, field in (("robot", "simulation.robot"), ("site", "simulation.site")):
         if getattr(args, name, ""):
             option(f"--{name}", field, getattr(args, name))
-    if getattr(args, "hybrid", None):
+    hybrid = getattr(args, "hybrid", None)
+    if hybrid is not None and not hybrid.strip(","):
+        raise ConfigError(
+            "--hybrid", "names what the real vehicle provides, e.g. nav,joints (`abyss keys --hybrid`)"
+        )
+    if hybrid:
         option("--hybrid", "hybrid.vehicle", json.dumps(args.hybrid.split(",")))
     if getattr(args, "site_pose", None):
         x, y, z, heading_rad = site_pose(args.site_pose)
@@ -125,7 +130,10 @@ def load_config(
         option("--profile", f"links.{keys.check_hop(hop)}", name)
     for station, cores in pairs("--cpu", getattr(args, "cpu", [])):
         option("--cpu", f"cpu.{keys.check_station(station)}", cores)
-    return load(args.config or default, overrides, base=base, options=options)
+    config = load(args.config or default, overrides, base=base, options=options)
+    if getattr(args, "site_pose", None) and not config.hybrid.on:
+        raise ConfigError("--site-pose", "places the site for a real vehicle: it goes with --hybrid")
+    return config
 
 
 def site_pose(text: str) -> tuple[float, float, float, float]:

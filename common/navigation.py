@@ -94,8 +94,11 @@ class NavFilter:
         """The estimate after one message: position [m, world] (None before the first fix),
         orientation (w, x, y, z)."""
         dt = 0.0 if self._stamp_s is None else nav.sim_time_s - self._stamp_s
-        if not 0.0 <= dt <= MAX_GAP_S:
-            log.info("navigation restarted: %.2f s between messages", dt)
+        if not 0.0 <= dt <= MAX_GAP_S:  # the vehicle's navigation (or the simulation) restarted
+            log.warning(
+                "navigation %s: the estimate starts afresh (docs/hybrid.md, the message's time)",
+                f"went back {-dt:.2f} s" if dt < 0 else f"was silent {dt:.2f} s",
+            )
             self.restart()
             dt = 0.0
         if self._stamp_s is None:

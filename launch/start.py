@@ -255,7 +255,7 @@ def viewer_line(cfg: OnshoreConfig) -> str:
         "web": f"abyss: web viewer at {web_viewer_url(cfg.viewer_web_port, cfg.viewer_grpc_port)} "
         f"(recording to {recording})",
         "spawn": f"abyss: rerun viewer spawned (recording to {recording})",
-        "none": "abyss: no viewer, no recording",
+        "none": "abyss: no rerun viewer, no rerun recording (the bus recording, --record, is apart)",
     }[cfg.viewer]
 
 

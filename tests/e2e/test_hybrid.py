@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from conftest import RECORDED_MISSION, ROOT, Up
+from conftest import RECORDED_MISSION, ROOT, Up, abyss
 from maps import agreement, occupied
 
 from abyss.common import keys
@@ -156,3 +156,24 @@ def test_the_twin_renders_nothing_without_navigation_and_stops_within_the_bound_
         log.close()
     twin = json.loads((tmp_path / "status.json").read_text())["about"]["twin"]
     assert twin["frames"] >= 2 and twin["withheld"] >= 6, twin  # frame sets: left and depth (and right)
+
+
+def test_a_hybrid_run_that_keeps_the_interventions_is_warned_and_flags_without_it_are_refused(
+    tmp_path: Path,
+) -> None:
+    """The default mission's interventions started on a site with no real handle failed three
+    grasps, with no word at start; `--site-pose` without `--hybrid`, and `--hybrid ''`, ran an
+    all-simulated run silently."""
+    common = ("--duration", "2", "--viewer", "none", "--port", "0")
+    run = abyss("up", "--hybrid", "nav,joints", *common, "--out", str(tmp_path / "run"), timeout_s=120)
+    assert run.returncode == 3, run.stdout + run.stderr  # incomplete: no vehicle came in 2 s
+    assert "abyss: warning: a hybrid run keeps the mission's interventions (valve_1, lever_0)" in run.stderr
+    quiet = abyss(
+        "up", "--hybrid", "nav,joints", "--set", "mission.interventions=[]", *common,
+        "--out", str(tmp_path / "quiet"), timeout_s=120,
+    )  # fmt: skip
+    assert quiet.returncode == 3 and "warning" not in quiet.stderr, quiet.stderr
+    for args, says in ((["--site-pose", "1,2,3,90"], "--site-pose: places the site for a real vehicle"),
+                       (["--hybrid", ""], "--hybrid: names what the real vehicle provides")):  # fmt: skip
+        refused = abyss("up", *args, "--out", str(tmp_path / "refused"))
+        assert refused.returncode == 2 and says in refused.stderr and not (tmp_path / "refused").exists()

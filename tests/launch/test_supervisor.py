@@ -154,7 +154,9 @@ def test_a_ros2_gateway_for_an_external_station_is_refused(tmp_path: Path) -> No
 
 def test_viewer_line_names_where_to_look(tmp_path: Path) -> None:
     onshore = Config(system="unit").onshore
-    assert viewer_line(dataclasses.replace(onshore, viewer="none")) == "abyss: no viewer, no recording"
+    assert viewer_line(dataclasses.replace(onshore, viewer="none")) == (
+        "abyss: no rerun viewer, no rerun recording (the bus recording, --record, is apart)"
+    )
     saved = viewer_line(dataclasses.replace(onshore, viewer="save", record_dir=str(tmp_path)))
     assert str(tmp_path) in saved and saved.startswith("abyss: recording to ")
 

@@ -34,8 +34,10 @@ def cmd_up(args: argparse.Namespace) -> int:
     if args.duration is not None and not 0 < args.duration <= 1e6:
         raise ConfigError("--duration", f"{args.duration:g} s: a positive number of seconds, at most 1e6")
     config = up_config(args, load_config(args))
-    if config.hybrid.on and config.mission.interventions and not any(
-        s.startswith("mission.interventions=") for s in args.set
+    if (
+        config.hybrid.on
+        and config.mission.interventions
+        and not any(s.startswith("mission.interventions=") for s in args.set)
     ):
         print(
             "abyss: warning: a hybrid run keeps the mission's interventions "

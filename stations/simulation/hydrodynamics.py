@@ -69,6 +69,22 @@ MARINE_FIELDS = {
 }
 
 
+def _check_marine_fields(doc: dict[str, Any], path: Path) -> None:
+    """Each marine section a table of its own fields alone (MARINE_FIELDS); one added mass."""
+    for section, allowed in MARINE_FIELDS.items():
+        table = doc.get(section, {})
+        if not isinstance(table, dict):
+            raise ConfigError(section, f"a table of {', '.join(allowed)}", str(path))
+        for key in table:
+            if key not in allowed:
+                shown = "; ".join(f"{name} ({what})" for name, what in allowed.items())
+                raise ConfigError(f"{section}.{key}", f"not a field of [{section}]: {shown}", str(path))
+    if len({"diagonal", "matrix"} & set(doc.get("added_mass", {}))) != 1:
+        raise ConfigError(
+            "added_mass", "needs one of diagonal (6 numbers) or matrix (36, row by row)", str(path)
+        )
+
+
 def load_vehicle(path: Path) -> VehicleModel:
     """Read a vehicle file; a missing or bad field raises ConfigError naming the file and field."""
     try:
@@ -97,18 +113,7 @@ def load_vehicle(path: Path) -> VehicleModel:
             )
         return value
 
-    for section, allowed in MARINE_FIELDS.items():
-        table = doc.get(section, {})
-        if not isinstance(table, dict):
-            raise ConfigError(section, f"a table of {', '.join(allowed)}", str(path))
-        for key in table:
-            if key not in allowed:
-                shown = "; ".join(f"{name} ({what})" for name, what in allowed.items())
-                raise ConfigError(f"{section}.{key}", f"not a field of [{section}]: {shown}", str(path))
-    if len({"diagonal", "matrix"} & set(doc.get("added_mass", {}))) != 1:
-        raise ConfigError(
-            "added_mass", "needs one of diagonal (6 numbers) or matrix (36, row by row)", str(path)
-        )
+    _check_marine_fields(doc, path)
     mass = (
         numbers("added_mass", "diagonal", (6, 36), True)
         if "diagonal" in doc.get("added_mass", {})

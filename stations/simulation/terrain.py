@@ -156,7 +156,7 @@ def write_cloud(points_m: np.ndarray, path: Path) -> None:
     if path.suffix.lower() not in CLOUD_SUFFIXES:
         raise TerrainError(f"{path}: a point cloud file is named .ply, .pcd or .xyz")
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m))
-    if not o3d.io.write_point_cloud(str(path), cloud):
+    if not o3d.io.write_point_cloud(path, cloud):
         raise TerrainError(f"{path}: could not be written (does its directory exist?)")
 
 

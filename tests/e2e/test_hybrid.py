@@ -142,7 +142,7 @@ def test_the_twin_renders_nothing_without_navigation_and_stops_within_the_bound_
         text = (tmp_path / "station.log").read_text()
         assert "twin: the navigation is older than hybrid.nav_max_age_s" in text, text
         assert text.count("its sensors render nothing") == 2, text  # said once: no navigation yet, then stale
-        assert "twin: navigation and joints fresh;" in text  # when they first came
+        assert "twin: navigation and joints fresh after" in text  # when they first came, how long it waited
         with frames.lock:
             late_s = max(frames.stamps) - sent_s
         # a frame set is decided on before it renders (up to a second here, loaded)

@@ -39,12 +39,14 @@ class ArmFrames:
         }
         frames = self.model.frames
         self.vehicle = self.model.getFrameId(robot.base, pin.FrameType.BODY)
-        # (parent body, child, moving): each body on the vehicle, and the tool point
+        # (parent body, child, moving): each body on the vehicle, the tool point and the navigation
+        # sensors' sites (the cameras' and the sonar's frames come from their messages' mountings)
         self.links: list[tuple[int, int, bool]] = []
+        sites = {robot.end_effector_site, *robot.nav_sensor_names}
         for i, frame in enumerate(frames):
-            if (
-                frame.type == pin.FrameType.BODY and i != self.vehicle
-            ) or frame.name == robot.end_effector_site:
+            if (frame.type == pin.FrameType.BODY and i != self.vehicle) or (
+                frame.type == pin.FrameType.OP_FRAME and frame.name in sites
+            ):
                 parent = frame.parentFrame
                 while frames[parent].type != pin.FrameType.BODY:  # past the joint's own frame
                     parent = frames[parent].parentFrame

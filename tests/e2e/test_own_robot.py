@@ -86,3 +86,4 @@ def test_a_urdf_robot_of_its_own_flies_its_waypoints_and_exports_its_names(
     assert names == {(*package.arm_joints, *package.gripper_joints)}
     assert {"boom", "stick", "wrist", "hand"} <= frames and not {"arm_link1", "arm_base"} & frames, frames
     assert {"base_link", "fls", "eye_l_optical_frame"} <= frames, frames  # the sonar's frame too
+    assert {"beacon", "doppler", "ahrs", "baro"} <= frames, frames  # and the navigation sensors' sites

@@ -29,6 +29,14 @@ had verified by the period before), so a restarted station, whose counts start a
 neighbours agree again. Each station flushes its recording before a hold, so that one killed in it
 leaves every message it sent.
 
+A hold may also be added during the run (`time.phase_holds`: an event timed on an intervention's
+phase, which no one knows in advance). The scenario runner then leases the simulation too
+(`PHASE_LEASE`): it runs only the periods before the runner's lease, which the runner keeps short
+of any period a hold could still be added at; the testbed tells every station the holds added
+so far (phase `HOLDS`), each one takes them and reports how many it has, and the runner leases
+past a hold only once every station has it. So an added hold is known to every station before
+any reaches it, and lands on its period as a hold given at the start does.
+
 Under `abyss up` (its pid in `SUPERVISOR_ENV`) the simulation is leased: it runs only the periods
 before the testbed's lease (`lockstep_testbed.Lease`, a release that carries `LEASE`), and holds
 before the first period past it, as at a hold but unseen by the other stations (no epoch begins, no
@@ -72,6 +80,9 @@ WAIT_WARN_WALL_S = 10.0  # a wait this long is logged (a station gone, or not up
 # a simulation started so runs the periods the supervisor leases it (`Lease`)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"
 LEASE = "lease"  # a testbed's release with this in `delivered` is a lease: the periods before it
+# and with this, the scenario runner's lease while it waits for intervention phases (time.phase_holds)
+PHASE_LEASE = "phase lease"
+HOLDS = "holds"  # the testbed's holds added during the run (report phase), and each station's count
 ENDLESS_S = 1e9  # a lease that never ends [simulated s] (a message's times are finite)
 
 
@@ -245,10 +256,14 @@ class Lockstep:
         before_hold: Callable[[], None] = lambda: None,
         listens: Iterable[str] = ("*",),
         leased: bool | None = None,
+        phase_leased: bool = False,
     ) -> None:
         self.system, self.station, self.clock, self.stop = system, station, clock, stop
         self.leased = (station == "simulation" and SUPERVISOR_ENV in os.environ) if leased is None else leased
         self._lease_s = 0.0  # leased: it runs the periods before this
+        self.phase_leased = phase_leased  # and before the scenario runner's lease (see the module)
+        self._phase_lease_s = 0.0
+        self._added_s: tuple[float, ...] = ()  # the holds the testbed added during the run
         self.holds_s, self.period_s, self.end_s = holds_s, period_s, end_s
         self.boot, self.before_hold = boot, before_hold
         self._ahead_s = -math.inf  # the period whose deliveries were made ahead (deliver_ahead)
@@ -281,6 +296,13 @@ class Lockstep:
             if station == TESTBED and report.phase == "release" and LEASE in report.delivered:
                 self._lease_s = max(self._lease_s, report.sim_time_s)
                 self._cond.notify_all()
+                return
+            if station == TESTBED and report.phase == "release" and PHASE_LEASE in report.delivered:
+                self._phase_lease_s = max(self._phase_lease_s, report.sim_time_s)
+                self._cond.notify_all()
+                return
+            if station == TESTBED and report.phase == HOLDS:
+                self._add_holds(tuple(report.delivered.values()))
                 return
             before = self._reports.get((station, report.phase))
             if before is None or report.sim_time_s >= before[0]:
@@ -341,9 +363,27 @@ class Lockstep:
         """True if period `t_s` is a hold's: the first at or after one of `holds_s` (an epoch's first)."""
         return hold_period(t_s, self.holds_s, self.period_s)
 
+    def _add_holds(self, added_s: tuple[float, ...]) -> None:
+        """The testbed's holds added during the run (all of them, each time: a station that
+        started later hears them too), before this station reaches any (see the module): taken
+        into its holds, and their count reported, which the testbed waits for before it leases on."""
+        with self._cond:
+            if len(added_s) > len(self._added_s):
+                self._added_s = added_s
+                self.holds_s = tuple(sorted(set(self.holds_s) | set(added_s)))
+            count = float(len(self._added_s))
+        # told from a thread of its own: a blocking publisher is not for Zenoh's callback
+        threading.Thread(target=self._report_holds, args=(count,), name="lockstep holds", daemon=True).start()
+
+    def _report_holds(self, count: float) -> None:
+        if not self.stop.is_set():
+            self.report(count, HOLDS)
+
     def leased_to(self, t_s: float) -> bool:
-        """True if this station may run period `t_s`: not leased, or the lease goes past it."""
-        return not self.leased or t_s < self._lease_s - TICK_TOLERANCE_S
+        """True if this station may run period `t_s`: not leased, or the leases go past it."""
+        return (not self.leased or t_s < self._lease_s - TICK_TOLERANCE_S) and (
+            not self.phase_leased or t_s < self._phase_lease_s - TICK_TOLERANCE_S
+        )
 
     def hold_at(self, t_s: float) -> bool:
         """True if the simulation holds before period `t_s`: a hold's, or one its lease does not

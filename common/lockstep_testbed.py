@@ -15,7 +15,7 @@ import zenoh
 
 from abyss.common.clock import POLL_WALL_S, Reject
 from abyss.common.errors import AbyssError
-from abyss.common.lockstep import LEASE, REPEAT_WALL_S, TESTBED, TICK_TOLERANCE_S, declare_reports
+from abyss.common.lockstep import HOLDS, LEASE, REPEAT_WALL_S, TESTBED, TICK_TOLERANCE_S, declare_reports
 from abyss.common.messages import LockstepReport, encode
 
 
@@ -29,6 +29,9 @@ class Holds:
         self._boot: Counter[str] = Counter()  # each station's latest boot heard
         self._publisher, self._subscribers = declare_reports(session, system, TESTBED, self._take, reject)
         self._seq = 0
+        self._added_s: tuple[float, ...] = ()  # the holds this testbed added during the run
+        self._closed = threading.Event()
+        threading.Thread(target=self._repeat, name="testbed reports", daemon=True).start()
 
     def _take(self, station: str, report: LockstepReport) -> None:
         with self._cond:
@@ -36,6 +39,11 @@ class Holds:
                 self._boot[station] = report.boot
                 self._latest[(station, report.phase)] = report
                 self._cond.notify_all()
+
+    def poke(self) -> None:
+        """Wake a `wait` to look again (something it looks at changed outside the reports)."""
+        with self._cond:
+            self._cond.notify_all()
 
     def boot(self, station: str) -> int:
         with self._cond:
@@ -73,6 +81,44 @@ class Holds:
         assert report is not None
         return report
 
+    def add_hold(self, hold_s: float) -> None:
+        """A hold added during the run (common.lockstep): every station is told, now and every
+        REPEAT_WALL_S (a station restarted later hears it too); `have_holds` says when each has it."""
+        with self._cond:
+            self._added_s = (*self._added_s, hold_s)
+        self._tell_holds()
+
+    def _tell_holds(self) -> None:
+        with self._cond:
+            if not self._added_s:
+                return
+            message = LockstepReport(
+                sim_time_s=max(self._added_s),
+                phase=HOLDS,
+                delivered={str(i): h_s for i, h_s in enumerate(self._added_s)},
+                boot=0,
+            )
+            self._publisher.put(encode(message, self._seq, time.time()))
+            self._seq += 1
+
+    def have_holds(self, stations: tuple[str, ...]) -> bool:
+        """True once each of `stations` (its latest boot) has every hold this testbed added."""
+        with self._cond:
+            count = len(self._added_s)
+        return not count or all(
+            (r := self.reported(s, HOLDS, self.boot(s))) is not None and r.sim_time_s >= count
+            for s in stations
+        )
+
+    def added_holds_s(self) -> tuple[float, ...]:
+        """The holds a testbed (the scenario runner) added during the run, as this one heard them."""
+        report = self.reported(TESTBED, HOLDS)
+        return tuple(report.delivered.values()) if report is not None else ()
+
+    def _repeat(self) -> None:
+        while not self._closed.wait(REPEAT_WALL_S):
+            self._tell_holds()
+
     def release(self, t_s: float, alive: Callable[[], bool], timeout_s: float) -> None:
         """Let the simulation go on from its hold at `t_s`: told until it has delivered that period."""
         told_s = -math.inf
@@ -92,22 +138,27 @@ class Holds:
         self.wait(f"the simulation to go on from t={t_s:g} s", gone_on, alive, timeout_s)
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
-            subscriber.undeclare()
-        self._publisher.undeclare()
+        self._closed.set()
+        with self._cond:  # not while a repeat publishes
+            for subscriber in self._subscribers:
+                subscriber.undeclare()
+            self._publisher.undeclare()
 
 
 class Lease(Holds):
     """The testbed's lease of periods to a leased simulation (see the module): it runs the
     periods before `until_s`, which only grows; told at once when it grows and again by `tell`
     every REPEAT_WALL_S (a simulation that starts or restarts later hears it then). And, as
-    `Holds`, what each station reported last."""
+    `Holds`, what each station reported last. `key`: the supervisor's lease (LEASE) or the
+    scenario runner's (PHASE_LEASE)."""
 
-    def __init__(self, session: zenoh.Session, system: str, reject: Reject, until_s: float = 0.0) -> None:
-        super().__init__(session, system, reject)
+    def __init__(
+        self, session: zenoh.Session, system: str, reject: Reject, until_s: float = 0.0, key: str = LEASE
+    ) -> None:
         self._lease_lock = threading.Lock()
-        self.until_s = until_s
+        self.until_s, self.key = until_s, key
         self._told_wall_s = -math.inf
+        super().__init__(session, system, reject)
 
     def grant(self, until_s: float) -> None:
         """Lease the periods before `until_s` [simulated s] (a shorter lease changes nothing)."""
@@ -122,9 +173,14 @@ class Lease(Holds):
             if time.monotonic() - self._told_wall_s >= REPEAT_WALL_S:
                 self._tell()
 
+    def _repeat(self) -> None:
+        while not self._closed.wait(REPEAT_WALL_S):
+            self._tell_holds()
+            self.tell()
+
     def _tell(self) -> None:
         self._told_wall_s = time.monotonic()
-        message = LockstepReport(sim_time_s=self.until_s, phase="release", delivered={LEASE: 1.0}, boot=0)
+        message = LockstepReport(sim_time_s=self.until_s, phase="release", delivered={self.key: 1.0}, boot=0)
         self._publisher.put(encode(message, self._seq, time.time()))
         self._seq += 1
 

@@ -103,7 +103,7 @@ def _check_simulated(
                 "a real component or a replay runs on the wall clock, which "
                 "--time sim cannot speed up; use --time real with it",
             )
-    if config.time.mode == "lockstep" and restart and not config.time.holds_s:
+    if config.time.mode == "lockstep" and restart and not (config.time.holds_s or config.time.phase_holds):
         raise ConfigError(
             "--restart",
             "a station restarted mid-period leaves lockstep's counted periods behind: in lockstep "

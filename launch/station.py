@@ -29,7 +29,7 @@ from abyss.common.clock import WALL, Clock, ProgressReport, SimClock
 from abyss.common.clock import follow as clock_follow
 from abyss.common.config import Config
 from abyss.common.leave import STOP_BOUND_S, watch_the_stop
-from abyss.common.lockstep import Lockstep, LockstepClock
+from abyss.common.lockstep import TESTBED, Lockstep, LockstepClock
 from abyss.common.messages import repeatable_ids
 from abyss.common.workers import Workers, children_cpu_s, loops_first
 from abyss.linkemu.control import StationLinks
@@ -245,7 +245,10 @@ def station_lockstep(
         end_s=config.time.end_s,
         boot=int(os.environ.get(BOOT_ENV, "0")),
         before_hold=recorder.flush if recorder is not None else lambda: None,
-        listens=("*",) if name == "simulation" else tuple(keys.hops_of(name).values()),
+        listens=("*",)
+        if name == "simulation"
+        else (*keys.hops_of(name).values(), *((TESTBED,) if config.time.phase_holds else ())),
+        phase_leased=config.time.phase_holds and name == "simulation",
     )
     bus.on_arrival = lockstep.notify
     return lockstep

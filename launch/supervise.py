@@ -73,7 +73,7 @@ class LockstepEnd:
         if not self.stop_when_done or end_s is None or not self.lease.held_at(end_s):
             return False
         period_s, time_ = self.config.simulation.control_period_s, self.config.time
-        if hold_period(end_s, time_.holds_s, period_s) or (
+        if hold_period(end_s, (*time_.holds_s, *self.lease.added_holds_s()), period_s) or (
             time_.end_s and end_s >= time_.end_s - TICK_TOLERANCE_S
         ):
             return True  # no station delivers ahead into a hold's period, nor past the run's end

@@ -110,11 +110,17 @@ class TimeConfig:
     # testbed releases it (the scenario runner's timed events: a fault, a link change, a station
     # killed and restarted, each landing on its period; common.lockstep_testbed, Holds)
     holds_s: tuple[float, ...] = ()
+    # lockstep: the testbed adds holds during the run as well (the scenario runner's events timed on
+    # an intervention's phase), and the simulation runs only the periods the runner leases it
+    # meanwhile (common.lockstep, PHASE_LEASE)
+    phase_holds: bool = False
 
     def __post_init__(self) -> None:
         one_of("time.mode", self.mode, TIME_MODES)
         if self.holds_s and self.mode != "lockstep":
             raise ConfigError("time.holds_s", f"only with time.mode lockstep ({self.mode} has no holds)")
+        if self.phase_holds and self.mode != "lockstep":
+            raise ConfigError("time.phase_holds", f"only with time.mode lockstep ({self.mode} has no holds)")
         for hold_s in self.holds_s:
             positive("time.holds_s", hold_s, allow_zero=True)
         if self.speed != "max":

@@ -53,7 +53,7 @@ class SimTime(Message):
 # a station's: its links delivered (counts per key in this epoch), done with the period, ready
 # (its loops are all there: a restarted station may be let in); the simulation's: held before a
 # hold's period (`delivered`: {"controls": faults applied in the hold}); the testbed's: release
-LOCKSTEP_PHASES = ("delivered", "done", "ready", "held", "release")
+LOCKSTEP_PHASES = ("delivered", "done", "ready", "held", "release", "holds")
 
 
 @dataclass(frozen=True)
@@ -61,9 +61,11 @@ class LockstepReport(Message):
     """A station's progress through a lockstep period (common.lockstep) at `sim_time_s`: its links
     delivered what was due (`delivered`: messages per key in the epoch, since the last hold), it is
     done with the period, or ready to run its first; the simulation held at a hold, and the
-    testbed's release of it. `boot`: the sender's (0, then one more each restart)."""
+    testbed's release of it; the holds the testbed added during the run (`delivered`: their
+    times), and how many of them a station has (`sim_time_s`). `boot`: the sender's (0, then one
+    more each restart)."""
 
-    VERSION: ClassVar[int] = 2  # 2: boot, holds
+    VERSION: ClassVar[int] = 3  # 2: boot, holds; 3: holds added during the run
     sim_time_s: float = scalar(0.0)
     phase: str = scalar(choices=LOCKSTEP_PHASES)
     delivered: dict[str, float] = field(default_factory=dict)

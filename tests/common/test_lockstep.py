@@ -17,7 +17,7 @@ import pytest
 from abyss.common import lockstep as lockstep_module
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import load
-from abyss.common.lockstep import TESTBED, Lockstep, LockstepClock, hold_period
+from abyss.common.lockstep import PHASE_LEASE, TESTBED, Lockstep, LockstepClock, hold_period
 from abyss.common.lockstep_testbed import Lease
 from abyss.common.messages import MissionStatus
 from abyss.common.ports import free_port
@@ -29,8 +29,12 @@ PERIOD_S = 0.05
 
 
 @pytest.fixture
-def sessions() -> Iterator[tuple[object, object]]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def sessions(endpoint: str) -> Iterator[tuple[object, object]]:
     testbed = open_session(zenoh_config([endpoint], mode="router"), "testbed")
     simulation = open_session(zenoh_config([], [endpoint], mode="peer"), "simulation")
     yield testbed, simulation
@@ -127,6 +131,10 @@ class _Lease:
         self.until_s = 0.0
         self.held_s = -math.inf
         self.delivered_s: dict[str, float] = {}
+        self.added_s: tuple[float, ...] = ()
+
+    def added_holds_s(self) -> tuple[float, ...]:
+        return self.added_s
 
     def grant(self, until_s: float) -> None:
         self.until_s = max(self.until_s, until_s)
@@ -170,6 +178,8 @@ def test_the_run_ends_a_lease_past_shores_first_status_that_says_done() -> None:
     assert ending.reached()
     ending.again()  # done on shore, not in the truth: on a lease more, judged there again
     assert ending.end_s == 2.25 + 2 * LEASE_S and lease.until_s == ending.end_s and not ending.reached()
+    lease.held_s, lease.added_s = ending.end_s, (ending.end_s,)  # a hold the runner added, there
+    assert ending.reached()  # no station delivers ahead into a hold's period
 
 
 def test_a_run_kept_running_is_leased_to_no_end() -> None:
@@ -178,3 +188,53 @@ def test_a_run_kept_running_is_leased_to_no_end() -> None:
     ending.keep_running()
     ending.on_status(2.0, _status(True))
     assert lease.until_s >= 1e9 and ending.end_s is None and not ending.reached()
+
+
+def test_a_hold_added_during_the_run_reaches_every_station_before_the_runner_leases_past_it(
+    sessions, endpoint
+) -> None:  # type: ignore[no-untyped-def]
+    """The scenario runner's hold for an event timed on a phase (time.phase_holds): the simulation
+    runs only the periods of the runner's lease, however far the supervisor's goes; each station
+    takes the added holds (one started later too, from the repeats) and reports how many it has."""
+    testbed, session = sessions
+    apart = open_session(
+        zenoh_config([f"tcp/127.0.0.1:{free_port()}"], [endpoint], mode="peer"), "supervisor"
+    )
+    supervisor = Lease(apart, "sys", lambda key, reason: None)  # abyss up's, in a process of its own
+    runner = Lease(testbed, "sys", lambda key, reason: None, key=PHASE_LEASE)
+    simulation, stop = _lockstep(session, leased=True, phase_leased=True)
+    onboard, onboard_stop = _lockstep(session, "onboard", listens=(TESTBED,))
+    later: list[Lockstep] = []
+    stops = [stop, onboard_stop]
+    try:
+        supervisor.grant(10.0)
+        assert _soon(lambda: simulation.leased_to(0.0) is False and simulation._lease_s == 10.0)
+        assert simulation.hold_at(0.0)  # the runner leased nothing yet
+        runner.grant(1.0)
+        assert _soon(lambda: not simulation.hold_at(0.95)) and simulation.hold_at(1.0)
+        assert simulation.reported(TESTBED, "release")[0] == -math.inf  # a lease, no hold's release
+        runner.add_hold(1.52)
+        assert _soon(lambda: simulation.hold_period(1.55) and onboard.hold_period(1.55))
+        assert not onboard.hold_period(1.5) and not onboard.hold_period(
+            1.6
+        )  # the first period at or after it
+        assert _soon(lambda: runner.have_holds(("simulation", "onboard")))
+        assert not runner.have_holds(("simulation", "onboard", "vessel"))  # one not there has none
+        vessel, vessel_stop = _lockstep(session, "vessel", listens=(TESTBED,), boot=1)
+        later.append(vessel)
+        stops.append(vessel_stop)
+        assert _soon(lambda: vessel.hold_period(1.55) and runner.have_holds(("simulation", "vessel")))
+        runner.add_hold(0.5)  # not in time order: each station counts them all
+        assert _soon(lambda: runner.have_holds(("simulation", "onboard", "vessel")))
+        assert onboard.hold_period(0.5) and onboard.hold_period(1.55)
+        assert _soon(lambda: supervisor.added_holds_s() == (1.52, 0.5))  # the supervisor hears them too
+        runner.grant(3.0)
+        assert _soon(lambda: not simulation.hold_at(2.95)) and simulation.hold_at(1.55)  # the hold holds
+    finally:
+        for done in stops:
+            done.set()
+        for each in (simulation, onboard, *later):
+            each.close()
+        runner.close()
+        supervisor.close()
+        apart.close()

@@ -186,7 +186,6 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
     for name, mode, said in (
         ("external-onboard", "sim", "external onboard keeps the wall clock"),
         ("onboard-starved", "lockstep", "a CPU cap is a share of wall time"),
-        ("tether-outage", "lockstep", "an event timed on an intervention's phase"),
     ):
         scenario = load_scenario(root / f"{name}.toml")
         kept, why = scenario.on_time(mode, "4" if mode == "sim" else None)
@@ -194,6 +193,10 @@ def test_a_scenario_goes_on_simulated_time_unless_it_needs_the_wall_clock() -> N
     assert not load_scenario(root / "vessel-crash.toml").holds_s  # real time: no holds
     crash, why = load_scenario(root / "vessel-crash.toml").on_time("lockstep", None)
     assert not why and crash.time.mode == "lockstep" and crash.holds_s == (6.0,)  # its kill's time
+    assert "phase_holds" not in crash.up_table()["time"]
+    outage, why = load_scenario(root / "tether-outage.toml").on_time("lockstep", None)
+    assert not why and outage.time.mode == "lockstep" and outage.phase_held  # events timed on a phase
+    assert outage.holds_s == () and outage.up_table()["time"]["phase_holds"] is True  # added as it runs
 
 
 def test_a_failed_scenario_says_which_assertions_came_out_wrong(tmp_path: Path) -> None:

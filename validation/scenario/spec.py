@@ -54,17 +54,31 @@ class Scenario:
         return configuration(self.config).time
 
     @property
+    def held(self) -> bool:
+        """In lockstep with events: each lands on its period, the simulation held there while the
+        runner carries it out (common.lockstep)."""
+        return self.time.mode == "lockstep" and bool(self.events)
+
+    @property
     def holds_s(self) -> tuple[float, ...]:
-        """In lockstep, the simulated times its events land on (the simulation holds there while
-        the runner carries them out: common.lockstep); none on another time source."""
-        return tuple(sorted({e.at_s for e in self.events})) if self.time.mode == "lockstep" else ()
+        """In lockstep, the simulated times its events not timed on a phase land on; none on
+        another time source."""
+        return tuple(sorted({e.at_s for e in self.events if not e.phase})) if self.held else ()
+
+    @property
+    def phase_held(self) -> bool:
+        """In lockstep, events timed on an intervention's phase: their holds are added as onboard
+        reports the phase (`time.phase_holds`)."""
+        return self.held and any(e.phase for e in self.events)
 
     def up_table(self, holds: bool = True) -> dict[str, Any]:
         """The configuration `abyss up --config` is given: `config`, `links` on top and, in
-        lockstep, the holds (`time.holds_s`)."""
+        lockstep, the holds (`time.holds_s`, `time.phase_holds`)."""
         table = merge(self.config, {"links": self.links} if self.links else {})
         if holds and self.holds_s:
             table = merge(table, {"time": {"holds_s": list(self.holds_s)}})
+        if holds and self.phase_held:
+            table = merge(table, {"time": {"phase_holds": True}})
         return table
 
     def on_time(self, mode: str, speed: str | None) -> tuple[Scenario, str]:
@@ -74,11 +88,6 @@ class Scenario:
             return self, f"runs in real time: external {', '.join(self.external)} keeps the wall clock"
         if mode != "real" and self.config.get("cpu"):
             return self, "runs in real time: a CPU cap is a share of wall time"
-        if mode == "lockstep" and any(e.phase for e in self.events):
-            return (
-                self,
-                "runs in real time: an event timed on an intervention's phase lands when shore sees it",
-            )
         kept = {k: v for k, v in self.config.get("time", {}).items() if k not in ("mode", "speed")}
         time = {**kept, "mode": mode, **({"speed": speed} if speed is not None else {})}
         if mode == "real":

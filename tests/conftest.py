@@ -42,13 +42,6 @@ REALTIME = {
         "an operator changes the link from outside, in wall time"
     ),
     "test_scenarios.py::test_an_external_station_started_by_hand": "an external station keeps the wall clock",
-    "test_scenarios.py::test_each_station_killed_inside_an_intervention_phase"
-    "_and_both_interventions_end_done": (
-        "an event timed on an intervention's phase lands when shore sees it"
-    ),
-    "test_bluerov2.py::test_the_bluerov2_rides_out_shore_killed_as_its_jaws_close": (
-        "an event timed on an intervention's phase lands when shore sees it"
-    ),
     "test_campaign.py::test_two_ray_nodes_share_a_campaign_and_a_dead_workers_run_is_retried_on_the_head": (
         "a Ray node's death and the retry in wall time"
     ),

@@ -50,13 +50,14 @@ def test_the_bluerov2_flies_its_waypoints_and_works_the_valve_and_the_lever_on_t
 def test_the_bluerov2_rides_out_shore_killed_as_its_jaws_close(tmp_path: Path) -> None:
     """A kill scenario of the shipped robot's, as it is (its parts named by their place in the
     mission), flown by the BlueROV2 on its own site (`abyss scenario run --robot`): shore's
-    computer killed as the jaws close on the valve and restarted, the new shore rejoining the
-    mission, which ends done, both parts at their targets on the truth. (onboard killed in the
-    valve's turn, and the vessel in the approach, do not pass on it yet: the closing note says
-    what they measured.)"""
+    computer killed as the jaws close on the valve and restarted (in lockstep: on its period),
+    the new shore rejoining the mission, which ends done, both parts at their targets on the
+    truth. (onboard killed in the valve's turn, and the vessel in the approach, do not pass on it
+    yet: the closing note says what they measured.)"""
     scenario = ROOT / "campaigns" / "scenarios" / "onshore-killed-in-grasp.toml"
     robot = ("--robot", "bluerov2_heavy_alpha5")
-    done = abyss("scenario", "run", str(scenario), *robot, "--report", str(tmp_path), timeout_s=400)
+    done = abyss("scenario", "run", str(scenario), *robot, "--time", "lockstep", "--report", str(tmp_path),
+                 timeout_s=400)  # fmt: skip
     assert done.returncode == 0, done.stdout[-6000:] + done.stderr
     [run] = (tmp_path / "runs").iterdir()
     summary = json.loads((run / "summary.json").read_text())

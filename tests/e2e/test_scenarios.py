@@ -1,13 +1,15 @@
 """The scenario library as CI runs it: `abyss scenario run --time lockstep --parallel 3` passes
 every scenario (the one meant to fail fails on the assertions it names), JUnit XML and the report
 say so, each ends with the verdict it must, the one verdict lockstep gives it on any load (three
-whole systems at once on this 2-core machine; the two that cannot follow simulated time, a CPU cap
-and an event timed on an intervention's phase, run in real time and say so), and a scenario with
+whole systems at once on this 2-core machine; the one that cannot follow simulated time, a CPU cap,
+runs in real time and says so), each station killed inside an intervention's phase lands on its
+period, and a scenario with
 an external station passes with that station started by hand, through the pytest plugin's fixture, while
 `abyss check` tests the external station's interface."""
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
@@ -26,8 +28,8 @@ LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))
 SELF_CONTAINED = [p for p in LIBRARY if p.stem != "external-onboard"]
 # the verdict each scenario must end with, in lockstep one alone: the machine's load changes the
 # wall time and never the verdict (sensor-noise's arm, which settles to its 5 mm in 33-39 s, and
-# need not in real time, is done by 70 s in lockstep); onboard-starved and tether-outage run in
-# real time (a CPU cap, a phase's event), their bounds what the design guarantees
+# need not in real time, is done by 70 s in lockstep); onboard-starved runs in real time (a CPU
+# cap), its bounds what the design guarantees
 VERDICTS: dict[str, set[str]] = {
     "every-station-killed": {"done"},
     "nominal": {"done"},
@@ -106,7 +108,12 @@ def test_the_library_passes_with_systems_in_parallel(
     assert "failsafe phase=turn from_s=1.0 to_s=7.0" in (out / "report.md").read_text()
     fallback = "runs in real time: "  # what cannot follow simulated time says so, and runs
     assert (
-        f"onboard-starved {fallback}a CPU cap" in done.stdout and f"tether-outage {fallback}" in done.stdout
+        f"onboard-starved {fallback}a CPU cap" in done.stdout
+        and f"tether-outage {fallback}" not in done.stdout
+    )
+    # tether-outage's events, timed on the turn, each on the period a second and seven into it
+    assert re.search(
+        r"tether-outage\] 1 s into turn \(period t=(\d+\.\d+) s\): link tether -> outage", done.stdout
     )
     run_dirs = sorted((out / "runs").iterdir())
     assert len(run_dirs) == len(SELF_CONTAINED)
@@ -180,15 +187,17 @@ PHASE_KILLS = sorted((ROOT / "campaigns" / "scenarios").glob("*-killed-in-*.toml
 
 
 @pytest.mark.timeout(600)
-def test_each_station_killed_inside_an_intervention_phase_and_both_interventions_end_done(
+def test_each_station_killed_inside_an_intervention_phase_lands_on_its_period_and_both_interventions_end_done(
     tmp_path: Path,
 ) -> None:
     """onboard in valve_1's turn, the vessel on the arm's approach, shore as the fingers close,
-    the simulation as they let go (events timed on the phase onboard reports, so in real time),
-    two systems at once: each station restarted once, the mission done, both parts at their
-    targets on the simulation's truth."""
-    done = abyss("scenario", "run", *map(str, PHASE_KILLS), "--parallel", "2", "--report", str(tmp_path),
-                 "--junit", str(tmp_path / "junit.xml"), timeout_s=560)  # fmt: skip
+    the simulation as they let go, in lockstep two systems at once: each kill lands on the period
+    its time into the phase puts it, from the period of onboard's first report of the phase (the
+    row control.csv has first), each station restarted once, the mission done, both parts at
+    their targets on the simulation's truth."""
+    done = abyss("scenario", "run", *map(str, PHASE_KILLS), "--time", "lockstep", "--parallel", "2",
+                 "--report", str(tmp_path), "--junit", str(tmp_path / "junit.xml"),
+                 timeout_s=560)  # fmt: skip
     assert {p.stem.split("-killed-in-")[0] for p in PHASE_KILLS} == {
         "onboard",
         "vessel",
@@ -196,9 +205,30 @@ def test_each_station_killed_inside_an_intervention_phase_and_both_interventions
         "simulation",
     }
     assert done.returncode == 0, done.stdout[-6000:] + done.stderr
+    assert "runs in real time" not in done.stdout
     assert set(verdicts(tmp_path / "junit.xml").values()) == {("passed",)}
     for run in sorted((tmp_path / "runs").iterdir()):
+        name = run.name.split("-", 1)[1]
+        station, phase = name.split("-killed-in-")
         summary = json.loads((run / "summary.json").read_text())
-        station = run.name.split("-", 1)[1].split("-killed-in-")[0]
         assert [r["station"] for r in summary["restarts"]] == [station], summary["restarts"]
         assert [p["success"] for p in summary["interventions"]] == [True, True], summary["interventions"]
+        planned = re.search(
+            rf"\[\d/4 {name}\] ([\d.]+) s into {phase}: {phase} reported at t=([\d.]+) s, "
+            r"held at t=([\d.]+) s",
+            done.stdout,
+        )
+        killed = re.search(
+            rf"\[\d/4 {name}\] [\d.]+ s into {phase} \(period t=([\d.]+) s\): kill {station}", done.stdout
+        )
+        assert planned and killed, done.stdout[-6000:]
+        at_s, reported_s, hold_s = map(float, planned.groups())
+        with (run / "control.csv").open() as rows:
+            first_s = next(
+                float(r["sim_time_s"]) for r in csv.DictReader(rows) if r["intervention_phase"] == phase
+            )
+        assert abs(reported_s - first_s) < 0.006 and abs(hold_s - (first_s + at_s)) < 0.011, (
+            first_s,
+            planned.groups(),
+        )
+        assert 0 <= float(killed.group(1)) - hold_s < 0.05 + 0.006  # the first period at or after it

@@ -31,6 +31,7 @@ class Holds:
         self._seq = 0
         self._added_s: tuple[float, ...] = ()  # the holds this testbed added during the run
         self._closed = threading.Event()
+        self._put_lock = threading.Lock()
         threading.Thread(target=self._repeat, name="testbed reports", daemon=True).start()
 
     def _take(self, station: str, report: LockstepReport) -> None:
@@ -98,8 +99,7 @@ class Holds:
                 delivered={str(i): h_s for i, h_s in enumerate(self._added_s)},
                 boot=0,
             )
-            self._publisher.put(encode(message, self._seq, time.time()))
-            self._seq += 1
+            self._put(message)
 
     def have_holds(self, stations: tuple[str, ...]) -> bool:
         """True once each of `stations` (its latest boot) has every hold this testbed added."""
@@ -131,15 +131,21 @@ class Holds:
             if time.monotonic() - told_s >= REPEAT_WALL_S:
                 told_s = time.monotonic()
                 message = LockstepReport(sim_time_s=t_s, phase="release", boot=0)
-                self._publisher.put(encode(message, self._seq, time.time()))
-                self._seq += 1
+                self._put(message)
             return False
 
         self.wait(f"the simulation to go on from t={t_s:g} s", gone_on, alive, timeout_s)
 
+    def _put(self, message: LockstepReport) -> None:
+        """Publish (from any thread: a wait, the repeats), nothing once closed."""
+        with self._put_lock:
+            if not self._closed.is_set():
+                self._publisher.put(encode(message, self._seq, time.time()))
+                self._seq += 1
+
     def close(self) -> None:
-        self._closed.set()
-        with self._cond:  # not while a repeat publishes
+        with self._put_lock:  # not while a repeat publishes
+            self._closed.set()
             for subscriber in self._subscribers:
                 subscriber.undeclare()
             self._publisher.undeclare()
@@ -181,8 +187,7 @@ class Lease(Holds):
     def _tell(self) -> None:
         self._told_wall_s = time.monotonic()
         message = LockstepReport(sim_time_s=self.until_s, phase="release", delivered={self.key: 1.0}, boot=0)
-        self._publisher.put(encode(message, self._seq, time.time()))
-        self._seq += 1
+        self._put(message)
 
     def held_at(self, t_s: float) -> bool:
         """True once the simulation (its latest boot) is held at `t_s` or later."""

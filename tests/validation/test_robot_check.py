@@ -266,9 +266,9 @@ def test_the_bluerov2_flies_its_open_loop_runs_with_its_attitude_hold(bluerov2: 
 
 def test_the_bluerov2s_published_figures_with_their_ratios(bluerov2: Report) -> None:
     """robot.toml's [published]: 13.5 kg (von Benzon et al.) and the Alpha 5's 1.36 kg against the
-    model's 15.1 kg (its sea ballast 0.235 kg more); 1 m/s ahead (Blue Robotics) against 0.97; 9 kgf
-    ahead and to the side (Blue Robotics) against 4 x 51.5 N x cos 45 deg ahead and 4 x 40.2 N x
-    cos 45 deg to port (the two pushing astern give 40.2 N, the two ahead match them)."""
+    model's 15.1 kg (its sea ballast 0.235 kg more); 1 m/s ahead (Blue Robotics) against 0.85; 9 kgf
+    ahead and to the side (Blue Robotics) against (2 x 51.5 N + 2 x 40.2 N) x cos 45 deg both ways
+    (ArduSub's vectored frame: two of the four ahead, two astern, in either)."""
     rows = {r.name: r for r in bluerov2.rows if r.check == "published"}
     assert set(rows) == {"mass_kg", "surge_max_mps", "bollard_forward_n", "bollard_lateral_n"}
     assert all("Blue Robotics" in r.why for r in rows.values())
@@ -276,15 +276,16 @@ def test_the_bluerov2s_published_figures_with_their_ratios(bluerov2: Report) -> 
     expected = {
         "mass_kg": (bluerov2.hydrostatics.mass_kg / 14.86, "pass"),
         "surge_max_mps": (surge.measured / 1.0, "pass"),
-        "bollard_forward_n": (4 * 51.5 / math.sqrt(2) / 88.3, "warn"),
-        "bollard_lateral_n": (4 * 40.2 / math.sqrt(2) / 88.3, "warn"),
+        "bollard_forward_n": (2 * (51.5 + 40.2) / math.sqrt(2) / 88.3, "warn"),
+        "bollard_lateral_n": (2 * (51.5 + 40.2) / math.sqrt(2) / 88.3, "warn"),
     }
     for name, (ratio, status) in expected.items():
         assert ratio_of(rows[name].figures) == pytest.approx(ratio, abs=0.006), name
         assert rows[name].status == status, name
-    # the report's own ratios: the model 2 % over the published mass, its surge 3 % under 1 m/s
+    # the report's own ratios: the model 2 % over the published mass, its surge 15 % under 1 m/s (at
+    # full command the allocation's 114 N: the pair astern bounds the pair ahead, robot.toml)
     assert 1.0 < ratio_of(rows["mass_kg"].figures) < 1.03
-    assert 0.95 < ratio_of(rows["surge_max_mps"].figures) < 1.0
+    assert 0.83 < ratio_of(rows["surge_max_mps"].figures) < 0.87
 
 
 def test_without_its_attitude_gains_the_bluerov2_heels_over_in_surge(

@@ -368,10 +368,11 @@ class Lockstep:
         started later hears them too), before this station reaches any (see the module): taken
         into its holds, and their count reported, which the testbed waits for before it leases on."""
         with self._cond:
-            if len(added_s) > len(self._added_s):
-                self._added_s = added_s
-                self.holds_s = tuple(sorted(set(self.holds_s) | set(added_s)))
-            count = float(len(self._added_s))
+            if len(added_s) <= len(self._added_s):
+                return  # a repeat: the count is told again with the station's other reports
+            self._added_s = added_s
+            self.holds_s = tuple(sorted(set(self.holds_s) | set(added_s)))
+            count = float(len(added_s))
         # told from a thread of its own: a blocking publisher is not for Zenoh's callback
         threading.Thread(target=self._report_holds, args=(count,), name="lockstep holds", daemon=True).start()
 

@@ -203,7 +203,6 @@ class Held:
                 self.at.setdefault(event.at_s, []).append(event)
         self.waiting = [e for e in scenario.events if e.phase]  # timed on a phase not yet reported
         self.since_s = 0.0  # the latest hold's period (a station restarted there reports from it)
-        self._lock = threading.Lock()
         timeline.on_telemetry = self.holds.poke
 
     def at_s(self, event: Event) -> float:
@@ -212,29 +211,28 @@ class Held:
 
     def _plan(self, say: Callable[[str], None]) -> None:
         """Holds for the phases onboard has reported, and the runner's lease."""
-        with self._lock:
-            for event in list(self.waiting):
-                began_s = self.timeline.phase_stamp_s(event.phase)
-                if began_s is None:
-                    continue
-                self.waiting.remove(event)
-                hold_s = began_s + self.at_s(event)  # on the first period at or after it
-                if self.lease is not None and self.lease.until_s > hold_s - self.period_s + TICK_TOLERANCE_S:
-                    raise AbyssError(
-                        f"{event.when()}: onboard's report of {event.phase} at t={began_s:.2f} s came after "
-                        f"the simulation was leased to t={self.lease.until_s:.2f} s, past its hold; "
-                        "run the scenario with --time real"
-                    )
-                if hold_s not in self.at:
-                    self.holds.add_hold(hold_s)
-                self.at.setdefault(hold_s, []).append(event)
-                say(f"{event.when()}: {event.phase} reported at t={began_s:.2f} s, held at t={hold_s:.2f} s")
-            if self.lease is None or not self.holds.have_holds(self.stations):
-                return
-            if not self.waiting:
-                self.lease.grant(ENDLESS_S)
-                return
-            self.lease.grant(self._next_report_s() + min(map(self.at_s, self.waiting)) - self.period_s)
+        for event in list(self.waiting):
+            began_s = self.timeline.phase_stamp_s(event.phase)
+            if began_s is None:
+                continue
+            self.waiting.remove(event)
+            hold_s = began_s + self.at_s(event)  # on the first period at or after it
+            if self.lease is not None and self.lease.until_s > hold_s - self.period_s + TICK_TOLERANCE_S:
+                raise AbyssError(
+                    f"{event.when()}: onboard's report of {event.phase} at t={began_s:.2f} s came after "
+                    f"the simulation was leased to t={self.lease.until_s:.2f} s, past its hold; "
+                    "run the scenario with --time real"
+                )
+            if hold_s not in self.at:
+                self.holds.add_hold(hold_s)
+            self.at.setdefault(hold_s, []).append(event)
+            say(f"{event.when()}: {event.phase} reported at t={began_s:.2f} s, held at t={hold_s:.2f} s")
+        if self.lease is None or not self.holds.have_holds(self.stations):
+            return
+        if not self.waiting:
+            self.lease.grant(ENDLESS_S)
+            return
+        self.lease.grant(self._next_report_s() + min(map(self.at_s, self.waiting)) - self.period_s)
 
     def _next_report_s(self) -> float:
         """The earliest period onboard's next report of its state can be of. With one heard since
@@ -253,14 +251,13 @@ class Held:
         mission done before its time: the run stops when done) did not reach its events, as in
         real time; AbyssError if a hold is not reached or not left while it runs."""
         done: set[float] = set()
-        since_s = 0.0
         while True:
             self._plan(say)
             target = min((h for h in self.at if h not in done), default=None)
             if target is None and not self.waiting:
                 return
             later = self.scenario.duration_s if target is None else target
-            timeout_s = HOLD_TIMEOUT_S + HOLD_WALL_PER_SIM_S * (later - since_s)
+            timeout_s = HOLD_TIMEOUT_S + HOLD_WALL_PER_SIM_S * (later - self.since_s)
 
             def moved(target: float | None = target) -> bool:
                 self._plan(say)
@@ -282,12 +279,10 @@ class Held:
             held = self._held(target) if target is not None else None
             if held is None:
                 continue  # a hold was added before the one waited for
-            since_s = held.sim_time_s
             self.ctx.t_s, self.ctx.controls = held.sim_time_s, int(held.delivered.get("controls", 0.0))
             for event in self.at[target]:  # type: ignore[index]
                 say(f"{event.when()} (period t={held.sim_time_s:.2f} s): {carry_out(event, self.ctx)}")
-            with self._lock:
-                self.since_s = held.sim_time_s
+            self.since_s = held.sim_time_s
             # a station restarted here learns the holds added before it runs its first period
             self.holds.wait("every station's holds", self._everyone_has, self.up.running, HOLD_TIMEOUT_S)
             self._plan(say)  # its lease past the hold

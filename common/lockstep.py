@@ -282,6 +282,7 @@ class Lockstep:
             session, system, station, self._take, reject, listens
         )
         self._last: dict[str, tuple[float, dict[str, float]]] = {}  # per phase: the latest report
+        self._tell_now = threading.Event()  # the repeats told at once (a count of holds changed)
         self._repeater = threading.Thread(target=self._repeat, name="lockstep reports", daemon=True)
         self._repeater.start()
 
@@ -326,11 +327,14 @@ class Lockstep:
         self._seq += 1
 
     def _repeat(self) -> None:
-        """Tell the latest report of each phase again every REPEAT_WALL_S: one that a station
-        subscribed too late for (still starting) is heard then."""
-        while not self.stop.wait(REPEAT_WALL_S):
+        """Tell the latest report of each phase again every REPEAT_WALL_S (one that a station
+        subscribed too late for, still starting, is heard then), and at once when told to (a
+        report set where a blocking publisher may not be used: Zenoh's callback)."""
+        while not self.stop.is_set():
+            self._tell_now.wait(REPEAT_WALL_S)
+            self._tell_now.clear()
             with self._cond:
-                for phase in list(self._last):
+                for phase in list(self._last) if not self.stop.is_set() else ():
                     self._send(phase)
 
     def reported(self, station: str, phase: str) -> tuple[float, dict[str, float]]:
@@ -366,19 +370,16 @@ class Lockstep:
     def _add_holds(self, added_s: tuple[float, ...]) -> None:
         """The testbed's holds added during the run (all of them, each time: a station that
         started later hears them too), before this station reaches any (see the module): taken
-        into its holds, and their count reported, which the testbed waits for before it leases on."""
+        into its holds, and their count reported, which the testbed waits for before it leases on.
+        The count is told by the repeats' one thread (a blocking publisher is not for Zenoh's
+        callback), always the latest: a thread per addition could tell an older count last."""
         with self._cond:
             if len(added_s) <= len(self._added_s):
                 return  # a repeat: the count is told again with the station's other reports
             self._added_s = added_s
             self.holds_s = tuple(sorted(set(self.holds_s) | set(added_s)))
-            count = float(len(added_s))
-        # told from a thread of its own: a blocking publisher is not for Zenoh's callback
-        threading.Thread(target=self._report_holds, args=(count,), name="lockstep holds", daemon=True).start()
-
-    def _report_holds(self, count: float) -> None:
-        if not self.stop.is_set():
-            self.report(count, HOLDS)
+            self._last[HOLDS] = (float(len(added_s)), {})
+        self._tell_now.set()
 
     def leased_to(self, t_s: float) -> bool:
         """True if this station may run period `t_s`: not leased, or the leases go past it."""
@@ -518,6 +519,8 @@ class Lockstep:
                 return
 
     def close(self) -> None:
-        for subscriber in self._subscribers:
-            subscriber.undeclare()
-        self._publisher.undeclare()
+        """Undeclared once stopped (`stop` set), not while the repeats publish."""
+        with self._cond:
+            for subscriber in self._subscribers:
+                subscriber.undeclare()
+            self._publisher.undeclare()

@@ -35,11 +35,18 @@ class Holds:
         threading.Thread(target=self._repeat, name="testbed reports", daemon=True).start()
 
     def _take(self, station: str, report: LockstepReport) -> None:
+        """A station's report, kept if it is its latest: of a later boot, or of the same boot and
+        no earlier (a phase's times, and a count of holds, only grow within a boot; one published
+        before another may still arrive after it)."""
         with self._cond:
-            if report.boot >= self._boot[station]:
-                self._boot[station] = report.boot
-                self._latest[(station, report.phase)] = report
-                self._cond.notify_all()
+            before = self._latest.get((station, report.phase))
+            if report.boot < self._boot[station] or (
+                before is not None and before.boot == report.boot and report.sim_time_s < before.sim_time_s
+            ):
+                return
+            self._boot[station] = report.boot
+            self._latest[(station, report.phase)] = report
+            self._cond.notify_all()
 
     def poke(self) -> None:
         """Wake a `wait` to look again (something it looks at changed outside the reports)."""

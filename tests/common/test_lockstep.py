@@ -17,9 +17,9 @@ import pytest
 from abyss.common import lockstep as lockstep_module
 from abyss.common.bus import open_session, zenoh_config
 from abyss.common.config import load
-from abyss.common.lockstep import PHASE_LEASE, TESTBED, Lockstep, LockstepClock, hold_period
+from abyss.common.lockstep import HOLDS, PHASE_LEASE, TESTBED, Lockstep, LockstepClock, hold_period
 from abyss.common.lockstep_testbed import Lease
-from abyss.common.messages import MissionStatus
+from abyss.common.messages import LockstepReport, MissionStatus
 from abyss.common.ports import free_port
 from abyss.launch import station as runtime
 from abyss.launch.supervise import LEASE_S, LockstepEnd
@@ -238,3 +238,31 @@ def test_a_hold_added_during_the_run_reaches_every_station_before_the_runner_lea
         runner.close()
         supervisor.close()
         apart.close()
+
+
+def test_holds_added_in_a_burst_are_counted_to_the_last_and_an_older_report_does_not_undo_it(
+    sessions,
+) -> None:  # type: ignore[no-untyped-def]
+    """Two phases reported in one telemetry add two holds at once: each station's count of them
+    is told in the order it grew (a thread per addition told an older count last, the runner
+    never leased past the first hold, and the run stood still: CI, tether-outage), and the
+    testbed keeps a station's latest report, not the last to arrive."""
+    testbed, session = sessions
+    runner = Lease(testbed, "sys", lambda key, reason: None, key=PHASE_LEASE)
+    onboard, stop = _lockstep(session, "onboard", listens=(TESTBED,))
+    try:
+        for i in range(12):
+            runner.add_hold(1.0 + i * PERIOD_S)
+        assert _soon(lambda: runner.have_holds(("onboard",)))
+        time.sleep(3 * lockstep_module.REPEAT_WALL_S)  # the repeats tell the count again meanwhile
+        assert runner.have_holds(("onboard",)) and onboard._last[HOLDS][0] == 12.0
+        latest = runner.reported("onboard", HOLDS)
+        assert latest is not None
+        runner._take("onboard", LockstepReport(sim_time_s=11.0, phase=HOLDS, boot=latest.boot))
+        assert runner.have_holds(("onboard",))  # an older count, arriving late, is not taken
+        runner._take("onboard", LockstepReport(sim_time_s=0.0, phase=HOLDS, boot=latest.boot + 1))
+        assert not runner.have_holds(("onboard",))  # a restarted station's is, and it has none yet
+    finally:
+        stop.set()
+        onboard.close()
+        runner.close()

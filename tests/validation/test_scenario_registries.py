@@ -18,7 +18,8 @@ from abyss.common.reading import OneOf
 from abyss.validation.campaign.spec import event_fields, scenario_with
 from abyss.validation.scenario.checks import CHECKS, Run, judge
 from abyss.validation.scenario.events import EVENTS, Context, Event, action_of
-from abyss.validation.scenario.runner import carry_out, run_scenario
+from abyss.validation.scenario.held import carry_out
+from abyss.validation.scenario.runner import run_scenario
 from abyss.validation.scenario.spec import load_scenario, scenario_of
 
 CALLS: list[tuple[str, str]] = []  # what the test kinds were asked to do, in order

@@ -204,6 +204,10 @@ class MissionConfig:
     )
     position_tolerance_m: float = 0.15
     heading_tolerance_rad: float = 0.1
+    # [m] the mission is done only with the vehicle this close to its last waypoint (the waypoints
+    # are reached at position_tolerance_m): a whole-body vehicle, moved off its mark by its arm's
+    # interventions, flies back onto it first
+    done_position_tolerance_m: float = 0.05
     # [s] a waypoint not reached within its leg flown at onboard's speed limits (its length over
     # max_speed_mps, its turn over max_yaw_rate_radps) plus this is missed: onboard holds it and
     # reports the mode "missed", and the mission is not done; 0: no limit
@@ -247,6 +251,7 @@ class MissionConfig:
         positive("mission.waypoint_timeout_s", self.waypoint_timeout_s, allow_zero=True)
         for name in (
             "position_tolerance_m",
+            "done_position_tolerance_m",
             "heading_tolerance_rad",
             "arm_position_tolerance_m",
             "arm_orientation_tolerance_rad",

@@ -14,6 +14,7 @@ waypoints not yet reached, the end-effector goal, the mode. Each is an event (`e
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
@@ -202,6 +203,7 @@ class Operator:
             self.intervene,
             self.intervention_index,
             len(self.mission.interventions),
+            self.mission.done_position_tolerance_m,
         )
 
     def _take_onboards(self, t: Telemetry, now_s: float) -> None:
@@ -327,14 +329,15 @@ def mission_status(
     intervene: Command[Intervention] | None = None,
     index: int = 0,
     total: int = 0,
+    hold_m: float = math.inf,
 ) -> MissionStatus:
-    """The mission as telemetry shows it; done once the vehicle holds its last waypoint, the
-    end-effector its goal and onboard says the last intervention is done, all of the commands
-    this station sent last. Waypoints count from the mission's first: `offset` were reached
-    before the list in force began; interventions: `index` of `total` is in hand."""
+    """The mission as telemetry shows it; done once the vehicle holds its last waypoint (within
+    `hold_m` of it), the end-effector its goal and onboard says the last intervention is done, all
+    of the commands this station sent last. Waypoints count from the mission's first: `offset`
+    were reached before the list in force began; interventions: `index` of `total` is in hand."""
     sent = waypoints.message
     flying = sent is not None and t.command_id == sent.command_id
-    vehicle_done = flying and t.mode == "reached"
+    vehicle_done = flying and t.mode == "reached" and t.position_error_m <= hold_m
     arm_done = arm.message is None or (t.arm_command_id == arm.message.command_id and t.arm_mode == "reached")
     current = intervene.message if intervene is not None else None
     on_it = current is not None and t.intervention_id == current.command_id

@@ -22,7 +22,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from abyss.common.messages.schema import MAX_ARM_JOINTS
 from abyss.common.robot import COMMANDED_AXES
+from abyss.stations.simulation.attitude import ROLL
 from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.lowlevel import Dynamic, References
 from abyss.stations.simulation.strips import ArmStrips
@@ -54,7 +56,8 @@ class _Terms(ctypes.Structure):
     )
 
 
-_int6, _double4 = ctypes.c_int * 6, ctypes.c_double * 4
+_double4, _double2, _int2 = ctypes.c_double * 4, ctypes.c_double * 2, ctypes.c_int * 2
+_arm_ints, _arm_doubles = ctypes.c_int * MAX_ARM_JOINTS, ctypes.c_double * MAX_ARM_JOINTS  # C's ABYSS_ARM_MAX
 _pointer = ctypes.c_void_p
 
 
@@ -73,22 +76,27 @@ class _LowLevelTerms(ctypes.Structure):
         ("integral", _pointer),
         ("error", _pointer),
         ("thrusters", ctypes.c_int),
+        ("rows", ctypes.c_int),
         ("actuators", _pointer),
         ("pinv", _pointer),
         ("allocation", _pointer),
+        ("held", _int2),
+        ("attitude_kp", _double2),
+        ("attitude_kd", _double2),
         ("forward_max_n", ctypes.c_double),
         ("reverse_max_n", ctypes.c_double),
         ("deadband", ctypes.c_double),
         ("time_constant_s", ctypes.c_double),
         ("efficiency", _pointer),
         ("rotor_speed", _pointer),
-        ("arm_dofs", _int6),
-        ("arm_motors", _int6),
+        ("arm_joints", ctypes.c_int),
+        ("arm_dofs", _arm_ints),
+        ("arm_motors", _arm_ints),
         ("grippers", ctypes.c_int),
-        ("gripper_motors", ctypes.c_int * 2),
+        ("gripper_motors", _int2),
         ("arm_kp", ctypes.c_double),
         ("arm_ki", ctypes.c_double),
-        ("arm_force_limit", _double6),
+        ("arm_force_limit", _arm_doubles),
         ("arm_integral", _pointer),
         ("references", _pointer),
         ("current_mps_world", _pointer),
@@ -215,31 +223,31 @@ class LowLevel:
     entries) is the Python objects' own arrays, so either path can take over from the other."""
 
     LIMIT = 64  # thrusters, and dofs that move the arm's links: C's scratch
-    ARM_JOINTS, FINGERS = 6, 2  # C's struct's arm and gripper
+    FINGERS = 2  # C's struct's gripper
 
     @staticmethod
     def of(controller: object, strips: ArmStrips | None) -> LowLevel | None:
         """For this controller and this strip model, or None where C does not have them (the library
-        not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs; an
-        arm, gripper or thrust layout other than its struct's; an attitude hold)."""
+        not built; the kinematic low level; no strip model; more than LIMIT thrusters or dofs; a
+        gripper of more than FINGERS, or thrusters that do not move surge, sway, heave and yaw)."""
         lib = library()
         if lib is None or not isinstance(controller, Dynamic) or strips is None:
             return None
         if len(controller.thrusters.actuators) > LowLevel.LIMIT or len(strips.dofs) > LowLevel.LIMIT:
             return None
         plant = controller.plant
-        if (  # C's struct: six arm joints, two fingers at most, thrust in surge, sway, heave and
-            # yaw, no attitude hold (stations/simulation/attitude.py)
-            len(plant.arm_dofs) != LowLevel.ARM_JOINTS
+        if (  # C's struct: two fingers at most, thrust in surge, sway, heave and yaw (and any of
+            # roll and pitch the attitude hold adds: stations/simulation/attitude.py)
+            len(plant.arm_dofs) > MAX_ARM_JOINTS
             or len(plant.gripper_dofs) > LowLevel.FINGERS
             or tuple(controller.thrusters.actuated) != COMMANDED_AXES
-            or controller.attitude.held
         ):
             return None
         return LowLevel(lib, controller, strips)
 
     def __init__(self, lib: ctypes.CDLL, controller: Dynamic, strips: ArmStrips) -> None:
-        self.references = np.zeros(12)  # vehicle 4, arm 6, gripper, the period [s]
+        # vehicle 4, gripper, the period [s], then the arm's joints
+        self.references = np.zeros(6 + len(controller.plant.arm_dofs))
         self.current_mps_world = np.zeros(3)
         self.jacobian = np.zeros((len(strips.bodies), 6, len(strips.dofs)))
         self.mass_q = np.zeros((len(strips.dofs), len(strips.dofs)))
@@ -250,7 +258,8 @@ class LowLevel:
     def _held_arrays(self, controller: Dynamic, strips: ArmStrips) -> dict[str, np.ndarray]:
         """The arrays C reads or writes through its pointers, by their field's name, kept alive here:
         the controller's and the thrusters' state, the strip model's tables and its inertia entries."""
-        thrusters = controller.thrusters
+        thrusters, attitude = controller.thrusters, controller.attitude
+        rows = attitude if attitude.held else None  # the allocation through the hold's rows too
 
         def ints(values: object) -> np.ndarray:
             return np.ascontiguousarray(values, dtype=np.int32)
@@ -259,8 +268,8 @@ class LowLevel:
             "integral": controller.vehicle_integral,
             "error": controller.vehicle_error,
             "actuators": ints(thrusters.actuators),
-            "pinv": np.ascontiguousarray(thrusters.pseudo_inverse),
-            "allocation": np.ascontiguousarray(thrusters.actuated_allocation),
+            "pinv": np.ascontiguousarray(rows.pseudo_inverse if rows else thrusters.pseudo_inverse),
+            "allocation": np.ascontiguousarray(rows.allocation if rows else thrusters.actuated_allocation),
             "efficiency": thrusters.efficiency,
             "rotor_speed": thrusters.rotor_speed,
             "arm_integral": controller.arm_integral,
@@ -283,8 +292,14 @@ class LowLevel:
     def _low_level_terms(self, controller: Dynamic, strips: ArmStrips) -> _LowLevelTerms:
         """C's struct: the gains, the thrusters' spec, the arm's dofs and motors, the strip model's
         sizes, and the held arrays' addresses."""
-        plant, gains, thrusters = controller.plant, controller.gains, controller.thrusters
+        plant, gains, thrusters, attitude = (
+            controller.plant,
+            controller.gains,
+            controller.thrusters,
+            controller.attitude,
+        )
         spec = thrusters.spec
+        held = [axis - ROLL for axis in attitude.held]
         linear, quadratic = controller.damping
         return _LowLevelTerms(
             qpos=plant.qpos,
@@ -295,17 +310,22 @@ class LowLevel:
             linear=_double4(*linear),
             quadratic=_double4(*quadratic),
             thrusters=len(thrusters.actuators),
+            rows=len(COMMANDED_AXES) + len(held),
+            held=_int2(*held),
+            attitude_kp=_double2(*attitude.kp),
+            attitude_kd=_double2(*attitude.kd),
             forward_max_n=spec.forward_max_n,
             reverse_max_n=spec.reverse_max_n,
             deadband=spec.deadband,
             time_constant_s=spec.time_constant_s,
-            arm_dofs=_int6(*plant.arm_dofs),
-            arm_motors=_int6(*plant.arm_motors),
+            arm_joints=len(plant.arm_dofs),
+            arm_dofs=_arm_ints(*plant.arm_dofs),
+            arm_motors=_arm_ints(*plant.arm_motors),
             grippers=len(plant.gripper_motors),
-            gripper_motors=(ctypes.c_int * 2)(*plant.gripper_motors),
+            gripper_motors=_int2(*plant.gripper_motors),
             arm_kp=gains.arm_kp,
             arm_ki=gains.arm_ki,
-            arm_force_limit=_double6(*controller.arm_force_limit),
+            arm_force_limit=_arm_doubles(*controller.arm_force_limit),
             links=len(strips.bodies),
             strips=strips.strip_count,
             dofs=len(strips.dofs),
@@ -326,9 +346,9 @@ class LowLevel:
         current kinematics (as lowlevel.Dynamic.apply, then ArmStrips.apply, do)."""
         r = self.references
         r[:4] = refs.vehicle_body
-        r[4:10] = refs.arm_radps
-        r[10] = refs.gripper_mps
-        r[11] = period_s
+        r[4] = refs.gripper_mps
+        r[5] = period_s
+        r[6:] = refs.arm_radps
         self.current_mps_world[:] = current_mps_world
         self._call(data._address)
 

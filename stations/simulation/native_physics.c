@@ -18,6 +18,7 @@
 #include <mujoco/mujoco.h>
 
 #define ABYSS_MARINE_WORLDS 1024  /* registered at once in one process */
+#define ABYSS_ARM_MAX 16  /* an arm's joints at most (messages' MAX_ARM_JOINTS) */
 
 typedef struct {
   const mjData* data;  /* whose steps these terms are */
@@ -120,20 +121,24 @@ typedef struct {
   double kp[4], ki[4], kd[4], linear[4], quadratic[4];
   double* integral;                     /* 4, held by Python */
   double* error;                        /* 4, the last period's, held by Python */
-  /* its thrusters: allocation by pseudo-inverse, scaled into their limits, rotors as a lag */
-  int thrusters;
+  /* its thrusters: allocation by pseudo-inverse, scaled into their limits, rotors as a lag; the
+   * wrench's rows: the four axes, then the attitude hold's (attitude.py), roll's and pitch's */
+  int thrusters, rows;
   const int* actuators;                 /* per thruster */
-  const double* pinv;                   /* thrusters x 4, row-major */
-  const double* allocation;             /* 4 x thrusters, row-major */
+  const double* pinv;                   /* thrusters x rows, row-major */
+  const double* allocation;             /* rows x thrusters, row-major */
+  /* the attitude hold: a PD towards level on the held axes (0 roll, 1 pitch), rows - 4 of them */
+  int held[2];
+  double attitude_kp[2], attitude_kd[2];
   double forward_max_n, reverse_max_n, deadband, time_constant_s;
   const double* efficiency;             /* per thruster, held by Python (faults) */
   double* rotor_speed;                  /* per thruster, held by Python */
   /* the arm's velocity servos (MuJoCo's, kv = arm_kp) with an integral on their set points */
-  int arm_dofs[6], arm_motors[6], grippers, gripper_motors[2];
-  double arm_kp, arm_ki, arm_force_limit[6];
-  double* arm_integral;                 /* 6, held by Python */
-  /* the references [m/s, rad/s] and the period [s]: vehicle 4, arm 6, gripper, period */
-  const double* references;             /* 12, held by Python */
+  int arm_joints, arm_dofs[ABYSS_ARM_MAX], arm_motors[ABYSS_ARM_MAX], grippers, gripper_motors[2];
+  double arm_kp, arm_ki, arm_force_limit[ABYSS_ARM_MAX];
+  double* arm_integral;                 /* per arm joint, held by Python */
+  /* the references [m/s, rad/s] and the period [s]: vehicle 4, gripper, period, then the arm's */
+  const double* references;             /* 6 + arm joints, held by Python */
   const double* current_mps_world;      /* 3, held by Python */
   /* the links' strip model */
   int links, strips, dofs, root, added_inertia, entries;
@@ -160,7 +165,7 @@ static double max_thrust(const AbyssLowLevel* c, double thrust_n) {
 
 static void vehicle(AbyssLowLevel* c, mjData* d) {
   const double* ref = c->references;
-  double dt = c->references[11];
+  double dt = c->references[5];
   double rotation[9];
   mju_quat2Mat(rotation, d->qpos + c->qpos + 3);
   const mjtNum* v = d->qvel + c->qvel;  /* linear in the world, angular in the body */
@@ -170,7 +175,7 @@ static void vehicle(AbyssLowLevel* c, mjData* d) {
       rotation[2] * v[0] + rotation[5] * v[1] + rotation[8] * v[2],
       v[5],
   };
-  double wrench[4], candidate[4];
+  double wrench[6], candidate[4];
   for (int i = 0; i < 4; i++) {
     double error = ref[i] - velocity[i];
     double derivative = (error - c->error[i]) / dt;
@@ -179,17 +184,25 @@ static void vehicle(AbyssLowLevel* c, mjData* d) {
     candidate[i] = c->integral[i] + error * dt;
     wrench[i] = feed_forward + c->kp[i] * error + c->kd[i] * derivative + c->ki[i] * candidate[i];
   }
-  int n = c->thrusters;
+  if (c->rows > 4) {  /* the attitude hold's moments: towards level, damped */
+    double angles[2] = {atan2(rotation[7], rotation[8]), -asin(fmin(fmax(rotation[6], -1.0), 1.0))};
+    for (int h = 0; h < c->rows - 4; h++) {
+      int axis = c->held[h];
+      wrench[4 + h] = -c->attitude_kp[h] * angles[axis] - c->attitude_kd[h] * v[3 + axis];
+    }
+  }
+  int n = c->thrusters, rows = c->rows;
   double thrust[64], excess = 0.0;
   for (int k = 0; k < n; k++) {
-    const double* row = c->pinv + 4 * k;
-    thrust[k] = row[0] * wrench[0] + row[1] * wrench[1] + row[2] * wrench[2] + row[3] * wrench[3];
+    const double* row = c->pinv + rows * k;
+    thrust[k] = 0.0;
+    for (int i = 0; i < rows; i++) thrust[k] += row[i] * wrench[i];
     double share = fabs(thrust[k]) / max_thrust(c, thrust[k]);
     if (share > excess) excess = share;
   }
   if (excess > 1.0) for (int k = 0; k < n; k++) thrust[k] /= excess;
   int saturated = 0;  /* anti-windup: integrate only when the thrusters deliver the wrench */
-  for (int i = 0; i < 4; i++) {
+  for (int i = 0; i < rows; i++) {
     double delivered = 0.0;
     for (int k = 0; k < n; k++) delivered += c->allocation[n * i + k] * thrust[k];
     if (!(fabs(delivered - wrench[i]) <= 1e-6 + 1e-6 * fabs(wrench[i]))) saturated = 1;
@@ -209,17 +222,17 @@ static void vehicle(AbyssLowLevel* c, mjData* d) {
 }
 
 static void arm(AbyssLowLevel* c, mjData* d) {
-  const double* ref = c->references + 4;
-  double dt = c->references[11], candidate[6];
-  int within = 1;
-  for (int j = 0; j < 6; j++) {
+  const double* ref = c->references + 6;
+  double dt = c->references[5], candidate[ABYSS_ARM_MAX];
+  int within = 1, joints = c->arm_joints;
+  for (int j = 0; j < joints; j++) {
     double error = ref[j] - d->qvel[c->arm_dofs[j]];
     candidate[j] = c->arm_integral[j] + error * dt;
     if (!(fabs(c->arm_kp * error + c->arm_ki * candidate[j]) < c->arm_force_limit[j])) within = 0;
   }
-  if (within) for (int j = 0; j < 6; j++) c->arm_integral[j] = candidate[j];
-  for (int j = 0; j < 6; j++) d->ctrl[c->arm_motors[j]] = ref[j] + c->arm_ki / c->arm_kp * c->arm_integral[j];
-  for (int j = 0; j < c->grippers; j++) d->ctrl[c->gripper_motors[j]] = c->references[10];
+  if (within) for (int j = 0; j < joints; j++) c->arm_integral[j] = candidate[j];
+  for (int j = 0; j < joints; j++) d->ctrl[c->arm_motors[j]] = ref[j] + c->arm_ki / c->arm_kp * c->arm_integral[j];
+  for (int j = 0; j < c->grippers; j++) d->ctrl[c->gripper_motors[j]] = c->references[4];
 }
 
 /* each link's twist relative to the water (body frame, about its centre of mass), its wrench into

@@ -14,12 +14,14 @@ import pytest
 
 from abyss.common.config import Config, load
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import Intervention, RecognisedObjects
+from abyss.common.messages import Heartbeat, Intervention, RecognisedObjects, Waypoints
 from abyss.common.robot import ROBOTS_DIR, robot_at
 from abyss.common.site import SITES_DIR, site_at, world_model
 from abyss.launch.mission_check import check_reach
 from abyss.stations.onboard.arm_control import ArmController, ArmKinematics, PoseReference
 from abyss.stations.onboard.commands import CommandGate
+from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.stations.onboard.intervention import PRE_GRASP_M, InterventionRun, Phase
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 from abyss.stations.vessel.intents import resolve
@@ -103,3 +105,64 @@ def test_the_whole_body_arm_brings_the_tool_onto_each_grasp_from_the_last_waypoi
     error_deg = math.degrees(np.linalg.norm(pin.log3(reference.rotation @ rotation.T)))
     moved_m = float(np.linalg.norm(world.truth().position_m_world - [x, y, z]))
     assert error_m < 0.005 and error_deg < 2.0 and moved_m < 0.25, (error_m, error_deg, moved_m)
+
+
+def test_a_whole_body_vehicle_flies_back_onto_its_mark_once_its_intervention_backed_off() -> None:
+    """The whole-body arm brings the tool onto the valve's pre-grasp pose from the last waypoint,
+    moving the vehicle off its mark; the intervention then done, the tool is held where it is
+    on the vehicle and the vehicle flies back onto its mark, carrying it. The arm held the tool on
+    the pre-grasp pose in the world before, and with it the vehicle wherever that left it: 292 mm
+    off its mark at the end of the library's nominal run."""
+    flown = config("simulation.low_level=kinematic", "simulation.camera_rate_hz=0")
+    mark = np.array(flown.mission.waypoints[-1])
+    x, y, z, yaw = mark
+    world = World(
+        load(
+            None,
+            [f"simulation.robot={ROBOT.directory}", f"simulation.site={SITE.directory}",
+             "simulation.low_level=kinematic", "simulation.camera_rate_hz=0",
+             f"simulation.start_position_m_world=[{x}, {y}, {z}]", f"simulation.start_yaw_rad={yaw}"],
+        ).simulation,
+        np.random.default_rng(0),
+    )  # fmt: skip
+    panel = SITE.panel
+    objects = RecognisedObjects(
+        ("panel",), np.array([[*panel.position_m_world, 1.0, 0, 0, 0]]), np.array([panel.plate_half_size_m]),
+        np.ones(1), "texture", 0.0,
+    )  # fmt: skip
+    goal, why = resolve(panel, Intervention(1, "valve", *panel.intent("valve", "90")), objects)
+    assert goal is not None, why
+    core = Onboard(flown)
+    run = core.intervention = InterventionRun(goal, core.grip)
+    backed_off = PoseReference(*run.pose_at(0.0, PRE_GRASP_M))
+    for _ in range(round(20.0 / PERIOD_S)):  # the retreat's end, as the whole-body arm reaches it
+        truth, joints = world.truth(), world.joints()
+        out = core.arm.step(
+            truth.position_m_world, truth.orientation_wxyz_world, joints.positions_rad, True, backed_off
+        )
+        assert out.vehicle_velocity is not None
+        world.step(References(out.vehicle_velocity, out.joint_velocities_radps, 0.0), PERIOD_S)
+    moved_m = float(np.linalg.norm(world.truth().position_m_world - mark[:3]))
+    run.phase = Phase.DONE
+    commands: list[Waypoints] = [Waypoints(1, (tuple(mark),))]
+    tools_m_vehicle = []
+    for step in range(round(20.0 / PERIOD_S)):
+        now_s = step * PERIOD_S
+        beats = [Heartbeat(0.0, True)] if step % 10 == 0 else []
+        out = core.step(OnboardInputs(commands, beats, [world.truth()], world.joints()), now_s)
+        commands = []
+        assert out.vehicle is not None and out.arm is not None
+        world.step(
+            References(np.r_[out.vehicle.linear_mps_body, out.vehicle.yaw_rate_radps],
+                       out.arm.joint_velocities_radps, 0.0),
+            PERIOD_S,
+        )  # fmt: skip
+        truth = world.truth()
+        tool = world.data.site(ROBOT.end_effector_site).xpos
+        tools_m_vehicle.append(rotation_of(truth.orientation_wxyz_world).T @ (tool - truth.position_m_world))
+    off_m = float(np.linalg.norm(world.truth().position_m_world - mark[:3]))
+    assert moved_m > 0.1 and off_m < 0.02, (moved_m, off_m)
+    assert core.carried is not None
+    held_m = float(np.linalg.norm(tools_m_vehicle[-1] - core.carried.translation))
+    moving_m = float(np.linalg.norm(tools_m_vehicle[-1] - tools_m_vehicle[0]))
+    assert held_m < 0.005 and moving_m < 0.005, (held_m, moving_m)  # carried on the vehicle, still

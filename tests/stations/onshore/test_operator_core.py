@@ -171,7 +171,8 @@ def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfi
     assert not out.status.done
     entry = operator.history[("op/waypoints", 123)]
     assert entry["answered"] is True and entry["accepted"] is True
-    # onboard holds the last waypoint and the end-effector its goal: the mission is done
+    # the last waypoint reached, the end-effector at its goal, but the vehicle still 6 cm off
+    # its mark (a whole-body arm moved it): not done yet; back on it, the mission is done
     reached = telemetry(
         command_id=123,
         waypoints_total=3,
@@ -180,8 +181,12 @@ def test_a_restarted_shore_takes_the_mission_onboard_flies(mission: MissionConfi
         arm_command_id=456,
         arm_mode="reached",
         boot_id=7,
+        position_error_m_world=np.array([0.0, 0.06, 0.0]),
     )
     out = operator.step(OperatorInputs(telemetry=[reached]), STATUS_PERIOD_S + 0.01)
+    assert mission.done_position_tolerance_m == 0.05 and out.status is not None and not out.status.done
+    reached = dataclasses.replace(reached, position_error_m_world=np.array([0.0, 0.04, 0.0]))
+    out = operator.step(OperatorInputs(telemetry=[reached]), 2 * STATUS_PERIOD_S + 0.02)
     assert isinstance(out.status, MissionStatus) and out.status.done
     assert (out.status.waypoint_index, out.status.waypoints_total) == (2, 3)
     # taken as answered: nothing is resent, however long shore waits

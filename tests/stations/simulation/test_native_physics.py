@@ -2,7 +2,9 @@
 the per-step marine terms in C a World steps bit for bit as the Python path does, with a current,
 the vehicle turning and the arm moving, over whole and partial low-level periods; the callback acts
 on the MjData registered and active alone. The low level in C gives the Python's outputs to
-rounding, period by period and over a flight, faults and saturation included."""
+rounding, period by period and over a flight, faults and saturation included, on both shipped
+robots: the work-class's six-joint arm, and the BlueROV2's four-joint arm with its attitude hold
+(roll and pitch through the same thrusters), which ran in Python before."""
 
 from __future__ import annotations
 
@@ -12,8 +14,10 @@ import mujoco
 import numpy as np
 import pytest
 
+from abyss.common.config import load
 from abyss.common.config.simulation import SimulationConfig
 from abyss.common.messages import SimulationControl
+from abyss.common.robot import ROBOTS_DIR, robot_at
 from abyss.stations.simulation import native
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
@@ -23,6 +27,18 @@ pytestmark = pytest.mark.skipif(
 )
 CONFIG = SimulationConfig(current_profile=((0.0, 0.2, -0.1, 0.0),), current_sigma_mps=0.05)
 MOVING = References(np.array([0.3, 0.1, -0.05, 0.2]), np.array([0.2, -0.3, 0.25, 0.1, -0.2, 0.3]), 0.01)
+BLUEROV2 = load(  # its package's low-level gains, the attitude hold's among them
+    None,
+    [f"simulation.robot={ROBOTS_DIR / 'bluerov2_heavy_alpha5'}",
+     "simulation.current_profile=[[0.0, 0.2, -0.1, 0.0]]", "simulation.current_sigma_mps=0.05"],
+).simulation  # fmt: skip
+ROBOTS = {"workclass": CONFIG, "bluerov2": BLUEROV2}
+
+
+def arm_of(refs: References, config: SimulationConfig) -> References:
+    """`refs` with the arm's references cut to the robot's joints."""
+    joints = len(robot_at(config.robot).arm_joints)
+    return References(refs.vehicle_body, refs.arm_radps[:joints], refs.gripper_mps)
 
 
 def flown(in_c: bool) -> World:
@@ -94,12 +110,16 @@ def assert_alike(c: dict[str, np.ndarray], python: dict[str, np.ndarray], rtol: 
     ],
     ids=["moving", "saturated"],
 )
-def test_the_low_level_in_c_gives_the_pythons_outputs_period_by_period(refs: References) -> None:
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_the_low_level_in_c_gives_the_pythons_outputs_period_by_period(refs: References, robot: str) -> None:
     """From the same state, each period's controls, the arm's forces and inertia entries and the
     controllers' state alike to rounding; a weakened thruster reaches C through the fault's array."""
-    world = World(CONFIG, np.random.default_rng(3))
+    config = ROBOTS[robot]
+    refs = arm_of(refs, config)
+    world = World(config, np.random.default_rng(3))
     native_low_level = world.native_low_level
     assert native_low_level is not None
+    assert bool(world.controller.attitude.held) == (robot == "bluerov2")  # type: ignore[attr-defined]
     for period in range(40):
         if period == 20:
             world.apply_fault(SimulationControl("thruster", "thr_fl", 0.5), set())
@@ -126,15 +146,19 @@ def restore(world: World, state: dict[str, np.ndarray]) -> None:
     controller.thrusters.rotor_speed[:] = state["rotors"]  # type: ignore[attr-defined]
 
 
-def test_a_flight_with_the_low_level_in_c_follows_the_pythons_to_rounding() -> None:
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_a_flight_with_the_low_level_in_c_follows_the_pythons_to_rounding(robot: str) -> None:
     """Ten seconds of flight in a current, the arm moving: the two paths part by rounding alone
     (they would part by far more on any changed term: a thruster's efficiency of 0.999 moves the
     vehicle by millimetres)."""
-    in_c, in_python = World(CONFIG, np.random.default_rng(3)), World(CONFIG, np.random.default_rng(3))
+    config = ROBOTS[robot]
+    moving = arm_of(MOVING, config)
+    in_c, in_python = World(config, np.random.default_rng(3)), World(config, np.random.default_rng(3))
+    assert in_c.native_low_level is not None
     in_python.native_low_level = None
     for _ in range(200):
-        in_c.step(MOVING, 0.05)
-        in_python.step(MOVING, 0.05)
-    assert np.linalg.norm(in_c.data.qpos[:3] - np.asarray(CONFIG.start_position_m_world)) > 1.0
+        in_c.step(moving, 0.05)
+        in_python.step(moving, 0.05)
+    assert np.linalg.norm(in_c.data.qpos[:3] - np.asarray(config.start_position_m_world)) > 1.0
     assert np.abs(in_c.data.qpos - in_python.data.qpos).max() < 1e-9
     assert np.abs(in_c.data.qvel - in_python.data.qvel).max() < 1e-9

@@ -14,7 +14,7 @@ import pytest
 
 from abyss.common.config import Config, load
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import Heartbeat, Intervention, RecognisedObjects, Waypoints
+from abyss.common.messages import Heartbeat, Intervention, InterventionGoal, RecognisedObjects, Waypoints
 from abyss.common.robot import ROBOTS_DIR, robot_at
 from abyss.common.site import SITES_DIR, site_at, world_model
 from abyss.launch.mission_check import check_reach
@@ -65,31 +65,40 @@ def test_the_waypoints_pass_onboards_checks_and_both_parts_lie_within_reach_of_t
         assert distance_m < 0.9 * reach_m, (part, distance_m, reach_m)  # not at the arm's stretch
 
 
+def at_the_last_waypoint() -> tuple[Config, World]:
+    """The robot's configuration on the kinematic low level, cameras off, and a world with the
+    vehicle on the mission's last waypoint."""
+    flown = config("simulation.low_level=kinematic", "simulation.camera_rate_hz=0")
+    x, y, z, yaw = flown.mission.waypoints[-1]
+    start = config(
+        "simulation.low_level=kinematic",
+        "simulation.camera_rate_hz=0",
+        f"simulation.start_position_m_world=[{x}, {y}, {z}]",
+        f"simulation.start_yaw_rad={yaw}",
+    )
+    return flown, World(start.simulation, np.random.default_rng(0))
+
+
+def resolved(part: str, amount: str) -> InterventionGoal:
+    """The goal the vessel resolves for `part` with the panel recognised where it stands."""
+    panel = SITE.panel
+    objects = RecognisedObjects(
+        ("panel",), np.array([[*panel.position_m_world, 1.0, 0, 0, 0]]), np.array([panel.plate_half_size_m]),
+        np.ones(1), "texture", 0.0,
+    )  # fmt: skip
+    goal, why = resolve(panel, Intervention(1, part, *panel.intent(part, amount)), objects)
+    assert goal is not None, why
+    return goal
+
+
 @pytest.mark.parametrize("part", ["valve", "lever"])
 def test_the_whole_body_arm_brings_the_tool_onto_each_grasp_from_the_last_waypoint(part: str) -> None:
     """From the stowed arm at the last waypoint, within 20 s: the tool within 5 mm and 2 degrees of
     the grasp the vessel resolves for the mission's intervention, the vehicle within 0.25 m of it
     (measured: 0.02 mm and 0.0003 deg, the vehicle 0.14 m off for the valve, 0.07 for the lever;
     without whole body the arm cannot level the approach, and unweighed the vehicle moves 0.29 m)."""
-    flown = config("simulation.low_level=kinematic", "simulation.camera_rate_hz=0")
-    x, y, z, _ = flown.mission.waypoints[-1]
-    world = World(
-        load(
-            None,
-            [f"simulation.robot={ROBOT.directory}", f"simulation.site={SITE.directory}",
-             "simulation.low_level=kinematic", "simulation.camera_rate_hz=0",
-             f"simulation.start_position_m_world=[{x}, {y}, {z}]"],
-        ).simulation,
-        np.random.default_rng(0),
-    )  # fmt: skip
-    panel = SITE.panel
-    objects = RecognisedObjects(
-        ("panel",), np.array([[*panel.position_m_world, 1.0, 0, 0, 0]]), np.array([panel.plate_half_size_m]),
-        np.ones(1), "texture", 0.0,
-    )  # fmt: skip
-    amount = dict(flown.mission.interventions)[part]
-    goal, why = resolve(panel, Intervention(1, part, *panel.intent(part, amount)), objects)
-    assert goal is not None, why
+    flown, world = at_the_last_waypoint()
+    goal = resolved(part, dict(flown.mission.interventions)[part])
     arm = ArmController(flown.onboard, flown.mission, ROBOT)
     reference = PoseReference(np.array(goal.grasp_m_world), rotation_of(goal.grasp_orientation_wxyz_world))
     for _ in range(round(20.0 / PERIOD_S)):
@@ -103,7 +112,7 @@ def test_the_whole_body_arm_brings_the_tool_onto_each_grasp_from_the_last_waypoi
     error_m = float(np.linalg.norm(site.xpos - reference.position_m_world))
     rotation = site.xmat.reshape(3, 3)
     error_deg = math.degrees(np.linalg.norm(pin.log3(reference.rotation @ rotation.T)))
-    moved_m = float(np.linalg.norm(world.truth().position_m_world - [x, y, z]))
+    moved_m = float(np.linalg.norm(world.truth().position_m_world - flown.mission.waypoints[-1][:3]))
     assert error_m < 0.005 and error_deg < 2.0 and moved_m < 0.25, (error_m, error_deg, moved_m)
 
 
@@ -113,25 +122,9 @@ def test_a_whole_body_vehicle_flies_back_onto_its_mark_once_its_intervention_bac
     on the vehicle and the vehicle flies back onto its mark, carrying it. The arm held the tool on
     the pre-grasp pose in the world before, and with it the vehicle wherever that left it: 292 mm
     off its mark at the end of the library's nominal run."""
-    flown = config("simulation.low_level=kinematic", "simulation.camera_rate_hz=0")
+    flown, world = at_the_last_waypoint()
     mark = np.array(flown.mission.waypoints[-1])
-    x, y, z, yaw = mark
-    world = World(
-        load(
-            None,
-            [f"simulation.robot={ROBOT.directory}", f"simulation.site={SITE.directory}",
-             "simulation.low_level=kinematic", "simulation.camera_rate_hz=0",
-             f"simulation.start_position_m_world=[{x}, {y}, {z}]", f"simulation.start_yaw_rad={yaw}"],
-        ).simulation,
-        np.random.default_rng(0),
-    )  # fmt: skip
-    panel = SITE.panel
-    objects = RecognisedObjects(
-        ("panel",), np.array([[*panel.position_m_world, 1.0, 0, 0, 0]]), np.array([panel.plate_half_size_m]),
-        np.ones(1), "texture", 0.0,
-    )  # fmt: skip
-    goal, why = resolve(panel, Intervention(1, "valve", *panel.intent("valve", "90")), objects)
-    assert goal is not None, why
+    goal = resolved("valve", "90")
     core = Onboard(flown)
     run = core.intervention = InterventionRun(goal, core.grip)
     backed_off = PoseReference(*run.pose_at(0.0, PRE_GRASP_M))

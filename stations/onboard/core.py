@@ -13,10 +13,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
 
 from abyss.common.config import Config
-from abyss.common.geometry import quat_wxyz_of, rotation_of, yaw_of
+from abyss.common.geometry import quat_wxyz_of, yaw_of
 from abyss.common.messages import (
     ArmGoal,
     ArmVelocityRef,
@@ -34,9 +33,10 @@ from abyss.common.messages import (
 from abyss.common.navigation import NavFilter
 from abyss.common.robot import robot_of
 from abyss.common.site import site_of
-from abyss.stations.onboard.arm_control import ArmController, ArmOutput, PoseReference
+from abyss.stations.onboard.arm_control import ArmController, ArmOutput
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
+from abyss.stations.onboard.homing import Homing
 from abyss.stations.onboard.intervention import Grip, InterventionRun
 from abyss.stations.onboard.modes import ControlMode, Mode
 from abyss.stations.onboard.vehicle_control import ControlOutput, VehicleController
@@ -93,8 +93,7 @@ class Onboard:
         self.tick = 0
         self.boot_id = new_id()  # shore sees a reboot by it, and hands the goals in force again
         self.intervention: InterventionRun | None = None  # the latest, once taken
-        # whole body: the tool's pose on the vehicle once the intervention backed off (`_carried`)
-        self.carried: pin.SE3 | None = None
+        self.homing: Homing | None = None  # whole body: the way back onto the mark after an intervention
         self.waiting: dict[tuple[str, int], Command] = {}  # arm goals judged once navigation settles
 
     def _arm_busy(self) -> str:
@@ -151,9 +150,9 @@ class Onboard:
                 self.arm.set_goal(
                     command.command_id, command.position_m_world, command.orientation_wxyz_world
                 )
-                self.intervention, self.carried = None, None
+                self.intervention = None
             elif isinstance(command, InterventionGoal):
-                self.intervention, self.carried = InterventionRun(command, self.grip), None
+                self.intervention, self.homing = InterventionRun(command, self.grip), None
             elif isinstance(command, OperatorMode):
                 self.operator_mode = ControlMode(command.mode)  # from the wire
         for beat in inputs.heartbeats:
@@ -195,17 +194,28 @@ class Onboard:
                 enabled,
             )
             reference, gripper_mps = command.reference, command.gripper_mps
-            if cfg.whole_body and not run.active:
-                reference = self._carried(reference, position, orientation)
+        backed_off = run is not None and not run.active
+        homing = self._homing(v.mode == Mode.MOVING or backed_off)
+        if homing is not None and backed_off:  # the tool told against its stowed pose
+            reference = homing.reference(arm.kinematics, position, orientation)
         a = arm.step(position, orientation, arm_rad, enabled, reference, joints.sim_time_s)
-        if run is not None and not run.active and a.mode == Mode.MOVING:
+        if backed_off and a.mode == Mode.MOVING:
             a = dataclasses.replace(a, mode=Mode.REACHED)
+        stowing = homing is not None and not hold  # in the joints: no need of a settled navigation
+        gripper = self._gripper_mps(gripper_mps, a, joints)
+        if stowing:
+            assert homing is not None
+            stow_radps, gripper = homing.step(arm_rad, joints.gripper_opening_m)
+            mode = (Mode.REACHED if homing.stowed else Mode.MOVING) if backed_off else a.mode
+            a = dataclasses.replace(a, joint_velocities_radps=stow_radps, vehicle_velocity=None, mode=mode)
         out.arm_m_world = arm.kinematics.chain_m_world()
         linear, yaw_rate = v.linear_mps_body, v.yaw_rate_radps
-        if a.vehicle_velocity is not None and a.mode in (Mode.MOVING, Mode.REACHED) and self.carried is None:
+        if a.vehicle_velocity is not None and a.mode in (Mode.MOVING, Mode.REACHED):
             linear, yaw_rate = a.vehicle_velocity[:3], float(a.vehicle_velocity[3])
+        if stowing and homing is not None and not homing.stowed:  # held still until the arm is stowed
+            linear, yaw_rate = np.zeros(3), 0.0
         sent = out.vehicle = VelocityRef(linear, yaw_rate)
-        out.arm = ArmVelocityRef(a.joint_velocities_radps, self._gripper_mps(gripper_mps, a, joints))
+        out.arm = ArmVelocityRef(a.joint_velocities_radps, gripper)
         if self.failsafe.blind:  # no navigation: stopped, not steered by an estimate gone still
             sent = out.vehicle = VelocityRef(np.zeros(3), 0.0)
             out.arm = ArmVelocityRef(np.zeros(len(arm_rad)), 0.0)
@@ -215,19 +225,14 @@ class Onboard:
         if self.tick % self.every == 0:
             out.telemetry = self._telemetry(v, a, joints, hold or armless, sent)
 
-    def _carried(
-        self, reference: PoseReference, position_m_world: np.ndarray, orientation_wxyz_world: np.ndarray
-    ) -> PoseReference:
-        """A whole-body vehicle's intervention backed off: the tool held where its reference put
-        it on the vehicle (the joints still), and the vehicle flown back to its mark by its own
-        controller, carrying it: the mission ends with the vehicle on its mark, as a vehicle that
-        held there throughout does (the arm would otherwise keep the tool on the part's pre-grasp
-        pose in the world, and the vehicle wherever that left it)."""
-        vehicle = pin.SE3(rotation_of(orientation_wxyz_world), np.asarray(position_m_world))
-        if self.carried is None:
-            self.carried = vehicle.actInv(pin.SE3(reference.rotation, reference.position_m_world))
-        pose = vehicle * self.carried
-        return PoseReference(pose.translation.copy(), pose.rotation.copy())
+    def _homing(self, due: bool) -> Homing | None:
+        """A whole-body vehicle's homing (homing.py), kept while it is `due` (the vehicle flies
+        between waypoints, or the intervention backed off) in automatic mode; None otherwise."""
+        if not (due and self.cfg.whole_body and self.operator_mode == ControlMode.AUTO):
+            self.homing = None
+        elif self.homing is None:
+            self.homing = Homing(self.robot.stowed_rad, self.cfg.max_joint_speed_radps, self.grip)
+        return self.homing
 
     def _gripper_mps(self, intervention_mps: float | None, a: ArmOutput, joints: JointState) -> float:
         """The gripper's speed [m/s]: the intervention's; without one, opened while the arm

@@ -109,6 +109,13 @@ class Grip:
         meet_m = handle_thickness_m - closed_gap_m
         return Grip(opening_m - OPEN_SHORT_M, meet_m / 2, meet_m + HELD_SLACK_M, meet_m + REACH_CLEARANCE_M)
 
+    def open_mps(self, opening_m: float) -> float:
+        """The fingers' speed towards `open_m` from `opening_m` [m/s]."""
+        return float(np.clip(OPEN_GAIN_PER_S * (self.open_m - opening_m), -0.05, 0.05))
+
+    def opened(self, opening_m: float) -> bool:
+        return opening_m > self.open_m - 0.01
+
 
 @dataclass(frozen=True)
 class Command:
@@ -240,11 +247,11 @@ class InterventionRun:
         return self.settled_s >= SETTLE_S
 
     def _open(self, opening_m: float) -> float:
-        return float(np.clip(OPEN_GAIN_PER_S * (self.grip.open_m - opening_m), -0.05, 0.05))
+        return self.grip.open_mps(opening_m)
 
     def _approach(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
         position, rotation = self.pose_at(self.from_rad, PRE_GRASP_M)
-        if self._settled(tool, position, rotation, dt_s) and opening_m > self.grip.open_m - 0.01:
+        if self._settled(tool, position, rotation, dt_s) and self.grip.opened(opening_m):
             self._next(Phase.PRE_GRASP)
         else:
             self._timed_out("the pre-grasp pose not reached")
@@ -334,7 +341,7 @@ class InterventionRun:
 
     def _release(self, tool: pin.SE3, opening_m: float, dt_s: float) -> Command:
         position, rotation = self.pose_at(self.turned_rad)
-        if opening_m > self.grip.open_m - 0.01 or self.phase_s >= TIMEOUT_S[Phase.RELEASE]:
+        if self.grip.opened(opening_m) or self.phase_s >= TIMEOUT_S[Phase.RELEASE]:
             self.from_rad = self.turned_rad
             self._next(Phase.RETREAT)
         return Command(PoseReference(position, rotation), self._open(opening_m))

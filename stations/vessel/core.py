@@ -192,6 +192,15 @@ class Relay:
             self.believed_rad[name] = part_angle_rad(
                 self.panel, name, min(candidates, key=lambda a: abs(a - believed))
             )
+            if abs(self.believed_rad[name] - believed) > math.radians(1.0):
+                log.info(
+                    "%s seen at %.1f deg (believed %.1f before), confidence %.2f, the tool %s m off",
+                    name,
+                    math.degrees(self.believed_rad[name]),
+                    math.degrees(believed),
+                    seen.confidence,
+                    "?" if t is None else f"{np.linalg.norm(t.ee_position_m_world - pivot_m_world):.2f}",
+                )
 
     def _believe(self, t: Telemetry) -> None:
         if t.intervention_phase in ("done", "failed") and t.intervention_id in self.resolved:

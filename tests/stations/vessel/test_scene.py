@@ -29,10 +29,12 @@ from abyss.stations.onboard.perception import Camera, CloudSettings, camera_in_w
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
+from abyss.stations.vessel.core import SEEN_MIN_CONFIDENCE
 from abyss.stations.vessel.intake import Intake, IntakeInputs
 from abyss.stations.vessel.recognition import (
     CONFIDENCE_GAIN,
     PanelTracker,
+    angle_confidence,
     by_texture,
     rotation_error_rad,
     seen_angles,
@@ -374,6 +376,20 @@ def test_vision_measures_each_valves_handle_angle_within_3_degrees(
         assert abs(off_deg) < 3.0, (name, angle_deg)
     for name in set(seen) & set(panel.levers):
         assert np.degrees(seen[name].angle_rad) == pytest.approx(TURNED_DEG[name], abs=10.0), name
+
+
+def test_a_handles_angle_is_believed_from_nearer_the_shorter_the_handle() -> None:
+    """A pixel is an angle that shrinks with the handle's length: the small panel's bar (0.06 m
+    from its pivot, half the shipped panel's) was read 6.3 deg off from 1.3 m, with the
+    confidence 0.96 that the shipped bar earns there, and a restarted vessel turned the valve to
+    83.7 deg by that belief. It is believed from half the distance now; the shipped panel's
+    handles as before."""
+    small_bar_m, shipped_bar_m, shipped_shaft_m = 0.06, 0.12, 0.2
+    assert angle_confidence(0.96, 1.3, small_bar_m, valve=True) < SEEN_MIN_CONFIDENCE  # 0.32
+    assert angle_confidence(0.96, 0.65, small_bar_m, valve=True) == pytest.approx(0.96)  # at its mark
+    assert angle_confidence(0.96, 1.3, shipped_bar_m, valve=True) == pytest.approx(0.96)
+    assert angle_confidence(1.0, 3.0, shipped_bar_m, valve=True) == pytest.approx(0.25)  # (1.5 / 3)^2
+    assert angle_confidence(1.0, 3.0, shipped_shaft_m, valve=False) == pytest.approx(0.25)
 
 
 def test_the_vessels_intake_recognises_the_panel_on_its_schedule(start: View) -> None:

@@ -519,8 +519,9 @@ class Lockstep:
                 return
 
     def close(self) -> None:
-        """Undeclared once stopped (`stop` set), not while the repeats publish."""
+        """Undeclared once stopped (`stop` set): the publisher not while the repeats publish (the
+        subscribers outside the lock, which a callback in flight may be waiting for)."""
+        for subscriber in self._subscribers:
+            subscriber.undeclare()
         with self._cond:
-            for subscriber in self._subscribers:
-                subscriber.undeclare()
             self._publisher.undeclare()

@@ -29,6 +29,7 @@ from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.lowlevel import Dynamic, References
 from abyss.stations.simulation.strips import ArmStrips
 
+ABI = 2  # native_physics.c's abyss_physics_abi: its structs' layout (2: any arm, the attitude hold)
 LIBRARY = Path(sys.prefix) / "lib" / "abyss" / "libabyss_physics.so"  # a build output, not a module
 log = logging.getLogger(__name__)
 _double6 = ctypes.c_double * 6
@@ -147,6 +148,9 @@ def library() -> ctypes.CDLL | None:
     try:
         lib = ctypes.CDLL(str(LIBRARY))
         low_level = lib.abyss_low_level
+        abi = lib.abyss_physics_abi()
+        if abi != ABI:  # the structs' layout changed: read with the wrong one, a run crashed
+            raise AttributeError(f"its structs' layout is {abi}, this source's {ABI}")
     except (OSError, AttributeError) as exc:  # built against another MuJoCo, or from another source
         log.warning("%s does not load (%s): the physics runs in Python; run setup.sh", LIBRARY.name, exc)
         return None

@@ -20,6 +20,10 @@
 #define ABYSS_MARINE_WORLDS 1024  /* registered at once in one process */
 #define ABYSS_ARM_MAX 16  /* an arm's joints at most (messages' MAX_ARM_JOINTS) */
 
+/* the layout of the structs below, as native.py's ABI: a library built from another source is
+ * refused there rather than read with the wrong layout */
+int abyss_physics_abi(void) { return 2; }
+
 typedef struct {
   const mjData* data;  /* whose steps these terms are */
   int active;          /* set around the steps it must act on */

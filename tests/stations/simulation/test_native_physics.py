@@ -9,6 +9,8 @@ robots: the work-class's six-joint arm, and the BlueROV2's four-joint arm with i
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 
 import mujoco
 import numpy as np
@@ -162,3 +164,13 @@ def test_a_flight_with_the_low_level_in_c_follows_the_pythons_to_rounding(robot:
     assert np.linalg.norm(in_c.data.qpos[:3] - np.asarray(config.start_position_m_world)) > 1.0
     assert np.abs(in_c.data.qpos - in_python.data.qpos).max() < 1e-9
     assert np.abs(in_c.data.qvel - in_python.data.qvel).max() < 1e-9
+
+
+def test_a_library_built_from_another_layout_is_refused_and_the_physics_runs_in_python() -> None:
+    """The library is a build output beside the source, not part of it: one built from a source
+    whose structs were laid out otherwise (bench/cost.py's baseline tree, with this checkout's
+    library, crashed its stations) is refused with why, not read with the wrong layout."""
+    probe = "import abyss.stations.simulation.native as n; n.ABI += 1; print(n.library())"
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "None", done.stderr
+    assert "layout" in done.stderr and "run setup.sh" in done.stderr

@@ -36,6 +36,12 @@ WORKDIR /abyss
 # code, the stations, and the testbed around them; a thin layer, installed offline
 COPY pyproject.toml README.md __init__.py py.typed ./
 COPY common common
+COPY description description
+COPY interface interface
+COPY timing timing
+COPY security security
+COPY config config
+COPY bus bus
 COPY linkemu linkemu
 COPY scene scene
 COPY stations stations

@@ -1,4 +1,4 @@
-"""Bus figures: common/bus.py against raw zenoh-python in the same run, and `abyss up`
+"""Bus figures: bus/session.py against raw zenoh-python in the same run, and `abyss up`
 start-up time. Run: .venv/bin/python bench/bus.py [--startup-runs N]. Prints figures; asserts nothing.
 
 Each case opens two Zenoh peer sessions in this process over loopback TCP. The bus side
@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.config import Config
-from abyss.common.config.system import LinksConfig
-from abyss.common.messages import Message, NavState, Waypoints, encode
-from abyss.common.qos import publisher_qos
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.samples import Samples
+from abyss.config import Config
+from abyss.config.system import LinksConfig
+from abyss.interface import keys
+from abyss.interface.messages import Message, NavState, Waypoints, encode
+from abyss.interface.qos import publisher_qos
 from abyss.launch.station import Shell, free_port
 
 SYSTEM = "bench"

@@ -47,13 +47,13 @@ single_threaded_native_pools()  # as a station runs them
 import cv2  # noqa: E402
 import mujoco  # noqa: E402
 
-from abyss.common.clouds import unpack_cloud  # noqa: E402
-from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.config.stations import OnboardConfig, VesselConfig  # noqa: E402
-from abyss.common.config.system import MissionConfig  # noqa: E402
-from abyss.common.images import decode_image, encode_jpeg  # noqa: E402
-from abyss.common.robot import robot_at  # noqa: E402
-from abyss.common.site import site_at  # noqa: E402
+from abyss.config.simulation import SimulationConfig  # noqa: E402
+from abyss.config.stations import OnboardConfig, VesselConfig  # noqa: E402
+from abyss.config.system import MissionConfig  # noqa: E402
+from abyss.description.robot import robot_at  # noqa: E402
+from abyss.description.site import site_at  # noqa: E402
+from abyss.interface.clouds import unpack_cloud  # noqa: E402
+from abyss.interface.images import decode_image, encode_jpeg  # noqa: E402
 from abyss.scene import model as scene_model  # noqa: E402
 from abyss.stations.onboard import perception, stereo  # noqa: E402
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of  # noqa: E402

@@ -26,10 +26,10 @@ import zenoh
 from selenium import webdriver
 from selenium.webdriver.common.by import By
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.messages import OperatorMode, Telemetry, new_id
+from abyss.bus.session import client_config, message_of, open_session
 from abyss.console.op import send
+from abyss.interface import keys
+from abyss.interface.messages import OperatorMode, Telemetry, new_id
 
 ROOT = Path(__file__).resolve().parents[1]
 TICKS_PER_S = os.sysconf("SC_CLK_TCK")

@@ -13,8 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from abyss.common.config import load
-from abyss.common.robot import robot_at
+from abyss.config import load
+from abyss.description.robot import robot_at
 from abyss.stations.onboard.arm_control import ArmController
 from abyss.stations.onboard.task_priority import damped_pinv
 from abyss.stations.simulation.lowlevel import References

@@ -28,8 +28,8 @@ import time
 from importlib import metadata
 from pathlib import Path
 
-from abyss.common import keys
-from abyss.common.bus import client_config, open_session
+from abyss.bus.session import client_config, open_session
+from abyss.interface import keys
 from abyss.launch.station import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -187,7 +187,7 @@ def code_change_context(into: Path) -> Path:
         target = into / path.relative_to(ROOT)
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(path, target)
-    with (into / "common" / "keys.py").open("a") as keys_py:
+    with (into / "interface" / "keys.py").open("a") as keys_py:
         keys_py.write(f"# changed for the benchmark at {time.time()}\n")
     return into
 

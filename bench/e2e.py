@@ -11,8 +11,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from abyss.common import keys
-from abyss.common.config import Config
+from abyss.config import Config
+from abyss.interface import keys
 from abyss.linkemu.link import HEADER_BYTES
 
 # the chain of keys that carries the vehicle's state from simulation to shore

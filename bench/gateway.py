@@ -21,10 +21,10 @@ from collections.abc import Callable
 import numpy as np
 import zenoh
 
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.clouds import pack_cloud
-from abyss.common.messages import JointState, Message, NavState, VelocityRef, decode, encode
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.samples import Samples
+from abyss.interface.clouds import pack_cloud
+from abyss.interface.messages import JointState, Message, NavState, VelocityRef, decode, encode
 from abyss.launch.station import free_port
 from abyss.ros2 import from_ros, motion, msgs, rmw, status, types
 from abyss.ros2.session import Session

@@ -24,7 +24,7 @@ from matplotlib.axes import Axes
 from matplotlib.colors import ListedColormap
 from matplotlib.patches import Patch
 
-from abyss.common.messages import SceneUpdate, decode
+from abyss.interface.messages import SceneUpdate, decode
 from abyss.scene.export import SCENE_FILE
 from abyss.scene.receiver import SceneReceiver
 

@@ -24,10 +24,11 @@ from pathlib import Path
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.config import Config
-from abyss.common.messages import (
+from abyss.bus.session import client_config, message_of, open_session
+from abyss.config import Config
+from abyss.description.models.panel import intent_of
+from abyss.interface import keys
+from abyss.interface.messages import (
     CommandAck,
     Intervention,
     LinkControl,
@@ -37,7 +38,6 @@ from abyss.common.messages import (
     encode,
     new_id,
 )
-from abyss.common.models.panel import intent_of
 from abyss.launch.state import wait_for_state
 from abyss.stations.onboard.intervention import TURN_RATE_RADPS
 

@@ -22,7 +22,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-from abyss.common.messages import IDLE_PHASES
+from abyss.interface.messages import IDLE_PHASES
 from abyss.validation.campaign.stats import wilson
 
 AFTER = "after the mission's end"

@@ -9,7 +9,7 @@ import time
 
 import numpy as np
 
-from abyss.common.linkprofile import profile
+from abyss.config.linkprofile import profile
 from abyss.linkemu.runner import LinkRunner
 
 

@@ -16,8 +16,8 @@ from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
 
-from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.robot import robot_at  # noqa: E402
+from abyss.config.simulation import SimulationConfig  # noqa: E402
+from abyss.description.robot import robot_at  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.optics import range_of_depth  # noqa: E402
 from abyss.stations.simulation.rendering import Cameras  # noqa: E402

@@ -40,12 +40,12 @@ single_threaded_native_pools()  # as a station runs them
 
 import mujoco  # noqa: E402
 
-from abyss.common.clouds import unpack_cloud  # noqa: E402
-from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.config.stations import OnboardConfig, VesselConfig  # noqa: E402
-from abyss.common.config.system import MissionConfig  # noqa: E402
 from abyss.common.geometry import rotation_of  # noqa: E402
-from abyss.common.robot import robot_at  # noqa: E402
+from abyss.config.simulation import SimulationConfig  # noqa: E402
+from abyss.config.stations import OnboardConfig, VesselConfig  # noqa: E402
+from abyss.config.system import MissionConfig  # noqa: E402
+from abyss.description.robot import robot_at  # noqa: E402
+from abyss.interface.clouds import unpack_cloud  # noqa: E402
 from abyss.scene.model import SceneModel  # noqa: E402
 from abyss.scene.octree import cell_keys, iterate_leaves, leaves_to_cells  # noqa: E402
 from abyss.stations.onboard.perception import Camera, CloudSettings, clouds_of, depth_to_points  # noqa: E402

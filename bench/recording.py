@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from abyss.common import keys
+from abyss.interface import keys
 from abyss.recording.store import RECORD_DIR, Caps, Recorder
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -11,7 +11,7 @@ the state's mj_forward are left out: they cost the same on any GL backend.
 Self-contained, for a machine where abyss is not installed: it imports numpy, mujoco (and PyOpenGL,
 which mujoco's EGL and OSMesa contexts use, for the GL vendor string), cv2 (Cameras.rgb imports
 stations/simulation/optics.py, even in clear water) and, of abyss, only stations/simulation/
-rendering.py and optics.py, common/config/simulation.py (errors.py, fields.py) and common/models;
+rendering.py and optics.py, config/simulation.py (errors.py, fields.py) and description/models;
 the packages' __init__ modules (the station, the bus: zenoh, msgpack, zstandard, cryptography)
 are not run.
 Where `abyss` is not importable as this checkout, a temporary folder with a link abyss -> the
@@ -73,7 +73,7 @@ def _bare_package(name: str, folder: Path) -> None:
 _use_this_checkout()
 _bare_package("abyss.stations", REPO / "stations")
 _bare_package("abyss.stations.simulation", REPO / "stations" / "simulation")
-_bare_package("abyss.common.config", REPO / "common" / "config")
+_bare_package("abyss.config", REPO / "config")
 
 from abyss.stations.simulation.rendering import Cameras, choose_gl_backend  # noqa: E402
 
@@ -81,10 +81,9 @@ BACKEND = choose_gl_backend()  # MUJOCO_GL, else the simulation's choice; before
 
 import mujoco  # noqa: E402
 
-from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.models import place_at_start  # noqa: E402
-from abyss.common.robot import robot_at  # noqa: E402
-from abyss.common.site import site_at, world_model  # noqa: E402
+from abyss.config.simulation import SimulationConfig  # noqa: E402
+from abyss.description.robot import place_at_start, robot_at  # noqa: E402
+from abyss.description.site import site_at, world_model  # noqa: E402
 
 ROBOT = robot_at("")  # the shipped robot package
 CAMERAS = ROBOT.cameras
@@ -92,7 +91,7 @@ DEPTH_CAMERA = ROBOT.depth_camera  # encoding.encode_image: its depth; the other
 
 
 def start_pose(model: mujoco.MjModel, sim: SimulationConfig) -> mujoco.MjData:
-    """World's initial state (common.models.place_at_start)."""
+    """World's initial state (description.models.place_at_start)."""
     data = mujoco.MjData(model)
     place_at_start(model, data.qpos, ROBOT, sim.start_position_m_world, sim.start_yaw_rad)
     mujoco.mj_forward(model, data)

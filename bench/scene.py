@@ -22,12 +22,12 @@ from abyss.stations.simulation.rendering import choose_gl_backend
 choose_gl_backend()
 single_threaded_native_pools()  # as a station runs them
 
-from abyss.common.clouds import unpack_cloud, voxel_downsample  # noqa: E402
-from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.config.stations import VesselConfig  # noqa: E402
-from abyss.common.images import decode_image  # noqa: E402
-from abyss.common.messages import encode  # noqa: E402
-from abyss.common.robot import robot_at  # noqa: E402
+from abyss.config.simulation import SimulationConfig  # noqa: E402
+from abyss.config.stations import VesselConfig  # noqa: E402
+from abyss.description.robot import robot_at  # noqa: E402
+from abyss.interface.clouds import unpack_cloud, voxel_downsample  # noqa: E402
+from abyss.interface.images import decode_image  # noqa: E402
+from abyss.interface.messages import encode  # noqa: E402
 from abyss.scene.model import SceneModel  # noqa: E402
 from abyss.scene.octree import iterate_leaves  # noqa: E402
 from abyss.stations.onboard.perception import CloudSettings, clouds_of  # noqa: E402

@@ -29,7 +29,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "linkemu"))
 import uml  # noqa: E402  (the tests' UML boot, shared)
 
-from abyss.common.linkprofile import profile  # noqa: E402
+from abyss.config.linkprofile import profile  # noqa: E402
 
 PINGS, SPACING_S = 100, 0.5  # spaced wider than the jitter: netem with a rate keeps order
 UDP_S, UDP_OFFERED_BPS, UDP_PAYLOAD_BYTES = 10.0, 2e6, 1372

@@ -26,11 +26,11 @@ from abyss.stations.simulation.rendering import choose_gl_backend
 
 choose_gl_backend()
 
-from abyss.common import keys  # noqa: E402
-from abyss.common.bus import open_session, zenoh_config  # noqa: E402
-from abyss.common.config.simulation import SimulationConfig  # noqa: E402
-from abyss.common.messages import SimulationStatus, decode  # noqa: E402
-from abyss.common.robot import robot_at  # noqa: E402
+from abyss.bus.session import open_session, zenoh_config  # noqa: E402
+from abyss.config.simulation import SimulationConfig  # noqa: E402
+from abyss.description.robot import robot_at  # noqa: E402
+from abyss.interface import keys  # noqa: E402
+from abyss.interface.messages import SimulationStatus, decode  # noqa: E402
 from abyss.launch.station import free_port  # noqa: E402
 from abyss.stations.simulation.encoding import encode_image  # noqa: E402
 from abyss.stations.simulation.lowlevel import References  # noqa: E402

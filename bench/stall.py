@@ -19,11 +19,11 @@ import tempfile
 import time
 from pathlib import Path
 
-from abyss.common import keys
+from abyss.interface import keys
 from abyss.recording.reader import read_file
 
 ROOT = Path(__file__).resolve().parents[1]
-STOOD = ("no further for", "simulated time stood still")  # common.clock.Holdback's words
+STOOD = ("no further for", "simulated time stood still")  # timing.clock.Holdback's words
 
 
 def scenario_run(files: list[Path], out: Path, *time_args: str, parallel: int = 1) -> str:

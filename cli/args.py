@@ -10,12 +10,12 @@ from typing import Any
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, open_session
-from abyss.common.config import Config, load
-from abyss.common.config.system import TIME_MODES
+from abyss.bus.session import client_config, open_session
 from abyss.common.errors import AbyssError, BusError, ConfigError
-from abyss.common.linkprofile import FIELDS
+from abyss.config import Config, load
+from abyss.config.linkprofile import FIELDS
+from abyss.config.system import TIME_MODES
+from abyss.interface import keys
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -184,7 +184,7 @@ def connect_args(p: argparse.ArgumentParser) -> None:
 
 def package_args(p: argparse.ArgumentParser, robot: bool = True, site: bool = True) -> None:
     """--robot DIR and --site DIR: the robot and site packages (simulation.robot, simulation.site;
-    common.robot, common.site) a command runs, or, for a tool that talks to a running system, that
+    description.robot, description.site) a command runs, or, for a tool that talks to a running system, that
     system runs; the shipped ones by default."""
     if robot:
         p.add_argument(

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from abyss.cli.args import config_args, cpu_arg, load_config
-from abyss.common import keys
 from abyss.common.errors import LinkError
+from abyss.interface import keys
 from abyss.linkemu.control import LINK_MODES
 
 

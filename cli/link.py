@@ -14,11 +14,11 @@ from abyss.cli.args import (
     profile_args,
     profile_fields,
 )
-from abyss.common import keys
-from abyss.common.config import Config
 from abyss.common.errors import ConfigError
-from abyss.common.linkprofile import load_profiles, profile
-from abyss.common.messages import (
+from abyss.config import Config
+from abyss.config.linkprofile import load_profiles, profile
+from abyss.interface import keys
+from abyss.interface.messages import (
     LinkControl,
     encode,
 )

@@ -7,11 +7,11 @@ from pathlib import Path
 from typing import Any
 
 from abyss.common.errors import BadMessage, ConfigError
-from abyss.common.messages import (
+from abyss.description.site import site_at
+from abyss.interface.messages import (
     SceneUpdate,
     decode,
 )
-from abyss.common.site import site_at
 
 
 def cmd_terrain_build(args: argparse.Namespace) -> int:

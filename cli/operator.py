@@ -10,17 +10,17 @@ from typing import Any
 
 import zenoh
 
+from abyss.bus.session import message_of
 from abyss.cli.args import client, connect_args, package_args
-from abyss.common import faults, keys
-from abyss.common.bus import message_of
 from abyss.common.errors import BadInput, ConfigError
-from abyss.common.messages import (
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at
+from abyss.interface import faults, keys
+from abyss.interface.messages import (
     SimulationControl,
     SimulationStatus,
     encode,
 )
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at
 
 
 def fault_control(
@@ -42,7 +42,7 @@ def fault_help(robot: str = "") -> str:
     """`abyss fault`'s description: the fault table, each fault's targets on the robot's model
     (`robot`: its package; "" the shipped one)."""
     names = faults.model_names(robot_at(robot), site_at("").panel)
-    lines = ["Faults (common/faults.py), each with its targets on this robot:"]
+    lines = ["Faults (interface/faults.py), each with its targets on this robot:"]
     for row in faults.FAULT_TABLE.values():
         allowed = faults.targets(row.name, names)
         where = f"targets: {', '.join(allowed)}; " if allowed else ""
@@ -109,8 +109,8 @@ def cmd_console(args: argparse.Namespace) -> int:
 
     if args.token:
         from abyss.common.errors import ConfigError
-        from abyss.common.security import tool_certificates
         from abyss.console.access import token_of
+        from abyss.security.access import tool_certificates
 
         certificates = tool_certificates(args.connect)
         if certificates is None:

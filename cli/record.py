@@ -11,9 +11,9 @@ from typing import Any
 
 from abyss.cli.args import load_config
 from abyss.cli.system import run_args, up_config
-from abyss.common import keys
-from abyss.common.config import Config
 from abyss.common.errors import ConfigError
+from abyss.config import Config
+from abyss.interface import keys
 
 COMPARE_FILE = "compare.json"
 

@@ -1,5 +1,5 @@
 """`abyss robot check DIR`: the report a team reads before trusting a robot package
-(validation/robot_check.py). Exit 0 when every check passes, 1 when any warns, 2 for a package
+(validation/robot/check.py). Exit 0 when every check passes, 1 when any warns, 2 for a package
 that does not load (its ConfigError, naming the file and the field, through cli's handler)."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ from typing import Any
 
 
 def cmd_robot_check(args: argparse.Namespace) -> int:
-    from abyss.validation.robot_check import CHECKS, check_robot, write
+    from abyss.validation.robot.check import check_robot, write
+    from abyss.validation.robot.report import CHECKS
 
     def progress(name: str) -> None:
         print(f"abyss: robot check {CHECKS.index(name) + 1}/{len(CHECKS)}: {name} ...", flush=True)

@@ -18,14 +18,14 @@ from abyss.cli.args import (
     load_config,
     pairs,
 )
-from abyss.common import keys
-from abyss.common.config import Config
-from abyss.common.config.hybrid import ROS2_VEHICLE
-from abyss.common.config.stations import VIEWERS, Viewer
-from abyss.common.config.system import RECORD_LEVELS, ROS2_STATIONS
 from abyss.common.errors import ConfigError
-from abyss.common.security import TLS_DIR_ENV
+from abyss.config import Config
+from abyss.config.hybrid import ROS2_VEHICLE
+from abyss.config.stations import VIEWERS, Viewer
+from abyss.config.system import RECORD_LEVELS, ROS2_STATIONS
+from abyss.interface import keys
 from abyss.linkemu.control import LINK_MODES
+from abyss.security.access import TLS_DIR_ENV
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -188,7 +188,7 @@ def cmd_health(args: argparse.Namespace) -> int:
 
 
 def cmd_certs_make(args: argparse.Namespace) -> int:
-    from abyss.common import certs
+    from abyss.security import certs
 
     hosts: dict[str, list[str]] = {}
     for holder, host in pairs("--host", args.host):

@@ -14,10 +14,10 @@ from abyss.cli.args import (
     load_config,
     package_args,
 )
-from abyss.common import keys
-from abyss.common.config.system import TIME_MODES
 from abyss.common.errors import ConfigError
-from abyss.common.linkprofile import profile
+from abyss.config.linkprofile import profile
+from abyss.config.system import TIME_MODES
+from abyss.interface import keys
 
 if TYPE_CHECKING:
     from abyss.validation.scenario.spec import Scenario
@@ -64,8 +64,8 @@ def on_packages(scenario: Scenario, robot: str, site: str) -> Scenario:
     one's name, or a directory here), each checked as its configuration is."""
     import dataclasses
 
-    from abyss.common.config import merge
-    from abyss.common.models import package_dir
+    from abyss.config import merge
+    from abyss.description.models import package_dir
     from abyss.validation.scenario.fields import configured
 
     packages = {

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -97,3 +98,24 @@ def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
         ]
     )
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """A pinhole camera's: its image's size and focal lengths [px], its principal point [px]."""
+
+    width_px: int
+    height_px: int
+    fx_px: float
+    fy_px: float
+    cx_px: float
+    cy_px: float
+
+    @staticmethod
+    def from_fovy(width_px: int, height_px: int, fovy_deg: float) -> Intrinsics:
+        """MuJoCo's cameras: vertical field of view, square pixels, centred principal point."""
+        f = 0.5 * height_px / np.tan(np.radians(fovy_deg) / 2.0)
+        return Intrinsics(width_px, height_px, f, f, width_px / 2.0, height_px / 2.0)
+
+    def matrix(self) -> np.ndarray:
+        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])

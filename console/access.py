@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from email.message import Message as Headers
 from urllib.parse import parse_qs, urlsplit
 
-from abyss.common.certs import CertFiles
+from abyss.security.certs import CertFiles
 
 HEADER = "X-Abyss-Token"
 OPEN_PATHS = ("/", "/console.js")  # the page itself: it holds nothing, and says when it needs the token

@@ -13,11 +13,14 @@ import time
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
+from abyss.bus.session import client_config, message_of, open_session
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
-from abyss.common.messages import (
+from abyss.console.access import operator_name
+from abyss.description.models.panel import Panel, intent_of
+from abyss.description.site import site_at
+from abyss.interface import keys
+from abyss.interface.messages import (
     OPERATOR_MODES,
     ArmGoal,
     CommandAck,
@@ -27,9 +30,6 @@ from abyss.common.messages import (
     encode,
     new_id,
 )
-from abyss.common.models.panel import Panel, intent_of
-from abyss.common.site import site_at
-from abyss.console.access import operator_name
 
 RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
 

@@ -22,11 +22,15 @@ import cv2
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import message_of
+from abyss.bus.session import message_of
 from abyss.common.errors import BadInput
 from abyss.common.geometry import roll_pitch_of
-from abyss.common.messages import (
+from abyss.console.access import operator_name
+from abyss.console.op import INTENTS, Command, command_of, put_command, sender_of, text_of
+from abyss.console.teleop import Goals, Target
+from abyss.description.site import site_at
+from abyss.interface import keys
+from abyss.interface.messages import (
     TOOL_COMMANDS,
     CommandAck,
     Image,
@@ -38,11 +42,7 @@ from abyss.common.messages import (
     Telemetry,
     new_id,
 )
-from abyss.common.site import site_at
-from abyss.common.sonar_frames import decode_polar, fan
-from abyss.console.access import operator_name
-from abyss.console.op import INTENTS, Command, command_of, put_command, sender_of, text_of
-from abyss.console.teleop import Goals, Target
+from abyss.interface.sonar_frames import decode_polar, fan
 
 # what the page shows of each hop's statistics (linkemu's keys): delays [ms], the queue, losses
 LINK_FIELDS = ("delay_p50_ms", "delay_p99_ms", "in_flight", "messages_lost", "losses", "queue_drops")

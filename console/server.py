@@ -21,13 +21,13 @@ from typing import Any
 
 import zenoh
 
-from abyss.common.bus import client_config, open_session
-from abyss.common.certs import CertFiles
+from abyss.bus.session import client_config, open_session
 from abyss.common.errors import AbyssError, BadInput, ConfigError
 from abyss.common.leave import leave, watch_the_stop
-from abyss.common.security import tool_certificates
 from abyss.console.access import HEADER, Access, operator_name
 from abyss.console.pilot import Pilot
+from abyss.security.access import tool_certificates
+from abyss.security.certs import CertFiles
 
 WEB = Path(__file__).parent / "web"
 FILES = {"/": ("index.html", "text/html"), "/console.js": ("console.js", "text/javascript")}

@@ -32,14 +32,14 @@ from typing import IO, Literal
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
+from abyss.bus.session import client_config, message_of, open_session
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
-from abyss.common.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, new_id
-from abyss.common.models.panel import Panel, intent_of
-from abyss.common.site import site_at
 from abyss.console.access import operator_name
 from abyss.console.op import put_command
+from abyss.description.models.panel import Panel, intent_of
+from abyss.description.site import site_at
+from abyss.interface import keys
+from abyss.interface.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, new_id
 
 Target = Literal["vehicle", "arm"]  # what the keys drive: the vehicle's waypoint or the end-effector's goal
 # key -> (forward, left, up) [steps], (roll, pitch, yaw) [steps]

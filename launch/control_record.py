@@ -12,7 +12,7 @@ from typing import IO, Any
 
 import numpy as np
 
-from abyss.common.messages import PanelState, Telemetry
+from abyss.interface.messages import PanelState, Telemetry
 
 CONTROL_FILE = "control.csv"
 PANEL_FILE = "panel.csv"  # the panel's truth: each part's angle and the fingers' force on it

@@ -22,8 +22,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from abyss.common import keys
 from abyss.common.errors import ConfigError, LinkError
+from abyss.interface import keys
 
 PORT = 7447  # each station listens here on its hop addresses and on its loopback
 SUBNET = "10.231.{index}.{host}"  # one /24 per hop; only inside the lab's namespaces

@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.config import Config
 from abyss.common.errors import ConfigError
-from abyss.common.robot import robot_of
-from abyss.common.site import site_of
+from abyss.config import Config, robot_of, site_of
 
 
 def check_reach(config: Config) -> None:

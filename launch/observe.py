@@ -15,17 +15,16 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.clock import SimClock
-from abyss.common.clock import follow as clock_follow
-from abyss.common.config import Config
 from abyss.common.errors import BadMessage
-from abyss.common.messages import MissionStatus, NavState, PanelState, SimulationStatus, Telemetry, decode
-from abyss.common.site import site_of
+from abyss.config import Config, site_of
+from abyss.interface import keys
+from abyss.interface.messages import MissionStatus, NavState, PanelState, SimulationStatus, Telemetry, decode
 from abyss.launch.control_record import ControlRecorder
 from abyss.launch.station import station_recorder
 from abyss.launch.verdict import NavError, hybrid_interventions, interventions_summary
 from abyss.recording.store import TESTBED, Recorder
+from abyss.timing.clock import SimClock
+from abyss.timing.clock import follow as clock_follow
 
 # a restarted station is back when its session is up and, for these, once its output is seen
 # again (onboard's telemetry, the simulation's truth): a session comes up before the station runs

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from abyss.common import keys
-from abyss.common.config import Config
-from abyss.common.config.stations import OnshoreConfig
-from abyss.common.config.system import Ros2Config, TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.common.ports import free_port, port_free
 from abyss.common.runfiles import CARRIED_OVER
+from abyss.config import Config
+from abyss.config.stations import OnshoreConfig
+from abyss.config.system import Ros2Config, TimeConfig
+from abyss.interface import keys
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.station import BOOT_ENV, NATIVE_POOLS, SUPERVISOR_ENV
 from abyss.recording.store import RECORD_DIR

@@ -22,18 +22,19 @@ from typing import Any
 import zenoh
 from threadpoolctl import threadpool_limits
 
-from abyss.common import keys, security
-from abyss.common.bus import Bus, open_session, zenoh_config
-from abyss.common.certs import CertFiles
-from abyss.common.clock import WALL, Clock, ProgressReport, SimClock
-from abyss.common.clock import follow as clock_follow
-from abyss.common.config import Config
+from abyss.bus.session import Bus, open_session, zenoh_config
 from abyss.common.leave import STOP_BOUND_S, watch_the_stop
-from abyss.common.lockstep import TESTBED, Lockstep, LockstepClock
-from abyss.common.messages import repeatable_ids
 from abyss.common.workers import Workers, children_cpu_s, loops_first
+from abyss.config import Config
+from abyss.interface import keys
+from abyss.interface.messages import repeatable_ids
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
+from abyss.security import access
+from abyss.security.certs import CertFiles
+from abyss.timing.clock import WALL, Clock, ProgressReport, SimClock
+from abyss.timing.clock import follow as clock_follow
+from abyss.timing.lockstep import TESTBED, Lockstep, LockstepClock
 
 log = logging.getLogger(__name__)
 SUPERVISOR_ENV = "ABYSS_SUPERVISOR_PID"  # set by `abyss up` for the stations it starts
@@ -125,7 +126,7 @@ class Shell:
         settings = zenoh_config(
             listen, connect, mode, tls=tls, acl_station=name if tls else None, slowest_rate_bps=slowest_bps
         )  # bad endpoints or certificates fail here
-        self.refusals = security.refusal_log() if tls is not None else None
+        self.refusals = access.refusal_log() if tls is not None else None
         self.session = open_session(settings, f"station {name}")
         self.clock, self._clock_closers = station_clock(self.session, config, name)
         self.bus = Bus(config.system, name, self.session, self.clock)

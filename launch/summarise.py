@@ -9,10 +9,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from abyss.common import keys
-from abyss.common.config import Config
-from abyss.common.robot import robot_of
 from abyss.common.runfiles import EVENTS_FILE, read_json_list
+from abyss.config import Config, robot_of
+from abyss.interface import keys
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.observe import Heard
 from abyss.launch.start import Station

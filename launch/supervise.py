@@ -3,7 +3,7 @@ mission is done, the duration has passed, a station dies (or is restarted) or th
 interrupts; says how the mission goes every few seconds.
 
 In lockstep the mission's end is decided on the simulated clock (`LockstepEnd`): the simulation
-runs the periods the supervisor leases it (common.lockstep_testbed, Lease), LEASE_S past shore's latest
+runs the periods the supervisor leases it (timing.lockstep_testbed, Lease), LEASE_S past shore's latest
 mission status; the first status that says done, stamped with its period T, ends the lease at
 T + LEASE_S, where the simulation holds with every station done with the period before. The
 supervisor stops the run there, so every station ran the same periods and the records end on
@@ -19,16 +19,16 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.clock import SimClock
-from abyss.common.config import Config
 from abyss.common.errors import BadMessage
-from abyss.common.lockstep import ENDLESS_S, TICK_TOLERANCE_S, hold_period
-from abyss.common.lockstep_testbed import Lease
-from abyss.common.messages import MissionStatus, ReplayStart, decode, encode
+from abyss.config import Config
+from abyss.interface import keys
+from abyss.interface.messages import MissionStatus, ReplayStart, decode, encode
 from abyss.launch.observe import Heard, Outage
 from abyss.launch.start import Replayed, Starter, Station, ros2_line
 from abyss.launch.verdict import exit_text
+from abyss.timing.clock import SimClock
+from abyss.timing.lockstep import ENDLESS_S, TICK_TOLERANCE_S, hold_period
+from abyss.timing.lockstep_testbed import Lease
 
 STARTUP_TIMEOUT_S = 60.0
 EXTERNAL_TIMEOUT_S = 120.0  # more for a station a person or another tool starts

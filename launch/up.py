@@ -16,12 +16,11 @@ from typing import Any
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.clock import SimClock
-from abyss.common.config import Config
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.errors import AbyssError
+from abyss.config import Config
 from abyss.console.server import Console
+from abyss.interface import keys
 from abyss.launch.cpu import CpuCaps
 from abyss.launch.mission_check import check_reach
 from abyss.launch.observe import Heard
@@ -41,6 +40,7 @@ from abyss.launch.stop import interrupts_to, stop_all
 from abyss.launch.summarise import Ending, run_summary
 from abyss.launch.supervise import Supervisor
 from abyss.launch.verdict import exit_code, render_summary
+from abyss.timing.clock import SimClock
 
 
 class Up:

@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.config.system import MissionConfig
-from abyss.common.messages import MissionStatus, PanelState, Telemetry
-from abyss.common.models.panel import Panel
+from abyss.config.system import MissionConfig
+from abyss.description.models.panel import Panel
+from abyss.interface.messages import MissionStatus, PanelState, Telemetry
 from abyss.launch.state import Verdict
 
 VALVE_TOLERANCE_DEG = 5.0  # a valve turned within this of its target is turned

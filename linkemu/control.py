@@ -4,7 +4,7 @@ egress, and its control plane over Zenoh. A profile is set on `abyss/<system>/li
 `abyss/<system>/<station>/linkstats/<hop>` every second. With a shaper (`--link tun`: the
 TUN forwarder, `--link netem`: tc/netem; `auto`: netem where the kernel has it, else tun, else
 emulated) the emulators pass through and each hop's profile shapes this host's packets
-towards the neighbour instead. The station itself never sees any of this (`abyss.common.bus`)."""
+towards the neighbour instead. The station itself never sees any of this (`abyss.bus.session`)."""
 
 from __future__ import annotations
 
@@ -21,16 +21,16 @@ from typing import Literal, Protocol
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.clock import WALL, Clock
 from abyss.common.errors import AbyssError, BadMessage, LinkError
-from abyss.common.linkprofile import LinkProfile
-from abyss.common.linkprofile import profile as named_profile
-from abyss.common.messages import LinkControl, LinkStats, decode, encode
+from abyss.config.linkprofile import LinkProfile
+from abyss.config.linkprofile import profile as named_profile
+from abyss.interface import keys
+from abyss.interface.messages import LinkControl, LinkStats, decode, encode
 from abyss.linkemu.netem import NetemShaper
 from abyss.linkemu.route import route_towards
 from abyss.linkemu.runner import LinkRunner
 from abyss.linkemu.tun import TunShaper, tun_name
+from abyss.timing.clock import WALL, Clock
 
 log = logging.getLogger(__name__)
 LINKSTATS_PERIOD_S = 1.0

@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 
 from abyss.common.errors import LinkError
-from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
-from abyss.linkemu.stages import STAGES, Packet, Stage
+from abyss.config.linkprofile import LinkProfile
+from abyss.linkemu.stages import Packet, Pipeline
+from abyss.linkemu.transport import TRANSPORTS
 
 HEADER_BYTES = {"tcp": 40, "udp": 28}  # IPv4 + TCP / UDP headers per packet
 DELAY_SAMPLES = 4096  # delivered-message delays kept for percentiles
@@ -57,41 +58,10 @@ class _Message:
     corrupt: bool = False
 
 
-class Pipeline:
-    """The stages in order, counting what each one swallows."""
-
-    def __init__(self, profile: LinkProfile, rng: np.random.Generator, counters: dict[str, int]):
-        self.stages: list[Stage] = [cls(profile, rng) for cls in STAGES.values()]
-        self.counters = counters
-
-    def configure(self, profile: LinkProfile) -> None:
-        for stage in self.stages:
-            stage.configure(profile)
-
-    def stage(self, kind: type[Stage]) -> Any:
-        return next(s for s in self.stages if isinstance(s, kind))
-
-    def run(self, packet: Packet) -> list[Packet]:
-        packets = [packet]
-        for stage in self.stages:
-            out: list[Packet] = []
-            for p in packets:
-                passed = stage.process(p)
-                if not passed and stage.drops:
-                    self.counters[stage.drops] += 1
-                out.extend(passed)
-            if len(out) > len(packets):
-                self.counters["duplicates"] += len(out) - len(packets)
-            packets = out
-        return packets
-
-
 class Link:
     """One emulated link direction. Not thread-safe: the runner holds a lock around it."""
 
     def __init__(self, profile: LinkProfile, rng: np.random.Generator | None = None) -> None:
-        from abyss.linkemu.transport import TRANSPORTS  # the transports build on this module
-
         self.profile = profile
         self.rng = rng if rng is not None else np.random.default_rng(profile.seed)
         self.counters: dict[str, int] = dict.fromkeys(COUNTERS, 0)

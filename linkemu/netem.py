@@ -24,8 +24,8 @@ import subprocess
 from pathlib import Path
 
 from abyss.common.errors import LinkError
-from abyss.common.linkprofile import LinkProfile
 from abyss.common.units import format_fraction, format_rate, format_time
+from abyss.config.linkprofile import LinkProfile
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""The link core on the system's clock (the wall clock, or simulated time: common.clock): a
+"""The link core on the system's clock (the wall clock, or simulated time: timing.clock): a
 thread per link direction that hands each message to `deliver` at the time the emulated link
 delivers it."""
 
@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.clock import WALL, Clock, SimClock
-from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
+from abyss.config.linkprofile import LinkProfile
 from abyss.linkemu.link import Delivery, Link, Offer
+from abyss.timing.clock import WALL, Clock, SimClock
 
 log = logging.getLogger(__name__)
 
@@ -25,7 +25,7 @@ class LinkRunner:
     thread, still counted; `passthrough=True` (the netem backend) forces that. Once `stopping`
     is set (the station is asked to stop), no sender waits for room any more: what it offers
     to a full queue is refused and counted (`refused_at_stop`). On a lockstep clock the runner has
-    no thread: `deliver_due` is the period's delivery phase (common.lockstep), nothing is passed
+    no thread: `deliver_due` is the period's delivery phase (timing.lockstep), nothing is passed
     through at once, and a sender that finds the queue full goes on in its loop's turn of the
     period the link has room (`LockstepClock.step_aside`)."""
 

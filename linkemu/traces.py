@@ -1,4 +1,4 @@
-"""How the shipped delivery traces in common/traces/ were made (mahimahi's format: one 1500-byte
+"""How the shipped delivery traces in config/traces/ were made (mahimahi's format: one 1500-byte
 delivery opportunity per line, in whole milliseconds, ascending; the trace repeats), seeded, so
 that they can be made again: .venv/bin/python -m abyss.linkemu.traces
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-TRACES_DIR = Path(__file__).parents[1] / "common" / "traces"  # linkprofile.TRACES_DIR
+TRACES_DIR = Path(__file__).parents[1] / "config" / "traces"  # linkprofile.TRACES_DIR
 
 PERIOD_MS = 1500 * 8 / 512e3 * 1000  # one opportunity at 512 kbit/s: 23.4 ms
 

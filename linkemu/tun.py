@@ -34,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from abyss.common.errors import LinkError
-from abyss.common.linkprofile import LinkProfile
 from abyss.common.samples import Samples
+from abyss.config.linkprofile import LinkProfile
 from abyss.linkemu.link import Pipeline
 from abyss.linkemu.route import Route
 from abyss.linkemu.stages import Packet

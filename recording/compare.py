@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common import keys
-from abyss.common.messages import Message, ReplayStart
+from abyss.interface import keys
+from abyss.interface.messages import Message, ReplayStart
 from abyss.recording.reader import Record, Recording
 
 PAIR_WINDOW_S = 0.25

@@ -18,7 +18,7 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 
 from abyss.common.errors import BadMessage
-from abyss.common.messages import MESSAGES, Message, Received, decode
+from abyss.interface.messages import MESSAGES, Message, Received, decode
 from abyss.recording.store import (
     FORMAT_VERSION,
     RECORD_DIR,

@@ -21,11 +21,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TypeVar
 
-from abyss.common import keys
-from abyss.common.bus import Bus, Inbox
-from abyss.common.config import Config
+from abyss.bus.session import Bus, Inbox
 from abyss.common.errors import ConfigError
-from abyss.common.messages import (
+from abyss.config import Config
+from abyss.interface import keys
+from abyss.interface.messages import (
     ArmGoal,
     CommandAck,
     Message,

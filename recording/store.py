@@ -6,7 +6,7 @@ Each file is an MCAP file (profile `abyss`) that `mcap` and Foxglove list: one c
 and direction (`sent`: at the station's egress, before its link; `received`: as the station's bus
 took it off the wire, after the link's delay, loss and corruption; `rejected`: bytes the station
 dropped as malformed, with the reason; `observed`: a testbed key), the abyss message as its
-msgpack bytes (`common.messages`), `log_time` the recording station's wall clock, `publish_time`
+msgpack bytes (`interface.messages`), `log_time` the recording station's wall clock, `publish_time`
 the sender's stamp, `sequence` the sender's. Records are written one by one, unchunked, and
 flushed every `FLUSH_PERIOD_S`: a killed station's file reads up to its last flush
 (`read_file` says where it stops). Bounded: a level (`none`, `control`: what is not bulk, `all`)
@@ -28,17 +28,17 @@ from typing import IO, Any
 import msgpack
 from mcap.writer import Writer
 
-from abyss.common import keys
-from abyss.common.clock import WALL, Clock
-from abyss.common.config.system import RECORD_LEVELS
 from abyss.common.errors import AbyssError, ConfigError
-from abyss.common.messages import MESSAGES, unwrap
+from abyss.config.system import RECORD_LEVELS
+from abyss.interface import keys
+from abyss.interface.messages import MESSAGES, unwrap
+from abyss.timing.clock import WALL, Clock
 
 RECORD_DIR = "record"  # in the run directory
 TESTBED = "testbed"  # the file of the supervisor's observation keys
 FORMAT_VERSION = 1  # of this layout: channels, metadata, the rejected records
 FLUSH_PERIOD_S = 0.5
-MESSAGE_ENCODING = "msgpack"  # the envelope of common.messages
+MESSAGE_ENCODING = "msgpack"  # the envelope of interface.messages
 REJECTED_ENCODING = "abyss-rejected"  # msgpack {reason, payload}
 
 

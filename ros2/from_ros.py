@@ -11,10 +11,10 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.clouds import pack_cloud
 from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of, wrap_rad, yaw_of
-from abyss.common.messages import (
+from abyss.interface.clouds import pack_cloud
+from abyss.interface.messages import (
     MODES,
     ArmVelocityRef,
     JointState,

@@ -37,11 +37,11 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common import keys
-from abyss.common.bus import Bus, Inbox, open_session, zenoh_config
-from abyss.common.config import Config
+from abyss.bus.session import Bus, Inbox, open_session, zenoh_config
 from abyss.common.errors import BadInput
-from abyss.common.messages import (
+from abyss.config import Config, robot_of
+from abyss.interface import keys
+from abyss.interface.messages import (
     ArmGoal,
     CommandAck,
     JointState,
@@ -51,10 +51,9 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.rate import Rate
-from abyss.common.robot import robot_of
 from abyss.ros2 import motion, msgs, rmw, status, types
 from abyss.ros2.session import Session
+from abyss.timing.rate import Rate
 
 log = logging.getLogger(__name__)
 

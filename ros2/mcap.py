@@ -30,8 +30,8 @@ from rosbags.rosbag2.metadata import dump_qos_v9
 from ruamel.yaml import YAML
 
 from abyss.common.errors import AbyssError, BadInput
-from abyss.common.messages import NavState
-from abyss.common.robot import Robot, robot_at
+from abyss.description.robot import Robot, robot_at
+from abyss.interface.messages import NavState
 from abyss.recording.reader import Record, Recording, open_recording
 from abyss.ros2 import motion, msgs, types
 from abyss.ros2.session import Session

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.messages import (
+from abyss.interface.messages import (
     ArmGoal,
     ArmVelocityRef,
     Image,

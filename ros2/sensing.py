@@ -8,10 +8,10 @@ from typing import Any
 import cv2
 import numpy as np
 
-from abyss.common.clouds import unpack_cloud
 from abyss.common.errors import BadInput
-from abyss.common.images import decode_image
-from abyss.common.messages import (
+from abyss.interface.clouds import unpack_cloud
+from abyss.interface.images import decode_image
+from abyss.interface.messages import (
     Image,
     PointCloud,
     RecognisedObjects,

@@ -6,7 +6,8 @@ import numpy as np
 import pinocchio as pin
 
 from abyss.common.geometry import quat_wxyz_of
-from abyss.common.messages import (
+from abyss.description.robot import Robot, robot_mjcf
+from abyss.interface.messages import (
     ArmGoal,
     JointState,
     Message,
@@ -15,7 +16,6 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.robot import Robot, robot_mjcf
 from abyss.ros2.msgs import (
     BASE_LINK,
     Floats,
@@ -89,7 +89,7 @@ class Session:
     node: the navigation, the joints, the goals (with their command ids) and the operator mode."""
 
     def __init__(self, robot: Robot) -> None:
-        """`robot`: the robot the stream is of (common.robot): its names and kinematics."""
+        """`robot`: the robot the stream is of (description.robot): its names and kinematics."""
         self.robot = robot
         self.arm = ArmFrames(robot)
         self.scene = SceneReceiver()

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.messages import (
+from abyss.interface.messages import (
     CommandAck,
     Heartbeat,
     LinkStats,

@@ -35,10 +35,10 @@ from typing import Any
 
 from rosbags.interfaces import Qos, QosDurability
 
-from abyss.common import keys
-from abyss.common.config.hybrid import ROS2_VEHICLE
-from abyss.common.config.system import ROS2_STATIONS
-from abyss.common.messages import (
+from abyss.config.hybrid import ROS2_VEHICLE
+from abyss.config.system import ROS2_STATIONS
+from abyss.interface import keys
+from abyss.interface.messages import (
     Message,
 )
 from abyss.ros2.from_ros import (

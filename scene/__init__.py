@@ -8,5 +8,6 @@
   acknowledge, ask for a snapshot after a gap);
 - `export`: the map a run leaves, written out as OctoMap `.bt` or a `.ply` cloud.
 
-It imports only from `abyss.common`.
+It imports the rooms below it (common, description, interface, timing, config, bus), never the link
+emulator.
 """

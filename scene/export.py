@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from abyss.common.messages import SceneUpdate, encode
+from abyss.interface.messages import SceneUpdate, encode
 from abyss.scene.receiver import SceneReceiver
 
 SCENE_FILE = "scene.msgpack"  # the final scene, a snapshot SceneUpdate; `abyss scene export` reads it

@@ -18,8 +18,8 @@ import time
 import numpy as np
 import pyoctomap
 
-from abyss.common.clouds import voxel_downsample
-from abyss.common.messages import SceneUpdate, new_id, wire_bytes
+from abyss.interface.clouds import voxel_downsample
+from abyss.interface.messages import SceneUpdate, new_id, wire_bytes
 from abyss.scene.cells import CellSet, moved
 from abyss.scene.octree import (
     COLOR_STEP,

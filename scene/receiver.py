@@ -12,7 +12,7 @@ import numpy as np
 import pyoctomap
 
 from abyss.common.errors import BadInput
-from abyss.common.messages import SceneAck, SceneRequest, SceneUpdate, wire_bytes
+from abyss.interface.messages import SceneAck, SceneRequest, SceneUpdate, wire_bytes
 from abyss.scene.octree import (
     LOG_ODDS_SET,
     cell_centres,

@@ -7,11 +7,11 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
-from abyss.common.images import downscale
-from abyss.common.messages import Image, Message, SceneAck, SonarImage, wire_bytes
-from abyss.common.sonar_frames import decode_polar, encode_polar
+from abyss.config.stations import VesselConfig
+from abyss.interface.images import downscale
+from abyss.interface.messages import Image, Message, SceneAck, SonarImage, wire_bytes
+from abyss.interface.sonar_frames import decode_polar, encode_polar
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer
 

@@ -15,9 +15,9 @@ import pytest
 import yaml
 
 from abyss.cli import parser
-from abyss.common import keys
-from abyss.common.config.system import LinksConfig
-from abyss.common.linkprofile import load_profiles
+from abyss.config.linkprofile import load_profiles
+from abyss.config.system import LinksConfig
+from abyss.interface import keys
 from abyss.launch.start import DEFAULT_PORT
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,12 +1,23 @@
-"""The rooms of the package import only downwards (issue 37):
+"""The rooms of the package import only downwards (issues 37 and 61), lowest first:
 
-    common  <-  linkemu, scene  <-  recording  <-  ros2  <-  stations  <-  harness
+    common  <-  description  <-  interface  <-  timing, security, config  <-  bus
+            <-  linkemu, scene  <-  recording  <-  ros2  <-  stations  <-  harness
 
-where the harness is launch, validation, cli and console. A room may import itself and any room
-below it, never one above it nor a sibling on its own floor (linkemu and scene know nothing of
-each other); the harness's rooms may import each other. The system under test sees nothing of the
-testbed (issue 50): `stations` imports `common` and `scene` alone, never the link emulator, the
-recording or ROS 2; the shell that hosts a station among them is the harness's (launch.station).
+`common` is what is small and generic (errors, units, geometry, the typed reader, ports);
+`description` the robot and the site as data; `interface` what stations say to each other (keys,
+messages and their codec, quality of service, the fault table); `timing` the clocks, rates and
+lockstep; `security` certificates and access rules; `config` the typed configuration; `bus` the
+session every station talks through; the harness is launch, validation, cli and console. A room
+may import itself and any room below it, never one above it nor a sibling on its own floor
+(linkemu and scene know nothing of each other, nor timing, security and config); the harness's
+rooms may import each other. The system under test sees nothing of the testbed (issue 50):
+`stations` never imports the link emulator, the recording or ROS 2; the shell that hosts a station
+among them is the harness's (launch.station).
+
+And no circle of files anywhere in the house: no module imports, through others, a module that
+imports it (a package's `__init__` counts as a file: one that gathers its modules may not be
+imported by them).
+
 Read from the source with `ast`, every import counted: at the top of a module, inside
 functions, and under `if TYPE_CHECKING:` (a type-only import is still a dependency of the design,
 and none of the tree needs one upwards), in the forms `import abyss.x`, `from abyss.x import y`,
@@ -30,6 +41,10 @@ import abyss
 ROOT = Path(__file__).resolve().parent.parent
 FLOORS: tuple[tuple[str, ...], ...] = (  # lowest first
     ("common",),
+    ("description",),
+    ("interface",),
+    ("timing", "security", "config"),
+    ("bus",),
     ("linkemu", "scene"),
     ("recording",),
     ("ros2",),
@@ -38,7 +53,11 @@ FLOORS: tuple[tuple[str, ...], ...] = (  # lowest first
 )
 HARNESS = FLOORS[-1]
 FLOOR_OF = {room: i for i, rooms in enumerate(FLOORS) for room in rooms}
-ONLY = {"stations": {"common", "scene"}}  # rooms that may import just these below them
+TESTBED = ("linkemu", "recording", "ros2")
+# rooms that may import just these below them: the system under test, nothing of the testbed
+ONLY = {
+    "stations": {room for rooms in FLOORS[: FLOORS.index(("stations",))] for room in rooms} - set(TESTBED)
+}
 
 
 def allowed(room: str, imported: str) -> bool:
@@ -62,8 +81,11 @@ def module_name(path: Path, root: Path = ROOT) -> str:
     return ".".join(("abyss", *(parts[:-1] if parts[-1] == "__init__" else parts)))
 
 
-def imported_modules(path: Path, root: Path = ROOT) -> list[tuple[int, str]]:
-    """(line, abyss module) of every import in the file, wherever it stands."""
+def imported_modules(
+    path: Path, root: Path = ROOT, modules: frozenset[str] = frozenset()
+) -> list[tuple[int, str]]:
+    """(line, abyss module) of every import in the file, wherever it stands; `from package import
+    name` is the module `package.name` where that is one of `modules`."""
     tree = ast.parse(path.read_text(), filename=str(path))
     name = module_name(path, root)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
@@ -77,10 +99,9 @@ def imported_modules(path: Path, root: Path = ROOT) -> list[tuple[int, str]]:
                 module = ".".join([*base, *([node.module] if node.module else [])])
             else:
                 module = node.module or ""
-            if module == "abyss":  # from abyss import linkemu
-                found += [(node.lineno, f"abyss.{alias.name}") for alias in node.names]
-            else:
-                found.append((node.lineno, module))
+            for alias in node.names:  # from abyss import linkemu; from abyss.interface import keys
+                named = f"{module}.{alias.name}"
+                found.append((node.lineno, named if module == "abyss" or named in modules else module))
     return [(line, name) for line, name in found if name.startswith("abyss.")]
 
 
@@ -98,6 +119,79 @@ def upward_imports(files: list[Path], root: Path = ROOT) -> list[str]:
             if imported in FLOOR_OF and not allowed(room, imported):
                 wrong.append(f"{path.relative_to(root)}:{line}: {room} imports {name}")
     return wrong
+
+
+def module_graph(files: list[Path], root: Path = ROOT) -> dict[str, set[str]]:
+    """Each module of `files` and the modules of `files` it imports."""
+    names = frozenset(module_name(p, root) for p in files)
+    return {
+        module_name(p, root): {m for _, m in imported_modules(p, root, names) if m in names}
+        - {module_name(p, root)}
+        for p in files
+    }
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The circles of `graph`: each set of two or more modules that reach one another through their
+    imports (its strongly connected components, Tarjan's walk), sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for nxt in sorted(graph[node]):
+            if nxt not in index:
+                visit(nxt)
+                low[node] = min(low[node], low[nxt])
+            elif nxt in stack:
+                low[node] = min(low[node], index[nxt])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    return sorted(found)
+
+
+def test_no_circle_of_files() -> None:
+    assert circles(module_graph(package_files())) == []
+
+
+def test_a_circle_of_files_is_found(tmp_path: Path) -> None:
+    """The check itself: two files that import each other (one inside a function, through its
+    package), three round a ring, and a package's face that its module imports back."""
+    files = {
+        "common/a.py": "import abyss.common.b\n",
+        "common/b.py": "def later() -> None:\n    from abyss.common import a\n",
+        "common/c.py": "from abyss.common.d import x\n",
+        "common/d.py": "from .e import y\n",
+        "common/e.py": "from abyss.common.c import z\n",
+        "common/f.py": "from abyss.common import errors\n",  # a package, not a circle: not found
+        "common/errors.py": "",
+        "bus/__init__.py": "from abyss.bus.session import Session\n",
+        "bus/session.py": "from abyss.bus import HOPS\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text(text)
+    (tmp_path / "common" / "__init__.py").write_text("")
+    found = circles(module_graph(sorted(tmp_path.rglob("*.py")), tmp_path))
+    assert found == [
+        ["abyss.bus", "abyss.bus.session"],
+        ["abyss.common.a", "abyss.common.b"],
+        ["abyss.common.c", "abyss.common.d", "abyss.common.e"],
+    ]
 
 
 def test_every_room_of_the_package_has_a_floor() -> None:

@@ -20,7 +20,19 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 WHEEL_NAME = "abyss-0.1.0-py3-none-any.whl"
-PACKAGE_FOLDERS = ("cli", "common", "console", "launch", "linkemu", "stations", "validation")
+PACKAGE_FOLDERS = (
+    "cli",
+    "common",
+    "config",
+    "console",
+    "description",
+    "interface",
+    "launch",
+    "linkemu",
+    "stations",
+    "timing",
+    "validation",
+)
 # not copied for the build: what the build writes, caches, runs and environments
 NOT_SOURCES = {
     ".git",
@@ -94,7 +106,7 @@ def wheel(build: tuple[Path, str]) -> Path:
 
 
 def test_the_build_warns_of_nothing(build: tuple[Path, str]) -> None:
-    """A data folder left out of `packages` (common/traces) makes setuptools print a screen of
+    """A data folder left out of `packages` (config/traces) makes setuptools print a screen of
     warning at every install, setup.sh's included."""
     _, output = build
     assert "warn" not in output.lower(), output
@@ -148,10 +160,12 @@ def test_every_package_and_module_of_the_repository_is_in_the_wheel(names: set[s
 
 def test_package_data_is_in_the_wheel_byte_for_byte(wheel: Path, names: set[str]) -> None:
     models = [
-        p for p in (ROOT / "common" / "models").rglob("*") if p.is_file() and p.suffix not in (".py", ".pyc")
+        p
+        for p in (ROOT / "description" / "models").rglob("*")
+        if p.is_file() and p.suffix not in (".py", ".pyc")
     ]
     assert {p.name for p in models} >= {"robot.xml", "robot.toml", "site.xml", "site.toml", "terrain.bin"}
-    data = [*models, ROOT / "common" / "profiles.toml", ROOT / "py.typed"]
+    data = [*models, ROOT / "config" / "profiles.toml", ROOT / "py.typed"]
     # nothing else in a package folder that is not Python: a new data file needs package-data
     for top in {p.parts[0] for p in _repo_packages() if p.parts}:
         data += [
@@ -227,9 +241,9 @@ def test_the_installed_wheel_runs_from_its_own_environment(wheel: Path, tmp_path
     assert "| `abyss/<system>/simulation/nav` | NavState |" in keys.stdout
 
     probe = (
-        "import sys, abyss, abyss.stations.onboard, abyss.common.models as m, abyss.launch.up; "
+        "import sys, abyss, abyss.stations.onboard, abyss.description.models as m, abyss.launch.up; "
         "print(abyss.__file__); print(abyss.stations.onboard.__file__); "
-        "import abyss.common.robot as r; print(r.robot_at('').model_file); "
+        "import abyss.description.robot as r; print(r.robot_at('').model_file); "
         "print(sorted(n for n in sys.modules if n.startswith('__editable__')))"
     )
     imported = subprocess.run(

@@ -3,7 +3,7 @@
 The package `abyss` is the repository root itself (pyproject's package-dir maps abyss -> .), and
 the editable install reaches it through an import hook that mypy cannot follow. So the test makes
 a folder holding one symlink, `abyss` -> the repository, and checks `-p abyss` with that folder on
-MYPYPATH: every module has its real name (abyss.common.bus, ...). mypy runs in that folder, so
+MYPYPATH: every module has its real name (abyss.bus.session, ...). mypy runs in that folder, so
 the paths it reports, and matches pyproject's `exclude` against (tests/, bench/, .venv/, build
 outputs), begin `abyss/` whatever the temporary folder is called."""
 

@@ -1,5 +1,5 @@
 """`abyss check STATION`: interface testing of a running component, real or simulated. It
-listens to every key the station publishes (`common.keys.KEYS`) for a while and reports, per
+listens to every key the station publishes (`interface.keys.KEYS`) for a while and reports, per
 key, the rate against the nominal one and how many messages decoded and validated against
 their schema; a team checks a hardware driver this way before it replaces a station."""
 
@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, open_session
+from abyss.bus.session import client_config, open_session
 from abyss.common.errors import BadMessage
-from abyss.common.messages import Message, decode
+from abyss.interface import keys
+from abyss.interface.messages import Message, decode
 
 RATE_TOLERANCE = 0.5  # a periodic key within this share of its nominal rate passes
 

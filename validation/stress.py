@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.clouds import unpack_cloud
-from abyss.common.config import Config
-from abyss.common.linkprofile import profile
-from abyss.common.messages import Telemetry, encode
 from abyss.common.samples import Samples
+from abyss.config import Config
+from abyss.config.linkprofile import profile
+from abyss.interface.clouds import unpack_cloud
+from abyss.interface.messages import Telemetry, encode
 from abyss.linkemu.link import Link, Offer
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer
@@ -46,7 +46,7 @@ def mission_frames(config: Config, count: int, progress: Callable[[str], None]) 
     choose_gl_backend()  # before MuJoCo is imported
     import mujoco
 
-    from abyss.common.robot import robot_of
+    from abyss.config import robot_of
     from abyss.stations.onboard.perception import CloudSettings, clouds_of
     from abyss.stations.simulation.encoding import encode_image
     from abyss.stations.simulation.rendering import Cameras

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.common.linkprofile import LinkProfile
+from abyss.config.linkprofile import LinkProfile
 
 
 @dataclass

@@ -4,7 +4,7 @@ from typing import Any
 
 import numpy as np
 
-from abyss.common.linkprofile import LinkProfile
+from abyss.config.linkprofile import LinkProfile
 from abyss.linkemu.stages.base import Packet, Stage
 
 

@@ -5,7 +5,7 @@ import math
 from collections import deque
 from typing import Any
 
-from abyss.common.linkprofile import LinkProfile, load_trace
+from abyss.config.linkprofile import LinkProfile, load_trace
 from abyss.linkemu.stages.base import Packet, Stage
 
 OPPORTUNITY_BYTES = 1500  # what one line of a delivery trace carries (mahimahi's MTU)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from abyss.linkemu.stages import Packet
 
 if TYPE_CHECKING:
-    from abyss.linkemu.link import Link
+    from abyss.linkemu.transport.base import Wire
 
 INITIAL_CWND = 10.0  # packets (Linux's initial window)
 INITIAL_RTO_S = 1.0  # RFC 6298
@@ -50,7 +50,7 @@ class Tcp:
       after an idle spell of more than a timeout starts again from at most the initial window.
     """
 
-    def __init__(self, link: Link) -> None:
+    def __init__(self, link: Wire) -> None:
         self.link = link
         self.ack_rng = link.rng.spawn(1)[0]  # the data direction's draws stay those of a UDP link
         self.cwnd = INITIAL_CWND

@@ -6,14 +6,14 @@ from typing import TYPE_CHECKING
 from abyss.linkemu.stages import Packet, Serialise
 
 if TYPE_CHECKING:
-    from abyss.linkemu.link import Link
+    from abyss.linkemu.transport.base import Wire
 
 
 class Udp:
     """Datagrams: packets go straight onto the link; a message with a lost or corrupt
     packet is lost; duplicates and reordering reach the receiver as they happen."""
 
-    def __init__(self, link: Link) -> None:
+    def __init__(self, link: Wire) -> None:
         self.link = link
         self.serialiser: Serialise = link.pipeline.stage(Serialise)
         self.travelling: dict[int, int] = {}  # message id -> packet copies still on the wire

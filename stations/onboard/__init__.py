@@ -15,10 +15,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from abyss.common import keys
-from abyss.common.bus import Bus
-from abyss.common.config import Config
-from abyss.common.messages import (
+from abyss.bus.session import Bus
+from abyss.common.shared import Latest
+from abyss.common.workers import Workers
+from abyss.config import Config, robot_of
+from abyss.interface import keys
+from abyss.interface.messages import (
     ArmGoal,
     Heartbeat,
     Image,
@@ -29,12 +31,9 @@ from abyss.common.messages import (
     SonarImage,
     Waypoints,
 )
-from abyss.common.navigation import PoseHistory
-from abyss.common.rate import Rate
-from abyss.common.robot import robot_of
-from abyss.common.shared import Latest
-from abyss.common.workers import Workers
+from abyss.stations.navigation import PoseHistory
 from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.timing.rate import Rate
 
 if TYPE_CHECKING:
     from abyss.stations.onboard.frame_sets import FrameSetOutputs

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from abyss.common.config.stations import OnboardConfig
-from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import rotation_of
-from abyss.common.robot import Robot, robot_mjcf
+from abyss.config.stations import OnboardConfig
+from abyss.config.system import MissionConfig
+from abyss.description.robot import Robot, robot_mjcf
 from abyss.stations.onboard.modes import Mode
 from abyss.stations.onboard.task_priority import Constraints, Task, solve_constrained
 

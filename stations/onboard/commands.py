@@ -11,9 +11,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from abyss.common.config.system import Box, MissionConfig
 from abyss.common.geometry import rotation_of_rpy
-from abyss.common.messages import ArmGoal, CommandAck, InterventionGoal, OperatorMode, Waypoints
+from abyss.config.system import Box, MissionConfig
+from abyss.interface.messages import ArmGoal, CommandAck, InterventionGoal, OperatorMode, Waypoints
 
 ANSWERS_KEPT = 64
 

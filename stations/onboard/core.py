@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.config import Config
 from abyss.common.geometry import quat_wxyz_of, yaw_of
-from abyss.common.messages import (
+from abyss.config import Config, robot_of, site_of
+from abyss.interface.messages import (
     ArmGoal,
     ArmVelocityRef,
     CommandAck,
@@ -30,9 +30,7 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.navigation import NavFilter
-from abyss.common.robot import robot_of
-from abyss.common.site import site_of
+from abyss.stations.navigation import NavFilter
 from abyss.stations.onboard.arm_control import ArmController, ArmOutput
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 
-from abyss.common.messages import Heartbeat
+from abyss.interface.messages import Heartbeat
 
 log = logging.getLogger(__name__)
 

@@ -4,7 +4,7 @@ estimated for that instant, and the left frame sent on to the vessel at its own 
 
 A set is complete once it holds every frame the cloud sources need: cam_left, cam_depth for the
 depth source, and cam_right for the stereo source on the sets it runs on, every `stereo_every`-th
-by the set's index on the simulated clock (common.models.stereo_set: the simulation renders
+by the set's index on the simulated clock (description.models.stereo_set: the simulation renders
 cam_right on those alone). Only the newest complete set is worked on: complete sets not
 processed when a newer one came are shed, the oldest first, and counted. A set with no
 navigation estimate near its time is skipped. After each set the core rests in proportion to
@@ -20,13 +20,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.config.stations import OnboardConfig
 from abyss.common.errors import BadInput
-from abyss.common.images import decode_image, encode_jpeg
-from abyss.common.messages import Image, PointCloud
-from abyss.common.models import stereo_set
-from abyss.common.navigation import PoseHistory
-from abyss.common.robot import CamerasSection
+from abyss.config.stations import OnboardConfig
+from abyss.description.models import stereo_set
+from abyss.description.robot_file import CamerasSection
+from abyss.interface.images import decode_image, encode_jpeg
+from abyss.interface.messages import Image, PointCloud
+from abyss.stations.navigation import PoseHistory
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
 INCOMPLETE_KEPT = 4  # sets that never complete (a frame lost): the newest this many are kept
@@ -68,7 +68,7 @@ class FrameSets:
     """One perception step at a time: frames in, clouds and the camera image out."""
 
     def __init__(self, cfg: OnboardConfig, camera_rate_hz: float, cameras: CamerasSection) -> None:
-        """`cameras`: the robot's (common.robot): the stereo pair and the depth camera."""
+        """`cameras`: the robot's (description.robot): the stereo pair and the depth camera."""
         self.cfg, self.camera_rate_hz, self.cameras = cfg, camera_rate_hz, cameras
         self.settings = CloudSettings.of(cfg)
         left, self.right = cameras.stereo

@@ -34,7 +34,7 @@ import numpy as np
 import pinocchio as pin
 
 from abyss.common.geometry import rotation_about, rotation_of
-from abyss.common.messages import REFINABLE_PHASES, InterventionGoal
+from abyss.interface.messages import REFINABLE_PHASES, InterventionGoal
 from abyss.stations.onboard.arm_control import PoseReference
 
 PRE_GRASP_M = 0.10
@@ -104,7 +104,7 @@ class Grip:
 
     @staticmethod
     def of(opening_m: float, closed_gap_m: float, handle_thickness_m: float) -> Grip:
-        """From the fingers' full opening and their gap when closed (common.robot.Robot) and the
+        """From the fingers' full opening and their gap when closed (description.robot.Robot) and the
         handles' thickness (the site's panel)."""
         meet_m = handle_thickness_m - closed_gap_m
         return Grip(opening_m - OPEN_SHORT_M, meet_m / 2, meet_m + HELD_SLACK_M, meet_m + REACH_CLEARANCE_M)

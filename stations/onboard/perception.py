@@ -12,16 +12,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from abyss.common.clouds import pack_cloud, voxel_downsample
 from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_of
-from abyss.common.images import decode_image
-from abyss.common.messages import Image, PointCloud
-from abyss.common.robot import CamerasSection
+from abyss.description.robot_file import CamerasSection
+from abyss.interface.clouds import pack_cloud, voxel_downsample
+from abyss.interface.images import decode_image
+from abyss.interface.messages import Image, PointCloud
 from abyss.stations.onboard.stereo import StereoFilter, stereo_depth
 
 if TYPE_CHECKING:
-    from abyss.common.config.stations import OnboardConfig
+    from abyss.config.stations import OnboardConfig
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 if TYPE_CHECKING:
-    from abyss.common.config.stations import OnboardConfig
+    from abyss.config.stations import OnboardConfig
 
 
 # onboard.stereo_mode (config.STEREO_MODES) -> OpenCV's

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from abyss.common.config.stations import OnboardConfig
-from abyss.common.config.system import MissionConfig
 from abyss.common.geometry import wrap_rad
+from abyss.config.stations import OnboardConfig
+from abyss.config.system import MissionConfig
 from abyss.stations.onboard.modes import Mode
 
 MAX_OFFSET_SHARE = 0.5  # the offset's estimate is kept within this share of the speed limits

@@ -15,10 +15,11 @@ import logging
 import math
 from pathlib import Path
 
-from abyss.common import keys
-from abyss.common.bus import Bus, Inbox
-from abyss.common.config import Config
-from abyss.common.messages import (
+from abyss.bus.session import Bus, Inbox
+from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
+from abyss.config import Config, robot_of
+from abyss.interface import keys
+from abyss.interface.messages import (
     TOOL_COMMANDS,
     ArmGoal,
     CommandAck,
@@ -33,8 +34,6 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.robot import robot_of
-from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
 from abyss.scene.export import save_snapshot
 from abyss.scene.receiver import ShoreScene
 from abyss.stations.onshore.core import Operator, OperatorInputs, PerceptionSeen

@@ -20,8 +20,9 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from abyss.common.config.system import MissionConfig
-from abyss.common.messages import (
+from abyss.config.system import MissionConfig
+from abyss.description.models.panel import intent_of
+from abyss.interface.messages import (
     IDLE_PHASES,
     ArmGoal,
     CommandAck,
@@ -35,7 +36,6 @@ from abyss.common.messages import (
     Waypoints,
     new_id,
 )
-from abyss.common.models.panel import intent_of
 
 HEARTBEAT_PERIOD_S = 1.0
 STATUS_PERIOD_S = 0.25

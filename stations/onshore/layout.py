@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import rerun.blueprint as rrb
 
-from abyss.common import keys
+from abyss.interface import keys
 
 # the controllers' errors, one plot per quantity and unit: the group under `errors/` -> the view's name
 ERROR_VIEWS = {

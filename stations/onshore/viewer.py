@@ -21,10 +21,12 @@ import mujoco
 import numpy as np
 import rerun as rr
 
-from abyss.common.config.stations import OnshoreConfig
 from abyss.common.errors import BadInput
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import (
+from abyss.common.ports import listening
+from abyss.config.stations import OnshoreConfig
+from abyss.description.robot import Robot, robot_spec
+from abyss.interface.messages import (
     ArmGoal,
     Image,
     LinkStats,
@@ -34,8 +36,6 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.ports import listening
-from abyss.common.robot import Robot, robot_spec
 from abyss.stations.onshore.layout import blueprint
 
 RECORDING_FILE = "onshore.rrd"
@@ -196,7 +196,7 @@ class Viewer:
     carries the simulated time [s])."""
 
     def __init__(self, recording: rr.RecordingStream, robot: Robot) -> None:
-        """`robot`: the robot shown (common.robot), its model posed from telemetry."""
+        """`robot`: the robot shown (description.robot), its model posed from telemetry."""
         self.recording = recording
         self.model = robot_spec(robot).compile()
         self.data = mujoco.MjData(self.model)
@@ -351,7 +351,7 @@ class Viewer:
     def sonar(self, frame: SonarImage, stamp_s: float) -> None:
         """The sonar's fan seen from above, and its first echoes in the world as the arcs they may
         lie on (the sonar measures no elevation); a frame that does not decode is not shown."""
-        from abyss.common.sonar_frames import ECHO_RGB, decode_polar, echo_arcs, fan
+        from abyss.interface.sonar_frames import ECHO_RGB, decode_polar, echo_arcs, fan
 
         try:
             polar = decode_polar(frame)

@@ -1,6 +1,6 @@
 """The simulation station: the vehicle, its arm, the panel and the seabed in MuJoCo, paced to
 real time, or with simulated time (`time.mode` sim) the system's clock: `time.speed` times real
-time, as far as every station keeps up (common.clock). Cameras and sonar render in their own
+time, as far as every station keeps up (timing.clock). Cameras and sonar render in their own
 threads on the simulation's clock."""
 
 from __future__ import annotations
@@ -15,13 +15,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from abyss.common import keys
-from abyss.common.bus import Bus
-from abyss.common.clock import WALL, Holdback, SimClock
-from abyss.common.config import Config
+from abyss.bus.session import Bus
 from abyss.common.errors import BadInput
-from abyss.common.lockstep import TICK_TOLERANCE_S, Lockstep
-from abyss.common.messages import (
+from abyss.common.workers import Realtime, Workers
+from abyss.config import Config, robot_of
+from abyss.description.models import stereo_set
+from abyss.interface import keys
+from abyss.interface.messages import (
     ArmVelocityRef,
     JointState,
     NavState,
@@ -31,9 +31,8 @@ from abyss.common.messages import (
     SimulationStatus,
     VelocityRef,
 )
-from abyss.common.models import stereo_set
-from abyss.common.robot import robot_of
-from abyss.common.workers import Realtime, Workers
+from abyss.timing.clock import WALL, Holdback, SimClock
+from abyss.timing.lockstep import TICK_TOLERANCE_S, Lockstep
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.offload import SensorKind
@@ -63,7 +62,7 @@ def run(config: Config, bus: Bus) -> None:
     if config.hybrid.on:
         from abyss.stations.simulation import twin
 
-        twin.run(config, bus)
+        twin.run(config, bus, sensor_loop)
         return
     from abyss.stations.simulation.world import World
 
@@ -96,6 +95,7 @@ def _no_realtime(config: Config) -> str:
 
 def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, blackout: set[str]) -> None:
     """Step the physics at its period, apply the faults asked for, publish the sensors."""
+    from abyss.stations.simulation.faults import apply as apply_fault
     from abyss.stations.simulation.world import references
 
     sim = config.simulation
@@ -114,7 +114,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
         for control in controls.drain():
             try:
                 with lock:
-                    world.apply_fault(control.message, blackout)
+                    apply_fault(world, control.message, blackout)
                 applied += 1
             except BadInput as exc:
                 bus.reject(control_key, exc.reason)
@@ -185,7 +185,7 @@ class Timekeeper:
     """How the physics loop keeps time. Real time: its rate, on the wall clock. Simulated time: the
     wall clock paces it at time.speed (max: not at all), it tells every station its time after
     each step, and waits before a step for the slowest station (Holdback). Lockstep: each period
-    is run by common.lockstep (links, neighbours, the cameras' and sonar's turns) before the step,
+    is run by timing.lockstep (links, neighbours, the cameras' and sonar's turns) before the step,
     and every station is done with it before the next; at time.end_s it stops advancing."""
 
     def __init__(self, config: Config, bus: Bus, start_s: float) -> None:
@@ -317,7 +317,7 @@ def sensor_loop(
 def cameras_of_set(config: Config, sim_time_s: float) -> tuple[str, ...]:
     """The cameras rendered for the frame set taken at `sim_time_s` [s]: each at the rate it is
     consumed, the stereo pair's right camera only on the sets onboard's stereo matcher uses
-    (common.models.stereo_set), and not at all without the stereo source."""
+    (description.models.stereo_set), and not at all without the stereo source."""
     onboard, robot = config.onboard, robot_of(config)
     right = "stereo" in onboard.cloud_sources and stereo_set(
         sim_time_s, config.simulation.camera_rate_hz, onboard.stereo_every

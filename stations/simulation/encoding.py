@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from abyss.common.images import DEPTH_SCALE_M, encode_jpeg
-from abyss.common.messages import Image
+from abyss.interface.images import DEPTH_SCALE_M, encode_jpeg
+from abyss.interface.messages import Image
 from abyss.stations.simulation.rendering import Cameras
 
 

@@ -1,5 +1,5 @@
-"""The simulation's side of the fault table (common/faults.py): what each fault does to the World,
-and how it is undone. `World.apply_fault` checks a fault against the table and the world's model,
+"""The simulation's side of the fault table (interface/faults.py): what each fault does to the World,
+and how it is undone. `apply` checks a fault against the table and the world's model,
 then dispatches through `ACTIONS`; a new fault is one row there and one entry here (`register`)."""
 
 from __future__ import annotations
@@ -9,9 +9,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from abyss.common.errors import BadInput
+from abyss.interface.faults import check
 from abyss.stations.simulation.lowlevel import Dynamic
 
 if TYPE_CHECKING:
+    from abyss.interface.messages import SimulationControl
     from abyss.stations.simulation.world import World
 
 SEIZED_PLAY_RAD = 0.005  # a seized valve or lever moves no further than this either way
@@ -87,8 +89,19 @@ ACTIONS: dict[str, Action] = {
 
 
 def register(name: str, action: Action) -> Action:
-    """Add the simulation's side of fault `name` (its row registered in common.faults)."""
+    """Add the simulation's side of fault `name` (its row registered in interface.faults)."""
     if name in ACTIONS:
         raise BadInput(f"fault {name!r} already has an action")
     ACTIONS[name] = action
     return action
+
+
+def apply(world: World, fault: SimulationControl, cameras: set[str]) -> None:
+    """Apply a row of the fault table to `world` through the simulation's action for it;
+    `cameras`: the blacked-out ones. Raises BadInput with the allowed targets for an unknown
+    one, or with the range for a value outside its fault's."""
+    check(fault.fault, fault.target, fault.value, world.model_names())
+    if fault.fault not in ACTIONS:
+        raise BadInput(f"fault {fault.fault!r} has no action in the simulation")
+    world.faults[f"{fault.fault}/{fault.target}"] = fault.value  # clear's action empties it
+    ACTIONS[fault.fault].apply(world, fault.target, fault.value, cameras)

@@ -9,7 +9,7 @@ the rest, relative to the water (nu_r = nu - nu_c, the current nu_c irrotational
   the arm and the contacts);
 - C_A(nu_r) nu_r (Coriolis and Munk moment of the added mass), the linear and quadratic damping
   D(nu_r) nu_r and the buoyancy at the centre of buoyancy, as a generalised force.
-The coefficients come from a vehicle file, the robot package's robot.toml (common/robot.py), about the
+The coefficients come from a vehicle file, the robot package's robot.toml (description/robot.py), about the
 body's origin, in its frame. Fossen 2021, "Handbook of Marine Craft Hydrodynamics and Motion
 Control", 2nd ed., eq. 6.44 (C_A), 6.57-6.60 (D), 4.6 (g)."""
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from abyss.common.robot import COMMANDED_AXES, Robot
+from abyss.description.robot import COMMANDED_AXES, Robot
 from abyss.stations.simulation.attitude import AttitudeHold
 from abyss.stations.simulation.hydrodynamics import VehicleModel
 from abyss.stations.simulation.thrusters import Thrusters

@@ -22,8 +22,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from abyss.common.messages.schema import MAX_ARM_JOINTS
-from abyss.common.robot import COMMANDED_AXES
+from abyss.description.robot import COMMANDED_AXES
+from abyss.interface.messages.schema import MAX_ARM_JOINTS
 from abyss.stations.simulation.attitude import ROLL
 from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.lowlevel import Dynamic, References

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from abyss.common.config.simulation import SimulationConfig
 from abyss.common.geometry import quat_multiply, small_rotation_wxyz
-from abyss.common.messages import NavState
-from abyss.common.robot import NavSensorsSection
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot_file import NavSensorsSection
+from abyss.interface.messages import NavState
 
 SOUND_SPEED_MPS = 1500.0
 SEAWATER_PA_PER_M = 1025.0 * 9.81  # hydrostatic pressure per metre of depth [Pa/m]

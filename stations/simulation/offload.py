@@ -29,7 +29,7 @@ from abyss.common.errors import AbyssError
 from abyss.common.workers import child_cpu, in_background
 
 if TYPE_CHECKING:
-    from abyss.common.robot import Robot
+    from abyss.description.robot import Robot
 
 STATE = ("qpos", "qvel", "act", "mocap_pos", "mocap_quat")  # what the sensors' kinematics come from
 HEADER = struct.Struct("<Q")
@@ -164,7 +164,7 @@ class _Sensor:
         self.data = mujoco.MjData(model)
         rng = np.random.default_rng(seed)
         if kind == "cameras":
-            from abyss.common.robot import robot_at
+            from abyss.description.robot import robot_at
             from abyss.stations.simulation.rendering import Cameras
 
             self.cameras = Cameras(
@@ -178,7 +178,7 @@ class _Sensor:
                 depth_camera=robot_at(config.robot).depth_camera,
             )
         else:
-            from abyss.common.robot import robot_at
+            from abyss.description.robot import robot_at
             from abyss.stations.simulation.sonar import ImagingSonar, SonarSpec
 
             self.sonar, self.rng = ImagingSonar(model, SonarSpec(site=robot_at(config.robot).sonar_site)), rng

@@ -44,7 +44,7 @@ import cv2
 import numpy as np
 
 if TYPE_CHECKING:
-    from abyss.stations.simulation.rendering import Intrinsics
+    from abyss.common.geometry import Intrinsics
 
 WAVELENGTHS_NM = (600, 525, 475)  # R, G, B
 PURE_WATER_ABSORPTION_PER_M = (0.222, 0.048, 0.011)  # Pope & Fry 1997, at WAVELENGTHS_NM

@@ -7,12 +7,12 @@ import functools
 import os
 import subprocess
 import sys
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from abyss.common.errors import AbyssError
+from abyss.common.geometry import Intrinsics
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.optics import Lamp, Optics
@@ -52,25 +52,6 @@ def choose_gl_backend() -> str:
     )
 
 
-@dataclass(frozen=True)
-class Intrinsics:
-    width_px: int
-    height_px: int
-    fx_px: float
-    fy_px: float
-    cx_px: float
-    cy_px: float
-
-    @staticmethod
-    def from_fovy(width_px: int, height_px: int, fovy_deg: float) -> Intrinsics:
-        """MuJoCo's cameras: vertical field of view, square pixels, centred principal point."""
-        f = 0.5 * height_px / np.tan(np.radians(fovy_deg) / 2.0)
-        return Intrinsics(width_px, height_px, f, f, width_px / 2.0, height_px / 2.0)
-
-    def matrix(self) -> np.ndarray:
-        return np.array([[self.fx_px, 0.0, self.cx_px], [0.0, self.fy_px, self.cy_px], [0.0, 0.0, 1.0]])
-
-
 class Cameras:
     """RGB for the stereo pair, depth [m along the optical axis] for the depth camera (the robot's
     `depth_camera`, which encoding.encode_image encodes as depth). With a
@@ -94,7 +75,7 @@ class Cameras:
         *,
         depth_camera: str,
     ) -> None:
-        """`depth_camera`: the robot's range camera (common.robot), rendered as depth."""
+        """`depth_camera`: the robot's range camera (description.robot), rendered as depth."""
         import mujoco
 
         self.model = model

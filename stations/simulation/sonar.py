@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from abyss.common.messages import SonarImage
-from abyss.common.sonar_frames import encode_polar
+from abyss.interface.messages import SonarImage
+from abyss.interface.sonar_frames import encode_polar
 
 
 @dataclass(frozen=True)

@@ -11,14 +11,14 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from abyss.common.robot import actuated_axes, thrust_matrix
+from abyss.description.robot import actuated_axes, thrust_matrix
 from abyss.stations.simulation.hydrodynamics import ThrusterSpec
 
 
 class Thrusters:
     """The thrusters of the vehicle's body `body`. The axes they drive (`actuated`, rows of the body
     wrench fx, fy, fz, mx, my, mz) are those of surge, sway, heave and yaw their layout moves
-    (common.robot.actuated_axes); roll and pitch are left to the hydrostatic restoring moment."""
+    (description.robot.actuated_axes); roll and pitch are left to the hydrostatic restoring moment."""
 
     def __init__(self, model: mujoco.MjModel, spec: ThrusterSpec, body: str = "vehicle") -> None:
         self.spec = spec

@@ -1,7 +1,7 @@
 """The twin: the simulation station in a hybrid run (`[hybrid]`), where a real vehicle provides
 its navigation and joints (and whatever else `hybrid.vehicle` names) and the twin renders the
 sensors it lacks. It runs no dynamics of its own: it places the virtual vehicle at the real one's
-navigation estimate (common.navigation, the filter onboard steers by, on the same messages, so
+navigation estimate (stations.navigation, the filter onboard steers by, on the same messages, so
 that a frame is rendered where onboard will believe it was taken) and the arm at its joints, on
 the virtual site registered to the vehicle's navigation frame (`hybrid.site_pose`), and renders
 its sensors from there at their rates, each frame stamped with the navigation's time it was
@@ -14,22 +14,22 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-from abyss.common import keys
-from abyss.common.bus import Bus, Inbox
-from abyss.common.config import Config
+from abyss.bus.session import Bus, Inbox
 from abyss.common.errors import BadInput
-from abyss.common.messages import JointState, NavState, SimulationControl, SimulationStatus
-from abyss.common.models import place_at_start
-from abyss.common.navigation import NavFilter
-from abyss.common.robot import robot_at
 from abyss.common.samples import Samples
-from abyss.common.site import site_at, world_model
 from abyss.common.workers import Workers
+from abyss.config import Config
+from abyss.description.robot import place_at_start, robot_at
+from abyss.description.site import site_at, world_model
+from abyss.interface import keys
+from abyss.interface.messages import JointState, NavState, SimulationControl, SimulationStatus
+from abyss.stations.navigation import NavFilter
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.offload import SensorKind
@@ -114,10 +114,9 @@ class Twin:
         }
 
 
-def run(config: Config, bus: Bus) -> None:
-    """The simulation station as a hybrid run's twin."""
-    from abyss.stations.simulation import sensor_loop
-
+def run(config: Config, bus: Bus, sensor_loop: Callable[..., None]) -> None:
+    """The simulation station as a hybrid run's twin, its sensors rendered by `sensor_loop` (the
+    simulation's own, stations.simulation.sensor_loop)."""
     twin = Twin(config)
     lock = threading.Lock()
     blackout: set[str] = set()

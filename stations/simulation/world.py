@@ -9,23 +9,19 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.errors import BadInput, ConfigError
-from abyss.common.faults import ModelNames
-from abyss.common.faults import check as check_fault
-from abyss.common.messages import (
+from abyss.common.errors import ConfigError
+from abyss.common.runfiles import write_whole
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import Robot, place_at_start, robot_at
+from abyss.description.site import site_at, world_model
+from abyss.interface.faults import ModelNames
+from abyss.interface.messages import (
     ArmVelocityRef,
     JointState,
     NavState,
     PanelState,
-    SimulationControl,
     VelocityRef,
 )
-from abyss.common.models import place_at_start
-from abyss.common.robot import Robot, robot_at
-from abyss.common.runfiles import write_whole
-from abyss.common.site import site_at, world_model
-from abyss.stations.simulation.faults import ACTIONS as FAULT_ACTIONS
 from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
@@ -321,13 +317,3 @@ class World:
         return ModelNames(
             tuple(self.vehicle.thrusters.names), robot.cameras, robot.nav_sensor_names, self.parts
         )
-
-    def apply_fault(self, fault: SimulationControl, cameras: set[str]) -> None:
-        """Apply a row of the fault table through the simulation's action for it (faults.py);
-        `cameras`: the blacked-out ones. Raises BadInput with the allowed targets for an unknown
-        one, or with the range for a value outside its fault's."""
-        check_fault(fault.fault, fault.target, fault.value, self.model_names())
-        if fault.fault not in FAULT_ACTIONS:
-            raise BadInput(f"fault {fault.fault!r} has no action in the simulation")
-        self.faults[f"{fault.fault}/{fault.target}"] = fault.value  # clear's action empties it
-        FAULT_ACTIONS[fault.fault].apply(self, fault.target, fault.value, cameras)

@@ -14,10 +14,12 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Protocol
 
-from abyss.common import keys
-from abyss.common.bus import Bus, Inbox
-from abyss.common.config import Config
-from abyss.common.messages import (
+from abyss.bus.session import Bus, Inbox
+from abyss.common.shared import Latest
+from abyss.common.workers import Workers
+from abyss.config import Config, site_of
+from abyss.interface import keys
+from abyss.interface.messages import (
     CommandAck,
     Heartbeat,
     Image,
@@ -29,14 +31,11 @@ from abyss.common.messages import (
     SonarImage,
     Telemetry,
 )
-from abyss.common.rate import Rate
-from abyss.common.shared import Latest
-from abyss.common.site import site_of
-from abyss.common.workers import Workers
 from abyss.scene.model import SceneModel
 from abyss.scene.stream import SceneStream, StreamOutputs
 from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs
 from abyss.stations.vessel.intake import Intake, IntakeInputs, IntakeOutputs
+from abyss.timing.rate import Rate
 
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
 log = logging.getLogger(__name__)

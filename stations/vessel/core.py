@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.config.stations import VesselConfig
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import (
+from abyss.config.stations import VesselConfig
+from abyss.description.models.panel import Panel
+from abyss.interface.messages import (
     CLOUD_SOURCES,
     IDLE_PHASES,
     PERCEPTION_SOURCES,
@@ -27,7 +28,6 @@ from abyss.common.messages import (
     RecognisedObjects,
     Telemetry,
 )
-from abyss.common.models.panel import Panel
 from abyss.stations.vessel.intents import REFINE_M, part_angle_rad, resolve
 from abyss.stations.vessel.recognition import seen_angles
 

@@ -10,15 +10,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.clouds import unpack_cloud
-from abyss.common.config.hybrid import HybridConfig
-from abyss.common.config.stations import VesselConfig
 from abyss.common.errors import BadInput
-from abyss.common.images import decode_image
-from abyss.common.messages import Image, Message, PointCloud, RecognisedObjects, SonarImage
-from abyss.common.models.panel import Panel
 from abyss.common.shared import Latest
-from abyss.common.sonar_frames import ECHO_RGB, echo_arcs
+from abyss.config.hybrid import HybridConfig
+from abyss.config.stations import VesselConfig
+from abyss.description.models.panel import Panel
+from abyss.interface.clouds import unpack_cloud
+from abyss.interface.images import decode_image
+from abyss.interface.messages import Image, Message, PointCloud, RecognisedObjects, SonarImage
+from abyss.interface.sonar_frames import ECHO_RGB, echo_arcs
 from abyss.scene.model import SceneModel
 from abyss.stations.vessel.core import Perception
 from abyss.stations.vessel.recognition import PanelTracker, expected_pose

@@ -10,8 +10,8 @@ import numpy as np
 
 from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
-from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects
-from abyss.common.models.panel import GRASP_ROTATION_PANEL, Panel
+from abyss.description.models.panel import GRASP_ROTATION_PANEL, Panel
+from abyss.interface.messages import Intervention, InterventionGoal, RecognisedObjects
 
 ALREADY_RAD = math.radians(1.0)
 # a turn that would end this little past a stop ends at the stop: the part's angle is believed to a

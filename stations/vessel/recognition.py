@@ -12,7 +12,7 @@
   in the plane and the rotation about the normal from the markers (or, with none in view, from
   the estimate so far); then a running average over frames that forgets at the rate the
   navigation's error wanders (PanelTracker), with a confidence that follows the recent frames'.
-The valves and levers follow from the panel's pose and the model (common/models/panel.py).
+The valves and levers follow from the panel's pose and the model (description/models/panel.py).
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from abyss.common.config.hybrid import HybridConfig
 from abyss.common.geometry import quat_wxyz_of, rotation_about, rotation_of
-from abyss.common.messages import Image, RecognisedObjects
-from abyss.common.models.panel import Panel
+from abyss.config.hybrid import HybridConfig
+from abyss.description.models.panel import Panel
+from abyss.interface.messages import Image, RecognisedObjects
 
 log = logging.getLogger(__name__)
 MIN_PLANE_POINTS = 200

@@ -7,10 +7,10 @@ import pytest
 
 from abyss.cli import parser
 from abyss.cli.operator import fault_control, fault_help
-from abyss.common import faults
 from abyss.common.errors import ConfigError
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at
+from abyss.interface import faults
 
 panel = site_at("").panel  # the shipped site's
 

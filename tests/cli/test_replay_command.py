@@ -12,8 +12,8 @@ import pytest
 
 from abyss.cli import main, parser
 from abyss.cli.record import replay_config, run_directory
-from abyss.common.config import load
 from abyss.common.errors import ConfigError
+from abyss.config import load
 from abyss.launch.start import CONFIG_FILE, Replayed, checked_external, run_config
 from abyss.validation.campaign.store import PLAN_FILE, RUNS_DIR
 

@@ -26,17 +26,18 @@ import numpy as np
 import pytest
 import zenoh
 
+from abyss.bus.session import message_of, open_session, zenoh_config
 from abyss.cli.system import _with_console
-from abyss.common import certs, keys
-from abyss.common.bus import message_of, open_session, zenoh_config
-from abyss.common.certs import CertFiles
-from abyss.common.config import Config
 from abyss.common.errors import ConfigError
-from abyss.common.messages import OperatorMode, Telemetry, Waypoints, encode
 from abyss.common.ports import free_port
+from abyss.config import Config
 from abyss.console.access import HEADER, Access, token_of
 from abyss.console.pilot import alerts_of
 from abyss.console.server import Console
+from abyss.interface import keys
+from abyss.interface.messages import OperatorMode, Telemetry, Waypoints, encode
+from abyss.security import certs
+from abyss.security.certs import CertFiles
 
 SYSTEM = "console-test"
 WAIT_S = 10.0

@@ -26,9 +26,9 @@ from pathlib import Path
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session
-from abyss.common.messages import MissionStatus
+from abyss.bus.session import client_config, message_of, open_session
+from abyss.interface import keys
+from abyss.interface.messages import MissionStatus
 
 ROOT = Path(__file__).resolve().parents[2]
 BASE_IMAGE = "abyss-base:bookworm"

@@ -10,7 +10,7 @@ import sys
 import uuid
 from pathlib import Path
 
-from abyss.common import keys
+from abyss.interface import keys
 from abyss.launch.lab import PORT, Lab, usable
 
 ROOT = Path(__file__).resolve().parents[2]

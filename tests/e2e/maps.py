@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from abyss.common.messages import SceneUpdate, decode
+from abyss.interface.messages import SceneUpdate, decode
 from abyss.scene.export import SCENE_FILE
 from abyss.scene.receiver import SceneReceiver
 

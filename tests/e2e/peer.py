@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config, message_of, open_session, zenoh_config
-from abyss.common.certs import CertFiles
-from abyss.common.messages import MissionStatus, Waypoints, encode
-from abyss.common.security import TLS_DIR_ENV, tls_settings
+from abyss.bus.session import client_config, message_of, open_session, zenoh_config
+from abyss.interface import keys
+from abyss.interface.messages import MissionStatus, Waypoints, encode
+from abyss.security.access import TLS_DIR_ENV, tls_settings
+from abyss.security.certs import CertFiles
 
 
 def watch(endpoint: str, system: str, timeout_s: float) -> dict[str, object]:

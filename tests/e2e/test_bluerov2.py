@@ -12,8 +12,8 @@ import pytest
 from conftest import ROOT, Up, abyss
 
 pytestmark = pytest.mark.timeout(300)
-ROBOT = ROOT / "common" / "models" / "robots" / "bluerov2_heavy_alpha5"
-SITE = ROOT / "common" / "models" / "sites" / "small_panel"
+ROBOT = ROOT / "description" / "models" / "robots" / "bluerov2_heavy_alpha5"
+SITE = ROOT / "description" / "models" / "sites" / "small_panel"
 
 
 def test_the_bluerov2_flies_its_waypoints_and_works_the_valve_and_the_lever_on_the_truth(

@@ -20,8 +20,8 @@ import pytest
 from conftest import abyss
 from rerun.chunk import RrdReader
 
-from abyss.common import keys
 from abyss.common.ports import free_port
+from abyss.interface import keys
 from abyss.recording.reader import open_recording
 
 LINK = "auto"  # compose.yaml's default: netem where the kernel has sch_netem, else the TUN shaper
@@ -72,7 +72,7 @@ def image() -> Iterator[str]:
 PHYSICS_PROBE = """
 import shutil
 import numpy as np
-from abyss.common.config.simulation import SimulationConfig
+from abyss.config.simulation import SimulationConfig
 from abyss.stations.simulation.world import World
 print(World(SimulationConfig(), np.random.default_rng(0)).physics, shutil.which("cc"))
 """

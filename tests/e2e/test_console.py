@@ -29,12 +29,13 @@ from selenium import webdriver
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
-from abyss.common import certs, keys
-from abyss.common.bus import client_config, message_of, open_session, zenoh_config
-from abyss.common.certs import CertFiles
-from abyss.common.messages import MissionStatus, NavState, PanelState, Telemetry
+from abyss.bus.session import client_config, message_of, open_session, zenoh_config
 from abyss.common.ports import free_port
 from abyss.console.server import Console
+from abyss.interface import keys
+from abyss.interface.messages import MissionStatus, NavState, PanelState, Telemetry
+from abyss.security import certs
+from abyss.security.certs import CertFiles
 
 pytestmark = pytest.mark.timeout(300)
 WAIT_S = 60.0  # for what the page shows to come, on this loaded machine

@@ -17,11 +17,11 @@ import pytest
 import zenoh
 from conftest import ARM_MISSION, Up, abyss
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.config.system import MissionConfig
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.geometry import wrap_rad, yaw_of
-from abyss.common.messages import NavState, decode
+from abyss.config.system import MissionConfig
+from abyss.interface import keys
+from abyss.interface.messages import NavState, decode
 from abyss.validation.plot import FIGURES
 
 pytestmark = pytest.mark.timeout(240)

@@ -22,12 +22,12 @@ from mcap.writer import Writer
 from mcap_ros2.decoder import DecoderFactory
 from rerun.chunk import RrdReader
 
-from abyss.common import keys
-from abyss.common.clouds import unpack_cloud
 from abyss.common.geometry import rotation_of
-from abyss.common.messages import Message, SceneUpdate, decode
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at, world_model
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at, world_model
+from abyss.interface import keys
+from abyss.interface.clouds import unpack_cloud
+from abyss.interface.messages import Message, SceneUpdate, decode
 from abyss.recording.reader import Recording, open_recording
 
 ROBOT = robot_at("")  # the shipped robot package

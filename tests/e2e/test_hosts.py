@@ -16,8 +16,9 @@ import pytest
 from conftest import ARM_MISSION
 from hosts import PORT, Hosts, usable
 
-from abyss.common import certs, keys
-from abyss.common.security import TLS_DIR_ENV
+from abyss.interface import keys
+from abyss.security import certs
+from abyss.security.access import TLS_DIR_ENV
 
 SYSTEM = "e2e-hosts"
 MISSION_TIMEOUT_S = 120.0

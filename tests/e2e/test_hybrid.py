@@ -18,12 +18,12 @@ import zenoh
 from conftest import RECORDED_MISSION, ROOT, Up, abyss
 from maps import agreement, occupied
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.config import load
-from abyss.common.messages import Image, JointState, NavState, SimulationStatus, decode, encode
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.ports import free_port
-from abyss.common.robot import robot_at
+from abyss.config import load
+from abyss.description.robot import robot_at
+from abyss.interface import keys
+from abyss.interface.messages import Image, JointState, NavState, SimulationStatus, decode, encode
 
 pytestmark = pytest.mark.timeout(300)
 VEHICLE = Path(__file__).parent / "vehicle.py"

@@ -18,9 +18,9 @@ from rosnode import RosNode, gateway_graph
 from rosvehicle import VehicleDriver, joint_state, odometry
 from vehicle import recorded
 
-from abyss.common.messages import JointState, NavState
 from abyss.common.ports import free_port
-from abyss.common.robot import robot_at
+from abyss.description.robot import robot_at
+from abyss.interface.messages import JointState, NavState
 
 pytestmark = pytest.mark.timeout(300)
 CELL_M = 0.1  # the vessel's octree resolution

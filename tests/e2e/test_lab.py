@@ -19,8 +19,8 @@ import pytest
 from conftest import ARM_MISSION, ROOT, abyss
 from hosts import Hosts, usable
 
-from abyss.common import keys
-from abyss.common.linkprofile import LinkProfile, profile
+from abyss.config.linkprofile import LinkProfile, profile
+from abyss.interface import keys
 from abyss.launch.lab import Lab
 
 Z_99 = 2.576  # two-sided 99 % quantile of the normal distribution

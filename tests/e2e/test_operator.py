@@ -13,9 +13,9 @@ import pytest
 import zenoh
 from conftest import Up, abyss
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.messages import Telemetry, decode
+from abyss.bus.session import open_session, zenoh_config
+from abyss.interface import keys
+from abyss.interface.messages import Telemetry, decode
 
 pytestmark = pytest.mark.timeout(150)
 SYSTEM = "e2e-op"

@@ -1,5 +1,5 @@
 """A team's own robot and site through the whole system: a robot package written here in URDF
-with xacro (tests/common/urdf_package.py: "minirov", whose joints, thrusters, cameras and sites all
+with xacro (tests/description/urdf_package.py: "minirov", whose joints, thrusters, cameras and sites all
 differ from the shipped robot's), on a site whose parts differ from the shipped panel's, flies three
 waypoints in lockstep; its recording exports to ROS 2 topics that name its joints and its
 frames, and the panel it recognised names the site's parts. Any name of the shipped packages still
@@ -17,9 +17,9 @@ from conftest import Up, abyss
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from abyss.common.site import SHIPPED_SITE_DIR
+from abyss.description.site import SHIPPED_SITE_DIR
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "common"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "description"))
 from urdf_package import write_urdf_package
 
 pytestmark = pytest.mark.timeout(300)

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from conftest import Up, abyss
 
-from abyss.common import keys
+from abyss.interface import keys
 from abyss.recording.reader import open_recording
 from abyss.recording.store import data_spec
 

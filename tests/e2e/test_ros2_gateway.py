@@ -38,8 +38,8 @@ from rosnode import (
     ros_type,
 )
 
-from abyss.common.messages import NavState, SceneUpdate, decode
 from abyss.common.ports import free_port
+from abyss.interface.messages import NavState, SceneUpdate, decode
 from abyss.recording.reader import open_recording
 from abyss.scene.export import SCENE_FILE
 from abyss.scene.octree import cell_keys, iterate_leaves, leaves_to_cells, read_binary

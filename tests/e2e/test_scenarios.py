@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, abyss
 
-from abyss.common import keys
+from abyss.interface import keys
 
 PARALLEL = 3  # whole systems at once on this 2-core machine (four overload it: 2.2 cores)
 LIBRARY = sorted((ROOT / "scenarios").glob("*.toml"))

@@ -19,7 +19,20 @@ from conftest import ARM_MISSION
 pytestmark = pytest.mark.timeout(150)
 
 # every top-level name abyss imports under, and the import package itself
-SHADOWS = ("abyss", "common", "stations", "linkemu", "launch", "cli", "console", "validation")
+SHADOWS = (
+    "abyss",
+    "common",
+    "config",
+    "interface",
+    "bus",
+    "timing",
+    "stations",
+    "linkemu",
+    "launch",
+    "cli",
+    "console",
+    "validation",
+)
 BROKEN = "raise RuntimeError(\"wrong {name} imported: the user's folder shadows abyss's\")\n"
 # an upper bound in simulated seconds: `abyss up` ends when shore sees the mission done (ARM_MISSION:
 # about 28 s), in lockstep (what is tested is where abyss imports from, not time: the load changes

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, Up, abyss
 
-from abyss.common import keys
+from abyss.interface import keys
 from abyss.recording.reader import read_file
 
 pytestmark = pytest.mark.timeout(240)

@@ -18,10 +18,12 @@ import pytest
 import zenoh
 from conftest import ROOT, abyss
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.images import decode_image
-from abyss.common.messages import (
+from abyss.bus.session import open_session, zenoh_config
+from abyss.common.ports import free_port
+from abyss.common.workers import BACKGROUND_NICE
+from abyss.interface import keys
+from abyss.interface.images import decode_image
+from abyss.interface.messages import (
     Image,
     NavState,
     SimulationControl,
@@ -30,8 +32,6 @@ from abyss.common.messages import (
     decode,
     encode,
 )
-from abyss.common.ports import free_port
-from abyss.common.workers import BACKGROUND_NICE
 
 pytestmark = pytest.mark.timeout(120)
 SYSTEM = "e2e-sim"

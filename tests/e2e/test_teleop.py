@@ -17,9 +17,11 @@ import pytest
 import zenoh
 from conftest import ROOT
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.messages import (
+from abyss.bus.session import open_session, zenoh_config
+from abyss.common.ports import free_port
+from abyss.console.teleop import JS_AXIS, JS_EVENT
+from abyss.interface import keys
+from abyss.interface.messages import (
     ArmGoal,
     CommandAck,
     Intervention,
@@ -29,8 +31,6 @@ from abyss.common.messages import (
     decode,
     encode,
 )
-from abyss.common.ports import free_port
-from abyss.console.teleop import JS_AXIS, JS_EVENT
 
 pytestmark = pytest.mark.timeout(90)
 SYSTEM = "e2e-teleop"

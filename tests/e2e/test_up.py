@@ -16,8 +16,8 @@ import zenoh
 from conftest import Up, abyss
 from rerun.chunk import RrdReader
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
+from abyss.bus.session import open_session, zenoh_config
+from abyss.interface import keys
 
 pytestmark = pytest.mark.timeout(150)
 

@@ -14,8 +14,8 @@ import pytest
 from browser import Browser, chromium
 from conftest import Up
 
-from abyss.common import keys
 from abyss.common.ports import free_port, listening
+from abyss.interface import keys
 
 pytestmark = pytest.mark.timeout(240)
 COLOURFUL_PX = 1500  # the hull, the path, the voxels: more saturated pixels than the UI's accents

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import zenoh
 
-from abyss.common import keys
-from abyss.common.bus import client_config
-from abyss.common.messages import JointState, NavState, VelocityRef, decode, encode
+from abyss.bus.session import client_config
+from abyss.interface import keys
+from abyss.interface.messages import JointState, NavState, VelocityRef, decode, encode
 from abyss.recording.reader import open_recording
 
 NAV_KEY = {"nav": "simulation/nav", "truth": "simulation/truth"}

@@ -13,8 +13,8 @@ import pytest
 
 from abyss.cli import parser
 from abyss.cli.args import load_config
-from abyss.common.config import load
 from abyss.common.errors import ConfigError
+from abyss.config import load
 from abyss.launch.cpu import CpuCaps, find_controller
 
 BUSY = "import time\nprint('ready', flush=True)\nwhile True:\n    pass\n"

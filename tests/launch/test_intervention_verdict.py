@@ -9,9 +9,9 @@ import sys
 
 import numpy as np
 
-from abyss.common.config.system import MissionConfig
-from abyss.common.messages import PanelState
-from abyss.common.site import site_at
+from abyss.config.system import MissionConfig
+from abyss.description.site import site_at
+from abyss.interface.messages import PanelState
 from abyss.launch.verdict import interventions_summary, render_summary
 
 panel = site_at("").panel  # the shipped site's
@@ -83,8 +83,8 @@ def test_a_wrong_intent_fails_at_the_command_line_with_what_is_allowed() -> None
 
 def test_a_hybrid_run_says_its_interventions_and_a_restarts_drift_have_no_truth_to_judge_them() -> None:
     """Shore's word stands in for the truth, said as such; a restart's drift is not claimed 0 mm."""
-    from abyss.common.config import load
-    from abyss.common.messages import MissionStatus
+    from abyss.config import load
+    from abyss.interface.messages import MissionStatus
     from abyss.launch.summarise import hybrid_summary
     from abyss.launch.verdict import _restart_lines, hybrid_interventions
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from abyss.common.config import load
 from abyss.common.errors import ConfigError
+from abyss.config import load
 from abyss.launch.mission_check import check_reach
 
 

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from abyss.common.config import Config
-from abyss.common.config.system import TimeConfig
 from abyss.common.errors import ConfigError
+from abyss.config import Config
+from abyss.config.system import TimeConfig
 from abyss.launch.start import (
     CONFIG_FILE,
     SIMULATION_STATE_FILE,

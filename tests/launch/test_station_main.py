@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from abyss.common.config import Config
-from abyss.common.config.system import Ros2Config
+from abyss.config import Config
+from abyss.config.system import Ros2Config
 from abyss.launch import station as runtime
 from abyss.ros2 import gateway
 from abyss.stations import onboard, onshore, vessel

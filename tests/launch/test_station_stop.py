@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.messages import LinkControl, Waypoints, encode
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.ports import free_port
+from abyss.interface import keys
+from abyss.interface.messages import LinkControl, Waypoints, encode
 from abyss.stations.onshore.core import JOIN_WAIT_S
 
 STOP_BOUND_S = 5.0
@@ -104,7 +104,7 @@ HANGING_STATION = """
 import sys, time
 from pathlib import Path
 import abyss.launch.station as runtime
-from abyss.common.config import Config
+from abyss.config import Config
 
 def hang(config, bus):  # a station whose work ignores the stop: a call that never returns
     time.sleep(600)

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import pytest
 
-from abyss.common import keys
-from abyss.common.config import Config
-from abyss.common.config.system import Ros2Config
 from abyss.common.errors import ConfigError
-from abyss.common.messages import MissionStatus, SimulationStatus
 from abyss.common.ports import port_free
+from abyss.config import Config
+from abyss.config.system import Ros2Config
+from abyss.interface import keys
+from abyss.interface.messages import MissionStatus, SimulationStatus
 from abyss.launch import stop as stop_module
 from abyss.launch import supervise as supervise_module
 from abyss.launch.start import Station, ros2_line, viewer_line

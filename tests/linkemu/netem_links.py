@@ -13,8 +13,8 @@ import sys
 import time
 from pathlib import Path
 
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.linkprofile import profile
+from abyss.bus.session import open_session, zenoh_config
+from abyss.config.linkprofile import profile
 from abyss.linkemu.control import StationLinks
 
 

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from abyss.common.errors import ConfigError, LinkError
-from abyss.common.linkprofile import LinkProfile, profile
+from abyss.config.linkprofile import LinkProfile, profile
 from abyss.linkemu.link import HEADER_BYTES, Link, Offer
 from abyss.linkemu.netem import tc_command
 

@@ -10,7 +10,7 @@ import uuid
 import pytest
 
 from abyss.common.errors import LinkError
-from abyss.common.linkprofile import load_profiles, profile
+from abyss.config.linkprofile import load_profiles, profile
 from abyss.linkemu.netem import netem_counters, netem_limit, run_tc, tc_command
 
 EXPECTED = {

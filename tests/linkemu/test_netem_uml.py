@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 import uml
 
-from abyss.common.linkprofile import profile
+from abyss.config.linkprofile import profile
 from abyss.validation.tcpcheck.compare import agreement
 from abyss.validation.tcpcheck.model import run_model
 from abyss.validation.tcpcheck.workload import CASES

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from abyss.common.messages import JointState, NavState, PointCloud, encode
+from abyss.interface.messages import JointState, NavState, PointCloud, encode
 from abyss.recording import store
 from abyss.recording.reader import open_recording, read_file
 from abyss.recording.store import Caps, Recorder, RecordingError

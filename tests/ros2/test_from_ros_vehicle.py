@@ -13,8 +13,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from abyss.common.errors import BadInput
-from abyss.common.messages import JointState, Message, NavState, encode
-from abyss.common.robot import robot_at
+from abyss.description.robot import robot_at
+from abyss.interface.messages import JointState, Message, NavState, encode
 from abyss.ros2 import from_ros, motion, msgs, types
 from abyss.ros2.session import Session
 

@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from abyss.common.clouds import pack_cloud, unpack_cloud
 from abyss.common.errors import BadInput
-from abyss.common.messages import ArmGoal, ArmVelocityRef, NavState, Waypoints
-from abyss.common.robot import robot_at
+from abyss.description.robot import robot_at
+from abyss.interface.clouds import pack_cloud, unpack_cloud
+from abyss.interface.messages import ArmGoal, ArmVelocityRef, NavState, Waypoints
 from abyss.ros2 import from_ros, motion, msgs, rmw, sensing, status
 from abyss.ros2.session import Session
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.messages import SonarImage
-from abyss.common.robot import robot_at, robot_spec
+from abyss.description.robot import robot_at, robot_spec
+from abyss.interface.messages import SonarImage
 from abyss.ros2 import motion
 from abyss.ros2.session import ArmFrames
 

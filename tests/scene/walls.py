@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.messages import SceneUpdate, decode, encode
+from abyss.interface.messages import SceneUpdate, decode, encode
 from abyss.scene.model import SceneModel
 
 RESOLUTION_M = 0.1

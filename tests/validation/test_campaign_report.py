@@ -13,9 +13,10 @@ import pytest
 from campaign_files import CAMPAIGN, record, write_files
 
 from abyss.common.errors import ConfigError
+from abyss.validation.campaign.case import RUN_ERROR
 from abyss.validation.campaign.figures import pass_rates
 from abyss.validation.campaign.plan import RunSpec, plan, shard
-from abyss.validation.campaign.report import RUN_ERROR, build_report, merge
+from abyss.validation.campaign.report import build_report, merge
 from abyss.validation.campaign.spec import Campaign, load_campaign
 from abyss.validation.campaign.stats import wilson
 from abyss.validation.campaign.store import RunRecord, Store

@@ -187,14 +187,14 @@ def test_robot_and_site_are_matrix_axes_by_shipped_name_or_directory(tmp_path: P
     shipped package by its name, a directory relative to the campaign file; each run's
     configuration names the package it runs, and one that is no package is refused naming the key."""
     package = tmp_path / "my_robot"
-    shutil.copytree(ROOT / "common" / "models" / "robots" / "workclass", package)
+    shutil.copytree(ROOT / "description" / "models" / "robots" / "workclass", package)
     text = CAMPAIGN + '[matrix]\nrobot = ["bluerov2_heavy_alpha5", "../my_robot"]\nsite = ["valve_panel"]\n'
     campaign = load_campaign(write_files(tmp_path, text))
     robots = {run.scenario.configuration.simulation.robot for run in plan(campaign)}
-    shipped = ROOT / "common" / "models" / "robots" / "bluerov2_heavy_alpha5"
+    shipped = ROOT / "description" / "models" / "robots" / "bluerov2_heavy_alpha5"
     assert robots == {str(shipped.resolve()), str(package.resolve())}
     assert {run.scenario.configuration.simulation.site for run in plan(campaign)} == {
-        str((ROOT / "common" / "models" / "sites" / "valve_panel").resolve())
+        str((ROOT / "description" / "models" / "sites" / "valve_panel").resolve())
     }
     with pytest.raises(ConfigError, match=r"matrix\.robot: .*not a robot package.*bluerov2_heavy_alpha5"):
         load_campaign(write_files(tmp_path, CAMPAIGN + '[matrix]\nrobot = ["../nowhere"]\n'))

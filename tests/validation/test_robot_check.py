@@ -1,4 +1,4 @@
-"""`abyss robot check` (validation/robot_check.py): the shipped robot passes every check, its
+"""`abyss robot check` (validation/robot/check.py): the shipped robot passes every check, its
 open-loop speeds and decay periods within their bounds of the analytic ones; a package made heavy,
 or top-heavy, warns in its hydrostatics (exit 1); a broken one exits 2 naming the file and the
 field; the `[published]` figures are held to the simulated ones; the allocation's linear program
@@ -19,20 +19,19 @@ from scipy.optimize import linprog
 
 from abyss.cli import main
 from abyss.common.errors import ConfigError
-from abyss.common.robot import ROBOTS_DIR, SHIPPED_ROBOT_DIR, load_robot
-from abyss.validation.robot_check import (
-    CHECKS,
+from abyss.description.robot import ROBOTS_DIR, SHIPPED_ROBOT_DIR, load_robot
+from abyss.validation.robot.check import (
     HEEL_BOUND_RAD,
     PERIOD_BOUND,
     SPEED_BOUND,
-    Report,
     bench_of,
     check_robot,
     published_rows,
     response_row,
 )
-from abyss.validation.robot_geometry import largest_along
-from abyss.validation.robot_physics import measured_period_s, open_loop, terminal_speed
+from abyss.validation.robot.geometry import largest_along
+from abyss.validation.robot.physics import measured_period_s, open_loop, terminal_speed
+from abyss.validation.robot.report import CHECKS, Report
 
 pytestmark = pytest.mark.timeout(120)
 BLUEROV2_DIR = ROBOTS_DIR / "bluerov2_heavy_alpha5"

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from abyss.common.errors import ConfigError
-from abyss.common.messages import Telemetry
-from abyss.common.robot import robot_at
+from abyss.description.robot import robot_at
+from abyss.interface.messages import Telemetry
 from abyss.validation.scenario.checks import Run, Verdict, arm_ranges_rad, judge
 from abyss.validation.scenario.report import junit
 from abyss.validation.scenario.runner import Result

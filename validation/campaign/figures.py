@@ -17,7 +17,7 @@ from matplotlib.patches import Patch
 from abyss.validation.campaign.store import FIGURES
 
 if TYPE_CHECKING:
-    from abyss.validation.campaign.report import Case
+    from abyss.validation.campaign.case import Case
 
 HEAT_MAP = "pass_rate"  # the heat map's file name, without .png
 

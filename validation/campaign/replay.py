@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from abyss.common import keys
 from abyss.common.errors import ConfigError
+from abyss.interface import keys
 from abyss.recording.reader import read_file
 from abyss.validation.campaign.plan import RunSpec
 from abyss.validation.campaign.store import Store
@@ -61,7 +61,7 @@ def _tail_only(first: Sent, second: Sent) -> bool:
 def differences(original: Path, again: Path) -> tuple[list[str], int]:
     """Where two runs' bytes differ (empty: identical, end included), and the messages compared.
     In lockstep a run ends on the same period every time, its duration's or, stopped once its
-    mission is done, the period its lease ends on (common.lockstep): a different end is a
+    mission is done, the period its lease ends on (timing.lockstep): a different end is a
     difference, said with how far each went."""
     found: list[str] = []
     csv = [(run / "control.csv").read_bytes().splitlines(keepends=True) for run in (original, again)]

@@ -16,11 +16,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
-from abyss.common import keys
 from abyss.common.errors import ConfigError
-from abyss.common.linkprofile import load_profiles
-from abyss.common.models import shipped_names
 from abyss.common.reading import OneOf, read
+from abyss.config.linkprofile import load_profiles
+from abyss.description.models import shipped_names
+from abyss.interface import keys
 from abyss.validation.scenario.events import EVENTS, action_of, fields_of
 from abyss.validation.scenario.fields import configured
 from abyss.validation.scenario.spec import Scenario, load_scenario, scenario_of

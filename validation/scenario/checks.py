@@ -18,12 +18,12 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 
-from abyss.common import keys
 from abyss.common.errors import ConfigError
-from abyss.common.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
 from abyss.common.reading import OneOf
-from abyss.common.robot import Robot, robot_at, robot_spec
-from abyss.common.site import shipped_sites
+from abyss.description.robot import Robot, robot_at, robot_spec
+from abyss.description.site import shipped_sites
+from abyss.interface import keys
+from abyss.interface.messages import INTERVENTION_PHASES, PERCEPTION_SOURCES, Telemetry
 
 Outcome = Literal["done", "failed"]  # of an intervention
 OUTCOMES: tuple[Outcome, ...] = typing.get_args(Outcome)
@@ -35,7 +35,7 @@ MISSION_PART = re.compile(r"^#(\d+)$")  # "#i": the part of the mission's i-th i
 
 
 class PanelPart:
-    """A rule: the name of a part of a shipped site's panel (common.site; a user's site's parts
+    """A rule: the name of a part of a shipped site's panel (description.site; a user's site's parts
     are the run's configuration's to check, its mission's interventions), or "#i": the part of
     the mission's i-th intervention (from 0), whatever the site names it, so that a scenario
     runs on any robot and site."""

@@ -6,8 +6,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from abyss.common.config import Config, load, merge
 from abyss.common.errors import ConfigError
+from abyss.config import Config, load, merge
 
 
 def nested(table: dict[str, Any]) -> dict[str, Any]:

@@ -12,11 +12,11 @@ from collections.abc import Callable
 
 import zenoh
 
-from abyss.common.clock import SimClock
 from abyss.common.errors import AbyssError, BadMessage
-from abyss.common.lockstep import ENDLESS_S, PHASE_LEASE, TICK_TOLERANCE_S
-from abyss.common.lockstep_testbed import Holds, Lease
-from abyss.common.messages import LockstepReport, Telemetry, decode
+from abyss.interface.messages import LockstepReport, Telemetry, decode
+from abyss.timing.clock import SimClock
+from abyss.timing.lockstep import ENDLESS_S, PHASE_LEASE, TICK_TOLERANCE_S
+from abyss.timing.lockstep_testbed import Holds, Lease
 from abyss.validation.scenario.checks import Run, phase_began_s
 from abyss.validation.scenario.events import Context, Event
 from abyss.validation.scenario.spec import Scenario
@@ -37,13 +37,13 @@ def carry_out(event: Event, ctx: Context) -> str:
 
 
 class Held:
-    """Events carried out in lockstep, each on its period: the simulation held there (common.lockstep's
+    """Events carried out in lockstep, each on its period: the simulation held there (timing.lockstep's
     holds), the event applied and seen to take effect, then the hold released. An event timed on
     an intervention's phase is given its hold once onboard first reports the phase, in the
     telemetry of period T: T + at_s (two control periods at the least: the simulation must reach
     the next telemetry). Meanwhile the runner leases the simulation (`PHASE_LEASE`) only the
     periods before the earliest such a hold could still fall on, and leases on past a hold it
-    added only once every station has it (common.lockstep)."""
+    added only once every station has it (timing.lockstep)."""
 
     def __init__(self, scenario: Scenario, ctx: Context, timeline: Timeline) -> None:
         self.scenario, self.ctx, self.up, self.timeline = scenario, ctx, ctx.up, timeline

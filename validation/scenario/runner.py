@@ -21,11 +21,11 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-from abyss.common import keys
-from abyss.common.bus import open_session, zenoh_config
-from abyss.common.clock import follow as clock_follow
+from abyss.bus.session import open_session, zenoh_config
 from abyss.common.errors import AbyssError
+from abyss.interface import keys
 from abyss.launch.state import RunState, wait_for_state
+from abyss.timing.clock import follow as clock_follow
 from abyss.validation.scenario.checks import Run, Verdict, judge
 from abyss.validation.scenario.events import Context
 from abyss.validation.scenario.held import HOLD_TIMEOUT_S, Held, Timeline, carry_out

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
-from abyss.common import keys
-from abyss.common.config import Config
-from abyss.common.config.system import TimeConfig
 from abyss.common.errors import ConfigError
 from abyss.common.reading import OneOf, read
+from abyss.config import Config
+from abyss.config.system import TimeConfig
+from abyss.interface import keys
 from abyss.validation.scenario.checks import CHECKS, OUTCOMES, Assertion, fields_of
 from abyss.validation.scenario.events import EVENTS, Event
 from abyss.validation.scenario.fields import configuration, configured, merge
@@ -56,7 +56,7 @@ class Scenario:
     @property
     def held(self) -> bool:
         """In lockstep with events: each lands on its period, the simulation held there while the
-        runner carries it out (common.lockstep)."""
+        runner carries it out (timing.lockstep)."""
         return self.time.mode == "lockstep" and bool(self.events)
 
     @property

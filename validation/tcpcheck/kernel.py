@@ -15,8 +15,8 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from abyss.common import keys
 from abyss.common.errors import LinkError
+from abyss.interface import keys
 from abyss.launch.lab import Lab, usable
 from abyss.linkemu.netem import netem_available, netem_counters, run_tc, tc_command
 from abyss.validation.tcpcheck import programs

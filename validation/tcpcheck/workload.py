@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abyss.common.linkprofile import LinkProfile, profile
+from abyss.config.linkprofile import LinkProfile, profile
 
 BULK_MESSAGE_BYTES = 14_600  # ten whole model packets
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from abyss.common.config import load
 from abyss.common.geometry import rotation_of
-from abyss.common.models.panel import GRASP_ROTATION_PANEL
-from abyss.common.robot import ROBOTS_DIR, robot_at
-from abyss.common.site import SITES_DIR, site_at
+from abyss.config import load
+from abyss.description.models.panel import GRASP_ROTATION_PANEL
+from abyss.description.robot import ROBOTS_DIR, robot_at
+from abyss.description.site import SITES_DIR, site_at
 from abyss.stations.onboard.arm_control import (
     STALL_S,
     ArmController,

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.config.system import MissionConfig
-from abyss.common.messages import ArmGoal, OperatorMode, Waypoints
-from abyss.common.robot import robot_at
+from abyss.config.system import MissionConfig
+from abyss.description.robot import robot_at
+from abyss.interface.messages import ArmGoal, OperatorMode, Waypoints
 from abyss.stations.onboard.arm_control import ArmKinematics
 from abyss.stations.onboard.commands import CommandGate, box_clearance_m
 

@@ -11,13 +11,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from abyss.common.config import Config
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.config.stations import OnboardConfig
-from abyss.common.images import decode_image
-from abyss.common.messages import Image
-from abyss.common.navigation import PoseHistory
-from abyss.common.robot import robot_at
+from abyss.config import Config
+from abyss.config.simulation import SimulationConfig
+from abyss.config.stations import OnboardConfig
+from abyss.description.robot import robot_at
+from abyss.interface.images import decode_image
+from abyss.interface.messages import Image
+from abyss.stations.navigation import PoseHistory
 from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets
 from abyss.stations.simulation import cameras_of_set
 from abyss.stations.simulation.encoding import encode_image

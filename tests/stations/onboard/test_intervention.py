@@ -12,12 +12,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from abyss.common.config import load
-from abyss.common.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
-from abyss.common.robot import ROBOTS_DIR, robot_at
-from abyss.common.site import SITES_DIR, site_at
+from abyss.config import load
+from abyss.description.robot import ROBOTS_DIR, robot_at
+from abyss.description.site import SITES_DIR, site_at
+from abyss.interface.messages import Intervention, InterventionGoal, RecognisedObjects, SimulationControl
 from abyss.stations.onboard.arm_control import ArmController, PoseReference
 from abyss.stations.onboard.intervention import PRE_GRASP_M, Grip, InterventionRun, Phase
+from abyss.stations.simulation.faults import apply as apply_fault
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 from abyss.stations.vessel.intents import resolve
@@ -124,7 +125,7 @@ def work(
     """The primitive on the dynamic low level until it ends; the arm's joints seen on the way."""
     arm, world = setup("dynamic")
     if seize:
-        world.apply_fault(SimulationControl("seize", goal.target, 1.0), set())
+        apply_fault(world, SimulationControl("seize", goal.target, 1.0), set())
     run, joints = InterventionRun(goal, GRIP), []
     for _ in range(round(seconds / PERIOD_S)):
         state = world.joints()

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.config import Config
-from abyss.common.messages import (
+from abyss.config import Config
+from abyss.interface.messages import (
     INTERVENTION_PHASES,
     MODES,
     OPERATOR_MODES,

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from abyss.common.config import Config, load
-from abyss.common.linkprofile import profile
-from abyss.common.messages import (
+from abyss.config import Config, load
+from abyss.config.linkprofile import profile
+from abyss.interface.messages import (
     ArmGoal,
     CommandAck,
     Heartbeat,
@@ -21,8 +21,8 @@ from abyss.common.messages import (
     decode,
     encode,
 )
-from abyss.common.navigation import SETTLE_FIXES
 from abyss.linkemu.link import Link
+from abyss.stations.navigation import SETTLE_FIXES
 from abyss.stations.onboard.core import Onboard, OnboardInputs
 
 STEP_S = 0.05

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from abyss.common.config.stations import OnboardConfig
-from abyss.common.messages import Heartbeat, NavState
-from abyss.common.navigation import NavFilter, PoseHistory
+from abyss.config.stations import OnboardConfig
+from abyss.interface.messages import Heartbeat, NavState
+from abyss.stations.navigation import NavFilter, PoseHistory
 from abyss.stations.onboard.failsafe import Failsafe
 
 
@@ -67,7 +67,7 @@ def test_the_pose_history_is_handed_over_whole_and_looked_up_between_estimates()
 
 def test_joints_that_do_not_fit_the_robots_arm_are_refused_with_the_counts() -> None:
     """A hybrid run's real vehicle may send another arm's joints: refused, not a crash of the step."""
-    from abyss.common.messages import JointState
+    from abyss.interface.messages import JointState
     from abyss.stations.onboard import wrong_joints
 
     six = JointState(np.zeros(6), np.zeros(6), 0.0, 0.0)

@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 import pytest
 
-from abyss.common.config.stations import OnboardConfig
 from abyss.common.errors import ConfigError
+from abyss.config.stations import OnboardConfig
 from abyss.stations.onboard.perception import Camera
 from abyss.stations.onboard.stereo import StereoFilter, left_right_consistent, stereo_depth
 

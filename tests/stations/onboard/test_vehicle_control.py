@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from abyss.common.config.stations import OnboardConfig
-from abyss.common.config.system import MissionConfig
+from abyss.config.stations import OnboardConfig
+from abyss.config.system import MissionConfig
 from abyss.stations.onboard.vehicle_control import VehicleController
 
 DT_S = 0.05

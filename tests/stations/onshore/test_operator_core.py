@@ -12,9 +12,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from abyss.common.config import Config
-from abyss.common.config.system import MissionConfig
-from abyss.common.messages import (
+from abyss.config import Config
+from abyss.config.system import MissionConfig
+from abyss.interface.messages import (
     ArmGoal,
     CommandAck,
     Heartbeat,

@@ -17,10 +17,11 @@ import rerun as rr
 import rerun.blueprint as rrb
 from rerun.chunk import RrdReader
 
-from abyss.common import keys
 from abyss.common.geometry import rotation_of
-from abyss.common.images import encode_jpeg
-from abyss.common.messages import (
+from abyss.description.robot import robot_at
+from abyss.interface import keys
+from abyss.interface.images import encode_jpeg
+from abyss.interface.messages import (
     ArmGoal,
     Image,
     LinkStats,
@@ -30,8 +31,7 @@ from abyss.common.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.common.robot import robot_at
-from abyss.common.sonar_frames import encode_polar
+from abyss.interface.sonar_frames import encode_polar
 from abyss.stations.onshore.layout import blueprint
 from abyss.stations.onshore.viewer import Viewer
 

@@ -19,8 +19,8 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from abyss.common.config.stations import OnshoreConfig
 from abyss.common.ports import free_port, listening
+from abyss.config.stations import OnshoreConfig
 from abyss.stations.onshore.viewer import RECORDING_FILE, Sinks, rerun_command
 
 pytestmark = pytest.mark.timeout(120)
@@ -110,7 +110,7 @@ def test_a_held_port_is_said_and_the_run_goes_on_without_a_web_viewer(
 
 SHORE = """
 import sys, time
-from abyss.common.config.stations import OnshoreConfig
+from abyss.config.stations import OnshoreConfig
 from abyss.stations.onshore.viewer import Sinks
 grpc_port, web_port = map(int, sys.argv[1:])
 sinks = Sinks(OnshoreConfig(viewer="web", viewer_grpc_port=grpc_port, viewer_web_port=web_port), "e2e")

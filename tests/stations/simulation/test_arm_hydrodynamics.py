@@ -28,9 +28,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
-from abyss.common.robot import robot_at
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import robot_at
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, geom_volume_m3, wet_geoms
 from abyss.stations.simulation.strips import ArmStrips, Coefficients

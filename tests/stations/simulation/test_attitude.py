@@ -10,10 +10,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import SimulationConfig
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
-from abyss.common.robot import ROBOTS_DIR
-from abyss.common.site import SITES_DIR
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import ROBOTS_DIR
+from abyss.description.site import SITES_DIR
 from abyss.stations.simulation.attitude import PITCH, ROLL
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World

@@ -9,11 +9,12 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from abyss.common import faults
-from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
-from abyss.common.messages import SimulationControl, decode, encode
+from abyss.config.simulation import SimulationConfig
+from abyss.interface import faults
+from abyss.interface.messages import SimulationControl, decode, encode
 from abyss.stations.simulation import faults as actions
+from abyss.stations.simulation.faults import apply as apply_fault
 from abyss.stations.simulation.world import World
 
 KEY = "abyss/test/simulation/control"
@@ -52,13 +53,13 @@ def drift() -> Iterator[list[str]]:
 
 def test_a_registered_fault_acts_on_a_world_and_a_bad_target_is_refused(drift: list[str]) -> None:
     w = world()
-    w.apply_fault(sent("drift", "dvl", 0.5), set())
+    apply_fault(w, sent("drift", "dvl", 0.5), set())
     assert w.navigation.scale["dvl"] == 6.0 and w.faults == {"drift/dvl": 0.5}
     with pytest.raises(BadInput, match=r"drift target 'cam_left' not one of usbl, depth, dvl, imu$"):
-        w.apply_fault(sent("drift", "cam_left", 0.5), set())
+        apply_fault(w, sent("drift", "cam_left", 0.5), set())
     with pytest.raises(BadInput, match=r"drift value 2 not in \[0, 1\] \(drift\)"):
-        w.apply_fault(sent("drift", "dvl", 2.0), set())
-    w.apply_fault(sent("clear", "", 0.0), set())
+        apply_fault(w, sent("drift", "dvl", 2.0), set())
+    apply_fault(w, sent("clear", "", 0.0), set())
     assert drift == ["drift"] and w.faults == {} and w.navigation.scale["dvl"] == 1.0
 
 
@@ -70,11 +71,11 @@ def test_each_fault_acts_and_clear_undoes_them_all() -> None:
     free_rad = w.model.jnt_range[joint].copy()
     efficiency = w.controller.thrusters.efficiency  # the array C reads: changed in place, never rebound
     with pytest.raises(BadInput, match=r"thruster value 1.5 not in \[0, 1\]"):
-        w.apply_fault(sent("thruster", "thr_fl", 1.5), blackout)
-    w.apply_fault(sent("thruster", "thr_fl", 0.3), blackout)
-    w.apply_fault(sent("camera", "cam_left", 0.0), blackout)
-    w.apply_fault(sent("noise", "usbl", 3.0), blackout)
-    w.apply_fault(sent("seize", "valve_1", 1.0), blackout)
+        apply_fault(w, sent("thruster", "thr_fl", 1.5), blackout)
+    apply_fault(w, sent("thruster", "thr_fl", 0.3), blackout)
+    apply_fault(w, sent("camera", "cam_left", 0.0), blackout)
+    apply_fault(w, sent("noise", "usbl", 3.0), blackout)
+    apply_fault(w, sent("seize", "valve_1", 1.0), blackout)
     angle_rad = float(w.data.qpos[w._part_qpos[valve]])
     assert w.controller.thrusters.efficiency is efficiency and efficiency[0] == 0.3
     assert blackout == {"cam_left"} and w.navigation.scale["usbl"] == 3.0
@@ -85,9 +86,9 @@ def test_each_fault_acts_and_clear_undoes_them_all() -> None:
         "noise/usbl": 3.0,
         "seize/valve_1": 1.0,
     }
-    w.apply_fault(sent("seize", "valve_1", 0.0), blackout)
+    apply_fault(w, sent("seize", "valve_1", 0.0), blackout)
     assert np.array_equal(w.model.jnt_range[joint], free_rad)
-    w.apply_fault(sent("seize", "valve_1", 1.0), blackout)
-    w.apply_fault(sent("clear", "", 0.0), blackout)
+    apply_fault(w, sent("seize", "valve_1", 1.0), blackout)
+    apply_fault(w, sent("clear", "", 0.0), blackout)
     assert w.faults == {} and blackout == set() and np.all(efficiency == 1.0)
     assert set(w.navigation.scale.values()) == {1.0} and np.array_equal(w.model.jnt_range[joint], free_rad)

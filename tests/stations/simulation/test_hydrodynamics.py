@@ -11,7 +11,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from abyss.common.errors import ConfigError
-from abyss.common.robot import ROBOTS_DIR, robot_at
+from abyss.description.robot import ROBOTS_DIR, robot_at
 from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
 from abyss.stations.simulation.marine import Current
 from abyss.stations.simulation.thrusters import Thrusters

@@ -16,11 +16,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config import load
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.messages import SimulationControl
-from abyss.common.robot import ROBOTS_DIR, robot_at
+from abyss.config import load
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import ROBOTS_DIR, robot_at
+from abyss.interface.messages import SimulationControl
 from abyss.stations.simulation import native
+from abyss.stations.simulation.faults import apply as apply_fault
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 
@@ -124,7 +125,7 @@ def test_the_low_level_in_c_gives_the_pythons_outputs_period_by_period(refs: Ref
     assert bool(world.controller.attitude.held) == (robot == "bluerov2")  # type: ignore[attr-defined]
     for period in range(40):
         if period == 20:
-            world.apply_fault(SimulationControl("thruster", "thr_fl", 0.5), set())
+            apply_fault(world, SimulationControl("thruster", "thr_fl", 0.5), set())
         before = outputs(world)
         world.native_low_level = native_low_level
         world._low_level(refs, 0.01)

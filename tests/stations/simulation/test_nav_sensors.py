@@ -9,10 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.messages import NavState, SimulationControl
-from abyss.common.robot import ROBOTS_DIR
-from abyss.common.site import SITES_DIR
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import ROBOTS_DIR
+from abyss.description.site import SITES_DIR
+from abyss.interface.messages import NavState, SimulationControl
+from abyss.stations.simulation.faults import apply as apply_fault
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.nav_sensors import DVL_M_BODY, SOUND_SPEED_MPS
 from abyss.stations.simulation.world import World
@@ -98,7 +99,7 @@ def test_depth_comes_from_the_pressure_and_its_noise_fault() -> None:
     w = world(pressure_sigma_pa=100.0)
     depth_m = -w.truth().position_m_world[2]
     nominal = [n.depth_m - depth_m for n in fly(w, 50.0)]
-    w.apply_fault(SimulationControl("noise", "depth", 10.0), set())
+    apply_fault(w, SimulationControl("noise", "depth", 10.0), set())
     raised = [n.depth_m - depth_m for n in fly(w, 50.0)]
     assert np.std(nominal) == pytest.approx(100.0 / (1025 * 9.81), rel=0.1)
     assert np.std(raised) == pytest.approx(1000.0 / (1025 * 9.81), rel=0.1)

@@ -12,10 +12,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.messages import Message
-from abyss.common.robot import robot_at
 from abyss.common.workers import children_cpu_s
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import robot_at
+from abyss.interface.messages import Message
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.offload import Offloaded, OffloadFailed, state_of
 from abyss.stations.simulation.rendering import Cameras

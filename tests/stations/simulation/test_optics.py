@@ -13,11 +13,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import WATER_TYPES as CONFIG_WATER_TYPES
-from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import ConfigError
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at, world_model
+from abyss.config.simulation import WATER_TYPES as CONFIG_WATER_TYPES
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at, world_model
 from abyss.stations.simulation.optics import WATER_TYPES, Optics, WaterType, range_of_depth
 from abyss.stations.simulation.rendering import Cameras, lamps_of
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.messages import ArmVelocityRef, VelocityRef
+from abyss.config.simulation import SimulationConfig
+from abyss.interface.messages import ArmVelocityRef, VelocityRef
 from abyss.stations.simulation.world import World, references
 
 DT_S = 0.01

@@ -6,14 +6,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config import load
-from abyss.common.config.simulation import SimulationConfig
 from abyss.common.errors import BadInput
-from abyss.common.images import decode_image
-from abyss.common.messages import SimulationControl
-from abyss.common.robot import robot_at
+from abyss.config import load
+from abyss.config.simulation import SimulationConfig
+from abyss.description.robot import robot_at
+from abyss.interface.images import decode_image
+from abyss.interface.messages import SimulationControl
 from abyss.stations.simulation import _no_realtime
 from abyss.stations.simulation.encoding import encode_image
+from abyss.stations.simulation.faults import apply as apply_fault
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.rendering import Cameras
 from abyss.stations.simulation.world import World
@@ -112,19 +113,19 @@ def test_a_failed_thruster_slows_the_vehicle_and_clear_restores_it() -> None:
     w = world()
     horizontal = ("thr_fl", "thr_fr", "thr_rl", "thr_rr")
     for thruster in horizontal:
-        w.apply_fault(SimulationControl("thruster", thruster, 0.0), set())
+        apply_fault(w, SimulationControl("thruster", thruster, 0.0), set())
     assert abs(surge_after(w)) < 0.01
     assert w.faults == {f"thruster/{t}": 0.0 for t in horizontal}
     with pytest.raises(BadInput, match="thr_fl"):
-        w.apply_fault(SimulationControl("thruster", "thr_xx", 0.0), set())
-    w.apply_fault(SimulationControl("clear", "", 0.0), set())
+        apply_fault(w, SimulationControl("thruster", "thr_xx", 0.0), set())
+    apply_fault(w, SimulationControl("clear", "", 0.0), set())
     assert w.faults == {} and np.all(w.controller.thrusters.efficiency == 1.0)
 
 
 def test_noise_fault_raises_navigation_noise() -> None:
     w = world()
     nominal = np.std([w.nav().angular_velocity_radps_body[0] for _ in range(2000)])
-    w.apply_fault(SimulationControl("noise", "imu", 10.0), set())
+    apply_fault(w, SimulationControl("noise", "imu", 10.0), set())
     raised = np.std([w.nav().angular_velocity_radps_body[0] for _ in range(2000)])
     assert nominal == pytest.approx(0.1 * w.config.imu_sigma_rad, rel=0.1)
     assert raised == pytest.approx(10 * nominal, rel=0.1)
@@ -163,9 +164,9 @@ def test_blacked_out_camera_renders_black(cameras: tuple[World, Cameras]) -> Non
     w, cams = cameras
     blackout: set[str] = set()
     cams.blackout = blackout
-    w.apply_fault(SimulationControl("camera", "cam_right", 0.0), blackout)
+    apply_fault(w, SimulationControl("camera", "cam_right", 0.0), blackout)
     assert cams.rgb(w.data, "cam_right").max() == 0
-    w.apply_fault(SimulationControl("camera", "cam_right", 1.0), blackout)
+    apply_fault(w, SimulationControl("camera", "cam_right", 1.0), blackout)
     assert cams.rgb(w.data, "cam_right").max() > 0
 
 

@@ -9,7 +9,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.config.simulation import SimulationConfig
+from abyss.config.simulation import SimulationConfig
 from abyss.stations.simulation.sonar import ImagingSonar, SonarSpec
 from abyss.stations.simulation.world import World
 

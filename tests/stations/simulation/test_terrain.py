@@ -10,8 +10,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at, world_model
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at, world_model
 from abyss.stations.simulation import terrain
 
 ROBOT = robot_at("")  # the shipped robot package

@@ -10,10 +10,10 @@ import math
 import numpy as np
 import pytest
 
-from abyss.common.config import Config, load
 from abyss.common.errors import BadInput
 from abyss.common.geometry import quat_multiply
-from abyss.common.messages import JointState, NavState
+from abyss.config import Config, load
+from abyss.interface.messages import JointState, NavState
 from abyss.stations.simulation.twin import Twin
 from abyss.stations.simulation.world import World, references
 

@@ -11,13 +11,13 @@ import math
 import numpy as np
 import pytest
 
-from abyss.common.clouds import pack_cloud, unpack_cloud
-from abyss.common.config.hybrid import HybridConfig
-from abyss.common.config.stations import VesselConfig
 from abyss.common.geometry import rotation_about, rotation_of
-from abyss.common.messages import Image, PerceptionStatus, PointCloud, RecognisedObjects, SonarImage
-from abyss.common.site import site_at
-from abyss.common.sonar_frames import echo_arcs, encode_polar
+from abyss.config.hybrid import HybridConfig
+from abyss.config.stations import VesselConfig
+from abyss.description.site import site_at
+from abyss.interface.clouds import pack_cloud, unpack_cloud
+from abyss.interface.messages import Image, PerceptionStatus, PointCloud, RecognisedObjects, SonarImage
+from abyss.interface.sonar_frames import echo_arcs, encode_polar
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_keys
 from abyss.stations.vessel.intake import Intake, IntakeInputs

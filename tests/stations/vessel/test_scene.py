@@ -12,15 +12,15 @@ import open3d as o3d
 import pyoctomap
 import pytest
 
-from abyss.common.clouds import unpack_cloud
-from abyss.common.config.simulation import SimulationConfig
-from abyss.common.config.stations import STEREO_MODES, VesselConfig
 from abyss.common.errors import BadInput, BadMessage
 from abyss.common.geometry import rotation_of
-from abyss.common.images import decode_image
-from abyss.common.messages import PointCloud, RecognisedObjects, SceneUpdate, decode, encode
-from abyss.common.robot import robot_at
-from abyss.common.site import site_at
+from abyss.config.simulation import SimulationConfig
+from abyss.config.stations import STEREO_MODES, VesselConfig
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at
+from abyss.interface.clouds import unpack_cloud
+from abyss.interface.images import decode_image
+from abyss.interface.messages import PointCloud, RecognisedObjects, SceneUpdate, decode, encode
 from abyss.scene.export import export
 from abyss.scene.model import SceneModel
 from abyss.scene.octree import cell_centres, cell_keys, iterate_leaves, leaves_to_cells, read_binary

@@ -14,10 +14,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from abyss.common.config.stations import VesselConfig
 from abyss.common.geometry import rotation_of
-from abyss.common.linkprofile import profile
-from abyss.common.messages import (
+from abyss.config.linkprofile import profile
+from abyss.config.stations import VesselConfig
+from abyss.description.site import site_at
+from abyss.interface.messages import (
     CommandAck,
     Heartbeat,
     Intervention,
@@ -29,7 +30,6 @@ from abyss.common.messages import (
     Telemetry,
     encode,
 )
-from abyss.common.site import site_at
 from abyss.linkemu.link import Link, Offer
 from abyss.scene.model import SceneModel
 from abyss.scene.pacing import ScenePacer

@@ -10,14 +10,14 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, Protocol
 
 from abyss.common.errors import AbyssError
-from abyss.common.messages import INTERVENTION_PHASES
 from abyss.common.reading import OneOf
+from abyss.interface.messages import INTERVENTION_PHASES
 
 if TYPE_CHECKING:
     import zenoh
 
-    from abyss.common.lockstep_testbed import Holds
     from abyss.launch.state import RunState
+    from abyss.timing.lockstep_testbed import Holds
 
 
 class Running(Protocol):

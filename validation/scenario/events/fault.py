@@ -4,9 +4,9 @@ import time
 from dataclasses import dataclass
 from typing import Annotated
 
-from abyss.common import keys
-from abyss.common.messages import FAULTS, SimulationControl, encode
 from abyss.common.reading import OneOf
+from abyss.interface import keys
+from abyss.interface.messages import FAULTS, SimulationControl, encode
 from abyss.validation.scenario.events.base import Context, Event
 
 

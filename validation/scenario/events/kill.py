@@ -5,8 +5,8 @@ import signal
 from dataclasses import dataclass
 from typing import Annotated
 
-from abyss.common import keys
 from abyss.common.reading import OneOf
+from abyss.interface import keys
 from abyss.validation.scenario.events.base import Context, Event
 
 

@@ -4,17 +4,17 @@ import time
 from dataclasses import dataclass
 from typing import Annotated
 
-from abyss.common import keys
-from abyss.common.linkprofile import load_profiles
-from abyss.common.messages import LinkControl, encode
 from abyss.common.reading import OneOf
+from abyss.config.linkprofile import load_profiles
+from abyss.interface import keys
+from abyss.interface.messages import LinkControl, encode
 from abyss.linkemu.control import query_links
 from abyss.validation.scenario.events.base import Context, Event
 
 
 @dataclass(frozen=True, kw_only=True)
 class Link(Event):
-    """A hop's link emulation switched to a named profile (common/profiles.toml), both ends."""
+    """A hop's link emulation switched to a named profile (config/profiles.toml), both ends."""
 
     hop: Annotated[str, OneOf(keys.HOPS)]
     profile: Annotated[str, OneOf(load_profiles)]

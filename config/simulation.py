@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import typing
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Literal
 
 from abyss.common.errors import ConfigError
@@ -36,7 +35,7 @@ class SimulationConfig:
     start_position_m_world: tuple[float, float, float] = (0.0, 0.0, -7.0)
     start_yaw_rad: float = 0.0
     # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
-    # (the damping is fed forward from the vehicle file; yaw's integral is slow so that the rotors'
+    # (the damping is fed forward from the marine model; yaw's integral is slow so that the rotors'
     # lag does not wind it up into an overshoot)
     vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 5000.0)
     vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 600.0)
@@ -50,8 +49,8 @@ class SimulationConfig:
     arm_kp: float = 400.0  # [N m/(rad/s)]
     arm_ki: float = 200.0
     gripper_kp: float = 1000.0  # [N/(m/s)]
-    # the vehicle's marine model: "fossen" (the vehicle file's coefficients) or "ellipsoid"
-    # (MuJoCo's fluid model of its hull's geoms); the vehicle file also describes its thrusters
+    # the vehicle's marine model: "fossen" (the robot's marine model, description/marine.py) or "ellipsoid"
+    # (MuJoCo's fluid model of its hull's geoms); the robot package also describes its thrusters
     hydrodynamics: Hydrodynamics = "fossen"
     # the arm's (and gripper's) marine model: "strips" (strip theory per link, the testbed's own:
     # stations/simulation/strips.py) or "ellipsoid" (MuJoCo's fluid model of their geoms, slower)
@@ -63,7 +62,6 @@ class SimulationConfig:
     # the work site package (a directory with site.toml: description/site.py): the seabed, the panel and
     # its parts; "" is the shipped valve panel (description/models/sites/valve_panel)
     site: str = ""
-    vehicle_file: str = ""  # the marine model and thrusters; "" is the robot package's robot.toml
     # the current: a profile of rows (z [m, world], vx, vy, vz [m/s, world]), linear in between and
     # held beyond its ends, plus a first-order Gauss-Markov process on each horizontal component
     current_profile: tuple[tuple[float, float, float, float], ...] = ()
@@ -133,11 +131,6 @@ class SimulationConfig:
                         f"{PACKAGE_FILES[kind]}), nor a shipped one's name: {', '.join(shipped_names(kind))}",
                     )
                 object.__setattr__(self, kind, str(directory.resolve()))
-        if self.vehicle_file:  # the stations run in the run directory: the path is the user's shell's
-            vehicle_file = Path(self.vehicle_file).expanduser()
-            if not vehicle_file.is_file():
-                raise ConfigError("simulation.vehicle_file", f"no such file: {vehicle_file.resolve()}")
-            object.__setattr__(self, "vehicle_file", str(vehicle_file.resolve()))
         one_of("simulation.hydrodynamics", self.hydrodynamics, HYDRODYNAMICS)
         one_of("simulation.arm_hydrodynamics", self.arm_hydrodynamics, ARM_HYDRODYNAMICS)
         for row in self.current_profile:

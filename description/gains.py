@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from abyss.description.robot import Robot, added_mass_matrix
+from abyss.description.robot import Robot
 
 BANDWIDTH_PER_S = (1.50, 1.26, 1.26, 2.92)  # surge, sway, heave, yaw: kp / (m + m_A) [1/s]
 INTEGRAL_PER_S = (0.25, 0.25, 0.25, 0.12)  # ki / kp [1/s]
@@ -24,7 +24,7 @@ def derived_gains(robot: Robot) -> dict[str, Any]:
     (the base with all it carries) and yaw inertia as the package's load measured them, plus its
     added mass, times the work-class's bandwidths scaled by the rotors' lag; three significant
     figures."""
-    added = added_mass_matrix(robot.spec.added_mass, robot.file).diagonal()
+    added = robot.marine.added_mass.diagonal()
     rigid = (robot.mass_kg, robot.mass_kg, robot.mass_kg, robot.yaw_inertia_kg_m2)
     scale = ROTOR_LAG_S / robot.spec.thrusters.time_constant_s
     kp = [scale * w * (m + added[a]) for w, m, a in zip(BANDWIDTH_PER_S, rigid, AXES, strict=True)]

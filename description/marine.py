@@ -60,7 +60,9 @@ def marine_model(spec: RobotFile, path: Path) -> VehicleModel:
                 shown = "; ".join(f"{name} ({what})" for name, what in allowed.items())
                 raise ConfigError(f"{section}.{key}", f"not a field of [{section}]: {shown}", str(path))
     if len({"diagonal", "matrix"} & set(spec.added_mass)) != 1:
-        raise ConfigError("added_mass", "needs one of diagonal (6 numbers) or matrix (36, row by row)", str(path))
+        raise ConfigError(
+            "added_mass", "needs one of diagonal (6 numbers) or matrix (36, row by row)", str(path)
+        )
 
     def numbers(section: str, key: str, sizes: tuple[int, ...], non_negative: bool) -> np.ndarray:
         value = sections[section].get(key)
@@ -74,7 +76,9 @@ def marine_model(spec: RobotFile, path: Path) -> VehicleModel:
             or (non_negative and np.any(array < 0))
         ):
             sign = "non-negative " if non_negative else ""
-            raise ConfigError(f"{section}.{key}", f"needs {' or '.join(map(str, sizes))} {sign}numbers", str(path))
+            raise ConfigError(
+                f"{section}.{key}", f"needs {' or '.join(map(str, sizes))} {sign}numbers", str(path)
+            )
         return array
 
     mass = (
@@ -108,7 +112,9 @@ def marine_model(spec: RobotFile, path: Path) -> VehicleModel:
 
 
 def _is_numbers(value: Any) -> bool:
-    return isinstance(value, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    return isinstance(value, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+    )
 
 
 def _positive(path: Path, where: str, value: Any, upper: float = float("inf"), zero: bool = False) -> float:

@@ -26,6 +26,7 @@ import numpy as np
 
 from abyss.common.errors import ConfigError
 from abyss.common.reading import read_table
+from abyss.description.marine import VehicleModel, marine_model
 from abyss.description.models import package_dir
 from abyss.description.robot_file import (
     PUBLISHED_FIGURES,
@@ -54,6 +55,10 @@ class Robot:
 
     directory: Path
     spec: RobotFile
+    marine: VehicleModel  # the marine model and thrusters, typed once (description/marine.py)
+    # (6, n): the body wrench about the base's centre of mass per newton of each thruster, in
+    # `thrusters`' order (thrust_matrix): the one allocation matrix the simulation and the check use
+    allocation: np.ndarray
     actuated_axes: tuple[int, ...]  # rows of the body wrench the thrusters move, of COMMANDED_AXES
     # between the fingers' faces with each at zero travel [m]: what a handle of this thickness
     # leaves of the opening where they meet it (the opening is the travel, summed)
@@ -68,7 +73,7 @@ class Robot:
 
     @property
     def file(self) -> Path:
-        """robot.toml: also the vehicle file (its marine model and thrusters)."""
+        """robot.toml: its sections, the marine model and thrusters among them."""
         return self.directory / ROBOT_FILE_NAME
 
     @property
@@ -170,17 +175,21 @@ def _load(directory: Path) -> Robot:
         raise ConfigError(exc.field, exc.reason, str(path)) from None
     _check_published(spec, path)
     model = _compiled(directory, spec, path)
-    checks = (_check_distinct, _check_model_names, _check_arm, _check_cameras, _check_added_mass)
+    checks = (_check_distinct, _check_model_names, _check_arm, _check_cameras)
     for check in checks:
         check(model, spec, path)
+    marine = marine_model(spec, path)
     has_sonar = _has(model, "site", spec.sonar.site)
     if "sonar" in table and not has_sonar:  # named, and not there (else: a robot without a sonar)
         _require(model, path, "sonar.site", "site", (spec.sonar.site,))
     allocation = thrust_matrix(model, spec.model.base, spec.thrusters.names, path)
     base = model.body(spec.model.base).id
+    allocation.flags.writeable = False
     return Robot(
         directory,
         spec,
+        marine,
+        allocation,
         actuated_axes(allocation, path),
         closed_gap_m(model, spec.arm.gripper.joints),
         float(model.body_subtreemass[base]),
@@ -381,30 +390,6 @@ def _check_cameras(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
             "(published on camera/left, camera/right, camera/depth)",
             str(path),
         )
-
-
-def added_mass_matrix(section: dict[str, Any], path: Path) -> np.ndarray:
-    """M_A (6, 6) from `[added_mass]`: `diagonal` (6 values) or `matrix` (36, row by row)."""
-    key = "diagonal" if "diagonal" in section else "matrix"
-    values = section.get(key)
-    numbers = isinstance(values, list) and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
-    )
-    sizes = (6, 36) if key == "diagonal" else (36,)
-    if not numbers or len(values) not in sizes:  # type: ignore[arg-type]
-        raise ConfigError(f"added_mass.{key}", f"needs {' or '.join(map(str, sizes))} numbers", str(path))
-    mass = np.asarray(values, dtype=float)
-    return np.diag(mass) if mass.size == 6 else mass.reshape(6, 6)
-
-
-def _check_added_mass(model: mujoco.MjModel, spec: RobotFile, path: Path) -> None:
-    mass = added_mass_matrix(spec.added_mass, path)
-    if (
-        not np.all(np.isfinite(mass))
-        or not np.allclose(mass, mass.T)
-        or np.min(np.linalg.eigvalsh(mass)) <= 0
-    ):
-        raise ConfigError("added_mass", "must be symmetric and positive definite", str(path))
 
 
 def thrust_matrix(

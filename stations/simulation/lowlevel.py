@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from abyss.description.marine import VehicleModel
 from abyss.description.robot import COMMANDED_AXES, Robot
 from abyss.stations.simulation.attitude import AttitudeHold
-from abyss.stations.simulation.hydrodynamics import VehicleModel
 from abyss.stations.simulation.thrusters import Thrusters
 
 
@@ -89,7 +89,7 @@ class Dynamic:
 
     def __init__(self, model: mujoco.MjModel, gains: PidGains, vehicle: VehicleModel, robot: Robot) -> None:
         self.plant = Plant(model, robot)
-        self.thrusters = Thrusters(model, vehicle.thrusters, robot.base)
+        self.thrusters = Thrusters(model, vehicle.thrusters, robot.allocation)
         actuated = self.thrusters.actuated
         # the PID runs on the commanded axes (surge, sway, heave, yaw); the allocation takes those
         # the thrusters move (all four on the shipped layout)
@@ -121,7 +121,7 @@ class Dynamic:
         error = ref.vehicle_body - velocity
         derivative = (error - self.vehicle_error) / dt_s
         self.vehicle_error[:] = error
-        # feed-forward of the vehicle file's damping at the reference: the integral is left only
+        # feed-forward of the marine model's damping at the reference: the integral is left only
         # the model's error and the current to take up, not the whole drag (a slow pole otherwise)
         linear, quadratic = self.damping
         feed_forward = (linear + quadratic * np.abs(ref.vehicle_body)) * ref.vehicle_body

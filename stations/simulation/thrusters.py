@@ -11,21 +11,20 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from abyss.description.robot import actuated_axes, thrust_matrix
-from abyss.stations.simulation.hydrodynamics import ThrusterSpec
+from abyss.description.robot import actuated_axes
+from abyss.description.robot_file import ThrustersSection
 
 
 class Thrusters:
-    """The thrusters of the vehicle's body `body`. The axes they drive (`actuated`, rows of the body
-    wrench fx, fy, fz, mx, my, mz) are those of surge, sway, heave and yaw their layout moves
-    (description.robot.actuated_axes); roll and pitch are left to the hydrostatic restoring moment."""
+    """The vehicle's thrusters, by the robot's allocation matrix. The axes they drive (`actuated`,
+    rows of the body wrench fx, fy, fz, mx, my, mz) are those of surge, sway, heave and yaw their
+    layout moves (description.robot.actuated_axes); roll and pitch are left to the hydrostatic
+    restoring moment."""
 
-    def __init__(self, model: mujoco.MjModel, spec: ThrusterSpec, body: str = "vehicle") -> None:
+    def __init__(self, model: mujoco.MjModel, spec: ThrustersSection, allocation: np.ndarray) -> None:
         self.spec = spec
         self.actuators = np.array([model.actuator(name).id for name in spec.names])
-        self.allocation = thrust_matrix(
-            model, body, spec.names
-        )  # 6 x n: wrench about the centre of mass per N
+        self.allocation = allocation  # 6 x n: wrench about the centre of mass per N (Robot.allocation)
         self.actuated = np.array(actuated_axes(self.allocation))
         self.actuated.flags.writeable = False
         self.actuated_allocation = self.allocation[self.actuated]  # 4 x n for surge, sway, heave, yaw

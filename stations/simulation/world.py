@@ -12,7 +12,7 @@ import numpy as np
 from abyss.common.errors import ConfigError
 from abyss.common.runfiles import write_whole
 from abyss.config.simulation import SimulationConfig
-from abyss.description.robot import Robot, place_at_start, robot_at
+from abyss.description.robot import place_at_start, robot_at
 from abyss.description.site import site_at, world_model
 from abyss.interface.faults import ModelNames
 from abyss.interface.messages import (
@@ -22,7 +22,7 @@ from abyss.interface.messages import (
     PanelState,
     VelocityRef,
 )
-from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
+from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
 from abyss.stations.simulation.native import LowLevel, Marine
@@ -55,20 +55,6 @@ def _gains(config: SimulationConfig) -> PidGains:
     )
 
 
-def _load_vehicle(model: mujoco.MjModel, config: SimulationConfig, robot: Robot) -> VehicleModel:
-    """The vehicle file (the configuration's, or the robot package's own), its thrusters the MJCF's
-    motors."""
-    vehicle = load_vehicle(Path(config.vehicle_file) if config.vehicle_file else robot.file)
-    missing = [
-        n for n in vehicle.thrusters.names if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, n) < 0
-    ]
-    if missing:
-        raise ConfigError(
-            "simulation.vehicle_file", f"thrusters.names: {', '.join(missing)} not motors of the MJCF"
-        )
-    return vehicle
-
-
 def _arm_strips(model: mujoco.MjModel, buoyancy: Buoyancy, base: str) -> ArmStrips:
     """The strip model of the arm (every wet body but the vehicle, `base`), in place of MuJoCo's
     fluid model of its geoms; ConfigError where a wet geom has a shape it has no member for."""
@@ -93,7 +79,7 @@ class World:
         self.model = world_model(robot, self.site)
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
-        self.vehicle = _load_vehicle(self.model, config, robot)
+        self.vehicle = robot.marine
         self.controller = LOW_LEVELS[config.low_level](self.model, _gains(config), self.vehicle, robot)
         self.plant = self.controller.plant
         self._marine_models(config)
@@ -122,7 +108,7 @@ class World:
         and MuJoCo's fluid model on where one of them is its."""
         rho = WATER_DENSITY_KGPM3
         self.hydrodynamics: Fossen | None = None
-        if config.hydrodynamics == "fossen":  # the vehicle file's model replaces the hull's ellipsoids
+        if config.hydrodynamics == "fossen":  # the marine model replaces the hull's ellipsoids
             self.hydrodynamics = Fossen(self.model, self.vehicle, self.robot.base, rho_kgpm3=rho)
         self.buoyancy = Buoyancy(
             self.model, dry=() if self.hydrodynamics is None else (self.robot.base,), rho_kgpm3=rho
@@ -311,7 +297,7 @@ class World:
 
     # -- faults --------------------------------------------------------------------------
     def model_names(self) -> ModelNames:
-        """The names of this world's parts that faults target (its vehicle file's thrusters, its
+        """The names of this world's parts that faults target (its robot's thrusters, its
         robot's cameras and navigation sensors, the panel's parts)."""
         robot = self.robot
         return ModelNames(

@@ -17,7 +17,6 @@ import pytest
 from abyss.common.geometry import Intrinsics
 from abyss.description.robot import COMMANDED_AXES, ROBOTS_DIR, Robot, load_robot, thrust_matrix
 from abyss.stations.onboard.arm_control import XYZW, ArmKinematics
-from abyss.stations.simulation.hydrodynamics import load_vehicle
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, geom_volume_m3, wet_geoms
 
 PACKAGE = ROBOTS_DIR / "bluerov2_heavy_alpha5"
@@ -169,7 +168,7 @@ def test_the_robot_is_neutral_in_the_sea(robot: Robot, model: mujoco.MjModel) ->
     """The vehicle's published mass and volume, its trim ballast and the arm: the whole robot's
     weight and the water it displaces within 1 % of each other; and the hull's wet parts in the
     MJCF displace the volume robot.toml gives, about the centre it gives."""
-    vehicle = load_vehicle(robot.file)
+    vehicle = robot.marine
     assert vehicle.volume_m3 == VEHICLE_VOLUME_M3
     base = model.body(robot.base).id
     assert model.body_mass[base] == VEHICLE_MASS_KG

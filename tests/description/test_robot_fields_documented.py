@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from abyss.description.marine import MARINE_FIELDS
 from abyss.description.robot import ROBOTS_DIR, robot_at
 from abyss.description.robot_file import PUBLISHED_FIGURES, RobotFile
-from abyss.stations.simulation.hydrodynamics import MARINE_FIELDS, load_vehicle
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "vehicle.md"
 UNTYPED = {"added_mass", "damping", "buoyancy", "published", "config"}  # dicts the readers check
@@ -102,8 +102,8 @@ def test_a_package_written_from_the_docs_table_alone_loads_as_the_shipped_one(
     mine, theirs = robot_at(str(package)), robot_at(str(shipped_dir))
     assert written["name"] == shipped["name"] and {"thrusters", "buoyancy", "config"} <= set(written)
     assert mine.spec == theirs.spec and mine.mass_kg == theirs.mass_kg
-    for field in dataclasses.fields(vehicle := load_vehicle(mine.file)):
-        assert np.array_equal(getattr(vehicle, field.name), getattr(load_vehicle(theirs.file), field.name))
+    for field in dataclasses.fields(vehicle := mine.marine):
+        assert np.array_equal(getattr(vehicle, field.name), getattr(theirs.marine, field.name))
 
 
 def toml(table: dict[str, object], path: str = "") -> str:

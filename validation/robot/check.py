@@ -37,8 +37,6 @@ from abyss.description.robot import (
     COMMANDED_AXES,
     Robot,
     load_robot,
-    robot_spec,
-    thrust_matrix,
 )
 from abyss.description.robot_file import PUBLISHED_FIGURES
 from abyss.stations.simulation.attitude import ROLL, AttitudeHold
@@ -77,8 +75,7 @@ def check_robot(directory: Path, progress: Callable[[str], None] = lambda _: Non
     rows += _hydrostatics_rows(statics)
     progress(CHECKS[2])
     spec = robot.spec.thrusters
-    allocation = thrust_matrix(robot_spec(robot).compile(), robot.base, robot.thrusters)
-    limits = axis_limits(allocation, robot.actuated_axes, spec.forward_max_n, spec.reverse_max_n)
+    limits = axis_limits(robot.allocation, robot.actuated_axes, spec.forward_max_n, spec.reverse_max_n)
     rows += _allocation_rows(robot, limits)
     progress(CHECKS[3])
     responses = [physics.open_loop(bench, a.axis, a.wrench, a.thrust_n, statics.net_n) for a in limits]

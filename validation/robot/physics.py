@@ -29,7 +29,7 @@ import numpy as np
 
 from abyss.description.robot import HEAVE, Robot, robot_spec
 from abyss.stations.simulation.attitude import AttitudeHold
-from abyss.stations.simulation.hydrodynamics import Fossen, load_vehicle
+from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy
 from abyss.stations.simulation.thrusters import Thrusters
 
@@ -115,11 +115,11 @@ class Bench:
         self.robot = robot
         self.model = model = robot_spec(robot).compile()
         model.opt.timestep = PHYSICS_STEP_S
-        self.vehicle = load_vehicle(robot.file)
+        self.vehicle = robot.marine
         self.fossen = Fossen(model, self.vehicle, robot.base, rho_kgpm3=WATER_DENSITY_KGPM3)
         self.buoyancy = Buoyancy(model, dry=(robot.base,), rho_kgpm3=WATER_DENSITY_KGPM3)
         model.opt.density = model.opt.viscosity = 0.0  # the arm carries no drag (see the module's text)
-        self.thrusters = Thrusters(model, self.vehicle.thrusters, robot.base)
+        self.thrusters = Thrusters(model, self.vehicle.thrusters, robot.allocation)
         self.hold = AttitudeHold(self.thrusters, attitude_kp, attitude_kd)
         self.data = mujoco.MjData(model)
         self.body = model.body(robot.base).id

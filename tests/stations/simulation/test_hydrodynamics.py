@@ -1,8 +1,9 @@
 """The Fossen model against an independent integration of the same equations (SciPy), the
-thrusters' rotor model, the vehicle files and the current."""
+thrusters' rotor model, the marine models and the current."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import mujoco
@@ -11,8 +12,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from abyss.common.errors import ConfigError
-from abyss.description.robot import ROBOTS_DIR, robot_at
-from abyss.stations.simulation.hydrodynamics import Fossen, VehicleModel, load_vehicle
+from abyss.description.marine import VehicleModel
+from abyss.description.robot import ROBOTS_DIR, load_robot, robot_at, thrust_matrix
+from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.marine import Current
 from abyss.stations.simulation.thrusters import Thrusters
 
@@ -20,8 +22,12 @@ ROBOT = robot_at("")  # the shipped robot package
 
 
 BLUEROV2 = ROBOTS_DIR / "bluerov2_heavy_alpha5"  # the BlueROV2 Heavy's package (with a Reach Alpha 5)
-BLUEROV2_FILE = BLUEROV2 / "robot.toml"  # its published coefficients
 DT_S = 0.002
+
+
+def bluerov2_marine() -> VehicleModel:
+    """Its marine model: the published coefficients, as its package loads them."""
+    return load_robot(BLUEROV2).marine
 
 
 def bluerov2_vehicle() -> mujoco.MjModel:
@@ -105,7 +111,7 @@ def simulate_mujoco(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
     (t, x, y, z, yaw, u, v, w, r) sampled every 0.1 s."""
     model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    fossen = Fossen(model, load_vehicle(BLUEROV2_FILE))
+    fossen = Fossen(model, bluerov2_marine())
     rows = []
     steps = round(duration_s / DT_S)
     for k in range(steps + 1):
@@ -122,7 +128,7 @@ def simulate_mujoco(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
 
 def simulate_reference(tau_body: np.ndarray, duration_s: float) -> np.ndarray:
     model = bluerov2_vehicle()
-    reference = Reference(model, load_vehicle(BLUEROV2_FILE))
+    reference = Reference(model, bluerov2_marine())
     x0 = np.r_[0.0, 0.0, -5.0, 1.0, 0.0, 0.0, 0.0, np.zeros(6)]
     times = np.arange(0.0, duration_s + 1e-9, 0.1)
     solution = solve_ivp(
@@ -182,8 +188,9 @@ def test_terminal_surge_speed_at_full_thrust_is_the_published_vehicles() -> None
     centre of gravity is 1 cm below that of buoyancy, too little to hold the Munk moment at speed."""
     model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    vehicle = load_vehicle(BLUEROV2_FILE)
-    fossen, thrusters = Fossen(model, vehicle), Thrusters(model, vehicle.thrusters)
+    vehicle = bluerov2_marine()
+    allocation = thrust_matrix(model, "vehicle", vehicle.thrusters.names)
+    fossen, thrusters = Fossen(model, vehicle), Thrusters(model, vehicle.thrusters, allocation)
     thrust = thrusters.allocate(np.array([1e4, 0, 0, 0, 0, 0]))  # more than it has: scaled to its limit
     assert np.max(np.abs(thrust)) == pytest.approx(vehicle.thrusters.reverse_max_n)
     assert list(np.sign(thrust[:4])) == [-1, -1, 1, 1]  # front left and right astern, the rear ahead
@@ -209,7 +216,7 @@ def test_the_added_mass_is_in_the_inertia() -> None:
     X_udot), not F / m."""
     model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    vehicle = load_vehicle(BLUEROV2_FILE)
+    vehicle = bluerov2_marine()
     fossen = Fossen(model, vehicle)
     mujoco.mj_step1(model, data)
     fossen.apply(model, data, np.zeros(3))
@@ -224,8 +231,8 @@ def test_the_added_mass_is_in_the_inertia() -> None:
 def test_thruster_rotor_lag_dead_band_and_asymmetric_curve() -> None:
     model = bluerov2_vehicle()
     data = mujoco.MjData(model)
-    spec = load_vehicle(BLUEROV2_FILE).thrusters
-    thrusters = Thrusters(model, spec)
+    spec = bluerov2_marine().thrusters
+    thrusters = Thrusters(model, spec, thrust_matrix(model, "vehicle", spec.names))
     n = len(spec.names)
     thrusters.drive(data, np.full(n, 0.9 * spec.deadband), 1.0)  # inside the dead band: nothing
     assert np.all(data.ctrl[thrusters.actuators] == 0.0)
@@ -246,7 +253,7 @@ def test_thruster_rotor_lag_dead_band_and_asymmetric_curve() -> None:
     assert np.allclose(data.ctrl[thrusters.actuators], 0.5, rtol=1e-6)
 
 
-def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_path: Path) -> None:
+def test_a_robot_package_with_a_bad_marine_field_fails_naming_the_file_and_field(tmp_path: Path) -> None:
     text = ROBOT.file.read_text()
     for old, new, field in (
         ("volume_m3 = 2.916", "volume_m3 = -1", "buoyancy.volume_m3"),
@@ -259,19 +266,21 @@ def test_a_vehicle_file_with_a_bad_field_fails_naming_the_file_and_field(tmp_pat
         ("[damping]\n", "[damping]\ncubic = [0, 0, 0, 0, 0, 0]\n", "damping.cubic"),
     ):
         assert old in text
-        bad = tmp_path / "vehicle.toml"
+        package = tmp_path / field
+        shutil.copytree(ROBOT.directory, package)
+        bad = package / "robot.toml"
         bad.write_text(text.replace(old, new))
         with pytest.raises(ConfigError) as error:
-            load_vehicle(bad)
+            load_robot(package)
         assert error.value.field == field and str(bad) in str(error.value)
         if field in ("added_mass.diagnoal", "damping.cubic"):  # with the fields there are
             assert "not a field of [" in error.value.reason
             assert "diagonal (6 numbers" in error.value.reason or "linear (6 numbers" in error.value.reason
 
 
-def test_both_shipped_vehicle_files_load() -> None:
-    for path in (ROBOT.file, BLUEROV2_FILE):
-        vehicle = load_vehicle(path)
+def test_both_shipped_marine_models_load() -> None:
+    for directory in (ROBOT.directory, BLUEROV2):
+        vehicle = load_robot(directory).marine
         assert vehicle.source and vehicle.added_mass.shape == (6, 6)
 
 
@@ -300,7 +309,7 @@ def test_the_diagonal_added_masss_fast_path_is_the_general_equations() -> None:
     """Fossen.apply on Python floats for a diagonal M_A gives the force and inertia of the
     general path (wrench_n_body and the 6x6 products), turning, moving and in a current."""
     model = bluerov2_vehicle()
-    vehicle = load_vehicle(BLUEROV2_FILE)
+    vehicle = bluerov2_marine()
     fast, general = Fossen(model, vehicle), Fossen(model, vehicle)
     general.diagonal = None  # the matrix path, as a vehicle with off-diagonal terms takes
     assert fast.diagonal is not None

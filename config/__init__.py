@@ -27,7 +27,6 @@ from abyss.config.system import (
     Ros2Config,
     TimeConfig,
 )
-from abyss.description.gains import derived_gains
 from abyss.description.models import PACKAGE_FILES, package_dir
 from abyss.description.robot import Robot, robot_at
 from abyss.description.site import Site, site_at
@@ -119,7 +118,7 @@ def merge(under: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[dict[str, Any], str]]]:
     """The table with the configuration its robot and site packages carry (`[config]` of
     robot.toml and site.toml: a robot's gains, a site's start and mission) under it: the robot's
-    velocity loops derived from its masses (description.gains), the robot's own, then the site's,
+    own, then the site's,
     then the table's own on top; and those layers with their files, lowest
     first. A robot's may name the site it flies by default (`simulation.site`), which the
     table's own still overrides."""
@@ -133,8 +132,6 @@ def _under_packages(table: dict[str, Any]) -> tuple[dict[str, Any], list[tuple[d
         # one that is no package at all, the field's own check says so (config/simulation.py)
         if directory is not None and (directory / PACKAGE_FILES[field_name]).is_file():
             loaded = package_at(package)  # a ConfigError names its file and field
-            if isinstance(loaded, Robot):  # its velocity loops, where its package states none
-                under = merge(under, derived_gains(loaded))
             layers.append((loaded.spec.config, f"{loaded.file}: config"))
             under = merge(under, loaded.spec.config)
     return merge(under, table), layers

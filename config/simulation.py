@@ -37,8 +37,10 @@ class SimulationConfig:
     # dynamic low level: PID on surge, sway, heave [N/(m/s)] and yaw rate [N m/(rad/s)]
     # (the damping is fed forward from the marine model; yaw's integral is slow so that the rotors'
     # lag does not wind it up into an overshoot)
-    vehicle_kp: tuple[float, float, float, float] = (6000.0, 6000.0, 6000.0, 5000.0)
-    vehicle_ki: tuple[float, float, float, float] = (1500.0, 1500.0, 1500.0, 600.0)
+    # (): the robot's own, as its package states them or as its masses derive them
+    # (description/gains.py: robot_gains); four numbers fly those instead
+    vehicle_kp: tuple[float, ...] = ()
+    vehicle_ki: tuple[float, ...] = ()
     vehicle_kd: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
     # the dynamic low level's attitude hold, as a small ROV's autopilot keeps it level (ArduSub's
     # stabilise mode): PD on roll and pitch towards level [N m/rad, N m/(rad/s)] through the
@@ -145,6 +147,10 @@ class SimulationConfig:
         positive("simulation.arm_kp", self.arm_kp)
         positive("simulation.gripper_kp", self.gripper_kp)
         for name in ("vehicle_kp", "vehicle_ki", "vehicle_kd"):
+            if len(getattr(self, name)) not in ((0, 4) if name != "vehicle_kd" else (4,)):
+                raise ConfigError(
+                    f"simulation.{name}", "four numbers: surge, sway, heave, yaw (or none: the robot's)"
+                )
             for value in getattr(self, name):
                 positive(f"simulation.{name}", value, allow_zero=True)
         self._check_sensors()

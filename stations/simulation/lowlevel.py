@@ -74,9 +74,9 @@ class Kinematic:
 
 @dataclass(frozen=True)
 class PidGains:
-    vehicle_kp: tuple[float, float, float, float]  # surge, sway, heave [N/(m/s)], yaw [N m/(rad/s)]
-    vehicle_ki: tuple[float, float, float, float]
-    vehicle_kd: tuple[float, float, float, float]
+    vehicle_kp: tuple[float, ...]  # surge, sway, heave [N/(m/s)], yaw [N m/(rad/s)]
+    vehicle_ki: tuple[float, ...]
+    vehicle_kd: tuple[float, ...]
     arm_kp: float  # [N m/(rad/s)], > 0
     arm_ki: float
     gripper_kp: float  # [N/(m/s)]

@@ -12,7 +12,8 @@ import numpy as np
 from abyss.common.errors import ConfigError
 from abyss.common.runfiles import write_whole
 from abyss.config.simulation import SimulationConfig
-from abyss.description.robot import place_at_start, robot_at
+from abyss.description.gains import robot_gains
+from abyss.description.robot import Robot, place_at_start, robot_at
 from abyss.description.site import site_at, world_model
 from abyss.interface.faults import ModelNames
 from abyss.interface.messages import (
@@ -42,10 +43,12 @@ def references(vehicle: VelocityRef | None, arm: ArmVelocityRef | None) -> Refer
     )
 
 
-def _gains(config: SimulationConfig) -> PidGains:
+def _gains(config: SimulationConfig, robot: Robot) -> PidGains:
+    """The low level's gains: the configuration's, the vehicle's loops the robot's unless it sets them."""
+    kp, ki = robot_gains(robot)
     return PidGains(
-        config.vehicle_kp,
-        config.vehicle_ki,
+        config.vehicle_kp or kp,
+        config.vehicle_ki or ki,
         config.vehicle_kd,
         config.arm_kp,
         config.arm_ki,
@@ -80,7 +83,8 @@ class World:
         self.model.opt.timestep = config.physics_step_s
         self.data = mujoco.MjData(self.model)
         self.vehicle = robot.marine
-        self.controller = LOW_LEVELS[config.low_level](self.model, _gains(config), self.vehicle, robot)
+        self.gains = _gains(config, robot)
+        self.controller = LOW_LEVELS[config.low_level](self.model, self.gains, self.vehicle, robot)
         self.plant = self.controller.plant
         self._marine_models(config)
         self.marine: Marine | None = None

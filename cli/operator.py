@@ -10,8 +10,9 @@ from typing import Any
 
 import zenoh
 
+from abyss.bus import description
 from abyss.bus.session import message_of
-from abyss.cli.args import client, connect_args, package_args
+from abyss.cli.args import client, connect_args
 from abyss.common.errors import BadInput, ConfigError
 from abyss.description.robot import robot_at
 from abyss.description.site import site_at
@@ -23,26 +24,27 @@ from abyss.interface.messages import (
 )
 
 
-def fault_control(
-    fault: str, target: str, value: float, robot: str = "", site: str = ""
-) -> SimulationControl:
-    """The message of `abyss fault`, checked against the fault table and the robot's model as the
-    simulation checks it (`robot`: its package, as `simulation.robot` names it; "" the shipped
-    one; `site` likewise); ConfigError with the allowed targets or the value's range."""
+def fault_control(fault: str, target: str, value: float, names: faults.ModelNames) -> SimulationControl:
+    """The message of `abyss fault`, checked against the fault table and the running robot's and
+    panel's parts (`names`: the running system's description) as the simulation checks it;
+    ConfigError with the allowed targets or the value's range."""
     if not faults.row(fault).targets and target:
         raise ConfigError("fault target", f"{fault} takes no target (got {target!r})")
     try:
-        faults.check(fault, target, value, faults.model_names(robot_at(robot), site_at(site).panel))
+        faults.check(fault, target, value, names)
         return SimulationControl(fault, target, value)
     except BadInput as exc:
         raise ConfigError("fault", exc.reason) from None
 
 
-def fault_help(robot: str = "") -> str:
-    """`abyss fault`'s description: the fault table, each fault's targets on the robot's model
-    (`robot`: its package; "" the shipped one)."""
-    names = faults.model_names(robot_at(robot), site_at("").panel)
-    lines = ["Faults (interface/faults.py), each with its targets on this robot:"]
+def fault_help() -> str:
+    """`abyss fault`'s description: the fault table, each fault's targets on the shipped robot and
+    site (a running system's own are what a fault is checked against when it is sent)."""
+    names = faults.model_names(robot_at("").spec, site_at("").panel)
+    lines = [
+        "Faults (interface/faults.py), each with its targets on the shipped robot and site (those of",
+        "the running system, which it describes, are what a fault is checked against):",
+    ]
     for row in faults.FAULT_TABLE.values():
         allowed = faults.targets(row.name, names)
         where = f"targets: {', '.join(allowed)}; " if allowed else ""
@@ -63,7 +65,6 @@ class FaultTableHelp(argparse.RawDescriptionHelpFormatter):
 
 
 def cmd_fault(args: argparse.Namespace) -> int:
-    control = fault_control(args.fault, args.target, args.value, args.robot, args.site)
     session = client(args)
     seen: list[SimulationStatus] = []
 
@@ -73,6 +74,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
             seen.append(message)
 
     try:
+        running = description.fetch(session, args.system)
+        control = fault_control(args.fault, args.target, args.value, running.model_names)
         subscriber = session.declare_subscriber(keys.simulation_status_key(args.system), on_status)
         session.put(keys.simulation_control_key(args.system), encode(control, 0, time.time()))
         deadline = time.monotonic() + 3.0
@@ -93,15 +96,13 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 
     if not 0 < args.step_m <= 1.0 or not 0 < args.step_deg <= 45.0:
         raise ConfigError("teleop", "--step-m must lie in (0, 1] m and --step-deg in (0, 45] deg")
-    return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick, args.site)
+    return run_teleop(args.connect, args.system, args.step_m, args.step_deg, args.joystick)
 
 
 def cmd_op(args: argparse.Namespace) -> int:
     from abyss.console.op import run_op
 
-    return run_op(
-        args.connect, args.system, args.command, args.value, args.timeout, args.turn or args.to, args.site
-    )
+    return run_op(args.connect, args.system, args.command, args.value, args.timeout, args.turn or args.to)
 
 
 def cmd_console(args: argparse.Namespace) -> int:
@@ -117,7 +118,7 @@ def cmd_console(args: argparse.Namespace) -> int:
             raise ConfigError("--token", "only a console on a tls/ endpoint has a token to work out again")
         print(token_of(certificates, args.system))
         return 0
-    return run_console(args.connect, args.system, args.port, args.site, args.bind, args.viewer_url)
+    return run_console(args.connect, args.system, args.port, args.bind, args.viewer_url)
 
 
 def add_commands(sub: Any) -> None:
@@ -131,7 +132,6 @@ def add_commands(sub: Any) -> None:
         metavar="DEVICE",
         help="Linux joystick device (default /dev/input/js0 when present; else the keyboard)",
     )
-    package_args(p, robot=False)
     p.set_defaults(func=cmd_teleop)
 
     p = sub.add_parser(
@@ -151,7 +151,6 @@ def add_commands(sub: Any) -> None:
         action="store_true",
         help="print the token of a console on this tls/ endpoint (from $ABYSS_TLS_DIR's operator key)",
     )
-    package_args(p, robot=False)
     connect_args(p)
     p.set_defaults(func=cmd_console)
 
@@ -161,12 +160,11 @@ def add_commands(sub: Any) -> None:
         "value",
         metavar="VALUE",
         help="waypoints: 'x,y,z,yaw; ...' [m, rad]; arm: 'x,y,z,roll,pitch,yaw' [m, rad]; "
-        "mode: hold|auto|teleop; valve: a valve's name (the site's: valve_0..2 on the shipped one) with "
-        "--turn; lever: a lever's name (lever_0, lever_1) with --to",
+        "mode: hold|auto|teleop; valve: a valve's name (the running site's: valve_0..2 on the shipped "
+        "one) with --turn; lever: a lever's name (lever_0, lever_1) with --to",
     )
     p.add_argument("--turn", metavar="DEG", default="", help="valve: the angle to turn it by [deg]")
     p.add_argument("--to", choices=("up", "down"), default="", help="lever: the stop to throw it to")
-    package_args(p, robot=False)
     connect_args(p)
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wait this long for the answer")
     p.set_defaults(func=cmd_op)
@@ -180,6 +178,5 @@ def add_commands(sub: Any) -> None:
     p.add_argument("fault", choices=faults.fault_names())
     p.add_argument("target", nargs="?", default="", help="the part it acts on (below, by fault)")
     p.add_argument("value", nargs="?", type=float, default=0.0, help="its setting (below, by fault)")
-    package_args(p)
     connect_args(p)
     p.set_defaults(func=cmd_fault)

@@ -19,7 +19,7 @@ from abyss.cli.args import (
     pairs,
 )
 from abyss.common.errors import ConfigError
-from abyss.config import Config
+from abyss.config import Config, site_of
 from abyss.config.hybrid import ROS2_VEHICLE
 from abyss.config.stations import VIEWERS, Viewer
 from abyss.config.system import RECORD_LEVELS, ROS2_STATIONS
@@ -161,7 +161,7 @@ def _with_console(entry: Callable[[Config, Any], None], port: int) -> Callable[[
     def run(config: Config, bus: Any) -> None:
         from abyss.console.server import Console
 
-        console = Console(bus.session, config.system, port, config.simulation.site)
+        console = Console(bus.session, config.system, port, site_of(config).panel)
         print(f"abyss: the pilot's console at {console.url}", flush=True)
         try:
             entry(config, bus)

@@ -13,12 +13,12 @@ import time
 import numpy as np
 import zenoh
 
+from abyss.bus import description
 from abyss.bus.session import client_config, message_of, open_session
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.console.access import operator_name
 from abyss.description.models.panel import Panel, intent_of
-from abyss.description.site import site_at
 from abyss.interface import keys
 from abyss.interface.messages import (
     OPERATOR_MODES,
@@ -120,7 +120,9 @@ def command_of(
     return OperatorMode(command_id, text)
 
 
-def send(endpoint: str, system: str, command: Command, topic: str, timeout_s: float) -> CommandAck | None:
+def send(
+    session: zenoh.Session, system: str, command: Command, topic: str, timeout_s: float
+) -> CommandAck | None:
     """Hand `command` to the onshore station and wait for onboard's answer; None if none came."""
     answered = threading.Event()
     answer: list[CommandAck] = []
@@ -131,30 +133,30 @@ def send(endpoint: str, system: str, command: Command, topic: str, timeout_s: fl
             answer.append(ack)
             answered.set()
 
-    session = open_session(client_config(endpoint), "abyss op")
-    try:
-        subscriber = session.declare_subscriber(keys.operator_key(system, "ack"), on_ack)
-        deadline, sent = time.monotonic() + timeout_s, 0
-        while not answered.is_set() and time.monotonic() < deadline:
-            put_command(session, system, topic, command, sent, operator_name("abyss op"))
-            sent += 1
-            answered.wait(min(RESEND_PERIOD_S, max(0.0, deadline - time.monotonic())))
-        subscriber.undeclare()
-    finally:
-        session.close()
+    subscriber = session.declare_subscriber(keys.operator_key(system, "ack"), on_ack)
+    deadline, sent = time.monotonic() + timeout_s, 0
+    while not answered.is_set() and time.monotonic() < deadline:
+        put_command(session, system, topic, command, sent, operator_name("abyss op"))
+        sent += 1
+        answered.wait(min(RESEND_PERIOD_S, max(0.0, deadline - time.monotonic())))
+    subscriber.undeclare()
     return answer[0] if answer else None
 
 
-def run_op(
-    endpoint: str, system: str, kind: str, text: str, timeout_s: float, amount: str = "", site: str = ""
-) -> int:
-    """`abyss op`; `site`: the running site's package (simulation.site; "" the shipped one)."""
+def run_op(endpoint: str, system: str, kind: str, text: str, timeout_s: float, amount: str = "") -> int:
+    """`abyss op`: the command checked against the running system's panel (its description),
+    handed to shore, and onboard's answer printed."""
+    session = open_session(client_config(endpoint), "abyss op")
     try:
-        command = command_of(kind, text, new_id(), amount, site_at(site).panel)
-    except BadInput as exc:  # numbers the message refuses (out of range)
-        raise ConfigError(kind, str(exc)) from None
-    topic = "intervene" if kind in INTENTS else kind
-    ack = send(endpoint, system, command, topic, timeout_s)
+        running = description.fetch(session, system)
+        try:
+            command = command_of(kind, text, new_id(), amount, running.panel)
+        except BadInput as exc:  # numbers the message refuses (out of range)
+            raise ConfigError(kind, str(exc)) from None
+        topic = "intervene" if kind in INTENTS else kind
+        ack = send(session, system, command, topic, timeout_s)
+    finally:
+        session.close()
     if ack is None:
         print(
             f"abyss op: no answer from onboard within {timeout_s:g} s (is system {system!r} running "

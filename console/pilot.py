@@ -28,7 +28,7 @@ from abyss.common.geometry import roll_pitch_of
 from abyss.console.access import operator_name
 from abyss.console.op import INTENTS, Command, command_of, put_command, sender_of, text_of
 from abyss.console.teleop import Goals, Target
-from abyss.description.site import site_at
+from abyss.description.models.panel import Panel
 from abyss.interface import keys
 from abyss.interface.messages import (
     TOOL_COMMANDS,
@@ -88,7 +88,7 @@ class Pilot:
 
     session: zenoh.Session
     system: str
-    site: str = ""
+    panel: Panel  # the running site's, that commands are checked against (its description)
     by: str = field(default_factory=lambda: operator_name("console"))  # this console, to the others
     lock: threading.Lock = field(default_factory=threading.Lock)
     latest: dict[str, tuple[float, Any]] = field(default_factory=dict)  # what -> (arrival [s, wall], message)
@@ -102,9 +102,6 @@ class Pilot:
     stations: dict[str, bool] = field(default_factory=dict)  # station -> its liveliness token held
     _before: Telemetry | None = None  # the telemetry before the latest, for what changed
     _silent: bool = False
-
-    def __post_init__(self) -> None:
-        self.panel = site_at(self.site).panel  # the running site's, that commands are checked against
 
     def start(self) -> list[Any]:
         """Subscribe to what reached shore, the commands of every operator's tool, and the

@@ -21,11 +21,13 @@ from typing import Any
 
 import zenoh
 
+from abyss.bus import description
 from abyss.bus.session import client_config, open_session
 from abyss.common.errors import AbyssError, BadInput, ConfigError
 from abyss.common.leave import leave, watch_the_stop
 from abyss.console.access import HEADER, Access, operator_name
 from abyss.console.pilot import Pilot
+from abyss.description.models.panel import Panel
 from abyss.security.access import tool_certificates
 from abyss.security.certs import CertFiles
 
@@ -119,12 +121,12 @@ class Console:
         session: zenoh.Session,
         system: str,
         port: int,
-        site: str = "",
+        panel: Panel,
         host: str = "127.0.0.1",
         certificates: CertFiles | None = None,
         viewer_url: str = "",
     ) -> None:
-        self.pilot = Pilot(session, system, site)
+        self.pilot = Pilot(session, system, panel)
         self.access = Access.at(host, system, certificates)
         self.subscribers = self.pilot.start()
         try:
@@ -172,9 +174,7 @@ class Console:
         self._undeclare()
 
 
-def run_console(
-    endpoint: str, system: str, port: int, site: str = "", host: str = "127.0.0.1", viewer_url: str = ""
-) -> int:
+def run_console(endpoint: str, system: str, port: int, host: str = "127.0.0.1", viewer_url: str = "") -> int:
     """`abyss console`: serve the console until SIGINT or SIGTERM, then close within
     STOP_BOUND_S whatever hangs (common.leave). The signals' handler only writes to a pipe that
     the main thread reads: nothing is raised inside a lock's bytecodes, whichever thread the
@@ -185,7 +185,8 @@ def run_console(
         signal.signal(signum, lambda number, _frame: os.write(ask, bytes([number])))
     session = open_session(client_config(endpoint), "abyss console")
     try:
-        console = Console(session, system, port, site, host, certificates, viewer_url)
+        panel = description.fetch(session, system).panel  # the running system's
+        console = Console(session, system, port, panel, host, certificates, viewer_url)
     except BaseException:
         session.close()
         raise

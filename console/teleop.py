@@ -32,12 +32,13 @@ from typing import IO, Literal
 import numpy as np
 import zenoh
 
+from abyss.bus import description
 from abyss.bus.session import client_config, message_of, open_session
+from abyss.common.errors import BusError
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
 from abyss.console.access import operator_name
 from abyss.console.op import put_command
 from abyss.description.models.panel import Panel, intent_of
-from abyss.description.site import site_at
 from abyss.interface import keys
 from abyss.interface.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, new_id
 
@@ -110,11 +111,8 @@ class Goals:
 
 
 class Teleop:
-    def __init__(
-        self, endpoint: str, system: str, step_m: float, step_rad: float, out: IO[str], panel: Panel
-    ) -> None:
+    def __init__(self, endpoint: str, system: str, step_m: float, step_rad: float, out: IO[str]) -> None:
         self.system = system
-        self.intent_keys = intent_keys(panel)
         self.step_m, self.step_rad = step_m, step_rad
         self.out = out
         self.goals = Goals()
@@ -122,6 +120,11 @@ class Teleop:
         self.by = operator_name("abyss teleop")
         self.lock = threading.Lock()
         self.session = open_session(client_config(endpoint), "abyss teleop")
+        try:  # the running site's panel, whose parts the number keys work
+            self.intent_keys = intent_keys(description.fetch(self.session, system).panel)
+        except BusError:
+            self.session.close()
+            raise
         self.subscriber = self.session.declare_subscriber(
             keys.spec("vessel", "telemetry").key(system), self._on_telemetry
         )
@@ -257,13 +260,11 @@ def joystick(teleop: Teleop, path: Path, speed_mps: float, rate_radps: float) ->
         os.close(fd)
 
 
-def run_teleop(
-    endpoint: str, system: str, step_m: float, step_deg: float, joystick_path: Path | None, site: str = ""
-) -> int:
-    """`abyss teleop`; `site`: the running site's package (simulation.site; "" the shipped one)."""
+def run_teleop(endpoint: str, system: str, step_m: float, step_deg: float, joystick_path: Path | None) -> int:
+    """`abyss teleop`, its number keys on the running system's panel (its description)."""
     if joystick_path is None and Path("/dev/input/js0").exists():
         joystick_path = Path("/dev/input/js0")
-    teleop = Teleop(endpoint, system, step_m, math.radians(step_deg), sys.stdout, site_at(site).panel)
+    teleop = Teleop(endpoint, system, step_m, math.radians(step_deg), sys.stdout)
     source = f"the joystick {joystick_path}" if joystick_path else "the keyboard"
     teleop.say(f"abyss teleop: system {system} at {endpoint}, driving the vehicle from {source}; h for help")
     teleop.say(

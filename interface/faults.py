@@ -17,7 +17,7 @@ from abyss.common.errors import BadInput
 
 if TYPE_CHECKING:
     from abyss.description.models.panel import Panel
-    from abyss.description.robot import Robot
+    from abyss.description.robot_file import RobotFile
 
 VALUE_MAX = 100.0  # a fault's value lies in [0, VALUE_MAX] whatever its row (the message's bound)
 
@@ -41,10 +41,13 @@ KIND_WORDS = {  # how the docs and the help name one target of each kind, and it
 }
 
 
-def model_names(robot: Robot, panel: Panel) -> ModelNames:
-    """The names of `robot`'s parts (its package's: description.robot) and the panel's (its site's:
-    description.site)."""
-    return ModelNames(robot.thrusters, robot.cameras, robot.nav_sensor_names, panel.part_names)
+def model_names(robot: RobotFile, panel: Panel) -> ModelNames:
+    """The names of the parts of the robot `robot.toml` describes (description.robot_file) and of
+    the panel's (its site's: description.site)."""
+    s = robot.nav_sensors
+    return ModelNames(
+        robot.thrusters.names, robot.cameras.names, (s.usbl, s.depth, s.dvl, s.imu), panel.part_names
+    )
 
 
 @dataclass(frozen=True)

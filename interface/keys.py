@@ -216,6 +216,13 @@ def operator_key(system: str, topic: str) -> str:
     return key(system, "onshore", "operator", topic)
 
 
+def description_key(system: str, station: str) -> str:
+    """The running system's description (interface.system_description: the robot's and the site's
+    package files it runs by), which the testbed's shell of each station serves to a query, past
+    no emulated link, for the operator's tools; `station` "*" for any of them."""
+    return key(system, station, "description")
+
+
 def onboard_state_key(system: str) -> str:
     """The onboard controllers' state at the source, past no emulated link: for scoring (the
     scenario runner times the failsafe by it) only, as the truth is."""
@@ -258,6 +265,12 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ),
     ("abyss/<system>/<station>/linkstats/<hop>", "LinkStats", "1 Hz", "what each emulator measured"),
     ("abyss/<system>/<station>/alive", "liveliness", "-", "token held while the station runs"),
+    (
+        "abyss/<system>/<station>/description",
+        "JSON (queryable)",
+        "on query",
+        "the robot's and site's package files the system runs by, for the operator's tools",
+    ),
     ("abyss/<system>/simulation/truth", "NavState", "20 Hz", "true vehicle state, for scoring only"),
     (
         "abyss/<system>/simulation/truth/panel",

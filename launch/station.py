@@ -22,12 +22,14 @@ from typing import Any
 import zenoh
 from threadpoolctl import threadpool_limits
 
+from abyss.bus import description
 from abyss.bus.session import Bus, open_session, zenoh_config
 from abyss.common.leave import STOP_BOUND_S, watch_the_stop
 from abyss.common.workers import Workers, children_cpu_s, loops_first
-from abyss.config import Config
+from abyss.config import Config, robot_of, site_of
 from abyss.interface import keys
 from abyss.interface.messages import repeatable_ids
+from abyss.interface.system_description import description_payload
 from abyss.linkemu.control import StationLinks
 from abyss.recording.store import Caps, Recorder, free_recording_path
 from abyss.security import access
@@ -105,8 +107,9 @@ def _twin_with_gateway(config: Config, bus: Bus) -> None:
 
 class Shell:
     """What hosts one station in the testbed: its Zenoh session, the bus the station sees, the
-    links behind that bus (emulated or netem, with their control plane) and its liveliness
-    token. `close()` undoes it all, links first, so that nothing blocks on a link."""
+    links behind that bus (emulated or netem, with their control plane), its liveliness token and
+    the running system's description it serves the operator's tools (bus.description). `close()`
+    undoes it all, links first, so that nothing blocks on a link."""
 
     def __init__(
         self,
@@ -155,6 +158,9 @@ class Shell:
             if name != "simulation":  # the simulation's physics is lockstep's master, and runs its own
                 threading.Thread(target=self.bus.lockstep.run, name="lockstep", daemon=True).start()
         self._token = self.session.liveliness().declare_token(keys.alive_key(config.system, name))
+        # what the system runs by, for the operator's tools (as ROS's robot_description)
+        payload = description_payload(config.system, robot_of(config), site_of(config))
+        self._description = description.serve(self.session, config.system, name, payload)
 
     def status(self) -> dict[str, Any]:
         status = self.bus.status()
@@ -178,6 +184,7 @@ class Shell:
         self.bus.stop.set()
         self.links.close(drain_s)
         self._token.undeclare()
+        self._description.undeclare()
         for close in self._clock_closers:
             close()
         self.bus.close()

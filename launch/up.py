@@ -18,7 +18,7 @@ import zenoh
 
 from abyss.bus.session import open_session, zenoh_config
 from abyss.common.errors import AbyssError
-from abyss.config import Config
+from abyss.config import Config, site_of
 from abyss.console.server import Console
 from abyss.interface import keys
 from abyss.launch.cpu import CpuCaps
@@ -160,7 +160,7 @@ class Up:
                     session,
                     self.config.system,
                     self.console_port,
-                    self.config.simulation.site,
+                    site_of(self.config).panel,
                     viewer_url=web_viewer_url(onshore.viewer_web_port, onshore.viewer_grpc_port)
                     if web
                     else "",

@@ -15,7 +15,7 @@ from abyss.config.simulation import SimulationConfig
 from abyss.description.gains import robot_gains
 from abyss.description.robot import Robot, place_at_start, robot_at
 from abyss.description.site import site_at, world_model
-from abyss.interface.faults import ModelNames
+from abyss.interface.faults import ModelNames, model_names
 from abyss.interface.messages import (
     ArmVelocityRef,
     JointState,
@@ -301,9 +301,6 @@ class World:
 
     # -- faults --------------------------------------------------------------------------
     def model_names(self) -> ModelNames:
-        """The names of this world's parts that faults target (its robot's thrusters, its
-        robot's cameras and navigation sensors, the panel's parts)."""
-        robot = self.robot
-        return ModelNames(
-            tuple(self.vehicle.thrusters.names), robot.cameras, robot.nav_sensor_names, self.parts
-        )
+        """The names of this world's parts that faults target (its robot's thrusters, cameras and
+        navigation sensors, the panel's parts)."""
+        return model_names(self.robot.spec, self.site.panel)

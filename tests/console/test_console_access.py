@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from abyss.bus import description
 from abyss.bus.session import message_of, open_session, zenoh_config
 from abyss.cli.system import _with_console
 from abyss.common.errors import ConfigError
@@ -34,10 +35,15 @@ from abyss.config import Config
 from abyss.console.access import HEADER, Access, token_of
 from abyss.console.pilot import alerts_of
 from abyss.console.server import Console
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at
 from abyss.interface import keys
 from abyss.interface.messages import OperatorMode, Telemetry, Waypoints, encode
+from abyss.interface.system_description import description_payload
 from abyss.security import certs
 from abyss.security.certs import CertFiles
+
+PANEL = site_at("").panel  # the shipped site's: what these systems run
 
 SYSTEM = "console-test"
 WAIT_S = 10.0
@@ -86,7 +92,7 @@ def test_a_console_bound_for_others_sends_nothing_without_the_operators_token(
 
     subscriber = tool.declare_subscriber(keys.operator_key(SYSTEM, "mode"), on_mode)
     with caplog.at_level(logging.WARNING, logger="abyss.console.server"):
-        console = Console(router, SYSTEM, 0, host="0.0.0.0")
+        console = Console(router, SYSTEM, 0, PANEL, host="0.0.0.0")
     try:
         token = console.access.token
         assert token and f"?token={token}" in console.url and console.url.startswith("http://")
@@ -131,7 +137,7 @@ def test_with_the_operators_certificate_the_console_is_https_that_only_the_syste
         keys.operator_key(SYSTEM, "mode"),
         lambda sample: arrived.put(mode) if (mode := message_of(sample, OperatorMode)) else None,
     )
-    console = Console(router, SYSTEM, 0, host="0.0.0.0", certificates=operator)
+    console = Console(router, SYSTEM, 0, PANEL, host="0.0.0.0", certificates=operator)
     try:
         token = token_of(operator, SYSTEM)
         assert console.url.startswith("https://") and console.url.endswith(f"/?token={token}")
@@ -153,7 +159,7 @@ def test_a_second_console_sees_the_first_ones_commands_and_who_sent_them(
     shore: tuple[zenoh.Session, zenoh.Session],
 ) -> None:
     router, tool = shore
-    first, second = Console(router, SYSTEM, 0), Console(tool, SYSTEM, 0)
+    first, second = Console(router, SYSTEM, 0, PANEL), Console(tool, SYSTEM, 0, PANEL)
     try:
         assert first.pilot.by != second.pilot.by
         _, sent = request(base(first) + "command", {"kind": "waypoints", "value": "5,0,-10,0; 6,1,-10,0.5"})
@@ -233,7 +239,7 @@ def test_a_command_from_a_tool_that_gave_no_name_is_shown_as_such(
     shore: tuple[zenoh.Session, zenoh.Session],
 ) -> None:
     router, tool = shore
-    console = Console(router, SYSTEM, 0)
+    console = Console(router, SYSTEM, 0, PANEL)
     try:
         tool.put(keys.operator_key(SYSTEM, "waypoints"), encode(Waypoints(42, np.zeros((1, 4))), 0, 0.0))
         for _ in range(int(WAIT_S / 0.05)):
@@ -248,7 +254,7 @@ def test_a_command_from_a_tool_that_gave_no_name_is_shown_as_such(
 
 def test_a_station_lost_and_back_is_an_alert(shore: tuple[zenoh.Session, zenoh.Session]) -> None:
     router, tool = shore
-    console = Console(router, SYSTEM, 0)
+    console = Console(router, SYSTEM, 0, PANEL)
     try:
 
         def alerts() -> list[str]:
@@ -310,7 +316,7 @@ def test_an_address_the_console_cannot_serve_on_is_refused_by_name(
     with pytest.raises(
         ConfigError, match=r"cannot serve on nonsense\.invalid:0 \(--console, or --bind and --port\)"
     ):
-        Console(router, SYSTEM, 0, host="nonsense.invalid")
+        Console(router, SYSTEM, 0, PANEL, host="nonsense.invalid")
 
 
 @pytest.mark.parametrize("asked", [signal.SIGINT, signal.SIGTERM])
@@ -319,6 +325,8 @@ def test_abyss_console_serves_until_asked_to_stop_then_closes_and_exits_at_once(
 ) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_session(zenoh_config([endpoint], mode="router"), "the test's shore")
+    payload = description_payload(SYSTEM, robot_at(""), site_at(""))
+    served = description.serve(router, SYSTEM, "onshore", payload)  # as a station's shell does
     console = subprocess.Popen(
         [sys.executable, "-P", "-m", "abyss.cli", "console", "--connect", endpoint, "--system", SYSTEM],
         stdout=subprocess.PIPE,
@@ -339,4 +347,5 @@ def test_abyss_console_serves_until_asked_to_stop_then_closes_and_exits_at_once(
     finally:
         if console.poll() is None:
             console.kill()
+        served.undeclare()
         router.close()

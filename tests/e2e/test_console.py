@@ -32,10 +32,13 @@ from selenium.webdriver.support.ui import Select, WebDriverWait
 from abyss.bus.session import client_config, message_of, open_session, zenoh_config
 from abyss.common.ports import free_port
 from abyss.console.server import Console
+from abyss.description.site import site_at
 from abyss.interface import keys
 from abyss.interface.messages import MissionStatus, NavState, PanelState, Telemetry
 from abyss.security import certs
 from abyss.security.certs import CertFiles
+
+PANEL = site_at("").panel  # the shipped site's: what these systems run
 
 pytestmark = pytest.mark.timeout(300)
 WAIT_S = 60.0  # for what the page shows to come, on this loaded machine
@@ -334,7 +337,7 @@ def test_over_https_with_the_operators_certificate_the_page_is_secure_and_asks_i
     spki = key.public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
     pin = base64.b64encode(hashlib.sha256(spki).digest()).decode()
     session = open_session(zenoh_config([f"tcp/127.0.0.1:{free_port()}"], mode="router"), "the test's shore")
-    console = Console(session, "https-test", 0, host="0.0.0.0", certificates=operator)
+    console = Console(session, "https-test", 0, PANEL, host="0.0.0.0", certificates=operator)
     port = console.server.server_address[1]
     try:
         with chromium(tmp_path / "profile", f"--ignore-certificate-errors-spki-list={pin}") as driver:

@@ -17,9 +17,12 @@ import pytest
 import zenoh
 from conftest import ROOT
 
+from abyss.bus import description
 from abyss.bus.session import open_session, zenoh_config
 from abyss.common.ports import free_port
 from abyss.console.teleop import JS_AXIS, JS_EVENT
+from abyss.description.robot import robot_at
+from abyss.description.site import site_at
 from abyss.interface import keys
 from abyss.interface.messages import (
     ArmGoal,
@@ -31,6 +34,7 @@ from abyss.interface.messages import (
     decode,
     encode,
 )
+from abyss.interface.system_description import description_payload
 
 pytestmark = pytest.mark.timeout(90)
 SYSTEM = "e2e-teleop"
@@ -39,7 +43,8 @@ EE_POSITION = np.array([4.86, 0.0, -8.35])
 
 
 class Vessel:
-    """Publishes telemetry as the vessel does; records what the operator's tools send."""
+    """Publishes telemetry as the vessel does, and serves the running system's description as a
+    station's shell does (the shipped pair's); records what the operator's tools send."""
 
     def __init__(self) -> None:
         self.port = free_port()
@@ -48,6 +53,8 @@ class Vessel:
         self.lock = threading.Lock()
         self.stop = threading.Event()
         self.subscriber = self.session.declare_subscriber(keys.operator_key(SYSTEM, "*"), self._on_command)
+        payload = description_payload(SYSTEM, robot_at(""), site_at(""))
+        self.description = description.serve(self.session, SYSTEM, "vessel", payload)
         self.thread = threading.Thread(target=self._telemetry, daemon=True)
         self.thread.start()
 
@@ -97,6 +104,7 @@ class Vessel:
         self.stop.set()
         self.thread.join()
         self.subscriber.undeclare()
+        self.description.undeclare()
         self.session.close()
 
 

@@ -45,8 +45,8 @@ def test_the_message_the_keys_and_faults_are_the_table() -> None:
 
 
 def test_targets_are_the_models_names_by_kind() -> None:
-    assert faults.targets("thruster", faults.model_names(ROBOT, panel)) == ROBOT.thrusters
-    assert faults.targets("camera", faults.model_names(ROBOT, panel)) == ROBOT.cameras
+    assert faults.targets("thruster", faults.model_names(ROBOT.spec, panel)) == ROBOT.thrusters
+    assert faults.targets("camera", faults.model_names(ROBOT.spec, panel)) == ROBOT.cameras
     assert faults.targets("seize", OTHER_ROBOT) == ("tap",)
     assert faults.targets("noise", OTHER_ROBOT) == ("gps",)
     assert faults.targets("clear", OTHER_ROBOT) == ()

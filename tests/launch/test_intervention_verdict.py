@@ -9,9 +9,14 @@ import sys
 
 import numpy as np
 
+from abyss.bus import description
+from abyss.bus.session import open_session, zenoh_config
+from abyss.common.ports import free_port
 from abyss.config.system import MissionConfig
+from abyss.description.robot import robot_at
 from abyss.description.site import site_at
 from abyss.interface.messages import PanelState
+from abyss.interface.system_description import description_payload
 from abyss.launch.verdict import interventions_summary, render_summary
 
 panel = site_at("").panel  # the shipped site's
@@ -65,19 +70,30 @@ def test_each_intervention_is_judged_on_the_true_angle_against_its_target() -> N
 
 
 def test_a_wrong_intent_fails_at_the_command_line_with_what_is_allowed() -> None:
-    for args, expected in (
-        (["valve", "lever_0", "--turn", "90"], "lever_0 is a lever, not a valve"),
-        (["valve", "valve_1"], "turned by an angle in [-180, 180] deg"),
-        (["valve", "valve_7", "--turn", "90"], "valve_0, valve_1, valve_2, lever_0, lever_1"),
-        (["lever", "lever_1", "--to", "sideways"], "invalid choice: 'sideways'"),
-    ):
-        done = subprocess.run(
-            [sys.executable, "-m", "abyss.cli", "op", *args, "--timeout", "1"],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
-        assert done.returncode == 2 and expected in done.stderr, (args, done.stdout, done.stderr)
+    """Against the running system's panel (a station's shell serves its description; here the
+    shipped pair's, served as a shell does), before anything is sent."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session(zenoh_config([endpoint], mode="router"), "the test's shore")
+    served = description.serve(
+        router, "default", "onshore", description_payload("default", robot_at(""), site_at(""))
+    )
+    try:
+        for args, expected in (
+            (["valve", "lever_0", "--turn", "90"], "lever_0 is a lever, not a valve"),
+            (["valve", "valve_1"], "turned by an angle in [-180, 180] deg"),
+            (["valve", "valve_7", "--turn", "90"], "valve_0, valve_1, valve_2, lever_0, lever_1"),
+            (["lever", "lever_1", "--to", "sideways"], "invalid choice: 'sideways'"),
+        ):
+            done = subprocess.run(
+                [sys.executable, "-m", "abyss.cli", "op", *args, "--timeout", "1", "--connect", endpoint],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
+            assert done.returncode == 2 and expected in done.stderr, (args, done.stdout, done.stderr)
+    finally:
+        served.undeclare()
+        router.close()
     assert math.isclose(panel.intent("valve_2", "-30")[0], math.radians(-30))
 
 

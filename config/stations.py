@@ -43,7 +43,7 @@ class OnboardConfig:
     offset_time_constant_s: float = 0.0  # [s]; 0: no feed-forward
     max_speed_mps: float = 0.5  # [m/s]
     max_yaw_rate_radps: float = 0.5  # [rad/s]
-    # navigation (stations/navigation.py): the DVL's velocity integrated, corrected by each
+    # navigation (stations/onboard/navigation.py): the DVL's velocity integrated, corrected by each
     # USBL fix as a Kalman filter weighs them; depth and attitude pulled to the pressure sensor's
     # and the IMU's with nav_time_constant_s
     nav_time_constant_s: float = 5.0  # [s]; 0: use depth and attitude as they come

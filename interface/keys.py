@@ -124,6 +124,8 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("simulation", "sonar", SonarImage, 2.0, "best-effort", "onboard", "bulk"),
     KeySpec("onboard", "cmd/vehicle_velocity", VelocityRef, 20.0, "best-effort", "simulation", "control"),
     KeySpec("onboard", "cmd/arm_velocity", ArmVelocityRef, 20.0, "best-effort", "simulation", "control"),
+    # onboard's navigation estimate, once settled: what a hybrid run's twin renders at
+    KeySpec("onboard", "nav/estimate", NavState, 20.0, "best-effort", "simulation", "control"),
     KeySpec("onboard", "telemetry", Telemetry, 10.0, "best-effort", "vessel", "telemetry"),
     KeySpec("onboard", "cloud", PointCloud, 2.0, "best-effort", "vessel", "bulk"),
     KeySpec("onboard", "image", Image, 1.0, "best-effort", "vessel", "bulk"),

@@ -184,6 +184,7 @@ BY_KEY: dict[str, tuple[RosTopic, ...]] = {  # keys that differ from their messa
         CAMERA_INFO,
     ),
     "simulation/truth": (ODOMETRY,),  # /tf is the navigation's: what the stations steer by
+    "onboard/nav/estimate": (dataclasses.replace(ODOMETRY, parse=odometry_in),),  # ditto
 }
 NOT_EXPORTED: dict[str, str] = {  # message -> why
     "SceneRequest": "the scene stream's flow control",

@@ -31,8 +31,8 @@ from abyss.interface.messages import (
     SonarImage,
     Waypoints,
 )
-from abyss.stations.navigation import PoseHistory
 from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.stations.onboard.navigation import PoseHistory
 from abyss.timing.rate import Rate
 
 if TYPE_CHECKING:
@@ -106,8 +106,11 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
             joints=latest_joints.message if latest_joints is not None else None,
         )
         out = core.step(inputs, bus.clock.now_s())
-        if out.poses:  # this loop is the only one that writes them
-            shared.poses.set(shared.poses.get().added(out.poses))
+        if out.estimates:  # this loop is the only one that writes the poses
+            poses = [(e.sim_time_s, e.position_m_world, e.orientation_wxyz_world) for e in out.estimates]
+            shared.poses.set(shared.poses.get().added(poses))
+        for estimate in out.estimates:
+            bus.publish("nav/estimate", estimate)
         if out.arm_m_world is not None:
             arm_m_world = out.arm_m_world.copy()
             arm_m_world.flags.writeable = False

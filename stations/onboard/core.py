@@ -30,13 +30,13 @@ from abyss.interface.messages import (
     Waypoints,
     new_id,
 )
-from abyss.stations.navigation import NavFilter
 from abyss.stations.onboard.arm_control import ArmController, ArmOutput
 from abyss.stations.onboard.commands import CommandGate
 from abyss.stations.onboard.failsafe import Failsafe
 from abyss.stations.onboard.homing import Homing
 from abyss.stations.onboard.intervention import Grip, InterventionRun
 from abyss.stations.onboard.modes import ControlMode, Mode
+from abyss.stations.onboard.navigation import NavFilter
 from abyss.stations.onboard.vehicle_control import ControlOutput, VehicleController
 
 GRIPPER_GAIN_PER_S = 2.0
@@ -60,7 +60,9 @@ class OnboardOutputs:
     vehicle: VelocityRef | None = None  # None until navigation and joints have come
     arm: ArmVelocityRef | None = None
     telemetry: Telemetry | None = None  # every `telemetry_period_s`
-    poses: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)  # sim time [s], p, q
+    # the navigation estimate after each navigation message, once settled: for the frames' poses, and
+    # published (nav/estimate) for a hybrid run's twin to render at
+    estimates: list[NavState] = field(default_factory=list)
     arm_m_world: np.ndarray | None = None  # the arm's chain, for the perception's self-filter
 
 
@@ -162,7 +164,18 @@ class Onboard:
             self.velocity_mps_body = nav.velocity_mps_body
             self.sim_time_s = nav.sim_time_s
             if self.position_m_world is not None and self.nav_filter.settled:  # else frames wait
-                out.poses.append((nav.sim_time_s, self.position_m_world.copy(), self.orientation_wxyz_world))
+                out.estimates.append(
+                    NavState(
+                        self.position_m_world.copy(),
+                        np.array(self.orientation_wxyz_world),
+                        nav.velocity_mps_body,
+                        nav.angular_velocity_radps_body,
+                        nav.sim_time_s,
+                        usbl_time_s=nav.usbl_time_s,
+                        depth_m=nav.depth_m,
+                        dvl_valid=nav.dvl_valid,
+                    )
+                )
         if inputs.joints is not None and inputs.joints.sim_time_s != self.joints_s:
             self.failsafe.jointed(now_s)
             self.joints_s = inputs.joints.sim_time_s

@@ -26,7 +26,7 @@ from abyss.description.models import stereo_set
 from abyss.description.robot_file import CamerasSection
 from abyss.interface.images import decode_image, encode_jpeg
 from abyss.interface.messages import Image, PointCloud
-from abyss.stations.navigation import PoseHistory
+from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.onboard.perception import CloudSettings, camera_in_world, clouds_of
 
 INCOMPLETE_KEPT = 4  # sets that never complete (a frame lost): the newest this many are kept

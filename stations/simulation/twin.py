@@ -1,13 +1,14 @@
 """The twin: the simulation station in a hybrid run (`[hybrid]`), where a real vehicle provides
 its navigation and joints (and whatever else `hybrid.vehicle` names) and the twin renders the
-sensors it lacks. It runs no dynamics of its own: it places the virtual vehicle at the real one's
-navigation estimate (stations.navigation, the filter onboard steers by, on the same messages, so
-that a frame is rendered where onboard will believe it was taken) and the arm at its joints, on
-the virtual site registered to the vehicle's navigation frame (`hybrid.site_pose`), and renders
-its sensors from there at their rates, each frame stamped with the navigation's time it was
-rendered at. Commands go to the real vehicle; the twin never moves it. Navigation or joints older
-than `hybrid.nav_max_age_s` (by their arrival) stop its sensors, as does none at all, and it
-says so: it renders nothing rather than from a pose that is no longer true."""
+sensors it lacks. It runs no dynamics of its own: it places the virtual vehicle at onboard's
+navigation estimate as onboard publishes it (`onboard/nav/estimate`: whatever onboard is, this
+one, a real one or a ROS 2 node, and from its restart on, so that a frame is rendered where
+onboard believes the vehicle is) and the arm at the vehicle's joints, on the virtual site
+registered to the vehicle's navigation frame (`hybrid.site_pose`), and renders its sensors from
+there at their rates, each frame stamped with the estimate's time it was rendered at. Commands go
+to the real vehicle; the twin never moves it. An estimate or joints older than
+`hybrid.nav_max_age_s` (by their arrival) stop its sensors, as does none at all, and it says so:
+it renders nothing rather than from a pose that is no longer true."""
 
 from __future__ import annotations
 
@@ -29,7 +30,6 @@ from abyss.description.robot import place_at_start, robot_at
 from abyss.description.site import site_at, world_model
 from abyss.interface import keys
 from abyss.interface.messages import JointState, NavState, SimulationControl, SimulationStatus
-from abyss.stations.navigation import NavFilter
 
 if TYPE_CHECKING:
     from abyss.stations.simulation.offload import SensorKind
@@ -50,7 +50,6 @@ class Twin:
         self.data = mujoco.MjData(self.model)
         place_at_start(self.model, self.data.qpos, robot, sim.start_position_m_world, sim.start_yaw_rad)
         mujoco.mj_forward(self.model, self.data)
-        self.navigation = NavFilter(config.onboard)
         self._base = int(self.model.joint(robot.base).qposadr[0])
         self._arm = np.array([self.model.joint(n).qposadr[0] for n in robot.arm_joints], dtype=int)
         self._fingers = np.array([self.model.joint(n).qposadr[0] for n in robot.gripper_joints], dtype=int)
@@ -60,12 +59,9 @@ class Twin:
         self.delay_s = Samples()  # from the navigation's arrival to the frame rendered at it
         self.withheld = 0  # sensor turns that rendered nothing: no navigation, or stale
 
-    def take_nav(self, nav: NavState, arrived_s: float) -> None:
-        """A navigation message; the vehicle moves to the estimate once it has a position."""
-        position, orientation = self.navigation.update(nav)
-        if position is None:
-            return
-        p, q = self.hybrid.site_pose(position, orientation)
+    def take_estimate(self, nav: NavState, arrived_s: float) -> None:
+        """Onboard's navigation estimate: the vehicle moves to it."""
+        p, q = self.hybrid.site_pose(nav.position_m_world, nav.orientation_wxyz_world)
         self.data.qpos[self._base : self._base + 3] = p
         self.data.qpos[self._base + 3 : self._base + 7] = q / np.linalg.norm(q)
         self.data.time = nav.sim_time_s  # the frames rendered at this pose are stamped with its time
@@ -83,11 +79,11 @@ class Twin:
         """Why the sensors must not render now ("" when they may)."""
         age = self.hybrid.nav_max_age_s
         if self.nav_arrived_s is None:
-            return "no navigation from the real vehicle yet"
+            return "no navigation estimate from onboard yet"
         if self.joints_arrived_s is None:
             return "no joints from the real vehicle yet"
         if now_s - self.nav_arrived_s > age:
-            return f"the navigation is older than hybrid.nav_max_age_s ({age:g} s)"
+            return f"onboard's navigation estimate is older than hybrid.nav_max_age_s ({age:g} s)"
         if now_s - self.joints_arrived_s > age:
             return f"the joints are older than hybrid.nav_max_age_s ({age:g} s)"
         return ""
@@ -143,7 +139,7 @@ def run(config: Config, bus: Bus, sensor_loop: Callable[..., None]) -> None:
 
 def _place(bus: Bus, twin: Twin, lock: threading.Lock, blackout: set[str]) -> None:
     """Take what the real vehicle sends as it comes, and the camera faults; the status each second."""
-    nav: Inbox[NavState] = bus.subscribe_key(keys.spec("simulation", "nav").key(bus.system), NavState)
+    nav: Inbox[NavState] = bus.subscribe("onboard", "nav/estimate", NavState)
     joints: Inbox[JointState] = bus.subscribe_key(
         keys.spec("simulation", "joints").key(bus.system), JointState
     )
@@ -156,7 +152,7 @@ def _place(bus: Bus, twin: Twin, lock: threading.Lock, blackout: set[str]) -> No
         now_s = bus.clock.now_s()
         with lock:
             for received in nav.drain():
-                twin.take_nav(received.message, now_s)
+                twin.take_estimate(received.message, now_s)
             for item in joints.drain():
                 try:
                     twin.take_joints(item.message, now_s)

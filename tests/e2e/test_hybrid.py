@@ -116,14 +116,16 @@ def test_the_twin_renders_nothing_without_navigation_and_stops_within_the_bound_
         for _ in range(3):  # the twin's status, once a second: three seconds, six sensor turns
             assert frames.status.acquire(timeout=60), (tmp_path / "station.log").read_text()
         assert (
-            "twin: no navigation from the real vehicle yet; its sensors render nothing"
+            "twin: no navigation estimate from onboard yet; its sensors render nothing"
             in (tmp_path / "station.log").read_text()
         )
         assert frames.count() == 0
-        # navigation and joints at 20 Hz, as a vehicle's: it renders
+        # onboard's estimate and the vehicle's joints at 20 Hz: it renders (the test stands in for
+        # both: the twin renders at what onboard publishes, never the vehicle's navigation itself)
         config = load(overrides=['hybrid.vehicle=["nav", "joints"]'])
         robot, start = robot_at(""), np.array(config.simulation.start_position_m_world)
-        nav_key, joints_key = (keys.spec("simulation", t).key(system) for t in ("nav", "joints"))
+        nav_key = keys.spec("onboard", "nav/estimate").key(system)
+        joints_key = keys.spec("simulation", "joints").key(system)
         t0, sent_s, i = time.monotonic(), 0.0, 0
         while frames.count() < 4 and time.monotonic() - t0 < 60:
             t = i * 0.05
@@ -140,7 +142,7 @@ def test_the_twin_renders_nothing_without_navigation_and_stops_within_the_bound_
         for _ in range(3):
             assert frames.status.acquire(timeout=60)
         text = (tmp_path / "station.log").read_text()
-        assert "twin: the navigation is older than hybrid.nav_max_age_s" in text, text
+        assert "twin: onboard's navigation estimate is older than hybrid.nav_max_age_s" in text, text
         assert text.count("its sensors render nothing") == 2, text  # said once: no navigation yet, then stale
         assert "twin: navigation and joints fresh after" in text  # when they first came, how long it waited
         with frames.lock:

@@ -173,14 +173,15 @@ def test_joints_are_refused_with_their_reason() -> None:
 def test_the_simulation_s_node_is_a_vehicle_and_onboard_s_is_unchanged() -> None:
     """The vehicle's driver is handed the velocity commands and provides its navigation and
     joints; the truth's Odometry parses nothing back and no node is handed or gives it."""
-    assert types.gateway_keys("simulation") == (
-        ("onboard/cmd/vehicle_velocity", "onboard/cmd/arm_velocity"),
+    assert types.gateway_keys("simulation") == (  # onboard's estimate too, which a twin renders at
+        ("onboard/cmd/vehicle_velocity", "onboard/cmd/arm_velocity", "onboard/nav/estimate"),
         ("simulation/nav", "simulation/joints"),
     )
     down, up = types.gateway_keys("onboard")
     assert up == (
         "onboard/cmd/vehicle_velocity",
         "onboard/cmd/arm_velocity",
+        "onboard/nav/estimate",  # a ROS 2 onboard's estimate (nav_msgs/Odometry), for a hybrid run's twin
         "onboard/telemetry",
         "onboard/cloud",
     )

@@ -17,8 +17,8 @@ from abyss.config.stations import OnboardConfig
 from abyss.description.robot import robot_at
 from abyss.interface.images import decode_image
 from abyss.interface.messages import Image
-from abyss.stations.navigation import PoseHistory
 from abyss.stations.onboard.frame_sets import FrameSetInputs, FrameSets
+from abyss.stations.onboard.navigation import PoseHistory
 from abyss.stations.simulation import cameras_of_set
 from abyss.stations.simulation.encoding import encode_image
 from abyss.stations.simulation.rendering import Cameras

@@ -22,8 +22,8 @@ from abyss.interface.messages import (
     encode,
 )
 from abyss.linkemu.link import Link
-from abyss.stations.navigation import SETTLE_FIXES
 from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.stations.onboard.navigation import SETTLE_FIXES
 
 STEP_S = 0.05
 

@@ -6,8 +6,8 @@ import numpy as np
 
 from abyss.config.stations import OnboardConfig
 from abyss.interface.messages import Heartbeat, NavState
-from abyss.stations.navigation import NavFilter, PoseHistory
 from abyss.stations.onboard.failsafe import Failsafe
+from abyss.stations.onboard.navigation import NavFilter, PoseHistory
 
 
 def test_failsafe_enters_on_each_cause_counts_entries_and_resumes() -> None:

@@ -1,6 +1,7 @@
 """A hybrid run's twin (stations/simulation/twin.py): it puts the virtual vehicle and arm where
-the real vehicle's navigation and joints say, on the site registered to the vehicle's frame, and
-withholds its sensors while either is missing or stale."""
+onboard's navigation estimate and the real vehicle's joints say, on the site registered to the
+vehicle's frame, and withholds its sensors while either is missing or stale. Here onboard's
+estimate is the truth (a perfect estimate), so that the twin must stand exactly there."""
 
 from __future__ import annotations
 
@@ -49,14 +50,14 @@ def test_the_twin_stands_where_the_real_vehicle_is_with_its_arm_and_gripper(
 ) -> None:
     config, world = moved
     twin = Twin(config)
-    truth, joints = world.truth(), world.joints()  # a fused navigation: a fix with every sample
-    twin.take_nav(truth, 0.0)
+    truth, joints = world.truth(), world.joints()  # onboard's estimate, perfect
+    twin.take_estimate(truth, 0.0)
     twin.take_joints(joints, 0.0)
     base = world.model.joint(world.robot.base).qposadr[0]
     np.testing.assert_allclose(twin.data.qpos[base : base + 7], world.data.qpos[base : base + 7], atol=1e-9)
     names = world.robot.arm_joints + world.robot.gripper_joints
     np.testing.assert_allclose(robot_qpos(twin, names), robot_qpos(world, names), atol=1e-9)
-    assert twin.data.time == truth.sim_time_s  # the frames rendered there carry the navigation's time
+    assert twin.data.time == truth.sim_time_s  # the frames rendered there carry the estimate's time
     # the twin's model is the simulation's world, so its cameras see what the simulation's would
     assert twin.model.nq == world.model.nq and twin.model.ncam == world.model.ncam
 
@@ -82,7 +83,7 @@ def test_on_a_registered_site_the_twin_stands_where_the_vehicle_is_on_it(moved: 
         usbl_time_s=truth.sim_time_s,
         depth_m=truth.depth_m - origin[2],
     )
-    twin.take_nav(in_nav, 0.0)
+    twin.take_estimate(in_nav, 0.0)
     base = world.model.joint(world.robot.base).qposadr[0]
     np.testing.assert_allclose(twin.data.qpos[base : base + 7], world.data.qpos[base : base + 7], atol=1e-9)
 
@@ -93,13 +94,16 @@ def test_its_sensors_wait_for_navigation_and_joints_and_stop_when_either_goes_st
     config, world = moved
     twin = Twin(config)
     age = config.hybrid.nav_max_age_s
-    assert twin.why_not(0.0) == "no navigation from the real vehicle yet"
-    twin.take_nav(world.truth(), 10.0)
+    assert twin.why_not(0.0) == "no navigation estimate from onboard yet"
+    twin.take_estimate(world.truth(), 10.0)
     assert twin.why_not(10.0) == "no joints from the real vehicle yet"
     twin.take_joints(world.joints(), 10.2)
     assert twin.why_not(10.0 + age) == ""
-    assert twin.why_not(10.0 + age + 0.01) == "the navigation is older than hybrid.nav_max_age_s (0.5 s)"
-    twin.take_nav(world.truth(), 10.6)
+    assert (
+        twin.why_not(10.0 + age + 0.01)
+        == "onboard's navigation estimate is older than hybrid.nav_max_age_s (0.5 s)"
+    )
+    twin.take_estimate(world.truth(), 10.6)
     assert twin.why_not(10.2 + age + 0.01) == "the joints are older than hybrid.nav_max_age_s (0.5 s)"
 
 

@@ -11,7 +11,7 @@ import pytest
 from abyss.config.simulation import SimulationConfig
 from abyss.config.stations import OnboardConfig
 from abyss.interface.messages import NavState
-from abyss.stations.navigation import RESET_AFTER_REJECTED, SETTLE_FIXES, NavFilter
+from abyss.stations.onboard.navigation import RESET_AFTER_REJECTED, SETTLE_FIXES, NavFilter
 from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import World
 
@@ -208,7 +208,7 @@ def test_navigation_whose_time_goes_back_starts_afresh_with_a_warning(
     for step in range(100):
         nav_filter.update(at(step * 0.05))
     assert nav_filter.settled
-    with caplog.at_level("WARNING", logger="abyss.stations.navigation"):
+    with caplog.at_level("WARNING", logger="abyss.stations.onboard.navigation"):
         nav_filter.update(at(4.95 - 2.0))
     assert not nav_filter.settled  # afresh
     assert [r.getMessage().split(":")[0] for r in caplog.records] == ["navigation went back 2.00 s"]

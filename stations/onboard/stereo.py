@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from abyss.config.stations import OnboardConfig
 
 
-# onboard.stereo_mode (config.STEREO_MODES) -> OpenCV's
+# onboard.stereo_mode (config.stations.STEREO_MODES) -> OpenCV's
 SGBM_MODES = {
     "3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY,
     "sgbm": cv2.STEREO_SGBM_MODE_SGBM,

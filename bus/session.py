@@ -29,6 +29,7 @@ from abyss.timing.clock import WALL, Clock
 from abyss.timing.rate import Rate
 
 log = logging.getLogger(__name__)
+TAKEN = b"taken"  # the answer to a message handed over by query and taken (Bus.take_key)
 
 
 def zenoh_config(
@@ -263,6 +264,29 @@ class Bus:
         )
         return inbox
 
+    def take_key(self, key: str, message: type[M], maxlen: int = 64) -> Inbox[M]:
+        """Take the `message`s handed over by query on `key` (an operator's tool's commands): each
+        validated and counted as a subscription's are, answered TAKEN (or with why it is refused),
+        and put on `key` as taken, with the query's attachment (its sender), for whoever listens
+        there. A tool thus knows that its command was taken, and never sends it again: resending
+        it until it is answered is the taker's alone."""
+        checked_class(key, message)
+        inbox: Inbox[M] = Inbox(maxlen, self.clock)
+        self._inboxes.append((key, inbox))
+
+        def on_query(query: zenoh.Query) -> None:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            reason = self._take(str(query.key_expr), message, payload, inbox)
+            if reason:
+                query.reply_err(reason)
+                return
+            query.reply(query.key_expr, TAKEN)
+            attachment = query.attachment.to_bytes() if query.attachment is not None else None
+            self.session.put(query.key_expr, payload, attachment=attachment)
+
+        self._subscribers.append(self.session.declare_queryable(key, on_query))
+        return inbox
+
     def data_keys(self) -> set[str]:
         """The neighbours' keys this station subscribes to."""
         with self._lock:
@@ -284,20 +308,22 @@ class Bus:
                     self._arrived[key] += 1
                 self.on_arrival()
 
-    def _take(self, key: str, expected: type[M], payload: bytes, inbox: Inbox[M]) -> None:
+    def _take(self, key: str, expected: type[M], payload: bytes, inbox: Inbox[M]) -> str:
+        """Decode `payload` into `inbox`; why it was rejected ("" when it was taken)."""
         try:
             received = decode(key, payload, expected)
         except BadMessage as exc:
             self.reject(key, exc.reason)
             if self.tap is not None:
                 self.tap.add("rejected", key, payload, exc.reason)
-            return
+            return exc.reason
         if self.tap is not None:
             self.tap.add("received", key, payload, envelope=(received.seq, received.stamp_s))
         with self._lock:
             self.received[key] += 1
             self.latency_s[key].add(self.clock.stamp_s() - received.stamp_s)
         inbox.put(received)
+        return ""
 
     def reject(self, key: str, reason: str) -> None:
         """Count a malformed input, and log its reason the first time it is seen."""
@@ -363,7 +389,7 @@ class Bus:
             }
 
     def close(self) -> None:
-        """Undeclare the subscribers and publishers (the session is the caller's)."""
+        """Undeclare the subscribers, queryables and publishers (the session is the caller's)."""
         self.stop.set()
         for entity in [*self._subscribers, *self._publishers.values()]:
             entity.undeclare()

@@ -15,7 +15,7 @@ import zenoh
 
 from abyss.bus import description
 from abyss.bus.session import client_config, message_of, open_session
-from abyss.common.errors import BadInput, ConfigError
+from abyss.common.errors import BadInput, BusError, ConfigError
 from abyss.common.geometry import quat_wxyz_of, rotation_of_rpy
 from abyss.console.access import operator_name
 from abyss.description.models.panel import Panel, intent_of
@@ -31,7 +31,8 @@ from abyss.interface.messages import (
     new_id,
 )
 
-RESEND_PERIOD_S = 2.0  # the tool's own resend, in case the onshore station missed it
+HANDOVER_S = 5.0  # how long a tool waits for the onshore station to take its command
+HANDOVER_POLL_S = 0.1  # how often it asks again while no onshore station answers (none took it)
 
 
 def _numbers(field: str, text: str, count: int, names: str) -> list[float]:
@@ -63,17 +64,33 @@ Command = Waypoints | ArmGoal | OperatorMode | Intervention  # what `abyss op` s
 UNNAMED = "an operator's tool that gave no name"
 
 
-def put_command(
-    session: zenoh.Session, system: str, topic: str, command: Command, seq: int, by: str, teleop: bool = False
+def hand_command(
+    session: zenoh.Session, system: str, topic: str, command: Command, by: str, teleop: bool = False
 ) -> None:
     """Hand `command` to the onshore station on operator/`topic`, signed with who sent it (`by`)
-    and whether it is a teleop goal, so that every console on shore shows it and its sender."""
+    and whether it is a teleop goal, and wait until it takes it: shore then resends it down the
+    satellite until onboard answers (the one place that resends) and puts it on the key as taken,
+    so that every console on shore shows it and its sender. While no onshore station is there to
+    answer (one starting), it asks again: nothing was taken, so nothing is sent twice. BusError
+    where none answers within HANDOVER_S; BadInput with shore's reason where it refuses it."""
     signature = json.dumps({"by": by, "teleop": teleop}).encode()
-    session.put(keys.operator_key(system, topic), encode(command, seq, time.time()), attachment=signature)
+    key, payload = keys.operator_key(system, topic), encode(command, 0, time.time())
+    deadline = time.monotonic() + HANDOVER_S
+    while True:
+        for reply in session.get(key, payload=payload, attachment=signature, timeout=HANDOVER_S):
+            if reply.ok is not None:
+                return
+            if reply.err is not None:
+                raise BadInput(f"the onshore station refused it: {reply.err.payload.to_bytes().decode()}")
+        if time.monotonic() >= deadline:
+            raise BusError(
+                f"no onshore station of system {system!r} took the command within {HANDOVER_S:g} s"
+            )
+        time.sleep(HANDOVER_POLL_S)
 
 
 def sender_of(sample: zenoh.Sample) -> tuple[str, bool]:
-    """Who sent the command in `sample` and whether it is a teleop goal (put_command's signature)."""
+    """Who sent the command in `sample` and whether it is a teleop goal (hand_command's signature)."""
     try:
         signature = json.loads(sample.attachment.to_bytes()) if sample.attachment is not None else {}
         return str(signature.get("by") or UNNAMED), bool(signature.get("teleop", False))
@@ -123,7 +140,8 @@ def command_of(
 def send(
     session: zenoh.Session, system: str, command: Command, topic: str, timeout_s: float
 ) -> CommandAck | None:
-    """Hand `command` to the onshore station and wait for onboard's answer; None if none came."""
+    """Hand `command` to the onshore station and wait for onboard's answer; None if none came
+    within `timeout_s` (BusError where shore did not take it)."""
     answered = threading.Event()
     answer: list[CommandAck] = []
 
@@ -134,12 +152,11 @@ def send(
             answered.set()
 
     subscriber = session.declare_subscriber(keys.operator_key(system, "ack"), on_ack)
-    deadline, sent = time.monotonic() + timeout_s, 0
-    while not answered.is_set() and time.monotonic() < deadline:
-        put_command(session, system, topic, command, sent, operator_name("abyss op"))
-        sent += 1
-        answered.wait(min(RESEND_PERIOD_S, max(0.0, deadline - time.monotonic())))
-    subscriber.undeclare()
+    try:
+        hand_command(session, system, topic, command, operator_name("abyss op"))
+        answered.wait(timeout_s)
+    finally:
+        subscriber.undeclare()
     return answer[0] if answer else None
 
 

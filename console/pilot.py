@@ -2,8 +2,9 @@
 joins the system on shore's own network as an operator's tool (as `abyss op` does) and shows only
 what reached shore across the satellite: the vessel's relay of onboard's telemetry, its relayed
 camera frame and the parts it recognised, and shore's own mission status, each with its age.
-Its commands take `abyss op`'s path (the operator keys to the onshore station, which sends them
-down the satellite), resent until onboard's answer comes back, and each shows that answer. It
+Its commands take `abyss op`'s path (handed to the onshore station on the operator keys, which
+takes them and resends them down the satellite until onboard's answer comes back: the tools
+never resend), and each shows that answer. It
 keeps a list of alerts: the failsafe entered and left, a command refused, an intervention failed,
 the arm blocked, a waypoint missed, a station lost or restarted, the vessel's telemetry gone
 silent. Every command any operator's tool hands shore shows here with who sent it, so a second
@@ -23,10 +24,10 @@ import numpy as np
 import zenoh
 
 from abyss.bus.session import message_of
-from abyss.common.errors import BadInput
+from abyss.common.errors import BadInput, BusError
 from abyss.common.geometry import roll_pitch_of
 from abyss.console.access import operator_name
-from abyss.console.op import INTENTS, Command, command_of, put_command, sender_of, text_of
+from abyss.console.op import INTENTS, Command, command_of, hand_command, sender_of, text_of
 from abyss.console.teleop import Goals, Target
 from abyss.description.models.panel import Panel
 from abyss.interface import keys
@@ -38,6 +39,7 @@ from abyss.interface.messages import (
     MissionStatus,
     PerceptionStatus,
     RecognisedObjects,
+    ShoreEvent,
     SonarImage,
     Telemetry,
     new_id,
@@ -46,7 +48,6 @@ from abyss.interface.sonar_frames import decode_polar, fan
 
 # what the page shows of each hop's statistics (linkemu's keys): delays [ms], the queue, losses
 LINK_FIELDS = ("delay_p50_ms", "delay_p99_ms", "in_flight", "messages_lost", "losses", "queue_drops")
-RESEND_PERIOD_S = 2.0  # a command not answered yet is sent again, as `abyss op` does
 SILENT_S = 3.0  # the vessel's telemetry older than this: an alert (the satellite or the vessel lost)
 KEPT_ALERTS = 50
 MAX_STEP = 1.0  # a teleop step's largest [m or rad]: the page sends a few centimetres at a time
@@ -61,9 +62,8 @@ class Sent:
     kind: str
     text: str
     topic: str
-    sent_s: float  # wall [s], the first send (another tool's: when this console saw it)
-    last_sent_s: float
-    by: str = ""  # who sent it: "" this console, else the tool's signature (op.put_command)
+    sent_s: float  # wall [s], when shore took it (another tool's: when this console saw it)
+    by: str = ""  # who sent it: "" this console, else the tool's signature (op.hand_command)
     answer: CommandAck | None = None
     answered_s: float = 0.0  # wall [s], when onboard's answer reached this console
 
@@ -121,6 +121,7 @@ class Pilot:
             keys.spec("vessel", "sonar").key(self.system): (SonarImage, self._sonar),
             keys.linkstats_key(self.system, "*", "*"): (LinkStats, self._link),
             keys.operator_key(self.system, "ack"): (CommandAck, self._answer),
+            keys.shore_event_key(self.system): (ShoreEvent, lambda e: self._alert(f"{e.station} {e.event}")),
         }
 
         def on(cls: Any, handler: Any) -> Any:
@@ -211,7 +212,7 @@ class Pilot:
                 self.others_teleop[by] = self.others_teleop.get(by, 0) + 1
                 return
             now = time.time()
-            self.sent[command.command_id] = Sent(command, topic, text_of(command), topic, now, now, by)
+            self.sent[command.command_id] = Sent(command, topic, text_of(command), topic, now, by)
 
     def _answer(self, ack: CommandAck) -> None:
         with self.lock:
@@ -235,8 +236,13 @@ class Pilot:
         topic = "intervene" if kind in INTENTS else kind
         now = time.time()
         with self.lock:
-            self.sent[command.command_id] = Sent(command, kind, f"{text} {amount}".strip(), topic, now, now)
-        self._put(self.sent[command.command_id])
+            self.sent[command.command_id] = Sent(command, kind, f"{text} {amount}".strip(), topic, now)
+        try:  # shore takes it, and resends it until onboard answers
+            hand_command(self.session, self.system, topic, command, self.by)
+        except (BusError, BadInput):
+            with self.lock:
+                del self.sent[command.command_id]
+            raise
         return command.command_id
 
     def nudge(self, target: Target, translation_m: list[float], rotation_rad: list[float]) -> None:
@@ -251,30 +257,18 @@ class Pilot:
             command = self.goals.move(target, np.array(step[:3]), np.array(step[3:]))
             self.teleop_sent += 1
         topic = "waypoints" if target == "vehicle" else "arm"
-        put_command(self.session, self.system, topic, command, self.teleop_sent, self.by, teleop=True)
+        hand_command(self.session, self.system, topic, command, self.by, teleop=True)
 
-    def _put(self, sent: Sent) -> None:
-        put_command(self.session, self.system, sent.topic, sent.command, 0, self.by)
-
-    def resend(self) -> None:
-        """Commands not answered yet, sent again; the vessel's silence noticed."""
+    def watch(self) -> None:
+        """The vessel's silence noticed (the server calls it twice a second)."""
         now = time.time()
         with self.lock:
-            due = [
-                s
-                for s in self.sent.values()
-                if not s.by and s.answer is None and now - s.last_sent_s >= RESEND_PERIOD_S
-            ]
-            for s in due:
-                s.last_sent_s = now
             telemetry = self.latest.get("telemetry")
             if telemetry is not None and now - telemetry[0] > SILENT_S and not self._silent:
                 self._silent = True
                 self._alert(
                     f"no telemetry from the vessel for {now - telemetry[0]:.0f} s (satellite or vessel lost)"
                 )
-        for s in due:
-            self._put(s)
 
     def state(self) -> dict[str, Any]:
         """What the page shows, each with its age [s]."""
@@ -307,7 +301,8 @@ class Pilot:
 
 def alerts_of(before: Telemetry | None, now: Telemetry) -> list[str]:
     """What the telemetry says changed that the pilot must be told: the failsafe entered or
-    left, the arm blocked, a waypoint missed, an intervention failed, onboard restarted."""
+    left, the arm blocked, a waypoint missed, an intervention failed. A station's restart is shore's
+    to tell (ShoreEvent: shore alone tells one from the telemetry, and says what it did)."""
     failsafe, arm_mode, mode, intervention = ("", "", "", (-1, ""))
     if before is not None:
         failsafe, arm_mode, mode = before.failsafe, before.arm_mode, before.mode
@@ -321,8 +316,6 @@ def alerts_of(before: Telemetry | None, now: Telemetry) -> list[str]:
         said.append(f"waypoint {now.waypoint_index + 1} of {now.waypoints_total} missed: its time ran out")
     if now.intervention_phase == "failed" and (now.intervention_id, "failed") != intervention:
         said.append(f"the intervention on {now.intervention_target} failed: {now.intervention_reason}")
-    if before is not None and now.boot_id != before.boot_id:
-        said.append("onboard restarted: shore hands it the goals in force again")
     return said
 
 

@@ -154,14 +154,14 @@ class Console:
         self.stop = threading.Event()
         self.threads = [
             threading.Thread(target=self.server.serve_forever, name="console http", daemon=True),
-            threading.Thread(target=self._resend, name="console resend", daemon=True),
+            threading.Thread(target=self._watch, name="console watch", daemon=True),
         ]
         for thread in self.threads:
             thread.start()
 
-    def _resend(self) -> None:
+    def _watch(self) -> None:
         while not self.stop.wait(0.5):
-            self.pilot.resend()
+            self.pilot.watch()
 
     def _undeclare(self) -> None:
         for subscriber in self.subscribers:

@@ -34,10 +34,10 @@ import zenoh
 
 from abyss.bus import description
 from abyss.bus.session import client_config, message_of, open_session
-from abyss.common.errors import BusError
+from abyss.common.errors import BadInput, BusError
 from abyss.common.geometry import quat_wxyz_of, rotation_of, rotation_of_rpy, wrap_rad
 from abyss.console.access import operator_name
-from abyss.console.op import put_command
+from abyss.console.op import Command, hand_command
 from abyss.description.models.panel import Panel, intent_of
 from abyss.interface import keys
 from abyss.interface.messages import ArmGoal, CommandAck, Intervention, Telemetry, Waypoints, new_id
@@ -181,10 +181,8 @@ class Teleop:
         with self.lock:
             command = self.goals.move(self.target, translation_m, rotation_rad)
         topic = "waypoints" if isinstance(command, Waypoints) else "arm"
-        put_command(
-            self.session, self.system, topic, command, self.sent, operator_name("abyss teleop"), teleop=True
-        )
-        self.sent += 1
+        if not self._hand(topic, command, teleop=True):
+            return
         if isinstance(command, Waypoints):
             x, y, z, yaw = command.waypoints[0]
             self.say(f"vehicle goal {x:.2f} {y:.2f} {z:.2f} m, yaw {math.degrees(yaw):.0f} deg")
@@ -197,9 +195,18 @@ class Teleop:
         asked = f"{part} {'to ' + amount if command.to else 'turn ' + amount + ' deg'}"
         with self.lock:
             self.intents[command.command_id] = asked
-        put_command(self.session, self.system, "intervene", command, self.sent, self.by)
+        if self._hand("intervene", command):
+            self.say(f"intent {asked} sent")
+
+    def _hand(self, topic: str, command: Command, teleop: bool = False) -> bool:
+        """Hand `command` to shore (which resends it until onboard answers); whether it took it."""
+        try:
+            hand_command(self.session, self.system, topic, command, self.by, teleop)
+        except (BusError, BadInput) as exc:
+            self.say(f"not sent: {exc}")
+            return False
         self.sent += 1
-        self.say(f"intent {asked} sent")
+        return True
 
     def close(self) -> None:
         self.acks.undeclare()

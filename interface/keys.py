@@ -212,9 +212,11 @@ def lockstep_key(system: str, station: str) -> str:
 
 def operator_key(system: str, topic: str) -> str:
     """Commands of an operator's tool (`abyss teleop`, `abyss op`, a console) to the onshore
-    station, each signed with its sender in the sample's attachment (console.op.put_command), on
-    shore's own network; the onshore station sends them down the satellite as op/<topic>, and
-    hands onboard's acknowledgements back on operator/ack."""
+    station, handed over by query and each signed with its sender in the query's attachment
+    (console.op.hand_command), on shore's own network; the onshore station answers that it took
+    one (bus.session.Bus.take_key), puts it on this key as taken for every console, sends it down
+    the satellite as op/<topic> until onboard answers, and hands onboard's acknowledgements back on
+    operator/ack."""
     return key(system, "onshore", "operator", topic)
 
 
@@ -229,6 +231,12 @@ def onboard_state_key(system: str) -> str:
     """The onboard controllers' state at the source, past no emulated link: for scoring (the
     scenario runner times the failsafe by it) only, as the truth is."""
     return key(system, "onboard", "state")
+
+
+def shore_event_key(system: str) -> str:
+    """What shore saw of the stations and did about it (ShoreEvent: a restart), as it happens, for
+    the operator's tools on shore's own network."""
+    return key(system, "onshore", "event")
 
 
 def mission_key(system: str) -> str:
@@ -304,7 +312,8 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
         "abyss/<system>/onshore/operator/<waypoints|arm|mode|intervene>",
         "Waypoints, ArmGoal, OperatorMode, Intervention",
         "event",
-        "operator tools to the onshore station, which sends them down (signed with the sender)",
+        "operator tools hand them to the onshore station by query (signed with the sender); shore "
+        "answers, puts each out as taken, and sends it down until onboard answers",
     ),
     (
         "abyss/<system>/onshore/operator/ack",
@@ -314,6 +323,12 @@ CONTROL_KEYS: tuple[tuple[str, str, str, str], ...] = (
     ),
     ("abyss/<system>/onboard/state", "Telemetry", "10 Hz", "onboard's state at the source, for scoring only"),
     ("abyss/<system>/onshore/mission", "MissionStatus", "1 Hz", "mission state seen on shore"),
+    (
+        "abyss/<system>/onshore/event",
+        "ShoreEvent",
+        "event",
+        "a station's restart as shore saw it and what shore did, for the operator's tools",
+    ),
     ("abyss/<system>/replay", "ReplayStart", "1 Hz", "when replayed stations begin (`abyss replay`)"),
 )
 

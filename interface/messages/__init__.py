@@ -31,6 +31,7 @@ from abyss.interface.messages.operation import (
     InterventionGoal,
     MissionStatus,
     OperatorMode,
+    ShoreEvent,
     Telemetry,
     Waypoints,
 )
@@ -118,6 +119,7 @@ __all__ = [
     "SceneAck",
     "SceneRequest",
     "SceneUpdate",
+    "ShoreEvent",
     "SimTime",
     "SimulationControl",
     "SimulationStatus",

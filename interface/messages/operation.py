@@ -187,6 +187,18 @@ class MissionStatus(Message):
     intervention_reason: str = ""  # why it failed, or why a grasp is tried again
 
 
+@dataclass(frozen=True)
+class ShoreEvent(Message):
+    """Something shore saw of a station and what it did about it (onboard restarted: the goals in
+    force handed again; the vessel restarted: its new scene stream kept on shore's map; shore
+    restarted: the mission in progress rejoined), put on shore's own network as it happens, for
+    the operator's tools: shore is the one place that tells a restart from the telemetry."""
+
+    station: str = scalar()
+    event: str = scalar()
+    sim_time_s: float = scalar(0.0)  # the telemetry's latest when shore saw it [s, simulated]
+
+
 # what the operator's tools (`abyss op`, `abyss teleop`, a console) hand the onshore station on
 # operator/<topic>, which sends it down as op/<topic>
 TOOL_COMMANDS: tuple[tuple[str, type[Message]], ...] = (

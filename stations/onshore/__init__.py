@@ -30,6 +30,7 @@ from abyss.interface.messages import (
     Received,
     RecognisedObjects,
     SceneUpdate,
+    ShoreEvent,
     SonarImage,
     Telemetry,
     Waypoints,
@@ -61,11 +62,15 @@ def run(config: Config, bus: Bus) -> None:
     rate = bus.loop("display", PERIOD_S)
     saved: tuple[str, str] = ("", "")
     saved_s = -float("inf")
+    told = len(operator.events)  # what an earlier life of this station saw was told then
     while rate.sleep():
         now_s = bus.clock.now_s()
         if scene.step(now_s):
             operator.event("vessel", "restarted: a new scene stream, kept on the map shore holds")
         _operate(bus, operator, inboxes, viewer, now_s)
+        for event in operator.events[told:]:  # to the operator's tools, as it happens
+            bus.observe(keys.shore_event_key(bus.system), ShoreEvent(**event))  # type: ignore[arg-type]
+        told = len(operator.events)
         if record_dir and now_s - saved_s >= SAVE_PERIOD_S:
             saved, saved_s = _save(record_dir, operator, saved), now_s
     if record_dir:
@@ -85,8 +90,8 @@ class _Inboxes:
         self.images = bus.subscribe("vessel", "image", Image, maxlen=2)
         self.sonar = bus.subscribe("vessel", "sonar", SonarImage, maxlen=2)
         self.link_stats = bus.subscribe_key(keys.linkstats_key(bus.system, "*", "*"), LinkStats)
-        self.tools: dict[str, Inbox[Message]] = {  # op/<topic> <- operator/<topic>
-            f"op/{topic}": bus.subscribe_key(keys.operator_key(bus.system, topic), message)
+        self.tools: dict[str, Inbox[Message]] = {  # op/<topic> <- operator/<topic>, taken by query
+            f"op/{topic}": bus.take_key(keys.operator_key(bus.system, topic), message)
             for topic, message in TOOL_COMMANDS
         }
 

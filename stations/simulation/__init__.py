@@ -101,6 +101,9 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     sim = config.simulation
     vehicle = bus.subscribe("onboard", "cmd/vehicle_velocity", VelocityRef, maxlen=4)
     arm = bus.subscribe("onboard", "cmd/arm_velocity", ArmVelocityRef, maxlen=4)
+    # onboard's estimate, which a twin renders at (twin.py): the whole simulation has the truth, and
+    # takes it (validated, counted, recorded as every key's receiver does) only to let it go
+    bus.subscribe("onboard", "nav/estimate", NavState, maxlen=1)
     control_key = keys.simulation_control_key(bus.system)
     controls = bus.subscribe_key(control_key, SimulationControl)
     keeper = Timekeeper(config, bus, world.data.time)

@@ -16,6 +16,7 @@ import signal
 import ssl
 import subprocess
 import sys
+import time
 import types
 import urllib.error
 import urllib.request
@@ -27,18 +28,19 @@ import pytest
 import zenoh
 
 from abyss.bus import description
-from abyss.bus.session import message_of, open_session, zenoh_config
+from abyss.bus.session import Bus, message_of, open_session, zenoh_config
 from abyss.cli.system import _with_console
-from abyss.common.errors import ConfigError
+from abyss.common.errors import BusError, ConfigError
 from abyss.common.ports import free_port
 from abyss.config import Config
 from abyss.console.access import HEADER, Access, token_of
+from abyss.console.op import hand_command, sender_of
 from abyss.console.pilot import alerts_of
 from abyss.console.server import Console
 from abyss.description.robot import robot_at
 from abyss.description.site import site_at
 from abyss.interface import keys
-from abyss.interface.messages import OperatorMode, Telemetry, Waypoints, encode
+from abyss.interface.messages import TOOL_COMMANDS, OperatorMode, ShoreEvent, Telemetry, Waypoints, encode
 from abyss.interface.system_description import description_payload
 from abyss.security import certs
 from abyss.security.certs import CertFiles
@@ -51,13 +53,53 @@ WAIT_S = 10.0
 
 @pytest.fixture
 def shore() -> Iterator[tuple[zenoh.Session, zenoh.Session]]:
-    """Two sessions on one shore network, as `abyss up`'s router and a tool beside it."""
+    """Two sessions on one shore network, as `abyss up`'s router and a tool beside it; on the
+    router, the onshore station's side of the operator keys, taking the tools' commands."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_session(zenoh_config([endpoint], mode="router"), "the test's shore")
     tool = open_session(zenoh_config([], [endpoint], mode="peer"), "the test's tool")
+    onshore = taker(router)
     try:
         yield router, tool
     finally:
+        onshore.close()
+        tool.close()
+        router.close()
+
+
+def taker(session: zenoh.Session) -> Bus:
+    """The onshore station's bus as it takes the operator tools' commands (stations/onshore)."""
+    bus = Bus(SYSTEM, "onshore", session)
+    for topic, message in TOOL_COMMANDS:
+        bus.take_key(keys.operator_key(SYSTEM, topic), message)
+    return bus
+
+
+def test_a_command_is_handed_to_shore_once_and_put_out_as_taken() -> None:
+    """The tool hands its command over once and learns that shore took it (shore alone resends
+    it, down the satellite); every listener on the key sees it as taken, with its sender; a
+    malformed one is refused with the reason and counted, and with no onshore station it is said so."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session(zenoh_config([endpoint], mode="router"), "the test's shore")
+    tool = open_session(zenoh_config([], [endpoint], mode="peer"), "the test's tool")
+    onshore = taker(router)
+    key = keys.operator_key(SYSTEM, "mode")
+    seen: queue.Queue[tuple[str, bool]] = queue.Queue()
+    subscriber = tool.declare_subscriber(key, lambda sample: seen.put(sender_of(sample)))
+    inbox = next(inbox for k, inbox in onshore._inboxes if k == key)
+    try:
+        hand_command(tool, SYSTEM, "mode", OperatorMode(7, "hold"), "the test's tool")
+        assert seen.get(timeout=WAIT_S) == ("the test's tool", False)
+        time.sleep(1.0)  # nothing comes again
+        assert [r.message.command_id for r in inbox.drain()] == [7] and seen.empty()
+        (reply,) = tool.get(key, payload=b"not a command", timeout=WAIT_S)
+        assert reply.ok is None and reply.err.payload.to_bytes() and onshore.rejected[key] == 1
+        assert seen.empty() and not inbox.drain()  # refused: nothing taken, nothing put out
+        with pytest.raises(BusError, match="no onshore station of system 'elsewhere' took the command"):
+            hand_command(tool, "elsewhere", "mode", OperatorMode(8, "hold"), "the test's tool")
+    finally:
+        subscriber.undeclare()
+        onshore.close()
         tool.close()
         router.close()
 
@@ -132,7 +174,7 @@ def test_with_the_operators_certificate_the_console_is_https_that_only_the_syste
     router, tool = shore
     certs.make(tmp_path)  # the operator's certificate names 127.0.0.1
     operator = CertFiles(tmp_path, certs.OPERATOR)
-    arrived: queue.Queue[OperatorMode] = queue.Queue()
+    arrived: queue.Queue[OperatorMode] = queue.Queue()  # shore took it, and puts it out as taken
     subscriber = tool.declare_subscriber(
         keys.operator_key(SYSTEM, "mode"),
         lambda sample: arrived.put(mode) if (mode := message_of(sample, OperatorMode)) else None,
@@ -230,9 +272,7 @@ def test_what_the_telemetry_says_changed_becomes_the_pilots_alerts() -> None:
                        intervention_reason="the grasp slipped")  # fmt: skip
     assert alerts_of(calm, failed) == ["the intervention on lever_1 failed: the grasp slipped"]
     assert alerts_of(failed, failed) == []
-    assert alerts_of(calm, telemetry(boot_id=5)) == [
-        "onboard restarted: shore hands it the goals in force again"
-    ]
+    assert alerts_of(calm, telemetry(boot_id=5)) == []  # a restart is shore's to tell (ShoreEvent)
 
 
 def test_a_command_from_a_tool_that_gave_no_name_is_shown_as_such(
@@ -275,6 +315,25 @@ def test_a_station_lost_and_back_is_an_alert(shore: tuple[zenoh.Session, zenoh.S
         token = tool.liveliness().declare_token(keys.alive_key(SYSTEM, "vessel"))
         until(lambda: alerts() == ["station vessel lost", "station vessel back (restarted)"])
         token.undeclare()
+    finally:
+        console.close()
+
+
+def test_what_shore_saw_of_a_restart_is_the_pilots_alert(shore: tuple[zenoh.Session, zenoh.Session]) -> None:
+    """Shore tells a station's restart from the telemetry and says what it did (ShoreEvent, as the
+    onshore station puts it): the console shows shore's word, and tells no restart of its own."""
+    router, tool = shore
+    console = Console(router, SYSTEM, 0, PANEL)
+    try:
+        event = ShoreEvent("onboard", "restarted: goals handed again from waypoint 2", 31.5)
+        tool.put(keys.shore_event_key(SYSTEM), encode(event, 0, 0.0))
+        for _ in range(int(WAIT_S / 0.05)):
+            if console.pilot.state()["alerts"]:
+                break
+            console.stop.wait(0.05)
+        assert [a["text"] for a in console.pilot.state()["alerts"]] == [
+            "onboard restarted: goals handed again from waypoint 2"
+        ]
     finally:
         console.close()
 

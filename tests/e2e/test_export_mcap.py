@@ -54,6 +54,7 @@ EXPECTED: dict[str, dict[str, str]] = {
     "simulation/status": {CLOCK: "rosgraph_msgs/msg/Clock", "": DIAGNOSTICS},
     "onboard/cmd/vehicle_velocity": {"": "geometry_msgs/msg/TwistStamped"},
     "onboard/cmd/arm_velocity": {"": "std_msgs/msg/Float64MultiArray"},
+    "onboard/nav/estimate": {"": "nav_msgs/msg/Odometry"},
     "onboard/telemetry": TELEMETRY,
     "onboard/state": TELEMETRY,
     "onboard/cloud": {"": "sensor_msgs/msg/PointCloud2"},

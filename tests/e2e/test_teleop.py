@@ -18,13 +18,14 @@ import zenoh
 from conftest import ROOT
 
 from abyss.bus import description
-from abyss.bus.session import open_session, zenoh_config
+from abyss.bus.session import Bus, open_session, zenoh_config
 from abyss.common.ports import free_port
 from abyss.console.teleop import JS_AXIS, JS_EVENT
 from abyss.description.robot import robot_at
 from abyss.description.site import site_at
 from abyss.interface import keys
 from abyss.interface.messages import (
+    TOOL_COMMANDS,
     ArmGoal,
     CommandAck,
     Intervention,
@@ -43,8 +44,9 @@ EE_POSITION = np.array([4.86, 0.0, -8.35])
 
 
 class Vessel:
-    """Publishes telemetry as the vessel does, and serves the running system's description as a
-    station's shell does (the shipped pair's); records what the operator's tools send."""
+    """Publishes telemetry as the vessel does, serves the running system's description as a
+    station's shell does (the shipped pair's), takes the operator's commands as the onshore
+    station does; records what the operator's tools send."""
 
     def __init__(self) -> None:
         self.port = free_port()
@@ -55,6 +57,9 @@ class Vessel:
         self.subscriber = self.session.declare_subscriber(keys.operator_key(SYSTEM, "*"), self._on_command)
         payload = description_payload(SYSTEM, robot_at(""), site_at(""))
         self.description = description.serve(self.session, SYSTEM, "vessel", payload)
+        self.onshore = Bus(SYSTEM, "onshore", self.session)  # takes the commands, puts them out as taken
+        for topic, message in TOOL_COMMANDS:
+            self.onshore.take_key(keys.operator_key(SYSTEM, topic), message)
         self.thread = threading.Thread(target=self._telemetry, daemon=True)
         self.thread.start()
 
@@ -104,6 +109,7 @@ class Vessel:
         self.stop.set()
         self.thread.join()
         self.subscriber.undeclare()
+        self.onshore.close()
         self.description.undeclare()
         self.session.close()
 

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 
 from abyss.bus.session import open_session, zenoh_config
+from abyss.common.errors import BusError
 from abyss.common.ports import free_port
+from abyss.console.op import hand_command
 from abyss.interface import keys
 from abyss.interface.messages import LinkControl, Waypoints, encode
 from abyss.stations.onshore.core import JOIN_WAIT_S
@@ -59,6 +61,7 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
             cwd=tmp_path,
         )
     flooding = threading.Event()
+    flooder = threading.Thread(target=lambda: flood(), daemon=True)
     try:
         up = session.liveliness().declare_subscriber(keys.alive_key(system, "onshore"), history=True)
         assert up.recv() is not None  # blocks until the station's token is seen
@@ -72,11 +75,13 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
             command_id = 1
             while not flooding.is_set():
                 message = Waypoints(command_id, waypoints)
-                session.put(keys.operator_key(system, "waypoints"), encode(message, command_id, time.time()))
+                try:  # shore takes each
+                    hand_command(session, system, "waypoints", message, "the test's flood")
+                except BusError:  # the station stopped: nothing takes it any more
+                    return
                 command_id += 1
                 flooding.wait(SHORE_PERIOD_S / 2)
 
-        flooder = threading.Thread(target=flood, daemon=True)
         flooder.start()
         # shore sends nothing before it has heard onboard or JOIN_WAIT_S passed; then the queue
         # fills in about half a second; let shore block on it for a while
@@ -89,6 +94,8 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
         flooding.set()
         if station.poll() is None:
             station.kill()
+        if flooder.is_alive():  # its last handover done (or refused: the station gone) first
+            flooder.join()
         session.close()
     log_text = log_path.read_text()
     assert station.returncode == 0, log_text

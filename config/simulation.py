@@ -147,7 +147,7 @@ class SimulationConfig:
         positive("simulation.arm_kp", self.arm_kp)
         positive("simulation.gripper_kp", self.gripper_kp)
         for name in ("vehicle_kp", "vehicle_ki", "vehicle_kd"):
-            if len(getattr(self, name)) not in ((0, 4) if name != "vehicle_kd" else (4,)):
+            if name != "vehicle_kd" and len(getattr(self, name)) not in (0, 4):
                 raise ConfigError(
                     f"simulation.{name}", "four numbers: surge, sway, heave, yaw (or none: the robot's)"
                 )

@@ -133,8 +133,7 @@ class Robot:
 
     @property
     def nav_sensor_names(self) -> tuple[str, ...]:
-        s = self.spec.nav_sensors
-        return (s.usbl, s.depth, s.dvl, s.imu)
+        return self.spec.nav_sensors.names
 
     @property
     def sonar_site(self) -> str:

@@ -104,6 +104,10 @@ class NavSensorsSection:
     dvl: str = "dvl"
     imu: str = "imu"
 
+    @property
+    def names(self) -> tuple[str, ...]:
+        return (self.usbl, self.depth, self.dvl, self.imu)
+
 
 @dataclass(frozen=True)
 class SonarSection:

@@ -44,10 +44,7 @@ KIND_WORDS = {  # how the docs and the help name one target of each kind, and it
 def model_names(robot: RobotFile, panel: Panel) -> ModelNames:
     """The names of the parts of the robot `robot.toml` describes (description.robot_file) and of
     the panel's (its site's: description.site)."""
-    s = robot.nav_sensors
-    return ModelNames(
-        robot.thrusters.names, robot.cameras.names, (s.usbl, s.depth, s.dvl, s.imu), panel.part_names
-    )
+    return ModelNames(robot.thrusters.names, robot.cameras.names, robot.nav_sensors.names, panel.part_names)
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,20 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
             cwd=tmp_path,
         )
     flooding = threading.Event()
-    flooder = threading.Thread(target=lambda: flood(), daemon=True)
+    waypoints = np.tile([0.0, 0.0, -10.0, 0.0], (1000, 1))
+
+    def flood() -> None:
+        command_id = 1
+        while not flooding.is_set():
+            message = Waypoints(command_id, waypoints)
+            try:  # shore takes each
+                hand_command(session, system, "waypoints", message, "the test's flood")
+            except BusError:  # the station stopped: nothing takes it any more
+                return
+            command_id += 1
+            flooding.wait(SHORE_PERIOD_S / 2)
+
+    flooder = threading.Thread(target=flood, daemon=True)
     try:
         up = session.liveliness().declare_subscriber(keys.alive_key(system, "onshore"), history=True)
         assert up.recv() is not None  # blocks until the station's token is seen
@@ -69,19 +82,6 @@ def test_a_station_blocked_on_a_saturated_link_stops_within_its_bound(tmp_path: 
             keys.link_key(system, "satellite"),
             encode(LinkControl("", {"rate": f"{RATE_BPS // 1000}kbit"}), 0, time.time()),
         )
-        waypoints = np.tile([0.0, 0.0, -10.0, 0.0], (1000, 1))
-
-        def flood() -> None:
-            command_id = 1
-            while not flooding.is_set():
-                message = Waypoints(command_id, waypoints)
-                try:  # shore takes each
-                    hand_command(session, system, "waypoints", message, "the test's flood")
-                except BusError:  # the station stopped: nothing takes it any more
-                    return
-                command_id += 1
-                flooding.wait(SHORE_PERIOD_S / 2)
-
         flooder.start()
         # shore sends nothing before it has heard onboard or JOIN_WAIT_S passed; then the queue
         # fills in about half a second; let shore block on it for a while

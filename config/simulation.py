@@ -19,7 +19,7 @@ Water = Literal["none", "I", "IA", "IB", "II", "III", "1C", "3C", "5C", "7C", "9
 WATER_TYPES: tuple[Water, ...] = typing.get_args(Water)
 Hydrodynamics = Literal["fossen", "ellipsoid"]
 HYDRODYNAMICS: tuple[Hydrodynamics, ...] = typing.get_args(Hydrodynamics)
-ArmHydrodynamics = Literal["strips", "ellipsoid"]
+ArmHydrodynamics = Literal["strips", "ellipsoid", "none"]
 ARM_HYDRODYNAMICS: tuple[ArmHydrodynamics, ...] = typing.get_args(ArmHydrodynamics)
 CameraSamples = Literal[0, 2, 4, 8]
 CAMERA_SAMPLES: tuple[CameraSamples, ...] = typing.get_args(CameraSamples)
@@ -55,7 +55,8 @@ class SimulationConfig:
     # (MuJoCo's fluid model of its hull's geoms); the robot package also describes its thrusters
     hydrodynamics: Hydrodynamics = "fossen"
     # the arm's (and gripper's) marine model: "strips" (strip theory per link, the testbed's own:
-    # stations/simulation/strips.py) or "ellipsoid" (MuJoCo's fluid model of their geoms, slower)
+    # stations/simulation/strips.py), "ellipsoid" (MuJoCo's fluid model of their geoms, slower) or
+    # "none" (their buoyancy alone, no drag: what `abyss robot check` measures the vehicle's model by)
     arm_hydrodynamics: ArmHydrodynamics = "strips"
     # the robot package (a directory with robot.toml and its model: description/robot.py) every station
     # learns the robot's names, frames and limits from; "" is the shipped work-class ROV

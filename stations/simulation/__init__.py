@@ -67,7 +67,7 @@ def run(config: Config, bus: Bus) -> None:
     from abyss.stations.simulation.world import World
 
     world = World(sim, np.random.default_rng(config.seed))
-    bus.about["physics"] = world.physics
+    bus.about["physics"] = world.runs_in
     if sim.state_file and world.resume(Path(sim.state_file)):
         log.info("resumed at t=%.2f s from %s (a restart)", world.data.time, sim.state_file)
     lock = threading.Lock()

@@ -9,7 +9,6 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from abyss.common.errors import ConfigError
 from abyss.common.runfiles import write_whole
 from abyss.config.simulation import SimulationConfig
 from abyss.description.gains import robot_gains
@@ -23,11 +22,11 @@ from abyss.interface.messages import (
     PanelState,
     VelocityRef,
 )
-from abyss.stations.simulation.hydrodynamics import Fossen
 from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
-from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy, Current, wet_geoms
-from abyss.stations.simulation.native import LowLevel, Marine
+from abyss.stations.simulation.marine import Current
+from abyss.stations.simulation.native import LowLevel
 from abyss.stations.simulation.nav_sensors import DvlBeams, Navigation
+from abyss.stations.simulation.physics import MarinePhysics
 from abyss.stations.simulation.strips import ArmStrips
 
 STATE = mujoco.mjtState.mjSTATE_INTEGRATION  # what a restarted simulation resumes from
@@ -58,22 +57,6 @@ def _gains(config: SimulationConfig, robot: Robot) -> PidGains:
     )
 
 
-def _arm_strips(model: mujoco.MjModel, buoyancy: Buoyancy, base: str) -> ArmStrips:
-    """The strip model of the arm (every wet body but the vehicle, `base`), in place of MuJoCo's
-    fluid model of its geoms; ConfigError where a wet geom has a shape it has no member for."""
-    wet = wet_geoms(model)
-    vehicle = model.body(base).id
-    arm = sorted({int(b) for b in model.geom_bodyid[wet]} - {vehicle})
-    try:
-        strips = ArmStrips(model, arm, buoyancy, wet)
-    except ValueError as exc:  # a wet geom of a shape it has no member for
-        raise ConfigError("simulation.arm_hydrodynamics", f"strips: {exc} ('ellipsoid' takes any)") from exc
-    # kept off MuJoCo's fluid model; their fluid shape stays on, so that they do not fall back
-    # to its inertia-box drag where the hull keeps MuJoCo's model
-    model.geom_fluid[np.isin(model.geom_bodyid, arm) & wet, 1:] = 0.0
-    return strips
-
-
 class World:
     def __init__(self, config: SimulationConfig, rng: np.random.Generator) -> None:
         self.config = config
@@ -86,8 +69,14 @@ class World:
         self.gains = _gains(config, robot)
         self.controller = LOW_LEVELS[config.low_level](self.model, self.gains, self.vehicle, robot)
         self.plant = self.controller.plant
-        self._marine_models(config)
-        self.marine: Marine | None = None
+        self.physics = MarinePhysics(
+            self.model,
+            self.data,
+            robot,
+            config.hydrodynamics,
+            config.arm_hydrodynamics,
+            in_c=self.controller.dynamics,
+        )
         self.native_low_level: LowLevel | None = None
         self._bind_native()
         self.current = Current(
@@ -107,31 +96,6 @@ class World:
             robot.nav_sensors.dvl,
         )
 
-    def _marine_models(self, config: SimulationConfig) -> None:
-        """The hull's model (Fossen's or MuJoCo's), the buoyancy, the arm's (the strips or MuJoCo's),
-        and MuJoCo's fluid model on where one of them is its."""
-        rho = WATER_DENSITY_KGPM3
-        self.hydrodynamics: Fossen | None = None
-        if config.hydrodynamics == "fossen":  # the marine model replaces the hull's ellipsoids
-            self.hydrodynamics = Fossen(self.model, self.vehicle, self.robot.base, rho_kgpm3=rho)
-        self.buoyancy = Buoyancy(
-            self.model, dry=() if self.hydrodynamics is None else (self.robot.base,), rho_kgpm3=rho
-        )
-        self.strips: ArmStrips | None = None
-        if config.arm_hydrodynamics == "strips":  # the strip model replaces the arm's ellipsoids
-            self.strips = _arm_strips(self.model, self.buoyancy, self.robot.base)
-        # the strip model applies the arm's buoyancy with its drag, in one pass
-        self._buoyancy_apart = self.strips is None or not set(self.buoyancy.bodies) <= set(self.strips.bodies)
-        # MuJoCo's fluid model, where it still carries a part: its passive forces and their
-        # derivatives cost more than the rest of a physics step, so it is off entirely otherwise
-        # (the panel's valves and levers, with no fluid shape, lose its inertia-box drag then: 0.005
-        # and 0.02 N m at 2 rad/s, against their friction of 1.5 and 3 N m)
-        self._mujoco_fluid = self.hydrodynamics is None or self.strips is None
-        if self._mujoco_fluid:
-            self.model.opt.density = rho
-        else:
-            self.model.opt.density = self.model.opt.viscosity = 0.0
-
     def _index_parts(self) -> None:
         """Where the panel's parts, the fingers and the dofs that move of themselves sit in the model."""
         self.parts = self.site.panel.part_names
@@ -146,21 +110,18 @@ class World:
         self._passive_dofs = np.setdiff1d(np.arange(self.model.nv), robot_dofs)
 
     def _bind_native(self) -> None:
-        """The physics in C where it is built (native.py): the per-step marine terms (alike bit for
-        bit), and the dynamic low level where the strip model carries the whole arm (alike to
-        rounding); each None where it runs in Python."""
-        self.marine = (
-            Marine.of(self.data, self.hydrodynamics, self.strips) if self.controller.dynamics else None
-        )
+        """The dynamic low level in C (native.py) where the strip model carries the whole arm (alike
+        to rounding), with the per-step terms in C; None where it runs in Python."""
+        physics = self.physics
         self.native_low_level = (
-            LowLevel.of(self.controller, self.strips)
-            if self.marine is not None and not self._buoyancy_apart and not self._mujoco_fluid
+            LowLevel.of(self.controller, physics.strips)
+            if physics.marine is not None and not physics.buoyancy_apart and not physics.mujoco_fluid
             else None
         )
 
     def use_strips(self, strips: ArmStrips) -> None:
         """Another strip model of the arm (other coefficients: tests, benches), C's with it."""
-        self.strips = strips
+        self.physics.use_strips(strips)
         self._bind_native()
 
     def step(self, refs: References, period_s: float) -> None:
@@ -178,27 +139,9 @@ class World:
             mujoco.mj_forward(m, d)
             return
         steps = round(period_s / dt)
-        if self.marine is not None:  # the marine terms in C: a low-level period's steps in one call
-            for start in range(0, steps, every):
-                self._low_level(refs, dt * every)
-                self.marine.step(m, self.water_mps_world, min(every, steps - start))
-            return
-        fossen, strips = self.hydrodynamics, self.strips
-        step1, factor, step2 = mujoco.mj_step1, mujoco.mj_factorM, mujoco.mj_step2
-        for i in range(steps):
-            if i % every == 0:  # the low level runs at its own rate; its outputs hold between
-                self._low_level(refs, dt * every)
-            if fossen is None and strips is None:  # MuJoCo's fluid model alone: no Python per step
-                mujoco.mj_step(m, d)
-                continue
-            # the added masses go into MuJoCo's inertia between its two halves of a step
-            step1(m, d)
-            if fossen is not None:
-                fossen.apply(m, d, self.water_mps_world, factor=False)
-            if strips is not None:
-                strips.add_mass(d)
-            factor(m, d)
-            step2(m, d)
+        for start in range(0, steps, every):  # the low level runs at its own rate; its outputs hold between
+            self._low_level(refs, dt * every)
+            self.physics.step(self.water_mps_world, min(every, steps - start))
 
     def _low_level(self, refs: References, period_s: float) -> None:
         """The controllers, the current, and the marine forces held until the next update."""
@@ -209,21 +152,16 @@ class World:
             self.native_low_level.apply(d, refs, self.water_mps_world, period_s)
             return
         self.controller.apply(d, refs, period_s)
-        if self._mujoco_fluid:
-            self.model.opt.wind[:] = self.water_mps_world  # for MuJoCo's drag
-        if self._buoyancy_apart:
-            self.buoyancy.apply(d)
-        if self.strips is not None:  # after the buoyancy: it sets its links' whole xfrc_applied
-            self.strips.apply(d, self.water_mps_world)
+        self.physics.forces(self.water_mps_world)
 
     @property
-    def physics(self) -> str:
+    def runs_in(self) -> str:
         """Where the physics runs, for summary.json: "c" (the per-step terms and the low level),
         "c-steps" (the per-step terms alone), "python", "kinematic" (no forces); runs replay alike
         only on the same."""
         if not self.controller.dynamics:
             return "kinematic"
-        if self.marine is None:
+        if self.physics.marine is None:
             return "python"
         return "c" if self.native_low_level is not None else "c-steps"
 

@@ -74,7 +74,7 @@ import shutil
 import numpy as np
 from abyss.config.simulation import SimulationConfig
 from abyss.stations.simulation.world import World
-print(World(SimulationConfig(), np.random.default_rng(0)).physics, shutil.which("cc"))
+print(World(SimulationConfig(), np.random.default_rng(0)).runs_in, shutil.which("cc"))
 """
 
 

@@ -1,15 +1,15 @@
-"""The physics `abyss robot check` holds a robot package to (validation/robot/check.py): its own model,
-with the simulation's marine terms as the World applies them under `hydrodynamics = "fossen"`,
-but with no site (the World needs one), and what the numbers of robot.toml predict of it.
+"""The physics `abyss robot check` holds a robot package to (validation/robot/check.py): the
+simulation's own physics step (stations/simulation/physics.py, which the World flies on its site)
+flown on the robot alone, and what the numbers of robot.toml predict of it.
 
 `Bench` is the package's model alone (description.robot.robot_spec, compiled; the physics step
-0.002 s) with Fossen's model on the vehicle (hydrodynamics.Fossen, its buoyancy at
-the centre of buoyancy), the arm's buoyancy (marine.Buoyancy: every other wet body) and the
-thrusters' rotors (thrusters.Thrusters: the lag, the dead band, the quadratic curve). The arm is
-held stowed and rigid (stiff springs on its joints at `stowed_rad`, the gripper closed) and MuJoCo's
-fluid model is off: the arm carries no drag, so that what is measured is the vehicle's model alone,
-the one the analytic figures are worked from; the stowed arm still adds its mass, inertia and
-buoyancy, as it does in the water.
+0.002 s) in the simulation's `MarinePhysics` with `hydrodynamics = "fossen"` (Fossen's model on the
+vehicle, its buoyancy at the centre of buoyancy) and `arm_hydrodynamics = "none"` (the arm's
+buoyancy, no drag), driven open loop through the thrusters' rotors (thrusters.Thrusters: the lag,
+the dead band, the quadratic curve) at the low level's rate. The arm is held stowed and rigid (stiff
+springs on its joints at `stowed_rad`, the gripper closed) and carries no drag, so that what is
+measured is the vehicle's model alone, the one the analytic figures are worked from; the stowed arm
+still adds its mass, inertia and buoyancy, as it does in the water.
 
 `hydrostatics` is what the package floats like, stowed, in the rest pose: weight against
 buoyancy, the centres, the righting coefficient W BG_z and the roll and pitch periods it gives with
@@ -29,8 +29,7 @@ import numpy as np
 
 from abyss.description.robot import HEAVE, Robot, robot_spec
 from abyss.stations.simulation.attitude import AttitudeHold
-from abyss.stations.simulation.hydrodynamics import Fossen
-from abyss.stations.simulation.marine import WATER_DENSITY_KGPM3, Buoyancy
+from abyss.stations.simulation.physics import MarinePhysics
 from abyss.stations.simulation.thrusters import Thrusters
 
 PHYSICS_STEP_S = 0.002
@@ -116,12 +115,13 @@ class Bench:
         self.model = model = robot_spec(robot).compile()
         model.opt.timestep = PHYSICS_STEP_S
         self.vehicle = robot.marine
-        self.fossen = Fossen(model, self.vehicle, robot.base, rho_kgpm3=WATER_DENSITY_KGPM3)
-        self.buoyancy = Buoyancy(model, dry=(robot.base,), rho_kgpm3=WATER_DENSITY_KGPM3)
-        model.opt.density = model.opt.viscosity = 0.0  # the arm carries no drag (see the module's text)
+        self.data = mujoco.MjData(model)
+        # the arm carries no drag (see the module's text)
+        self.physics = MarinePhysics(model, self.data, robot, "fossen", "none")
+        assert self.physics.fossen is not None
+        self.fossen = self.physics.fossen
         self.thrusters = Thrusters(model, self.vehicle.thrusters, robot.allocation)
         self.hold = AttitudeHold(self.thrusters, attitude_kp, attitude_kd)
-        self.data = mujoco.MjData(model)
         self.body = model.body(robot.base).id
         joint = model.joint(robot.base)
         self.qpos, self.dof = int(joint.qposadr[0]), int(joint.dofadr[0])
@@ -151,21 +151,18 @@ class Bench:
         """Hold the thrusts `thrust_n` [N] (commanded through the rotors) for `duration_s` [s], or,
         with `settle` (a row of nu), until that velocity and the roll and pitch are steady (at most
         RUN_MAX_S). `attitude`: with the attitude hold, where it holds an axis (see `commanded`)."""
-        m, d = self.model, self.data
+        d = self.data
         water = np.zeros(3)
-        every = round(SAMPLE_S / PHYSICS_STEP_S)
+        every = round(SAMPLE_S / PHYSICS_STEP_S)  # a multiple of LOW_LEVEL_STEPS
         window = round(SETTLE_WINDOW_S / SAMPLE_S)
         rows: list[list[float]] = [self._sample()]
         steps = round((RUN_MAX_S if settle is not None else duration_s) / PHYSICS_STEP_S)
-        for k in range(steps):
-            if k % LOW_LEVEL_STEPS == 0:
-                thrust = self.commanded(thrust_n) if attitude else thrust_n
-                self.thrusters.apply(d, thrust, LOW_LEVEL_STEPS * PHYSICS_STEP_S)
-            self.buoyancy.apply(d)
-            mujoco.mj_step1(m, d)
-            self.fossen.apply(m, d, water)
-            mujoco.mj_step2(m, d)
-            if (k + 1) % every:
+        for k in range(0, steps, LOW_LEVEL_STEPS):  # the thrusters and the held forces, then the steps
+            thrust = self.commanded(thrust_n) if attitude else thrust_n
+            self.thrusters.apply(d, thrust, LOW_LEVEL_STEPS * PHYSICS_STEP_S)
+            self.physics.forces(water)
+            self.physics.step(water, min(LOW_LEVEL_STEPS, steps - k))
+            if (k + LOW_LEVEL_STEPS) % every:
                 continue
             rows.append(self._sample())
             if settle is not None and d.time >= SETTLE_MIN_S and len(rows) > window:
@@ -210,7 +207,7 @@ def hydrostatics(bench: Bench) -> Hydrostatics:
     mass = float(m.body_subtreemass[bench.body])
     gravity = rotation.T @ (d.subtree_com[bench.body] - origin)
     hull = bench.fossen.buoyancy_n
-    arm = bench.buoyancy
+    arm = bench.physics.buoyancy
     arm_forces = np.array([arm.force_n(i) for i in range(len(arm.bodies))])
     arm_centres = d.xpos[arm.bodies] + np.einsum(
         "bij,bj->bi", d.xmat[arm.bodies].reshape(-1, 3, 3), arm.centre_m_body

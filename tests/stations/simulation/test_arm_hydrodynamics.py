@@ -54,12 +54,12 @@ def world(
     w = World(SimulationConfig(arm_hydrodynamics=arm, **fields), np.random.default_rng(0))  # type: ignore[arg-type]
     for name, angle_rad in zip(ROBOT.arm_joints, pose, strict=True):
         w.data.qpos[w.model.joint(name).qposadr[0]] = angle_rad
-    if w.strips is not None and (coefficients is not None or not inertia):
+    if w.physics.strips is not None and (coefficients is not None or not inertia):
         w.use_strips(
             ArmStrips(
                 w.model,
-                list(w.strips.bodies),
-                w.buoyancy,
+                list(w.physics.strips.bodies),
+                w.physics.buoyancy,
                 wet_geoms(w.model),
                 coefficients or Coefficients(),
                 inertia,
@@ -189,7 +189,7 @@ def test_the_added_mass_is_in_the_joint_inertia() -> None:
     arm as (M + M_A)^-1 tau (the joints' damping and servos off, so that the implicit integrator has
     no velocity term to fold in)."""
     w = world("strips", OPEN)
-    m, d, strips = w.model, w.data, w.strips
+    m, d, strips = w.model, w.data, w.physics.strips
     assert strips is not None
     strips.apply(d, np.zeros(3))
     expected = np.zeros((len(strips.dofs), len(strips.dofs)))

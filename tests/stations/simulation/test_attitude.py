@@ -58,7 +58,7 @@ def test_the_vertical_thrusters_hold_roll_and_pitch_level_where_the_gains_ask() 
     held = tilted(attitude_kp=(12.5, 12.5), attitude_kd=(3.5, 3.5))
     free = tilted()
     assert held.controller.attitude.held == (ROLL, PITCH) and free.controller.attitude.held == ()
-    assert held.physics == "c"  # the attitude hold in C with the rest of the low level
+    assert held.runs_in == "c"  # the attitude hold in C with the rest of the low level
     np.testing.assert_allclose(roll_pitch_rad(held), TILT_RAD, atol=1e-9)
     held_rad, free_rad = tilts_rad(held, 6.0), tilts_rad(free, 6.0)
     late = slice(round(3.0 / PERIOD_S), None)  # from 3 s on

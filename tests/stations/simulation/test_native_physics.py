@@ -8,6 +8,7 @@ robots: the work-class's six-joint arm, and the BlueROV2's four-joint arm with i
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 import sys
@@ -44,11 +45,11 @@ def arm_of(refs: References, config: SimulationConfig) -> References:
     return References(refs.vehicle_body, refs.arm_radps[:joints], refs.gripper_mps)
 
 
-def flown(in_c: bool) -> World:
-    world = World(CONFIG, np.random.default_rng(3))
+def flown(in_c: bool, config: SimulationConfig = CONFIG) -> World:
+    world = World(config, np.random.default_rng(3))
     world.native_low_level = None  # the low level in Python in both: these are the per-step terms
     if not in_c:
-        world.marine = None  # the Python path
+        world.physics.marine = None  # the Python path
     for _ in range(30):
         world.step(MOVING, 0.05)  # whole low-level periods (5 steps each)
     world.step(MOVING, 0.012)  # one and a fifth
@@ -58,11 +59,14 @@ def flown(in_c: bool) -> World:
 def test_setup_built_the_library_and_worlds_step_with_it() -> None:
     assert native.library() is not None, f"{native.LIBRARY} missing: run setup.sh"
     world = World(CONFIG, np.random.default_rng(0))
-    assert world.marine is not None and world.native_low_level is not None
+    assert world.physics.marine is not None and world.native_low_level is not None
 
 
-def test_the_marine_terms_in_c_step_bit_for_bit_as_python_does() -> None:
-    in_c, in_python = flown(True), flown(False)
+@pytest.mark.parametrize("arm", ["strips", "none"])  # none: the robot check's bench's physics
+def test_the_marine_terms_in_c_step_bit_for_bit_as_python_does(arm: str) -> None:
+    config = dataclasses.replace(CONFIG, arm_hydrodynamics=arm)
+    in_c, in_python = flown(True, config), flown(False, config)
+    assert (in_c.physics.strips is None) == (arm == "none") and in_c.model.opt.density == 0.0
     assert in_c.data.time == pytest.approx(1.512)
     moved = np.linalg.norm(in_c.data.qpos[:3] - np.asarray(CONFIG.start_position_m_world))
     assert moved > 0.1  # it flew, in a current
@@ -72,7 +76,7 @@ def test_the_marine_terms_in_c_step_bit_for_bit_as_python_does() -> None:
 
 def test_the_callback_leaves_other_data_and_other_steps_alone() -> None:
     world = World(CONFIG, np.random.default_rng(0))
-    assert world.marine is not None
+    assert world.physics.marine is not None
     other = mujoco.MjData(world.model)  # the same model, not registered
     mujoco.mj_step(world.model, other, nstep=10)
     assert not other.qfrc_applied.any()
@@ -90,7 +94,7 @@ def outputs(world: World) -> dict[str, np.ndarray]:
     controller = world.controller
     return {
         **{field: getattr(world.data, field).copy() for field in LOW_LEVEL_OUTPUTS},
-        "inertia": world.strips.values.copy(),  # type: ignore[union-attr]
+        "inertia": world.physics.strips.values.copy(),  # type: ignore[union-attr]
         "vehicle_integral": controller.vehicle_integral.copy(),  # type: ignore[attr-defined]
         "vehicle_error": controller.vehicle_error.copy(),  # type: ignore[attr-defined]
         "arm_integral": controller.arm_integral.copy(),  # type: ignore[attr-defined]
@@ -134,7 +138,7 @@ def test_the_low_level_in_c_gives_the_pythons_outputs_period_by_period(refs: Ref
         world.native_low_level = None
         world._low_level(refs, 0.01)
         assert_alike(in_c, outputs(world), rtol=1e-12)
-        world.marine.step(world.model, world.water_mps_world, 5)  # type: ignore[union-attr]
+        world.physics.marine.step(world.model, world.water_mps_world, 5)  # type: ignore[union-attr]
     assert world.controller.thrusters.efficiency.min() == 0.5  # type: ignore[attr-defined]
 
 
@@ -142,7 +146,7 @@ def restore(world: World, state: dict[str, np.ndarray]) -> None:
     controller = world.controller
     for field in LOW_LEVEL_OUTPUTS:
         getattr(world.data, field)[:] = state[field]
-    world.strips.values[:] = state["inertia"]  # type: ignore[union-attr]
+    world.physics.strips.values[:] = state["inertia"]  # type: ignore[union-attr]
     controller.vehicle_integral[:] = state["vehicle_integral"]  # type: ignore[attr-defined]
     controller.vehicle_error[:] = state["vehicle_error"]  # type: ignore[attr-defined]
     controller.arm_integral[:] = state["arm_integral"]  # type: ignore[attr-defined]

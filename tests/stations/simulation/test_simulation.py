@@ -39,10 +39,12 @@ def test_buoyancy_balances_weight_of_the_vehicle_and_arm() -> None:
     vehicle = w.model.body("vehicle").id
     subtree = [b for b in range(w.model.nbody) if w.model.body_rootid[b] == vehicle]
     weight_n = sum(w.model.body_mass[b] for b in subtree) * 9.81
-    buoyancy_n = sum(w.buoyancy.force_n(i) for i, b in enumerate(w.buoyancy.bodies) if b in subtree)
-    assert w.hydrodynamics is not None  # the hull's buoyancy is the marine model's, the arm's per link
-    assert vehicle not in w.buoyancy.bodies
-    buoyancy_n += w.hydrodynamics.buoyancy_n
+    buoyancy_n = sum(
+        w.physics.buoyancy.force_n(i) for i, b in enumerate(w.physics.buoyancy.bodies) if b in subtree
+    )
+    assert w.physics.fossen is not None  # the hull's buoyancy is the marine model's, the arm's per link
+    assert vehicle not in w.physics.buoyancy.bodies
+    buoyancy_n += w.physics.fossen.buoyancy_n
     assert buoyancy_n == pytest.approx(weight_n, rel=1e-3)
 
 

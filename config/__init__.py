@@ -17,6 +17,7 @@ from typing import Any
 from abyss.common.errors import BadInput, ConfigError
 from abyss.common.reading import read_table
 from abyss.config.hybrid import ROS2_VEHICLE, HybridConfig
+from abyss.config.mavlink import MavlinkConfig
 from abyss.config.simulation import SimulationConfig
 from abyss.config.stations import OnboardConfig, OnshoreConfig, VesselConfig
 from abyss.config.system import (
@@ -48,9 +49,16 @@ class Config:
     cpu: CpuConfig = field(default_factory=CpuConfig)
     time: TimeConfig = field(default_factory=TimeConfig)
     hybrid: HybridConfig = field(default_factory=HybridConfig)
+    mavlink: MavlinkConfig = field(default_factory=MavlinkConfig)
 
     def __post_init__(self) -> None:
         keys.check_system_id(self.system)
+        if self.mavlink.enabled and self.time.mode != "real":
+            raise ConfigError(
+                "mavlink.enabled",
+                f"time.mode {self.time.mode}: a ground station keeps the wall clock's time (its heartbeats, "
+                "the failsafes' timeouts); use --time real with it",
+            )
 
         panel = site_at(self.simulation.site).panel
         for i, (part, amount) in enumerate(self.mission.interventions):

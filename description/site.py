@@ -43,11 +43,33 @@ class SiteModelSection:
 
 
 @dataclass(frozen=True)
+class SiteDatum:
+    """Where the site's world frame sits on the Earth, for what speaks in geodetic coordinates (a
+    MAVLink ground station: GLOBAL_POSITION_INT, mission items): its origin (WGS-84 latitude and
+    longitude [deg], the height of the sea's surface above mean sea level [m]) and the bearing of
+    its x axis from true north, clockwise [deg] (90: x east, y north)."""
+
+    latitude_deg: float = 0.0
+    longitude_deg: float = 0.0
+    surface_amsl_m: float = 0.0
+    x_bearing_deg: float = 90.0
+
+    def __post_init__(self) -> None:
+        if not -89.0 <= self.latitude_deg <= 89.0:
+            raise ConfigError("datum.latitude_deg", f"{self.latitude_deg}: -89 to 89 (flat near the origin)")
+        if not -180.0 <= self.longitude_deg <= 180.0:
+            raise ConfigError("datum.longitude_deg", f"{self.longitude_deg}: -180 to 180")
+        if not 0.0 <= self.x_bearing_deg < 360.0:
+            raise ConfigError("datum.x_bearing_deg", f"{self.x_bearing_deg}: 0 to 360")
+
+
+@dataclass(frozen=True)
 class SiteFile:
     name: str
     source: str
     model: SiteModelSection
     panel: Panel
+    datum: SiteDatum = field(default_factory=SiteDatum)
     config: dict[str, Any] = field(default_factory=dict)  # a partial configuration, under the user's
 
 

@@ -23,6 +23,7 @@ from abyss.interface.messages import (
     Intervention,
     InterventionGoal,
     JointState,
+    MavlinkFrames,
     Message,
     NavState,
     OperatorMode,
@@ -98,6 +99,8 @@ class KeySpec:
     reliability: Reliability  # reliable: congestion control BLOCK; best-effort: DROP
     to: str  # the neighbour that subscribes
     priority: Priority  # control: commands, navigation, heartbeats; telemetry; bulk: images, clouds, scene
+    # the configuration's section that turns it on ("mavlink": only with mavlink.enabled); "" always
+    feature: str = ""
 
     @property
     def message(self) -> str:
@@ -150,6 +153,12 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("onshore", "heartbeat", Heartbeat, 1.0, "best-effort", "vessel", "control"),
     KeySpec("onshore", "scene_request", SceneRequest, 0.0, "reliable", "vessel", "control"),
     KeySpec("onshore", "scene_ack", SceneAck, 0.0, "reliable", "vessel", "control"),
+    # MAVLink (the mavlink/ room), as BlueOS's mavlink-server names its Zenoh keys: the vehicle's
+    # frames out to its ground stations, theirs in; the vessel relays the satellite's side
+    KeySpec("onboard", "mavlink/out", MavlinkFrames, 10.0, "best-effort", "vessel", "telemetry", "mavlink"),
+    KeySpec("vessel", "mavlink/in", MavlinkFrames, 0.0, "reliable", "onboard", "control", "mavlink"),
+    KeySpec("vessel", "mavlink/out", MavlinkFrames, 0.2, "best-effort", "onshore", "telemetry", "mavlink"),
+    KeySpec("onshore", "mavlink/in", MavlinkFrames, 0.0, "reliable", "vessel", "control", "mavlink"),
 )
 
 
@@ -352,6 +361,8 @@ def keys_table(providers: dict[str, str] | None = None) -> str:
             if providers and s.station == "simulation"
             else s.station
         )
+        if s.feature:
+            rate += f", with {s.feature}.enabled"
         rows.append(
             f"| `abyss/<system>/{s.station}/{s.topic}` | {s.message} | {rate} | {s.reliability} "
             f"| {s.priority} | {s.hop} ({s.station} -> {s.to}) |" + (f" {by} |" if providers else "")

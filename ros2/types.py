@@ -189,6 +189,7 @@ BY_KEY: dict[str, tuple[RosTopic, ...]] = {  # keys that differ from their messa
 NOT_EXPORTED: dict[str, str] = {  # message -> why
     "SceneRequest": "the scene stream's flow control",
     "SceneAck": "the scene stream's flow control",
+    "MavlinkFrames": "MAVLink's own frames, for MAVLink's own tools (MAVROS speaks them where wanted)",
 }
 # the testbed's observation keys exported (`<station>/<topic>`, `*`: any one level) and their messages
 OBSERVED: dict[str, str] = {

@@ -15,6 +15,7 @@ from abyss.interface.messages.codec import (
     unwrap,
     wire_bytes,
 )
+from abyss.interface.messages.ground import GROUND_LINKS, MAVLINK_FRAMES_MAX_BYTES, MavlinkFrames
 from abyss.interface.messages.ids import new_id, repeatable_ids
 from abyss.interface.messages.operation import (
     COMMANDS,
@@ -78,11 +79,13 @@ __all__ = [
     "CLOUD_SOURCES",
     "COMMANDS",
     "FAULTS",
+    "GROUND_LINKS",
     "IDLE_PHASES",
     "IMAGE_ENCODINGS",
     "INTERVENTION_PHASES",
     "LEVER_STOPS",
     "LOCKSTEP_PHASES",
+    "MAVLINK_FRAMES_MAX_BYTES",
     "MESSAGES",
     "MODES",
     "OPERATOR_MODES",
@@ -106,6 +109,7 @@ __all__ = [
     "LinkControl",
     "LinkStats",
     "LockstepReport",
+    "MavlinkFrames",
     "Message",
     "MissionStatus",
     "NavState",

@@ -38,9 +38,10 @@ class Telemetry(Message):
     estimates it (w, x, y, z), its velocity as the navigation last gave it [m/s, body] (the
     DVL's: meaningless without bottom lock), and the effort onboard commanded this step: the
     velocity sent (surge, sway, heave [m/s], yaw rate [rad/s]) over its limit (`max_speed_mps`,
-    `max_yaw_rate_radps`), in [-1, 1]; zeros while onboard sends a stop."""
+    `max_yaw_rate_radps`), in [-1, 1]; zeros while onboard sends a stop. `piloted`: the waypoints
+    flown are a pilot's goal (a MAVLink ground station's sticks or guided target), not a mission."""
 
-    VERSION: ClassVar[int] = 4  # 2: boot_id; 3: the intervention; 4: attitude, velocity, effort
+    VERSION: ClassVar[int] = 5  # 2: boot_id; 3: the intervention; 4: attitude, velocity, effort; 5: piloted
 
     position_m_world: np.ndarray = array("f8", (3,), -1e5, 1e5)
     yaw_rad: float = scalar(-math.pi - 1e-6, math.pi + 1e-6)
@@ -74,6 +75,7 @@ class Telemetry(Message):
     velocity_mps_body: np.ndarray = array("f8", (3,), -100.0, 100.0, default=(0.0, 0.0, 0.0))
     # the velocity command over its limit: surge, sway, heave, yaw rate
     effort_body: np.ndarray = array("f8", (4,), -1.0, 1.0, default=(0.0, 0.0, 0.0, 0.0))
+    piloted: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -95,6 +95,7 @@ class Onboard:
         self.intervention: InterventionRun | None = None  # the latest, once taken
         self.homing: Homing | None = None  # whole body: the way back onto the mark after an intervention
         self.waiting: dict[tuple[str, int], Command] = {}  # arm goals judged once navigation settles
+        self.pilot_goals: set[int] = set()  # waypoint commands that are a pilot's goal (mavlink.vehicle)
 
     def _arm_busy(self) -> str:
         run = self.intervention
@@ -308,4 +309,5 @@ class Onboard:
             orientation_wxyz_world=self.orientation_wxyz_world,
             velocity_mps_body=self.velocity_mps_body,
             effort_body=effort,
+            piloted=self.vehicle.command_id in self.pilot_goals,
         )

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from abyss.bus.session import Bus, Inbox
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
+from abyss.common.workers import Workers
 from abyss.config import Config, robot_of
 from abyss.interface import keys
 from abyss.interface.messages import (
@@ -35,6 +36,7 @@ from abyss.interface.messages import (
     Telemetry,
     Waypoints,
 )
+from abyss.mavlink.endpoint import Endpoint, serve
 from abyss.scene.export import save_snapshot
 from abyss.scene.receiver import ShoreScene
 from abyss.stations.onshore.core import Operator, OperatorInputs, PerceptionSeen
@@ -51,10 +53,20 @@ def loops(config: Config) -> tuple[str, ...]:
 
 
 def run(config: Config, bus: Bus) -> None:
-    """The I/O shell of `core.Operator`, the scene (`Scene`) and the viewer."""
+    """The I/O shell of `core.Operator`, the scene (`Scene`) and the viewer; with a ground station's
+    endpoint (mavlink.enabled) in a thread of its own."""
+    endpoint = Endpoint(config, "onshore") if config.mavlink.enabled else None  # its port taken at start
+    with Workers(bus.stop) as workers:
+        if endpoint is not None:
+            workers.start("mavlink", serve, config, bus, endpoint)
+        _display(config, bus)
+
+
+def _display(config: Config, bus: Bus) -> None:
     record_dir = Path(config.onshore.record_dir) if config.onshore.record_dir else None
     earlier = [read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER]
-    operator = Operator(config.mission, *earlier)  # a restarted shore goes on with what it had
+    # a restarted shore goes on with what it had; with a ground station, its mission is the one judged
+    operator = Operator(config.mission, *earlier, ground_station=config.mavlink.enabled)
     sinks = Sinks(config.onshore, bus.system)
     viewer = Viewer(sinks.recording, robot_of(config)) if sinks.recording is not None else None
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)

@@ -103,21 +103,28 @@ class Operator:
         mission: MissionConfig,
         history: list[dict[str, object]] | None = None,
         events: list[dict[str, object]] | None = None,
+        ground_station: bool = False,
     ) -> None:
-        """`history` and `events`: what an earlier run of this station left (a restart)."""
+        """`history` and `events`: what an earlier run of this station left (a restart).
+        `ground_station`: the mission is a MAVLink ground station's (mavlink.enabled): shore sends
+        none of its own (a tool's commands still go) and judges the one onboard flies."""
         self.mission = mission
-        self.mode = Command("op/mode", OperatorMode(new_id(), "auto"))
+        self.ground_station = ground_station
+        self.mode: Command[OperatorMode] = Command("op/mode")
         self.mission_waypoints_m = np.array(mission.waypoints)  # [m, world]
-        self.waypoints = Command("op/waypoints", Waypoints(new_id(), self.mission_waypoints_m))
+        self.waypoints: Command[Waypoints] = Command("op/waypoints")
         # onboard judges an arm goal or an intervention where the vehicle will hold: the waypoints first
         self.arm: Command[ArmGoal] = Command("op/arm", after=self.waypoints)
-        goal = mission.arm_goal()
-        if goal is not None:
-            self.arm.replace(ArmGoal(new_id(), *goal))
         self.intervene: Command[Intervention] = Command("op/intervene", after=self.waypoints)
         self.intervention_index = 0  # of the mission's interventions, the one in hand
-        if mission.interventions:
-            self.intervene.replace(mission_intervention(mission, 0))
+        goal = mission.arm_goal()
+        if not ground_station:
+            self.mode.replace(OperatorMode(new_id(), "auto"))
+            self.waypoints.replace(Waypoints(new_id(), self.mission_waypoints_m))
+            if goal is not None:
+                self.arm.replace(ArmGoal(new_id(), *goal))
+            if mission.interventions:
+                self.intervene.replace(mission_intervention(mission, 0))
         self.commands: dict[str, Command[Any]] = {
             c.topic: c for c in (self.mode, self.waypoints, self.arm, self.intervene)
         }
@@ -142,7 +149,7 @@ class Operator:
     def _join(self, t: Telemetry, now_s: float) -> None:
         """Onboard's first telemetry: start the mission, or take the one it flies (shore restarted)."""
         self.joined = True
-        if t.command_id < 0:
+        if t.command_id < 0 or self.ground_station:
             return
         sent = self.waypoints.message  # the mission's, or a tool's that came before onboard's state
         mission = sent.waypoints if sent is not None else self.mission_waypoints_m
@@ -193,6 +200,9 @@ class Operator:
         elif self.onboard is not None and t.boot_id != self.onboard.boot_id:
             self._rehand(self.onboard, t)
         self.onboard = t
+        if self.ground_station:
+            self.status = flown_status(t, self.mission.done_position_tolerance_m)
+            return
         self._take_onboards(t, now_s)
         self._next_intervention(t)
         self.status = mission_status(
@@ -304,7 +314,7 @@ class Operator:
         return MissionStatus(
             mode="idle",
             waypoint_index=0,
-            waypoints_total=len(self.mission.waypoints),
+            waypoints_total=0 if self.ground_station else len(self.mission.waypoints),
             position_error_m=0.0,
             heading_error_rad=0.0,
             arm_mode="idle",
@@ -312,7 +322,7 @@ class Operator:
             ee_orientation_error_rad=0.0,
             failsafe="",
             failsafe_events=0,
-            interventions_total=len(self.mission.interventions),
+            interventions_total=0 if self.ground_station else len(self.mission.interventions),
         )
 
 
@@ -362,6 +372,31 @@ def mission_status(
         intervention_target=current.target if isinstance(current, Intervention) else "",
         intervention_phase=phase,
         intervention_reason=t.intervention_reason if on_it else "",
+    )
+
+
+def flown_status(t: Telemetry, hold_m: float) -> MissionStatus:
+    """A ground station's mission as telemetry shows it: the waypoints onboard flies, done once the
+    vehicle holds the last (within `hold_m` of it), unless they are a pilot's goal (`piloted`)."""
+    mission = t.command_id >= 0 and not t.piloted and t.waypoints_total > 0
+    done = (
+        mission
+        and t.mode == "reached"
+        and t.waypoint_index >= t.waypoints_total
+        and t.position_error_m <= hold_m
+    )
+    return MissionStatus(
+        mode=t.mode,
+        waypoint_index=t.waypoint_index if mission else 0,
+        waypoints_total=t.waypoints_total if mission else 0,
+        position_error_m=t.position_error_m,
+        heading_error_rad=abs(t.heading_error_rad),
+        arm_mode=t.arm_mode,
+        ee_position_error_m=float(np.linalg.norm(t.ee_position_error_m_world)),
+        ee_orientation_error_rad=t.ee_orientation_error_rad,
+        failsafe=t.failsafe,
+        failsafe_events=t.failsafe_events,
+        done=done,
     )
 
 

@@ -31,6 +31,7 @@ from abyss.interface.messages import (
     SonarImage,
     Telemetry,
 )
+from abyss.mavlink.endpoint import Endpoint, serve
 from abyss.scene.model import SceneModel
 from abyss.scene.stream import SceneStream, StreamOutputs
 from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs
@@ -73,8 +74,11 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
         cfg, site_of(config).panel, model, bus.clock.now_s(), maps=mapper is None, hybrid=config.hybrid
     )
     gateway = mapper(lambda update: model.adopt(update.octree)) if mapper is not None else None
+    endpoint = Endpoint(config, "vessel") if config.mavlink.enabled else None  # its port taken at start
     try:
         with Workers(bus.stop) as workers:
+            if endpoint is not None:  # a ground station on the tether's side, and the satellite's relayed
+                workers.start("mavlink", serve, config, bus, endpoint)
             workers.start("scene", _scene_loop, config, bus, intake, images)
             workers.start("scene send", _send_loop, config, bus, model, images, intake)
             if gateway is not None:

@@ -14,8 +14,12 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import pytest
+import zenoh
 from hosts import Hosts, usable
 
+from abyss.bus.session import open_session, zenoh_config
+from abyss.interface import keys
+from abyss.interface.messages import NavState, decode
 from abyss.launch.state import RunState, wait_for_state
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -187,3 +191,28 @@ def abyss(*args: str, timeout_s: float = 60.0, cwd: Path = ROOT) -> subprocess.C
         cwd=cwd,
         timeout=timeout_s,
     )
+
+
+class Truth:
+    """The vehicle's true state, as a scorer sees it on the truth key."""
+
+    def __init__(self, endpoint: str, system: str) -> None:
+        self.states: list[NavState] = []
+        self._lock = threading.Lock()
+        self.session = open_session(zenoh_config(connect=[endpoint], mode="client"), "test scorer")
+        self.subscriber = self.session.declare_subscriber(keys.truth_key(system), self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
+        assert isinstance(message, NavState)
+        with self._lock:
+            self.states.append(message)
+
+    def since(self, seconds: float) -> list[NavState]:
+        with self._lock:
+            latest = self.states[-1].sim_time_s
+            return [s for s in self.states if s.sim_time_s >= latest - seconds]
+
+    def close(self) -> None:
+        self.subscriber.undeclare()
+        self.session.close()

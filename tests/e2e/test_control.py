@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import os
 import signal
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,43 +13,15 @@ from typing import Any
 
 import numpy as np
 import pytest
-import zenoh
-from conftest import ARM_MISSION, Up, abyss
+from conftest import ARM_MISSION, Truth, Up, abyss
 
-from abyss.bus.session import open_session, zenoh_config
 from abyss.common.geometry import wrap_rad, yaw_of
 from abyss.config.system import MissionConfig
-from abyss.interface import keys
-from abyss.interface.messages import NavState, decode
+from abyss.interface.messages import NavState
 from abyss.validation.plot import FIGURES
 
 pytestmark = pytest.mark.timeout(240)
 LAST_WAYPOINT = MissionConfig().waypoints[-1]
-
-
-class Truth:
-    """The vehicle's true state, as a scorer sees it on the truth key."""
-
-    def __init__(self, endpoint: str, system: str) -> None:
-        self.states: list[NavState] = []
-        self._lock = threading.Lock()
-        self.session = open_session(zenoh_config(connect=[endpoint], mode="client"), "test scorer")
-        self.subscriber = self.session.declare_subscriber(keys.truth_key(system), self._on_sample)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        message = decode(str(sample.key_expr), sample.payload.to_bytes()).message
-        assert isinstance(message, NavState)
-        with self._lock:
-            self.states.append(message)
-
-    def since(self, seconds: float) -> list[NavState]:
-        with self._lock:
-            latest = self.states[-1].sim_time_s
-            return [s for s in self.states if s.sim_time_s >= latest - seconds]
-
-    def close(self) -> None:
-        self.subscriber.undeclare()
-        self.session.close()
 
 
 FLIGHTS = {  # low level: (tolerance [m], tolerance [deg], the tether's profile)

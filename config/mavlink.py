@@ -1,0 +1,45 @@
+"""The vehicle as a MAVLink system (the mavlink/ room): onboard speaks MAVLink 2 as ArduSub does,
+and the vessel and the onshore station each serve a UDP endpoint where a ground station connects:
+at the vessel it sees the tether, on shore the satellite."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from abyss.common.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class MavlinkConfig:
+    # on: onboard answers as a MAVLink vehicle, the vessel and shore serve their endpoints, and the
+    # mission is the ground station's (shore sends none of its own and judges the one flown)
+    enabled: bool = False
+    # the ground stations' endpoints: UDP, where QGroundControl, Cockpit, MAVProxy or a pymavlink
+    # script sends first (udpout:HOST:PORT) and is answered; 0.0.0.0 to take ground stations from
+    # other hosts
+    listen_host: str = "127.0.0.1"
+    onshore_port: int = 14550  # across the satellite
+    vessel_port: int = 14551  # across the tether
+    system_id: int = 1  # the vehicle's (SYSID_THISMAV)
+    gcs_system_id: int = 255  # the ground station whose heartbeat the GCS failsafe watches (SYSID_MYGCS)
+    # the satellite's side a high-latency link as ArduPilot keeps one: HIGH_LATENCY2 every 5 s in
+    # place of the heartbeat and the streams, until the ground station turns it off
+    # (MAV_CMD_CONTROL_HIGH_LATENCY 0; MAVProxy: `link hl off`)
+    satellite_high_latency: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("onshore_port", "vessel_port"):
+            if not 1 <= getattr(self, name) <= 65535:
+                raise ConfigError(f"mavlink.{name}", f"{getattr(self, name)}: a UDP port is 1 to 65535")
+        if self.onshore_port == self.vessel_port:
+            raise ConfigError(
+                "mavlink.vessel_port",
+                f"{self.vessel_port}: the same as mavlink.onshore_port; each endpoint needs its own",
+            )
+        for name in ("system_id", "gcs_system_id"):
+            if not 1 <= getattr(self, name) <= 255:
+                raise ConfigError(
+                    f"mavlink.{name}", f"{getattr(self, name)}: a MAVLink system id is 1 to 255"
+                )
+        if self.system_id == self.gcs_system_id:
+            raise ConfigError("mavlink.gcs_system_id", "the same as mavlink.system_id: the vehicle's own")

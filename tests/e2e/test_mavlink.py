@@ -1,0 +1,226 @@
+"""The BlueROV2 as a MAVLink vehicle (mavlink.enabled), flown by pymavlink as a ground station is,
+through the satellite's emulator to the onshore station's endpoint, with a second ground station
+watching on the tether's side at the vessel's: it sees HIGH_LATENCY2 on the satellite until it
+turns high latency off, then the heartbeat and ArduSub's modes; arms, holds depth in depth hold
+(held to the simulation's truth), flies forward on MANUAL_CONTROL; the satellite dropped for 10 s
+fires the GCS failsafe (the watcher sees it said, the vehicle critical and disarmed) and its
+return clears it; a mission uploaded and flown in auto to its last waypoint ends the run done.
+Fuzzed bytes on both endpoints are dropped and counted. A ground station is a real-time party:
+the run is on the wall clock (time.mode real), every wait an event with a bound."""
+
+from __future__ import annotations
+
+import os
+import random
+import socket
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest import ROOT, Truth, Up, abyss
+
+os.environ["MAVLINK20"] = "1"  # before pymavlink's mavutil picks its dialect: MAVLink 2, as ArduSub
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from abyss.interface import keys
+
+pytestmark = pytest.mark.timeout(300)
+ROBOT = ROOT / "description" / "models" / "robots" / "bluerov2_heavy_alpha5"
+SYSTEM = "e2e-mavlink"
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class GroundStation:
+    """pymavlink as a ground station: its heartbeat at 1 Hz and the sticks (MANUAL_CONTROL) at
+    10 Hz from a thread of its own, as QGroundControl sends them; `system` 255 is the one the GCS
+    failsafe watches, another only listens."""
+
+    def __init__(self, port: int, system: int = 255, sticks: bool = True) -> None:
+        self.conn: Any = mavutil.mavlink_connection(
+            f"udpout:127.0.0.1:{port}", source_system=system, source_component=190, dialect="ardupilotmega"
+        )
+        self.sticks = [0, 0, 500, 0] if sticks else None
+        self.texts: list[str] = []
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._beat, daemon=True)
+        self.thread.start()
+
+    def _beat(self) -> None:
+        k = 0
+        while not self.stop.wait(0.1):
+            with self.lock:
+                if k % 10 == 0:
+                    self.conn.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                if self.sticks is not None:
+                    self.conn.mav.manual_control_send(1, *self.sticks, 0)
+            k += 1
+
+    def send(self, name: str, *args: Any) -> None:
+        with self.lock:
+            getattr(self.conn.mav, f"{name}_send")(*args)
+
+    def wait(self, kind: str | list[str], timeout_s: float, holds: Any = lambda m: True) -> Any:
+        """The first message of `kind` that `holds` within `timeout_s` (AssertionError if none)."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            msg = self.conn.recv_match(type=kind, blocking=True, timeout=0.2)
+            if msg is None:
+                continue
+            if msg.get_type() == "STATUSTEXT":
+                self.texts.append(msg.text)
+            if holds(msg):
+                return msg
+        raise AssertionError(f"no {kind} within {timeout_s} s; texts: {self.texts}")
+
+    def text(self, pattern: str, timeout_s: float) -> str:
+        return str(self.wait("STATUSTEXT", timeout_s, lambda m: pattern in m.text).text)
+
+    def command(self, command: int, *params: float, timeout_s: float = 10.0) -> int:
+        """COMMAND_LONG, sent again each second until answered (the satellite loses packets); its result."""
+        padded = [*params, *[0.0] * (7 - len(params))]
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.send("command_long", 1, 1, command, 0, *padded)
+            try:
+                return int(self.wait("COMMAND_ACK", 1.0, lambda m: m.command == command).result)
+            except AssertionError:
+                continue
+        raise AssertionError(f"command {command} not answered within {timeout_s} s")
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.conn.close()
+
+
+def depth_held(truth: Truth, seconds: float) -> float:
+    """How far the true depth moved over the last `seconds` [m]."""
+    return float(np.ptp([s.position_m_world[2] for s in truth.since(seconds)]))
+
+
+def upload(gcs: GroundStation, items: list[tuple[int, int, float]]) -> None:
+    """A mission (home first) of waypoints at (degE7, degE7, altitude relative to the surface [m]),
+    item by item as the vehicle asks for them."""
+    rows = [
+        (mavlink.MAV_CMD_DO_SET_HOME if i == 0 else mavlink.MAV_CMD_NAV_WAYPOINT, *item)
+        for i, item in enumerate(items)
+    ]
+    gcs.send("mission_count", 1, 1, len(rows), mavlink.MAV_MISSION_TYPE_MISSION)
+    while True:
+        msg = gcs.wait(["MISSION_REQUEST_INT", "MISSION_ACK"], 20.0)
+        if msg.get_type() == "MISSION_ACK":
+            assert msg.type == mavlink.MAV_MISSION_ACCEPTED, msg
+            return
+        command, lat, lon, alt = rows[msg.seq]
+        gcs.send(
+            "mission_item_int", 1, 1, msg.seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command,
+            0, 1, 0, 0, 0, float("nan"), lat, lon, alt, mavlink.MAV_MISSION_TYPE_MISSION,
+        )  # fmt: skip
+
+
+def fuzz(port: int, count: int = 200) -> None:
+    """Random bytes, and MAVLink frames cut short or with a bad CRC, at an endpoint."""
+    rng = random.Random(7)
+    frame = mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, 8, 0, 0, 0, 3).pack(
+        mavlink.MAVLink(None, 200, 1)
+    )
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        for i in range(count):
+            kind = i % 3
+            data = (
+                rng.randbytes(rng.randint(1, 300)) if kind == 0 else frame[: rng.randint(3, len(frame) - 1)]
+            )
+            if kind == 2:
+                data = frame[:-1] + bytes([frame[-1] ^ 0xFF])
+            s.sendto(data, ("127.0.0.1", port))
+
+
+def test_a_ground_station_flies_the_bluerov2_across_the_satellite_as_ardusub(tmp_path: Path) -> None:
+    shore_port, vessel_port = free_udp_port(), free_udp_port()
+    up = Up(
+        tmp_path / "run",
+        "--robot", str(ROBOT), "--system", SYSTEM, "--time", "real", "--duration", "240",
+        "--viewer", "none", "--record", "none",
+        "--set", "mavlink.enabled=true", "--set", f"mavlink.onshore_port={shore_port}",
+        "--set", f"mavlink.vessel_port={vessel_port}", "--set", "mission.interventions=[]",
+    )  # fmt: skip
+    up.wait_up(90.0)
+    truth = Truth(up.endpoint, SYSTEM)
+    gcs, watcher = GroundStation(shore_port), GroundStation(vessel_port, system=254, sticks=False)
+    link = ("--connect", up.endpoint, "--system", SYSTEM)
+    try:
+        # the satellite's side is a high-latency link: HIGH_LATENCY2 alone, until turned off
+        hl2 = gcs.wait("HIGH_LATENCY2", 30.0)
+        assert hl2.type == mavlink.MAV_TYPE_SUBMARINE and hl2.custom_mode == 19  # ArduSub's MANUAL
+        assert gcs.command(mavlink.MAV_CMD_CONTROL_HIGH_LATENCY, 0) == mavlink.MAV_RESULT_ACCEPTED
+        beat = gcs.wait("HEARTBEAT", 10.0)
+        assert beat.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and gcs.conn.flightmode == "MANUAL"
+        assert gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION) == 0
+        # the parameters: ArduSub's defaults, one set (the sticks' failsafe to warn only, so that the
+        # satellite's drop below fires the GCS failsafe's disarm, not the pilot input's)
+        gcs.send("param_request_read", 1, 1, b"FS_GCS_ENABLE", -1)
+        assert gcs.wait("PARAM_VALUE", 10.0, lambda m: m.param_id == "FS_GCS_ENABLE").param_value == 2.0
+        gcs.send("param_set", 1, 1, b"FS_PILOT_INPUT", 1.0, mavlink.MAV_PARAM_TYPE_INT8)
+        assert gcs.wait("PARAM_VALUE", 10.0, lambda m: m.param_id == "FS_PILOT_INPUT").param_value == 1.0
+        # armed, in depth hold: the depth held on the truth
+        assert gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
+        assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 2) == 0
+        gcs.wait(
+            "HEARTBEAT",
+            10.0,
+            lambda m: m.custom_mode == 2 and m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
+        )
+        time.sleep(6.0)  # the truth over a hold, at 20 Hz
+        assert depth_held(truth, 5.0) < 0.1, truth.since(5.0)[-1]
+        # the sticks: forward at 0.6, depth held
+        start = truth.since(0.1)[-1].position_m_world.copy()
+        gcs.sticks = [600, 0, 500, 0]
+        time.sleep(5.0)
+        gcs.sticks = [0, 0, 500, 0]
+        moved = truth.since(0.1)[-1].position_m_world - start
+        assert np.hypot(*moved[:2]) > 0.3 and abs(moved[2]) < 0.15, moved
+        # the satellite down for 10 s: the GCS failsafe, seen from the vessel's side
+        assert abyss("link", "set", "satellite", "--profile", "outage", *link).returncode == 0
+        watcher.text("MYGCS: 255, heartbeat lost", 15.0)
+        watcher.wait("HEARTBEAT", 5.0, lambda m: m.system_status == mavlink.MAV_STATE_CRITICAL)
+        watcher.wait("HEARTBEAT", 5.0, lambda m: not m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        time.sleep(4.0)
+        assert abyss("link", "set", "satellite", "--profile", "satellite", *link).returncode == 0
+        gcs.wait(
+            "HEARTBEAT", 15.0, lambda m: m.system_status == mavlink.MAV_STATE_STANDBY
+        )  # cleared, disarmed
+        fuzz(shore_port)
+        fuzz(vessel_port)
+        # a mission: two waypoints a metre on, flown in auto to the last
+        here = gcs.wait("GLOBAL_POSITION_INT", 10.0)
+        north, east = 1.0 / 111_000 * 1e7, 1.0 / 81_000 * 1e7  # a metre, in degE7, at 43 degrees
+        depth = here.relative_alt / 1000.0
+        upload(gcs, [(here.lat, here.lon, 0.0), (round(here.lat + north), here.lon, depth),
+                     (round(here.lat + north), round(here.lon + east), depth)])  # fmt: skip
+        assert gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_ACCEPTED
+        assert gcs.command(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 3) == 0
+        gcs.wait("MISSION_ITEM_REACHED", 60.0, lambda m: m.seq == 2)
+        assert up.wait(60.0) == 0, up.output()  # the mission done ends the run
+    finally:
+        gcs.close()
+        watcher.close()
+        truth.close()
+    summary = up.summary()
+    assert summary["verdict"] == "done" and summary["mission"]["waypoints_total"] == 2, summary["mission"]
+    for station, key in (("onshore", "onshore/mavlink/in"), ("vessel", "vessel/mavlink/in")):
+        rejected = summary["stations"][station]["rejected"].get(f"abyss/{SYSTEM}/{key}", 0)
+        assert rejected >= 100, (
+            station,
+            summary["stations"][station]["rejected"],
+        )  # each dropped and counted
+    assert keys.spec("onboard", "mavlink/out").key(SYSTEM) in summary["stations"]["vessel"]["received"]

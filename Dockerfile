@@ -44,6 +44,7 @@ COPY config config
 COPY bus bus
 COPY linkemu linkemu
 COPY scene scene
+COPY mavlink mavlink
 COPY stations stations
 COPY launch launch
 COPY validation validation

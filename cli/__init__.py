@@ -1,6 +1,6 @@
 """`abyss`: the command line. It parses arguments and calls the testbed; each command group
 lives in a module of its own (`system`, `link`, `lab`, `operator`, `validation`, `campaign`, `models`,
-`robot`)."""
+`robot`, `sitl`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import argparse
 import sys
 from typing import Any
 
-from abyss.cli import campaign, export, lab, link, models, operator, record, robot, system, validation
+from abyss.cli import campaign, export, lab, link, models, operator, record, robot, sitl, system, validation
 from abyss.cli.args import NoSystem
 from abyss.common.errors import AbyssError, BusError
 
@@ -21,7 +21,7 @@ DESCRIPTION = (
 def parser() -> argparse.ArgumentParser:
     root = argparse.ArgumentParser(prog="abyss", description=DESCRIPTION)
     sub = root.add_subparsers(dest="command", required=True)
-    for group in (system, link, lab, operator, record, export, validation, campaign, models, robot):
+    for group in (system, link, lab, operator, record, export, validation, campaign, models, robot, sitl):
         group.add_commands(sub)
     return root
 

@@ -339,7 +339,7 @@ class MavlinkVehicle:
         assert self.estimate is not None
         position, yaw = self.estimate.position_m_world, self._yaw_now()
         gain, o = self.params["JS_GAIN_DEFAULT"], self.onboard
-        forward, right, up, yaw_right = self.sticks
+        forward, right, up, yaw_right = (float(v) for v in self.sticks)
         dead_band = self.params["THR_DZ"] / 500.0 if self.mode in (SubMode.ALT_HOLD, SubMode.POSHOLD) else 0.0
         if abs(up) <= dead_band:
             up = 0.0

@@ -1,15 +1,16 @@
 """The rooms of the package import only downwards (issues 37 and 61), lowest first:
 
     common  <-  description  <-  interface  <-  timing, security, config  <-  bus
-            <-  linkemu, scene  <-  recording  <-  ros2  <-  stations  <-  harness
+            <-  linkemu, scene, mavlink  <-  recording  <-  ros2  <-  stations  <-  harness
 
 `common` is what is small and generic (errors, units, geometry, the typed reader, ports);
 `description` the robot and the site as data; `interface` what stations say to each other (keys,
 messages and their codec, quality of service, the fault table); `timing` the clocks, rates and
 lockstep; `security` certificates and access rules; `config` the typed configuration; `bus` the
-session every station talks through; the harness is launch, validation, cli and console. A room
+session every station talks through; `mavlink` the vehicle as a MAVLink system and the ground
+stations' endpoints; the harness is launch, validation, cli and console. A room
 may import itself and any room below it, never one above it nor a sibling on its own floor
-(linkemu and scene know nothing of each other, nor timing, security and config); the harness's
+(linkemu, scene and mavlink know nothing of each other, nor timing, security and config); the harness's
 rooms may import each other. The system under test sees nothing of the testbed (issue 50):
 `stations` never imports the link emulator, the recording or ROS 2; the shell that hosts a station
 among them is the harness's (launch.station).
@@ -45,7 +46,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (  # lowest first
     ("interface",),
     ("timing", "security", "config"),
     ("bus",),
-    ("linkemu", "scene"),
+    ("linkemu", "scene", "mavlink"),
     ("recording",),
     ("ros2",),
     ("stations",),

@@ -68,6 +68,8 @@ def check(endpoint: str, system: str, station: str, duration_s: float) -> list[K
     reports = []
     for s in specs:
         key, n = s.key(system), counts[s.key(system)]
+        if s.feature and not n:  # a feature the system does not run (mavlink.enabled off)
+            continue
         rate_hz = n / duration_s
         reason = reasons.get(key, "")
         if not reason and s.rate_hz and abs(rate_hz - s.rate_hz) > RATE_TOLERANCE * s.rate_hz:

@@ -154,7 +154,8 @@ class Ground:
             for reason in self.vehicle.receive(received.message.link, received.message.data, now_s, out):
                 self.bus.reject(received.key, reason)
         self.core.pilot_goals = set(self.vehicle.pilot_goals)
-        return decided
+        commands: list[Command] = [*decided]
+        return commands
 
     def answer(self, core_out: OnboardOutputs, now_s: float) -> list[CommandAck]:
         """The period's MAVLink out; the answers that are not the ground stations' returned."""

@@ -64,9 +64,9 @@ def run(config: Config, bus: Bus) -> None:
 
 def _display(config: Config, bus: Bus) -> None:
     record_dir = Path(config.onshore.record_dir) if config.onshore.record_dir else None
-    earlier = [read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER]
+    history, events = (read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER)
     # a restarted shore goes on with what it had; with a ground station, its mission is the one judged
-    operator = Operator(config.mission, *earlier, ground_station=config.mavlink.enabled)
+    operator = Operator(config.mission, history, events, ground_station=config.mavlink.enabled)
     sinks = Sinks(config.onshore, bus.system)
     viewer = Viewer(sinks.recording, robot_of(config)) if sinks.recording is not None else None
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)

@@ -9,6 +9,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from abyss.common.errors import ConfigError
 from abyss.common.runfiles import write_whole
 from abyss.config.simulation import SimulationConfig
 from abyss.description.gains import robot_gains
@@ -22,7 +23,7 @@ from abyss.interface.messages import (
     PanelState,
     VelocityRef,
 )
-from abyss.stations.simulation.lowlevel import LOW_LEVELS, PidGains, References
+from abyss.stations.simulation.lowlevel import LOW_LEVELS, Dynamic, PidGains, References
 from abyss.stations.simulation.marine import Current
 from abyss.stations.simulation.native import LowLevel
 from abyss.stations.simulation.nav_sensors import DvlBeams, Navigation
@@ -141,6 +142,28 @@ class World:
         steps = round(period_s / dt)
         for start in range(0, steps, every):  # the low level runs at its own rate; its outputs hold between
             self._low_level(refs, dt * every)
+            self.physics.step(self.water_mps_world, min(every, steps - start))
+
+    def step_thrusts(self, thrust_n: np.ndarray, period_s: float) -> None:
+        """Advance by `period_s` [s] with the thrusters commanded open loop, as an autopilot outside
+        drives them (ArduPilot's JSON backend: stations/simulation/json_backend.py), the arm held
+        where it is by its joints' servos; the dynamic low level only."""
+        if not isinstance(self.controller, Dynamic):
+            raise ConfigError(
+                "simulation.low_level", "kinematic: an autopilot's thrusts need the dynamic low level"
+            )
+        m, d = self.model, self.data
+        dt = m.opt.timestep
+        every = round(self.config.low_level_period_s / dt)
+        steps = round(period_s / dt)
+        thrusters, plant = self.controller.thrusters, self.plant
+        for start in range(0, steps, every):
+            self.current.advance(d.time)
+            self.water_mps_world = self.current.velocity_mps_world(d.qpos[plant.qpos + 2])
+            thrusters.apply(d, thrust_n, dt * every)
+            d.ctrl[plant.arm_motors] = 0.0  # velocity servos: held still
+            d.ctrl[plant.gripper_motors] = 0.0
+            self.physics.forces(self.water_mps_world)
             self.physics.step(self.water_mps_world, min(every, steps - start))
 
     def _low_level(self, refs: References, period_s: float) -> None:

@@ -65,7 +65,12 @@ def test_a_site_of_its_own_builds_its_parts_and_composes_with_the_robot(tmp_path
             "panel.parts[1].kind",
             "valve, lever",
         ),
-        (ONE_VALVE_ONE_LEVER, "[colour]\nx = 1\n", "colour", "allowed: config, model, name, panel, source"),
+        (
+            ONE_VALVE_ONE_LEVER,
+            "[colour]\nx = 1\n",
+            "colour",
+            "allowed: config, datum, model, name, panel, source",
+        ),
     ],
 )
 def test_a_bad_site_is_refused_naming_the_file_and_the_field(

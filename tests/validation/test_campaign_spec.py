@@ -51,7 +51,7 @@ def test_seeds_as_a_list_rates_per_scenario_and_an_exclusion(tmp_path: Path) -> 
 
 BAD = [
     ('colour = "red"\n', "colour", "allowed: description, exclude, keep, matrix"),
-    ('[matrix]\n"nonsense.x" = [1]\n', "matrix.nonsense.x", "allowed: cpu, hybrid, links, mission"),
+    ('[matrix]\n"nonsense.x" = [1]\n', "matrix.nonsense.x", "allowed: cpu, hybrid, links, mavlink, mission"),
     ('[matrix]\n"nonsense.x" = [1]\n', "matrix.nonsense.x", "links.<hop> (rov, tether, satellite)"),
     ('[matrix]\n"links.radio" = ["ideal"]\n', "matrix.links.radio", "rov, tether, satellite"),
     ('[matrix]\n"links.satellite" = ["fast"]\n', "matrix.links.satellite", "satellite-storm"),

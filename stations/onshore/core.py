@@ -356,16 +356,9 @@ def mission_status(
         finished = index + int(on_it and t.intervention_phase == "done")
     phase = t.intervention_phase if on_it else ""
     return MissionStatus(
-        mode=t.mode,
+        **_seen(t),
         waypoint_index=offset + t.waypoint_index if flying else offset,
         waypoints_total=offset + (len(sent.waypoints) if sent is not None else 0),
-        position_error_m=t.position_error_m,
-        heading_error_rad=abs(t.heading_error_rad),
-        arm_mode=t.arm_mode,
-        ee_position_error_m=float(np.linalg.norm(t.ee_position_error_m_world)),
-        ee_orientation_error_rad=t.ee_orientation_error_rad,
-        failsafe=t.failsafe,
-        failsafe_events=t.failsafe_events,
         done=vehicle_done and arm_done and finished >= total,
         interventions_done=finished,
         interventions_total=total,
@@ -386,18 +379,25 @@ def flown_status(t: Telemetry, hold_m: float) -> MissionStatus:
         and t.position_error_m <= hold_m
     )
     return MissionStatus(
-        mode=t.mode,
+        **_seen(t),
         waypoint_index=t.waypoint_index if mission else 0,
         waypoints_total=t.waypoints_total if mission else 0,
-        position_error_m=t.position_error_m,
-        heading_error_rad=abs(t.heading_error_rad),
-        arm_mode=t.arm_mode,
-        ee_position_error_m=float(np.linalg.norm(t.ee_position_error_m_world)),
-        ee_orientation_error_rad=t.ee_orientation_error_rad,
-        failsafe=t.failsafe,
-        failsafe_events=t.failsafe_events,
         done=done,
     )
+
+
+def _seen(t: Telemetry) -> dict[str, Any]:
+    """What a mission status shows of the telemetry as it is: the modes, the errors, the failsafe."""
+    return {
+        "mode": t.mode,
+        "position_error_m": t.position_error_m,
+        "heading_error_rad": abs(t.heading_error_rad),
+        "arm_mode": t.arm_mode,
+        "ee_position_error_m": float(np.linalg.norm(t.ee_position_error_m_world)),
+        "ee_orientation_error_rad": t.ee_orientation_error_rad,
+        "failsafe": t.failsafe,
+        "failsafe_events": t.failsafe_events,
+    }
 
 
 class PerceptionSeen:

@@ -51,24 +51,19 @@ def hosts() -> Iterator[Hosts]:
         made.remove()
 
 
-class Up:
-    """`abyss up` as a user runs it, its output read line by line."""
+class Process:
+    """A process as a user runs it, its output (stdout and stderr) read line by line as it comes."""
 
-    started: ClassVar[list[Up]] = []
-
-    def __init__(self, out: Path, *args: str) -> None:
-        Up.started.append(self)
-        self.out = out
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+    def __init__(self, command: list[str], cwd: Path, env: dict[str, str] | None = None) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out), *args],
+            command,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
-            cwd=out.parent,
-            env=env,
+            cwd=cwd,
+            env=dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})),
             start_new_session=True,
-        )  # its stations share its process group: a failed test kills them all
+        )  # its children share its process group: a failed test kills them all
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -88,6 +83,30 @@ class Up:
                 break
             time.sleep(0.05)
         raise AssertionError(f"no line matching {pattern!r}; output:\n" + "\n".join(self.lines))
+
+    def wait(self, timeout_s: float = 60.0) -> int:
+        code = self.process.wait(timeout=timeout_s)
+        self._reader.join(timeout=5)
+        if self.process.stdout is not None:
+            self.process.stdout.close()
+        return code
+
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+
+class Up(Process):
+    """`abyss up` as a user runs it."""
+
+    started: ClassVar[list[Up]] = []
+
+    def __init__(self, out: Path, *args: str) -> None:
+        Up.started.append(self)
+        self.out = out
+        super().__init__(
+            [sys.executable, "-P", "-m", "abyss.cli", "up", "--port", "0", "--out", str(out), *args],
+            out.parent,
+        )
 
     def state(self, holds: Callable[[RunState], bool] = lambda _: True, timeout_s: float = 60.0) -> RunState:
         """`abyss up`'s state.json, once `holds` is true of it."""
@@ -119,18 +138,8 @@ class Up:
         assert (verdict, code) in (("done", 0), ("interrupted", 130)), (verdict, code, self.output())
         return verdict
 
-    def wait(self, timeout_s: float = 60.0) -> int:
-        code = self.process.wait(timeout=timeout_s)
-        self._reader.join(timeout=5)
-        if self.process.stdout is not None:
-            self.process.stdout.close()
-        return code
-
     def summary(self) -> dict[str, Any]:
         return json.loads((self.out / "summary.json").read_text())
-
-    def output(self) -> str:
-        return "\n".join(self.lines)
 
 
 @pytest.fixture(autouse=True)

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import ROOT, Truth, Up, abyss
+from conftest import ROOT, Process, Truth, Up, abyss
 
 os.environ["MAVLINK20"] = "1"  # before pymavlink's mavutil picks its dialect: MAVLink 2, as ArduSub
 from pymavlink import mavutil
@@ -106,40 +106,17 @@ class GroundStation:
         self.conn.close()
 
 
-class Mavproxy:
-    """MAVProxy as a team runs it, non-interactive, its console's lines read as they come."""
-
-    def __init__(self, port: int, cwd: Path) -> None:
-        mavproxy = Path(sys.executable).with_name("mavproxy.py")
-        self.process = subprocess.Popen(
-            [sys.executable, str(mavproxy), f"--master=udpout:127.0.0.1:{port}", "--source-system=250",
-             "--non-interactive"],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=cwd,
-            env=dict(os.environ, MAVLINK20="1"),
-        )  # fmt: skip
-        self.lines: list[str] = []
-        self.reader = threading.Thread(target=self._read, daemon=True)
-        self.reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip())
-
-    def wait_for(self, text: str, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if any(text in line for line in self.lines):
-                return
-            time.sleep(0.1)
-        raise AssertionError(f"MAVProxy did not show {text!r} within {timeout_s} s: {self.lines[-20:]}")
-
-    def close(self) -> None:
-        self.process.terminate()
-        self.process.wait(timeout=20)
-        self.reader.join(timeout=5)
-        assert self.process.stdout is not None
-        self.process.stdout.close()
+def mavproxy(port: int, cwd: Path) -> Process:
+    """MAVProxy as a team runs it, non-interactive, on the vessel's side (system 250)."""
+    script = Path(sys.executable).with_name("mavproxy.py")
+    command = [
+        sys.executable,
+        str(script),
+        f"--master=udpout:127.0.0.1:{port}",
+        "--source-system=250",
+        "--non-interactive",
+    ]
+    return Process(command, cwd, {"MAVLINK20": "1"})
 
 
 def depth_held(truth: Truth, seconds: float) -> float:
@@ -195,7 +172,7 @@ def test_a_ground_station_flies_the_bluerov2_across_the_satellite_as_ardusub(tmp
     )  # fmt: skip
     up.wait_up(90.0)
     truth = Truth(up.endpoint, SYSTEM)
-    gcs, watcher = GroundStation(f"udpout:127.0.0.1:{shore_port}"), Mavproxy(vessel_port, tmp_path)
+    gcs, watcher = GroundStation(f"udpout:127.0.0.1:{shore_port}"), mavproxy(vessel_port, tmp_path)
     link = ("--connect", up.endpoint, "--system", SYSTEM)
     try:
         watcher.wait_for("Detected vehicle 1:1", 30.0)  # the tether's side: a full link from the start
@@ -253,7 +230,8 @@ def test_a_ground_station_flies_the_bluerov2_across_the_satellite_as_ardusub(tmp
         assert up.wait(60.0) == 0, up.output()  # the mission done ends the run
     finally:
         gcs.close()
-        watcher.close()
+        watcher.process.terminate()
+        watcher.wait(20.0)
         truth.close()
     summary = up.summary()
     assert summary["verdict"] == "done" and summary["mission"]["waypoints_total"] == 2, summary["mission"]

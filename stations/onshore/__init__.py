@@ -14,6 +14,7 @@ import json
 import logging
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from abyss.bus.session import Bus, Inbox
 from abyss.common.runfiles import CARRIED_OVER, read_json_list, write_whole
@@ -36,11 +37,13 @@ from abyss.interface.messages import (
     Telemetry,
     Waypoints,
 )
-from abyss.mavlink.endpoint import Endpoint, serve
 from abyss.scene.export import save_snapshot
 from abyss.scene.receiver import ShoreScene
 from abyss.stations.onshore.core import Operator, OperatorInputs, PerceptionSeen
 from abyss.stations.onshore.viewer import Sinks, Viewer
+
+if TYPE_CHECKING:
+    from abyss.mavlink.endpoint import Endpoint
 
 PERIOD_S = 0.1
 SAVE_PERIOD_S = 1.0  # both files are rewritten this often when they changed: a killed shore keeps them
@@ -55,10 +58,10 @@ def loops(config: Config) -> tuple[str, ...]:
 def run(config: Config, bus: Bus) -> None:
     """The I/O shell of `core.Operator`, the scene (`Scene`) and the viewer; with a ground station's
     endpoint (mavlink.enabled) in a thread of its own."""
-    endpoint = Endpoint(config, "onshore") if config.mavlink.enabled else None  # its port taken at start
+    endpoint = _endpoint(config) if config.mavlink.enabled else None  # its port taken at start
     with Workers(bus.stop) as workers:
         if endpoint is not None:
-            workers.start("mavlink", serve, config, bus, endpoint)
+            workers.start("mavlink", _serve, config, bus, endpoint)
         _display(config, bus)
 
 
@@ -254,3 +257,16 @@ class Scene:
             "perception": self.perception.summary(),
         }
         (directory / "scene.json").write_text(json.dumps(stats, indent=2))
+
+
+def _endpoint(config: Config) -> Endpoint:
+    """The ground stations' endpoint (mavlink.enabled; pymavlink's, imported only then)."""
+    from abyss.mavlink.endpoint import Endpoint
+
+    return Endpoint(config, "onshore")
+
+
+def _serve(config: Config, bus: Bus, endpoint: Endpoint) -> None:
+    from abyss.mavlink.endpoint import serve
+
+    serve(config, bus, endpoint)

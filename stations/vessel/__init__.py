@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 from abyss.bus.session import Bus, Inbox
 from abyss.common.shared import Latest
@@ -31,12 +31,14 @@ from abyss.interface.messages import (
     SonarImage,
     Telemetry,
 )
-from abyss.mavlink.endpoint import Endpoint, serve
 from abyss.scene.model import SceneModel
 from abyss.scene.stream import SceneStream, StreamOutputs
 from abyss.stations.vessel.core import RELAYED_DOWN, Relay, RelayInputs
 from abyss.stations.vessel.intake import Intake, IntakeInputs, IntakeOutputs
 from abyss.timing.rate import Rate
+
+if TYPE_CHECKING:
+    from abyss.mavlink.endpoint import Endpoint
 
 POLL_PERIOD_S = 0.05  # how long an operator command may wait on the vessel
 log = logging.getLogger(__name__)
@@ -74,11 +76,11 @@ def run(config: Config, bus: Bus, mapper: MapperFactory | None = None) -> None:
         cfg, site_of(config).panel, model, bus.clock.now_s(), maps=mapper is None, hybrid=config.hybrid
     )
     gateway = mapper(lambda update: model.adopt(update.octree)) if mapper is not None else None
-    endpoint = Endpoint(config, "vessel") if config.mavlink.enabled else None  # its port taken at start
+    endpoint = _endpoint(config) if config.mavlink.enabled else None  # its port taken at start
     try:
         with Workers(bus.stop) as workers:
             if endpoint is not None:  # a ground station on the tether's side, and the satellite's relayed
-                workers.start("mavlink", serve, config, bus, endpoint)
+                workers.start("mavlink", _serve, config, bus, endpoint)
             workers.start("scene", _scene_loop, config, bus, intake, images)
             workers.start("scene send", _send_loop, config, bus, model, images, intake)
             if gateway is not None:
@@ -171,3 +173,16 @@ def _send_loop(config: Config, bus: Bus, model: SceneModel, images: Inbox[Image]
             intake.sonar.get(),
         )
         _publish(bus, out)
+
+
+def _endpoint(config: Config) -> Endpoint:
+    """The ground stations' endpoint (mavlink.enabled; pymavlink's, imported only then)."""
+    from abyss.mavlink.endpoint import Endpoint
+
+    return Endpoint(config, "vessel")
+
+
+def _serve(config: Config, bus: Bus, endpoint: Endpoint) -> None:
+    from abyss.mavlink.endpoint import serve
+
+    serve(config, bus, endpoint)

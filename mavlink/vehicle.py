@@ -122,10 +122,14 @@ class MavlinkVehicle:
         target = getattr(msg, "target_system", getattr(msg, "target", self.system_id))
         if target not in (0, self.system_id):
             return
+        from_gcs = msg.get_srcSystem() == self.params["SYSID_MYGCS"]
         if kind == "HEARTBEAT":
-            if msg.get_srcSystem() == self.params["SYSID_MYGCS"] and msg.type == mavlink.MAV_TYPE_GCS:
+            if from_gcs:
                 self.gcs_seen_s = now_s
         elif kind == "MANUAL_CONTROL":
+            if not from_gcs:  # ArduSub takes the sticks of its own ground station alone
+                return
+            self.gcs_seen_s = now_s  # and counts them as its heartbeat, as ArduSub does
             self.sticks = np.array([msg.x / 1000.0, msg.y / 1000.0, (msg.z - 500) / 500.0, msg.r / 1000.0])
             self.sticks = np.clip(self.sticks, -1.0, 1.0)
             self.pilot_s, self.pilot_failsafe = now_s, False

@@ -124,18 +124,25 @@ def test_the_sticks_set_a_goal_ahead_at_their_speed_and_a_centred_stick_holds(co
 
 def test_the_gcs_failsafe_disarms_once_and_clears_when_the_heartbeat_returns(config: Config) -> None:
     gcs = Gcs(config)
-    gcs.say(0.0, beat(), sticks())
+    gcs.say(0.0, beat(), sticks(), mavlink.MAVLink_param_set_message(1, 1, b"FS_PILOT_INPUT", 1.0, 2))
     gcs.command(0.1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    out = gcs.say(4.9, sticks())  # 4.8 s of silence: FS_GCS_TIMEOUT is 5
-    assert gcs.vehicle.armed and not texts(gcs.heard(out))
-    out = gcs.say(5.1, sticks())
+    out = gcs.say(4.9)  # 4.8 s of silence: FS_GCS_TIMEOUT is 5 (the sticks' failsafe only warns)
+    assert gcs.vehicle.armed and not any("MYGCS" in t for t in texts(gcs.heard(out)))
+    out = gcs.say(5.1)
     said = gcs.heard(out)
     assert "MYGCS: 255, heartbeat lost" in texts(said) and "Disarming motors" in texts(said)
     assert not gcs.vehicle.armed and gcs.vehicle.system_status == mavlink.MAV_STATE_CRITICAL
-    gcs.say(6.0, beat(), sticks())
+    gcs.say(6.0, sticks())  # the sticks of its ground station count as its heartbeat, as ArduSub's
     assert (
         gcs.vehicle.system_status == mavlink.MAV_STATE_STANDBY and not gcs.vehicle.armed
     )  # cleared, still disarmed
+
+
+def test_another_systems_sticks_are_not_taken(config: Config) -> None:
+    gcs = Gcs(config)
+    other = mavlink.MAVLink(None, 250, 190)  # a companion, not SYSID_MYGCS
+    gcs.vehicle.receive("tether", sticks(x=1000).pack(other), 0.0, VehicleOutputs())
+    assert not gcs.vehicle.sticks.any() and gcs.vehicle.gcs_seen_s is None
 
 
 def test_the_pilot_input_failsafe_warns_once_then_disarms_as_set(config: Config) -> None:

@@ -20,6 +20,11 @@ class MavlinkConfig:
     listen_host: str = "127.0.0.1"
     onshore_port: int = 14550  # across the satellite
     vessel_port: int = 14551  # across the tether
+    # ground stations each endpoint sends to from the start, HOST:PORT, as BlueOS's UDP client
+    # endpoints do: QGroundControl and `udpin:` scripts listen (QGroundControl on 14550, so on one
+    # host the endpoint itself moves: onshore_port = 14560, onshore_clients = ["127.0.0.1:14550"])
+    onshore_clients: tuple[str, ...] = ()
+    vessel_clients: tuple[str, ...] = ()
     system_id: int = 1  # the vehicle's (SYSID_THISMAV)
     gcs_system_id: int = 255  # the ground station whose heartbeat the GCS failsafe watches (SYSID_MYGCS)
     # the satellite's side a high-latency link as ArduPilot keeps one: HIGH_LATENCY2 every 5 s in
@@ -36,6 +41,15 @@ class MavlinkConfig:
                 "mavlink.vessel_port",
                 f"{self.vessel_port}: the same as mavlink.onshore_port; each endpoint needs its own",
             )
+        ports = {self.onshore_port, self.vessel_port}
+        for name in ("onshore_clients", "vessel_clients"):
+            for i, client in enumerate(getattr(self, name)):
+                host, port = address_of(f"mavlink.{name}[{i}]", client)
+                if host in ("127.0.0.1", "localhost") and port in ports:
+                    raise ConfigError(
+                        f"mavlink.{name}[{i}]",
+                        f"{client}: an endpoint's own port; move the endpoint (mavlink.*_port)",
+                    )
         for name in ("system_id", "gcs_system_id"):
             if not 1 <= getattr(self, name) <= 255:
                 raise ConfigError(
@@ -43,3 +57,11 @@ class MavlinkConfig:
                 )
         if self.system_id == self.gcs_system_id:
             raise ConfigError("mavlink.gcs_system_id", "the same as mavlink.system_id: the vehicle's own")
+
+
+def address_of(field: str, text: str) -> tuple[str, int]:
+    """HOST:PORT as a UDP address; ConfigError naming `field` for anything else."""
+    host, _, port = text.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError(field, f"{text!r}: HOST:PORT, such as 127.0.0.1:14550")
+    return host, int(port)

@@ -18,6 +18,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from abyss.bus.session import Bus
 from abyss.common.errors import ConfigError
 from abyss.config import Config
+from abyss.config.mavlink import address_of
 from abyss.interface import keys
 from abyss.interface.messages import MavlinkFrames
 
@@ -42,6 +43,9 @@ class Endpoint:
         m = config.mavlink
         self.link, self.source = SIDES[station]
         port = m.vessel_port if station == "vessel" else m.onshore_port
+        clients = m.vessel_clients if station == "vessel" else m.onshore_clients
+        # the ground stations sent to from the start (BlueOS's UDP clients), whether heard or not
+        self.fixed = [address_of(f"mavlink.{station}_clients", c) for c in clients]
         self.socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.socket.bind((m.listen_host, port))
@@ -77,12 +81,12 @@ class Endpoint:
         return bytes(frames), bad
 
     def send(self, data: bytes) -> None:
-        """The vehicle's frames to every ground station heard lately."""
+        """The vehicle's frames to the configured ground stations and every one heard lately."""
         now = time.monotonic()
         for address, heard in list(self.clients.items()):
             if now - heard > CLIENT_KEPT_S:
                 del self.clients[address]
-                continue
+        for address in {*self.fixed, *self.clients}:
             try:
                 self.socket.sendto(data, address)
             except OSError as exc:  # gone (ICMP port unreachable): it is heard again when it sends

@@ -106,3 +106,31 @@ def test_an_endpoint_whose_port_is_taken_names_the_field(endpoint: Endpoint) -> 
     with pytest.raises(ConfigError) as error:
         Endpoint(config, "onshore")
     assert error.value.field == "mavlink.onshore_port"
+
+
+def test_an_endpoint_sends_to_its_configured_ground_stations_from_the_start() -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as qgc:  # listening, as QGroundControl on 14550
+        qgc.bind(("127.0.0.1", 0))
+        qgc.settimeout(2.0)
+        listening = qgc.getsockname()[1]
+        port = _free_port()
+        config = load(
+            None,
+            [*MAVLINK, f"mavlink.onshore_port={port}", f'mavlink.onshore_clients=["127.0.0.1:{listening}"]'],
+        )
+        endpoint = Endpoint(config, "onshore")
+        try:
+            endpoint.send(b"heartbeat")
+            assert qgc.recvfrom(100)[0] == b"heartbeat"
+        finally:
+            endpoint.close()
+
+
+@pytest.mark.parametrize(
+    ("client", "reason"),
+    [("14550", "HOST:PORT"), ("127.0.0.1:99999", "HOST:PORT"), ("127.0.0.1:14550", "an endpoint's own port")],
+)
+def test_a_bad_ground_station_address_names_the_field(client: str, reason: str) -> None:
+    with pytest.raises(ConfigError) as error:
+        load(None, [*MAVLINK, f'mavlink.onshore_clients=["{client}"]'])
+    assert error.value.field == "mavlink.onshore_clients[0]" and reason in error.value.reason

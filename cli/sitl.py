@@ -32,6 +32,12 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         + ", ".join(backend.world.robot.marine.thrusters.names[j] for j, _ in backend.mapping),
         flush=True,
     )
+    datum = backend.world.site.spec.datum
+    print(  # the JSON positions are north-east-down from the site's origin: ArduSub's home
+        f"abyss: run ArduSub with --model JSON:{args.host} --home "
+        f"{datum.latitude_deg},{datum.longitude_deg},{datum.surface_amsl_m},0",
+        flush=True,
+    )
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -31,6 +31,12 @@ class MavlinkConfig:
     # place of the heartbeat and the streams, until the ground station turns it off
     # (MAV_CMD_CONTROL_HIGH_LATENCY 0; MAVProxy: `link hl off`)
     satellite_high_latency: bool = True
+    # ArduSub as the autopilot (docs/mavlink.md): "" is abyss's own vehicle answering as ArduSub;
+    # "tcp:HOST:PORT" or "udp:HOST:PORT" is a team's ArduSub build, run by hand on the JSON physics
+    # the simulation serves (json_port), whose MAVLink onboard routes to the ground stations and to
+    # which it hands its goals as a companion computer does
+    autopilot: str = ""
+    json_port: int = 9002  # where the simulation serves ArduPilot's JSON physics, with an autopilot
 
     def __post_init__(self) -> None:
         for name in ("onshore_port", "vessel_port"):
@@ -41,6 +47,21 @@ class MavlinkConfig:
                 "mavlink.vessel_port",
                 f"{self.vessel_port}: the same as mavlink.onshore_port; each endpoint needs its own",
             )
+        if self.autopilot:
+            scheme, _, address = self.autopilot.partition(":")
+            if scheme not in ("tcp", "udp"):
+                raise ConfigError(
+                    "mavlink.autopilot",
+                    f"{self.autopilot!r}: tcp:HOST:PORT or udp:HOST:PORT (ArduSub's MAVLink)",
+                )
+            address_of("mavlink.autopilot", address)
+            if not self.enabled:
+                raise ConfigError(
+                    "mavlink.autopilot",
+                    "an autopilot's MAVLink is routed by onboard: set mavlink.enabled too",
+                )
+        if not 1 <= self.json_port <= 65535:
+            raise ConfigError("mavlink.json_port", f"{self.json_port}: a UDP port is 1 to 65535")
         ports = {self.onshore_port, self.vessel_port}
         for name in ("onshore_clients", "vessel_clients"):
             for i, client in enumerate(getattr(self, name)):

@@ -76,6 +76,13 @@ class ServoPacket:
             raise BadInput("JSON backend: a frame rate of 0 Hz")
         return ServoPacket(rate, count, struct.unpack_from(f"<{channels}H", data, HEADER.size))
 
+    def pack(self) -> bytes:
+        """As ArduPilot sends it (16 or 32 channels): for a client in ArduPilot's place."""
+        magic = MAGIC_16 if len(self.pwm_us) == 16 else MAGIC_32
+        return HEADER.pack(magic, self.frame_rate_hz, self.frame_count) + struct.pack(
+            f"<{len(self.pwm_us)}H", *self.pwm_us
+        )
+
 
 def frame_thrusters(robot: Robot) -> list[tuple[int, float]]:
     """For each motor of ArduSub's vectored 6-DoF frame, the robot's thruster (its index) and the

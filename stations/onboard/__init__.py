@@ -22,18 +22,17 @@ from abyss.config import Config, robot_of
 from abyss.interface import keys
 from abyss.interface.messages import (
     ArmGoal,
-    CommandAck,
     Heartbeat,
     Image,
     InterventionGoal,
     JointState,
-    MavlinkFrames,
     NavState,
     OperatorMode,
     SonarImage,
     Waypoints,
 )
-from abyss.stations.onboard.core import Command, Onboard, OnboardInputs, OnboardOutputs
+from abyss.stations.onboard.core import Onboard, OnboardInputs
+from abyss.stations.onboard.ground import ground_of
 from abyss.stations.onboard.navigation import PoseHistory
 from abyss.timing.rate import Rate
 
@@ -89,7 +88,7 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
     heartbeats = bus.subscribe("vessel", "heartbeat", Heartbeat, maxlen=4)
     rate = bus.loop("control", config.onboard.control_period_s)
     arm_joints, latest_joints = len(robot_of(config).arm_joints), None
-    ground = Ground(config, bus, core) if config.mavlink.enabled else None
+    ground = ground_of(config, bus, core) if config.mavlink.enabled else None
     while rate.sleep():
         for received in joints.drain():  # a vehicle's joints (a hybrid run's real one) may not fit the robot
             wrong = wrong_joints(received.message, arm_joints)
@@ -129,42 +128,6 @@ def _control_loop(config: Config, bus: Bus, core: Onboard, shared: Shared) -> No
         if out.telemetry is not None:
             bus.publish("telemetry", out.telemetry)
             bus.observe(keys.onboard_state_key(bus.system), out.telemetry)
-
-
-class Ground:
-    """The I/O shell of onboard's MAVLink side (mavlink.vehicle), with mavlink.enabled: the ground
-    stations' frames in, their commands to the core as an operator's, the core's answers and state
-    back out as MAVLink on each ground link."""
-
-    def __init__(self, config: Config, bus: Bus, core: Onboard) -> None:
-        from abyss.mavlink.vehicle import MavlinkVehicle, VehicleOutputs  # pymavlink's, only when asked
-
-        self.bus, self.core = bus, core
-        self.vehicle = MavlinkVehicle(config, bus.clock.now_s())
-        self.inbox = bus.subscribe("vessel", "mavlink/in", MavlinkFrames, maxlen=256)
-        self.outputs = VehicleOutputs
-        self.out = VehicleOutputs()
-
-    def take(self, now_s: float) -> list[Command]:
-        """The commands for the core the vehicle decided last period (the goal of its mode then),
-        and what the ground stations said since (answered this period)."""
-        decided = self.out.commands
-        self.out = out = self.outputs()
-        for received in self.inbox.drain():
-            for reason in self.vehicle.receive(received.message.link, received.message.data, now_s, out):
-                self.bus.reject(received.key, reason)
-        self.core.pilot_goals = set(self.vehicle.pilot_goals)
-        commands: list[Command] = [*decided]
-        return commands
-
-    def answer(self, core_out: OnboardOutputs, now_s: float) -> list[CommandAck]:
-        """The period's MAVLink out; the answers that are not the ground stations' returned."""
-        acks = self.vehicle.answered(core_out.acks)
-        self.vehicle.step(now_s, core_out.telemetry, core_out.estimates, self.out)
-        for link, data in self.out.frames.items():
-            if data:
-                self.bus.publish("mavlink/out", MavlinkFrames(link, bytes(data)))
-        return acks
 
 
 def _perception_loop(config: Config, bus: Bus, shared: Shared) -> None:

@@ -68,8 +68,10 @@ def run(config: Config, bus: Bus) -> None:
 def _display(config: Config, bus: Bus) -> None:
     record_dir = Path(config.onshore.record_dir) if config.onshore.record_dir else None
     history, events = (read_json_list(record_dir / name) if record_dir else [] for name in CARRIED_OVER)
-    # a restarted shore goes on with what it had; with a ground station, its mission is the one judged
-    operator = Operator(config.mission, history, events, ground_station=config.mavlink.enabled)
+    # a restarted shore goes on with what it had; with a ground station flying abyss's own vehicle,
+    # the station's mission is the one judged
+    ground_station = config.mavlink.enabled and not config.mavlink.autopilot  # with ArduSub: shore's mission
+    operator = Operator(config.mission, history, events, ground_station=ground_station)
     sinks = Sinks(config.onshore, bus.system)
     viewer = Viewer(sinks.recording, robot_of(config)) if sinks.recording is not None else None
     scene = Scene(bus, config.onshore.scene_request_period_s, viewer, config.onshore.viewer_scene_period_s)

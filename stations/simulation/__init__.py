@@ -35,6 +35,7 @@ from abyss.timing.clock import WALL, Holdback, SimClock
 from abyss.timing.lockstep import TICK_TOLERANCE_S, Lockstep
 
 if TYPE_CHECKING:
+    from abyss.stations.simulation.json_backend import JsonBackend
     from abyss.stations.simulation.offload import SensorKind
     from abyss.stations.simulation.twin import Twin
     from abyss.stations.simulation.world import World
@@ -70,7 +71,8 @@ def run(config: Config, bus: Bus) -> None:
     bus.about["physics"] = world.runs_in
     if sim.state_file and world.resume(Path(sim.state_file)):
         log.info("resumed at t=%.2f s from %s (a restart)", world.data.time, sim.state_file)
-    lock = threading.Lock()
+    backend = _autopilot_backend(config, world)
+    lock = backend.lock if backend is not None else threading.Lock()
     blackout: set[str] = set()
     bus.realtime = Realtime(sim.realtime_priority, why_not=_no_realtime(config))
     with Workers(bus.stop) as workers:
@@ -81,7 +83,48 @@ def run(config: Config, bus: Bus) -> None:
         for kind, rate_hz in sensors:
             if rate_hz > 0:
                 workers.start(kind, sensor_loop, config, bus, world, lock, blackout, kind, rate_hz)
-        _physics_loop(config, bus, world, lock, blackout)
+        if backend is None:
+            _physics_loop(config, bus, world, lock, blackout)
+            return
+        from abyss.stations.simulation.json_backend import serve
+
+        workers.start("ardupilot", serve, backend, "127.0.0.1", config.mavlink.json_port, bus.stop)
+        _autopilot_loop(config, bus, world, backend)
+
+
+def _autopilot_backend(config: Config, world: World) -> JsonBackend | None:
+    """With ArduSub as the autopilot (mavlink.autopilot), the JSON physics its frames step."""
+    if not config.mavlink.autopilot:
+        return None
+    from abyss.stations.simulation.json_backend import JsonBackend
+
+    backend = JsonBackend(world)
+    log.info("ArduSub flies the vehicle: its JSON physics on udp 127.0.0.1:%d", config.mavlink.json_port)
+    return backend
+
+
+def _autopilot_loop(config: Config, bus: Bus, world: World, backend: JsonBackend) -> None:
+    """ArduSub's frames step the physics (json_backend); this loop hands it onboard's arm and
+    gripper velocities and publishes the sensors, the truth and the status at the control period."""
+    from abyss.stations.simulation.world import references
+
+    sim = config.simulation
+    bus.subscribe("onboard", "cmd/vehicle_velocity", VelocityRef, maxlen=1)  # ArduSub's to fly
+    bus.subscribe("onboard", "nav/estimate", NavState, maxlen=1)
+    arm = bus.subscribe("onboard", "cmd/arm_velocity", ArmVelocityRef, maxlen=4)
+    keeper = Timekeeper(config, bus, world.data.time)
+    status_since = time.monotonic(), world.data.time
+    for step in itertools.count():
+        fresh = arm.fresh(sim.command_timeout_s)
+        backend.arm = references(None, fresh.message if fresh else None)
+        with backend.lock:  # ArduSub's frames step the world in the backend's thread
+            nav, truth, joints = world.nav(), world.truth(), world.joints()
+            panel = world.panel() if step % PANEL_EVERY == 0 else None
+        _publish(bus, nav, truth, joints, panel)
+        status_since = _report_status(bus, world, keeper, truth.sim_time_s, status_since)
+        if not keeper.rate.sleep():
+            break
+    keeper.close()
 
 
 def _no_realtime(config: Config) -> str:
@@ -140,7 +183,7 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
             world.step(refs, sim.control_period_s)
             truth, joints = world.truth(), world.joints()
             panel = world.panel() if step % PANEL_EVERY == 0 else None
-        _publish(bus, world, truth, joints, panel)
+        _publish(bus, world.nav(), truth, joints, panel)
         if sim.state_file and truth.sim_time_s - saved_s >= sim.state_period_s:
             with lock:
                 world.save_state(Path(sim.state_file))
@@ -152,10 +195,10 @@ def _physics_loop(config: Config, bus: Bus, world: World, lock: threading.Lock, 
     keeper.close()
 
 
-def _publish(bus: Bus, world: World, truth: NavState, joints: JointState, panel: PanelState | None) -> None:
+def _publish(bus: Bus, nav: NavState, truth: NavState, joints: JointState, panel: PanelState | None) -> None:
     """A control period's outputs: the navigation sensors' readings and the joints to onboard,
     the truth (and the panel's, when due) to the testbed."""
-    bus.publish("nav", world.nav())
+    bus.publish("nav", nav)
     bus.publish("joints", joints)
     if panel is not None:  # before the truth: the supervisor that has the truth has the panel's
         bus.observe(keys.panel_truth_key(bus.system), panel)

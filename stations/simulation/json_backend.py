@@ -15,6 +15,7 @@ import numpy as np
 from abyss.common.errors import BadInput
 from abyss.mavlink.geodesy import Geodesy
 from abyss.mavlink.sitl_json import FrameCounter, ServoPacket, frame_thrusters, state_line, thrusts_n
+from abyss.stations.simulation.lowlevel import References
 from abyss.stations.simulation.world import STATE, World
 
 log = logging.getLogger(__name__)
@@ -32,10 +33,16 @@ class JsonBackend:
         mujoco.mj_getState(world.model, world.data, self._start, STATE)
         self.frame_time_s = float(world.data.time)  # where ArduPilot's frames have brought the physics
         self.thrust_n = np.zeros(self._limits[2])
+        self.arm: References | None = None  # onboard's arm and gripper velocities, in a whole system
+        self.lock = threading.Lock()  # held while a frame steps (the station's loops read the world)
 
     def answer(self, data: bytes) -> bytes:
         """The state line for one servo packet (BadInput for anything else)."""
         packet = ServoPacket.parse(data)
+        with self.lock:
+            return self._answer(packet)
+
+    def _answer(self, packet: ServoPacket) -> bytes:
         taken = self.counter.take(packet.frame_count)
         w = self.world
         if taken == "restart":  # ArduPilot started again: so does the vehicle
@@ -49,7 +56,7 @@ class JsonBackend:
             dt = w.model.opt.timestep
             steps = round((self.frame_time_s - w.data.time) / dt)  # whole physics steps, tracking the frames'
             if steps > 0:
-                w.step_thrusts(self.thrust_n, steps * dt)
+                w.step_thrusts(self.thrust_n, steps * dt, self.arm)
         return self.state()
 
     def state(self) -> bytes:

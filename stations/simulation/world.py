@@ -144,10 +144,11 @@ class World:
             self._low_level(refs, dt * every)
             self.physics.step(self.water_mps_world, min(every, steps - start))
 
-    def step_thrusts(self, thrust_n: np.ndarray, period_s: float) -> None:
+    def step_thrusts(self, thrust_n: np.ndarray, period_s: float, arm: References | None = None) -> None:
         """Advance by `period_s` [s] with the thrusters commanded open loop, as an autopilot outside
-        drives them (ArduPilot's JSON backend: stations/simulation/json_backend.py), the arm held
-        where it is by its joints' servos; the dynamic low level only."""
+        drives them (ArduPilot's JSON backend: stations/simulation/json_backend.py), the arm and the
+        gripper at `arm`'s velocities by their joints' servos (held still without); the dynamic low
+        level only."""
         if not isinstance(self.controller, Dynamic):
             raise ConfigError(
                 "simulation.low_level", "kinematic: an autopilot's thrusts need the dynamic low level"
@@ -161,8 +162,8 @@ class World:
             self.current.advance(d.time)
             self.water_mps_world = self.current.velocity_mps_world(d.qpos[plant.qpos + 2])
             thrusters.apply(d, thrust_n, dt * every)
-            d.ctrl[plant.arm_motors] = 0.0  # velocity servos: held still
-            d.ctrl[plant.gripper_motors] = 0.0
+            d.ctrl[plant.arm_motors] = 0.0 if arm is None else arm.arm_radps  # velocity servos
+            d.ctrl[plant.gripper_motors] = 0.0 if arm is None else arm.gripper_mps
             self.physics.forces(self.water_mps_world)
             self.physics.step(self.water_mps_world, min(every, steps - start))
 

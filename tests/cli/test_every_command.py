@@ -51,6 +51,7 @@ WRONG = {
     ("terrain", "build"): (["no-such.ply", "--out", "terrain"], "no such file"),
     ("terrain", "cloud"): (["no-such-dir/seabed.ply"], "could not be written"),
     ("robot", "check"): (["no-such-robot"], "cannot read"),
+    ("sitl",): (["--robot", "no-such-robot"], "not a robot package"),
 }
 
 

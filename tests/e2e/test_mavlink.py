@@ -11,6 +11,7 @@ with a bound."""
 
 from __future__ import annotations
 
+import json
 import os
 import random
 import socket
@@ -30,6 +31,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from abyss.interface import keys
+from abyss.mavlink.sitl_json import ServoPacket
 
 pytestmark = pytest.mark.timeout(300)
 ROBOT = ROOT / "description" / "models" / "robots" / "bluerov2_heavy_alpha5"
@@ -197,12 +199,12 @@ def test_a_ground_station_flies_the_bluerov2_across_the_satellite_as_ardusub(tmp
             10.0,
             lambda m: m.custom_mode == 2 and m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
         )
-        time.sleep(6.0)  # the truth over a hold, at 20 Hz
-        assert depth_held(truth, 5.0) < 0.1, truth.since(5.0)[-1]
-        # the sticks: forward at 0.6, depth held
+        time.sleep(4.0)  # the truth over a hold, at 20 Hz
+        assert depth_held(truth, 3.0) < 0.1, truth.since(3.0)[-1]
+        # the sticks: forward at 0.8, depth held
         start = truth.since(0.1)[-1].position_m_world.copy()
-        gcs.sticks = [600, 0, 500, 0]
-        time.sleep(5.0)
+        gcs.sticks = [800, 0, 500, 0]
+        time.sleep(3.0)
         gcs.sticks = [0, 0, 500, 0]
         moved = truth.since(0.1)[-1].position_m_world - start
         assert np.hypot(*moved[:2]) > 0.3 and abs(moved[2]) < 0.15, moved
@@ -218,9 +220,9 @@ def test_a_ground_station_flies_the_bluerov2_across_the_satellite_as_ardusub(tmp
         )  # cleared, disarmed
         fuzz(shore_port)
         fuzz(vessel_port)
-        # a mission: two waypoints a metre on, flown in auto to the last
+        # a mission: two waypoints 0.6 m on, flown in auto to the last
         here = gcs.wait("GLOBAL_POSITION_INT", 10.0)
-        north, east = 1.0 / 111_000 * 1e7, 1.0 / 81_000 * 1e7  # a metre, in degE7, at 43 degrees
+        north, east = 0.6 / 111_000 * 1e7, 0.6 / 81_000 * 1e7  # 0.6 m, in degE7, at 43 degrees
         depth = here.relative_alt / 1000.0
         upload(gcs, [(here.lat, here.lon, 0.0), (round(here.lat + north), here.lon, depth),
                      (round(here.lat + north), round(here.lon + east), depth)])  # fmt: skip
@@ -288,3 +290,112 @@ def test_ardusub_arms_and_holds_depth_on_abysss_physics(tmp_path: Path) -> None:
         sitl.terminate()
         sitl.communicate(timeout=20)
         ardusub.communicate(timeout=20)
+
+
+def free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class ArduPilotFrames:
+    """ArduPilot's JSON side in its place (the physics' contract: tests/stations/simulation/
+    test_json_backend.py), paced to the wall clock at 50 frames a second with the motors neutral."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.settimeout(1.0)
+        self.port, self.count, self.timestamps = port, 0, [0.0]
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.wait(0.02):
+            self.count += 1
+            self.sock.sendto(ServoPacket(50, self.count, (1500,) * 16).pack(), ("127.0.0.1", self.port))
+            try:
+                line = self.sock.recvfrom(4096)[0]
+            except TimeoutError:  # the station not up yet: ArduPilot sends again
+                continue
+            self.timestamps.append(float(json.loads(line)["timestamp"]))
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.sock.close()
+
+
+def test_with_ardusub_as_the_autopilot_onboard_routes_its_mavlink_and_hands_it_the_missions_waypoints(
+    tmp_path: Path,
+) -> None:
+    """mavlink.autopilot: the simulation's physics stepped by ArduPilot's JSON frames (a client in
+    its place), onboard as the companion computer: a ground station on shore and ArduSub's MAVLink
+    (pymavlink in its place, serving TCP as ArduSub's SITL does) hear each other through the
+    satellite's emulator, and the mission's first waypoint reaches ArduSub as a guided target in
+    the site's north-east-down, ArduSub armed and put in GUIDED first."""
+    shore_port, vessel_port, json_port, autopilot_port = (
+        free_udp_port(),
+        free_udp_port(),
+        free_udp_port(),
+        free_tcp_port(),
+    )
+    autopilot: Any = mavutil.mavlink_connection(
+        f"tcpin:127.0.0.1:{autopilot_port}", source_system=1, source_component=1, dialect="ardupilotmega"
+    )
+    up = Up(
+        tmp_path / "run",
+        "--robot", str(ROBOT), "--system", "e2e-ardusub", "--time", "real", "--duration", "60",
+        "--viewer", "none", "--record", "none", "--keep-running",
+        "--set", "mavlink.enabled=true", "--set", f"mavlink.onshore_port={shore_port}",
+        "--set", f"mavlink.vessel_port={vessel_port}", "--set", f"mavlink.json_port={json_port}",
+        "--set", f"mavlink.autopilot=tcp:127.0.0.1:{autopilot_port}", "--set", "mission.interventions=[]",
+    )  # fmt: skip
+    frames = ArduPilotFrames(json_port)
+    gcs = None
+    try:
+        up.wait_up(90.0)
+        truth = Truth(up.endpoint, "e2e-ardusub")
+        gcs = GroundStation(f"udpout:127.0.0.1:{shore_port}")
+        wanted = {"SET_MODE", "COMMAND_LONG", "SET_POSITION_TARGET_LOCAL_NED", "HEARTBEAT"}
+        got: dict[str, Any] = {}
+        deadline = time.monotonic() + 40.0
+        while time.monotonic() < deadline and not wanted <= got.keys():
+            autopilot.mav.heartbeat_send(
+                mavlink.MAV_TYPE_SUBMARINE, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 19, 3
+            )
+            while (msg := autopilot.recv_msg()) is not None:
+                if msg.get_type() != "HEARTBEAT" or msg.get_srcSystem() == 255:  # the shore's, routed
+                    got.setdefault(msg.get_type(), msg)
+            time.sleep(0.2)
+        assert wanted <= got.keys(), got.keys()
+        assert (
+            got["SET_MODE"].custom_mode == 4
+            and got["COMMAND_LONG"].command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM
+        )
+        target = got["SET_POSITION_TARGET_LOCAL_NED"]
+        first = np.array(load_config_mission_first())
+        assert (target.x, target.y, target.z) == pytest.approx(
+            (first[1], first[0], -first[2]), abs=1e-3
+        )  # x east
+        beat = gcs.wait("HEARTBEAT", 15.0, lambda m: m.get_srcSystem() == 1 and m.custom_mode == 19)
+        assert beat.type == mavlink.MAV_TYPE_SUBMARINE  # ArduSub's, across the satellite
+        deadline = time.monotonic() + 20.0  # the frames step the physics, and the truth is of it
+        while time.monotonic() < deadline and truth.since(0.1)[-1].sim_time_s < 3.0:
+            time.sleep(0.2)
+        assert truth.since(0.1)[-1].sim_time_s >= 3.0
+        assert truth.since(0.1)[-1].sim_time_s == pytest.approx(frames.timestamps[-1], abs=0.5)
+        truth.close()
+        assert up.interrupt() in ("interrupted", "done")
+    finally:
+        frames.close()
+        if gcs is not None:
+            gcs.close()
+        autopilot.close()
+
+
+def load_config_mission_first() -> tuple[float, float, float, float]:
+    """The BlueROV2's package's mission's first waypoint [m, world], as the run flies it."""
+    from abyss.config import load
+
+    return load(None, [f"simulation.robot={ROBOT}"]).mission.waypoints[0]

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import re
 import socket
-import struct
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -21,7 +20,7 @@ import pytest
 
 from abyss.common.errors import ConfigError
 from abyss.description.robot import ROBOTS_DIR, robot_at
-from abyss.mavlink.sitl_json import MAGIC_16, VECTORED_6DOF, frame_thrusters
+from abyss.mavlink.sitl_json import VECTORED_6DOF, ServoPacket, frame_thrusters
 
 ROBOT = ROBOTS_DIR / "bluerov2_heavy_alpha5"
 RATE_HZ = 400
@@ -43,7 +42,7 @@ class ArduPilotSide:
     def frame(self, pwm: list[int], count: int | None = None) -> dict[str, object]:
         if count is None:
             self.count += 1
-        packet = struct.pack("<HHI16H", MAGIC_16, RATE_HZ, self.count if count is None else count, *pwm)
+        packet = ServoPacket(RATE_HZ, self.count if count is None else count, tuple(pwm)).pack()
         self.sock.sendto(packet, ("127.0.0.1", self.port))
         line = self.sock.recvfrom(4096)[0].decode()
         assert line.startswith("\n") and line.endswith("\n")  # preceded and terminated by a newline

@@ -58,18 +58,24 @@ class Companion:
         self.link.write(data)
         self.routed["in"] += 1
 
-    def from_autopilot(self) -> bytes:
-        """ArduSub's frames since the last call, whole (for every ground link)."""
-        frames = bytearray()
+    def from_autopilot(self, max_bytes: int) -> list[bytes]:
+        """ArduSub's frames since the last call, whole, in runs of at most `max_bytes` (one
+        message each, for every ground link)."""
+        runs, run = [], bytearray()
         while (msg := self.link.recv_msg()) is not None:
             if msg.get_type() == "BAD_DATA":
                 continue
             if msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1:
                 self.heartbeat = msg
-            frames += msg.get_msgbuf()
-        if frames:
-            self.routed["out"] += 1
-        return bytes(frames)
+            frame = msg.get_msgbuf()
+            if len(run) + len(frame) > max_bytes:
+                runs.append(bytes(run))
+                run = bytearray()
+            run += frame
+        if run:
+            runs.append(bytes(run))
+        self.routed["out"] += len(runs)
+        return runs
 
     def hand(self, goal: Goal, now_s: float) -> None:
         """Onboard's goal to ArduSub: armed, in GUIDED, flying to the waypoint; sent when it changes

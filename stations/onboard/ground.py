@@ -9,7 +9,7 @@ from typing import Protocol
 
 from abyss.bus.session import Bus, Inbox
 from abyss.config import Config
-from abyss.interface.messages import GROUND_LINKS, CommandAck, MavlinkFrames
+from abyss.interface.messages import GROUND_LINKS, MAVLINK_FRAMES_MAX_BYTES, CommandAck, MavlinkFrames
 from abyss.stations.onboard.core import Command, Onboard, OnboardOutputs
 from abyss.stations.onboard.modes import ControlMode
 
@@ -81,9 +81,9 @@ class AsCompanion:
     def answer(self, core_out: OnboardOutputs, now_s: float) -> list[CommandAck]:
         from abyss.mavlink.companion import Goal
 
-        data = self.companion.from_autopilot()
-        for link in GROUND_LINKS if data else ():
-            self.bus.publish("mavlink/out", MavlinkFrames(link, data[: 64 * 2**10]))
+        for run in self.companion.from_autopilot(MAVLINK_FRAMES_MAX_BYTES):
+            for link in GROUND_LINKS:
+                self.bus.publish("mavlink/out", MavlinkFrames(link, run))
         vehicle = self.core.vehicle
         waypoint = (
             vehicle.waypoints[min(vehicle.index, len(vehicle.waypoints) - 1)]

@@ -6,6 +6,7 @@ the rates it goes at on a link; a high-latency link gets HIGH_LATENCY2 alone, ev
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -197,18 +198,21 @@ def high_latency2(r: Report, g: Geodesy) -> mavlink.MAVLink_message:
     )
 
 
+# each stream's message from the report and the site's frame, built by name (RATES_HZ's and HIGH_LATENCY2)
+BUILDERS: dict[str, Callable[[Report, Geodesy], mavlink.MAVLink_message | None]] = {
+    "HEARTBEAT": lambda r, g: heartbeat(r),
+    "SYS_STATUS": lambda r, g: sys_status(r),
+    "ATTITUDE": attitude,
+    "GLOBAL_POSITION_INT": global_position_int,
+    "LOCAL_POSITION_NED": local_position_ned,
+    "VFR_HUD": vfr_hud,
+    "SCALED_PRESSURE": lambda r, g: scaled_pressure(r),
+    "SCALED_PRESSURE2": lambda r, g: scaled_pressure2(r),
+    "MISSION_CURRENT": lambda r, g: mission_current(r),
+    "HIGH_LATENCY2": high_latency2,
+}
+
+
 def stream(name: str, r: Report, g: Geodesy) -> mavlink.MAVLink_message | None:
     """The message `name` of RATES_HZ now; None where there is nothing to say yet."""
-    built = {
-        "HEARTBEAT": lambda: heartbeat(r),
-        "SYS_STATUS": lambda: sys_status(r),
-        "ATTITUDE": lambda: attitude(r, g),
-        "GLOBAL_POSITION_INT": lambda: global_position_int(r, g),
-        "LOCAL_POSITION_NED": lambda: local_position_ned(r, g),
-        "VFR_HUD": lambda: vfr_hud(r, g),
-        "SCALED_PRESSURE": lambda: scaled_pressure(r),
-        "SCALED_PRESSURE2": lambda: scaled_pressure2(r),
-        "MISSION_CURRENT": lambda: mission_current(r),
-        "HIGH_LATENCY2": lambda: high_latency2(r, g),
-    }
-    return built[name]()
+    return BUILDERS[name](r, g)

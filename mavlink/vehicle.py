@@ -86,6 +86,7 @@ class MavlinkVehicle:
         self.boot_s = now_s
         self.mode, self.armed = ardusub.BOOT_MODE, False
         self.mission = Mission()
+        self.upload_link = "tether"  # where the mission in upload comes from
         self.flown_mission = -1  # the mission version flown in auto
         self.mission_seqs: list[int] = []
         self.gcs_seen_s: float | None = None
@@ -145,6 +146,8 @@ class MavlinkVehicle:
         elif kind.startswith("PARAM_"):
             self._say_all(link, self.params.handle(msg), out)
         elif kind.startswith("MISSION_"):
+            if kind == "MISSION_COUNT":
+                self.upload_link = link
             self._say_all(link, self.mission.handle(msg, now_s), out)
 
     def _say_all(
@@ -246,9 +249,9 @@ class MavlinkVehicle:
         self._failsafes(now_s)
         self._goals(out)
         self._progress()
+        for msg in self.mission.tick(now_s):  # an upload's item asked again, on its uploader's link
+            self._send(self.upload_link, msg, out)
         for link in GROUND_LINKS:
-            for msg in self.mission.tick(now_s):
-                self._send(link, msg, out)
             self._streams(link, now_s, out)
             for msg in self.broadcast:
                 self._send(link, msg, out)

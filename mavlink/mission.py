@@ -67,10 +67,6 @@ class Mission:
         self._peer = (0, 0)  # who uploads
         self._asked_s = self._heard_s = 0.0
 
-    @property
-    def uploading(self) -> bool:
-        return self._upload is not None
-
     def waypoints(self, g: Geodesy, yaw_rad: float) -> tuple[list[int], np.ndarray]:
         """The items flown from the current one (their seqs) and their rows of x, y, z [m, world],
         yaw [rad]: a waypoint's yaw (param4, degrees from north) where it gives one, else the one

@@ -37,6 +37,7 @@ REALTIME = {
     "test_compose_up.py": "stations in containers over real links",
     "test_replay.py": "a replay paces a recording on the wall clock",
     "test_export_mcap.py": "reads the replays' recorded run (a real-time run)",
+    "test_mavlink.py": "a ground station keeps the wall clock (MAVLink refuses another time mode)",
     "test_up.py": "`abyss up` as a newcomer runs it (real time) and its stop, kill and Ctrl-C in wall time",
     "test_control.py::test_failsafe_holds_station_through_a_tether_outage_and_resumes": (
         "an operator changes the link from outside, in wall time"

@@ -45,7 +45,8 @@ class Tcp:
       above, not by a timeout;
     - keeps one retransmission timer (RFC 6298), restarted whenever the oldest packet is
       acknowledged: when it fires, every packet in flight is taken for lost, the window
-      falls to one packet and the timer backs off;
+      falls to one packet and the timer backs off, until a round trip is measured again
+      (timestamps: from a retransmission's acknowledgement too);
     - counts its window in whole packets, grows it only while it limits the sending, and
       after an idle spell of more than a timeout starts again from at most the initial window.
     """
@@ -261,7 +262,10 @@ class Tcp:
         """Segment `seq` reached the receiver: `transmission` of it, when the acknowledgement says."""
         packet = self.unacked.pop(seq)
         sent_s = self.sent_s.pop(seq)
-        if transmission == packet.transmission == 0:  # Karn: no sample from retransmissions
+        # the acknowledgement echoes the transmission it answers (TCP timestamps, on in Linux by
+        # default: RFC 7323's RTTM): a retransmission's round trip is measured too, and the first
+        # after an outage ends the timer's backoff, as Linux's icsk_backoff ends
+        if transmission == packet.transmission:
             self._rtt_sample(t_s - sent_s)
         # RACK needs the send time of what arrived: known unless it was sent more than once
         known = transmission == packet.transmission if transmission is not None else packet.transmission == 0

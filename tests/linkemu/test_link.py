@@ -308,6 +308,26 @@ def test_tcp_window_restarts_after_an_idle_spell() -> None:
     assert lnk.transport.gauges()["cwnd_packets"] <= 11
 
 
+def test_tcp_timer_backs_off_over_an_outage_and_its_first_acknowledgement_after_ends_the_backoff() -> None:
+    """Linux with timestamps: the round trip of a retransmission is measured, so that the RTO is
+    the link's again at once (Karn's rule alone would keep it backed off until new data)."""
+    lnk = link(rate="1mbit", delay="150ms", transport="tcp")
+    drive(lnk, numbered(20, size=100, gap_s=0.1))
+    tcp = lnk.transport
+    normal_s = tcp.rto_s
+    lnk.reconfigure(lnk.profile.with_fields({"loss": "100%"}))
+    lnk.offer(2.0, bytes(100))
+    lnk.advance(12.0)  # down for 10 s: five timeouts
+    assert lnk.counters["timeouts"] >= 4 and tcp.rto_s > 8 * normal_s
+    lnk.reconfigure(lnk.profile.with_fields({"loss": "0%"}))
+    out: list = []
+    while not out:  # the next retransmission comes through
+        out = lnk.advance(lnk.next_event_s())  # type: ignore[arg-type]
+    while tcp.unacked:  # and is acknowledged
+        lnk.advance(lnk.next_event_s())  # type: ignore[arg-type]
+    assert tcp.rto_s == pytest.approx(normal_s, rel=0.5)
+
+
 def test_loss_throttles_tcp() -> None:
     clean = Link(profile("tether"))
     lossy = Link(profile("tether", {"loss": "2%"}))

@@ -11,8 +11,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import shutil
 import sys
 import tempfile
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
@@ -73,25 +75,29 @@ echo "== tcp"; {sys.executable} -P {HERE}/netem_tcp.py {TCP_SEEDS} 2>{here}/tcp.
 
 
 _boot: Future[str] | None = None
+_here: Path | None = None  # the boot's folder: its script, the guest's output
 
 
 def begin() -> None:
     """Boot UML now, in the background: the suite's conftest calls this as collection ends, so
     that UML's minutes (mostly pings and paced TCP, waiting) pass beside the unit tests."""
-    global _boot
+    global _boot, _here
     if _boot is None and not uml.why_not():
-        here = Path(tempfile.mkdtemp(prefix="abyss-uml-"))
-        _boot = ThreadPoolExecutor(1, thread_name_prefix="uml").submit(uml.boot, script(here), here)
+        _here = Path(tempfile.mkdtemp(prefix="abyss-uml-"))
+        _boot = ThreadPoolExecutor(1, thread_name_prefix="uml").submit(uml.boot, script(_here), _here)
 
 
 @pytest.fixture(scope="module")
-def inside() -> str:
+def inside() -> Iterator[str]:
     why = uml.why_not()
     if why:
         pytest.skip(why)
     begin()
-    assert _boot is not None
-    return _boot.result(timeout=400)
+    assert _boot is not None and _here is not None
+    try:
+        yield _boot.result(timeout=400)
+    finally:
+        shutil.rmtree(_here, ignore_errors=True)
 
 
 def section(text: str, name: str) -> str:

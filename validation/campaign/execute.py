@@ -32,6 +32,7 @@ from abyss.validation.campaign.version import abyss_version
 from abyss.validation.scenario import capacity
 from abyss.validation.scenario.runner import run_scenario
 
+SCRATCH_PREFIX = "abyss-run-"  # a run's scratch folder: this, its worker's pid, a dash
 PROGRESS_WALL_S = 10.0  # a line of progress at least this often
 TASK_RETRIES = 3  # a run whose worker or node dies is run again, this many times at most
 CONNECT_TIMEOUT_S = 30.0
@@ -74,10 +75,33 @@ def run_one(spec: RunSpec, keep: str, driver_version: str) -> Outcome:
     # stop its stations (they stop on SIGINT). Unblocked for the run, as in a shell.
     blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     try:
-        with tempfile.TemporaryDirectory(prefix="abyss-run-") as scratch:
+        sweep_scratch()
+        with tempfile.TemporaryDirectory(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-") as scratch:
             return _run(spec, keep, Path(scratch))
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def sweep_scratch() -> list[Path]:
+    """Remove the scratch folders of runs whose worker is gone from this node (killed mid-run: a
+    node lost, a shard stopped, Ray's retry) and so never removed its own; those removed."""
+    swept = []
+    for scratch in Path(tempfile.gettempdir()).glob(f"{SCRATCH_PREFIX}*-*"):
+        pid = scratch.name.removeprefix(SCRATCH_PREFIX).split("-", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(scratch, ignore_errors=True)
+            swept.append(scratch)
+    return swept
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's
+        return True
+    return True
 
 
 def _run(spec: RunSpec, keep: str, scratch: Path) -> Outcome:

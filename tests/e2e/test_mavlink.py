@@ -33,10 +33,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from abyss.interface import keys
 from abyss.mavlink.sitl_json import ServoPacket
 
-pytestmark = pytest.mark.timeout(360)
-# the longest the satellite's TCP takes to carry traffic again after a short outage: its timer's
-# backoff with three retransmissions in a row lost (linkemu/transport/tcp.py)
-RECOVERY_S = 120.0
+pytestmark = pytest.mark.timeout(420)
+OUTAGE_S = 10.0
+# The longest the satellite's TCP (the link model's transport, linkemu/transport/tcp.py) takes to
+# carry traffic again after the outage: its retransmission timer backs off over the outage
+# (firing at about 0.7, 2, 5, 10.5, 22, 44, 89, 178 s from its start), the first after the
+# restore goes through nine times in ten (the satellite's 5 % loss, each way), and each lost
+# doubles the wait: about 1-12 s, and within the bound with four lost in a row (one in ten
+# thousand). In 300 outages simulated on the model: median 8 s, 99th percentile 34 s, most 132 s.
+RECOVERY_S = 180.0
 ROBOT = ROOT / "description" / "models" / "robots" / "bluerov2_heavy_alpha5"
 SYSTEM = "e2e-mavlink"
 
@@ -226,14 +231,13 @@ def test_a_ground_station_flies_the_bluerov2_across_the_satellite_as_ardusub(tmp
         assert np.hypot(*moved[:2]) > 0.3 and abs(moved[1]) < 0.1, moved  # forward: the site's x
         # the satellite down for 10 s: the GCS failsafe, seen from the vessel's side
         assert abyss("link", "set", "satellite", "--profile", "outage", *link).returncode == 0
-        watcher.wait_for("AP: MYGCS: 255, heartbeat lost", 15.0)
+        down_s = time.monotonic()
+        watcher.wait_for("AP: MYGCS: 255, heartbeat lost", 10.0)
         watcher.wait_for("DISARMED", 5.0)
         watcher.wait_for("Received 10 parameters", 5.0)  # it read them at the start, as it does
+        time.sleep(max(0.0, down_s + OUTAGE_S - time.monotonic()))  # the outage's length: a script's
         assert abyss("link", "set", "satellite", "--profile", "satellite", *link).returncode == 0
-        # cleared, disarmed. The satellite's TCP (the link model's transport) comes back on its
-        # retransmission timer, backed off over the outage (about 6 s): 4-11 s after the restore,
-        # and each retransmission lost on the way (a tenth: the satellite's loss, both ways)
-        # doubles the wait; three in a row (one in a thousand) still come within the bound
+        # cleared, disarmed, once the satellite's TCP carries traffic again both ways
         gcs.wait("HEARTBEAT", RECOVERY_S, lambda m: m.system_status == mavlink.MAV_STATE_STANDBY)
         fuzz(shore_port)
         fuzz(vessel_port)

@@ -51,8 +51,7 @@ class AsVehicle:
             for reason in self.vehicle.receive(received.message.link, received.message.data, now_s, out):
                 self.bus.reject(received.key, reason)
         self.core.pilot_goals = set(self.vehicle.pilot_goals)
-        commands: list[Command] = [*decided]
-        return commands
+        return [*decided]  # widened to the core's commands
 
     def answer(self, core_out: OnboardOutputs, now_s: float) -> list[CommandAck]:
         acks = self.vehicle.answered(core_out.acks)
@@ -68,10 +67,11 @@ class AsCompanion:
     handed to it."""
 
     def __init__(self, config: Config, bus: Bus, core: Onboard, inbox: Inbox[MavlinkFrames]) -> None:
-        from abyss.mavlink.companion import Companion  # pymavlink's, only when asked
+        from abyss.mavlink.companion import Companion, Goal  # pymavlink's, only when asked
 
         self.bus, self.core, self.inbox = bus, core, inbox
         self.companion = Companion(config)
+        self.goal = Goal
 
     def take(self, now_s: float) -> list[Command]:
         for received in self.inbox.drain():
@@ -79,8 +79,6 @@ class AsCompanion:
         return []
 
     def answer(self, core_out: OnboardOutputs, now_s: float) -> list[CommandAck]:
-        from abyss.mavlink.companion import Goal
-
         for run in self.companion.from_autopilot(MAVLINK_FRAMES_MAX_BYTES):
             for link in GROUND_LINKS:
                 self.bus.publish("mavlink/out", MavlinkFrames(link, run))
@@ -90,5 +88,5 @@ class AsCompanion:
             if len(vehicle.waypoints)
             else None
         )
-        self.companion.hand(Goal(self.core.operator_mode == ControlMode.AUTO, waypoint), now_s)
+        self.companion.hand(self.goal(self.core.operator_mode == ControlMode.AUTO, waypoint), now_s)
         return core_out.acks

@@ -15,7 +15,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     import numpy as np
 
     from abyss.config import load
-    from abyss.stations.simulation.json_backend import JsonBackend, serve
+    from abyss.stations.simulation.json_backend import JsonBackend, bind, serve
     from abyss.stations.simulation.world import World
 
     overrides = [*args.set]
@@ -25,6 +25,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
         overrides.append(f"simulation.site={args.site}")
     config = load(args.config, overrides)
     backend = JsonBackend(World(config.simulation, np.random.default_rng(config.seed)))
+    sock = bind(args.host, args.port, "--port")
     logging.basicConfig(level=logging.INFO, format="abyss: %(message)s")
     print(
         f"abyss: {backend.world.robot.name} on {backend.world.site.name} as ArduPilot's JSON physics on "
@@ -41,7 +42,7 @@ def cmd_sitl(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    serve(backend, args.host, args.port, stop)
+    serve(backend, sock, stop)
     c = backend.counter
     print(f"abyss: sitl: {c.last or 0} frames, {c.lost} lost, {c.resent} resent, {c.restarts} restarts")
     return 0

@@ -86,9 +86,10 @@ def run(config: Config, bus: Bus) -> None:
         if backend is None:
             _physics_loop(config, bus, world, lock, blackout)
             return
-        from abyss.stations.simulation.json_backend import serve
+        from abyss.stations.simulation.json_backend import bind, serve
 
-        workers.start("ardupilot", serve, backend, "127.0.0.1", config.mavlink.json_port, bus.stop)
+        sock = bind("127.0.0.1", config.mavlink.json_port, "mavlink.json_port")
+        workers.start("ardupilot", serve, backend, sock, bus.stop)
         _autopilot_loop(config, bus, world, backend)
 
 

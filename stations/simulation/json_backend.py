@@ -12,7 +12,7 @@ import threading
 import mujoco
 import numpy as np
 
-from abyss.common.errors import BadInput
+from abyss.common.errors import BadInput, ConfigError
 from abyss.mavlink.geodesy import Geodesy
 from abyss.mavlink.sitl_json import FrameCounter, ServoPacket, frame_thrusters, state_line, thrusts_n
 from abyss.stations.simulation.lowlevel import References
@@ -73,12 +73,24 @@ class JsonBackend:
         )
 
 
-def serve(backend: JsonBackend, host: str, port: int, stop: threading.Event) -> None:
-    """Answer each servo packet on UDP `host:port` to its sender, until `stop`; what is not one is
-    dropped, counted and logged."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+def bind(host: str, port: int, field: str) -> socket.socket:
+    """The backend's UDP socket, bound before anything says it serves (an ArduPilot started on
+    that word loses no first frame); a port taken is a ConfigError naming `field`."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
         sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ConfigError(field, f"cannot serve UDP {host}:{port}: {exc}") from None
+    return sock
+
+
+def serve(backend: JsonBackend, sock: socket.socket, stop: threading.Event) -> None:
+    """Answer each servo packet on the bound `sock` to its sender, until `stop`; what is not one
+    is dropped, counted and logged."""
+    with sock:
         sock.settimeout(0.1)
+        host, port = sock.getsockname()
         log.info("ArduPilot's JSON physics on udp %s:%d (%s)", host, port, backend.world.robot.name)
         dropped = 0
         while not stop.is_set():
